@@ -1,0 +1,46 @@
+//! Body geometry for the contact formulations (spec `formulation.md` §4.3,
+//! `scenarios.md` A–C).
+//!
+//! - [`ConvexHull`]: the H-representation (merged faces) of Conv(F), whose
+//!   faces give the constraints `f_i` of the closest-point problem;
+//! - [`Shape`]: a body as a union of convex pieces in its body frame (origin
+//!   at the centre of mass), possibly non-convex, with the scenario bodies;
+//! - [`MassProperties`]: validated mass and body-frame inertia;
+//! - [`HalfSpace`], [`contact_mode`], [`min_gap`]: the fixed half-space G and
+//!   the state-only queries on it.
+//!
+//! All public types use nalgebra; parry3d-f64 (glam based) is used only
+//! inside [`ConvexHull::from_points`].
+
+mod error;
+mod hull;
+mod mass;
+mod plane;
+mod shape;
+
+pub use error::GeometryError;
+pub use hull::{ConvexHull, Face};
+pub use mass::MassProperties;
+pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+pub use shape::{ConvexPiece, Shape};
+
+/// Distance below which two vertices are treated as the same point (m).
+///
+/// Shapes built from touching pieces (the desk's legs under its top) share
+/// corners up to rounding; see [`Shape::vertices`].
+pub const VERTEX_MERGE_TOL: f64 = 1e-12;
+
+/// Relative thickness (thickness / diameter) below which a point set is
+/// rejected as flat by [`ConvexHull::from_points`].
+pub const FLATNESS_TOL: f64 = 1e-9;
+
+/// Removes points closer than `tol` to an earlier point, keeping first occurrences.
+fn dedupe_points(points: &[nalgebra::Vector3<f64>], tol: f64) -> Vec<nalgebra::Vector3<f64>> {
+    let mut out: Vec<nalgebra::Vector3<f64>> = Vec::with_capacity(points.len());
+    for p in points {
+        if !out.iter().any(|q| (q - p).norm() <= tol) {
+            out.push(*p);
+        }
+    }
+    out
+}

@@ -1,0 +1,335 @@
+//! The fixed half-space G and state-only queries against it: gap, contact
+//! frame and contact mode (spec §4.1, §4.3, §8; scenario C).
+
+use std::fmt;
+
+use nalgebra::{Matrix3, Vector3};
+
+use super::{GeometryError, VERTEX_MERGE_TOL, dedupe_points};
+
+/// A fixed obstacle G = { p : normal·p − offset ≤ 0 } (spec §4.3,
+/// `g(p) = n_Gᵀ p − c`). The unit normal points out of G, into the body's side.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct HalfSpace {
+    normal: Vector3<f64>,
+    offset: f64,
+}
+
+impl HalfSpace {
+    /// Half-space `{ p : normal·p ≤ offset }`. The normal need not be unit:
+    /// both `normal` and `offset` are divided by `|normal|`, which keeps the set
+    /// and makes `g` a signed distance. Zero or non-finite input is an error.
+    pub fn new(normal: Vector3<f64>, offset: f64) -> Result<Self, GeometryError> {
+        if !(normal.iter().all(|c| c.is_finite()) && offset.is_finite()) {
+            return Err(GeometryError::NonFinite {
+                what: "the normal or offset of a half-space".into(),
+            });
+        }
+        let len = normal.norm();
+        if len == 0.0 {
+            return Err(GeometryError::ZeroNormal);
+        }
+        Ok(HalfSpace {
+            normal: normal / len,
+            offset: offset / len,
+        })
+    }
+
+    /// The flat ground z ≤ 0: normal `e_z`, offset 0 (spec §4.3).
+    pub fn ground() -> Self {
+        HalfSpace {
+            normal: Vector3::z(),
+            offset: 0.0,
+        }
+    }
+
+    /// The incline of scenario A4 through the origin, rising towards +x:
+    /// normal `(−sin θ, 0, cos θ)` for `theta_rad` = θ. Errors on non-finite θ.
+    pub fn incline(theta_rad: f64) -> Result<Self, GeometryError> {
+        if !theta_rad.is_finite() {
+            return Err(GeometryError::NonFinite {
+                what: "the incline angle".into(),
+            });
+        }
+        let (s, c) = theta_rad.sin_cos();
+        Ok(HalfSpace {
+            normal: Vector3::new(-s, 0.0, c),
+            offset: 0.0,
+        })
+    }
+
+    /// Unit normal `n_G` (= `∇g`), pointing from G into the body's side.
+    pub fn normal(&self) -> Vector3<f64> {
+        self.normal
+    }
+
+    /// Offset `c` in `g(p) = n_G·p − c`.
+    pub fn offset(&self) -> f64 {
+        self.offset
+    }
+
+    /// `g(p) = n_G·p − c`: the signed distance of `p` to the plane, > 0 outside G.
+    pub fn value(&self, p: &Vector3<f64>) -> f64 {
+        self.normal.dot(p) - self.offset
+    }
+
+    /// Orthogonal projection of `p` onto the plane `g = 0` (the warm start of
+    /// `a2`, spec §5).
+    pub fn project(&self, p: &Vector3<f64>) -> Vector3<f64> {
+        p - self.normal * self.value(p)
+    }
+
+    /// Right-handed contact frame `(n, t, o)` for the wrenches of spec §4.1:
+    /// `n` = the normal; `t` = `e_x` projected onto the plane and normalised
+    /// (`e_y` if `|e_x·n| > 0.9`); `o = n × t`. Ground: `(e_z, e_x, e_y)`;
+    /// incline θ: `t = (cos θ, 0, sin θ)` (up the slope), `o = e_y`.
+    pub fn contact_frame(&self) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let n = self.normal;
+        let seed = if n.x.abs() > 0.9 {
+            Vector3::y()
+        } else {
+            Vector3::x()
+        };
+        let t = (seed - n * n.dot(&seed)).normalize();
+        let o = n.cross(&t);
+        (n, t, o)
+    }
+}
+
+/// Contact mode of a body against a plane, from the state alone (scenario C).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum ContactMode {
+    /// Three or more touching vertices, not collinear (surface contact).
+    Patch,
+    /// Two touching vertices, or more all on one line (edge / two-point contact).
+    Line,
+    /// One touching vertex.
+    Point,
+    /// No vertex touches.
+    None,
+}
+
+impl ContactMode {
+    /// Lower-case name as written to result files: "patch", "line", "point", "none".
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            ContactMode::Patch => "patch",
+            ContactMode::Line => "line",
+            ContactMode::Point => "point",
+            ContactMode::None => "none",
+        }
+    }
+}
+
+impl fmt::Display for ContactMode {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Classifies the contact of a body with `plane` from its world-frame
+/// vertices (those of the real, non-convex body; scenario C uses tol = 1e-7).
+///
+/// A vertex touches when `g ≤ tol` (penetrating vertices count too).
+/// Coincident vertices are merged first. Touching vertices that all lie within
+/// `tol` of one point give `Point`; within `tol` of one line, `Line`;
+/// otherwise `Patch`.
+pub fn contact_mode(world_vertices: &[Vector3<f64>], plane: &HalfSpace, tol: f64) -> ContactMode {
+    let touching: Vec<Vector3<f64>> = world_vertices
+        .iter()
+        .filter(|p| plane.value(p) <= tol)
+        .copied()
+        .collect();
+    let touching = dedupe_points(&touching, VERTEX_MERGE_TOL);
+    let Some(p0) = touching.first().copied() else {
+        return ContactMode::None;
+    };
+    let far = |f: &dyn Fn(&Vector3<f64>) -> f64| {
+        touching.iter().map(|p| (*p, f(p))).fold(
+            (p0, 0.0),
+            |best, cur| if cur.1 > best.1 { cur } else { best },
+        )
+    };
+    let (p1, spread) = far(&|p| (p - p0).norm());
+    if spread <= tol {
+        return ContactMode::Point;
+    }
+    let u = (p1 - p0) / spread;
+    let (_, off_line) = far(&|p| {
+        let r = p - p0;
+        (r - u * u.dot(&r)).norm()
+    });
+    if off_line <= tol {
+        ContactMode::Line
+    } else {
+        ContactMode::Patch
+    }
+}
+
+/// World-frame positions `x + R v` of body-frame vertices `v`, for a body at
+/// CM position `x` with rotation `r` (body → world).
+pub fn world_vertices(
+    body_vertices: &[Vector3<f64>],
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+) -> Vec<Vector3<f64>> {
+    body_vertices.iter().map(|v| x + r * v).collect()
+}
+
+/// Minimum gap `min_v g(x + R v)` over body-frame vertices (spec §8: it must
+/// stay ≥ −1e-9 at every step end). `+∞` for an empty vertex list.
+pub fn min_gap(
+    shape_vertices_body: &[Vector3<f64>],
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+    plane: &HalfSpace,
+) -> f64 {
+    shape_vertices_body
+        .iter()
+        .map(|v| plane.value(&(x + r * v)))
+        .fold(f64::INFINITY, f64::min)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geometry::Shape;
+    use crate::rotation::{quat_from_rpy_deg, rotation_matrix};
+
+    const TOL: f64 = 1e-7;
+
+    /// Mode of `shape` at orientation (roll, pitch, yaw) in degrees, lowered
+    /// onto the ground (min gap 0) and then lifted by `lift`.
+    fn mode(shape: &Shape, rpy: (f64, f64, f64), lift: f64) -> ContactMode {
+        let r = rotation_matrix(&quat_from_rpy_deg(rpy.0, rpy.1, rpy.2));
+        let ground = HalfSpace::ground();
+        let gap = min_gap(shape.vertices(), &Vector3::zeros(), &r, &ground);
+        let x = Vector3::new(0.3, -0.1, lift - gap);
+        assert!((min_gap(shape.vertices(), &x, &r, &ground) - lift).abs() < 1e-15);
+        contact_mode(&world_vertices(shape.vertices(), &x, &r), &ground, TOL)
+    }
+
+    #[test]
+    fn box_modes() {
+        let b = Shape::cuboid(0.4, 0.4, 0.2).unwrap();
+        assert_eq!(mode(&b, (0.0, 0.0, 37.0), 0.0), ContactMode::Patch);
+        assert_eq!(mode(&b, (0.0, 0.0, 0.0), 5e-8), ContactMode::Patch);
+        assert_eq!(mode(&b, (0.0, 0.0, 0.0), -1e-3), ContactMode::Patch);
+        assert_eq!(mode(&b, (0.0, 30.0, 10.0), 0.0), ContactMode::Line);
+        assert_eq!(mode(&b, (20.0, 10.0, 0.0), 0.0), ContactMode::Point);
+        assert_eq!(mode(&b, (0.0, 0.0, 0.0), 1e-3), ContactMode::None);
+        assert_eq!(mode(&b, (20.0, 10.0, 0.0), 2e-7), ContactMode::None);
+    }
+
+    #[test]
+    fn desk_and_t_bar_modes() {
+        let desk = Shape::desk();
+        let r = Matrix3::identity();
+        let x = Vector3::new(0.0, 0.0, 0.45);
+        let world = world_vertices(desk.vertices(), &x, &r);
+        let touching = world.iter().filter(|p| p.z.abs() <= TOL).count();
+        assert_eq!(touching, 16);
+        assert_eq!(
+            contact_mode(&world, &HalfSpace::ground(), TOL),
+            ContactMode::Patch
+        );
+        // Tilted onto two feet: their outer edges are collinear.
+        assert_eq!(mode(&desk, (5.0, 0.0, 0.0), 0.0), ContactMode::Line);
+        assert_eq!(mode(&desk, (5.0, 3.0, 0.0), 0.0), ContactMode::Point);
+
+        let t = Shape::t_bar();
+        assert_eq!(mode(&t, (0.0, 0.0, 0.0), 0.0), ContactMode::Patch);
+        // Rolled about x: two corners of the crossbar's end touch.
+        assert_eq!(mode(&t, (10.0, 0.0, 0.0), 0.0), ContactMode::Line);
+        // Pitched about y: the crossbar's outer bottom edge or the stem tip's edge.
+        assert_eq!(mode(&t, (0.0, 10.0, 0.0), 0.0), ContactMode::Line);
+        assert_eq!(mode(&t, (0.0, -10.0, 0.0), 0.0), ContactMode::Line);
+        assert_eq!(mode(&t, (5.0, 10.0, 0.0), 0.0), ContactMode::Point);
+    }
+
+    #[test]
+    fn mode_names() {
+        let names: Vec<_> = [
+            ContactMode::Patch,
+            ContactMode::Line,
+            ContactMode::Point,
+            ContactMode::None,
+        ]
+        .iter()
+        .map(|m| m.to_string())
+        .collect();
+        assert_eq!(names, ["patch", "line", "point", "none"]);
+    }
+
+    #[test]
+    fn coincident_vertices_are_one_point() {
+        let p = Vector3::new(0.1, 0.2, 0.0);
+        let v = [
+            p,
+            p,
+            p + Vector3::new(1e-9, 0.0, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+        ];
+        assert_eq!(
+            contact_mode(&v, &HalfSpace::ground(), TOL),
+            ContactMode::Point
+        );
+        assert_eq!(
+            contact_mode(&[], &HalfSpace::ground(), TOL),
+            ContactMode::None
+        );
+        assert_eq!(
+            min_gap(&[], &p, &Matrix3::identity(), &HalfSpace::ground()),
+            f64::INFINITY
+        );
+    }
+
+    #[test]
+    fn ground_frame() {
+        let (n, t, o) = HalfSpace::ground().contact_frame();
+        assert_eq!((n, t, o), (Vector3::z(), Vector3::x(), Vector3::y()));
+    }
+
+    #[test]
+    fn incline_frame_and_resting_box() {
+        let th = 25f64.to_radians();
+        let g = HalfSpace::incline(th).unwrap();
+        let (n, t, o) = g.contact_frame();
+        assert!((n - Vector3::new(-th.sin(), 0.0, th.cos())).norm() < 1e-15);
+        assert!((t - Vector3::new(th.cos(), 0.0, th.sin())).norm() < 1e-15);
+        assert!((o - Vector3::y()).norm() < 1e-15);
+        assert!((n.cross(&t).dot(&o) - 1.0).abs() < 1e-15);
+        // Scenario A4: box rotated by −θ about y, CM at H n_G, rests flat.
+        let b = Shape::cuboid(0.4, 0.4, 0.2).unwrap();
+        let r = rotation_matrix(&quat_from_rpy_deg(0.0, -25.0, 0.0));
+        let x = n * 0.1;
+        assert!(min_gap(b.vertices(), &x, &r, &g).abs() < 1e-15);
+        let w = world_vertices(b.vertices(), &x, &r);
+        assert_eq!(contact_mode(&w, &g, TOL), ContactMode::Patch);
+        assert!(HalfSpace::incline(f64::NAN).is_err());
+    }
+
+    #[test]
+    fn half_space_construction() {
+        let h = HalfSpace::new(Vector3::new(0.0, 0.0, 2.0), 1.0).unwrap();
+        assert_eq!(h.normal(), Vector3::z());
+        assert_eq!(h.offset(), 0.5);
+        assert_eq!(h.value(&Vector3::new(3.0, 4.0, 1.5)), 1.0);
+        assert_eq!(
+            h.project(&Vector3::new(3.0, 4.0, 1.5)),
+            Vector3::new(3.0, 4.0, 0.5)
+        );
+        assert!(matches!(
+            HalfSpace::new(Vector3::zeros(), 0.0),
+            Err(GeometryError::ZeroNormal)
+        ));
+        assert!(matches!(
+            HalfSpace::new(Vector3::new(f64::NAN, 0.0, 1.0), 0.0),
+            Err(GeometryError::NonFinite { .. })
+        ));
+        // A near-vertical plane uses e_y as the tangent seed.
+        let (n, t, o) = HalfSpace::new(Vector3::x(), 0.0).unwrap().contact_frame();
+        assert_eq!(t, Vector3::y());
+        assert!((n.cross(&t) - o).norm() < 1e-15);
+    }
+}

@@ -1,0 +1,7 @@
+//! Contact formulations of `ecp`: rigid-body geometry and kinematics, and the
+//! step problems built on them (spec `formulation.md`).
+
+#![warn(missing_docs)]
+
+pub mod geometry;
+pub mod rotation;

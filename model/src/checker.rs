@@ -1,0 +1,349 @@
+//! The Jacobian checker, in the spirit of Ceres' `GradientChecker`: compares analytic
+//! Jacobians with central finite differences, block by block, and names the worst entries.
+//!
+//! ```
+//! use ecp_model::{check_residual_block, CheckOptions, JacobianBlocks, Params, ResidualBlock};
+//!
+//! /// r(x, y) = x·y, with a correct Jacobian.
+//! struct Product;
+//! impl ResidualBlock for Product {
+//!     fn name(&self) -> &str { "product" }
+//!     fn num_residuals(&self) -> usize { 1 }
+//!     fn parameter_sizes(&self) -> &[usize] { &[1, 1] }
+//!     fn evaluate(&self, p: Params<'_>, out: &mut [f64]) { out[0] = p.block(0)[0] * p.block(1)[0]; }
+//!     fn jacobian(&self, p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+//!         jac.set(0, 0, 0, p.block(1)[0]);
+//!         jac.set(1, 0, 0, p.block(0)[0]);
+//!     }
+//! }
+//! let report = check_residual_block(&Product, &[&[2.0], &[3.0]], &CheckOptions::default()).unwrap();
+//! assert!(report.ok(), "{report}");
+//! ```
+
+use std::fmt;
+
+use crate::mcp::Mcp;
+use crate::problem::{BlockMcp, ResId};
+use crate::residual::{JacobianBlocks, Params, ResidualBlock};
+use crate::ModelError;
+
+/// Settings of the Jacobian checker.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CheckOptions {
+    /// Central-difference step relative to `max(1, |x_j|)`. Default `1e-6`.
+    pub relative_step: f64,
+    /// Relative tolerance on an entry. Default `1e-6`.
+    pub rel_tol: f64,
+    /// Absolute tolerance on an entry. Default `1e-7`.
+    pub abs_tol: f64,
+    /// How many of the worst entries the report lists. Default 8.
+    pub max_listed: usize,
+}
+
+impl Default for CheckOptions {
+    fn default() -> Self {
+        CheckOptions {
+            relative_step: 1e-6,
+            rel_tol: 1e-6,
+            abs_tol: 1e-7,
+            max_listed: 8,
+        }
+    }
+}
+
+/// One compared Jacobian entry.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EntryCheck {
+    /// Residual row (within the residual block, or the flat row for a whole MCP).
+    pub row: usize,
+    /// Variable block index (0 for a whole MCP).
+    pub block: usize,
+    /// Column within that block (or the flat column).
+    pub col: usize,
+    /// Readable location, e.g. `"friction[1] / nu[5]"`.
+    pub location: String,
+    /// Analytic value.
+    pub analytic: f64,
+    /// Central-difference value.
+    pub numeric: f64,
+    /// `|analytic − numeric|`.
+    pub abs_error: f64,
+    /// `abs_error / max(|analytic|, |numeric|)` (0 when both vanish).
+    pub rel_error: f64,
+    /// Whether the entry is outside tolerance.
+    pub failed: bool,
+}
+
+/// Errors of one (residual block, variable block) pair.
+#[derive(Clone, Debug, PartialEq)]
+pub struct BlockPairCheck {
+    /// Index of the variable block among those the residual block reads.
+    pub block: usize,
+    /// Largest absolute error in this pair.
+    pub max_abs_error: f64,
+    /// Largest relative error in this pair.
+    pub max_rel_error: f64,
+    /// Entries outside tolerance.
+    pub failures: usize,
+}
+
+/// Result of a Jacobian check.
+#[derive(Clone, Debug, PartialEq)]
+pub struct JacobianReport {
+    /// What was checked.
+    pub name: String,
+    /// Per variable block read.
+    pub pairs: Vec<BlockPairCheck>,
+    /// The worst entries, largest error first.
+    pub worst: Vec<EntryCheck>,
+    /// Number of entries outside tolerance.
+    pub failures: usize,
+    /// Number of entries compared.
+    pub entries: usize,
+    /// Largest absolute error.
+    pub max_abs_error: f64,
+    /// Largest relative error.
+    pub max_rel_error: f64,
+}
+
+impl JacobianReport {
+    /// True when every entry is within tolerance.
+    pub fn ok(&self) -> bool {
+        self.failures == 0
+    }
+}
+
+impl fmt::Display for JacobianReport {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        writeln!(
+            f,
+            "Jacobian check of {}: {} ({} of {} entries outside tolerance; max abs error {:.3e}, max rel error {:.3e})",
+            self.name,
+            if self.ok() { "OK" } else { "FAILED" },
+            self.failures,
+            self.entries,
+            self.max_abs_error,
+            self.max_rel_error
+        )?;
+        if !self.worst.is_empty() {
+            writeln!(
+                f,
+                "  {:<36} {:>14} {:>14} {:>10} {:>10}",
+                "entry", "analytic", "numeric", "abs err", "rel err"
+            )?;
+            for e in &self.worst {
+                writeln!(
+                    f,
+                    "{} {:<36} {:>14.6e} {:>14.6e} {:>10.2e} {:>10.2e}",
+                    if e.failed { "!" } else { " " },
+                    e.location,
+                    e.analytic,
+                    e.numeric,
+                    e.abs_error,
+                    e.rel_error
+                )?;
+            }
+        }
+        Ok(())
+    }
+}
+
+struct Collector {
+    opts: CheckOptions,
+    all: Vec<EntryCheck>,
+    pairs: Vec<BlockPairCheck>,
+}
+
+impl Collector {
+    fn push(&mut self, row: usize, block: usize, col: usize, location: String, a: f64, n: f64) {
+        let abs_error = if a.is_finite() && n.is_finite() {
+            (a - n).abs()
+        } else {
+            f64::INFINITY
+        };
+        let scale = a.abs().max(n.abs());
+        let rel_error = if scale > 0.0 { abs_error / scale } else { 0.0 };
+        // NaN errors count as failures.
+        let failed = abs_error.is_nan() || abs_error > self.opts.abs_tol + self.opts.rel_tol * scale;
+        while self.pairs.len() <= block {
+            let b = self.pairs.len();
+            self.pairs.push(BlockPairCheck {
+                block: b,
+                max_abs_error: 0.0,
+                max_rel_error: 0.0,
+                failures: 0,
+            });
+        }
+        let p = &mut self.pairs[block];
+        p.max_abs_error = p.max_abs_error.max(abs_error);
+        p.max_rel_error = p.max_rel_error.max(rel_error);
+        p.failures += usize::from(failed);
+        self.all.push(EntryCheck {
+            row,
+            block,
+            col,
+            location,
+            analytic: a,
+            numeric: n,
+            abs_error,
+            rel_error,
+            failed,
+        });
+    }
+
+    fn finish(mut self, name: String) -> JacobianReport {
+        let failures = self.all.iter().filter(|e| e.failed).count();
+        let entries = self.all.len();
+        let max_abs_error = self.all.iter().map(|e| e.abs_error).fold(0.0, f64::max);
+        let max_rel_error = self.all.iter().map(|e| e.rel_error).fold(0.0, f64::max);
+        // Failed entries first, then by how far outside tolerance they are.
+        let tol = |e: &EntryCheck| {
+            e.abs_error / (self.opts.abs_tol + self.opts.rel_tol * e.analytic.abs().max(e.numeric.abs()))
+        };
+        self.all
+            .sort_by(|a, b| tol(b).partial_cmp(&tol(a)).unwrap_or(std::cmp::Ordering::Equal));
+        self.all.truncate(self.opts.max_listed);
+        JacobianReport {
+            name,
+            pairs: self.pairs,
+            worst: self.all,
+            failures,
+            entries,
+            max_abs_error,
+            max_rel_error,
+        }
+    }
+}
+
+/// Checks one residual block's analytic Jacobian at `params` (one slice per variable block it
+/// reads) against central differences, block by block.
+pub fn check_residual_block(
+    block: &dyn ResidualBlock,
+    params: &[&[f64]],
+    opts: &CheckOptions,
+) -> Result<JacobianReport, ModelError> {
+    let sizes = block.parameter_sizes().to_vec();
+    if sizes.len() != params.len() || sizes.iter().zip(params).any(|(s, p)| *s != p.len()) {
+        return Err(ModelError::InvalidBlock {
+            block: block.name().to_string(),
+            reason: format!(
+                "checker given parameter sizes {:?}, block declares {:?}",
+                params.iter().map(|p| p.len()).collect::<Vec<_>>(),
+                sizes
+            ),
+        });
+    }
+    let m = block.num_residuals();
+    // Flat copy of the parameters plus ranges, so Params can view them.
+    let mut z: Vec<f64> = params.iter().flat_map(|p| p.iter().copied()).collect();
+    let mut ranges = Vec::with_capacity(sizes.len());
+    let mut o = 0;
+    for &s in &sizes {
+        ranges.push((o, s));
+        o += s;
+    }
+    // Local dense storage: block k column j row i at (start_k + j) * m + i.
+    let total_cols = o;
+    let col_pos: Vec<usize> = (0..total_cols).map(|c| c * m).collect();
+    let mut block_start = vec![0];
+    for &s in &sizes {
+        let last = *block_start.last().unwrap_or(&0);
+        block_start.push(last + s);
+    }
+    let mut analytic = vec![0.0; total_cols * m];
+    {
+        let mut jac = JacobianBlocks::new(&mut analytic, &col_pos, &block_start, m);
+        block.jacobian(Params::new(&z, &ranges), &mut jac);
+    }
+    let mut collector = Collector {
+        opts: *opts,
+        all: Vec::new(),
+        pairs: Vec::new(),
+    };
+    let mut rp = vec![0.0; m];
+    let mut rm = vec![0.0; m];
+    for (k, &(off, size)) in ranges.iter().enumerate() {
+        for j in 0..size {
+            let c = off + j;
+            let x0 = z[c];
+            let h = opts.relative_step * x0.abs().max(1.0);
+            z[c] = x0 + h;
+            block.evaluate(Params::new(&z, &ranges), &mut rp);
+            z[c] = x0 - h;
+            block.evaluate(Params::new(&z, &ranges), &mut rm);
+            z[c] = x0;
+            for i in 0..m {
+                let numeric = (rp[i] - rm[i]) / (2.0 * h);
+                collector.push(
+                    i,
+                    k,
+                    j,
+                    format!("{}[{}] / param{}[{}]", block.name(), i, k, j),
+                    analytic[c * m + i],
+                    numeric,
+                );
+            }
+        }
+    }
+    Ok(collector.finish(block.name().to_string()))
+}
+
+/// Checks every residual block of an assembled problem at `z`, naming variable blocks.
+pub fn check_block_mcp(mcp: &BlockMcp, z: &[f64], opts: &CheckOptions) -> Vec<JacobianReport> {
+    (0..mcp.num_residual_blocks())
+        .filter_map(|r| {
+            let (block, ranges, _) = mcp.residual_block(ResId(r));
+            let params: Vec<&[f64]> = ranges.iter().map(|&(o, l)| &z[o..o + l]).collect();
+            let mut rep = check_residual_block(block, &params, opts).ok()?;
+            // Name the variable blocks instead of "param k".
+            for e in rep.worst.iter_mut() {
+                let (o, _) = ranges[e.block];
+                e.location = format!("{}[{}] / {}", block.name(), e.row, mcp.component_name(o + e.col));
+            }
+            Some(rep)
+        })
+        .collect()
+}
+
+/// Checks the whole Jacobian of any [`Mcp`] (for problems given by closures) at `z`.
+pub fn check_mcp(mcp: &dyn Mcp, z: &[f64], opts: &CheckOptions) -> JacobianReport {
+    let n = mcp.dim();
+    let pattern = mcp.jacobian_pattern().clone();
+    let mut values = vec![0.0; pattern.nnz()];
+    mcp.jacobian(z, &mut values);
+    let mut dense = vec![0.0; n * n];
+    pattern.to_dense(&values, &mut dense);
+    let mut zz = z.to_vec();
+    let mut fp = vec![0.0; n];
+    let mut fm = vec![0.0; n];
+    let mut collector = Collector {
+        opts: *opts,
+        all: Vec::new(),
+        pairs: Vec::new(),
+    };
+    for j in 0..n {
+        let x0 = zz[j];
+        let h = opts.relative_step * x0.abs().max(1.0);
+        zz[j] = x0 + h;
+        mcp.evaluate(&zz, &mut fp);
+        zz[j] = x0 - h;
+        mcp.evaluate(&zz, &mut fm);
+        zz[j] = x0;
+        for i in 0..n {
+            let numeric = (fp[i] - fm[i]) / (2.0 * h);
+            let analytic = dense[j * n + i];
+            if analytic == 0.0 && numeric == 0.0 {
+                continue;
+            }
+            collector.push(
+                i,
+                0,
+                j,
+                format!("F[{}] / {}", mcp.component_name(i), mcp.component_name(j)),
+                analytic,
+                numeric,
+            );
+        }
+    }
+    collector.finish("MCP Jacobian".to_string())
+}

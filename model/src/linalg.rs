@@ -1,0 +1,377 @@
+//! Linear algebra behind one module: dense and sparse LU with faer.
+//!
+//! faer's API moves between versions, so nothing else in the workspace names it. Both solvers
+//! keep their workspaces between factorisations: after the first call, factorising and solving
+//! allocate nothing, and the sparse symbolic analysis (fill-reducing ordering, elimination
+//! structure) is done once per sparsity pattern.
+
+use faer::dyn_stack::{MemBuffer, MemStack, StackReq};
+use faer::linalg::lu::partial_pivoting::{factor as pp_factor, solve as pp_solve};
+use faer::mat::{MatMut, MatRef};
+use faer::sparse::linalg::lu as sp_lu;
+use faer::sparse::{SparseColMatRef, SymbolicSparseColMatRef};
+use faer::{Mat, Par};
+
+use crate::pattern::CscPattern;
+
+/// Failure of a factorisation or a solve.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum LinalgError {
+    /// The matrix is singular (or so ill-conditioned that its solution cannot be trusted).
+    #[error("matrix is numerically singular (pivot ratio {ratio:.1e})")]
+    Singular {
+        /// Smallest over largest pivot magnitude.
+        ratio: f64,
+    },
+    /// The matrix or right-hand side holds NaN or infinity.
+    #[error("matrix or right-hand side is not finite")]
+    NonFinite,
+    /// faer reported an error in the symbolic or numeric phase.
+    #[error("sparse LU failed: {0}")]
+    Factorization(String),
+    /// Solve called before a successful factorisation.
+    #[error("no valid factorisation")]
+    NotFactored,
+}
+
+/// Pivot ratio below which a matrix is treated as singular: beyond it an LU solve loses all
+/// digits, and the Newton backend switches to its Levenberg–Marquardt safeguard.
+pub const SINGULAR_PIVOT_RATIO: f64 = 1e-13;
+
+/// Dense LU with partial pivoting, workspace kept between calls.
+pub struct DenseLu {
+    n: usize,
+    lu: Mat<f64>,
+    perm: Vec<usize>,
+    perm_inv: Vec<usize>,
+    mem: MemBuffer,
+    factored: bool,
+}
+
+impl DenseLu {
+    /// Workspace for `n × n` matrices.
+    pub fn new(n: usize) -> Self {
+        let req = StackReq::any_of(&[
+            pp_factor::lu_in_place_scratch::<usize, f64>(n, n, Par::Seq, Default::default()),
+            pp_solve::solve_in_place_scratch::<usize, f64>(n, 1, Par::Seq),
+            pp_solve::solve_transpose_in_place_scratch::<usize, f64>(n, 1, Par::Seq),
+        ]);
+        DenseLu {
+            n,
+            lu: Mat::zeros(n, n),
+            perm: vec![0; n],
+            perm_inv: vec![0; n],
+            mem: MemBuffer::new(req),
+            factored: false,
+        }
+    }
+
+    /// Dimension.
+    pub fn dim(&self) -> usize {
+        self.n
+    }
+
+    /// Factorises the column-major `n × n` matrix `a`.
+    pub fn factor(&mut self, a: &[f64]) -> Result<(), LinalgError> {
+        let n = self.n;
+        self.factored = false;
+        if a.iter().any(|v| !v.is_finite()) {
+            return Err(LinalgError::NonFinite);
+        }
+        let src = MatRef::from_column_major_slice(a, n, n);
+        self.lu.copy_from(src);
+        let stack = MemStack::new(&mut self.mem);
+        pp_factor::lu_in_place(
+            self.lu.as_mut(),
+            &mut self.perm,
+            &mut self.perm_inv,
+            Par::Seq,
+            stack,
+            Default::default(),
+        );
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+        for i in 0..n {
+            let d = self.lu[(i, i)].abs();
+            lo = lo.min(d);
+            hi = hi.max(d);
+        }
+        if n > 0 && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
+            return Err(LinalgError::Singular {
+                ratio: if hi > 0.0 { lo / hi } else { 0.0 },
+            });
+        }
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves `A x = b` in place (`b` becomes `x`).
+    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.solve_impl(b, false)
+    }
+
+    /// Solves `Aᵀ x = b` in place.
+    pub fn solve_transpose_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.solve_impl(b, true)
+    }
+
+    fn solve_impl(&mut self, b: &mut [f64], transpose: bool) -> Result<(), LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let n = self.n;
+        let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
+        let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
+        let stack = MemStack::new(&mut self.mem);
+        let lu = self.lu.as_ref();
+        if transpose {
+            pp_solve::solve_transpose_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+        } else {
+            pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+        }
+        if b.iter().all(|v| v.is_finite()) {
+            Ok(())
+        } else {
+            Err(LinalgError::NonFinite)
+        }
+    }
+}
+
+/// Sparse LU (faer, column-approximate-minimum-degree ordering) whose symbolic analysis is
+/// computed once for a pattern and reused for every numeric factorisation with that pattern.
+pub struct SparseLu {
+    pattern: CscPattern,
+    symbolic: sp_lu::SymbolicLu<usize>,
+    numeric: sp_lu::NumericLu<usize, f64>,
+    mem: MemBuffer,
+    values: Vec<f64>,
+    work: Vec<f64>,
+    factored: bool,
+}
+
+impl SparseLu {
+    /// Symbolic analysis of `pattern`.
+    pub fn analyze(pattern: &CscPattern) -> Result<Self, LinalgError> {
+        let n = pattern.dim();
+        let sym = SymbolicSparseColMatRef::new_checked(
+            n,
+            n,
+            pattern.col_ptr(),
+            None,
+            pattern.row_idx(),
+        );
+        let symbolic = sp_lu::factorize_symbolic_lu(sym, Default::default())
+            .map_err(|e| LinalgError::Factorization(format!("{e:?}")))?;
+        let req = StackReq::any_of(&[
+            symbolic.factorize_numeric_lu_scratch::<f64>(Par::Seq, Default::default()),
+            symbolic.solve_in_place_scratch::<f64>(1, Par::Seq),
+            symbolic.solve_transpose_in_place_scratch::<f64>(1, Par::Seq),
+        ]);
+        Ok(SparseLu {
+            pattern: pattern.clone(),
+            symbolic,
+            numeric: sp_lu::NumericLu::new(),
+            mem: MemBuffer::new(req),
+            values: vec![0.0; pattern.nnz()],
+            work: vec![0.0; n],
+            factored: false,
+        })
+    }
+
+    /// The pattern this analysis belongs to.
+    pub fn pattern(&self) -> &CscPattern {
+        &self.pattern
+    }
+
+    /// Numeric factorisation of the matrix with this pattern and `values`.
+    pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
+        self.factored = false;
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(LinalgError::NonFinite);
+        }
+        let n = self.pattern.dim();
+        self.values.copy_from_slice(values);
+        let sym = SymbolicSparseColMatRef::new_checked(
+            n,
+            n,
+            self.pattern.col_ptr(),
+            None,
+            self.pattern.row_idx(),
+        );
+        let a = SparseColMatRef::new(sym, &self.values);
+        let stack = MemStack::new(&mut self.mem);
+        self.symbolic
+            .factorize_numeric_lu(&mut self.numeric, a, Par::Seq, stack, Default::default())
+            .map_err(|e| match e {
+                faer::sparse::linalg::LuError::SymbolicSingular { .. } => {
+                    LinalgError::Singular { ratio: 0.0 }
+                }
+                other => LinalgError::Factorization(format!("{other:?}")),
+            })?;
+        self.factored = true;
+        Ok(())
+    }
+
+    /// Solves `A x = b` in place and checks the result (finite, small relative residual), since
+    /// a sparse LU does not expose its pivots for a cheap singularity test.
+    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.solve_impl(b, false)
+    }
+
+    /// Solves `Aᵀ x = b` in place.
+    pub fn solve_transpose_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.solve_impl(b, true)
+    }
+
+    fn solve_impl(&mut self, b: &mut [f64], transpose: bool) -> Result<(), LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let n = self.pattern.dim();
+        self.work.copy_from_slice(b);
+        let lu = sp_lu::LuRef::new_unchecked(&self.symbolic, &self.numeric);
+        let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
+        let stack = MemStack::new(&mut self.mem);
+        if transpose {
+            lu.solve_transpose_in_place_with_conj(faer::Conj::No, rhs, Par::Seq, stack);
+        } else {
+            lu.solve_in_place_with_conj(faer::Conj::No, rhs, Par::Seq, stack);
+        }
+        if !b.iter().all(|v| v.is_finite()) {
+            return Err(LinalgError::NonFinite);
+        }
+        // Residual check: ‖A x − b‖∞ ≤ tol (‖A‖ ‖x‖ + ‖b‖).
+        let (mut anorm, mut xnorm, mut bnorm) = (0.0f64, 0.0f64, 0.0f64);
+        for v in &self.values {
+            anorm = anorm.max(v.abs());
+        }
+        for (x, r) in b.iter().zip(&self.work) {
+            xnorm = xnorm.max(x.abs());
+            bnorm = bnorm.max(r.abs());
+        }
+        let mut max_res = 0.0f64;
+        let (cp, ri, vals) = (self.pattern.col_ptr(), self.pattern.row_idx(), &self.values);
+        if transpose {
+            for j in 0..n {
+                let mut s = -self.work[j];
+                for p in cp[j]..cp[j + 1] {
+                    s += vals[p] * b[ri[p]];
+                }
+                max_res = max_res.max(s.abs());
+            }
+        } else {
+            // Accumulate A x − b in `work` (it holds b).
+            for v in self.work.iter_mut() {
+                *v = -*v;
+            }
+            for j in 0..n {
+                for p in cp[j]..cp[j + 1] {
+                    self.work[ri[p]] += vals[p] * b[j];
+                }
+            }
+            for v in &self.work {
+                max_res = max_res.max(v.abs());
+            }
+        }
+        let scale = anorm * xnorm * (n as f64).max(1.0) + bnorm;
+        if max_res > 1e-8 * scale.max(f64::MIN_POSITIVE) {
+            return Err(LinalgError::Singular {
+                ratio: max_res / scale.max(f64::MIN_POSITIVE),
+            });
+        }
+        Ok(())
+    }
+}
+
+/// A linear solver for matrices in a given [`CscPattern`]: dense LU for small systems, sparse
+/// LU for large ones (solvers.md §1: "chosen by size").
+pub enum LinearSolver {
+    /// Dense LU on the scattered matrix.
+    Dense {
+        /// The factorisation workspace.
+        lu: Box<DenseLu>,
+        /// Dense scatter buffer.
+        buf: Vec<f64>,
+        /// The pattern the values come in.
+        pattern: CscPattern,
+    },
+    /// Sparse LU with reused symbolic analysis.
+    Sparse(Box<SparseLu>),
+}
+
+impl LinearSolver {
+    /// Chooses dense LU when `n ≤ dense_max`, sparse LU otherwise.
+    pub fn for_pattern(pattern: &CscPattern, dense_max: usize) -> Result<Self, LinalgError> {
+        let n = pattern.dim();
+        if n <= dense_max {
+            Ok(LinearSolver::Dense {
+                lu: Box::new(DenseLu::new(n)),
+                buf: vec![0.0; n * n],
+                pattern: pattern.clone(),
+            })
+        } else {
+            Ok(LinearSolver::Sparse(Box::new(SparseLu::analyze(pattern)?)))
+        }
+    }
+    /// True when this solver serves `pattern` (so its analysis can be reused).
+    pub fn serves(&self, pattern: &CscPattern) -> bool {
+        match self {
+            LinearSolver::Dense { pattern: p, .. } => p == pattern,
+            LinearSolver::Sparse(s) => s.pattern() == pattern,
+        }
+    }
+    /// True for the dense variant.
+    pub fn is_dense(&self) -> bool {
+        matches!(self, LinearSolver::Dense { .. })
+    }
+    /// Factorises the matrix given by `values` in the pattern.
+    pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
+        match self {
+            LinearSolver::Dense { lu, buf, pattern } => {
+                pattern.to_dense(values, buf);
+                lu.factor(buf)
+            }
+            LinearSolver::Sparse(s) => s.factor(values),
+        }
+    }
+    /// Solves `A x = b` in place.
+    pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        match self {
+            LinearSolver::Dense { lu, .. } => lu.solve_in_place(b),
+            LinearSolver::Sparse(s) => s.solve_in_place(b),
+        }
+    }
+    /// Solves `Aᵀ x = b` in place.
+    pub fn solve_transpose_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        match self {
+            LinearSolver::Dense { lu, .. } => lu.solve_transpose_in_place(b),
+            LinearSolver::Sparse(s) => s.solve_transpose_in_place(b),
+        }
+    }
+}
+
+impl std::fmt::Debug for DenseLu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "DenseLu {{ n: {}, factored: {} }}", self.n, self.factored)
+    }
+}
+
+impl std::fmt::Debug for SparseLu {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "SparseLu {{ n: {}, nnz: {}, factored: {} }}",
+            self.pattern.dim(),
+            self.pattern.nnz(),
+            self.factored
+        )
+    }
+}
+
+impl std::fmt::Debug for LinearSolver {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LinearSolver::Dense { lu, .. } => write!(f, "LinearSolver::Dense({lu:?})"),
+            LinearSolver::Sparse(s) => write!(f, "LinearSolver::Sparse({s:?})"),
+        }
+    }
+}

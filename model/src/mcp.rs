@@ -1,0 +1,266 @@
+//! The mixed complementarity problem every backend solves (formulation.md §2), and the
+//! residuals that judge a candidate solution.
+
+use std::sync::Arc;
+
+use crate::bounds::{classify, BoundKind, Bounds};
+use crate::pattern::CscPattern;
+use crate::ModelError;
+
+/// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
+/// find `l ≤ z ≤ u` with `F_i(z) = 0` where `l_i < z_i < u_i`, `F_i ≥ 0` at `l_i`, `F_i ≤ 0` at `u_i`.
+///
+/// The Jacobian is given in a fixed sparsity pattern (diagonal included), so backends can
+/// analyse it once and reuse the analysis across iterations and time steps.
+pub trait Mcp {
+    /// Number of unknowns `n`.
+    fn dim(&self) -> usize;
+    /// Lower bounds (length `n`, `-∞` allowed).
+    fn lower(&self) -> &[f64];
+    /// Upper bounds (length `n`, `+∞` allowed).
+    fn upper(&self) -> &[f64];
+    /// Evaluates `F(z)` into `f`.
+    fn evaluate(&self, z: &[f64], f: &mut [f64]);
+    /// The Jacobian's sparsity pattern (constant for the problem's lifetime).
+    fn jacobian_pattern(&self) -> &Arc<CscPattern>;
+    /// Evaluates `J(z)` into `values`, stored in the order of [`Mcp::jacobian_pattern`].
+    fn jacobian(&self, z: &[f64], values: &mut [f64]);
+    /// Evaluates `F` and `J` together (override when they share work).
+    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        self.evaluate(z, f);
+        self.jacobian(z, values);
+    }
+    /// Human-readable name of component `i`, for diagnostics.
+    fn component_name(&self, i: usize) -> String {
+        format!("z[{i}]")
+    }
+}
+
+type FFn = dyn Fn(&[f64], &mut [f64]) + Send + Sync;
+type JFn = dyn Fn(&[f64], &mut [f64]) + Send + Sync;
+
+/// An MCP given directly by a function `F`, its Jacobian and bounds, for problems that are
+/// not built from blocks.
+///
+/// ```
+/// use ecp_model::{FnMcp, Mcp, natural_residual};
+/// // The LCP 0 ≤ z ⊥ z − 1 ≥ 0 (solution z = 1).
+/// let mcp = FnMcp::dense(
+///     vec![0.0], vec![f64::INFINITY],
+///     |z, f| f[0] = z[0] - 1.0,
+///     |_z, j| j[0] = 1.0,
+/// ).unwrap();
+/// let mut f = [0.0];
+/// mcp.evaluate(&[1.0], &mut f);
+/// assert_eq!(natural_residual(&[1.0], &f, mcp.lower(), mcp.upper()), 0.0);
+/// ```
+pub struct FnMcp {
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    pattern: Arc<CscPattern>,
+    f: Box<FFn>,
+    j: Box<JFn>,
+    names: Option<Vec<String>>,
+}
+
+impl FnMcp {
+    /// A problem with a dense Jacobian: `jac(z, out)` fills the column-major `n × n` array `out`
+    /// (which starts zeroed).
+    pub fn dense(
+        lower: Vec<f64>,
+        upper: Vec<f64>,
+        f: impl Fn(&[f64], &mut [f64]) + Send + Sync + 'static,
+        jac: impl Fn(&[f64], &mut [f64]) + Send + Sync + 'static,
+    ) -> Result<Self, ModelError> {
+        let n = lower.len();
+        let pattern = Arc::new(CscPattern::dense(n));
+        // The dense pattern stores every entry in column-major order, so the value array is
+        // exactly the dense column-major matrix.
+        Self::sparse(lower, upper, pattern, f, move |z, v| {
+            v.fill(0.0);
+            jac(z, v)
+        })
+    }
+
+    /// A problem with a sparse Jacobian: `jac(z, values)` fills the values in `pattern`'s order.
+    pub fn sparse(
+        lower: Vec<f64>,
+        upper: Vec<f64>,
+        pattern: Arc<CscPattern>,
+        f: impl Fn(&[f64], &mut [f64]) + Send + Sync + 'static,
+        jac: impl Fn(&[f64], &mut [f64]) + Send + Sync + 'static,
+    ) -> Result<Self, ModelError> {
+        let n = lower.len();
+        if upper.len() != n || pattern.dim() != n {
+            return Err(ModelError::Dimension(format!(
+                "lower has {n} entries, upper {}, Jacobian pattern is {}×{}",
+                upper.len(),
+                pattern.dim(),
+                pattern.dim()
+            )));
+        }
+        for i in 0..n {
+            Bounds::boxed(lower[i], upper[i])
+                .validate()
+                .map_err(|reason| ModelError::InvalidBlock {
+                    block: format!("z[{i}]"),
+                    reason,
+                })?;
+        }
+        Ok(FnMcp {
+            lower,
+            upper,
+            pattern,
+            f: Box::new(f),
+            j: Box::new(jac),
+            names: None,
+        })
+    }
+
+    /// Names the components for diagnostics.
+    pub fn with_names(mut self, names: Vec<String>) -> Self {
+        if names.len() == self.lower.len() {
+            self.names = Some(names);
+        }
+        self
+    }
+}
+
+impl Mcp for FnMcp {
+    fn dim(&self) -> usize {
+        self.lower.len()
+    }
+    fn lower(&self) -> &[f64] {
+        &self.lower
+    }
+    fn upper(&self) -> &[f64] {
+        &self.upper
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        (self.f)(z, f)
+    }
+    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+        &self.pattern
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        (self.j)(z, values)
+    }
+    fn component_name(&self, i: usize) -> String {
+        match &self.names {
+            Some(n) => n[i].clone(),
+            None => format!("z[{i}]"),
+        }
+    }
+}
+
+/// `mid(l, u, x)`: the projection of `x` onto `[l, u]`.
+#[inline]
+pub fn mid(l: f64, u: f64, x: f64) -> f64 {
+    x.max(l).min(u)
+}
+
+/// Component `i` of the natural map `z − mid(l, u, z − F(z))`.
+#[inline]
+pub fn natural_map_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
+    z - mid(l, u, z - f)
+}
+
+/// The natural-map residual `‖z − mid(l, u, z − F(z))‖_∞` (formulation.md §2): the one number
+/// every backend is judged by. Non-finite input gives `+∞`, never a misleading small value.
+pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+    let mut r: f64 = 0.0;
+    for i in 0..z.len() {
+        let c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
+        if !c.is_finite() {
+            return f64::INFINITY;
+        }
+        r = r.max(c);
+    }
+    r
+}
+
+/// Where the natural residual is worst: index, value, and the component's name.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WorstComponent {
+    /// Flat index.
+    pub index: usize,
+    /// `|z_i − mid(l_i, u_i, z_i − F_i)|`.
+    pub value: f64,
+    /// Name of the component (block and component).
+    pub name: String,
+}
+
+/// Evaluates `F` at `z` and reports the natural residual and the worst component.
+pub fn diagnose(mcp: &dyn Mcp, z: &[f64]) -> (f64, Option<WorstComponent>) {
+    let mut f = vec![0.0; mcp.dim()];
+    mcp.evaluate(z, &mut f);
+    let (l, u) = (mcp.lower(), mcp.upper());
+    let mut worst: Option<WorstComponent> = None;
+    for i in 0..z.len() {
+        let mut c = natural_map_component(z[i], f[i], l[i], u[i]).abs();
+        if c.is_nan() {
+            c = f64::INFINITY;
+        }
+        if worst.as_ref().is_none_or(|w| c > w.value) {
+            worst = Some(WorstComponent {
+                index: i,
+                value: c,
+                name: mcp.component_name(i),
+            });
+        }
+    }
+    (natural_residual(z, &f, l, u), worst)
+}
+
+/// The Fischer–Burmeister function `φ(a, b) = √(a² + b²) − a − b`; zero iff `a ≥ 0, b ≥ 0, ab = 0`.
+#[inline]
+pub fn fischer_burmeister(a: f64, b: f64) -> f64 {
+    // hypot avoids overflow; the form below loses no accuracy when a, b > 0.
+    let r = a.hypot(b);
+    if a > 0.0 && b > 0.0 {
+        // √(a²+b²) − (a+b) = −2ab / (√(a²+b²) + a + b), without cancellation.
+        -2.0 * a * b / (r + a + b)
+    } else {
+        r - a - b
+    }
+}
+
+/// Component `i` of the Fischer–Burmeister reformulation `Φ` (solvers.md §1):
+/// free `F`; lower `φ(z − l, F)`; upper `−φ(u − z, −F)`; box (Billups) `φ(z − l, φ(u − z, −F))`.
+#[inline]
+pub fn fb_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
+    match classify(l, u) {
+        BoundKind::Free => f,
+        BoundKind::Lower => fischer_burmeister(z - l, f),
+        BoundKind::Upper => -fischer_burmeister(u - z, -f),
+        BoundKind::Box => fischer_burmeister(z - l, fischer_burmeister(u - z, -f)),
+    }
+}
+
+/// Fills `phi` with the Fischer–Burmeister reformulation `Φ(z)` given `F(z)`.
+pub fn fb_vector(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) {
+    for i in 0..z.len() {
+        phi[i] = fb_component(z[i], f[i], lower[i], upper[i]);
+    }
+}
+
+/// The Fischer–Burmeister residual `‖Φ(z)‖₂`; `+∞` for non-finite input.
+pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+    let mut s = 0.0;
+    for i in 0..z.len() {
+        let c = fb_component(z[i], f[i], lower[i], upper[i]);
+        s += c * c;
+    }
+    if s.is_finite() {
+        s.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
+/// Evaluates `F` at `z` and returns the natural residual (allocates; for reports and tests).
+pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
+    let mut f = vec![0.0; mcp.dim()];
+    mcp.evaluate(z, &mut f);
+    natural_residual(z, &f, mcp.lower(), mcp.upper())
+}

@@ -1,0 +1,30 @@
+//! # ecp-solvers: interchangeable MCP backends
+//!
+//! Every backend implements [`ecp_model::McpSolver`], returns the solution in the MCP's own
+//! layout with a [`ecp_model::Summary`], and is judged by the model's natural-map residual.
+//!
+//! - [`newton`]: semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
+//!
+//! ```
+//! use ecp_model::{FnMcp, McpSolver, residual_of};
+//! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+//!
+//! // LCP: 0 ≤ z ⊥ M z + q ≥ 0 with M = [[2, 1], [1, 2]], q = (−1, 1): solution z = (½, 0).
+//! let mcp = FnMcp::dense(
+//!     vec![0.0; 2],
+//!     vec![f64::INFINITY; 2],
+//!     |z, f| { f[0] = 2.0 * z[0] + z[1] - 1.0; f[1] = z[0] + 2.0 * z[1] + 1.0; },
+//!     |_z, j| { j[0] = 2.0; j[1] = 1.0; j[2] = 1.0; j[3] = 2.0; },
+//! ).unwrap();
+//! let mut solver = NewtonSolver::new(NewtonSettings::default());
+//! let sol = solver.solve(&mcp, &[0.0, 0.0]).unwrap();
+//! assert!(residual_of(&mcp, &sol.z) <= 1e-10);
+//! assert!((sol.z[0] - 0.5).abs() < 1e-10 && sol.z[1].abs() < 1e-10);
+//! ```
+
+#![warn(missing_docs)]
+
+pub mod newton;
+mod normal_equations;
+
+pub use newton::{NewtonSettings, NewtonSolver};

@@ -1,0 +1,506 @@
+//! Semismooth Newton method on the Fischer–Burmeister reformulation (solvers.md §1).
+//!
+//! The MCP is rewritten as `Φ(z) = 0` with `φ(a, b) = √(a² + b²) − a − b`: free components
+//! `Φ_i = F_i`; lower bound only `φ(z_i − l_i, F_i)`; upper bound only `−φ(u_i − z_i, −F_i)`;
+//! both bounds Billups' composition `φ(z_i − l_i, φ(u_i − z_i, −F_i))`. Each iteration takes an
+//! element `H = D_a + D_b J` of the generalised Jacobian (at degenerate pairs the element of
+//! De Luca, Facchinei and Kanzow), solves `H d = −Φ`, and accepts the step by an Armijo search on
+//! `Ψ = ½‖Φ‖²`. When `H` is singular or `d` fails the descent test `∇Ψᵀd ≤ −ρ‖d‖^p`, it takes a
+//! Levenberg–Marquardt step `(HᵀH + λI) d = −HᵀΦ`, and failing that the steepest-descent
+//! step `−∇Ψ`. Linear systems use dense LU for small problems and a sparse LU (analysed once per
+//! pattern) for large ones.
+//!
+//! References: De Luca, Facchinei, Kanzow, Math. Prog. 75 (1996); Billups, PhD thesis (1995);
+//! Munson, Facchinei, Ferris, Fischer, Kanzow, INFORMS J. Computing 13 (2001).
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use ecp_model::bounds::{classify, BoundKind};
+use ecp_model::linalg::LinearSolver;
+use ecp_model::mcp::{fb_vector, fischer_burmeister};
+use ecp_model::{
+    diagnose, natural_residual, validate_start, CscPattern, IterationRecord, Mcp, McpSolver,
+    Observer, Solution, SolveError, StepKind, Summary, Termination,
+};
+
+use crate::normal_equations::NormalEquations;
+
+/// Settings of the semismooth Newton backend, with documented defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct NewtonSettings {
+    /// Stop when the natural residual `‖z − mid(l, u, z − F)‖∞` is at most this. Default `1e-10`.
+    pub tolerance: f64,
+    /// Iteration limit. Default 200.
+    pub max_iterations: usize,
+    /// Armijo sufficient-decrease constant σ. Default `1e-4`.
+    pub armijo: f64,
+    /// Backtracking factor β of the line search. Default `0.5`.
+    pub backtrack: f64,
+    /// Smallest step length tried before the line search gives up on a direction. Default `1e-12`.
+    pub min_step: f64,
+    /// Descent test `∇Ψᵀd ≤ −ρ‖d‖^p`: the constant ρ. Default `1e-8`.
+    pub descent_rho: f64,
+    /// Descent test exponent p (> 2). Default `2.1`.
+    pub descent_p: f64,
+    /// Largest dimension solved with dense LU; larger problems use sparse LU. Default 120.
+    pub dense_max: usize,
+    /// Record a per-iteration trace in the summary. Default `false`.
+    pub trace: bool,
+}
+
+impl Default for NewtonSettings {
+    fn default() -> Self {
+        NewtonSettings {
+            tolerance: 1e-10,
+            max_iterations: 200,
+            armijo: 1e-4,
+            backtrack: 0.5,
+            min_step: 1e-12,
+            descent_rho: 1e-8,
+            descent_p: 2.1,
+            dense_max: 120,
+            trace: false,
+        }
+    }
+}
+
+/// Buffers reused across iterations and solves (no allocation per iteration).
+#[derive(Default)]
+struct Workspace {
+    n: usize,
+    f: Vec<f64>,
+    phi: Vec<f64>,
+    jac: Vec<f64>,
+    h: Vec<f64>,
+    da: Vec<f64>,
+    db: Vec<f64>,
+    degenerate: Vec<f64>,
+    jv: Vec<f64>,
+    grad: Vec<f64>,
+    d: Vec<f64>,
+    z: Vec<f64>,
+    z_trial: Vec<f64>,
+    f_trial: Vec<f64>,
+    phi_trial: Vec<f64>,
+    z_best: Vec<f64>,
+}
+
+impl Workspace {
+    fn resize(&mut self, n: usize, nnz: usize) {
+        self.n = n;
+        for v in [
+            &mut self.f,
+            &mut self.phi,
+            &mut self.da,
+            &mut self.db,
+            &mut self.degenerate,
+            &mut self.jv,
+            &mut self.grad,
+            &mut self.d,
+            &mut self.z,
+            &mut self.z_trial,
+            &mut self.f_trial,
+            &mut self.phi_trial,
+            &mut self.z_best,
+        ] {
+            v.resize(n, 0.0);
+        }
+        self.jac.resize(nnz, 0.0);
+        self.h.resize(nnz, 0.0);
+    }
+}
+
+/// The semismooth Newton backend. Keep one instance for a whole simulation: it reuses the
+/// sparse analysis and all buffers while the sparsity pattern stays the same.
+pub struct NewtonSolver {
+    settings: NewtonSettings,
+    ws: Workspace,
+    linear: Option<LinearSolver>,
+    normal: Option<NormalEquations>,
+    pattern: Option<Arc<CscPattern>>,
+    observer: Option<Box<dyn Observer>>,
+}
+
+impl NewtonSolver {
+    /// A solver with the given settings.
+    pub fn new(settings: NewtonSettings) -> Self {
+        NewtonSolver {
+            settings,
+            ws: Workspace::default(),
+            linear: None,
+            normal: None,
+            pattern: None,
+            observer: None,
+        }
+    }
+    /// Attaches an observer that sees every iteration.
+    pub fn with_observer(mut self, observer: Box<dyn Observer>) -> Self {
+        self.observer = Some(observer);
+        self
+    }
+    /// The settings.
+    pub fn settings(&self) -> &NewtonSettings {
+        &self.settings
+    }
+    /// Mutable settings (e.g. to tighten the tolerance between solves).
+    pub fn settings_mut(&mut self) -> &mut NewtonSettings {
+        &mut self.settings
+    }
+
+    /// Prepares buffers and linear solvers for this problem's pattern (analysis reused when the
+    /// pattern is unchanged).
+    fn prepare(&mut self, mcp: &dyn Mcp) -> Result<(), SolveError> {
+        let pattern = mcp.jacobian_pattern();
+        let same = match &self.pattern {
+            Some(p) => Arc::ptr_eq(p, pattern) || **p == **pattern,
+            None => false,
+        };
+        if !same {
+            let lin = LinearSolver::for_pattern(pattern, self.settings.dense_max).map_err(|e| {
+                SolveError::InvalidProblem(format!("cannot analyse the Jacobian pattern: {e}"))
+            })?;
+            self.linear = Some(lin);
+            self.normal = None;
+            self.pattern = Some(pattern.clone());
+        }
+        self.ws.resize(mcp.dim(), pattern.nnz());
+        Ok(())
+    }
+}
+
+/// Partial derivatives of φ at (a, b); `None` at the kink (0, 0).
+#[inline]
+fn phi_partials(a: f64, b: f64) -> Option<(f64, f64)> {
+    let r = a.hypot(b);
+    if r > 0.0 {
+        Some((a / r - 1.0, b / r - 1.0))
+    } else {
+        None
+    }
+}
+
+/// An element of ∂φ at the kink: (ξ − 1, η − 1) with ‖(ξ, η)‖ = 1, along direction (a', b').
+#[inline]
+fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
+    let r = a_dir.hypot(b_dir);
+    if r > 0.0 && r.is_finite() {
+        (a_dir / r - 1.0, b_dir / r - 1.0)
+    } else {
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        (s - 1.0, s - 1.0)
+    }
+}
+
+/// Row scalings `D_a, D_b` of `H = D_a + D_b J` (solvers.md §1).
+fn generalized_jacobian_rows(
+    z: &[f64],
+    f: &[f64],
+    l: &[f64],
+    u: &[f64],
+    pattern: &CscPattern,
+    jac: &[f64],
+    ws_da: &mut [f64],
+    ws_db: &mut [f64],
+    degenerate: &mut [f64],
+    jv: &mut [f64],
+) {
+    let n = z.len();
+    // First pass: regular components, and mark the degenerate ones with the direction
+    // v (+1 for lower, −1 for upper) of De Luca–Facchinei–Kanzow.
+    let mut any = false;
+    for i in 0..n {
+        degenerate[i] = 0.0;
+        match classify(l[i], u[i]) {
+            BoundKind::Free => {
+                ws_da[i] = 0.0;
+                ws_db[i] = 1.0;
+            }
+            BoundKind::Lower => match phi_partials(z[i] - l[i], f[i]) {
+                Some((pa, pb)) => {
+                    ws_da[i] = pa;
+                    ws_db[i] = pb;
+                }
+                None => {
+                    degenerate[i] = 1.0;
+                    any = true;
+                }
+            },
+            BoundKind::Upper => match phi_partials(u[i] - z[i], -f[i]) {
+                // Φ = −φ(u − z, −F) ⇒ ∂Φ/∂z = φ_a + φ_b J.
+                Some((pa, pb)) => {
+                    ws_da[i] = pa;
+                    ws_db[i] = pb;
+                }
+                None => {
+                    degenerate[i] = -1.0;
+                    any = true;
+                }
+            },
+            BoundKind::Box => {
+                let a2 = u[i] - z[i];
+                let b2 = -f[i];
+                let (qa, qb) = phi_partials(a2, b2).unwrap_or_else(|| kink_partials(1.0, 1.0));
+                let psi = fischer_burmeister(a2, b2);
+                let (pa, pb) =
+                    phi_partials(z[i] - l[i], psi).unwrap_or_else(|| kink_partials(1.0, 1.0));
+                // Φ = φ(z − l, ψ), ψ = φ(u − z, −F): ∂Φ/∂z = (φ_a − φ_b ψ_a) e_i − φ_b ψ_b J_i.
+                ws_da[i] = pa - pb * qa;
+                ws_db[i] = -pb * qb;
+            }
+        }
+    }
+    if any {
+        pattern.mul_vec(jac, degenerate, jv);
+        for i in 0..n {
+            let v = degenerate[i];
+            if v > 0.0 {
+                let (pa, pb) = kink_partials(1.0, jv[i]);
+                ws_da[i] = pa;
+                ws_db[i] = pb;
+            } else if v < 0.0 {
+                // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
+                let (pa, pb) = kink_partials(1.0, -jv[i]);
+                ws_da[i] = pa;
+                ws_db[i] = pb;
+            }
+        }
+    }
+}
+
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    a.iter().zip(b).map(|(x, y)| x * y).sum()
+}
+
+fn norm2(a: &[f64]) -> f64 {
+    dot(a, a).sqrt()
+}
+
+impl McpSolver for NewtonSolver {
+    fn name(&self) -> &str {
+        "newton"
+    }
+
+    fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let start = Instant::now();
+        validate_start(mcp, z0)?;
+        self.prepare(mcp)?;
+        let s = self.settings.clone();
+        let n = mcp.dim();
+        let (l, u) = (mcp.lower(), mcp.upper());
+        let pattern = mcp.jacobian_pattern().clone();
+        let ws = &mut self.ws;
+        let mut trace = Vec::new();
+        let (mut f_evals, mut jac_evals) = (0usize, 0usize);
+        let (mut lm_steps, mut gradient_steps, mut newton_steps) = (0usize, 0usize, 0usize);
+
+        ws.z.copy_from_slice(z0);
+        mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+        f_evals += 1;
+        jac_evals += 1;
+        let mut have_jac = true;
+        fb_vector(&ws.z, &ws.f, l, u, &mut ws.phi);
+        let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
+        let mut residual = natural_residual(&ws.z, &ws.f, l, u);
+        ws.z_best.copy_from_slice(&ws.z);
+        let mut best_residual = residual;
+        let mut termination = Termination::MaxIterations;
+        let mut iterations = 0;
+        if !psi.is_finite() {
+            termination = Termination::NonFiniteFunction;
+        }
+
+        while termination == Termination::MaxIterations {
+            if residual <= s.tolerance {
+                termination = Termination::Converged;
+                break;
+            }
+            if iterations >= s.max_iterations {
+                break;
+            }
+            if !have_jac {
+                mcp.jacobian(&ws.z, &mut ws.jac);
+                jac_evals += 1;
+            }
+            // H = D_a + D_b J in J's pattern (the diagonal is always stored).
+            generalized_jacobian_rows(
+                &ws.z, &ws.f, l, u, &pattern, &ws.jac, &mut ws.da, &mut ws.db,
+                &mut ws.degenerate, &mut ws.jv,
+            );
+            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+            for j in 0..n {
+                for p in cp[j]..cp[j + 1] {
+                    ws.h[p] = ws.db[ri[p]] * ws.jac[p];
+                }
+            }
+            for (j, &p) in pattern.diag_pos().iter().enumerate() {
+                ws.h[p] += ws.da[j];
+            }
+            // ∇Ψ = HᵀΦ.
+            pattern.mul_transpose_vec(&ws.h, &ws.phi, &mut ws.grad);
+
+            // Newton direction, with the DFK descent test.
+            let mut kind = StepKind::Newton;
+            let linear = self.linear.as_mut().ok_or_else(|| {
+                SolveError::InvalidProblem("linear solver not prepared".into())
+            })?;
+            let mut ok = linear.factor(&ws.h).is_ok();
+            if ok {
+                for i in 0..n {
+                    ws.d[i] = -ws.phi[i];
+                }
+                ok = linear.solve_in_place(&mut ws.d).is_ok();
+            }
+            let descent_ok = |d: &[f64], g: &[f64]| {
+                let nd = norm2(d);
+                let gd = dot(g, d);
+                gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
+            };
+            if !(ok && descent_ok(&ws.d, &ws.grad)) {
+                // Levenberg–Marquardt: (HᵀH + λI) d = −∇Ψ, λ scaled by ‖Φ‖ and the matrix.
+                kind = StepKind::LevenbergMarquardt;
+                if self.normal.as_ref().is_none_or(|ne| !ne.serves(&pattern)) {
+                    self.normal = NormalEquations::new(&pattern, s.dense_max).ok();
+                }
+                let phi_norm = norm2(&ws.phi);
+                let mut lm_ok = false;
+                if let Some(ne) = self.normal.as_mut() {
+                    let lam = |max_diag: f64| {
+                        (phi_norm.min(1.0) * max_diag.max(1e-12)).max(1e-14 * max_diag.max(1.0))
+                    };
+                    if ne.factor(&ws.h, lam).is_ok() {
+                        for i in 0..n {
+                            ws.d[i] = -ws.grad[i];
+                        }
+                        lm_ok = ne.solve_in_place(&mut ws.d).is_ok()
+                            && dot(&ws.grad, &ws.d) < 0.0;
+                    }
+                }
+                if !lm_ok {
+                    kind = StepKind::Gradient;
+                    for i in 0..n {
+                        ws.d[i] = -ws.grad[i];
+                    }
+                }
+            }
+
+            // Armijo search on Ψ; on failure of a second-order direction, retry with −∇Ψ.
+            let mut accepted = None;
+            loop {
+                let slope = dot(&ws.grad, &ws.d);
+                let mut t = 1.0;
+                while t >= s.min_step {
+                    for i in 0..n {
+                        ws.z_trial[i] = ws.z[i] + t * ws.d[i];
+                    }
+                    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
+                    f_evals += 1;
+                    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
+                    let psi_trial = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+                    if psi_trial.is_finite() && psi_trial <= psi + s.armijo * t * slope {
+                        accepted = Some((t, psi_trial));
+                        break;
+                    }
+                    // A step that is both tiny in z and already converged in the natural
+                    // residual is also accepted: Ψ can stall at round-off level.
+                    if psi_trial.is_finite()
+                        && natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance
+                    {
+                        accepted = Some((t, psi_trial));
+                        break;
+                    }
+                    t *= s.backtrack;
+                }
+                if accepted.is_some() || kind == StepKind::Gradient {
+                    break;
+                }
+                kind = StepKind::Gradient;
+                for i in 0..n {
+                    ws.d[i] = -ws.grad[i];
+                }
+            }
+            let Some((t, psi_new)) = accepted else {
+                termination = Termination::LineSearchFailed;
+                break;
+            };
+            match kind {
+                StepKind::Newton => newton_steps += 1,
+                StepKind::LevenbergMarquardt => lm_steps += 1,
+                _ => gradient_steps += 1,
+            }
+            let record = IterationRecord {
+                iteration: iterations,
+                residual,
+                merit: psi,
+                step: kind,
+                step_length: t,
+                direction_norm: norm2(&ws.d),
+            };
+            if let Some(obs) = self.observer.as_mut() {
+                obs.observe(&record);
+            }
+            if s.trace {
+                trace.push(record);
+            }
+            iterations += 1;
+            let moved = ws
+                .z
+                .iter()
+                .zip(&ws.z_trial)
+                .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
+                .fold(0.0, f64::max);
+            std::mem::swap(&mut ws.z, &mut ws.z_trial);
+            std::mem::swap(&mut ws.f, &mut ws.f_trial);
+            std::mem::swap(&mut ws.phi, &mut ws.phi_trial);
+            psi = psi_new;
+            residual = natural_residual(&ws.z, &ws.f, l, u);
+            have_jac = false;
+            if residual < best_residual {
+                best_residual = residual;
+                ws.z_best.copy_from_slice(&ws.z);
+            }
+            if residual > s.tolerance && moved <= 4.0 * f64::EPSILON {
+                termination = Termination::Stagnated;
+            }
+        }
+        if termination == Termination::Converged || residual <= best_residual {
+            ws.z_best.copy_from_slice(&ws.z);
+        }
+        let z = ws.z_best.clone();
+        let (res, worst) = diagnose(mcp, &z);
+        let mut fz = vec![0.0; n];
+        mcp.evaluate(&z, &mut fz);
+        f_evals += 2;
+        let summary = Summary {
+            solver: "newton".into(),
+            termination: if res <= s.tolerance {
+                Termination::Converged
+            } else if termination == Termination::Converged {
+                Termination::Stagnated
+            } else {
+                termination
+            },
+            iterations,
+            f_evals,
+            jac_evals,
+            residual: res,
+            fb_residual: ecp_model::fb_residual(&z, &fz, l, u),
+            worst,
+            time: start.elapsed(),
+            trace,
+            counters: vec![
+                ("newton_steps", newton_steps),
+                ("lm_steps", lm_steps),
+                ("gradient_steps", gradient_steps),
+            ],
+        };
+        let solution = Solution { z, summary };
+        if solution.summary.converged() {
+            Ok(solution)
+        } else {
+            Err(SolveError::NotConverged {
+                best: Box::new(solution),
+            })
+        }
+    }
+}
