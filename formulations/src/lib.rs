@@ -5,3 +5,6 @@
 
 pub mod geometry;
 pub mod rotation;
+pub mod blocks;
+pub mod scenarios;
+pub mod stepper;

@@ -42,6 +42,7 @@ pub mod linalg;
 pub mod mcp;
 pub mod pattern;
 pub mod problem;
+pub mod problems;
 pub mod residual;
 pub mod solver;
 

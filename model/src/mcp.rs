@@ -170,6 +170,10 @@ pub fn natural_map_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
 pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     let mut r: f64 = 0.0;
     for i in 0..z.len() {
+        // `mid` (max/min) would silently drop a NaN in F: treat it as an infinite error.
+        if f[i].is_nan() || z[i].is_nan() {
+            return f64::INFINITY;
+        }
         let c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
         if !c.is_finite() {
             return f64::INFINITY;
@@ -198,7 +202,7 @@ pub fn diagnose(mcp: &dyn Mcp, z: &[f64]) -> (f64, Option<WorstComponent>) {
     let mut worst: Option<WorstComponent> = None;
     for i in 0..z.len() {
         let mut c = natural_map_component(z[i], f[i], l[i], u[i]).abs();
-        if c.is_nan() {
+        if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
         }
         if worst.as_ref().is_none_or(|w| c > w.value) {

@@ -273,6 +273,39 @@ impl BlockMcp {
         let b = &self.blocks[r.0];
         (b.block.as_ref(), &b.ranges, b.row0)
     }
+    /// Replaces residual block `r` by another with the same shape (rows and parameter sizes),
+    /// keeping the layout, the sparsity pattern and hence every solver's symbolic analysis.
+    ///
+    /// This is how a time stepper updates per-step data (start-of-step state, loads) without
+    /// rebuilding the problem.
+    pub fn replace_residual_block(
+        &mut self,
+        r: ResId,
+        block: Arc<dyn ResidualBlock>,
+    ) -> Result<(), ModelError> {
+        let old = self.blocks.get_mut(r.0).ok_or_else(|| ModelError::InvalidBlock {
+            block: block.name().to_string(),
+            reason: format!("no residual block #{} to replace", r.0),
+        })?;
+        if old.block.num_residuals() != block.num_residuals()
+            || old.block.parameter_sizes() != block.parameter_sizes()
+        {
+            return Err(ModelError::InvalidBlock {
+                block: block.name().to_string(),
+                reason: format!(
+                    "replacement has shape {}×{:?}, the original '{}' has {}×{:?}",
+                    block.num_residuals(),
+                    block.parameter_sizes(),
+                    old.block.name(),
+                    old.block.num_residuals(),
+                    old.block.parameter_sizes()
+                ),
+            });
+        }
+        old.block = block;
+        Ok(())
+    }
+
     /// Parameter slices of residual block `r` at `z`, for the Jacobian checker.
     pub fn residual_block_params<'a>(&'a self, r: ResId, z: &'a [f64]) -> Params<'a> {
         Params::new(z, &self.blocks[r.0].ranges)

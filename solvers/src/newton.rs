@@ -43,6 +43,11 @@ pub struct NewtonSettings {
     pub descent_rho: f64,
     /// Descent test exponent p (> 2). Default `2.1`.
     pub descent_p: f64,
+    /// Initial Levenberg–Marquardt damping, relative to the largest diagonal entry of `HᵀH`.
+    /// Default `1e-3`.
+    pub lm_initial_damping: f64,
+    /// Damping trials per iteration before the backtracking fall-backs. Default 30.
+    pub max_lm_trials: usize,
     /// Largest dimension solved with dense LU; larger problems use sparse LU. Default 120.
     pub dense_max: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
@@ -59,6 +64,8 @@ impl Default for NewtonSettings {
             min_step: 1e-12,
             descent_rho: 1e-8,
             descent_p: 2.1,
+            lm_initial_damping: 1e-3,
+            max_lm_trials: 30,
             dense_max: 120,
             trace: false,
         }
@@ -77,6 +84,7 @@ struct Workspace {
     db: Vec<f64>,
     degenerate: Vec<f64>,
     jv: Vec<f64>,
+    hd: Vec<f64>,
     grad: Vec<f64>,
     d: Vec<f64>,
     z: Vec<f64>,
@@ -96,6 +104,7 @@ impl Workspace {
             &mut self.db,
             &mut self.degenerate,
             &mut self.jv,
+            &mut self.hd,
             &mut self.grad,
             &mut self.d,
             &mut self.z,
@@ -268,6 +277,26 @@ fn generalized_jacobian_rows(
     }
 }
 
+/// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
+/// or `None` when `F` is not finite.
+fn try_step(
+    mcp: &dyn Mcp,
+    ws: &mut Workspace,
+    t: f64,
+    l: &[f64],
+    u: &[f64],
+    f_evals: &mut usize,
+) -> Option<f64> {
+    for i in 0..ws.n {
+        ws.z_trial[i] = ws.z[i] + t * ws.d[i];
+    }
+    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
+    *f_evals += 1;
+    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
+    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+    p.is_finite().then_some(p)
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -306,6 +335,8 @@ impl McpSolver for NewtonSolver {
         let mut best_residual = residual;
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
+        let mut lm_mu = s.lm_initial_damping;
+        let mut lm_growth = 2.0;
         if !psi.is_finite() {
             termination = Termination::NonFiniteFunction;
         }
@@ -340,83 +371,117 @@ impl McpSolver for NewtonSolver {
             pattern.mul_transpose_vec(&ws.h, &ws.phi, &mut ws.grad);
 
             // Newton direction, with the DFK descent test.
-            let mut kind = StepKind::Newton;
             let linear = self.linear.as_mut().ok_or_else(|| {
                 SolveError::InvalidProblem("linear solver not prepared".into())
             })?;
-            let mut ok = linear.factor(&ws.h).is_ok();
-            if ok {
+            let mut newton_ok = linear.factor(&ws.h).is_ok();
+            if newton_ok {
                 for i in 0..n {
                     ws.d[i] = -ws.phi[i];
                 }
-                ok = linear.solve_in_place(&mut ws.d).is_ok();
+                newton_ok = linear.solve_in_place(&mut ws.d).is_ok();
             }
             let descent_ok = |d: &[f64], g: &[f64]| {
                 let nd = norm2(d);
                 let gd = dot(g, d);
                 gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
             };
-            if !(ok && descent_ok(&ws.d, &ws.grad)) {
-                // Levenberg–Marquardt: (HᵀH + λI) d = −∇Ψ, λ scaled by ‖Φ‖ and the matrix.
-                kind = StepKind::LevenbergMarquardt;
+            newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
+            let mut kind = StepKind::Newton;
+            let mut accepted = None;
+            if newton_ok {
+                // The full Newton step, when it decreases Ψ enough (fast local convergence).
+                let slope = dot(&ws.grad, &ws.d);
+                if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
+                    && (p <= psi + s.armijo * slope
+                        || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance)
+                {
+                    accepted = Some((1.0, p));
+                }
+            }
+            if accepted.is_none() {
+                // Levenberg–Marquardt with an adaptive damping (Moré's update): solve
+                // (HᵀH + λI) d = −∇Ψ, accept when the actual decrease of Ψ is a fair share of the
+                // decrease predicted by the linear model ½‖Φ + H d‖².
                 if self.normal.as_ref().is_none_or(|ne| !ne.serves(&pattern)) {
                     self.normal = NormalEquations::new(&pattern, s.dense_max).ok();
                 }
-                let phi_norm = norm2(&ws.phi);
-                let mut lm_ok = false;
                 if let Some(ne) = self.normal.as_mut() {
-                    let lam = |max_diag: f64| {
-                        (phi_norm.min(1.0) * max_diag.max(1e-12)).max(1e-14 * max_diag.max(1.0))
-                    };
-                    if ne.factor(&ws.h, lam).is_ok() {
+                    for _ in 0..s.max_lm_trials {
+                        let mu = lm_mu;
+                        if ne.factor(&ws.h, |max_diag| mu * max_diag.max(1e-300)).is_err() {
+                            lm_mu *= lm_growth;
+                            lm_growth *= 2.0;
+                            continue;
+                        }
                         for i in 0..n {
                             ws.d[i] = -ws.grad[i];
                         }
-                        lm_ok = ne.solve_in_place(&mut ws.d).is_ok()
-                            && dot(&ws.grad, &ws.d) < 0.0;
-                    }
-                }
-                if !lm_ok {
-                    kind = StepKind::Gradient;
-                    for i in 0..n {
-                        ws.d[i] = -ws.grad[i];
+                        if ne.solve_in_place(&mut ws.d).is_err() {
+                            lm_mu *= lm_growth;
+                            lm_growth *= 2.0;
+                            continue;
+                        }
+                        pattern.mul_vec(&ws.h, &ws.d, &mut ws.hd);
+                        let predicted = -(dot(&ws.grad, &ws.d) + 0.5 * dot(&ws.hd, &ws.hd));
+                        let trial = try_step(mcp, ws, 1.0, l, u, &mut f_evals);
+                        match trial {
+                            Some(p) if predicted > 0.0 && psi - p >= 1e-4 * predicted => {
+                                let rho = (psi - p) / predicted;
+                                lm_mu = (lm_mu * (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3)))
+                                    .max(1e-20);
+                                lm_growth = 2.0;
+                                accepted = Some((1.0, p));
+                                kind = StepKind::LevenbergMarquardt;
+                                break;
+                            }
+                            _ => {
+                                lm_mu *= lm_growth;
+                                lm_growth *= 2.0;
+                                if lm_mu > 1e20 {
+                                    break;
+                                }
+                            }
+                        }
                     }
                 }
             }
-
-            // Armijo search on Ψ; on failure of a second-order direction, retry with −∇Ψ.
-            let mut accepted = None;
-            loop {
-                let slope = dot(&ws.grad, &ws.d);
-                let mut t = 1.0;
-                while t >= s.min_step {
-                    for i in 0..n {
-                        ws.z_trial[i] = ws.z[i] + t * ws.d[i];
+            if accepted.is_none() {
+                // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
+                let mut candidates: Vec<StepKind> = Vec::with_capacity(2);
+                if newton_ok {
+                    candidates.push(StepKind::Newton);
+                }
+                candidates.push(StepKind::Gradient);
+                for k in candidates {
+                    if k == StepKind::Newton {
+                        for i in 0..n {
+                            ws.d[i] = -ws.phi[i];
+                        }
+                        if let Some(linear) = self.linear.as_mut() {
+                            let _ = linear.solve_in_place(&mut ws.d);
+                        }
+                    } else {
+                        for i in 0..n {
+                            ws.d[i] = -ws.grad[i];
+                        }
                     }
-                    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
-                    f_evals += 1;
-                    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
-                    let psi_trial = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
-                    if psi_trial.is_finite() && psi_trial <= psi + s.armijo * t * slope {
-                        accepted = Some((t, psi_trial));
+                    let slope = dot(&ws.grad, &ws.d);
+                    let mut t = 1.0;
+                    while t >= s.min_step {
+                        if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
+                            && (p <= psi + s.armijo * t * slope
+                                || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance)
+                        {
+                            accepted = Some((t, p));
+                            break;
+                        }
+                        t *= s.backtrack;
+                    }
+                    if accepted.is_some() {
+                        kind = k;
                         break;
                     }
-                    // A step that is both tiny in z and already converged in the natural
-                    // residual is also accepted: Ψ can stall at round-off level.
-                    if psi_trial.is_finite()
-                        && natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance
-                    {
-                        accepted = Some((t, psi_trial));
-                        break;
-                    }
-                    t *= s.backtrack;
-                }
-                if accepted.is_some() || kind == StepKind::Gradient {
-                    break;
-                }
-                kind = StepKind::Gradient;
-                for i in 0..n {
-                    ws.d[i] = -ws.grad[i];
                 }
             }
             let Some((t, psi_new)) = accepted else {

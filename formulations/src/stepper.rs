@@ -1,0 +1,773 @@
+//! The time stepper (formulation.md §5): builds the step MCP once, updates its per-step data,
+//! warm-starts, solves with any backend, renormalises Q, and records every step.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
+
+use ecp_model::{BlockMcp, McpSolver, Problem, ResId, SolveError, Summary, VarBlock, VarId};
+
+use crate::blocks::{
+    mass_matrix, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
+    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
+    NormalCone,
+};
+use crate::geometry::{
+    contact_mode, min_gap, world_vertices, ContactMode, ConvexHull, GeometryError, HalfSpace,
+    MassProperties, Shape,
+};
+use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
+
+/// Tolerance on a vertex's distance to the plane for the contact mode (scenarios.md §C).
+pub const MODE_TOLERANCE: f64 = 1e-7;
+
+/// Row scale of the length-valued contact rows (C1, C3–C5) is `GEOMETRY_SCALE / h`.
+pub const GEOMETRY_SCALE: f64 = 1.0;
+
+/// Position, orientation and velocities of a rigid body (world frame, formulation.md §1).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyState {
+    /// Centre of mass.
+    pub x: Vector3<f64>,
+    /// Orientation, unit quaternion (w, x, y, z), body → world.
+    pub q: Vector4<f64>,
+    /// Linear velocity of the CM.
+    pub v: Vector3<f64>,
+    /// Angular velocity (world frame).
+    pub w: Vector3<f64>,
+}
+
+impl BodyState {
+    /// At rest at `x` with identity orientation.
+    pub fn at_rest(x: Vector3<f64>) -> Self {
+        BodyState {
+            x,
+            q: Vector4::new(1.0, 0.0, 0.0, 0.0),
+            v: Vector3::zeros(),
+            w: Vector3::zeros(),
+        }
+    }
+}
+
+/// A wrench applied at the centre of mass, world frame: `(force, torque)` as a function of time.
+pub type WrenchFn = Arc<dyn Fn(f64) -> Vector6<f64> + Send + Sync>;
+
+/// Applied load on a body (besides gravity).
+#[derive(Clone, Default)]
+pub enum Load {
+    /// No applied load.
+    #[default]
+    None,
+    /// A constant wrench `(f_x, f_y, f_z, τ_x, τ_y, τ_z)` at the CM, world frame.
+    Constant(Vector6<f64>),
+    /// A time-dependent wrench, evaluated at the start of each step `t_u`.
+    Function(WrenchFn),
+}
+
+impl Load {
+    /// The wrench at time `t`.
+    pub fn at(&self, t: f64) -> Vector6<f64> {
+        match self {
+            Load::None => Vector6::zeros(),
+            Load::Constant(w) => *w,
+            Load::Function(f) => f(t),
+        }
+    }
+}
+
+impl std::fmt::Debug for Load {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Load::None => write!(f, "Load::None"),
+            Load::Constant(w) => write!(f, "Load::Constant({:?})", w.as_slice()),
+            Load::Function(_) => write!(f, "Load::Function(..)"),
+        }
+    }
+}
+
+/// A rigid body of a scene: mass properties, geometry (union of convex pieces) and initial state.
+#[derive(Clone, Debug)]
+pub struct BodySpec {
+    /// Name used in reports.
+    pub name: String,
+    /// Mass and body-frame inertia about the CM.
+    pub mass: MassProperties,
+    /// Geometry in the body frame (origin at the CM).
+    pub shape: Shape,
+    /// State at t = 0.
+    pub initial: BodyState,
+    /// Applied load.
+    pub load: Load,
+}
+
+/// Everything a simulation needs: bodies, fixed half-spaces, friction, gravity, step.
+#[derive(Clone, Debug)]
+pub struct Scene {
+    /// Scene name (used for output folders).
+    pub name: String,
+    /// The bodies.
+    pub bodies: Vec<BodySpec>,
+    /// Fixed half-spaces; every body has one contact with each.
+    pub planes: Vec<HalfSpace>,
+    /// Friction parameters (all contacts).
+    pub friction: FrictionParams,
+    /// Gravity acceleration vector.
+    pub gravity: Vector3<f64>,
+    /// Step length h.
+    pub h: f64,
+    /// Simulated duration.
+    pub duration: f64,
+}
+
+impl Scene {
+    /// Number of steps covering the duration.
+    pub fn num_steps(&self) -> usize {
+        (self.duration / self.h - 1e-9).ceil().max(0.0) as usize
+    }
+}
+
+/// Errors in setting up a simulation.
+#[derive(Debug, thiserror::Error)]
+pub enum SceneError {
+    /// Bad geometry or mass properties.
+    #[error("body '{body}': {source}")]
+    Geometry {
+        /// Body name.
+        body: String,
+        /// The geometric problem.
+        source: GeometryError,
+    },
+    /// A parameter is out of range.
+    #[error("{what} = {value} is invalid: {hint}")]
+    Parameter {
+        /// Which parameter.
+        what: String,
+        /// Its value.
+        value: f64,
+        /// How to fix it.
+        hint: &'static str,
+    },
+    /// The initial state penetrates a half-space.
+    #[error("body '{body}' starts {depth:.3e} m inside half-space #{plane}; move it up so that every vertex is on or above the plane")]
+    InitialPenetration {
+        /// Body name.
+        body: String,
+        /// Plane index.
+        plane: usize,
+        /// Penetration depth.
+        depth: f64,
+    },
+    /// The modelling layer rejected the problem.
+    #[error("model: {0}")]
+    Model(#[from] ecp_model::ModelError),
+}
+
+/// Handles of one contact's variable blocks.
+#[derive(Clone, Copy, Debug)]
+pub struct ContactVars {
+    /// Body index.
+    pub body: usize,
+    /// Half-space index.
+    pub plane: usize,
+    /// ECP on Conv(F).
+    pub a1: VarId,
+    /// ECP on G.
+    pub a2: VarId,
+    /// Face multipliers of Conv(F).
+    pub l: VarId,
+    /// Multiplier of G.
+    pub lg: VarId,
+    /// Normal impulse.
+    pub pn: VarId,
+    /// Friction impulses (p_t, p_o, p_r).
+    pub pf: VarId,
+    /// Slip magnitude σ.
+    pub sigma: VarId,
+}
+
+struct BodyData {
+    spec: BodySpec,
+    hull: ConvexHull,
+    nu: VarId,
+    q: VarId,
+    newton_euler: ResId,
+    kinematic: ResId,
+    frames: Vec<ContactFrame>,
+    state: BodyState,
+}
+
+/// Per-contact values at the end of a step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactRecord {
+    /// ECP on Conv(F) (`a1`).
+    pub a1: Vector3<f64>,
+    /// ECP on G (`a2`).
+    pub a2: Vector3<f64>,
+    /// Gap multiplier `l_g` (the distance while separated).
+    pub lg: f64,
+    /// Normal impulse.
+    pub pn: f64,
+    /// Friction impulse along t.
+    pub pt: f64,
+    /// Friction impulse along o.
+    pub po: f64,
+    /// Torsional friction impulse.
+    pub pr: f64,
+    /// Slip magnitude.
+    pub sigma: f64,
+    /// Minimum gap over the vertices of the real body.
+    pub min_gap: f64,
+    /// Contact mode from the state (scenarios.md §C).
+    pub mode: ContactMode,
+}
+
+/// Everything recorded for one step (the rows of `trajectory.csv`, interfaces.md).
+#[derive(Clone, Debug)]
+pub struct StepRecord {
+    /// Step index, from 1.
+    pub step: usize,
+    /// Time at the end of the step.
+    pub t: f64,
+    /// Body states at the end of the step.
+    pub bodies: Vec<BodyState>,
+    /// Contacts (body-major, then plane).
+    pub contacts: Vec<ContactRecord>,
+    /// Kinetic plus potential energy of all bodies.
+    pub energy: f64,
+    /// Solver summary (of the best iterate when the step did not converge).
+    pub summary: Summary,
+    /// Whether the step converged.
+    pub converged: bool,
+    /// Wall time of the solve in microseconds.
+    pub solve_us: f64,
+}
+
+/// A running simulation: the step MCP (built once), the warm start and the current state.
+pub struct Simulation {
+    scene: Scene,
+    bodies: Vec<BodyData>,
+    contacts: Vec<ContactVars>,
+    mcp: BlockMcp,
+    z: Vec<f64>,
+    step: usize,
+    t: f64,
+}
+
+impl Simulation {
+    /// Validates the scene and builds the step MCP.
+    pub fn new(scene: Scene) -> Result<Self, SceneError> {
+        if !(scene.h > 0.0 && scene.h.is_finite()) {
+            return Err(SceneError::Parameter {
+                what: "h".into(),
+                value: scene.h,
+                hint: "the step length must be a positive number of seconds",
+            });
+        }
+        if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
+            return Err(SceneError::Parameter {
+                what: "duration".into(),
+                value: scene.duration,
+                hint: "the duration must be a non-negative number of seconds",
+            });
+        }
+        let f = scene.friction;
+        for (what, v, positive) in [
+            ("mu", f.mu, false),
+            ("e_t", f.e_t, true),
+            ("e_o", f.e_o, true),
+            ("e_r", f.e_r, true),
+        ] {
+            if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
+                return Err(SceneError::Parameter {
+                    what: what.into(),
+                    value: v,
+                    hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o, e_r > 0",
+                });
+            }
+        }
+        if scene.gravity.iter().any(|g| !g.is_finite()) {
+            return Err(SceneError::Parameter {
+                what: "gravity".into(),
+                value: f64::NAN,
+                hint: "gravity must be a finite vector",
+            });
+        }
+
+        let mut problem = Problem::new();
+        let mut bodies = Vec::new();
+        let mut contacts = Vec::new();
+        for (b, spec) in scene.bodies.iter().enumerate() {
+            let hull = spec.shape.hull().map_err(|source| SceneError::Geometry {
+                body: spec.name.clone(),
+                source,
+            })?;
+            let mut state = spec.initial;
+            state.q = quat_normalize(&state.q).ok_or_else(|| SceneError::Parameter {
+                what: format!("{}.orientation", spec.name),
+                value: 0.0,
+                hint: "the initial quaternion must be non-zero",
+            })?;
+            let r = rotation_matrix(&state.q);
+            for (p, plane) in scene.planes.iter().enumerate() {
+                let gap = min_gap(spec.shape.vertices(), &state.x, &r, plane);
+                if gap < -1e-9 {
+                    return Err(SceneError::InitialPenetration {
+                        body: spec.name.clone(),
+                        plane: p,
+                        depth: -gap,
+                    });
+                }
+            }
+            let nu = problem.add_variable_block(
+                VarBlock::free(format!("{}.nu", spec.name), 6)
+                    .with_component_names(["vx", "vy", "vz", "wx", "wy", "wz"]),
+            );
+            let q = problem.add_variable_block(
+                VarBlock::free(format!("{}.q", spec.name), 7)
+                    .with_component_names(["x", "y", "z", "qw", "qx", "qy", "qz"]),
+            );
+            let m = hull.num_faces();
+            let mut frames = Vec::new();
+            for (p, plane) in scene.planes.iter().enumerate() {
+                let tag = if scene.planes.len() > 1 || scene.bodies.len() > 1 {
+                    format!("{}.c{}", spec.name, p)
+                } else {
+                    "contact".to_string()
+                };
+                let cv = ContactVars {
+                    body: b,
+                    plane: p,
+                    a1: problem.add_variable_block(
+                        VarBlock::free(format!("{tag}.a1"), 3).with_component_names(["x", "y", "z"]),
+                    ),
+                    a2: problem.add_variable_block(
+                        VarBlock::free(format!("{tag}.a2"), 3).with_component_names(["x", "y", "z"]),
+                    ),
+                    l: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.l"), m)),
+                    lg: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.lg"), 1)),
+                    pn: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.pn"), 1)),
+                    pf: problem.add_variable_block(
+                        VarBlock::free(format!("{tag}.pf"), 3).with_component_names(["pt", "po", "pr"]),
+                    ),
+                    sigma: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
+                };
+                let (n, t, o) = plane.contact_frame();
+                frames.push(ContactFrame { n, t, o });
+                contacts.push(cv);
+            }
+            bodies.push(BodyData {
+                spec: spec.clone(),
+                hull,
+                nu,
+                q,
+                newton_euler: ResId(0),
+                kinematic: ResId(0),
+                frames,
+                state,
+            });
+        }
+
+        // Residual blocks (formulation.md §4), paired as in §3.
+        for (b, body) in bodies.iter_mut().enumerate() {
+            let mine: Vec<&ContactVars> = contacts.iter().filter(|c| c.body == b).collect();
+            let mut reads = vec![body.nu, body.q];
+            for c in &mine {
+                reads.extend([c.a1, c.pn, c.pf]);
+            }
+            body.newton_euler = problem.add_residual_block(
+                body.nu,
+                NewtonEuler::new(
+                    mass_matrix(body.spec.mass.mass, &body.spec.mass.inertia, &body.state.q),
+                    Vector6::zeros(),
+                    Vector6::zeros(),
+                    body.frames.clone(),
+                ),
+                &reads,
+            )?;
+            body.kinematic = problem.add_residual_block(
+                body.q,
+                KinematicMap {
+                    x_start: body.state.x,
+                    q_start: body.state.q,
+                    h: scene.h,
+                },
+                &[body.q, body.nu],
+            )?;
+            let normals: Vec<Vector3<f64>> = body.hull.faces().iter().map(|f| f.normal).collect();
+            let offsets: Vec<f64> = body.hull.faces().iter().map(|f| f.offset).collect();
+            // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
+            // like a velocity error Δv, which keeps the merit function away from the spurious
+            // "free fall with zero impulses" minimiser (measured: with unscaled rows most of the
+            // analytic scenarios stall there; with m/h the residual stalls near 1e-10).
+            let scale = GEOMETRY_SCALE / scene.h;
+            for (c, frame) in mine.iter().zip(&body.frames) {
+                let plane = &scene.planes[c.plane];
+                let ng = plane.normal();
+                problem.add_residual_block(
+                    c.a1,
+                    ClosestPointAlignment { normal: ng, scale },
+                    &[c.a1, c.a2, c.lg],
+                )?;
+                problem.add_residual_block(c.a2, NormalCone::new(ng, normals.clone()), &[c.l, body.q])?;
+                problem.add_residual_block(
+                    c.l,
+                    HullFaces {
+                        face_normals: normals.clone(),
+                        offsets: offsets.clone(),
+                        scale,
+                    },
+                    &[c.a1, body.q],
+                )?;
+                problem.add_residual_block(
+                    c.lg,
+                    HalfSpaceSide {
+                        normal: ng,
+                        offset: plane.offset(),
+                        scale,
+                    },
+                    &[c.a2],
+                )?;
+                problem.add_residual_block(
+                    c.pn,
+                    NonPenetration {
+                        normal: ng,
+                        offset: plane.offset(),
+                        scale,
+                    },
+                    &[c.a1],
+                )?;
+                problem.add_residual_block(
+                    c.pf,
+                    FrictionDissipation {
+                        frame: *frame,
+                        friction: scene.friction,
+                    },
+                    &[body.nu, body.q, c.a1, c.pn, c.pf, c.sigma],
+                )?;
+                problem.add_residual_block(
+                    c.sigma,
+                    FrictionEllipsoid {
+                        friction: scene.friction,
+                    },
+                    &[c.pn, c.pf],
+                )?;
+            }
+        }
+        let mcp = problem.build()?;
+        let mut sim = Simulation {
+            z: vec![0.0; ecp_model::Mcp::dim(&mcp)],
+            scene,
+            bodies,
+            contacts,
+            mcp,
+            step: 0,
+            t: 0.0,
+        };
+        sim.initial_guess();
+        Ok(sim)
+    }
+
+    /// First-step guess (formulation.md §5): for each contact, `a1` on Conv(F) nearest to G and
+    /// its projection `a2`, the gap as `l_g`, multiplier 1 on the face most anti-parallel to `n_G`.
+    /// Where the body already touches G, the impulses start active (see [`Self::contact_guess`]).
+    fn initial_guess(&mut self) {
+        for b in 0..self.bodies.len() {
+            let (nu, s) = (self.bodies[b].nu, self.bodies[b].state);
+            self.put(nu, &[s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z]);
+        }
+        for c in self.contacts.clone() {
+            self.contact_guess(&c, false);
+        }
+    }
+
+    /// Guess for one contact's unknowns from the current state.
+    ///
+    /// `a1` is the centroid of the hull vertices nearest to G (a face centre, an edge midpoint or
+    /// a vertex), `a2` its projection, `l_g` the gap, multiplier 1 on the face most anti-parallel
+    /// to `n_G`. When the contact is closed (gap ≤ 1e-9) or `force_active` is set, the normal
+    /// impulse starts at the value that carries the weight and stops the approach velocity over
+    /// the step, and the friction impulse on the ellipsoid opposing the current slip with σ the
+    /// slip rate — a point of the sliding branch of §4.4. Otherwise impulses and σ start at 0.
+    /// Starting active matters: `p_n = 0` zeroes every friction row, and the merit function of a
+    /// Newton method has a spurious minimiser near "free fall with zero impulses".
+    fn contact_guess(&mut self, c: &ContactVars, force_active: bool) {
+        let body = &self.bodies[c.body];
+        let plane = &self.scene.planes[c.plane];
+        let s = body.state;
+        let r = rotation_matrix(&s.q);
+        let ng = plane.normal();
+        let dir_body = r.transpose() * (-ng);
+        let verts = body.hull.vertices();
+        let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(s.x + r * v))).collect();
+        let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+        let mut a1 = Vector3::zeros();
+        let mut count: f64 = 0.0;
+        for (v, g) in verts.iter().zip(&gaps) {
+            if *g <= gmin + 1e-6 {
+                a1 += s.x + r * v;
+                count += 1.0;
+            }
+        }
+        a1 /= f64::max(count, 1.0);
+        let a2 = plane.project(&a1);
+        let k = body.hull.most_aligned_face(&dir_body);
+        let mut l = vec![0.0; body.hull.num_faces()];
+        l[k] = 1.0;
+        let gap = gmin.max(0.0);
+        let f = self.scene.friction;
+        let (mut pn, mut pf, mut sigma) = (0.0, [0.0; 3], 0.0);
+        if gap <= 1e-9 || force_active {
+            let m = body.spec.mass.mass;
+            let h = self.scene.h;
+            let v_pred = s.v + self.scene.gravity * h;
+            pn = (-m * self.scene.gravity.dot(&ng) * h).max(0.0) + (-m * v_pred.dot(&ng)).max(0.0);
+            let (_, t, o) = plane.contact_frame();
+            let rr = a1 - s.x;
+            let vt = t.dot(&s.v) + rr.cross(&t).dot(&s.w);
+            let vo = o.dot(&s.v) + rr.cross(&o).dot(&s.w);
+            let wn = ng.dot(&s.w);
+            let slip = ((f.e_t * vt).powi(2) + (f.e_o * vo).powi(2) + (f.e_r * wn).powi(2)).sqrt();
+            if slip > 1e-12 {
+                let k = -f.mu * pn / slip;
+                pf = [k * f.e_t * f.e_t * vt, k * f.e_o * f.e_o * vo, k * f.e_r * f.e_r * wn];
+                sigma = slip;
+            }
+        }
+        self.put(c.a1, a1.as_slice());
+        self.put(c.a2, a2.as_slice());
+        self.put(c.l, &l);
+        self.put(c.lg, &[gap]);
+        self.put(c.pn, &[pn]);
+        self.put(c.pf, &pf);
+        self.put(c.sigma, &[sigma]);
+    }
+
+    fn put(&mut self, v: VarId, values: &[f64]) {
+        let range = self.mcp.range(v);
+        self.z[range].copy_from_slice(values);
+    }
+
+    fn get(&self, v: VarId) -> &[f64] {
+        &self.z[self.mcp.range(v)]
+    }
+
+    /// The scene.
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    /// The assembled step MCP (its data are those of the last step prepared).
+    pub fn mcp(&self) -> &BlockMcp {
+        &self.mcp
+    }
+    /// The current unknown vector (last solution, or the warm start of the next step).
+    pub fn z(&self) -> &[f64] {
+        &self.z
+    }
+    /// Contact handles.
+    pub fn contacts(&self) -> &[ContactVars] {
+        &self.contacts
+    }
+    /// Current state of body `b`.
+    pub fn state(&self, b: usize) -> BodyState {
+        self.bodies[b].state
+    }
+    /// Convex hull of body `b`.
+    pub fn hull(&self, b: usize) -> &ConvexHull {
+        &self.bodies[b].hull
+    }
+    /// Current time.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+    /// Steps taken.
+    pub fn steps_taken(&self) -> usize {
+        self.step
+    }
+    /// True once the scene's duration is covered.
+    pub fn finished(&self) -> bool {
+        self.step >= self.scene.num_steps()
+    }
+
+    /// Updates the per-step data (mass matrix at q^u, applied and gyroscopic impulses at t_u,
+    /// start state) and the warm start. After this, `mcp()` and `z()` are the step problem and
+    /// its starting point.
+    pub fn prepare_step(&mut self) -> Result<(), SceneError> {
+        let h = self.scene.h;
+        for b in 0..self.bodies.len() {
+            let body = &self.bodies[b];
+            let s = body.state;
+            let mp = &body.spec.mass;
+            let r = rotation_matrix(&s.q);
+            let iw: Matrix3<f64> = r * mp.inertia * r.transpose();
+            let load = body.spec.load.at(self.t);
+            let mut impulse = Vector6::zeros();
+            let force = self.scene.gravity * mp.mass + load.fixed_rows::<3>(0).into_owned();
+            let gyro = -s.w.cross(&(iw * s.w));
+            let torque = load.fixed_rows::<3>(3).into_owned() + gyro;
+            for i in 0..3 {
+                impulse[i] = h * force[i];
+                impulse[3 + i] = h * torque[i];
+            }
+            let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
+            let ne = NewtonEuler::new(
+                mass_matrix(mp.mass, &mp.inertia, &s.q),
+                nu_start,
+                impulse,
+                body.frames.clone(),
+            );
+            let km = KinematicMap {
+                x_start: s.x,
+                q_start: s.q,
+                h,
+            };
+            let (ne_id, km_id, nu_id, q_id) = (body.newton_euler, body.kinematic, body.nu, body.q);
+            self.mcp.replace_residual_block(ne_id, Arc::new(ne))?;
+            self.mcp.replace_residual_block(km_id, Arc::new(km))?;
+            // Warm start: ν from the previous solution (= ν^u), q predicted by the kinematic map.
+            let nu_prev: Vec<f64> = self.get(nu_id).to_vec();
+            let w = Vector3::new(nu_prev[3], nu_prev[4], nu_prev[5]);
+            let v = Vector3::new(nu_prev[0], nu_prev[1], nu_prev[2]);
+            let x_pred = s.x + v * h;
+            let q_pred = s.q + kinematic_map(&s.q) * w * (0.5 * h);
+            let q_guess = [
+                x_pred.x, x_pred.y, x_pred.z, q_pred[0], q_pred[1], q_pred[2], q_pred[3],
+            ];
+            self.put(q_id, &q_guess);
+        }
+        Ok(())
+    }
+
+    /// Advances one step with `solver`. A step that does not converge is still taken with the
+    /// best iterate (and reported as such); the caller decides whether to stop.
+    pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        self.prepare_step()?;
+        let started = Instant::now();
+        let mut result = solver.solve(&self.mcp, &self.z);
+        let mut retried = false;
+        if result.is_err() {
+            // One deterministic retry from the active-contact guess of every contact that is
+            // closed or closing (a warm start from a separated step is a poor start for a
+            // landing step). The record says so.
+            let warm = self.z.clone();
+            for c in self.contacts.clone() {
+                let body = &self.bodies[c.body];
+                let plane = &self.scene.planes[c.plane];
+                let r = rotation_matrix(&body.state.q);
+                let gap = min_gap(body.hull.vertices(), &body.state.x, &r, plane);
+                let approach = -(body.state.v + self.scene.gravity * self.scene.h).dot(&plane.normal());
+                if gap <= approach.max(0.0) * self.scene.h + 1e-9 {
+                    self.contact_guess(&c, true);
+                }
+            }
+            retried = true;
+            match solver.solve(&self.mcp, &self.z) {
+                Ok(sol) => result = Ok(sol),
+                Err(_) => self.z.copy_from_slice(&warm),
+            }
+        }
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        let (z, summary, converged) = match result {
+            Ok(mut sol) => {
+                sol.summary.counters.push(("retries", usize::from(retried)));
+                (sol.z, sol.summary, true)
+            }
+            Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),
+            Err(SolveError::InvalidProblem(msg)) => {
+                return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
+            }
+        };
+        self.z.copy_from_slice(&z);
+        self.step += 1;
+        self.t = self.step as f64 * self.scene.h;
+        Ok(self.finish_step(summary, converged, solve_us))
+    }
+
+    fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
+        let mut states = Vec::with_capacity(self.bodies.len());
+        for b in 0..self.bodies.len() {
+            let nu = self.get(self.bodies[b].nu).to_vec();
+            let q = self.get(self.bodies[b].q).to_vec();
+            let quat = Vector4::new(q[3], q[4], q[5], q[6]);
+            let quat = quat_normalize(&quat).unwrap_or(self.bodies[b].state.q);
+            let state = BodyState {
+                x: Vector3::new(q[0], q[1], q[2]),
+                q: quat,
+                v: Vector3::new(nu[0], nu[1], nu[2]),
+                w: Vector3::new(nu[3], nu[4], nu[5]),
+            };
+            // Store the renormalised Q in the warm start too.
+            let qr = self.bodies[b].q;
+            self.put(qr, &[q[0], q[1], q[2], quat[0], quat[1], quat[2], quat[3]]);
+            self.bodies[b].state = state;
+            states.push(state);
+        }
+        let mut contacts = Vec::with_capacity(self.contacts.len());
+        for c in &self.contacts {
+            let body = &self.bodies[c.body];
+            let plane = &self.scene.planes[c.plane];
+            let s = body.state;
+            let r = rotation_matrix(&s.q);
+            let verts = world_vertices(body.spec.shape.vertices(), &s.x, &r);
+            let a1 = self.get(c.a1);
+            let a2 = self.get(c.a2);
+            let pf = self.get(c.pf);
+            contacts.push(ContactRecord {
+                a1: Vector3::new(a1[0], a1[1], a1[2]),
+                a2: Vector3::new(a2[0], a2[1], a2[2]),
+                lg: self.get(c.lg)[0],
+                pn: self.get(c.pn)[0],
+                pt: pf[0],
+                po: pf[1],
+                pr: pf[2],
+                sigma: self.get(c.sigma)[0],
+                min_gap: min_gap(body.spec.shape.vertices(), &s.x, &r, plane),
+                mode: contact_mode(&verts, plane, MODE_TOLERANCE),
+            });
+        }
+        let energy = self.energy();
+        StepRecord {
+            step: self.step,
+            t: self.t,
+            bodies: states,
+            contacts,
+            energy,
+            summary,
+            converged,
+            solve_us,
+        }
+    }
+
+    /// Kinetic plus potential energy (gravity) of all bodies in the current state.
+    pub fn energy(&self) -> f64 {
+        self.bodies
+            .iter()
+            .map(|b| {
+                let s = b.state;
+                let mp = &b.spec.mass;
+                let r = rotation_matrix(&s.q);
+                let iw = r * mp.inertia * r.transpose();
+                0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
+                    - mp.mass * self.scene.gravity.dot(&s.x)
+            })
+            .sum()
+    }
+
+    /// Runs the remaining steps, calling `on_step` after each (outputs can be written as the run
+    /// goes). Stops early when `on_step` returns `false`.
+    pub fn run(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        mut on_step: impl FnMut(&StepRecord) -> bool,
+    ) -> Result<usize, SceneError> {
+        let mut failed = 0;
+        while !self.finished() {
+            let rec = self.step(solver)?;
+            failed += usize::from(!rec.converged);
+            if !on_step(&rec) {
+                break;
+            }
+        }
+        Ok(failed)
+    }
+}
