@@ -40,7 +40,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mean_it = iterations.iter().sum::<usize>() as f64 / steps.max(1) as f64;
     let s = sim.state(0);
     println!("desk: {steps} steps, {converged} converged, max natural residual {max_res:.2e}");
-    println!("max penetration {max_pen:.2e} m, median step {median:.1} µs, mean iterations {mean_it:.2}");
+    println!(
+        "max penetration {max_pen:.2e} m, median step {median:.1} µs, mean iterations {mean_it:.2}"
+    );
     println!(
         "final x = ({:.6}, {:.6}, {:.6}), v = ({:.6}, {:.6}, {:.6}), wz = {:.6}",
         s.x.x, s.x.y, s.x.z, s.v.x, s.v.y, s.v.z, s.w.z

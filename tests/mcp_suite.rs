@@ -93,14 +93,25 @@ fn check_solution(p: &TestProblem, z: &[f64], residual: f64) -> Result<(), Strin
 
 #[test]
 fn every_suite_pair_converges_to_a_known_solution() {
+    // A returned solution must be right; a pair the solver cannot solve must end in an error that
+    // carries a finite best iterate (never NaN). Semismooth Newton is a descent method on
+    // ½‖Φ‖², so it can stop at a non-solution local minimiser of that merit function (measured:
+    // Kojima–Shindo from MCPLIB start 7); the issue accepts up to 10 % such pairs.
     let mut failures = Vec::new();
+    let mut unsolved = Vec::new();
     let mut pairs = 0;
     for (p, runs) in run_suite() {
         for run in runs {
             pairs += 1;
             let tag = format!("{} from {}", run.problem, run.start);
             match &run.result {
-                Err(e) => failures.push(format!("{tag}: solver error: {e}")),
+                Err(e) => {
+                    let finite = e.best().is_some_and(|b| b.z.iter().all(|v| v.is_finite()));
+                    if !finite {
+                        failures.push(format!("{tag}: error without a finite best iterate: {e}"));
+                    }
+                    unsolved.push(format!("{tag}: {e}"));
+                }
                 Ok(sol) => {
                     if exceeds(run.residual, 1e-8) {
                         failures.push(format!("{tag}: natural residual {:.3e}", run.residual));
@@ -112,6 +123,12 @@ fn every_suite_pair_converges_to_a_known_solution() {
         }
     }
     assert!(pairs > 0);
+    assert!(
+        unsolved.len() * 10 <= pairs,
+        "{} of {pairs} pairs unsolved (more than 10 %):\n{}",
+        unsolved.len(),
+        unsolved.join("\n")
+    );
     assert!(
         failures.is_empty(),
         "{} of {pairs} pairs failed:\n{}",

@@ -32,7 +32,12 @@ fn run(scene: Scene) -> Vec<StepRecord> {
             r.summary.residual
         );
         for c in &r.contacts {
-            assert!(c.min_gap >= -1e-9, "{name}: step {} penetrates: {:.3e}", r.step, c.min_gap);
+            assert!(
+                c.min_gap >= -1e-9,
+                "{name}: step {} penetrates: {:.3e}",
+                r.step,
+                c.min_gap
+            );
         }
     }
     records
@@ -77,15 +82,29 @@ fn a1_sliding_to_rest() {
         let b = &r.bodies[0];
         let c = &r.contacts[0];
         let analytic = 1.0 - dv * k;
-        let vx = if analytic < 0.0 || stopped { 0.0 } else { analytic };
+        let vx = if analytic < 0.0 || stopped {
+            0.0
+        } else {
+            analytic
+        };
         let sliding = vx > 0.0;
         if !sliding && !stopped {
             stopped = true;
             // The sticking step absorbs the remaining momentum; its ECP is in between.
         } else if sliding {
-            assert_close(&format!("A1 ECP offset, step {}", r.step), c.a1.x - b.x.x, 0.3 * 0.1, 1e-8);
+            assert_close(
+                &format!("A1 ECP offset, step {}", r.step),
+                c.a1.x - b.x.x,
+                0.3 * 0.1,
+                1e-8,
+            );
         } else {
-            assert_close(&format!("A1 ECP at rest, step {}", r.step), c.a1.x - b.x.x, 0.0, 1e-8);
+            assert_close(
+                &format!("A1 ECP at rest, step {}", r.step),
+                c.a1.x - b.x.x,
+                0.0,
+                1e-8,
+            );
         }
         x += H * vx;
         assert_close(&format!("A1 vx, step {}", r.step), b.v.x, vx, 1e-9);
@@ -106,8 +125,18 @@ fn a2_push_sticks_at_20n() {
         let c = &r.contacts[0];
         assert!(b.v.norm() <= 1e-9, "A2 20 N moves: {}", b.v);
         assert_close("A2 p_t", c.pt, -20.0 * H, 1e-9);
-        assert_close("A2 ECP offset", c.a1.x - b.x.x, 0.1 * 20.0 / (10.0 * G), 1e-8);
-        assert_close("A2 ECP offset (spec digits)", c.a1.x - b.x.x, 0.020408, 1e-6);
+        assert_close(
+            "A2 ECP offset",
+            c.a1.x - b.x.x,
+            0.1 * 20.0 / (10.0 * G),
+            1e-8,
+        );
+        assert_close(
+            "A2 ECP offset (spec digits)",
+            c.a1.x - b.x.x,
+            0.020408,
+            1e-6,
+        );
     }
 }
 
@@ -157,7 +186,11 @@ fn a4_incline_10_holds() {
     let e0 = initial_energy(&scene);
     let recs = run(scene);
     for r in &recs {
-        assert!(r.bodies[0].v.norm() <= 1e-9, "A4 10° moves: {}", r.bodies[0].v);
+        assert!(
+            r.bodies[0].v.norm() <= 1e-9,
+            "A4 10° moves: {}",
+            r.bodies[0].v
+        );
         assert!(r.bodies[0].w.norm() <= 1e-9, "A4 10° rotates");
     }
     assert_dissipative("A4 10°", &recs, e0);
@@ -174,7 +207,12 @@ fn a4_incline_25_slides() {
         let v = r.bodies[0].v;
         let speed = a * H * r.step as f64;
         for i in 0..3 {
-            assert_close(&format!("A4 25° v[{i}], step {}", r.step), v[i], speed * dir[i], 1e-9);
+            assert_close(
+                &format!("A4 25° v[{i}], step {}", r.step),
+                v[i],
+                speed * dir[i],
+                1e-9,
+            );
         }
     }
 }
@@ -195,7 +233,12 @@ fn a5_drop_lands_without_bounce() {
     // (The landing velocity is computed from the simulated z of the step before: it amplifies that
     // position's round-off by 1/h.)
     let z_before = recs[landing - 2].bodies[0].x.z;
-    assert_close("A5 z before landing", z_before, 0.15 - G * H * H * ((landing - 1) * landing) as f64 / 2.0, 1e-9);
+    assert_close(
+        "A5 z before landing",
+        z_before,
+        0.15 - G * H * H * ((landing - 1) * landing) as f64 / 2.0,
+        1e-9,
+    );
     for r in &recs {
         let b = &r.bodies[0];
         if r.step < landing {
@@ -203,7 +246,11 @@ fn a5_drop_lands_without_bounce() {
             assert!(r.contacts[0].pn.abs() <= 1e-10, "A5 impulse before landing");
         } else {
             assert_close(&format!("A5 z, step {}", r.step), b.x.z, 0.1, 1e-9);
-            let vz = if r.step == landing { -(z_before - 0.1) / H } else { 0.0 };
+            let vz = if r.step == landing {
+                -(z_before - 0.1) / H
+            } else {
+                0.0
+            };
             assert_close(&format!("A5 vz, step {}", r.step), b.v.z, vz, 1e-9);
             assert_close("A5 gap", r.contacts[0].min_gap, 0.0, 1e-9);
         }
@@ -218,12 +265,23 @@ fn a5_tilted_drop_comes_to_rest_flat() {
     let recs = run(scene);
     assert_dissipative("A5 tilted", &recs, e0);
     let modes: Vec<ContactMode> = recs.iter().map(|r| r.contacts[0].mode).collect();
-    assert!(modes.contains(&ContactMode::Point), "A5 tilted never lands on a vertex");
+    assert!(
+        modes.contains(&ContactMode::Point),
+        "A5 tilted never lands on a vertex"
+    );
     let last = recs.last().expect("steps");
     let b = &last.bodies[0];
     let up = rotation_matrix(&b.q) * nalgebra::Vector3::z();
-    assert!(up.z.abs() >= 1.0 - 1e-9, "A5 tilted not flat at the end: body z axis {up}");
-    assert!(b.v.norm() <= 1e-9 && b.w.norm() <= 1e-9, "A5 tilted not at rest: v {} w {}", b.v, b.w);
+    assert!(
+        up.z.abs() >= 1.0 - 1e-9,
+        "A5 tilted not flat at the end: body z axis {up}"
+    );
+    assert!(
+        b.v.norm() <= 1e-9 && b.w.norm() <= 1e-9,
+        "A5 tilted not at rest: v {} w {}",
+        b.v,
+        b.w
+    );
     assert_eq!(last.contacts[0].mode, ContactMode::Patch);
     assert_close("A5 tilted CM height", b.x.z, 0.1, 1e-9);
 }
@@ -235,8 +293,18 @@ fn a6_tip_90_stays_flat() {
         let b = &r.bodies[0];
         assert!(b.w.norm() <= 1e-9 && b.v.norm() <= 1e-9, "A6 90 N moves");
         assert_close("A6 90 N pitch", b.q[2], 0.0, 1e-9);
-        assert_close("A6 ECP offset", r.contacts[0].a1.x - b.x.x, 0.2 * 90.0 / (10.0 * G), 1e-8);
-        assert_close("A6 ECP offset (spec digits)", r.contacts[0].a1.x - b.x.x, 0.18367, 1e-5);
+        assert_close(
+            "A6 ECP offset",
+            r.contacts[0].a1.x - b.x.x,
+            0.2 * 90.0 / (10.0 * G),
+            1e-8,
+        );
+        assert_close(
+            "A6 ECP offset (spec digits)",
+            r.contacts[0].a1.x - b.x.x,
+            0.18367,
+            1e-5,
+        );
     }
 }
 
@@ -251,13 +319,29 @@ fn a6_tip_110_tips_over_front_edge() {
             tipping += 1;
             // The ECP lies on the front bottom edge: x = 0.2 and z = 0 in the body frame.
             let local = rotation_matrix(&b.q).transpose() * (c.a1 - b.x);
-            assert_close(&format!("A6 ECP on edge (x), step {}", r.step), local.x, 0.2, 1e-9);
-            assert_close(&format!("A6 ECP on edge (z), step {}", r.step), local.z, -0.1, 1e-9);
+            assert_close(
+                &format!("A6 ECP on edge (x), step {}", r.step),
+                local.x,
+                0.2,
+                1e-9,
+            );
+            assert_close(
+                &format!("A6 ECP on edge (z), step {}", r.step),
+                local.z,
+                -0.1,
+                1e-9,
+            );
         }
     }
-    assert!(tipping > 10, "A6 110 N does not tip ({tipping} tipping steps)");
+    assert!(
+        tipping > 10,
+        "A6 110 N does not tip ({tipping} tipping steps)"
+    );
     let last = recs.last().expect("steps");
-    assert!(last.bodies[0].w.y > 0.0, "A6 110 N must rotate towards the front edge");
+    assert!(
+        last.bodies[0].w.y > 0.0,
+        "A6 110 N must rotate towards the front edge"
+    );
 }
 
 #[test]
@@ -278,9 +362,16 @@ fn desk_paper_example() {
         if b.w.z.abs() > 1e-6 {
             rotating_steps += 1;
             let off = ((c.a1.x - b.x.x).powi(2) + (c.a1.y - b.x.y).powi(2)).sqrt();
-            assert!(off > 1e-3, "desk ECP under the CM while rotating at step {}", r.step);
+            assert!(
+                off > 1e-3,
+                "desk ECP under the CM while rotating at step {}",
+                r.step
+            );
         }
         assert_eq!(c.mode, ContactMode::Patch);
     }
-    assert!(rotating_steps > 100, "desk hardly rotates ({rotating_steps} steps)");
+    assert!(
+        rotating_steps > 100,
+        "desk hardly rotates ({rotating_steps} steps)"
+    );
 }

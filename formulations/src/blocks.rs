@@ -453,7 +453,11 @@ impl FrictionDissipation {
     }
     fn scales(&self) -> [f64; 3] {
         let f = &self.friction;
-        [f.e_t * f.e_t * f.mu, f.e_o * f.e_o * f.mu, f.e_r * f.e_r * f.mu]
+        [
+            f.e_t * f.e_t * f.mu,
+            f.e_o * f.e_o * f.mu,
+            f.e_r * f.e_r * f.mu,
+        ]
     }
 }
 

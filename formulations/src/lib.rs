@@ -3,8 +3,8 @@
 
 #![warn(missing_docs)]
 
+pub mod blocks;
 pub mod geometry;
 pub mod rotation;
-pub mod blocks;
 pub mod scenarios;
 pub mod stepper;

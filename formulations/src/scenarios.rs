@@ -68,7 +68,10 @@ pub fn a1_sliding() -> Scene {
         "a1_sliding",
         0.3,
         0.5,
-        box_body(flat_box(Vector3::new(1.0, 0.0, 0.0), Vector3::zeros()), Load::None),
+        box_body(
+            flat_box(Vector3::new(1.0, 0.0, 0.0), Vector3::zeros()),
+            Load::None,
+        ),
         HalfSpace::ground(),
     )
 }
@@ -98,7 +101,10 @@ pub fn a3_spin() -> Scene {
         "a3_spin",
         0.3,
         0.5,
-        box_body(flat_box(Vector3::zeros(), Vector3::new(0.0, 0.0, 2.0)), Load::None),
+        box_body(
+            flat_box(Vector3::zeros(), Vector3::new(0.0, 0.0, 2.0)),
+            Load::None,
+        ),
         HalfSpace::ground(),
     )
 }
@@ -152,7 +158,13 @@ pub fn a5_drop_tilted() -> Scene {
         q,
         ..BodyState::at_rest(Vector3::new(0.0, 0.0, 0.1 - lowest))
     };
-    box_scene("a5_drop_tilted", 0.3, 2.0, box_body(state, Load::None), HalfSpace::ground())
+    box_scene(
+        "a5_drop_tilted",
+        0.3,
+        2.0,
+        box_body(state, Load::None),
+        HalfSpace::ground(),
+    )
 }
 
 fn box_shape_vertices() -> Vec<Vector3<f64>> {

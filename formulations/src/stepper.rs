@@ -9,13 +9,12 @@ use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 use ecp_model::{BlockMcp, McpSolver, Problem, ResId, SolveError, Summary, VarBlock, VarId};
 
 use crate::blocks::{
-    mass_matrix, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
-    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
-    NormalCone,
+    ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, FrictionParams,
+    HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, mass_matrix,
 };
 use crate::geometry::{
-    contact_mode, min_gap, world_vertices, ContactMode, ConvexHull, GeometryError, HalfSpace,
-    MassProperties, Shape,
+    ContactMode, ConvexHull, GeometryError, HalfSpace, MassProperties, Shape, contact_mode,
+    min_gap, world_vertices,
 };
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
 
@@ -149,7 +148,9 @@ pub enum SceneError {
         hint: &'static str,
     },
     /// The initial state penetrates a half-space.
-    #[error("body '{body}' starts {depth:.3e} m inside half-space #{plane}; move it up so that every vertex is on or above the plane")]
+    #[error(
+        "body '{body}' starts {depth:.3e} m inside half-space #{plane}; move it up so that every vertex is on or above the plane"
+    )]
     InitialPenetration {
         /// Body name.
         body: String,
@@ -339,18 +340,22 @@ impl Simulation {
                     body: b,
                     plane: p,
                     a1: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.a1"), 3).with_component_names(["x", "y", "z"]),
+                        VarBlock::free(format!("{tag}.a1"), 3)
+                            .with_component_names(["x", "y", "z"]),
                     ),
                     a2: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.a2"), 3).with_component_names(["x", "y", "z"]),
+                        VarBlock::free(format!("{tag}.a2"), 3)
+                            .with_component_names(["x", "y", "z"]),
                     ),
                     l: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.l"), m)),
                     lg: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.lg"), 1)),
                     pn: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.pn"), 1)),
                     pf: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.pf"), 3).with_component_names(["pt", "po", "pr"]),
+                        VarBlock::free(format!("{tag}.pf"), 3)
+                            .with_component_names(["pt", "po", "pr"]),
                     ),
-                    sigma: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
+                    sigma: problem
+                        .add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
                 };
                 let (n, t, o) = plane.contact_frame();
                 frames.push(ContactFrame { n, t, o });
@@ -409,7 +414,11 @@ impl Simulation {
                     ClosestPointAlignment { normal: ng, scale },
                     &[c.a1, c.a2, c.lg],
                 )?;
-                problem.add_residual_block(c.a2, NormalCone::new(ng, normals.clone()), &[c.l, body.q])?;
+                problem.add_residual_block(
+                    c.a2,
+                    NormalCone::new(ng, normals.clone()),
+                    &[c.l, body.q],
+                )?;
                 problem.add_residual_block(
                     c.l,
                     HullFaces {
@@ -530,7 +539,11 @@ impl Simulation {
             let slip = ((f.e_t * vt).powi(2) + (f.e_o * vo).powi(2) + (f.e_r * wn).powi(2)).sqrt();
             if slip > 1e-12 {
                 let k = -f.mu * pn / slip;
-                pf = [k * f.e_t * f.e_t * vt, k * f.e_o * f.e_o * vo, k * f.e_r * f.e_r * wn];
+                pf = [
+                    k * f.e_t * f.e_t * vt,
+                    k * f.e_o * f.e_o * vo,
+                    k * f.e_r * f.e_r * wn,
+                ];
                 sigma = slip;
             }
         }
@@ -655,7 +668,8 @@ impl Simulation {
                 let plane = &self.scene.planes[c.plane];
                 let r = rotation_matrix(&body.state.q);
                 let gap = min_gap(body.hull.vertices(), &body.state.x, &r, plane);
-                let approach = -(body.state.v + self.scene.gravity * self.scene.h).dot(&plane.normal());
+                let approach =
+                    -(body.state.v + self.scene.gravity * self.scene.h).dot(&plane.normal());
                 if gap <= approach.max(0.0) * self.scene.h + 1e-9 {
                     self.contact_guess(&c, true);
                 }

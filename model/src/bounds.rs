@@ -75,7 +75,9 @@ impl Bounds {
             ));
         }
         if self.lower == f64::INFINITY || self.upper == f64::NEG_INFINITY {
-            return Err("the feasible interval is empty (a bound is infinite on the wrong side)".into());
+            return Err(
+                "the feasible interval is empty (a bound is infinite on the wrong side)".into(),
+            );
         }
         Ok(())
     }

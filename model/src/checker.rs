@@ -22,10 +22,10 @@
 
 use std::fmt;
 
+use crate::ModelError;
 use crate::mcp::Mcp;
 use crate::problem::{BlockMcp, ResId};
 use crate::residual::{JacobianBlocks, Params, ResidualBlock};
-use crate::ModelError;
 
 /// Settings of the Jacobian checker.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,7 +164,8 @@ impl Collector {
         let scale = a.abs().max(n.abs());
         let rel_error = if scale > 0.0 { abs_error / scale } else { 0.0 };
         // NaN errors count as failures.
-        let failed = abs_error.is_nan() || abs_error > self.opts.abs_tol + self.opts.rel_tol * scale;
+        let failed =
+            abs_error.is_nan() || abs_error > self.opts.abs_tol + self.opts.rel_tol * scale;
         while self.pairs.len() <= block {
             let b = self.pairs.len();
             self.pairs.push(BlockPairCheck {
@@ -198,10 +199,14 @@ impl Collector {
         let max_rel_error = self.all.iter().map(|e| e.rel_error).fold(0.0, f64::max);
         // Failed entries first, then by how far outside tolerance they are.
         let tol = |e: &EntryCheck| {
-            e.abs_error / (self.opts.abs_tol + self.opts.rel_tol * e.analytic.abs().max(e.numeric.abs()))
+            e.abs_error
+                / (self.opts.abs_tol + self.opts.rel_tol * e.analytic.abs().max(e.numeric.abs()))
         };
-        self.all
-            .sort_by(|a, b| tol(b).partial_cmp(&tol(a)).unwrap_or(std::cmp::Ordering::Equal));
+        self.all.sort_by(|a, b| {
+            tol(b)
+                .partial_cmp(&tol(a))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
         self.all.truncate(self.opts.max_listed);
         JacobianReport {
             name,
@@ -298,7 +303,12 @@ pub fn check_block_mcp(mcp: &BlockMcp, z: &[f64], opts: &CheckOptions) -> Vec<Ja
             // Name the variable blocks instead of "param k".
             for e in rep.worst.iter_mut() {
                 let (o, _) = ranges[e.block];
-                e.location = format!("{}[{}] / {}", block.name(), e.row, mcp.component_name(o + e.col));
+                e.location = format!(
+                    "{}[{}] / {}",
+                    block.name(),
+                    e.row,
+                    mcp.component_name(o + e.col)
+                );
             }
             Some(rep)
         })

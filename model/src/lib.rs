@@ -48,19 +48,19 @@ pub mod solver;
 
 pub use bounds::{BoundKind, Bounds, VarBlock};
 pub use checker::{
-    check_block_mcp, check_mcp, check_residual_block, BlockPairCheck, CheckOptions, EntryCheck,
-    JacobianReport,
+    BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_block_mcp, check_mcp,
+    check_residual_block,
 };
 pub use mcp::{
-    diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister, mid, natural_residual,
-    residual_of, FnMcp, Mcp, WorstComponent,
+    FnMcp, Mcp, WorstComponent, diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister,
+    mid, natural_residual, residual_of,
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
 pub use residual::{JacobianBlocks, Params, ResidualBlock};
 pub use solver::{
-    validate_start, IterationRecord, McpSolver, Observer, Solution, SolveError, StepKind,
-    Summary, Termination,
+    IterationRecord, McpSolver, Observer, Solution, SolveError, StepKind, Summary, Termination,
+    validate_start,
 };
 
 /// Errors raised while declaring or assembling a model.
@@ -75,7 +75,9 @@ pub enum ModelError {
         reason: String,
     },
     /// A residual block is paired with a variable block of another length.
-    #[error("residual block '{residual}' has {residual_size} rows but is paired with variable block '{variable}' of size {variable_size}; a residual block and its paired variable block must have the same length")]
+    #[error(
+        "residual block '{residual}' has {residual_size} rows but is paired with variable block '{variable}' of size {variable_size}; a residual block and its paired variable block must have the same length"
+    )]
     SizeMismatch {
         /// Residual block name.
         residual: String,

@@ -152,13 +152,8 @@ impl SparseLu {
     /// Symbolic analysis of `pattern`.
     pub fn analyze(pattern: &CscPattern) -> Result<Self, LinalgError> {
         let n = pattern.dim();
-        let sym = SymbolicSparseColMatRef::new_checked(
-            n,
-            n,
-            pattern.col_ptr(),
-            None,
-            pattern.row_idx(),
-        );
+        let sym =
+            SymbolicSparseColMatRef::new_checked(n, n, pattern.col_ptr(), None, pattern.row_idx());
         let symbolic = sp_lu::factorize_symbolic_lu(sym, Default::default())
             .map_err(|e| LinalgError::Factorization(format!("{e:?}")))?;
         let req = StackReq::any_of(&[
@@ -351,7 +346,11 @@ impl LinearSolver {
 
 impl std::fmt::Debug for DenseLu {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "DenseLu {{ n: {}, factored: {} }}", self.n, self.factored)
+        write!(
+            f,
+            "DenseLu {{ n: {}, factored: {} }}",
+            self.n, self.factored
+        )
     }
 }
 

@@ -3,9 +3,9 @@
 
 use std::sync::Arc;
 
-use crate::bounds::{classify, BoundKind, Bounds};
-use crate::pattern::CscPattern;
 use crate::ModelError;
+use crate::bounds::{BoundKind, Bounds, classify};
+use crate::pattern::CscPattern;
 
 /// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
 /// find `l ≤ z ≤ u` with `F_i(z) = 0` where `l_i < z_i < u_i`, `F_i ≥ 0` at `l_i`, `F_i ≤ 0` at `u_i`.

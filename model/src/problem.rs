@@ -2,11 +2,11 @@
 
 use std::sync::Arc;
 
+use crate::ModelError;
 use crate::bounds::VarBlock;
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 use crate::residual::{JacobianBlocks, Params, ResidualBlock};
-use crate::ModelError;
 
 /// Handle of a variable block inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -82,10 +82,13 @@ impl Problem {
         reads: &[VarId],
     ) -> Result<ResId, ModelError> {
         let name = block.name().to_string();
-        let var = self.vars.get(pairs_with.0).ok_or_else(|| ModelError::InvalidBlock {
-            block: name.clone(),
-            reason: format!("paired with unknown variable block #{}", pairs_with.0),
-        })?;
+        let var = self
+            .vars
+            .get(pairs_with.0)
+            .ok_or_else(|| ModelError::InvalidBlock {
+                block: name.clone(),
+                reason: format!("paired with unknown variable block #{}", pairs_with.0),
+            })?;
         if var.size() != block.num_residuals() {
             return Err(ModelError::SizeMismatch {
                 residual: name,
@@ -283,10 +286,13 @@ impl BlockMcp {
         r: ResId,
         block: Arc<dyn ResidualBlock>,
     ) -> Result<(), ModelError> {
-        let old = self.blocks.get_mut(r.0).ok_or_else(|| ModelError::InvalidBlock {
-            block: block.name().to_string(),
-            reason: format!("no residual block #{} to replace", r.0),
-        })?;
+        let old = self
+            .blocks
+            .get_mut(r.0)
+            .ok_or_else(|| ModelError::InvalidBlock {
+                block: block.name().to_string(),
+                reason: format!("no residual block #{} to replace", r.0),
+            })?;
         if old.block.num_residuals() != block.num_residuals()
             || old.block.parameter_sizes() != block.parameter_sizes()
         {

@@ -16,12 +16,12 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use ecp_model::bounds::{classify, BoundKind};
+use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
-    diagnose, natural_residual, validate_start, CscPattern, IterationRecord, Mcp, McpSolver,
-    Observer, Solution, SolveError, StepKind, Summary, Termination,
+    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, StepKind, Summary,
+    Termination, diagnose, natural_residual, validate_start,
 };
 
 use crate::normal_equations::NormalEquations;
@@ -355,8 +355,16 @@ impl McpSolver for NewtonSolver {
             }
             // H = D_a + D_b J in J's pattern (the diagonal is always stored).
             generalized_jacobian_rows(
-                &ws.z, &ws.f, l, u, &pattern, &ws.jac, &mut ws.da, &mut ws.db,
-                &mut ws.degenerate, &mut ws.jv,
+                &ws.z,
+                &ws.f,
+                l,
+                u,
+                &pattern,
+                &ws.jac,
+                &mut ws.da,
+                &mut ws.db,
+                &mut ws.degenerate,
+                &mut ws.jv,
             );
             let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
             for j in 0..n {
@@ -371,9 +379,10 @@ impl McpSolver for NewtonSolver {
             pattern.mul_transpose_vec(&ws.h, &ws.phi, &mut ws.grad);
 
             // Newton direction, with the DFK descent test.
-            let linear = self.linear.as_mut().ok_or_else(|| {
-                SolveError::InvalidProblem("linear solver not prepared".into())
-            })?;
+            let linear = self
+                .linear
+                .as_mut()
+                .ok_or_else(|| SolveError::InvalidProblem("linear solver not prepared".into()))?;
             let mut newton_ok = linear.factor(&ws.h).is_ok();
             if newton_ok {
                 for i in 0..n {
@@ -409,7 +418,10 @@ impl McpSolver for NewtonSolver {
                 if let Some(ne) = self.normal.as_mut() {
                     for _ in 0..s.max_lm_trials {
                         let mu = lm_mu;
-                        if ne.factor(&ws.h, |max_diag| mu * max_diag.max(1e-300)).is_err() {
+                        if ne
+                            .factor(&ws.h, |max_diag| mu * max_diag.max(1e-300))
+                            .is_err()
+                        {
                             lm_mu *= lm_growth;
                             lm_growth *= 2.0;
                             continue;
@@ -428,8 +440,9 @@ impl McpSolver for NewtonSolver {
                         match trial {
                             Some(p) if predicted > 0.0 && psi - p >= 1e-4 * predicted => {
                                 let rho = (psi - p) / predicted;
-                                lm_mu = (lm_mu * (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3)))
-                                    .max(1e-20);
+                                lm_mu = (lm_mu
+                                    * (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3)))
+                                .max(1e-20);
                                 lm_growth = 2.0;
                                 accepted = Some((1.0, p));
                                 kind = StepKind::LevenbergMarquardt;
@@ -508,12 +521,11 @@ impl McpSolver for NewtonSolver {
                 trace.push(record);
             }
             iterations += 1;
-            let moved = ws
-                .z
-                .iter()
-                .zip(&ws.z_trial)
-                .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
-                .fold(0.0, f64::max);
+            let moved =
+                ws.z.iter()
+                    .zip(&ws.z_trial)
+                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
+                    .fold(0.0, f64::max);
             std::mem::swap(&mut ws.z, &mut ws.z_trial);
             std::mem::swap(&mut ws.f, &mut ws.f_trial);
             std::mem::swap(&mut ws.phi, &mut ws.phi_trial);

@@ -1,8 +1,8 @@
 //! The normal-equations matrix `HᵀH + λI` in a sparse pattern computed once per pattern of `H`,
 //! for the Levenberg–Marquardt safeguard (solvers.md §1).
 
-use ecp_model::linalg::{LinalgError, LinearSolver};
 use ecp_model::CscPattern;
+use ecp_model::linalg::{LinalgError, LinearSolver};
 
 /// `HᵀH + λI` for matrices `H` in a fixed pattern, with its own linear solver.
 pub(crate) struct NormalEquations {
@@ -59,12 +59,20 @@ impl NormalEquations {
     }
 
     /// Factorises `HᵀH + λI` and returns the largest diagonal of `HᵀH` (for scaling λ).
-    pub(crate) fn factor(&mut self, h: &[f64], lambda: impl Fn(f64) -> f64) -> Result<f64, LinalgError> {
+    pub(crate) fn factor(
+        &mut self,
+        h: &[f64],
+        lambda: impl Fn(f64) -> f64,
+    ) -> Result<f64, LinalgError> {
         self.values.fill(0.0);
         for &(pi, pj, pos) in &self.triples {
             self.values[pos] += h[pi] * h[pj];
         }
-        let max_diag = self.diag.iter().map(|&p| self.values[p]).fold(0.0, f64::max);
+        let max_diag = self
+            .diag
+            .iter()
+            .map(|&p| self.values[p])
+            .fold(0.0, f64::max);
         let l = lambda(max_diag);
         for &p in &self.diag {
             self.values[p] += l;
