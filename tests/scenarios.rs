@@ -375,3 +375,22 @@ fn desk_paper_example() {
         "desk hardly rotates ({rotating_steps} steps)"
     );
 }
+
+#[test]
+fn trajectory_rows_follow_the_interface_contract() {
+    let header = StepRecord::csv_header(1, 1);
+    assert_eq!(
+        header.join(","),
+        "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,ecp_x,ecp_y,ecp_z,pn,pt,po,pr,sigma,min_gap,mode,iterations,residual,solve_us"
+    );
+    let mut scene = scenarios::a1_sliding();
+    scene.duration = 0.02;
+    let recs = run(scene);
+    let row = recs[0].csv_fields();
+    assert_eq!(row.len(), header.len());
+    assert_eq!(row[23], "patch");
+    let vx: f64 = row[8].parse().expect("vx is a number");
+    assert_close("csv vx", vx, 1.0 - 0.3 * G * H, 1e-9);
+    let two = StepRecord::csv_header(2, 1);
+    assert!(two.contains(&"vx_b1".to_string()) && two.contains(&"pn_b1_c0".to_string()));
+}

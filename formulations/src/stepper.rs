@@ -244,6 +244,101 @@ pub struct StepRecord {
     pub solve_us: f64,
 }
 
+/// The `trajectory.csv` columns of one body and one contact (interfaces.md).
+pub const TRAJECTORY_COLUMNS: [&str; 27] = [
+    "t",
+    "x",
+    "y",
+    "z",
+    "qw",
+    "qx",
+    "qy",
+    "qz",
+    "vx",
+    "vy",
+    "vz",
+    "wx",
+    "wy",
+    "wz",
+    "ecp_x",
+    "ecp_y",
+    "ecp_z",
+    "pn",
+    "pt",
+    "po",
+    "pr",
+    "sigma",
+    "min_gap",
+    "mode",
+    "iterations",
+    "residual",
+    "solve_us",
+];
+
+impl StepRecord {
+    /// The header row of `trajectory.csv` for `bodies` bodies with `contacts_per_body` contacts
+    /// each (interfaces.md): one body and one contact use the plain names; more append columns
+    /// suffixed `_b<i>` (body fields) and `_b<i>_c<j>` (contact fields).
+    pub fn csv_header(bodies: usize, contacts_per_body: usize) -> Vec<String> {
+        let single = bodies == 1 && contacts_per_body == 1;
+        let mut cols = vec!["t".to_string()];
+        for b in 0..bodies {
+            let sb = if single {
+                String::new()
+            } else {
+                format!("_b{b}")
+            };
+            for c in &TRAJECTORY_COLUMNS[1..14] {
+                cols.push(format!("{c}{sb}"));
+            }
+            for j in 0..contacts_per_body {
+                let sc = if single {
+                    String::new()
+                } else {
+                    format!("{sb}_c{j}")
+                };
+                for c in &TRAJECTORY_COLUMNS[14..24] {
+                    cols.push(format!("{c}{sc}"));
+                }
+            }
+        }
+        for c in &TRAJECTORY_COLUMNS[24..] {
+            cols.push((*c).to_string());
+        }
+        cols
+    }
+
+    /// This record as the fields of a `trajectory.csv` row, in [`StepRecord::csv_header`] order.
+    pub fn csv_fields(&self) -> Vec<String> {
+        let mut f = vec![format!("{}", self.t)];
+        let per_body = if self.bodies.is_empty() {
+            0
+        } else {
+            self.contacts.len() / self.bodies.len()
+        };
+        for (b, s) in self.bodies.iter().enumerate() {
+            for v in [
+                s.x.x, s.x.y, s.x.z, s.q[0], s.q[1], s.q[2], s.q[3], s.v.x, s.v.y, s.v.z, s.w.x,
+                s.w.y, s.w.z,
+            ] {
+                f.push(format!("{v:e}"));
+            }
+            for c in &self.contacts[b * per_body..(b + 1) * per_body] {
+                for v in [
+                    c.a1.x, c.a1.y, c.a1.z, c.pn, c.pt, c.po, c.pr, c.sigma, c.min_gap,
+                ] {
+                    f.push(format!("{v:e}"));
+                }
+                f.push(c.mode.as_str().to_string());
+            }
+        }
+        f.push(self.summary.iterations.to_string());
+        f.push(format!("{:e}", self.summary.residual));
+        f.push(format!("{:.3}", self.solve_us));
+        f
+    }
+}
+
 /// A running simulation: the step MCP (built once), the warm start and the current state.
 pub struct Simulation {
     scene: Scene,

@@ -1,0 +1,697 @@
+//! Property tests of the analytic Jacobians of every residual block of the step problem
+//! (formulation.md §4, `ecp::formulations::blocks`) against central differences, with the
+//! model's Jacobian checker (`check_residual_block`, `check_block_mcp`).
+//!
+//! States are random: rotated bodies with NON-UNIT quaternions (norm in [0.5, 2]: the step
+//! solver treats Q as four free unknowns), ECPs that are free points, hull vertices, or points on
+//! hull edges/faces, bodies separated from or touching the half-space, impulses with `p_n = 0` and
+//! `σ = 0` among them, contact frames of the ground, of inclines and of random half-spaces, and
+//! face normals of real hulls (box, desk, T-bar). All checks use `CheckOptions::default()`.
+//!
+//! One test plants a wrong Jacobian entry and checks that the checker finds exactly it, so a
+//! green run here means something.
+
+use std::sync::LazyLock;
+
+use ecp::formulations::blocks::{
+    ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, FrictionParams,
+    HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, mass_matrix,
+};
+use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
+use ecp::formulations::rotation::rotation_matrix;
+use ecp::formulations::scenarios;
+use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
+use ecp::model::{
+    CheckOptions, JacobianBlocks, JacobianReport, Mcp, Params, ResidualBlock, VarId,
+    check_block_mcp, check_residual_block,
+};
+use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
+use proptest::prelude::*;
+
+type V3 = Vector3<f64>;
+
+// ---------------------------------------------------------------------------------------------
+// Strategies
+// ---------------------------------------------------------------------------------------------
+
+fn vec3(lo: f64, hi: f64) -> impl Strategy<Value = V3> {
+    (lo..hi, lo..hi, lo..hi).prop_map(|(a, b, c)| V3::new(a, b, c))
+}
+
+/// A uniformly-ish distributed unit vector.
+fn unit3() -> impl Strategy<Value = V3> {
+    vec3(-1.0, 1.0)
+        .prop_filter("direction away from zero", |v| v.norm() > 0.1)
+        .prop_map(|v| v.normalize())
+}
+
+/// A unit quaternion (scalar first).
+fn unit_quat() -> impl Strategy<Value = Vector4<f64>> {
+    (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64)
+        .prop_map(|(a, b, c, d)| Vector4::new(a, b, c, d))
+        .prop_filter("quaternion away from zero", |q| q.norm() > 0.1)
+        .prop_map(|q| q.normalize())
+}
+
+/// A quaternion of norm between 0.5 and 2: the end-of-step Q is a free unknown.
+fn non_unit_quat() -> impl Strategy<Value = Vector4<f64>> {
+    (unit_quat(), 0.5..2.0f64).prop_map(|(q, s)| q * s)
+}
+
+/// The fixed half-space G: ground, an incline, a random half-space (normal given
+/// un-normalised), or a near-vertical one (whose contact frame takes the other tangent seed).
+fn half_space() -> impl Strategy<Value = HalfSpace> {
+    prop_oneof![
+        Just(HalfSpace::ground()),
+        (-0.8..0.8f64).prop_map(|th| HalfSpace::incline(th).expect("finite angle")),
+        (unit3(), 0.3..3.0f64, -1.0..1.0f64)
+            .prop_map(|(n, s, c)| HalfSpace::new(n * s, c).expect("non-zero normal")),
+        (-0.3..0.3f64, -0.3..0.3f64, -1.0..1.0f64).prop_map(|(y, z, c)| {
+            HalfSpace::new(V3::new(-1.0, y, z), c).expect("non-zero normal")
+        }),
+    ]
+}
+
+fn frame_of(g: &HalfSpace) -> ContactFrame {
+    let (n, t, o) = g.contact_frame();
+    ContactFrame { n, t, o }
+}
+
+/// Face data of a real hull (body frame).
+#[derive(Clone, Debug)]
+struct Hull {
+    name: &'static str,
+    normals: Vec<V3>,
+    offsets: Vec<f64>,
+    vertices: Vec<V3>,
+}
+
+fn hull_of(name: &'static str, shape: &Shape) -> Hull {
+    let h = shape.hull().expect("valid scenario shape");
+    Hull {
+        name,
+        normals: h.faces().iter().map(|f| f.normal).collect(),
+        offsets: h.faces().iter().map(|f| f.offset).collect(),
+        vertices: h.vertices().to_vec(),
+    }
+}
+
+static DESK: LazyLock<Hull> = LazyLock::new(|| hull_of("desk", &Shape::desk()));
+static T_BAR: LazyLock<Hull> = LazyLock::new(|| hull_of("t_bar", &Shape::t_bar()));
+
+fn hull() -> impl Strategy<Value = Hull> {
+    prop_oneof![
+        (0.05..1.0f64, 0.05..1.0f64, 0.05..1.0f64).prop_map(|(a, b, c)| {
+            hull_of("cuboid", &Shape::cuboid(a, b, c).expect("positive edges"))
+        }),
+        Just(()).prop_map(|_| DESK.clone()),
+        Just(()).prop_map(|_| T_BAR.clone()),
+    ]
+}
+
+/// Where an ECP `a1` sits: a free point, or `v_i + t (v_j − v_i)` on the hull (t = 0: a vertex;
+/// otherwise on an edge, a face or inside, depending on the pair).
+#[derive(Clone, Debug)]
+enum PointDraw {
+    Free(V3),
+    OnHull { i: usize, j: usize, t: f64 },
+}
+
+fn point_draw() -> impl Strategy<Value = PointDraw> {
+    prop_oneof![
+        vec3(-1.5, 1.5).prop_map(PointDraw::Free),
+        (
+            any::<usize>(),
+            any::<usize>(),
+            prop_oneof![Just(0.0), Just(0.5), 0.0..1.0f64]
+        )
+            .prop_map(|(i, j, t)| PointDraw::OnHull { i, j, t }),
+    ]
+}
+
+/// Impulse-like value that is exactly 0 a good share of the time.
+fn maybe_zero(hi: f64) -> impl Strategy<Value = f64> {
+    prop_oneof![Just(0.0), 0.0..hi]
+}
+
+/// One contact's unknowns (besides ν and q) and its half-space.
+#[derive(Clone, Debug)]
+struct ContactDraw {
+    plane: HalfSpace,
+    point: PointDraw,
+    /// Translate the body along the plane normal so that `a1` lies on the plane (`a2 = a1`).
+    touching: bool,
+    /// `a2` when not touching: the projection of `a1` plus this in-plane/out-of-plane offset.
+    a2_offset: V3,
+    lg: f64,
+    pn: f64,
+    pf: [f64; 3],
+    sigma: f64,
+    /// Face multipliers (first `m` used).
+    l: Vec<f64>,
+}
+
+fn contact_draw() -> impl Strategy<Value = ContactDraw> {
+    (
+        half_space(),
+        point_draw(),
+        any::<bool>(),
+        prop_oneof![Just(V3::zeros()), vec3(-0.5, 0.5)],
+        maybe_zero(1.0),
+        maybe_zero(20.0),
+        (-5.0..5.0f64, -5.0..5.0f64, -1.0..1.0f64),
+        maybe_zero(5.0),
+        prop::collection::vec(maybe_zero(3.0), 8),
+    )
+        .prop_map(
+            |(plane, point, touching, a2_offset, lg, pn, (pt, po, pr), sigma, l)| ContactDraw {
+                plane,
+                point,
+                touching,
+                a2_offset,
+                lg,
+                pn,
+                pf: [pt, po, pr],
+                sigma,
+                l,
+            },
+        )
+}
+
+/// A random state of one body with up to two contacts.
+#[derive(Clone, Debug)]
+struct Case {
+    hull: Hull,
+    x: V3,
+    /// End-of-step quaternion (non-unit).
+    q: Vector4<f64>,
+    nu: [f64; 6],
+    /// Start-of-step data (unit quaternion).
+    x_start: V3,
+    q_start: Vector4<f64>,
+    nu_start: [f64; 6],
+    impulse: [f64; 6],
+    mass: f64,
+    inertia_diag: V3,
+    h: f64,
+    /// Row scale of the length-valued contact rows (C1, C3–C5).
+    scale: f64,
+    friction: FrictionParams,
+    contacts: [ContactDraw; 2],
+}
+
+fn six(lo: f64, hi: f64) -> impl Strategy<Value = [f64; 6]> {
+    (vec3(lo, hi), vec3(lo, hi)).prop_map(|(a, b)| [a.x, a.y, a.z, b.x, b.y, b.z])
+}
+
+fn case() -> impl Strategy<Value = Case> {
+    (
+        hull(),
+        (vec3(-1.0, 1.0), non_unit_quat(), six(-3.0, 3.0)),
+        (vec3(-1.0, 1.0), unit_quat(), six(-3.0, 3.0), six(-5.0, 5.0)),
+        (
+            0.5..20.0f64,
+            vec3(0.01, 2.0),
+            prop_oneof![Just(0.01), 1e-3..0.05f64],
+            prop_oneof![Just(1.0), Just(100.0), 0.1..1000.0f64],
+        ),
+        (maybe_zero(1.5), 0.5..2.0f64, 0.5..2.0f64, 0.02..0.5f64),
+        (contact_draw(), contact_draw()),
+    )
+        .prop_map(
+            |(
+                hull,
+                (x, q, nu),
+                (x_start, q_start, nu_start, impulse),
+                (mass, inertia_diag, h, scale),
+                (mu, e_t, e_o, e_r),
+                (c0, c1),
+            )| Case {
+                hull,
+                x,
+                q,
+                nu,
+                x_start,
+                q_start,
+                nu_start,
+                impulse,
+                mass,
+                inertia_diag,
+                h,
+                scale,
+                friction: FrictionParams { mu, e_t, e_o, e_r },
+                contacts: [c0, c1],
+            },
+        )
+}
+
+/// The realised unknowns of one contact.
+#[derive(Clone, Debug)]
+struct Contact {
+    plane: HalfSpace,
+    frame: ContactFrame,
+    a1: [f64; 3],
+    a2: [f64; 3],
+    lg: [f64; 1],
+    pn: [f64; 1],
+    pf: [f64; 3],
+    sigma: [f64; 1],
+    l: Vec<f64>,
+}
+
+/// The realised state: `q = (x, Q)` flat, ν, and the contacts.
+#[derive(Clone, Debug)]
+struct State {
+    q: [f64; 7],
+    nu: [f64; 6],
+    contacts: Vec<Contact>,
+}
+
+impl Case {
+    fn realise(&self) -> State {
+        let r = rotation_matrix(&self.q);
+        let m = self.hull.normals.len();
+        let nv = self.hull.vertices.len();
+        let mut x = self.x;
+        let mut contacts = Vec::new();
+        for (k, c) in self.contacts.iter().enumerate() {
+            let mut a1 = match c.point {
+                PointDraw::Free(p) => p,
+                PointDraw::OnHull { i, j, t } => {
+                    let (vi, vj) = (self.hull.vertices[i % nv], self.hull.vertices[j % nv]);
+                    x + r * (vi + (vj - vi) * t)
+                }
+            };
+            let n = c.plane.normal();
+            // Only the first contact may move the body (a second plane would undo it).
+            let touching = c.touching && k == 0;
+            if touching {
+                let shift = n * c.plane.value(&a1);
+                x -= shift;
+                a1 -= shift;
+            }
+            let a2 = if touching {
+                a1
+            } else {
+                c.plane.project(&a1) + c.a2_offset
+            };
+            contacts.push(Contact {
+                plane: c.plane,
+                frame: frame_of(&c.plane),
+                a1: [a1.x, a1.y, a1.z],
+                a2: [a2.x, a2.y, a2.z],
+                lg: [if touching { 0.0 } else { c.lg }],
+                pn: [c.pn],
+                pf: c.pf,
+                sigma: [c.sigma],
+                l: c.l[..m].to_vec(),
+            });
+        }
+        State {
+            q: [x.x, x.y, x.z, self.q[0], self.q[1], self.q[2], self.q[3]],
+            nu: self.nu,
+            contacts,
+        }
+    }
+
+    fn mass6(&self) -> nalgebra::Matrix6<f64> {
+        mass_matrix(
+            self.mass,
+            &Matrix3::from_diagonal(&self.inertia_diag),
+            &self.q_start,
+        )
+    }
+
+    fn newton_euler(&self, s: &State, contacts: usize) -> NewtonEuler {
+        NewtonEuler::new(
+            self.mass6(),
+            Vector6::from_row_slice(&self.nu_start),
+            Vector6::from_row_slice(&self.impulse),
+            s.contacts[..contacts].iter().map(|c| c.frame).collect(),
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Checking
+// ---------------------------------------------------------------------------------------------
+
+/// Runs the checker with default options and asserts every entry is within tolerance and that
+/// every entry of the block's Jacobian was compared.
+fn check(block: &dyn ResidualBlock, params: &[&[f64]]) -> Result<JacobianReport, TestCaseError> {
+    check_scaled(block, params, 1.0)
+}
+
+/// Like [`check`] for a block whose rows are multiplied by `scale`: the round-off of the
+/// central differences grows with the scaled intermediate values (up to `scale · |a1 − x|`), so
+/// the absolute tolerance is scaled with it.
+fn check_scaled(
+    block: &dyn ResidualBlock,
+    params: &[&[f64]],
+    scale: f64,
+) -> Result<JacobianReport, TestCaseError> {
+    let opts = CheckOptions {
+        abs_tol: CheckOptions::default().abs_tol * scale.max(1.0),
+        ..CheckOptions::default()
+    };
+    let report = check_residual_block(block, params, &opts)
+        .map_err(|e| TestCaseError::fail(format!("checker rejected {}: {e}", block.name())))?;
+    let cols: usize = block.parameter_sizes().iter().sum();
+    prop_assert_eq!(
+        report.entries,
+        block.num_residuals() * cols,
+        "not every entry of {} was compared",
+        block.name()
+    );
+    prop_assert!(report.ok(), "{}", report);
+    Ok(report)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 1024, ..ProptestConfig::default() })]
+
+    #[test]
+    fn newton_euler_one_contact(case in case()) {
+        let s = case.realise();
+        let c = &s.contacts[0];
+        let ne = case.newton_euler(&s, 1);
+        check(&ne, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf])?;
+    }
+
+    #[test]
+    fn newton_euler_two_contacts(case in case()) {
+        let s = case.realise();
+        let (c0, c1) = (&s.contacts[0], &s.contacts[1]);
+        let ne = case.newton_euler(&s, 2);
+        check(&ne, &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf])?;
+    }
+
+    #[test]
+    fn newton_euler_without_contacts(case in case()) {
+        let s = case.realise();
+        let ne = case.newton_euler(&s, 0);
+        check(&ne, &[&s.nu, &s.q])?;
+    }
+
+    #[test]
+    fn kinematic_map(case in case()) {
+        let s = case.realise();
+        let km = KinematicMap { x_start: case.x_start, q_start: case.q_start, h: case.h };
+        check(&km, &[&s.q, &s.nu])?;
+        // Also from a non-unit start quaternion (the block is linear either way).
+        let km = KinematicMap { x_start: case.x_start, q_start: case.q, h: case.h };
+        check(&km, &[&s.q, &s.nu])?;
+    }
+
+    #[test]
+    fn closest_point_alignment(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = ClosestPointAlignment { normal: c.plane.normal(), scale: case.scale };
+            check(&b, &[&c.a1, &c.a2, &c.lg])?;
+        }
+    }
+
+    #[test]
+    fn normal_cone(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = NormalCone::new(c.plane.normal(), case.hull.normals.clone());
+            check(&b, &[&c.l, &s.q])?;
+        }
+    }
+
+    #[test]
+    fn hull_faces(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = HullFaces {
+                face_normals: case.hull.normals.clone(),
+                offsets: case.hull.offsets.clone(),
+                scale: case.scale,
+            };
+            let rep = check_scaled(&b, &[&c.a1, &s.q], case.scale)?;
+            prop_assert_eq!(rep.entries, case.hull.normals.len() * 10, "hull {}", case.hull.name);
+        }
+    }
+
+    #[test]
+    fn half_space_side(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = HalfSpaceSide {
+                normal: c.plane.normal(),
+                offset: c.plane.offset(),
+                scale: case.scale,
+            };
+            check(&b, &[&c.a2])?;
+        }
+    }
+
+    #[test]
+    fn non_penetration(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = NonPenetration {
+                normal: c.plane.normal(),
+                offset: c.plane.offset(),
+                scale: case.scale,
+            };
+            check(&b, &[&c.a1])?;
+        }
+    }
+
+    #[test]
+    fn friction_dissipation(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = FrictionDissipation { frame: c.frame, friction: case.friction };
+            check(&b, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf, &c.sigma])?;
+        }
+    }
+
+    #[test]
+    fn friction_ellipsoid(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = FrictionEllipsoid { friction: case.friction };
+            check(&b, &[&c.pn, &c.pf])?;
+        }
+    }
+}
+
+/// The contact frames used above are right-handed and orthonormal, so the blocks are tested
+/// with the frames the stepper really builds.
+#[test]
+fn contact_frames_are_orthonormal() {
+    let mut runner = proptest::test_runner::TestRunner::default();
+    runner
+        .run(&half_space(), |g| {
+            let f = frame_of(&g);
+            let m = Matrix3::from_columns(&[f.n, f.t, f.o]);
+            prop_assert!((m.transpose() * m - Matrix3::identity()).norm() < 1e-12);
+            prop_assert!((m.determinant() - 1.0).abs() < 1e-12);
+            Ok(())
+        })
+        .expect("orthonormal frames");
+}
+
+// ---------------------------------------------------------------------------------------------
+// The checker can fail
+// ---------------------------------------------------------------------------------------------
+
+/// FrictionEllipsoid with one planted error: `∂r/∂p_r` is off by 0.5.
+struct PlantedError(FrictionEllipsoid);
+
+impl ResidualBlock for PlantedError {
+    fn name(&self) -> &str {
+        "planted"
+    }
+    fn num_residuals(&self) -> usize {
+        self.0.num_residuals()
+    }
+    fn parameter_sizes(&self) -> &[usize] {
+        self.0.parameter_sizes()
+    }
+    fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
+        self.0.evaluate(x, out);
+    }
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        self.0.jacobian(x, jac);
+        // Block 1 (p_f), row 0, column 2 (p_r).
+        jac.add(1, 0, 2, 0.5);
+    }
+}
+
+#[test]
+fn checker_finds_a_planted_wrong_entry() {
+    let friction = FrictionParams {
+        mu: 0.3,
+        e_t: 1.0,
+        e_o: 1.2,
+        e_r: 0.1,
+    };
+    let pn = [2.0];
+    let pf = [0.3, -0.2, 0.01];
+    // The unmodified block passes at this point ...
+    let good = check_residual_block(
+        &FrictionEllipsoid { friction },
+        &[&pn, &pf],
+        &CheckOptions::default(),
+    )
+    .expect("sizes match");
+    assert!(good.ok(), "{good}");
+    // ... the planted error is found, and it is the only and the worst entry.
+    let bad = check_residual_block(
+        &PlantedError(FrictionEllipsoid { friction }),
+        &[&pn, &pf],
+        &CheckOptions::default(),
+    )
+    .expect("sizes match");
+    assert!(!bad.ok(), "the planted error was not detected:\n{bad}");
+    assert_eq!(bad.failures, 1, "{bad}");
+    let worst = &bad.worst[0];
+    assert!(
+        worst.failed && (worst.row, worst.block, worst.col) == (0, 1, 2),
+        "worst entry is not the planted one:\n{bad}"
+    );
+    // Analytic −2 p_r / e_r² + 0.5 = −1.5, numeric −2.
+    assert!((worst.analytic - (-1.5)).abs() < 1e-12, "{bad}");
+    assert!((worst.numeric - (-2.0)).abs() < 1e-6, "{bad}");
+    assert!((bad.max_abs_error - 0.5).abs() < 1e-6, "{bad}");
+    let text = bad.to_string();
+    assert!(
+        text.contains("FAILED") && text.contains("planted[0] / param1[2]"),
+        "{text}"
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// The assembled step MCP of every scenario
+// ---------------------------------------------------------------------------------------------
+
+/// A T-bar (slanted hull faces) at rest flat on the ground, sliding and spinning.
+fn t_bar_scene() -> Scene {
+    let shape = Shape::t_bar();
+    let hull = shape.hull().expect("valid T-bar");
+    let bottom = hull
+        .vertices()
+        .iter()
+        .map(|v| v.z)
+        .fold(f64::INFINITY, f64::min);
+    Scene {
+        name: "t_bar".into(),
+        bodies: vec![BodySpec {
+            name: "t_bar".into(),
+            mass: MassProperties::t_bar(0.5).expect("positive mass"),
+            shape,
+            initial: BodyState {
+                x: V3::new(0.0, 0.0, -bottom),
+                q: Vector4::new(1.0, 0.0, 0.0, 0.0),
+                v: V3::new(0.2, -0.1, 0.0),
+                w: V3::new(0.0, 0.0, 1.0),
+            },
+            load: Load::None,
+        }],
+        planes: vec![HalfSpace::ground()],
+        friction: FrictionParams {
+            mu: 0.3,
+            e_t: 1.0,
+            e_o: 1.0,
+            e_r: 0.05,
+        },
+        gravity: V3::new(0.0, 0.0, -scenarios::G),
+        h: 0.01,
+        duration: 0.1,
+    }
+}
+
+/// The A1 box with a second half-space (a tilted wall): two contacts on one body, so the
+/// Newton–Euler block of the assembled MCP reads two contact sets.
+fn two_plane_scene() -> Scene {
+    let mut scene = scenarios::a1_sliding();
+    scene.name = "box_and_wall".into();
+    scene
+        .planes
+        .push(HalfSpace::new(V3::new(-1.0, 0.2, 0.3), -0.5).expect("non-zero normal"));
+    scene
+}
+
+fn all_scenes() -> Vec<Scene> {
+    vec![
+        scenarios::a1_sliding(),
+        scenarios::a2_push(20.0),
+        scenarios::a2_push(40.0),
+        scenarios::a3_spin(),
+        scenarios::a4_incline(10.0),
+        scenarios::a4_incline(25.0),
+        scenarios::a5_drop(),
+        scenarios::a5_drop_tilted(),
+        scenarios::a6_tip(90.0),
+        scenarios::a6_tip(110.0),
+        scenarios::desk(),
+        t_bar_scene(),
+        two_plane_scene(),
+    ]
+}
+
+/// Checks every residual block of the prepared step MCP at `z`; `what` names the point.
+fn check_mcp_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseError> {
+    let mcp = sim.mcp();
+    let reports = check_block_mcp(mcp, z, &CheckOptions::default());
+    prop_assert_eq!(
+        reports.len(),
+        mcp.num_residual_blocks(),
+        "{}: some residual blocks were not checked",
+        what
+    );
+    for rep in &reports {
+        prop_assert!(rep.ok(), "{} ({}):\n{}", sim.scene().name, what, rep);
+    }
+    Ok(())
+}
+
+#[test]
+fn every_scenario_mcp_at_its_warm_start() {
+    for scene in all_scenes() {
+        let mut sim = Simulation::new(scene).expect("valid scenario");
+        sim.prepare_step().expect("step data");
+        let z = sim.z().to_vec();
+        assert_eq!(z.len(), sim.mcp().dim());
+        check_mcp_at(&sim, &z, "warm start").expect("warm start");
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 64, ..ProptestConfig::default() })]
+
+    /// Random perturbations of the warm start of every scenario's first step, with the
+    /// end-of-step quaternion rescaled to a non-unit norm.
+    #[test]
+    fn every_scenario_mcp_at_perturbed_points(
+        noise in prop::collection::vec(-1.0..1.0f64, 96),
+        scale in prop_oneof![Just(1e-3), 0.01..0.5f64],
+        q_norm in 0.5..2.0f64,
+    ) {
+        for scene in all_scenes() {
+            let mut sim = Simulation::new(scene).expect("valid scenario");
+            sim.prepare_step().expect("step data");
+            let mut z = sim.z().to_vec();
+            prop_assert!(z.len() <= noise.len());
+            for (zi, d) in z.iter_mut().zip(&noise) {
+                *zi += scale * d * (1.0 + zi.abs());
+            }
+            // Rescale each body's quaternion (components 3..7 of every ".q" block).
+            let mcp = sim.mcp();
+            for (i, vb) in mcp.variable_blocks().iter().enumerate() {
+                if vb.name().ends_with(".q") {
+                    let o = mcp.offset(VarId(i));
+                    let q = Vector4::new(z[o + 3], z[o + 4], z[o + 5], z[o + 6]);
+                    let q = q * (q_norm / q.norm());
+                    z[o + 3..o + 7].copy_from_slice(q.as_slice());
+                }
+            }
+            check_mcp_at(&sim, &z, "perturbed")?;
+        }
+    }
+}
