@@ -176,7 +176,7 @@ impl Collector {
         let rel_error = if scale > 0.0 { abs_error / scale } else { 0.0 };
         // NaN errors count as failures.
         let failed =
-            abs_error.is_nan() || abs_error > self.opts.abs_tol + self.opts.rel_tol * scale;
+            abs_error.is_nan() || abs_error > self.opts.abs_tol + self.opts.rel_tol * scale + noise;
         while self.pairs.len() <= block {
             let b = self.pairs.len();
             self.pairs.push(BlockPairCheck {
