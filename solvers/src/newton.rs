@@ -461,12 +461,12 @@ impl McpSolver for NewtonSolver {
             }
             if accepted.is_none() {
                 // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
-                let mut candidates: Vec<StepKind> = Vec::with_capacity(2);
-                if newton_ok {
-                    candidates.push(StepKind::Newton);
-                }
-                candidates.push(StepKind::Gradient);
-                for k in candidates {
+                // No allocation in the iteration: the candidates are a fixed pair.
+                let candidates = [StepKind::Newton, StepKind::Gradient];
+                for k in candidates
+                    .into_iter()
+                    .filter(|k| newton_ok || *k != StepKind::Newton)
+                {
                     if k == StepKind::Newton {
                         for i in 0..n {
                             ws.d[i] = -ws.phi[i];
