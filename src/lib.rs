@@ -3,9 +3,32 @@
 //! Geometrically implicit time stepping with an equivalent contact point (Xie & Chakraborty),
 //! built on a small MCP modelling layer ([`model`]) with pluggable backends ([`solvers`]) and
 //! the contact physics ([`formulations`]).
+//!
+//! This crate adds what a user touches first: [`scene`] files, the [`run`] driver that writes
+//! `trajectory.csv` and `summary.json` as it goes ([`output`]), [`plots`], and the `ecp`
+//! command line.
+//!
+//! ```
+//! use ecp::run::{RunOptions, run_scene};
+//!
+//! let file = ecp::scene::load_scene("scenes/a1_sliding.toml".as_ref()).unwrap();
+//! let out = std::env::temp_dir().join(format!("ecp-doc-{}", std::process::id()));
+//! let options = RunOptions { out_dir: out.clone(), steps: Some(5), plots: false, ..RunOptions::default() };
+//! let outcome = run_scene(&file, &options, |_| {}).unwrap();
+//! assert_eq!(outcome.summary.steps, 5);
+//! assert!(out.join("trajectory.csv").exists());
+//! # std::fs::remove_dir_all(out).ok();
+//! ```
 
 #![warn(missing_docs)]
 
 pub use ecp_formulations as formulations;
 pub use ecp_model as model;
 pub use ecp_solvers as solvers;
+
+pub mod backends;
+pub mod error;
+pub mod output;
+pub mod plots;
+pub mod run;
+pub mod scene;

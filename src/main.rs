@@ -1,1 +1,249 @@
-fn main() {}
+//! The `ecp` command line (interfaces.md): `run`, `compare` and `check` on scene files.
+//!
+//! Exit status: 0 when every step converged, 1 when some step failed (what was computed is still
+//! written), 2 for bad input.
+
+use std::io::IsTerminal;
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use ecp::backends::{Formulation, SolverKind};
+use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
+use ecp::scene::{SceneFile, load_scene};
+use indicatif::{ProgressBar, ProgressStyle};
+
+/// Rigid bodies in intermittent contact: geometrically implicit time stepping with an
+/// equivalent contact point, on pluggable MCP solvers.
+#[derive(Parser, Debug)]
+#[command(name = "ecp", version, about)]
+struct Cli {
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand, Debug)]
+enum Command {
+    /// Simulate a scene; write trajectory.csv, summary.json and plots.
+    Run {
+        /// The scene file (TOML; see docs/scene-format.md).
+        scene: PathBuf,
+        /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
+        #[arg(long)]
+        solver: Option<SolverKind>,
+        /// Contact formulation, instead of the scene's: hull, union, reduced or point.
+        #[arg(long)]
+        formulation: Option<Formulation>,
+        /// Output directory [default: out/<scene name>].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Stop after N steps (at most the scene's duration).
+        #[arg(long, value_name = "N")]
+        steps: Option<usize>,
+        /// Do not write the PNG plots.
+        #[arg(long)]
+        no_plots: bool,
+        /// No progress bar and no summary on standard output.
+        #[arg(long)]
+        quiet: bool,
+        /// Go on after a step that did not converge (from its best iterate) instead of stopping.
+        #[arg(long)]
+        keep_going: bool,
+    },
+    /// Run every combination of solvers and formulations on one scene and compare them.
+    Compare {
+        /// The scene file.
+        scene: PathBuf,
+        /// Comma-separated backends [default: every available one].
+        #[arg(long, value_delimiter = ',')]
+        solvers: Option<Vec<SolverKind>>,
+        /// Comma-separated formulations [default: hull].
+        #[arg(long, value_delimiter = ',')]
+        formulations: Option<Vec<Formulation>>,
+        /// Output directory [default: out/<scene name>/compare].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Stop each run after N steps.
+        #[arg(long, value_name = "N")]
+        steps: Option<usize>,
+    },
+    /// Validate a scene and print what it builds, without simulating.
+    Check {
+        /// The scene file.
+        scene: PathBuf,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let result = match cli.command {
+        Command::Run {
+            scene,
+            solver,
+            formulation,
+            out,
+            steps,
+            no_plots,
+            quiet,
+            keep_going,
+        } => load(&scene).and_then(|file| {
+            let options = RunOptions {
+                out_dir: out.unwrap_or_else(|| RunOptions::default_out_dir(&file)),
+                solver,
+                formulation,
+                steps,
+                plots: !no_plots,
+                keep_going,
+            };
+            run(&file, &options, quiet)
+        }),
+        Command::Compare {
+            scene,
+            solvers,
+            formulations,
+            out,
+            steps,
+        } => load(&scene).and_then(|file| {
+            let options = RunOptions {
+                out_dir: out.unwrap_or_else(|| RunOptions::default_out_dir(&file).join("compare")),
+                steps,
+                plots: false,
+                ..RunOptions::default()
+            };
+            compare(
+                &file,
+                &solvers.unwrap_or_else(SolverKind::available),
+                &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
+                &options,
+            )
+        }),
+        Command::Check { scene } => load(&scene).map(|file| {
+            print!("{}", ecp::scene::describe(&file));
+            ExitCode::SUCCESS
+        }),
+    };
+    result.unwrap_or_else(|e| {
+        eprintln!("error: {e}");
+        ExitCode::from(2)
+    })
+}
+
+fn load(path: &Path) -> Result<SceneFile, RunError> {
+    load_scene(path).map_err(RunError::from)
+}
+
+fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, RunError> {
+    let total = options
+        .steps
+        .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
+    let bar = if !quiet && std::io::stderr().is_terminal() {
+        let bar = ProgressBar::new(total as u64);
+        if let Ok(style) = ProgressStyle::with_template(
+            "{prefix} [{bar:40}] {pos}/{len} steps, t = {msg} s, ETA {eta}",
+        ) {
+            bar.set_style(style.progress_chars("=> "));
+        }
+        bar.set_prefix(file.scene.name.clone());
+        Some(bar)
+    } else {
+        None
+    };
+    let outcome = run_scene(file, options, |rec| {
+        if let Some(bar) = &bar {
+            bar.set_message(format!("{:.2}", rec.t));
+            bar.inc(1);
+        }
+    });
+    if let Some(bar) = &bar {
+        bar.finish_and_clear();
+    }
+    let outcome = outcome?;
+    let s = &outcome.summary;
+    if !quiet {
+        println!(
+            "{}: {} steps ({} converged, {} failed) with {} / {} in {:.2} s; step solve median {:.1} µs, \
+             mean {:.1} iterations, max residual {:.2e}, max penetration {:.2e} m",
+            s.scene,
+            s.steps,
+            s.converged_steps,
+            s.failed_steps,
+            s.formulation,
+            s.solver,
+            s.wall_s,
+            s.step_us.median,
+            s.iterations.mean,
+            s.max_residual,
+            s.max_penetration
+        );
+        println!("outputs in {}", options.out_dir.display());
+    }
+    if let Some(e) = &outcome.plot_error {
+        eprintln!("warning: the plots were not written: {e}");
+    }
+    if let Some(f) = &s.failure {
+        eprintln!(
+            "error: step {} (t = {:.4} s) did not converge: {} (residual {:.3e}); the steps before \
+             it are in {}; try --solver with another backend, a smaller h, or --keep-going",
+            f.step,
+            f.t,
+            f.reason,
+            f.residual,
+            options.out_dir.join("trajectory.csv").display()
+        );
+    }
+    if let Some(e) = &outcome.stepper_error {
+        eprintln!("error: the run stopped early: {e}");
+    }
+    Ok(if outcome.succeeded() {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn compare(
+    file: &SceneFile,
+    solvers: &[SolverKind],
+    formulations: &[Formulation],
+    options: &RunOptions,
+) -> Result<ExitCode, RunError> {
+    let report = compare_scene(file, solvers, formulations, options, |label| {
+        eprintln!("running {label} ...");
+    })?;
+    println!(
+        "{:<10} {:<8} {:>6} {:>6} {:>11} {:>11} {:>7} {:>10} {:>10} {:>10}",
+        "model",
+        "solver",
+        "steps",
+        "failed",
+        "median µs",
+        "mean µs",
+        "iters",
+        "max res",
+        "Δv max",
+        "Δω max"
+    );
+    for r in &report.runs {
+        let s = &r.summary;
+        println!(
+            "{:<10} {:<8} {:>6} {:>6} {:>11.1} {:>11.1} {:>7.2} {:>10.2e} {:>10.2e} {:>10.2e}",
+            s.formulation,
+            s.solver,
+            s.steps,
+            s.failed_steps,
+            s.step_us.median,
+            s.step_us.mean,
+            s.iterations.mean,
+            s.max_residual,
+            r.max_diff_v,
+            r.max_diff_w
+        );
+    }
+    println!("written {}", options.out_dir.join("compare.json").display());
+    let all_ok = report.runs.iter().all(|r| r.summary.failed_steps == 0);
+    Ok(if all_ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}

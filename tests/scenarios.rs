@@ -1,24 +1,41 @@
-//! The analytic scenarios A1–A6 and the desk (scenarios.md §A, §B) with the Newton backend,
-//! checked against the numbers of the spec. Tolerances: velocities 1e-9, ECP offsets 1e-8,
-//! no vertex below −1e-9 (issue #3).
+//! The analytic scenarios A1–A6 and the desk (scenarios.md §A, §B), loaded from the scene files
+//! in `scenes/` and run with every available backend, checked against the numbers of the spec.
+//! Tolerances: velocities 1e-9, ECP offsets 1e-8, no vertex below −1e-9 (issues #3, #4).
+//! The scene files are also compared with the Rust constructors of
+//! `ecp::formulations::scenarios`, so the two cannot drift.
 
+use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::ContactMode;
 use ecp::formulations::rotation::rotation_matrix;
-use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
-use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp::scene::load_scene;
 
 const G: f64 = 9.8;
 const H: f64 = 0.01;
 
-/// Runs a scene to the end with Newton; every step must converge to ≤ 1e-10 and keep every
-/// vertex of the real body above −1e-9.
-fn run(scene: Scene) -> Vec<StepRecord> {
-    let name = scene.name.clone();
+/// The scene of `scenes/<name>.toml`.
+fn scene(name: &str) -> Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(format!("{name}.toml"));
+    match load_scene(&path) {
+        Ok(file) => file.scene,
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// Runs a scene to the end with backend `kind`; every step must converge to ≤ 1e-10 and keep
+/// every vertex of the real body above −1e-9.
+fn run(scene: Scene, kind: SolverKind) -> Vec<StepRecord> {
+    let name = format!("{} ({kind})", scene.name);
     let mut sim = Simulation::new(scene).expect("valid scene");
-    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut solver = make_solver(&SolverConfig {
+        kind,
+        ..SolverConfig::default()
+    })
+    .expect("backend available");
     let mut records = Vec::new();
-    sim.run(&mut solver, |rec| {
+    sim.run(solver.as_mut(), |rec| {
         records.push(rec.clone());
         true
     })
@@ -69,11 +86,10 @@ fn initial_energy(scene: &Scene) -> f64 {
     Simulation::new(scene.clone()).expect("valid").energy()
 }
 
-#[test]
-fn a1_sliding_to_rest() {
-    let scene = scenarios::a1_sliding();
+fn a1_sliding_to_rest(kind: SolverKind) {
+    let scene = scene("a1_sliding");
     let e0 = initial_energy(&scene);
-    let recs = run(scene);
+    let recs = run(scene, kind);
     let dv = 0.3 * G * H;
     let mut x = 0.0;
     let mut stopped = false;
@@ -117,9 +133,8 @@ fn a1_sliding_to_rest() {
     assert_dissipative("A1", &recs, e0);
 }
 
-#[test]
-fn a2_push_sticks_at_20n() {
-    let recs = run(scenarios::a2_push(20.0));
+fn a2_push_sticks_at_20n(kind: SolverKind) {
+    let recs = run(scene("a2_push_stick"), kind);
     for r in &recs {
         let b = &r.bodies[0];
         let c = &r.contacts[0];
@@ -140,9 +155,8 @@ fn a2_push_sticks_at_20n() {
     }
 }
 
-#[test]
-fn a2_push_slides_at_40n() {
-    let recs = run(scenarios::a2_push(40.0));
+fn a2_push_slides_at_40n(kind: SolverKind) {
+    let recs = run(scene("a2_push_slide"), kind);
     for r in &recs {
         let b = &r.bodies[0];
         let c = &r.contacts[0];
@@ -152,11 +166,10 @@ fn a2_push_slides_at_40n() {
     }
 }
 
-#[test]
-fn a3_spin_in_place() {
-    let scene = scenarios::a3_spin();
+fn a3_spin_in_place(kind: SolverKind) {
+    let scene = scene("a3_spin");
     let e0 = initial_energy(&scene);
-    let recs = run(scene);
+    let recs = run(scene, kind);
     let izz: f64 = 10.0 / 12.0 * (0.16 + 0.16);
     let decel = 0.1 * 0.3 * 10.0 * G / izz;
     assert_close("A3 deceleration", decel, 11.025, 1e-9);
@@ -180,11 +193,10 @@ fn a3_spin_in_place() {
     assert_dissipative("A3", &recs, e0);
 }
 
-#[test]
-fn a4_incline_10_holds() {
-    let scene = scenarios::a4_incline(10.0);
+fn a4_incline_10_holds(kind: SolverKind) {
+    let scene = scene("a4_incline_10");
     let e0 = initial_energy(&scene);
-    let recs = run(scene);
+    let recs = run(scene, kind);
     for r in &recs {
         assert!(
             r.bodies[0].v.norm() <= 1e-9,
@@ -196,13 +208,12 @@ fn a4_incline_10_holds() {
     assert_dissipative("A4 10°", &recs, e0);
 }
 
-#[test]
-fn a4_incline_25_slides() {
+fn a4_incline_25_slides(kind: SolverKind) {
     let theta = 25f64.to_radians();
     let a = G * (theta.sin() - 0.3 * theta.cos());
     assert_close("A4 acceleration", a, 1.4771, 1e-4);
     let dir = [-theta.cos(), 0.0, -theta.sin()];
-    let recs = run(scenarios::a4_incline(25.0));
+    let recs = run(scene("a4_incline_25"), kind);
     for r in &recs {
         let v = r.bodies[0].v;
         let speed = a * H * r.step as f64;
@@ -217,11 +228,10 @@ fn a4_incline_25_slides() {
     }
 }
 
-#[test]
-fn a5_drop_lands_without_bounce() {
-    let scene = scenarios::a5_drop();
+fn a5_drop_lands_without_bounce(kind: SolverKind) {
+    let scene = scene("a5_drop");
     let e0 = initial_energy(&scene);
-    let recs = run(scene);
+    let recs = run(scene, kind);
     // Free fall: z^k = 0.15 − g h² k(k+1)/2 until the gap closes (k = 10).
     let landing = (1..)
         .find(|&k: &usize| 0.15 - G * H * H * (k * (k + 1)) as f64 / 2.0 <= 0.1)
@@ -258,11 +268,10 @@ fn a5_drop_lands_without_bounce() {
     assert_dissipative("A5", &recs, e0);
 }
 
-#[test]
-fn a5_tilted_drop_comes_to_rest_flat() {
-    let scene = scenarios::a5_drop_tilted();
+fn a5_tilted_drop_comes_to_rest_flat(kind: SolverKind) {
+    let scene = scene("a5_drop_tilted");
     let e0 = initial_energy(&scene);
-    let recs = run(scene);
+    let recs = run(scene, kind);
     assert_dissipative("A5 tilted", &recs, e0);
     let modes: Vec<ContactMode> = recs.iter().map(|r| r.contacts[0].mode).collect();
     assert!(
@@ -286,9 +295,8 @@ fn a5_tilted_drop_comes_to_rest_flat() {
     assert_close("A5 tilted CM height", b.x.z, 0.1, 1e-9);
 }
 
-#[test]
-fn a6_tip_90_stays_flat() {
-    let recs = run(scenarios::a6_tip(90.0));
+fn a6_tip_90_stays_flat(kind: SolverKind) {
+    let recs = run(scene("a6_tip_90"), kind);
     for r in &recs {
         let b = &r.bodies[0];
         assert!(b.w.norm() <= 1e-9 && b.v.norm() <= 1e-9, "A6 90 N moves");
@@ -308,9 +316,8 @@ fn a6_tip_90_stays_flat() {
     }
 }
 
-#[test]
-fn a6_tip_110_tips_over_front_edge() {
-    let recs = run(scenarios::a6_tip(110.0));
+fn a6_tip_110_tips_over_front_edge(kind: SolverKind) {
+    let recs = run(scene("a6_tip_110"), kind);
     let mut tipping = 0;
     for r in &recs {
         let b = &r.bodies[0];
@@ -344,9 +351,8 @@ fn a6_tip_110_tips_over_front_edge() {
     );
 }
 
-#[test]
-fn desk_paper_example() {
-    let recs = run(scenarios::desk());
+fn desk_paper_example(kind: SolverKind) {
+    let recs = run(scene("desk"), kind);
     assert_eq!(recs.len(), 400);
     let mut rotating_steps = 0;
     for r in &recs {
@@ -383,9 +389,9 @@ fn trajectory_rows_follow_the_interface_contract() {
         header.join(","),
         "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,ecp_x,ecp_y,ecp_z,pn,pt,po,pr,sigma,min_gap,mode,iterations,residual,solve_us"
     );
-    let mut scene = scenarios::a1_sliding();
+    let mut scene = scene("a1_sliding");
     scene.duration = 0.02;
-    let recs = run(scene);
+    let recs = run(scene, SolverKind::Newton);
     let row = recs[0].csv_fields();
     assert_eq!(row.len(), header.len());
     assert_eq!(row[23], "patch");
@@ -393,4 +399,148 @@ fn trajectory_rows_follow_the_interface_contract() {
     assert_close("csv vx", vx, 1.0 - 0.3 * G * H, 1e-9);
     let two = StepRecord::csv_header(2, 1);
     assert!(two.contains(&"vx_b1".to_string()) && two.contains(&"pn_b1_c0".to_string()));
+}
+
+/// One test per scenario for backend `$kind`, in a module named after it.
+macro_rules! scenario_tests {
+    ($module:ident, $kind:expr) => {
+        mod $module {
+            use super::*;
+
+            #[test]
+            fn a1_sliding() {
+                a1_sliding_to_rest($kind)
+            }
+            #[test]
+            fn a2_push_stick() {
+                a2_push_sticks_at_20n($kind)
+            }
+            #[test]
+            fn a2_push_slide() {
+                a2_push_slides_at_40n($kind)
+            }
+            #[test]
+            fn a3_spin() {
+                a3_spin_in_place($kind)
+            }
+            #[test]
+            fn a4_incline_10() {
+                a4_incline_10_holds($kind)
+            }
+            #[test]
+            fn a4_incline_25() {
+                a4_incline_25_slides($kind)
+            }
+            #[test]
+            fn a5_drop() {
+                a5_drop_lands_without_bounce($kind)
+            }
+            #[test]
+            fn a5_drop_tilted() {
+                a5_tilted_drop_comes_to_rest_flat($kind)
+            }
+            #[test]
+            fn a6_tip_90() {
+                a6_tip_90_stays_flat($kind)
+            }
+            #[test]
+            fn a6_tip_110() {
+                a6_tip_110_tips_over_front_edge($kind)
+            }
+            #[test]
+            fn desk() {
+                desk_paper_example($kind)
+            }
+        }
+    };
+}
+
+scenario_tests!(newton, SolverKind::Newton);
+
+/// Largest absolute difference between two 3-vectors.
+fn diff3(a: &nalgebra::Vector3<f64>, b: &nalgebra::Vector3<f64>) -> f64 {
+    (a - b).amax()
+}
+
+/// The scene files describe exactly the scenes of the Rust constructors (to round-off).
+#[test]
+fn scene_files_match_the_constructors() {
+    use ecp::formulations::scenarios;
+    let pairs = [
+        ("a1_sliding", scenarios::a1_sliding()),
+        ("a2_push_stick", scenarios::a2_push(20.0)),
+        ("a2_push_slide", scenarios::a2_push(40.0)),
+        ("a3_spin", scenarios::a3_spin()),
+        ("a4_incline_10", scenarios::a4_incline(10.0)),
+        ("a4_incline_25", scenarios::a4_incline(25.0)),
+        ("a5_drop", scenarios::a5_drop()),
+        ("a5_drop_tilted", scenarios::a5_drop_tilted()),
+        ("a6_tip_90", scenarios::a6_tip(90.0)),
+        ("a6_tip_110", scenarios::a6_tip(110.0)),
+        ("desk", scenarios::desk()),
+    ];
+    const TOL: f64 = 1e-12;
+    for (name, want) in pairs {
+        let got = scene(name);
+        assert_eq!(got.name, want.name, "{name}: name");
+        assert_eq!(
+            (got.h, got.duration),
+            (want.h, want.duration),
+            "{name}: h, duration"
+        );
+        assert_eq!(got.num_steps(), want.num_steps(), "{name}: steps");
+        assert!(diff3(&got.gravity, &want.gravity) <= TOL, "{name}: gravity");
+        assert_eq!(got.friction, want.friction, "{name}: friction");
+        assert_eq!(got.planes.len(), want.planes.len(), "{name}: half-spaces");
+        for (p, q) in got.planes.iter().zip(&want.planes) {
+            assert!(
+                diff3(&p.normal(), &q.normal()) <= TOL,
+                "{name}: plane normal"
+            );
+            assert!(
+                (p.offset() - q.offset()).abs() <= TOL,
+                "{name}: plane offset"
+            );
+        }
+        assert_eq!(got.bodies.len(), want.bodies.len(), "{name}: bodies");
+        for (b, c) in got.bodies.iter().zip(&want.bodies) {
+            assert!((b.mass.mass - c.mass.mass).abs() <= TOL, "{name}: mass");
+            assert!(
+                (b.mass.inertia - c.mass.inertia).amax() <= TOL,
+                "{name}: inertia {} vs {}",
+                b.mass.inertia,
+                c.mass.inertia
+            );
+            let (vb, vc) = (b.shape.vertices(), c.shape.vertices());
+            assert_eq!(vb.len(), vc.len(), "{name}: vertex count");
+            for v in vb {
+                assert!(
+                    vc.iter().any(|w| diff3(v, w) <= TOL),
+                    "{name}: vertex {v} of the file is not in the constructor's shape"
+                );
+            }
+            let (s, t) = (&b.initial, &c.initial);
+            assert!(
+                diff3(&s.x, &t.x) <= TOL,
+                "{name}: position {} vs {}",
+                s.x,
+                t.x
+            );
+            assert!(
+                (s.q - t.q).amax() <= TOL,
+                "{name}: orientation {} vs {}",
+                s.q,
+                t.q
+            );
+            assert!(diff3(&s.v, &t.v) <= TOL, "{name}: velocity");
+            assert!(diff3(&s.w, &t.w) <= TOL, "{name}: angular velocity");
+            for time in [0.0, 0.013, 0.25, 0.5, 1.7, 3.99] {
+                let (lb, lc) = (b.load.at(time), c.load.at(time));
+                assert!(
+                    (lb - lc).amax() <= TOL,
+                    "{name}: load at t = {time}: {lb} vs {lc}"
+                );
+            }
+        }
+    }
 }

@@ -1,0 +1,201 @@
+//! Names of the solver backends and contact formulations, as written in scene files and on the
+//! command line, and the factory that builds a solver from its name and settings.
+
+use std::fmt;
+use std::str::FromStr;
+
+use ecp_model::McpSolver;
+use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+
+use crate::error::{InputError, InputErrorKind};
+
+/// A solver backend (solvers.md).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolverKind {
+    /// Semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
+    Newton,
+    /// PATH-like Josephy–Newton with pivoting and a path search (solvers.md §2).
+    Path,
+    /// Convex subproblems with clarabel (solvers.md §3).
+    Conic,
+}
+
+impl SolverKind {
+    /// Every backend name, in the order of solvers.md.
+    pub const ALL: [SolverKind; 3] = [SolverKind::Newton, SolverKind::Path, SolverKind::Conic];
+
+    /// The name used in files and on the command line.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            SolverKind::Newton => "newton",
+            SolverKind::Path => "path",
+            SolverKind::Conic => "conic",
+        }
+    }
+
+    /// Whether this build has the backend (the others are named in the spec but not built yet).
+    pub fn is_available(&self) -> bool {
+        matches!(self, SolverKind::Newton)
+    }
+
+    /// The backends this build has.
+    pub fn available() -> Vec<SolverKind> {
+        Self::ALL.into_iter().filter(|s| s.is_available()).collect()
+    }
+}
+
+impl fmt::Display for SolverKind {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for SolverKind {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.as_str() == s.trim())
+            .ok_or_else(|| {
+                format!(
+                    "unknown solver \"{s}\"; the solvers are {}",
+                    names(&Self::ALL)
+                )
+            })
+    }
+}
+
+/// A contact formulation (formulation.md §3 and §7).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Formulation {
+    /// The paper's model: one contact between Conv(body) and each half-space (the ECP).
+    Hull,
+    /// One contact per convex piece (formulation.md §7.1).
+    Union,
+    /// The reduced sliding model with the patch known in advance (formulation.md §7.2).
+    Reduced,
+    /// Point contacts at the vertices (formulation.md §7.3).
+    Point,
+}
+
+impl Formulation {
+    /// Every formulation name.
+    pub const ALL: [Formulation; 4] = [
+        Formulation::Hull,
+        Formulation::Union,
+        Formulation::Reduced,
+        Formulation::Point,
+    ];
+
+    /// The name used in files and on the command line.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            Formulation::Hull => "hull",
+            Formulation::Union => "union",
+            Formulation::Reduced => "reduced",
+            Formulation::Point => "point",
+        }
+    }
+
+    /// Whether this build has the formulation.
+    pub fn is_available(&self) -> bool {
+        matches!(self, Formulation::Hull)
+    }
+}
+
+impl fmt::Display for Formulation {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+impl FromStr for Formulation {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        Self::ALL
+            .into_iter()
+            .find(|k| k.as_str() == s.trim())
+            .ok_or_else(|| {
+                format!(
+                    "unknown formulation \"{s}\"; the formulations are {}",
+                    names(&Self::ALL)
+                )
+            })
+    }
+}
+
+fn names<T: fmt::Display>(items: &[T]) -> String {
+    items
+        .iter()
+        .map(|i| format!("\"{i}\""))
+        .collect::<Vec<_>>()
+        .join(", ")
+}
+
+/// Solver choice and settings of a scene (`[solver]`); unset settings keep the backend's
+/// documented defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SolverConfig {
+    /// Which backend.
+    pub kind: SolverKind,
+    /// Tolerance on the natural-map residual.
+    pub tolerance: Option<f64>,
+    /// Iteration limit per step.
+    pub max_iterations: Option<usize>,
+}
+
+impl Default for SolverConfig {
+    fn default() -> Self {
+        SolverConfig {
+            kind: SolverKind::Newton,
+            tolerance: None,
+            max_iterations: None,
+        }
+    }
+}
+
+/// Builds the solver of `config`; an unavailable backend is an [`InputErrorKind::UnknownName`]
+/// error that says which ones exist.
+pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputError> {
+    match config.kind {
+        SolverKind::Newton => {
+            let mut s = NewtonSettings::default();
+            if let Some(t) = config.tolerance {
+                s.tolerance = t;
+            }
+            if let Some(m) = config.max_iterations {
+                s.max_iterations = m;
+            }
+            Ok(Box::new(NewtonSolver::new(s)))
+        }
+        other => Err(unavailable_solver(other)),
+    }
+}
+
+/// The error for a backend named in the spec but not in this build.
+pub fn unavailable_solver(kind: SolverKind) -> InputError {
+    InputError::option(
+        "--solver",
+        InputErrorKind::UnknownName,
+        format!(
+            "the solver \"{kind}\" is not available in this build; available: {}",
+            names(&SolverKind::available())
+        ),
+    )
+}
+
+/// The error for a formulation named in the spec but not in this build.
+pub fn unavailable_formulation(kind: Formulation) -> InputError {
+    let available: Vec<Formulation> = Formulation::ALL
+        .into_iter()
+        .filter(|f| f.is_available())
+        .collect();
+    InputError::option(
+        "--formulation",
+        InputErrorKind::UnknownName,
+        format!(
+            "the formulation \"{kind}\" is not available in this build; available: {}",
+            names(&available)
+        ),
+    )
+}

@@ -1,0 +1,224 @@
+//! Running a scene file: the time stepper with the chosen backend, writing `trajectory.csv`
+//! row by row, then `summary.json` and the plots (interfaces.md). The `ecp` binary is a thin
+//! layer over [`run_scene`] and [`compare_scene`].
+
+use std::path::PathBuf;
+use std::time::Instant;
+
+use ecp_formulations::stepper::{Simulation, StepRecord};
+
+use crate::backends::{
+    Formulation, SolverConfig, SolverKind, make_solver, unavailable_formulation,
+};
+use crate::error::{InputError, InputErrorKind};
+use crate::output::{
+    CompareReport, CompareRun, OutputError, RunSummary, TrajectoryWriter, max_velocity_differences,
+    write_json,
+};
+use crate::scene::SceneFile;
+
+/// Options of a run; `None` fields take the scene file's choice.
+#[derive(Clone, Debug)]
+pub struct RunOptions {
+    /// Output directory (created if missing).
+    pub out_dir: PathBuf,
+    /// Backend instead of the scene's `[solver] name`.
+    pub solver: Option<SolverKind>,
+    /// Formulation instead of the scene's.
+    pub formulation: Option<Formulation>,
+    /// Stop after this many steps (at most the scene's duration).
+    pub steps: Option<usize>,
+    /// Write PNG plots into `out_dir/plots`.
+    pub plots: bool,
+    /// Go on after a step that did not converge (from its best iterate) instead of stopping.
+    pub keep_going: bool,
+}
+
+impl Default for RunOptions {
+    fn default() -> Self {
+        RunOptions {
+            out_dir: PathBuf::from("out"),
+            solver: None,
+            formulation: None,
+            steps: None,
+            plots: true,
+            keep_going: false,
+        }
+    }
+}
+
+impl RunOptions {
+    /// The default output directory of interfaces.md: `out/<scene name>`.
+    pub fn default_out_dir(file: &SceneFile) -> PathBuf {
+        PathBuf::from("out").join(&file.scene.name)
+    }
+}
+
+/// What a run produced.
+#[derive(Debug)]
+pub struct RunOutcome {
+    /// The contents of `summary.json`.
+    pub summary: RunSummary,
+    /// Every step's record, in order.
+    pub records: Vec<StepRecord>,
+    /// Plot files written.
+    pub plots: Vec<PathBuf>,
+    /// Why the plots could not be written, if they could not (the run itself is still good).
+    pub plot_error: Option<String>,
+    /// The stepper's error that ended the run early, if any.
+    pub stepper_error: Option<String>,
+}
+
+impl RunOutcome {
+    /// Every step converged and the run reached its end.
+    pub fn succeeded(&self) -> bool {
+        self.summary.failed_steps == 0 && self.stepper_error.is_none()
+    }
+}
+
+/// Why a run could not produce its outputs.
+#[derive(Debug, thiserror::Error)]
+pub enum RunError {
+    /// Bad input (an unavailable backend or formulation, a scene the stepper refuses).
+    #[error(transparent)]
+    Input(#[from] InputError),
+    /// An output file could not be written.
+    #[error(transparent)]
+    Output(#[from] OutputError),
+}
+
+fn resolve(file: &SceneFile, options: &RunOptions) -> Result<SolverConfig, InputError> {
+    let formulation = options.formulation.unwrap_or(file.formulation);
+    if !formulation.is_available() {
+        return Err(unavailable_formulation(formulation));
+    }
+    let mut config = file.solver.clone();
+    if let Some(kind) = options.solver {
+        config.kind = kind;
+    }
+    Ok(config)
+}
+
+/// Simulates `file` and writes its outputs into `options.out_dir`. `on_step` sees each record
+/// right after its CSV row is on disk (the CLI's progress bar uses it).
+pub fn run_scene(
+    file: &SceneFile,
+    options: &RunOptions,
+    mut on_step: impl FnMut(&StepRecord),
+) -> Result<RunOutcome, RunError> {
+    let start = Instant::now();
+    let config = resolve(file, options)?;
+    let formulation = options.formulation.unwrap_or(file.formulation);
+    let mut solver = make_solver(&config)?;
+    let mut sim = Simulation::new(file.scene.clone()).map_err(|e| InputError {
+        file: Some(file.path.clone()),
+        key: None,
+        line: None,
+        kind: InputErrorKind::InvalidValue,
+        message: e.to_string(),
+    })?;
+    let planned = options
+        .steps
+        .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
+    let mut csv = TrajectoryWriter::create(&options.out_dir.join("trajectory.csv"), &file.scene)?;
+    let mut records = Vec::with_capacity(planned);
+    let mut stepper_error = None;
+    while records.len() < planned {
+        match sim.step(solver.as_mut()) {
+            Ok(rec) => {
+                csv.write(&rec)?;
+                on_step(&rec);
+                let stop = !rec.converged && !options.keep_going;
+                records.push(rec);
+                if stop {
+                    break;
+                }
+            }
+            Err(e) => {
+                stepper_error = Some(format!("step {}: {e}", records.len() + 1));
+                break;
+            }
+        }
+    }
+    let mut summary = RunSummary::from_records(
+        &file.scene,
+        formulation.as_str(),
+        config.kind.as_str(),
+        &records,
+        planned,
+    );
+    let (plots, plot_error) = if options.plots && !records.is_empty() {
+        match crate::plots::write_plots(&options.out_dir.join("plots"), &file.scene, &records) {
+            Ok(p) => (p, None),
+            Err(e) => (Vec::new(), Some(e.to_string())),
+        }
+    } else {
+        (Vec::new(), None)
+    };
+    summary.wall_s = start.elapsed().as_secs_f64();
+    write_json(&options.out_dir.join("summary.json"), &summary)?;
+    Ok(RunOutcome {
+        summary,
+        records,
+        plots,
+        plot_error,
+        stepper_error,
+    })
+}
+
+/// Runs every (formulation, solver) combination on `file` (each into its own subdirectory of
+/// `options.out_dir`, without plots), and writes `compare.json` with the velocity differences
+/// against the first run. `on_run` is told each run's label before it starts.
+pub fn compare_scene(
+    file: &SceneFile,
+    solvers: &[SolverKind],
+    formulations: &[Formulation],
+    options: &RunOptions,
+    mut on_run: impl FnMut(&str),
+) -> Result<CompareReport, RunError> {
+    for f in formulations {
+        if !f.is_available() {
+            return Err(unavailable_formulation(*f).into());
+        }
+    }
+    for s in solvers {
+        make_solver(&SolverConfig {
+            kind: *s,
+            ..file.solver.clone()
+        })?;
+    }
+    let mut runs: Vec<CompareRun> = Vec::new();
+    let mut first: Option<Vec<StepRecord>> = None;
+    for f in formulations {
+        for s in solvers {
+            let label = format!("{f}-{s}");
+            on_run(&label);
+            let run_options = RunOptions {
+                out_dir: options.out_dir.join(&label),
+                solver: Some(*s),
+                formulation: Some(*f),
+                plots: false,
+                ..options.clone()
+            };
+            let outcome = run_scene(file, &run_options, |_| {})?;
+            let (max_diff_v, max_diff_w) = match &first {
+                Some(reference) => max_velocity_differences(reference, &outcome.records),
+                None => (0.0, 0.0),
+            };
+            if first.is_none() {
+                first = Some(outcome.records);
+            }
+            runs.push(CompareRun {
+                summary: outcome.summary,
+                max_diff_v,
+                max_diff_w,
+            });
+        }
+    }
+    let report = CompareReport {
+        scene: file.scene.name.clone(),
+        runs,
+    };
+    write_json(&options.out_dir.join("compare.json"), &report)?;
+    Ok(report)
+}

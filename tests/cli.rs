@@ -1,0 +1,518 @@
+//! The `ecp` binary against interfaces.md: outputs and exit statuses of `run`, `check` and
+//! `compare` on every scene file, and one broken file per bad-input class (exit status 2, a
+//! one-paragraph error naming file, key and line, no panic).
+
+use std::path::{Path, PathBuf};
+use std::process::{Command, Output};
+
+fn ecp(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ecp"))
+        .args(args)
+        .current_dir(env!("CARGO_MANIFEST_DIR"))
+        .output()
+        .expect("the ecp binary runs")
+}
+
+fn stderr(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stderr).into_owned()
+}
+
+fn stdout(o: &Output) -> String {
+    String::from_utf8_lossy(&o.stdout).into_owned()
+}
+
+/// A fresh directory for one test's files.
+fn temp_dir(tag: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ecp-cli-{tag}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    dir
+}
+
+fn scene_files() -> Vec<PathBuf> {
+    let mut files: Vec<PathBuf> =
+        std::fs::read_dir(Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes"))
+            .expect("scenes/ exists")
+            .filter_map(|e| e.ok().map(|e| e.path()))
+            .filter(|p| p.extension().is_some_and(|e| e == "toml"))
+            .collect();
+    files.sort();
+    files
+}
+
+#[test]
+fn every_scenario_of_the_spec_has_its_scene_file() {
+    let names: Vec<String> = scene_files()
+        .iter()
+        .filter_map(|p| p.file_stem().map(|s| s.to_string_lossy().into_owned()))
+        .collect();
+    for want in [
+        "a1_sliding",
+        "a2_push_stick",
+        "a2_push_slide",
+        "a3_spin",
+        "a4_incline_10",
+        "a4_incline_25",
+        "a5_drop",
+        "a5_drop_tilted",
+        "a6_tip_90",
+        "a6_tip_110",
+        "desk",
+    ] {
+        assert!(
+            names.iter().any(|n| n == want),
+            "scenes/{want}.toml is missing"
+        );
+    }
+}
+
+#[test]
+fn check_validates_every_scene_file() {
+    for file in scene_files() {
+        let path = file.to_string_lossy().into_owned();
+        let o = ecp(&["check", &path]);
+        assert!(o.status.success(), "check {path}: {}", stderr(&o));
+        let out = stdout(&o);
+        for what in [
+            "bodies:",
+            "hull:",
+            "faces",
+            "pieces:",
+            "mass",
+            "contacts:",
+            "half-spaces:",
+        ] {
+            assert!(
+                out.contains(what),
+                "check {path} does not print {what}:\n{out}"
+            );
+        }
+    }
+    let o = ecp(&["check", "scenes/desk.toml"]);
+    let out = stdout(&o);
+    assert!(out.contains("pieces: 5 (36 vertices"), "{out}");
+    assert!(out.contains("hull: 8 vertices, 6 faces"), "{out}");
+}
+
+#[test]
+fn compare_runs_on_every_scene_file() {
+    let dir = temp_dir("compare");
+    for file in scene_files() {
+        let path = file.to_string_lossy().into_owned();
+        let stem = file
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default();
+        let out = dir.join(&stem);
+        let o = ecp(&[
+            "compare",
+            &path,
+            "--steps",
+            "3",
+            "--out",
+            &out.to_string_lossy(),
+        ]);
+        assert!(o.status.success(), "compare {path}: {}", stderr(&o));
+        let json: serde_json::Value = serde_json::from_str(
+            &std::fs::read_to_string(out.join("compare.json")).expect("compare.json written"),
+        )
+        .expect("compare.json is JSON");
+        assert_eq!(json["scene"], stem.as_str());
+        let runs = json["runs"].as_array().expect("runs");
+        assert!(!runs.is_empty());
+        for r in runs {
+            for key in [
+                "formulation",
+                "solver",
+                "steps",
+                "max_residual",
+                "step_us",
+                "max_diff_v",
+                "max_diff_w",
+            ] {
+                assert!(!r[key].is_null(), "compare.json run lacks {key}");
+            }
+            assert_eq!(r["steps"], 3);
+        }
+        assert_eq!(runs[0]["max_diff_v"], 0.0);
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn run_writes_trajectory_summary_and_status_0() {
+    let dir = temp_dir("run");
+    let out = dir.join("a1");
+    let o = ecp(&[
+        "run",
+        "scenes/a1_sliding.toml",
+        "--out",
+        &out.to_string_lossy(),
+        "--steps",
+        "12",
+        "--no-plots",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(out.join("trajectory.csv")).expect("trajectory.csv");
+    let lines: Vec<&str> = csv.lines().collect();
+    assert_eq!(
+        lines[0],
+        "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,ecp_x,ecp_y,ecp_z,pn,pt,po,pr,sigma,min_gap,mode,iterations,residual,solve_us"
+    );
+    assert_eq!(lines.len(), 13, "header plus 12 rows");
+    let vx: f64 = lines[1]
+        .split(',')
+        .nth(8)
+        .and_then(|v| v.parse().ok())
+        .expect("vx");
+    assert!((vx - (1.0 - 0.3 * 9.8 * 0.01)).abs() <= 1e-9, "vx = {vx}");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("JSON");
+    for key in [
+        "scene",
+        "formulation",
+        "solver",
+        "h",
+        "steps",
+        "converged_steps",
+        "failed_steps",
+        "wall_s",
+        "step_us",
+        "iterations",
+        "max_residual",
+        "max_penetration",
+        "mode_sequence",
+        "final",
+    ] {
+        assert!(!summary[key].is_null(), "summary.json lacks {key}");
+    }
+    for key in ["min", "median", "mean", "p95", "max"] {
+        assert!(summary["step_us"][key].is_number(), "step_us.{key}");
+    }
+    assert_eq!(summary["scene"], "a1_sliding");
+    assert_eq!(summary["solver"], "newton");
+    assert_eq!(summary["formulation"], "hull");
+    assert_eq!(summary["steps"], 12);
+    assert_eq!(summary["failed_steps"], 0);
+    assert_eq!(summary["mode_sequence"][0]["mode"], "patch");
+    assert!(summary["max_residual"].as_f64().is_some_and(|r| r <= 1e-10));
+    assert_eq!(
+        summary["final"]["position"].as_array().map(Vec::len),
+        Some(3)
+    );
+    assert_eq!(
+        summary["final"]["orientation"].as_array().map(Vec::len),
+        Some(4)
+    );
+    // Not a terminal: no progress bar, and --quiet silences standard output.
+    let o = ecp(&[
+        "run",
+        "scenes/a1_sliding.toml",
+        "--out",
+        &out.to_string_lossy(),
+        "--steps",
+        "2",
+        "--no-plots",
+        "--quiet",
+    ]);
+    assert!(o.status.success());
+    assert!(
+        o.stdout.is_empty() && o.stderr.is_empty(),
+        "{}{}",
+        stdout(&o),
+        stderr(&o)
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+#[test]
+fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
+    let dir = temp_dir("fail");
+    // Sliding needs several iterations; one is not enough, so the first step fails.
+    let text = std::fs::read_to_string(
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a1_sliding.toml"),
+    )
+    .expect("a1")
+    .replace(
+        "[solver]\nname = \"newton\"",
+        "[solver]\nname = \"newton\"\nmax_iterations = 1",
+    );
+    let scene = dir.join("a1_one_iteration.toml");
+    std::fs::write(&scene, text).expect("write");
+    let out = dir.join("out");
+    let o = ecp(&[
+        "run",
+        &scene.to_string_lossy(),
+        "--out",
+        &out.to_string_lossy(),
+        "--no-plots",
+    ]);
+    assert_eq!(o.status.code(), Some(1), "{}", stderr(&o));
+    assert!(stderr(&o).contains("did not converge"), "{}", stderr(&o));
+    let csv = std::fs::read_to_string(out.join("trajectory.csv")).expect("csv kept");
+    assert_eq!(csv.lines().count(), 2, "header and the failed step's row");
+    let summary: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
+            .expect("JSON");
+    assert_eq!(summary["failed_steps"], 1);
+    assert_eq!(summary["failure"]["step"], 1);
+    let _ = std::fs::remove_dir_all(dir);
+}
+
+/// A valid base scene; each bad-input case edits one line of it.
+const BASE: &str = r#"name = "broken"
+
+[simulation]
+h = 0.01
+duration = 0.05
+
+[friction]
+mu = 0.3
+e_r = 0.1
+
+[solver]
+name = "newton"
+
+[[half_spaces]]
+normal = [0, 0, 1]
+
+[[bodies]]
+name = "box"
+mass = 10.0
+inertia = [0.1667, 0.1667, 0.2667]
+position = [0, 0, 0.1]
+
+[bodies.load]
+force = ["5*sin(2*pi*t)", 0, 0]
+
+[[bodies.pieces]]
+box = [0.4, 0.4, 0.2]
+"#;
+
+struct Case {
+    class: &'static str,
+    from: &'static str,
+    to: &'static str,
+    key: Option<&'static str>,
+    /// The line the error must name: the line of `to` in the broken file.
+    has_line: bool,
+    words: &'static str,
+}
+
+#[test]
+fn every_bad_input_class_is_a_clear_error_with_status_2() {
+    let cases = [
+        Case {
+            class: "TOML syntax",
+            from: "mass = 10.0",
+            to: "mass = = 10.0",
+            key: None,
+            has_line: true,
+            words: "syntax",
+        },
+        Case {
+            class: "unknown key",
+            from: "mass = 10.0",
+            to: "mass = 10.0\nmas = 10.0",
+            key: Some("mas"),
+            has_line: true,
+            words: "unknown",
+        },
+        Case {
+            class: "wrong type",
+            from: "mass = 10.0",
+            to: "mass = \"ten\"",
+            key: Some("bodies[0].mass"),
+            has_line: true,
+            words: "wrong type",
+        },
+        Case {
+            class: "negative mass",
+            from: "mass = 10.0",
+            to: "mass = -10.0",
+            key: Some("bodies[0].mass"),
+            has_line: true,
+            words: "must be > 0",
+        },
+        Case {
+            class: "inertia not positive definite",
+            from: "inertia = [0.1667, 0.1667, 0.2667]",
+            to: "inertia = [0.1667, -0.1667, 0.2667]",
+            key: Some("bodies[0].inertia"),
+            has_line: true,
+            words: "positive definite",
+        },
+        Case {
+            class: "flat hull",
+            from: "box = [0.4, 0.4, 0.2]",
+            to: "points = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]]",
+            key: Some("bodies[0].pieces[0].points"),
+            has_line: true,
+            words: "coplanar",
+        },
+        Case {
+            class: "degenerate hull",
+            from: "box = [0.4, 0.4, 0.2]",
+            to: "points = [[0, 0, 0], [1, 0, 0], [2, 0, 0], [3, 0, 0]]",
+            key: Some("bodies[0].pieces[0].points"),
+            has_line: true,
+            words: "collinear",
+        },
+        Case {
+            class: "mu < 0",
+            from: "mu = 0.3",
+            to: "mu = -0.3",
+            key: Some("friction.mu"),
+            has_line: true,
+            words: "μ must be ≥ 0",
+        },
+        Case {
+            class: "h <= 0",
+            from: "h = 0.01",
+            to: "h = 0.0",
+            key: Some("simulation.h"),
+            has_line: true,
+            words: "must be > 0",
+        },
+        Case {
+            class: "NaN",
+            from: "position = [0, 0, 0.1]",
+            to: "position = [0, nan, 0.1]",
+            key: Some("bodies[0].position"),
+            has_line: true,
+            words: "finite",
+        },
+        Case {
+            class: "unknown solver name",
+            from: "name = \"newton\"",
+            to: "name = \"newtn\"",
+            key: Some("solver.name"),
+            has_line: true,
+            words: "unknown solver",
+        },
+        Case {
+            class: "expression that does not parse",
+            from: "\"5*sin(2*pi*t)\"",
+            to: "\"5*sin(2*pi*t\"",
+            key: Some("bodies[0].load.force"),
+            has_line: true,
+            words: "does not parse",
+        },
+        Case {
+            class: "expression with an unknown name",
+            from: "\"5*sin(2*pi*t)\"",
+            to: "\"5*sin(2*pi*tt)\"",
+            key: Some("bodies[0].load.force"),
+            has_line: true,
+            words: "unknown name `tt`",
+        },
+        Case {
+            class: "missing key",
+            from: "mu = 0.3\n",
+            to: "",
+            key: Some("mu"),
+            has_line: false,
+            words: "missing",
+        },
+        Case {
+            class: "body inside the ground",
+            from: "position = [0, 0, 0.1]",
+            to: "position = [0, 0, 0.05]",
+            key: Some("bodies[0].position"),
+            has_line: true,
+            words: "inside",
+        },
+    ];
+    let dir = temp_dir("bad");
+    for (i, case) in cases.iter().enumerate() {
+        assert!(
+            BASE.contains(case.from),
+            "{}: base lacks {:?}",
+            case.class,
+            case.from
+        );
+        let text = BASE.replacen(case.from, case.to, 1);
+        let path = dir.join(format!("case{i}.toml"));
+        std::fs::write(&path, &text).expect("write");
+        let o = ecp(&[
+            "run",
+            &path.to_string_lossy(),
+            "--out",
+            &dir.join("out").to_string_lossy(),
+            "--no-plots",
+        ]);
+        let err = stderr(&o);
+        assert_eq!(
+            o.status.code(),
+            Some(2),
+            "{}: status {:?}, stderr {err}",
+            case.class,
+            o.status.code()
+        );
+        assert!(
+            !err.contains("panicked") && !err.contains("RUST_BACKTRACE"),
+            "{}: panic: {err}",
+            case.class
+        );
+        assert_eq!(
+            err.trim_end().lines().count(),
+            1,
+            "{}: one paragraph expected: {err}",
+            case.class
+        );
+        assert!(
+            err.contains(&path.to_string_lossy().into_owned()),
+            "{}: file not named: {err}",
+            case.class
+        );
+        if let Some(key) = case.key {
+            assert!(
+                err.contains(key),
+                "{}: key {key} not named: {err}",
+                case.class
+            );
+        }
+        if case.has_line {
+            let first = case.to.lines().last().unwrap_or(case.to);
+            let line = text
+                .lines()
+                .position(|l| l.contains(first))
+                .map(|l| l + 1)
+                .expect("line");
+            assert!(
+                err.contains(&format!("line {line}")),
+                "{}: line {line} not named: {err}",
+                case.class
+            );
+        }
+        assert!(
+            err.contains(case.words),
+            "{}: expected {:?} in: {err}",
+            case.class,
+            case.words
+        );
+        assert!(
+            !dir.join("out").join("summary.json").exists(),
+            "{}: outputs written for bad input",
+            case.class
+        );
+    }
+    // File missing.
+    let o = ecp(&["run", "scenes/no_such_scene.toml"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("scenes/no_such_scene.toml") && stderr(&o).contains("cannot read"),
+        "{}",
+        stderr(&o)
+    );
+    // Unknown solver name on the command line.
+    let o = ecp(&["run", "scenes/a1_sliding.toml", "--solver", "simplex"]);
+    assert_eq!(o.status.code(), Some(2));
+    assert!(
+        stderr(&o).contains("unknown solver \"simplex\""),
+        "{}",
+        stderr(&o)
+    );
+    let _ = std::fs::remove_dir_all(dir);
+}
