@@ -144,6 +144,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
             bar.set_style(style.progress_chars("=> "));
         }
         bar.set_prefix(file.scene.name.clone());
+        bar.set_message("0.00");
         Some(bar)
     } else {
         None

@@ -121,7 +121,7 @@ pub fn run_scene(
         .steps
         .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
     let mut csv = TrajectoryWriter::create(&options.out_dir.join("trajectory.csv"), &file.scene)?;
-    let mut records = Vec::with_capacity(planned);
+    let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
     while records.len() < planned {
         match sim.step(solver.as_mut()) {

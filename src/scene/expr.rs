@@ -46,7 +46,7 @@ impl TimeExpression {
         let parsed = FlatEx::<f64, Operators>::parse(source).map_err(|e| {
             format!(
                 "the expression \"{source}\" does not parse ({}); write it in t with +, -, *, /, ^, \
-                 parentheses, functions such as sin, cos, exp, sqrt, abs and the constant pi, \
+                 parentheses, functions such as sin, cos, exp, ln, sqrt, abs and the constant pi, \
                  e.g. \"22.5*sin(2*pi*t) + 22.5\"",
                 e.msg()
             )

@@ -54,6 +54,9 @@ use crate::backends::{Formulation, SolverConfig, SolverKind};
 use crate::error::{InputError, InputErrorKind};
 use raw::{RawBody, RawHalfSpace, RawLoad, RawPiece, RawScene};
 
+/// The most steps a scene may ask for (`duration / h`).
+pub const MAX_STEPS: usize = 100_000_000;
+
 /// A loaded, validated scene file.
 #[derive(Clone, Debug)]
 pub struct SceneFile {
@@ -261,6 +264,19 @@ impl Context<'_> {
                 InputErrorKind::InvalidValue,
                 "simulation.duration",
                 format!("the duration must be ≥ 0 s, got {duration}"),
+            ));
+        }
+        // A typo such as h = 1e-10 must not turn into a run that never ends or an allocation
+        // that aborts.
+        let steps = duration / h;
+        if steps > MAX_STEPS as f64 {
+            return Err(self.err(
+                InputErrorKind::InvalidValue,
+                "simulation.duration",
+                format!(
+                    "duration / h = {steps:.3e} steps, more than the {MAX_STEPS} a run may take; \
+                     check the units of h and duration (seconds)"
+                ),
             ));
         }
         let gravity = self.vec3(
