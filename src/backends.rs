@@ -6,6 +6,7 @@ use std::str::FromStr;
 
 use ecp_model::McpSolver;
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp_solvers::path::{PathSettings, PathSolver};
 
 use crate::error::{InputError, InputErrorKind};
 
@@ -35,33 +36,12 @@ impl SolverKind {
 
     /// Whether this build has the backend (the others are named in the spec but not built yet).
     pub fn is_available(&self) -> bool {
-        matches!(self, SolverKind::Newton)
+        matches!(self, SolverKind::Newton | SolverKind::Path)
     }
 
     /// The backends this build has.
     pub fn available() -> Vec<SolverKind> {
         Self::ALL.into_iter().filter(|s| s.is_available()).collect()
-    }
-}
-
-impl fmt::Display for SolverKind {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
-}
-
-impl FromStr for SolverKind {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.as_str() == s.trim())
-            .ok_or_else(|| {
-                format!(
-                    "unknown solver \"{s}\"; the solvers are {}",
-                    names(&Self::ALL)
-                )
-            })
     }
 }
 
@@ -103,26 +83,35 @@ impl Formulation {
     }
 }
 
-impl fmt::Display for Formulation {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        f.write_str(self.as_str())
-    }
+/// `Display` as the name, and `FromStr` from the name with an error listing every name.
+macro_rules! named {
+    ($t:ty, $what:literal) => {
+        impl fmt::Display for $t {
+            fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+                f.write_str(self.as_str())
+            }
+        }
+
+        impl FromStr for $t {
+            type Err = String;
+            fn from_str(s: &str) -> Result<Self, String> {
+                Self::ALL
+                    .into_iter()
+                    .find(|k| k.as_str() == s.trim())
+                    .ok_or_else(|| {
+                        format!(
+                            concat!("unknown ", $what, " \"{}\"; the ", $what, "s are {}"),
+                            s,
+                            names(&Self::ALL)
+                        )
+                    })
+            }
+        }
+    };
 }
 
-impl FromStr for Formulation {
-    type Err = String;
-    fn from_str(s: &str) -> Result<Self, String> {
-        Self::ALL
-            .into_iter()
-            .find(|k| k.as_str() == s.trim())
-            .ok_or_else(|| {
-                format!(
-                    "unknown formulation \"{s}\"; the formulations are {}",
-                    names(&Self::ALL)
-                )
-            })
-    }
-}
+named!(SolverKind, "solver");
+named!(Formulation, "formulation");
 
 fn names<T: fmt::Display>(items: &[T]) -> String {
     items
@@ -167,6 +156,16 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
                 s.max_iterations = m;
             }
             Ok(Box::new(NewtonSolver::new(s)))
+        }
+        SolverKind::Path => {
+            let mut s = PathSettings::default();
+            if let Some(t) = config.tolerance {
+                s.tolerance = t;
+            }
+            if let Some(m) = config.max_iterations {
+                s.max_iterations = m;
+            }
+            Ok(Box::new(PathSolver::new(s)))
         }
         other => Err(unavailable_solver(other)),
     }

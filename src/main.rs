@@ -72,6 +72,12 @@ enum Command {
         /// The scene file.
         scene: PathBuf,
     },
+    /// Solve an LCP {"M": [[..],..], "q": [..]} with Lemke's method; print JSON
+    /// {"z", "w", "pivots", "solve_us", "residual"} (exit status 1 when it has no solution).
+    Lcp {
+        /// The LCP file (JSON).
+        file: PathBuf,
+    },
 }
 
 fn main() -> ExitCode {
@@ -121,6 +127,28 @@ fn main() -> ExitCode {
             print!("{}", ecp::scene::describe(&file));
             ExitCode::SUCCESS
         }),
+        Command::Lcp { file } => {
+            ecp::lcp::load_lcp(&file)
+                .map_err(RunError::from)
+                .and_then(|lcp| {
+                    let report = ecp::lcp::solve_lcp(&lcp);
+                    let json = serde_json::to_string(&report).map_err(|e| {
+                        RunError::Output(ecp::output::OutputError {
+                            path: PathBuf::from("<stdout>"),
+                            source: e.into(),
+                        })
+                    })?;
+                    println!("{json}");
+                    if let Some(e) = &report.error {
+                        eprintln!("error: {}: {e}", file.display());
+                    }
+                    Ok(if report.solved() {
+                        ExitCode::SUCCESS
+                    } else {
+                        ExitCode::from(1)
+                    })
+                })
+        }
     };
     result.unwrap_or_else(|e| {
         eprintln!("error: {e}");

@@ -516,3 +516,53 @@ fn every_bad_input_class_is_a_clear_error_with_status_2() {
     );
     let _ = std::fs::remove_dir_all(dir);
 }
+
+#[test]
+fn lcp_command_solves_reports_rays_and_refuses_bad_files() {
+    let dir = temp_dir("lcp");
+    let write = |name: &str, text: &str| {
+        let p = dir.join(name);
+        std::fs::write(&p, text).expect("write");
+        p.to_string_lossy().into_owned()
+    };
+    // 0 ≤ z ⊥ M z + q ≥ 0 with M = [[2, 1], [1, 2]], q = (−1, 1): z = (½, 0), w = (0, 3/2).
+    let ok = write("ok.json", r#"{"M": [[2, 1], [1, 2]], "q": [-1, 1]}"#);
+    let o = ecp(&["lcp", &ok]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON on stdout");
+    let z: Vec<f64> = serde_json::from_value(json["z"].clone()).expect("z");
+    let w: Vec<f64> = serde_json::from_value(json["w"].clone()).expect("w");
+    assert!((z[0] - 0.5).abs() < 1e-14 && z[1].abs() < 1e-14, "{z:?}");
+    assert!(w[0].abs() < 1e-14 && (w[1] - 1.5).abs() < 1e-14, "{w:?}");
+    assert!(json["pivots"].as_u64().is_some_and(|p| p >= 1));
+    assert!(json["solve_us"].is_number());
+    assert!(json["residual"].as_f64().is_some_and(|r| r <= 1e-12));
+    // Infeasible: w = −z − 1 < 0 for every z ≥ 0. Lemke ends on a ray: status 1, a clear error.
+    let ray = write("ray.json", r#"{"M": [[-1, 0], [0, -1]], "q": [-1, -1]}"#);
+    let o = ecp(&["lcp", &ray]);
+    assert_eq!(o.status.code(), Some(1));
+    let json: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON on stdout");
+    assert_eq!(json["status"], "ray_termination");
+    assert!(stderr(&o).contains("ray"), "{}", stderr(&o));
+    // Bad files: status 2, file and key named.
+    for (name, text, words) in [
+        ("notsquare.json", r#"{"M": [[1, 2]], "q": [1]}"#, "M[0]"),
+        ("syntax.json", r#"{"M": [[1]], "q": [1]"#, "line 1"),
+        (
+            "unknown.json",
+            r#"{"M": [[1]], "q": [1], "r": 2}"#,
+            "unknown field",
+        ),
+        ("type.json", r#"{"M": [["a"]], "q": [1]}"#, "invalid type"),
+    ] {
+        let p = write(name, text);
+        let o = ecp(&["lcp", &p]);
+        assert_eq!(o.status.code(), Some(2), "{name}: {}", stderr(&o));
+        assert!(
+            stderr(&o).contains(&p) && stderr(&o).contains(words),
+            "{name}: {}",
+            stderr(&o)
+        );
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}

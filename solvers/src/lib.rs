@@ -4,6 +4,11 @@
 //! layout with a [`ecp_model::Summary`], and is judged by the model's natural-map residual.
 //!
 //! - [`newton`]: semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
+//! - [`pivot`]: Lemke's method generalised to bounded variables, for affine MCPs (LCP, mixed
+//!   and box-constrained LCP) (solvers.md §2).
+//! - [`path`]: the PATH-like solver: Josephy–Newton steps computed by pivoting, a path search
+//!   along the piecewise-linear Newton path, a non-monotone watchdog, a crash phase and a
+//!   proximal perturbation (solvers.md §2).
 //!
 //! ```
 //! use ecp_model::{FnMcp, McpSolver, residual_of};
@@ -26,5 +31,12 @@
 
 pub mod newton;
 mod normal_equations;
+pub mod path;
+pub mod pivot;
 
 pub use newton::{NewtonSettings, NewtonSolver};
+pub use path::{PathSettings, PathSolver};
+pub use pivot::{
+    AffineMatrix, AffineMcp, AffineStart, AntiCycling, Lemke, LemkeSettings, PivotError, PivotPath,
+    PivotSolution,
+};

@@ -28,7 +28,7 @@ pub struct TimeExpression {
 enum ExpressionKind {
     Constant(f64),
     /// The parsed expression and whether it reads `t` (exmex wants one value per variable).
-    Parsed(FlatEx<f64, Operators>, bool),
+    Parsed(Box<FlatEx<f64, Operators>>, bool),
 }
 
 impl TimeExpression {
@@ -61,7 +61,7 @@ impl TimeExpression {
         let uses_t = !vars.is_empty();
         Ok(TimeExpression {
             source: source.to_string(),
-            kind: ExpressionKind::Parsed(parsed, uses_t),
+            kind: ExpressionKind::Parsed(Box::new(parsed), uses_t),
         })
     }
 

@@ -57,7 +57,7 @@ pub fn line_of_key(doc: &str, path: &str) -> Option<usize> {
                         v
                     })
             }
-            (Segment::Index(i), _, Some(DeValue::Array(a))) => a.iter().nth(*i).inspect(|v| {
+            (Segment::Index(i), _, Some(DeValue::Array(a))) => a.get(*i).inspect(|v| {
                 best = Some(v.span().start);
             }),
             _ => None,

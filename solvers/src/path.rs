@@ -1,0 +1,950 @@
+//! The PATH-like solver: Josephy–Newton steps computed by pivoting, with a path search
+//! (solvers.md §2).
+//!
+//! The MCP is written with Robinson's normal map `F_N(x) = F(π(x)) + x − π(x)`, `π` the
+//! projection onto `[l, u]`: `z = π(x)` solves the MCP iff `F_N(x) = 0`. At the iterate `x_k`
+//! (with `z_k = π(x_k)`), the linearisation `L_k(x) = F(z_k) + J(z_k)(π(x) − z_k) + x − π(x)` is
+//! the normal map of an affine MCP. Lemke's method ([`crate::pivot`]) started at `x_k` with the
+//! covering vector `−F_N(x_k)` follows the homotopy `L_k(p(t)) = (1 − t) F_N(x_k)` from `t = 0`
+//! (the iterate) to `t = 1` (the Josephy–Newton point), and its breakpoints are kept, so that the
+//! step can be shortened *along that piecewise-linear path* (Ralph's path search, Math. OR 19,
+//! 1994) rather than along a straight line, which would leave the pieces of the normal map.
+//! A point `p(t)` is accepted when `‖F_N(p(t))‖₂ ≤ (1 − σt) ‖F_N(x_c)‖₂`.
+//!
+//! Around this, as in PATH (Dirkse & Ferris, Optim. Methods & Software 5, 1995):
+//!
+//! - a **non-monotone watchdog**: full Newton points are taken without the decrease test for up
+//!   to `watchdog` iterations after the last checkpoint (the best point); if none of them
+//!   decreases the merit enough, the solver returns to the checkpoint and searches along its path;
+//! - a **crash phase**: projected Newton steps on the reduced system of the variables that the
+//!   projection `π(z − F)` leaves inside their bounds, to guess the active set before pivoting;
+//! - a **proximal perturbation**: when the linearised problem has a singular basis, ends on a
+//!   ray or its path search fails, `J` is replaced by `J + λI` (the path still starts at `x_k`,
+//!   since the linearisation agrees with `F_N` there), and `λ` is reduced again after progress.
+//!
+//! After every accepted point, `x` is reset to the normal-map point of `z = π(x)` with the
+//! smallest merit (`x_i = l_i − F_i` where `z_i = l_i`, `F_i > 0`, likewise at upper bounds,
+//! `x_i = z_i` elsewhere); the merit is then the norm of the natural-map-like vector with the
+//! outward components of `F` at active bounds removed.
+
+use std::sync::Arc;
+use std::time::Instant;
+
+use ecp_model::{
+    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, StepKind, Summary,
+    Termination, diagnose, mid, natural_residual, validate_start,
+};
+
+use crate::pivot::basis::BasisFactor;
+use crate::pivot::{
+    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath,
+};
+
+/// Settings of the PATH-like solver, with documented defaults.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PathSettings {
+    /// Stop when the natural residual `‖z − mid(l, u, z − F)‖∞` is at most this. Default `1e-10`.
+    pub tolerance: f64,
+    /// Limit on major iterations (crash steps and pivotal steps together). Default 200.
+    pub max_iterations: usize,
+    /// Projected Newton steps of the crash phase before the first pivotal step; 0 disables the
+    /// crash. The crash also stops when the active set repeats or the merit stops decreasing.
+    /// Default 50.
+    pub crash_iterations: usize,
+    /// Non-monotone watchdog: full Newton points accepted without sufficient decrease after the
+    /// last checkpoint before returning to it. 0 makes the method monotone. Default 5.
+    pub watchdog: usize,
+    /// Sufficient-decrease constant σ of the path search, `‖F_N(p(t))‖ ≤ (1 − σt)‖F_N(x_c)‖`.
+    /// Default `1e-4`.
+    pub sufficient_decrease: f64,
+    /// Backtracking factor β along the path (`t = β^j t_max`). Default `0.5`.
+    pub backtrack: f64,
+    /// Backtracking steps along the path before the search gives up; 0 disables the path search
+    /// (only full Newton points are tried). Default 30.
+    pub max_path_backtracks: usize,
+    /// First proximal perturbation `λ`, relative to `max(1, max |J_ij|)`. Default `1e-4`.
+    pub proximal_initial: f64,
+    /// Factor by which `λ` grows after each failure of the linearised problem. Default 10.
+    pub proximal_growth: f64,
+    /// Factor by which `λ` shrinks after an accepted step (below `1e-12` relative it is set to
+    /// 0). Default `0.1`.
+    pub proximal_reduction: f64,
+    /// Largest relative `λ` tried before giving up. Default `1e8`.
+    pub proximal_max: f64,
+    /// Restarts from the starting point after a failed attempt (PATH restarts with other
+    /// settings): monotone, no crash, proximal term on from the first step. Default 2.
+    pub restarts: usize,
+    /// Relative proximal term of the first restart (×10 for each further one). Default `1e-2`.
+    pub restart_proximal: f64,
+    /// Settings of the inner pivotal solver (pivot tolerances, limit, refactorisation period,
+    /// anti-cycling rule).
+    pub lemke: LemkeSettings,
+    /// Record a per-iteration trace in the summary. Default `false`.
+    pub trace: bool,
+}
+
+impl Default for PathSettings {
+    fn default() -> Self {
+        PathSettings {
+            tolerance: 1e-10,
+            max_iterations: 200,
+            crash_iterations: 50,
+            watchdog: 5,
+            sufficient_decrease: 1e-4,
+            backtrack: 0.5,
+            max_path_backtracks: 30,
+            proximal_initial: 1e-4,
+            proximal_growth: 10.0,
+            proximal_reduction: 0.1,
+            proximal_max: 1e8,
+            restarts: 2,
+            restart_proximal: 1e-2,
+            lemke: LemkeSettings::default(),
+            trace: false,
+        }
+    }
+}
+
+/// A point of the iteration: normal-map point `x`, `z = π(x)`, `F(z)`, merit `‖F_N(x)‖₂`.
+#[derive(Clone, Debug, Default)]
+struct Point {
+    x: Vec<f64>,
+    z: Vec<f64>,
+    f: Vec<f64>,
+    merit: f64,
+}
+
+impl Point {
+    fn resize(&mut self, n: usize) {
+        self.x.resize(n, 0.0);
+        self.z.resize(n, 0.0);
+        self.f.resize(n, 0.0);
+    }
+    fn copy_from(&mut self, other: &Point) {
+        self.x.copy_from_slice(&other.x);
+        self.z.copy_from_slice(&other.z);
+        self.f.copy_from_slice(&other.f);
+        self.merit = other.merit;
+    }
+}
+
+/// Counters reported in the summary.
+#[derive(Clone, Copy, Debug, Default)]
+struct Counters {
+    pivots: usize,
+    crash_steps: usize,
+    path_steps: usize,
+    nonmonotone_steps: usize,
+    watchdog_restores: usize,
+    proximal_perturbations: usize,
+    path_backtracks: usize,
+    ray_terminations: usize,
+    restarts: usize,
+}
+
+/// What a solve accumulates over its attempts.
+struct Run {
+    trace: Vec<IterationRecord>,
+    counters: Counters,
+    f_evals: usize,
+    jac_evals: usize,
+    iterations: usize,
+    best_residual: f64,
+}
+
+/// The next proximal perturbation: the first one, or the last one grown.
+fn next_lambda(lambda: f64, s: &PathSettings, scale: f64) -> f64 {
+    if lambda == 0.0 {
+        s.proximal_initial * scale
+    } else {
+        lambda * s.proximal_growth
+    }
+}
+
+/// The PATH-like backend. Keep one instance for a whole simulation: it reuses its buffers and
+/// the pivotal solver's workspace.
+pub struct PathSolver {
+    settings: PathSettings,
+    lemke: Lemke,
+    path: PivotPath,
+    current: Point,
+    trial: Point,
+    checkpoint: Point,
+    best_z: Vec<f64>,
+    jac: Vec<f64>,
+    q: Vec<f64>,
+    jz: Vec<f64>,
+    step_x: Vec<f64>,
+    dense: Vec<f64>,
+    reduced: Vec<f64>,
+    rhs: Vec<f64>,
+    inactive: Vec<usize>,
+    active_prev: Vec<i8>,
+    active: Vec<i8>,
+    order: Vec<usize>,
+    factor: BasisFactor,
+    observer: Option<Box<dyn Observer>>,
+}
+
+impl PathSolver {
+    /// A solver with the given settings.
+    pub fn new(settings: PathSettings) -> Self {
+        let lemke = Lemke::new(settings.lemke.clone());
+        PathSolver {
+            settings,
+            lemke,
+            path: PivotPath::new(),
+            current: Point::default(),
+            trial: Point::default(),
+            checkpoint: Point::default(),
+            best_z: Vec::new(),
+            jac: Vec::new(),
+            q: Vec::new(),
+            jz: Vec::new(),
+            step_x: Vec::new(),
+            dense: Vec::new(),
+            reduced: Vec::new(),
+            rhs: Vec::new(),
+            inactive: Vec::new(),
+            active_prev: Vec::new(),
+            active: Vec::new(),
+            order: Vec::new(),
+            factor: BasisFactor::default(),
+            observer: None,
+        }
+    }
+    /// Attaches an observer that sees every iteration.
+    pub fn with_observer(mut self, observer: Box<dyn Observer>) -> Self {
+        self.observer = Some(observer);
+        self
+    }
+    /// The settings.
+    pub fn settings(&self) -> &PathSettings {
+        &self.settings
+    }
+    /// Mutable settings (the inner pivotal solver picks up `lemke` at the next solve).
+    pub fn settings_mut(&mut self) -> &mut PathSettings {
+        &mut self.settings
+    }
+
+    fn resize(&mut self, n: usize, nnz: usize) {
+        self.current.resize(n);
+        self.trial.resize(n);
+        self.checkpoint.resize(n);
+        for v in [
+            &mut self.best_z,
+            &mut self.q,
+            &mut self.jz,
+            &mut self.step_x,
+            &mut self.rhs,
+        ] {
+            v.resize(n, 0.0);
+        }
+        self.jac.resize(nnz, 0.0);
+        self.active.resize(n, 0);
+        self.active_prev.resize(n, 0);
+    }
+}
+
+/// The normal-map point of `z` with the smallest merit, and that merit `‖F_N(x)‖₂`:
+/// `x_i = l_i − F_i` where `z_i = l_i` and `F_i > 0`, `x_i = u_i − F_i` where `z_i = u_i` and
+/// `F_i < 0`, `x_i = z_i` elsewhere. Non-finite `F` gives `+∞`.
+fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
+    let mut s = 0.0;
+    for i in 0..p.z.len() {
+        let (z, f) = (p.z[i], p.f[i]);
+        let x = if z <= l[i] && f > 0.0 {
+            l[i] - f
+        } else if z >= u[i] && f < 0.0 {
+            u[i] - f
+        } else {
+            z
+        };
+        p.x[i] = x;
+        let c = f + x - z;
+        s += c * c;
+    }
+    p.merit = if s.is_finite() {
+        s.sqrt()
+    } else {
+        f64::INFINITY
+    };
+}
+
+/// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit.
+fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize) {
+    let (l, u) = (mcp.lower(), mcp.upper());
+    for i in 0..p.x.len() {
+        p.z[i] = mid(l[i], u[i], p.x[i]);
+    }
+    mcp.evaluate(&p.z, &mut p.f);
+    *f_evals += 1;
+    if p.f.iter().all(|v| v.is_finite()) {
+        normal_point(p, l, u);
+    } else {
+        p.merit = f64::INFINITY;
+    }
+}
+
+fn norm_inf_diff(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
+
+impl PathSolver {
+    /// One projected Newton step of the crash phase from `self.current` (whose Jacobian is in
+    /// `self.jac`): Newton on the variables left inside by `π(z − F)`, the others fixed at their
+    /// bounds, then a projected backtracking search. Returns the accepted step length.
+    fn crash_step(
+        &mut self,
+        mcp: &dyn Mcp,
+        pattern: &CscPattern,
+        f_evals: &mut usize,
+    ) -> Option<f64> {
+        let n = mcp.dim();
+        let (l, u) = (mcp.lower(), mcp.upper());
+        let cur = &self.current;
+        // Active set from the projection π(z − F): −1 lower, +1 upper, 0 inside.
+        self.inactive.clear();
+        for i in 0..n {
+            let y = cur.z[i] - cur.f[i];
+            self.active[i] = if y <= l[i] {
+                -1
+            } else if y >= u[i] {
+                1
+            } else {
+                self.inactive.push(i);
+                0
+            };
+        }
+        // Target: active components at their bounds; inactive ones by the reduced Newton system
+        // J_II Δ_I = −F_I − J_IA (b_A − z_A).
+        for i in 0..n {
+            self.step_x[i] = match self.active[i] {
+                -1 => l[i],
+                1 => u[i],
+                _ => cur.z[i],
+            };
+            self.jz[i] = self.step_x[i] - cur.z[i];
+        }
+        let ni = self.inactive.len();
+        if ni > 0 {
+            self.dense.resize(n * n, 0.0);
+            pattern.to_dense(&self.jac, &mut self.dense);
+            // rhs = −F − J (b − z), restricted to I.
+            pattern.mul_vec(&self.jac, &self.jz, &mut self.rhs);
+            self.reduced.resize(ni * ni, 0.0);
+            for (kc, &j) in self.inactive.iter().enumerate() {
+                for (kr, &i) in self.inactive.iter().enumerate() {
+                    self.reduced[kc * ni + kr] = self.dense[j * n + i];
+                }
+            }
+            self.order.clear();
+            self.order.extend(0..ni);
+            if self.factor.factor(ni, &self.reduced, &self.order).is_err() {
+                return None;
+            }
+            let mut b: Vec<f64> = self
+                .inactive
+                .iter()
+                .map(|&i| -cur.f[i] - self.rhs[i])
+                .collect();
+            self.factor.solve(&mut b);
+            if b.iter().any(|v| !v.is_finite()) {
+                return None;
+            }
+            for (k, &i) in self.inactive.iter().enumerate() {
+                self.step_x[i] = cur.z[i] + b[k];
+            }
+        }
+        // Projected arc z(t) = π(z + t (target − z)), accepted on the path-search test.
+        let sigma = self.settings.sufficient_decrease;
+        let mut t = 1.0;
+        for _ in 0..6 {
+            for i in 0..n {
+                self.trial.x[i] = self.current.z[i] + t * (self.step_x[i] - self.current.z[i]);
+            }
+            evaluate_at(mcp, &mut self.trial, f_evals);
+            if self.trial.merit <= (1.0 - sigma * t) * self.current.merit {
+                return Some(t);
+            }
+            t *= 0.5;
+        }
+        None
+    }
+
+    /// Solves the linearised problem at `self.current` with proximal term `lambda` and records
+    /// its path in `self.path`; returns the path's reach `t_max` (0 when it failed at the start).
+    fn newton_path(
+        &mut self,
+        pattern: &CscPattern,
+        lower: &[f64],
+        upper: &[f64],
+        lambda: f64,
+        counters: &mut Counters,
+    ) -> Result<f64, PivotError> {
+        let n = self.current.z.len();
+        // q = F(z_k) − (J + λI) z_k, so that the affine map is F(z_k) + (J + λI)(z − z_k).
+        pattern.mul_vec(&self.jac, &self.current.z, &mut self.jz);
+        for i in 0..n {
+            self.q[i] = self.current.f[i] - self.jz[i] - lambda * self.current.z[i];
+        }
+        let problem = AffineMcp {
+            m: AffineMatrix::Sparse {
+                pattern,
+                values: &self.jac,
+            },
+            q: &self.q,
+            lower,
+            upper,
+            diagonal_shift: lambda,
+        };
+        let result = self.lemke.solve_affine_with_path(
+            &problem,
+            &AffineStart::NormalMap(&self.current.x),
+            &mut self.path,
+        );
+        let reach = if self.path.is_empty() {
+            0.0
+        } else {
+            (1.0 - self.path.min_artificial()).clamp(0.0, 1.0)
+        };
+        match result {
+            Ok(sol) => {
+                counters.pivots += sol.pivots;
+                Ok(1.0)
+            }
+            Err(e) => {
+                match &e {
+                    PivotError::RayTermination { pivots, .. } => {
+                        counters.ray_terminations += 1;
+                        counters.pivots += pivots;
+                    }
+                    PivotError::MaxPivots { pivots } | PivotError::SingularBasis { pivots, .. } => {
+                        counters.pivots += pivots
+                    }
+                    PivotError::InvalidInput(_) => {}
+                }
+                // A partial path that got somewhere is still a descent path (Dirkse & Ferris).
+                if reach > 1e-8 && !matches!(e, PivotError::InvalidInput(_)) {
+                    Ok(reach)
+                } else {
+                    Err(e)
+                }
+            }
+        }
+    }
+
+    /// One attempt from `z0` with settings `s` (a restart uses modified settings), accumulating
+    /// into `run`; the best point found is kept in `self.best_z`. Returns why it stopped.
+    fn attempt(
+        &mut self,
+        mcp: &dyn Mcp,
+        pattern: &CscPattern,
+        z0: &[f64],
+        s: &PathSettings,
+        initial_lambda: f64,
+        run: &mut Run,
+    ) -> Termination {
+        let n = mcp.dim();
+        let (l, u) = (mcp.lower(), mcp.upper());
+        let Run {
+            trace,
+            counters,
+            f_evals,
+            jac_evals,
+            iterations,
+            best_residual,
+        } = run;
+        let iterations_at_start = *iterations;
+
+        // Start: z = π(z0), x its normal-map point.
+        self.current.x.copy_from_slice(z0);
+        evaluate_at(mcp, &mut self.current, f_evals);
+        let mut residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        if residual < *best_residual {
+            *best_residual = residual;
+            self.best_z.copy_from_slice(&self.current.z);
+        }
+        let mut termination = if self.current.merit.is_finite() {
+            Termination::MaxIterations
+        } else {
+            Termination::NonFiniteFunction
+        };
+        let mut have_jac = false;
+        let mut record = |iteration: usize,
+                          residual: f64,
+                          merit: f64,
+                          step: StepKind,
+                          t: f64,
+                          norm: f64,
+                          observer: &mut Option<Box<dyn Observer>>| {
+            let rec = IterationRecord {
+                iteration,
+                residual,
+                merit,
+                step,
+                step_length: t,
+                direction_norm: norm,
+            };
+            if let Some(obs) = observer.as_mut() {
+                obs.observe(&rec);
+            }
+            if s.trace {
+                trace.push(rec);
+            }
+        };
+
+        // Crash phase: projected Newton steps while they decrease the merit and the active set
+        // keeps changing.
+        if termination == Termination::MaxIterations && residual > s.tolerance && n > 0 {
+            self.active_prev.fill(2);
+            for _ in 0..s.crash_iterations {
+                if *iterations - iterations_at_start >= s.max_iterations {
+                    break;
+                }
+                mcp.jacobian(&self.current.z, &mut self.jac);
+                *jac_evals += 1;
+                have_jac = true;
+                if self.jac.iter().any(|v| !v.is_finite()) {
+                    break;
+                }
+                let Some(t) = self.crash_step(mcp, pattern, f_evals) else {
+                    break;
+                };
+                let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+                record(
+                    *iterations,
+                    residual,
+                    self.current.merit,
+                    StepKind::Crash,
+                    t,
+                    norm,
+                    &mut self.observer,
+                );
+                *iterations += 1;
+                counters.crash_steps += 1;
+                std::mem::swap(&mut self.current, &mut self.trial);
+                have_jac = false;
+                residual = natural_residual(&self.current.z, &self.current.f, l, u);
+                if residual < *best_residual {
+                    *best_residual = residual;
+                    self.best_z.copy_from_slice(&self.current.z);
+                }
+                if residual <= s.tolerance {
+                    break;
+                }
+                let same = self.active == self.active_prev;
+                self.active_prev.copy_from_slice(&self.active);
+                if same && t == 1.0 {
+                    break;
+                }
+            }
+        }
+
+        // Main loop: Newton paths by pivoting, watchdog and path search.
+        let jscale = |jac: &[f64]| jac.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+        let mut lambda = 0.0f64;
+        let mut first_lambda = initial_lambda;
+        self.checkpoint.copy_from(&self.current);
+        let mut since_checkpoint = 0usize;
+        let mut checkpoint_lambda = 0.0f64;
+        // Set after a return to the checkpoint: the next step must pass the monotone path
+        // search there (no more non-monotone steps until one does).
+        let mut monotone = false;
+        while termination == Termination::MaxIterations {
+            if residual <= s.tolerance {
+                termination = Termination::Converged;
+                break;
+            }
+            if *iterations - iterations_at_start >= s.max_iterations {
+                break;
+            }
+            if !have_jac {
+                mcp.jacobian(&self.current.z, &mut self.jac);
+                *jac_evals += 1;
+            }
+            if self.jac.iter().any(|v| !v.is_finite()) {
+                termination = Termination::NonFiniteFunction;
+                break;
+            }
+            let mut scale = jscale(&self.jac);
+            if first_lambda > 0.0 {
+                // A restart with the proximal term on from the first step.
+                lambda = first_lambda * scale;
+                checkpoint_lambda = lambda;
+                first_lambda = 0.0;
+            }
+            // The Newton path, perturbed proximally until the linearised problem is solvable.
+            let reach = loop {
+                match self.newton_path(pattern, l, u, lambda, counters) {
+                    Ok(reach) => break Some(reach),
+                    Err(_) => {
+                        lambda = next_lambda(lambda, s, scale);
+                        counters.proximal_perturbations += 1;
+                        if lambda > s.proximal_max * scale {
+                            break None;
+                        }
+                    }
+                }
+            };
+            let Some(t_max) = reach else {
+                termination = Termination::SubproblemFailed;
+                break;
+            };
+            let reference = self.checkpoint.merit;
+            let merit_k = self.current.merit;
+            // The full step: the end of the path.
+            let t_full = self.try_path_point(mcp, t_max, f_evals);
+            let sigma = s.sufficient_decrease;
+            let mut accepted: Option<f64> = None;
+            if self.trial.merit <= (1.0 - sigma * t_full) * reference {
+                accepted = Some(t_full);
+                since_checkpoint = 0;
+            } else if !monotone && since_checkpoint < s.watchdog && self.trial.merit.is_finite() {
+                // Non-monotone: accept the Newton point and see where it leads.
+                accepted = Some(t_full);
+                since_checkpoint += 1;
+                counters.nonmonotone_steps += 1;
+            } else {
+                if since_checkpoint > 0 {
+                    // The watchdog expired: back to the checkpoint, and search along its path.
+                    counters.watchdog_restores += 1;
+                    self.current.copy_from(&self.checkpoint);
+                    since_checkpoint = 0;
+                    monotone = true;
+                    mcp.jacobian(&self.current.z, &mut self.jac);
+                    *jac_evals += 1;
+                    have_jac = true;
+                    // The proximal term and its scale belong to the checkpoint, not to the
+                    // abandoned excursion.
+                    scale = jscale(&self.jac);
+                    lambda = checkpoint_lambda;
+                    if self.newton_path(pattern, l, u, lambda, counters).is_err() {
+                        lambda = next_lambda(lambda, s, scale);
+                        counters.proximal_perturbations += 1;
+                        if lambda > s.proximal_max * scale {
+                            termination = Termination::SubproblemFailed;
+                            break;
+                        }
+                        continue;
+                    }
+                }
+                let t_max = (1.0 - self.path.min_artificial()).clamp(0.0, 1.0);
+                let mut t = t_max;
+                for _ in 0..s.max_path_backtracks {
+                    t *= s.backtrack;
+                    counters.path_backtracks += 1;
+                    let used = self.try_path_point(mcp, t, f_evals);
+                    if self.trial.merit <= (1.0 - sigma * used) * self.current.merit {
+                        accepted = Some(used);
+                        break;
+                    }
+                }
+                if accepted.is_none() {
+                    // No decrease along this path: perturb the linearisation and try again.
+                    lambda = next_lambda(lambda, s, scale);
+                    counters.proximal_perturbations += 1;
+                    if lambda > s.proximal_max * scale || s.max_path_backtracks == 0 {
+                        termination = Termination::LineSearchFailed;
+                        break;
+                    }
+                    have_jac = true;
+                    continue;
+                }
+            }
+            let Some(t) = accepted else {
+                termination = Termination::LineSearchFailed;
+                break;
+            };
+            monotone = false;
+            let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+            record(
+                *iterations,
+                residual,
+                merit_k,
+                StepKind::Path,
+                t,
+                norm,
+                &mut self.observer,
+            );
+            *iterations += 1;
+            counters.path_steps += 1;
+            std::mem::swap(&mut self.current, &mut self.trial);
+            have_jac = false;
+            residual = natural_residual(&self.current.z, &self.current.f, l, u);
+            if residual < *best_residual {
+                *best_residual = residual;
+                self.best_z.copy_from_slice(&self.current.z);
+            }
+            if self.current.merit < self.checkpoint.merit
+                && (since_checkpoint == 0 || self.current.merit <= (1.0 - sigma) * reference)
+            {
+                self.checkpoint.copy_from(&self.current);
+                since_checkpoint = 0;
+                checkpoint_lambda = lambda;
+            }
+            // Progress: relax the proximal term.
+            if lambda > 0.0 {
+                lambda *= s.proximal_reduction;
+                if lambda < 1e-12 * scale {
+                    lambda = 0.0;
+                }
+            }
+            let xnorm = self.current.x.iter().fold(1.0f64, |m, v| m.max(v.abs()));
+            if residual > s.tolerance && norm <= 4.0 * f64::EPSILON * xnorm && lambda == 0.0 {
+                termination = Termination::Stagnated;
+            }
+        }
+        if termination == Termination::Converged || residual <= *best_residual {
+            *best_residual = residual;
+            self.best_z.copy_from_slice(&self.current.z);
+        }
+        if residual <= s.tolerance {
+            Termination::Converged
+        } else {
+            termination
+        }
+    }
+
+    /// Evaluates the path point at `t` into `self.trial`.
+    fn try_path_point(&mut self, mcp: &dyn Mcp, t: f64, f_evals: &mut usize) -> f64 {
+        let used = self.path.point_at(t, &mut self.trial.x);
+        evaluate_at(mcp, &mut self.trial, f_evals);
+        used
+    }
+}
+
+impl McpSolver for PathSolver {
+    fn name(&self) -> &str {
+        "path"
+    }
+
+    fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let started = Instant::now();
+        validate_start(mcp, z0)?;
+        let s = self.settings.clone();
+        if *self.lemke.settings() != s.lemke {
+            *self.lemke.settings_mut() = s.lemke.clone();
+        }
+        let n = mcp.dim();
+        let (l, u) = (mcp.lower(), mcp.upper());
+        let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
+        self.resize(n, pattern.nnz());
+        let mut run = Run {
+            trace: Vec::new(),
+            counters: Counters::default(),
+            f_evals: 0,
+            jac_evals: 0,
+            iterations: 0,
+            best_residual: f64::INFINITY,
+        };
+        let mut termination = self.attempt(mcp, &pattern, z0, &s, 0.0, &mut run);
+        // Restarts from the start point, as PATH does after a failure: monotone, without the
+        // crash, with the proximal term on from the first step (which keeps the Newton points of
+        // singular or nearly singular linearisations close to the iterate).
+        let restart = PathSettings {
+            crash_iterations: 0,
+            watchdog: 0,
+            proximal_reduction: 1.0,
+            ..s.clone()
+        };
+        let mut restarts = 0;
+        while termination != Termination::Converged
+            && termination != Termination::NonFiniteFunction
+            && restarts < s.restarts
+        {
+            restarts += 1;
+            run.counters.restarts += 1;
+            let lambda0 = s.restart_proximal * (10f64).powi(restarts as i32 - 1);
+            let t = self.attempt(mcp, &pattern, z0, &restart, lambda0, &mut run);
+            if t == Termination::Converged || run.best_residual <= s.tolerance {
+                termination = Termination::Converged;
+            }
+        }
+        let Run {
+            trace,
+            counters,
+            mut f_evals,
+            jac_evals,
+            iterations,
+            ..
+        } = run;
+        let z = self.best_z.clone();
+        let (res, worst) = diagnose(mcp, &z);
+        let mut fz = vec![0.0; n];
+        mcp.evaluate(&z, &mut fz);
+        f_evals += 2;
+        let summary = Summary {
+            solver: "path".into(),
+            termination: if res <= s.tolerance {
+                Termination::Converged
+            } else if termination == Termination::Converged {
+                Termination::Stagnated
+            } else {
+                termination
+            },
+            iterations,
+            f_evals,
+            jac_evals,
+            residual: res,
+            fb_residual: ecp_model::fb_residual(&z, &fz, l, u),
+            worst,
+            time: started.elapsed(),
+            trace,
+            counters: vec![
+                ("pivots", counters.pivots),
+                ("crash_steps", counters.crash_steps),
+                ("path_steps", counters.path_steps),
+                ("nonmonotone_steps", counters.nonmonotone_steps),
+                ("watchdog_restores", counters.watchdog_restores),
+                ("path_backtracks", counters.path_backtracks),
+                ("proximal_perturbations", counters.proximal_perturbations),
+                ("ray_terminations", counters.ray_terminations),
+                ("restarts", counters.restarts),
+            ],
+        };
+        let solution = Solution { z, summary };
+        if solution.summary.converged() {
+            Ok(solution)
+        } else {
+            Err(SolveError::NotConverged {
+                best: Box::new(solution),
+            })
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::FnMcp;
+    use ecp_model::problems::{box_both_bounds, kojima_shindo};
+    use std::sync::Mutex;
+
+    #[test]
+    fn path_normal_point_projects_back_and_measures_the_merit() {
+        let l = [0.0, 0.0, f64::NEG_INFINITY];
+        let u = [1.0, f64::INFINITY, f64::INFINITY];
+        let mut p = Point::default();
+        p.resize(3);
+        // z0 at its lower bound with F pushing outwards, z1 at its bound with F pulling inwards,
+        // z2 free.
+        p.z.copy_from_slice(&[0.0, 0.0, 2.0]);
+        p.f.copy_from_slice(&[3.0, -2.0, 0.5]);
+        normal_point(&mut p, &l, &u);
+        assert_eq!(p.x, vec![-3.0, 0.0, 2.0]);
+        for i in 0..3 {
+            assert_eq!(mid(l[i], u[i], p.x[i]), p.z[i]);
+        }
+        // F_N = F + x − z = (0, −2, 0.5).
+        assert!((p.merit - (4.0f64 + 0.25).sqrt()).abs() < 1e-15);
+    }
+
+    /// `F(z) = z³ − 1`, free: `J(0) = 0`, so the linearisation at the start has no basis.
+    fn cubic() -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] * z[0] * z[0] - 1.0,
+            |z, j| j[0] = 3.0 * z[0] * z[0],
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn path_proximal_perturbation_handles_a_singular_jacobian() {
+        let settings = PathSettings {
+            crash_iterations: 0,
+            restarts: 0,
+            ..PathSettings::default()
+        };
+        let sol = PathSolver::new(settings.clone())
+            .solve(&cubic(), &[0.0])
+            .unwrap();
+        assert!((sol.z[0] - 1.0).abs() < 1e-10);
+        assert!(sol.summary.counter("proximal_perturbations") > 0);
+        // Without the perturbation (λ capped at 0) the first linearisation is unsolvable.
+        let err = PathSolver::new(PathSettings {
+            proximal_max: 0.0,
+            ..settings
+        })
+        .solve(&cubic(), &[0.0])
+        .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::SubproblemFailed);
+        assert_eq!(best.z, vec![0.0]);
+    }
+
+    #[test]
+    fn path_watchdog_returns_to_the_checkpoint() {
+        // Kojima–Shindo from MCPLIB start 6: the full Newton points blow up, the watchdog brings
+        // the iteration back to its best point, and the path search continues from there.
+        let p = kojima_shindo();
+        let sol = PathSolver::new(PathSettings::default())
+            .solve(&p.mcp, &p.starts[5].1)
+            .unwrap();
+        assert!(sol.summary.residual <= 1e-10);
+        assert!(sol.summary.counter("watchdog_restores") > 0);
+        assert!(sol.summary.counter("nonmonotone_steps") > 0);
+    }
+
+    #[test]
+    fn path_crash_phase_finds_the_active_set() {
+        let p = box_both_bounds();
+        let mut solver = PathSolver::new(PathSettings::default());
+        for (label, z0) in &p.starts {
+            let sol = solver.solve(&p.mcp, z0).unwrap();
+            assert!(sol.summary.counter("crash_steps") > 0, "{label}");
+            assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-10);
+        }
+    }
+
+    struct Count(Arc<Mutex<usize>>);
+    impl Observer for Count {
+        fn observe(&mut self, _record: &IterationRecord) {
+            if let Ok(mut c) = self.0.lock() {
+                *c += 1;
+            }
+        }
+    }
+
+    #[test]
+    fn path_observer_sees_every_iteration() {
+        let seen = Arc::new(Mutex::new(0));
+        let p = kojima_shindo();
+        let mut solver =
+            PathSolver::new(PathSettings::default()).with_observer(Box::new(Count(seen.clone())));
+        let sol = solver.solve(&p.mcp, &p.starts[0].1).unwrap();
+        assert_eq!(*seen.lock().unwrap(), sol.summary.iterations);
+        assert!(sol.summary.trace.is_empty());
+    }
+
+    #[test]
+    fn path_non_finite_start_is_reported_not_iterated() {
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = if z[0] > 0.0 { z[0] - 1.0 } else { f64::NAN },
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap();
+        let err = PathSolver::new(PathSettings::default())
+            .solve(&mcp, &[0.0])
+            .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
+        assert!(best.z.iter().all(|v| v.is_finite()));
+    }
+
+    #[test]
+    fn path_empty_problem_converges() {
+        let mcp = FnMcp::dense(vec![], vec![], |_z, _f| {}, |_z, _j| {}).unwrap();
+        let sol = PathSolver::new(PathSettings::default())
+            .solve(&mcp, &[])
+            .unwrap();
+        assert!(sol.z.is_empty() && sol.summary.converged());
+    }
+}

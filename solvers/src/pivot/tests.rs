@@ -1,0 +1,298 @@
+use super::*;
+
+fn lcp_check(m: &[f64], q: &[f64], z: &[f64]) {
+    let n = q.len();
+    for i in 0..n {
+        let w: f64 = q[i] + (0..n).map(|j| m[i * n + j] * z[j]).sum::<f64>();
+        assert!(z[i] >= -1e-12, "z[{i}] = {}", z[i]);
+        assert!(w >= -1e-10, "w[{i}] = {w}");
+        assert!((z[i] * w).abs() <= 1e-10, "z[{i}] w[{i}] = {}", z[i] * w);
+    }
+}
+
+#[test]
+fn lemke_solves_a_small_lcp() {
+    // M = [[2, 1], [1, 2]], q = (−1, 1): z = (½, 0), w = (0, 3/2).
+    let m = [2.0, 1.0, 1.0, 2.0];
+    let q = [-1.0, 1.0];
+    let sol = Lemke::new(LemkeSettings::default())
+        .solve_lcp(&m, &q)
+        .unwrap();
+    assert!(
+        (sol.z[0] - 0.5).abs() < 1e-14 && sol.z[1] == 0.0,
+        "{:?}",
+        sol.z
+    );
+    assert!((sol.w[1] - 1.5).abs() < 1e-14);
+    assert!(sol.residual <= 1e-14);
+    assert!(sol.pivots >= 1);
+}
+
+#[test]
+fn lemke_solves_a_trivial_lcp_without_pivots_beyond_the_first() {
+    // q ≥ 0: z = 0 solves it; the artificial variable reaches 0 with no basis change.
+    let sol = Lemke::new(LemkeSettings::default())
+        .solve_lcp(&[1.0, 0.0, 0.0, 1.0], &[1.0, 2.0])
+        .unwrap();
+    assert_eq!(sol.z, vec![0.0, 0.0]);
+    assert_eq!(sol.pivots, 1);
+}
+
+#[test]
+fn lemke_empty_problem() {
+    let sol = Lemke::new(LemkeSettings::default())
+        .solve_lcp(&[], &[])
+        .unwrap();
+    assert!(sol.z.is_empty() && sol.residual == 0.0);
+}
+
+#[test]
+fn lemke_box_and_free_variables() {
+    // Mixed box LCP: z0 ∈ [0, 1], z1 free, z2 ≤ 2 (upper only), z3 fixed at 0.5.
+    // M = 3I + skew, q chosen so that z* = (1, −0.4, 2, 0.5) with w* = (−1, 0, −0.5, 7).
+    let n = 4;
+    #[rustfmt::skip]
+    let m = vec![
+        3.0, 1.0, 0.0, 0.5,
+        -1.0, 3.0, 1.0, 0.0,
+        0.0, -1.0, 3.0, 1.0,
+        -0.5, 0.0, -1.0, 3.0,
+    ];
+    let z_star = [1.0, -0.4, 2.0, 0.5];
+    let w_star = [-1.0, 0.0, -0.5, 7.0];
+    let q: Vec<f64> = (0..n)
+        .map(|i| w_star[i] - (0..n).map(|j| m[i * n + j] * z_star[j]).sum::<f64>())
+        .collect();
+    let lower = [0.0, f64::NEG_INFINITY, f64::NEG_INFINITY, 0.5];
+    let upper = [1.0, f64::INFINITY, 2.0, 0.5];
+    let problem = AffineMcp {
+        m: AffineMatrix::DenseRowMajor { n, values: &m },
+        q: &q,
+        lower: &lower,
+        upper: &upper,
+        diagonal_shift: 0.0,
+    };
+    let mut lemke = Lemke::new(LemkeSettings::default());
+    for start in [
+        AffineStart::Classical { free_values: None },
+        AffineStart::NormalMap(&[0.3, 5.0, -1.0, 0.0]),
+        AffineStart::NormalMap(&[-2.0, 0.0, 3.0, 0.5]),
+    ] {
+        let sol = lemke.solve_affine(&problem, &start).unwrap();
+        for i in 0..n {
+            assert!((sol.z[i] - z_star[i]).abs() < 1e-12, "{:?}", sol.z);
+            assert!((sol.w[i] - w_star[i]).abs() < 1e-12, "{:?}", sol.w);
+        }
+        assert!(sol.residual <= 1e-12);
+    }
+}
+
+#[test]
+fn lemke_sparse_matrix_and_diagonal_shift() {
+    // M = diag(1, 2) in a sparse pattern, shifted by 1: (M + I) z + q with q = (−2, −3).
+    let pattern = CscPattern::from_triplets(2, &[(0, 0), (1, 1)]).unwrap();
+    let values = [1.0, 2.0];
+    let problem = AffineMcp {
+        m: AffineMatrix::Sparse {
+            pattern: &pattern,
+            values: &values,
+        },
+        q: &[-2.0, -3.0],
+        lower: &[0.0, 0.0],
+        upper: &[f64::INFINITY, f64::INFINITY],
+        diagonal_shift: 1.0,
+    };
+    let sol = Lemke::new(LemkeSettings::default())
+        .solve_affine(&problem, &AffineStart::Classical { free_values: None })
+        .unwrap();
+    assert!((sol.z[0] - 1.0).abs() < 1e-14 && (sol.z[1] - 1.0).abs() < 1e-14);
+}
+
+#[test]
+fn lemke_reports_ray_termination_on_an_infeasible_lcp() {
+    // w1 = −1 − z2 ≥ 0 is impossible for z ≥ 0: the LCP is infeasible (M copositive-plus).
+    let m = [0.0, -1.0, 1.0, 0.0];
+    let q = [-1.0, -1.0];
+    let err = Lemke::new(LemkeSettings::default())
+        .solve_lcp(&m, &q)
+        .unwrap_err();
+    match err {
+        PivotError::RayTermination { pivots, artificial } => {
+            assert!(pivots >= 1);
+            assert!(artificial > 0.0);
+        }
+        other => panic!("expected ray termination, got {other:?}"),
+    }
+    assert!(err.to_string().contains("ray"));
+}
+
+#[test]
+fn lemke_rejects_bad_input() {
+    let mut lemke = Lemke::new(LemkeSettings::default());
+    assert!(matches!(
+        lemke.solve_lcp(&[1.0, 2.0, 3.0], &[1.0, 2.0]),
+        Err(PivotError::InvalidInput(_))
+    ));
+    assert!(matches!(
+        lemke.solve_lcp(&[f64::NAN], &[1.0]),
+        Err(PivotError::InvalidInput(_))
+    ));
+    assert!(matches!(
+        lemke.solve_lcp(&[1.0], &[f64::INFINITY]),
+        Err(PivotError::InvalidInput(_))
+    ));
+    let problem = AffineMcp {
+        m: AffineMatrix::DenseRowMajor {
+            n: 1,
+            values: &[1.0],
+        },
+        q: &[0.0],
+        lower: &[1.0],
+        upper: &[0.0],
+        diagonal_shift: 0.0,
+    };
+    assert!(matches!(
+        lemke.solve_affine(&problem, &AffineStart::Classical { free_values: None }),
+        Err(PivotError::InvalidInput(_))
+    ));
+}
+
+#[test]
+fn lemke_reports_a_singular_free_block() {
+    // Two free variables with a singular block: no basis exists at the start.
+    let problem = AffineMcp {
+        m: AffineMatrix::DenseRowMajor {
+            n: 2,
+            values: &[1.0, 1.0, 1.0, 1.0],
+        },
+        q: &[1.0, 2.0],
+        lower: &[f64::NEG_INFINITY; 2],
+        upper: &[f64::INFINITY; 2],
+        diagonal_shift: 0.0,
+    };
+    let err = Lemke::new(LemkeSettings::default())
+        .solve_affine(&problem, &AffineStart::Classical { free_values: None })
+        .unwrap_err();
+    assert!(matches!(err, PivotError::SingularBasis { .. }), "{err:?}");
+}
+
+#[test]
+fn lemke_path_runs_from_the_start_to_the_solution() {
+    let m = [2.0, 1.0, 1.0, 2.0];
+    let q = [-1.0, -3.0];
+    let lower = [0.0, 0.0];
+    let upper = [f64::INFINITY; 2];
+    let problem = AffineMcp {
+        m: AffineMatrix::DenseRowMajor { n: 2, values: &m },
+        q: &q,
+        lower: &lower,
+        upper: &upper,
+        diagonal_shift: 0.0,
+    };
+    let x0 = [0.5, -0.5];
+    let mut path = PivotPath::new();
+    let sol = Lemke::new(LemkeSettings::default())
+        .solve_affine_with_path(&problem, &AffineStart::NormalMap(&x0), &mut path)
+        .unwrap();
+    // Solution of this P-matrix LCP: z = (0, 1.5), w = (0.5, 0).
+    assert!((sol.z[1] - 1.5).abs() < 1e-14 && sol.z[0] == 0.0);
+    assert!(path.len() >= 2);
+    // Two pivots (z₀ leaves its box, z₁ enters): the path has a kink.
+    assert!(path.len() >= 3, "{}", path.len());
+    let (start, s0) = path.breakpoint(0).unwrap();
+    assert_eq!((start, s0), (&x0[..], 1.0));
+    assert_eq!(path.breakpoint(path.len() - 1).unwrap().1, 0.0);
+    assert!(path.breakpoint(path.len()).is_none());
+    // Along the path, L(x) = (1 − t) L(x₀) (the homotopy of Ralph's path search).
+    let l_of = |x: &[f64]| -> Vec<f64> {
+        let z: Vec<f64> = x.iter().map(|v| v.max(0.0)).collect();
+        (0..2)
+            .map(|i| m[2 * i] * z[0] + m[2 * i + 1] * z[1] + q[i] + x[i] - z[i])
+            .collect()
+    };
+    let l0 = l_of(&x0);
+    let mut p = [0.0; 2];
+    for t in [0.0, 0.1, 0.37, 0.5, 0.8, 1.0] {
+        let used = path.point_at(t, &mut p);
+        assert_eq!(used, t);
+        let lt = l_of(&p);
+        for i in 0..2 {
+            assert!((lt[i] - (1.0 - t) * l0[i]).abs() < 1e-12, "t = {t}: {lt:?}");
+        }
+    }
+    // The straight segment from x₀ to the end point is not the path: halfway along it the
+    // homotopy is violated (which is why the PATH-like solver backtracks along the path).
+    let end = path.breakpoint(path.len() - 1).unwrap().0.to_vec();
+    let mid: Vec<f64> = (0..2).map(|i| 0.5 * (x0[i] + end[i])).collect();
+    let lm = l_of(&mid);
+    assert!((0..2).any(|i| (lm[i] - 0.5 * l0[i]).abs() > 1e-3), "{lm:?}");
+    // Wrong output size: left alone.
+    assert_eq!(path.point_at(0.5, &mut [0.0; 3]), 0.0);
+}
+
+#[test]
+fn lemke_refactorises_periodically_without_losing_accuracy() {
+    // A 40×40 P-matrix LCP (diagonally dominant) with a short refactorisation period.
+    let n = 40;
+    let mut m = vec![0.0; n * n];
+    let mut q = vec![0.0; n];
+    for i in 0..n {
+        for j in 0..n {
+            m[i * n + j] = (((i * 31 + j * 17) % 11) as f64 - 5.0) / 10.0;
+        }
+        m[i * n + i] = 30.0;
+        q[i] = ((i * 7 % 13) as f64 - 6.0) / 3.0;
+    }
+    let mut lemke = Lemke::new(LemkeSettings {
+        refactorization_period: 3,
+        ..LemkeSettings::default()
+    });
+    let sol = lemke.solve_lcp(&m, &q).unwrap();
+    lcp_check(&m, &q, &sol.z);
+    assert!(sol.refactorizations >= 2);
+    assert!(sol.residual <= 1e-12);
+}
+
+#[test]
+fn lemke_as_mcp_solver_on_an_affine_problem() {
+    let mcp = ecp_model::FnMcp::dense(
+        vec![0.0; 2],
+        vec![f64::INFINITY; 2],
+        |z, f| {
+            f[0] = 2.0 * z[0] + z[1] - 1.0;
+            f[1] = z[0] + 2.0 * z[1] + 1.0;
+        },
+        |_z, j| {
+            j[0] = 2.0;
+            j[1] = 1.0;
+            j[2] = 1.0;
+            j[3] = 2.0;
+        },
+    )
+    .unwrap();
+    let mut solver = Lemke::new(LemkeSettings::default());
+    let sol = solver.solve(&mcp, &[3.0, 3.0]).unwrap();
+    assert_eq!(sol.summary.solver, "lemke");
+    assert!(sol.summary.residual <= 1e-12);
+    assert!(sol.summary.counter("pivots") >= 1);
+    assert!((sol.z[0] - 0.5).abs() < 1e-14);
+}
+
+#[test]
+fn lemke_as_mcp_solver_reports_a_nonlinear_problem_as_not_converged() {
+    // F(z) = z² − 1 + … is not affine: the affine model at z0 is solved, the true residual is not
+    // small, and the backend says so.
+    let mcp = ecp_model::FnMcp::dense(
+        vec![0.0],
+        vec![f64::INFINITY],
+        |z, f| f[0] = z[0] * z[0] - 1.0,
+        |z, j| j[0] = 2.0 * z[0],
+    )
+    .unwrap();
+    let err = Lemke::new(LemkeSettings::default())
+        .solve(&mcp, &[3.0])
+        .unwrap_err();
+    let best = err.best().unwrap();
+    assert!(best.summary.residual > 1e-3);
+    assert!(best.z.iter().all(|v| v.is_finite()));
+}
