@@ -3,93 +3,13 @@
 //! and most pairs must reach the default tolerance. Random positive definite LCPs are checked
 //! with proptest.
 
-use ecp_model::problems::{FRICTION_SIGMA, TestProblem, lcp, suite};
-use ecp_model::{McpSolver, Solution, SolveError, residual_of};
+mod common;
+
+use common::{Run, check_solution, exceeds, run_suite};
+use ecp_model::problems::lcp;
+use ecp_model::{McpSolver, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 use proptest::prelude::*;
-
-/// Outcome of one (problem, start) solve, judged by the model's residual, not the summary.
-struct Run {
-    problem: String,
-    start: String,
-    residual: f64,
-    result: Result<Solution, SolveError>,
-}
-
-fn run_suite() -> Vec<(TestProblem, Vec<Run>)> {
-    let mut solver = NewtonSolver::new(NewtonSettings::default());
-    suite()
-        .into_iter()
-        .map(|p| {
-            let runs = p
-                .starts
-                .iter()
-                .map(|(label, start)| {
-                    let result = solver.solve(&p.mcp, start);
-                    let z = match &result {
-                        Ok(s) => Some(&s.z),
-                        Err(e) => e.best().map(|b| &b.z),
-                    };
-                    let residual = z.map_or(f64::INFINITY, |z| residual_of(&p.mcp, z));
-                    Run {
-                        problem: p.name.clone(),
-                        start: label.clone(),
-                        residual,
-                        result,
-                    }
-                })
-                .collect();
-            (p, runs)
-        })
-        .collect()
-}
-
-/// `value > tol`, counting NaN as exceeding.
-fn exceeds(value: f64, tol: f64) -> bool {
-    value.is_nan() || value > tol
-}
-
-/// Checks that `z` (natural residual `residual`) is one of the problem's solutions; `Err`
-/// says why not.
-fn check_solution(p: &TestProblem, z: &[f64], residual: f64) -> Result<(), String> {
-    match p.name.as_str() {
-        // σ is undetermined when separated: compare the unique components only. There the
-        // σ row `μ²p_n² − Σ p_k²/e_k²` is quadratic in the friction impulses with zero gradient
-        // at the solution, so a natural residual r only gives |p_k| ≤ e_k √r and velocity
-        // errors ≤ e_k √r / D_k (at most e_r / I_n = 0.2 / 0.08 = 2.5 times √r with this data):
-        // there is no linear error bound, hence the √r term.
-        "one_contact_friction_separated" => {
-            let comps: Vec<usize> = (0..p.dim()).filter(|&i| i != FRICTION_SIGMA).collect();
-            let d = p
-                .distance_to_solutions(z, Some(&comps))
-                .unwrap_or(f64::INFINITY);
-            let tol = 1e-6 + 5.0 * residual.sqrt();
-            if exceeds(d, tol) {
-                return Err(format!(
-                    "distance {d:.3e} to the solution (σ excluded), allowed {tol:.3e}"
-                ));
-            }
-            if z[FRICTION_SIGMA] < -1e-10 {
-                return Err(format!("σ = {} < 0", z[FRICTION_SIGMA]));
-            }
-            Ok(())
-        }
-        // Solution set: the segment (λ, 0, 0, 0), 0 ≤ λ ≤ 3.
-        "mathiesen_pang_gabriel" => {
-            let off = z[1..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            if off > 1e-6 || z[0] < -1e-6 || z[0] > 3.0 + 1e-6 {
-                return Err(format!(
-                    "{z:?} is not on the segment (λ, 0, 0, 0), λ ∈ [0, 3]"
-                ));
-            }
-            Ok(())
-        }
-        _ => match p.distance_to_solutions(z, None) {
-            Some(d) if d > 1e-6 => Err(format!("distance {d:.3e} to the nearest known solution")),
-            _ => Ok(()),
-        },
-    }
-}
 
 #[test]
 fn every_suite_pair_converges_to_a_known_solution() {
@@ -100,7 +20,7 @@ fn every_suite_pair_converges_to_a_known_solution() {
     let mut failures = Vec::new();
     let mut unsolved = Vec::new();
     let mut pairs = 0;
-    for (p, runs) in run_suite() {
+    for (p, runs) in run_suite(&mut NewtonSolver::new(NewtonSettings::default())) {
         for run in runs {
             pairs += 1;
             let tag = format!("{} from {}", run.problem, run.start);
@@ -139,7 +59,10 @@ fn every_suite_pair_converges_to_a_known_solution() {
 
 #[test]
 fn most_suite_pairs_reach_the_default_tolerance() {
-    let runs: Vec<Run> = run_suite().into_iter().flat_map(|(_, r)| r).collect();
+    let runs: Vec<Run> = run_suite(&mut NewtonSolver::new(NewtonSettings::default()))
+        .into_iter()
+        .flat_map(|(_, r)| r)
+        .collect();
     let tight = runs.iter().filter(|r| r.residual <= 1e-10).count();
     let share = tight as f64 / runs.len() as f64;
     let misses: Vec<String> = runs

@@ -3,89 +3,14 @@
 //! LCPs by proptest, and one test per safeguard that fails without it: ray-termination
 //! detection, the lexicographic anti-cycling rule and the path search.
 
-use ecp_model::problems::{FRICTION_SIGMA, TestProblem, degenerate, lcp, murty, suite};
-use ecp_model::{FnMcp, McpSolver, Solution, SolveError, Termination, residual_of};
+mod common;
+
+use common::{check_solution, exceeds, run_suite};
+use ecp_model::problems::{degenerate, lcp, murty, suite};
+use ecp_model::{FnMcp, McpSolver, SolveError, Termination, residual_of};
 use ecp_solvers::path::{PathSettings, PathSolver};
 use ecp_solvers::pivot::{AntiCycling, Lemke, LemkeSettings, PivotError};
 use proptest::prelude::*;
-
-/// Outcome of one (problem, start) solve, judged by the model's residual, not the summary.
-struct Run {
-    problem: String,
-    start: String,
-    residual: f64,
-    result: Result<Solution, SolveError>,
-}
-
-fn run_suite() -> Vec<(TestProblem, Vec<Run>)> {
-    let mut solver = PathSolver::new(PathSettings::default());
-    suite()
-        .into_iter()
-        .map(|p| {
-            let runs = p
-                .starts
-                .iter()
-                .map(|(label, start)| {
-                    let result = solver.solve(&p.mcp, start);
-                    let z = match &result {
-                        Ok(s) => Some(&s.z),
-                        Err(e) => e.best().map(|b| &b.z),
-                    };
-                    let residual = z.map_or(f64::INFINITY, |z| residual_of(&p.mcp, z));
-                    Run {
-                        problem: p.name.clone(),
-                        start: label.clone(),
-                        residual,
-                        result,
-                    }
-                })
-                .collect();
-            (p, runs)
-        })
-        .collect()
-}
-
-/// `value > tol`, counting NaN as exceeding.
-fn exceeds(value: f64, tol: f64) -> bool {
-    value.is_nan() || value > tol
-}
-
-/// Checks that `z` (natural residual `residual`) is one of the problem's solutions, with the
-/// same rules as `tests/mcp_suite.rs` (σ is undetermined in the separated friction regime; the
-/// Pang–Gabriel problem has a segment of solutions).
-fn check_solution(p: &TestProblem, z: &[f64], residual: f64) -> Result<(), String> {
-    match p.name.as_str() {
-        "one_contact_friction_separated" => {
-            let comps: Vec<usize> = (0..p.dim()).filter(|&i| i != FRICTION_SIGMA).collect();
-            let d = p
-                .distance_to_solutions(z, Some(&comps))
-                .unwrap_or(f64::INFINITY);
-            let tol = 1e-6 + 5.0 * residual.sqrt();
-            if exceeds(d, tol) {
-                return Err(format!(
-                    "distance {d:.3e} to the solution (σ excluded), allowed {tol:.3e}"
-                ));
-            }
-            if z[FRICTION_SIGMA] < -1e-10 {
-                return Err(format!("σ = {} < 0", z[FRICTION_SIGMA]));
-            }
-            Ok(())
-        }
-        "mathiesen_pang_gabriel" => {
-            let off = z[1..].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            if off > 1e-6 || z[0] < -1e-6 || z[0] > 3.0 + 1e-6 {
-                return Err(format!(
-                    "{z:?} is not on the segment (λ, 0, 0, 0), λ ∈ [0, 3]"
-                ));
-            }
-            Ok(())
-        }
-        _ => match p.distance_to_solutions(z, None) {
-            Some(d) if d > 1e-6 => Err(format!("distance {d:.3e} to the nearest known solution")),
-            _ => Ok(()),
-        },
-    }
-}
 
 #[test]
 fn path_solves_95_percent_of_the_suite_to_known_solutions() {
@@ -94,7 +19,7 @@ fn path_solves_95_percent_of_the_suite_to_known_solutions() {
     let mut failures = Vec::new();
     let mut misses = Vec::new();
     let mut pairs = 0;
-    for (p, runs) in run_suite() {
+    for (p, runs) in run_suite(&mut PathSolver::new(PathSettings::default())) {
         for run in runs {
             pairs += 1;
             let tag = format!("{} from {}", run.problem, run.start);

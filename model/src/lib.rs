@@ -59,8 +59,8 @@ pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
 pub use residual::{JacobianBlocks, Params, ResidualBlock};
 pub use solver::{
-    IterationRecord, McpSolver, Observer, Solution, SolveError, StepKind, Summary, Termination,
-    validate_start,
+    IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
+    Termination, finish_solve, validate_start,
 };
 
 /// Errors raised while declaring or assembling a model.

@@ -1,8 +1,8 @@
 //! Solver traits, reports and errors shared by every backend (solvers.md, preamble).
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
-use crate::mcp::{Mcp, WorstComponent};
+use crate::mcp::{Mcp, WorstComponent, diagnose, fb_residual};
 
 /// Why a solve stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -191,4 +191,72 @@ pub fn validate_start(mcp: &dyn Mcp, z0: &[f64]) -> Result<(), SolveError> {
         )));
     }
     Ok(())
+}
+
+/// What a backend knows when it stops, handed to [`finish_solve`].
+#[derive(Clone, Debug)]
+pub struct SolveReport {
+    /// Backend name for the summary.
+    pub solver: &'static str,
+    /// The backend's own reason for stopping.
+    pub termination: Termination,
+    /// Tolerance on the natural residual.
+    pub tolerance: f64,
+    /// Iterations taken.
+    pub iterations: usize,
+    /// Evaluations of `F` so far.
+    pub f_evals: usize,
+    /// Evaluations of `J` so far.
+    pub jac_evals: usize,
+    /// When the solve started.
+    pub started: Instant,
+    /// Per-iteration trace.
+    pub trace: Vec<IterationRecord>,
+    /// Backend counters.
+    pub counters: Vec<(&'static str, usize)>,
+}
+
+/// Judges a backend's final point `z` by the model's natural residual (formulation.md §2), the
+/// one rule for every backend, and builds the [`Solution`] or the
+/// [`SolveError::NotConverged`] that carries it.
+///
+/// A point within the tolerance has converged whatever the backend thought; a backend that
+/// claimed convergence on a point that is not within it is reported as stagnated.
+pub fn finish_solve(
+    mcp: &dyn Mcp,
+    z: Vec<f64>,
+    report: SolveReport,
+) -> Result<Solution, SolveError> {
+    let (residual, worst) = diagnose(mcp, &z);
+    let mut f = vec![0.0; z.len()];
+    mcp.evaluate(&z, &mut f);
+    let termination = if residual <= report.tolerance {
+        Termination::Converged
+    } else if report.termination == Termination::Converged {
+        Termination::Stagnated
+    } else {
+        report.termination
+    };
+    let summary = Summary {
+        solver: report.solver.into(),
+        termination,
+        iterations: report.iterations,
+        // `diagnose` and the FB residual each evaluate F once.
+        f_evals: report.f_evals + 2,
+        jac_evals: report.jac_evals,
+        residual,
+        fb_residual: fb_residual(&z, &f, mcp.lower(), mcp.upper()),
+        worst,
+        time: report.started.elapsed(),
+        trace: report.trace,
+        counters: report.counters,
+    };
+    let solution = Solution { z, summary };
+    if solution.summary.converged() {
+        Ok(solution)
+    } else {
+        Err(SolveError::NotConverged {
+            best: Box::new(solution),
+        })
+    }
 }

@@ -20,8 +20,8 @@ use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
-    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, StepKind, Summary,
-    Termination, diagnose, natural_residual, validate_start,
+    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, SolveReport,
+    StepKind, Termination, finish_solve, natural_residual, validate_start,
 };
 
 use crate::normal_equations::NormalEquations;
@@ -543,41 +543,24 @@ impl McpSolver for NewtonSolver {
         if termination == Termination::Converged || residual <= best_residual {
             ws.z_best.copy_from_slice(&ws.z);
         }
-        let z = ws.z_best.clone();
-        let (res, worst) = diagnose(mcp, &z);
-        let mut fz = vec![0.0; n];
-        mcp.evaluate(&z, &mut fz);
-        f_evals += 2;
-        let summary = Summary {
-            solver: "newton".into(),
-            termination: if res <= s.tolerance {
-                Termination::Converged
-            } else if termination == Termination::Converged {
-                Termination::Stagnated
-            } else {
-                termination
+        finish_solve(
+            mcp,
+            ws.z_best.clone(),
+            SolveReport {
+                solver: "newton",
+                termination,
+                tolerance: s.tolerance,
+                iterations,
+                f_evals,
+                jac_evals,
+                started: start,
+                trace,
+                counters: vec![
+                    ("newton_steps", newton_steps),
+                    ("lm_steps", lm_steps),
+                    ("gradient_steps", gradient_steps),
+                ],
             },
-            iterations,
-            f_evals,
-            jac_evals,
-            residual: res,
-            fb_residual: ecp_model::fb_residual(&z, &fz, l, u),
-            worst,
-            time: start.elapsed(),
-            trace,
-            counters: vec![
-                ("newton_steps", newton_steps),
-                ("lm_steps", lm_steps),
-                ("gradient_steps", gradient_steps),
-            ],
-        };
-        let solution = Solution { z, summary };
-        if solution.summary.converged() {
-            Ok(solution)
-        } else {
-            Err(SolveError::NotConverged {
-                best: Box::new(solution),
-            })
-        }
+        )
     }
 }

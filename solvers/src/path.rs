@@ -31,8 +31,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ecp_model::{
-    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, StepKind, Summary,
-    Termination, diagnose, mid, natural_residual, validate_start,
+    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, SolveReport,
+    StepKind, Termination, finish_solve, mid, natural_residual, validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -730,7 +730,6 @@ impl McpSolver for PathSolver {
             *self.lemke.settings_mut() = s.lemke.clone();
         }
         let n = mcp.dim();
-        let (l, u) = (mcp.lower(), mcp.upper());
         let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
         self.resize(n, pattern.nnz());
         let mut run = Run {
@@ -767,53 +766,36 @@ impl McpSolver for PathSolver {
         let Run {
             trace,
             counters,
-            mut f_evals,
+            f_evals,
             jac_evals,
             iterations,
             ..
         } = run;
-        let z = self.best_z.clone();
-        let (res, worst) = diagnose(mcp, &z);
-        let mut fz = vec![0.0; n];
-        mcp.evaluate(&z, &mut fz);
-        f_evals += 2;
-        let summary = Summary {
-            solver: "path".into(),
-            termination: if res <= s.tolerance {
-                Termination::Converged
-            } else if termination == Termination::Converged {
-                Termination::Stagnated
-            } else {
-                termination
+        finish_solve(
+            mcp,
+            self.best_z.clone(),
+            SolveReport {
+                solver: "path",
+                termination,
+                tolerance: s.tolerance,
+                iterations,
+                f_evals,
+                jac_evals,
+                started,
+                trace,
+                counters: vec![
+                    ("pivots", counters.pivots),
+                    ("crash_steps", counters.crash_steps),
+                    ("path_steps", counters.path_steps),
+                    ("nonmonotone_steps", counters.nonmonotone_steps),
+                    ("watchdog_restores", counters.watchdog_restores),
+                    ("path_backtracks", counters.path_backtracks),
+                    ("proximal_perturbations", counters.proximal_perturbations),
+                    ("ray_terminations", counters.ray_terminations),
+                    ("restarts", counters.restarts),
+                ],
             },
-            iterations,
-            f_evals,
-            jac_evals,
-            residual: res,
-            fb_residual: ecp_model::fb_residual(&z, &fz, l, u),
-            worst,
-            time: started.elapsed(),
-            trace,
-            counters: vec![
-                ("pivots", counters.pivots),
-                ("crash_steps", counters.crash_steps),
-                ("path_steps", counters.path_steps),
-                ("nonmonotone_steps", counters.nonmonotone_steps),
-                ("watchdog_restores", counters.watchdog_restores),
-                ("path_backtracks", counters.path_backtracks),
-                ("proximal_perturbations", counters.proximal_perturbations),
-                ("ray_terminations", counters.ray_terminations),
-                ("restarts", counters.restarts),
-            ],
-        };
-        let solution = Solution { z, summary };
-        if solution.summary.converged() {
-            Ok(solution)
-        } else {
-            Err(SolveError::NotConverged {
-                best: Box::new(solution),
-            })
-        }
+        )
     }
 }
 
