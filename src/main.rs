@@ -80,6 +80,23 @@ enum Command {
     },
 }
 
+/// `print!` that ignores a closed standard output (`ecp run ... | head`): the run's files are
+/// what matters, and a broken pipe must not turn into a panic.
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write;
+        let _ = write!(std::io::stdout(), $($arg)*);
+    }};
+}
+
+/// `println!` that ignores a closed standard output, like [`say!`].
+macro_rules! sayln {
+    ($($arg:tt)*) => {{
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match cli.command {
@@ -124,7 +141,7 @@ fn main() -> ExitCode {
             )
         }),
         Command::Check { scene } => load(&scene).map(|file| {
-            print!("{}", ecp::scene::describe(&file));
+            say!("{}", ecp::scene::describe(&file));
             ExitCode::SUCCESS
         }),
         Command::Lcp { file } => {
@@ -138,7 +155,7 @@ fn main() -> ExitCode {
                             source: e.into(),
                         })
                     })?;
-                    println!("{json}");
+                    sayln!("{json}");
                     if let Some(e) = &report.error {
                         eprintln!("error: {}: {e}", file.display());
                     }
@@ -189,7 +206,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
     let outcome = outcome?;
     let s = &outcome.summary;
     if !quiet {
-        println!(
+        sayln!(
             "{}: {} steps ({} converged, {} failed) with {} / {} in {:.2} s; step solve median {:.1} µs, \
              mean {:.1} iterations, max residual {:.2e}, max penetration {:.2e} m",
             s.scene,
@@ -204,7 +221,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
             s.max_residual,
             s.max_penetration
         );
-        println!("outputs in {}", options.out_dir.display());
+        sayln!("outputs in {}", options.out_dir.display());
     }
     if let Some(e) = &outcome.plot_error {
         eprintln!("warning: the plots were not written: {e}");
@@ -239,7 +256,7 @@ fn compare(
     let report = compare_scene(file, solvers, formulations, options, |label| {
         eprintln!("running {label} ...");
     })?;
-    println!(
+    sayln!(
         "{:<10} {:<8} {:>6} {:>6} {:>11} {:>11} {:>7} {:>10} {:>10} {:>10}",
         "model",
         "solver",
@@ -254,7 +271,7 @@ fn compare(
     );
     for r in &report.runs {
         let s = &r.summary;
-        println!(
+        sayln!(
             "{:<10} {:<8} {:>6} {:>6} {:>11.1} {:>11.1} {:>7.2} {:>10.2e} {:>10.2e} {:>10.2e}",
             s.formulation,
             s.solver,
@@ -268,7 +285,7 @@ fn compare(
             r.max_diff_w
         );
     }
-    println!("written {}", options.out_dir.join("compare.json").display());
+    sayln!("written {}", options.out_dir.join("compare.json").display());
     let all_ok = report.runs.iter().all(|r| r.summary.failed_steps == 0);
     Ok(if all_ok {
         ExitCode::SUCCESS
