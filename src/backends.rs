@@ -5,6 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use ecp_model::McpSolver;
+use ecp_solvers::conic::{ConicSettings, ConicSolver};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp_solvers::path::{PathSettings, PathSolver};
 
@@ -32,16 +33,6 @@ impl SolverKind {
             SolverKind::Path => "path",
             SolverKind::Conic => "conic",
         }
-    }
-
-    /// Whether this build has the backend (the others are named in the spec but not built yet).
-    pub fn is_available(&self) -> bool {
-        matches!(self, SolverKind::Newton | SolverKind::Path)
-    }
-
-    /// The backends this build has.
-    pub fn available() -> Vec<SolverKind> {
-        Self::ALL.into_iter().filter(|s| s.is_available()).collect()
     }
 }
 
@@ -167,20 +158,17 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
             }
             Ok(Box::new(PathSolver::new(s)))
         }
-        other => Err(unavailable_solver(other)),
+        SolverKind::Conic => {
+            let mut s = ConicSettings::default();
+            if let Some(t) = config.tolerance {
+                s.tolerance = t;
+            }
+            if let Some(m) = config.max_iterations {
+                s.max_iterations = m;
+            }
+            Ok(Box::new(ConicSolver::new(s)))
+        }
     }
-}
-
-/// The error for a backend named in the spec but not in this build.
-pub fn unavailable_solver(kind: SolverKind) -> InputError {
-    InputError::option(
-        "--solver",
-        InputErrorKind::UnknownName,
-        format!(
-            "the solver \"{kind}\" is not available in this build; available: {}",
-            names(&SolverKind::available())
-        ),
-    )
 }
 
 /// The error for a formulation named in the spec but not in this build.

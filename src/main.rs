@@ -54,7 +54,7 @@ enum Command {
     Compare {
         /// The scene file.
         scene: PathBuf,
-        /// Comma-separated backends [default: every available one].
+        /// Comma-separated backends [default: newton,path,conic].
         #[arg(long, value_delimiter = ',')]
         solvers: Option<Vec<SolverKind>>,
         /// Comma-separated formulations [default: hull].
@@ -135,7 +135,7 @@ fn main() -> ExitCode {
             };
             compare(
                 &file,
-                &solvers.unwrap_or_else(SolverKind::available),
+                &solvers.unwrap_or_else(|| SolverKind::ALL.to_vec()),
                 &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
                 &options,
             )

@@ -457,6 +457,7 @@ macro_rules! scenario_tests {
 
 scenario_tests!(newton, SolverKind::Newton);
 scenario_tests!(path, SolverKind::Path);
+scenario_tests!(conic, SolverKind::Conic);
 
 /// Largest absolute difference between two 3-vectors.
 fn diff3(a: &nalgebra::Vector3<f64>, b: &nalgebra::Vector3<f64>) -> f64 {

@@ -21,3 +21,4 @@ pub mod geometry;
 pub mod rotation;
 pub mod scenarios;
 pub mod stepper;
+pub mod structure;

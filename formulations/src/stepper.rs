@@ -187,15 +187,17 @@ pub struct ContactVars {
     pub sigma: VarId,
 }
 
-struct BodyData {
-    spec: BodySpec,
-    hull: ConvexHull,
-    nu: VarId,
-    q: VarId,
+pub(crate) struct BodyData {
+    pub(crate) spec: BodySpec,
+    pub(crate) hull: ConvexHull,
+    pub(crate) nu: VarId,
+    pub(crate) q: VarId,
     newton_euler: ResId,
     kinematic: ResId,
     frames: Vec<ContactFrame>,
-    state: BodyState,
+    pub(crate) state: BodyState,
+    /// `p_app + p_vp` of the step being prepared (read by the structural view, issue #6).
+    pub(crate) impulse: Vector6<f64>,
 }
 
 /// Per-contact values at the end of a step.
@@ -341,10 +343,10 @@ impl StepRecord {
 
 /// A running simulation: the step MCP (built once), the warm start and the current state.
 pub struct Simulation {
-    scene: Scene,
-    bodies: Vec<BodyData>,
-    contacts: Vec<ContactVars>,
-    mcp: BlockMcp,
+    pub(crate) scene: Scene,
+    pub(crate) bodies: Vec<BodyData>,
+    pub(crate) contacts: Vec<ContactVars>,
+    pub(crate) mcp: BlockMcp,
     z: Vec<f64>,
     step: usize,
     t: f64,
@@ -465,6 +467,7 @@ impl Simulation {
                 kinematic: ResId(0),
                 frames,
                 state,
+                impulse: Vector6::zeros(),
             });
         }
 
@@ -668,6 +671,12 @@ impl Simulation {
     pub fn mcp(&self) -> &BlockMcp {
         &self.mcp
     }
+    /// The step MCP together with its structural view (solvers.md §3): the problem every
+    /// backend is given by [`Simulation::step`]; structure-exploiting backends (the conic one)
+    /// need this rather than [`Simulation::mcp`].
+    pub fn structured_mcp(&self) -> crate::structure::StepView<'_> {
+        crate::structure::StepView::new(self)
+    }
     /// The current unknown vector (last solution, or the warm start of the next step).
     pub fn z(&self) -> &[f64] {
         &self.z
@@ -730,6 +739,7 @@ impl Simulation {
                 h,
             };
             let (ne_id, km_id, nu_id, q_id) = (body.newton_euler, body.kinematic, body.nu, body.q);
+            self.bodies[b].impulse = impulse;
             self.mcp.replace_residual_block(ne_id, Arc::new(ne))?;
             self.mcp.replace_residual_block(km_id, Arc::new(km))?;
             // Warm start: ν from the previous solution (= ν^u), q predicted by the kinematic map.
@@ -751,7 +761,7 @@ impl Simulation {
     pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
         self.prepare_step()?;
         let started = Instant::now();
-        let mut result = solver.solve(&self.mcp, &self.z);
+        let mut result = solver.solve(&self.structured_mcp(), &self.z);
         let mut retried = false;
         if result.is_err() {
             // One deterministic retry from the active-contact guess of every contact that is
@@ -770,7 +780,7 @@ impl Simulation {
                 }
             }
             retried = true;
-            match solver.solve(&self.mcp, &self.z) {
+            match solver.solve(&self.structured_mcp(), &self.z) {
                 Ok(sol) => result = Ok(sol),
                 Err(_) => self.z.copy_from_slice(&warm),
             }

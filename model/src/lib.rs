@@ -45,6 +45,7 @@ pub mod problem;
 pub mod problems;
 pub mod residual;
 pub mod solver;
+pub mod structure;
 
 pub use bounds::{BoundKind, Bounds, VarBlock};
 pub use checker::{
@@ -61,6 +62,10 @@ pub use residual::{JacobianBlocks, Params, ResidualBlock};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
     Termination, finish_solve, validate_start,
+};
+pub use structure::{
+    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, PatchVertex,
+    StepStructure,
 };
 
 /// Errors raised while declaring or assembling a model.

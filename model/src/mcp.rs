@@ -6,6 +6,7 @@ use std::sync::Arc;
 use crate::ModelError;
 use crate::bounds::{BoundKind, Bounds, classify};
 use crate::pattern::CscPattern;
+use crate::structure::StepStructure;
 
 /// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
 /// find `l ≤ z ≤ u` with `F_i(z) = 0` where `l_i < z_i < u_i`, `F_i ≥ 0` at `l_i`, `F_i ≤ 0` at `u_i`.
@@ -33,6 +34,11 @@ pub trait Mcp {
     /// Human-readable name of component `i`, for diagnostics.
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")
+    }
+    /// The structural view of a contact step (solvers.md §3), when this MCP is one: what the
+    /// conic backend needs besides `F`. `None` for a generic MCP.
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        None
     }
 }
 

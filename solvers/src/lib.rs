@@ -4,6 +4,7 @@
 //! layout with a [`ecp_model::Summary`], and is judged by the model's natural-map residual.
 //!
 //! - [`newton`]: semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
+//! - [`conic`]: convex subproblems with clarabel, using the contact step's structure (solvers.md §3).
 //! - [`pivot`]: Lemke's method generalised to bounded variables, for affine MCPs (LCP, mixed
 //!   and box-constrained LCP) (solvers.md §2).
 //! - [`path`]: the PATH-like solver: Josephy–Newton steps computed by pivoting, a path search
@@ -29,6 +30,7 @@
 
 #![warn(missing_docs)]
 
+pub mod conic;
 pub mod newton;
 mod normal_equations;
 pub mod path;

@@ -1,0 +1,89 @@
+//! Benchmarks of the conic backend (solvers.md §3, issue #6): `cargo bench --bench conic`.
+//!
+//! - one desk step (the 100th, warm-started from the 99th, like `benches/newton.rs`), exact mode
+//!   and the Anitescu relaxation;
+//! - the whole 400-step desk run;
+//! - the closest-point QP between the desk's hull and the ground.
+
+use ecp::formulations::scenarios;
+use ecp::formulations::stepper::Simulation;
+use ecp::model::{McpSolver, SolveError};
+use ecp::solvers::conic::closest_point::{ConvexSet, closest_points};
+use ecp::solvers::conic::{ConicMode, ConicSettings, ConicSolver, default_clarabel_settings};
+
+fn main() {
+    divan::main();
+}
+
+fn desk_at_step_100(mode: ConicMode) -> (Simulation, ConicSolver, Vec<f64>) {
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    let mut solver = ConicSolver::new(ConicSettings {
+        mode,
+        ..ConicSettings::default()
+    });
+    for _ in 0..99 {
+        sim.step(&mut solver).expect("desk step");
+    }
+    sim.prepare_step().expect("prepare");
+    let z0 = sim.z().to_vec();
+    (sim, solver, z0)
+}
+
+#[divan::bench]
+fn desk_step(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
+    let mcp = sim.structured_mcp();
+    bencher.bench_local(|| match solver.solve(&mcp, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
+#[divan::bench]
+fn desk_step_anitescu(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::AnitescuRelaxation);
+    let mcp = sim.structured_mcp();
+    // The relaxed point is not a solution of the exact step MCP, so it comes back as
+    // NotConverged with the relaxed point as the best iterate: that is the result timed here.
+    bencher.bench_local(|| match solver.solve(&mcp, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(SolveError::NotConverged { best }) => best.summary.iterations,
+        Err(e) => panic!("desk step (relaxation): {e}"),
+    });
+}
+
+#[divan::bench(sample_count = 10)]
+fn desk_run_400_steps(bencher: divan::Bencher) {
+    bencher.bench_local(|| {
+        let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+        let mut solver = ConicSolver::new(ConicSettings::default());
+        sim.run(&mut solver, |_| true).expect("desk run")
+    });
+}
+
+#[divan::bench]
+fn closest_point_desk_hull_ground(bencher: divan::Bencher) {
+    let sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    let s = sim.state(0);
+    let verts: Vec<[f64; 3]> = sim
+        .hull(0)
+        .vertices()
+        .iter()
+        .map(|v| {
+            let p = s.x + v;
+            [p.x, p.y, p.z + 0.01]
+        })
+        .collect();
+    let ground = [([0.0, 0.0, 1.0], 0.0)];
+    let settings = default_clarabel_settings();
+    bencher.bench_local(|| {
+        match closest_points(
+            &ConvexSet::Vertices(&verts),
+            &ConvexSet::HalfSpaces(&ground),
+            &settings,
+        ) {
+            Ok(r) => r.distance,
+            Err(e) => panic!("closest point: {e}"),
+        }
+    });
+}

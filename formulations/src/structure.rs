@@ -1,0 +1,349 @@
+//! The structural view of the time-step MCP (solvers.md §3, issue #6): the
+//! [`ecp_model::StepStructure`] of a [`Simulation`]'s step, for backends that exploit the
+//! structure of the contact step (the conic backend of ecp-solvers) without depending on this
+//! crate.
+//!
+//! [`StepView`] is an [`Mcp`] that delegates every MCP query to the simulation's
+//! [`BlockMcp`](ecp_model::BlockMcp) and answers [`Mcp::structure`] with itself; the stepper
+//! hands it to every backend, so generic backends see the same problem as before.
+
+use std::sync::Arc;
+
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4, Vector6};
+
+use ecp_model::{
+    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, CscPattern, Mcp, PatchVertex,
+    StepStructure,
+};
+
+use crate::blocks::mass_matrix;
+use crate::rotation::{kinematic_map, rotation_matrix};
+use crate::stepper::Simulation;
+
+/// A face of Conv(F) counts as active at the ECP when `f_i(a1) ≥ −FACE_ACTIVE` (m): the ECP is a
+/// convex combination of hull vertices, which lie on their faces to round-off.
+const FACE_ACTIVE: f64 = 1e-9;
+/// Vertices whose gap is within this (m) of the smallest one form the closest feature of a
+/// separated hull (a face, an edge or a vertex, formulation.md §6).
+const SUPPORT_TIE: f64 = 1e-12;
+
+/// The step MCP of a [`Simulation`] with its structural view (solvers.md §3).
+///
+/// Built by [`Simulation::structured_mcp`]; valid for the step prepared last
+/// ([`Simulation::prepare_step`]).
+pub struct StepView<'a> {
+    sim: &'a Simulation,
+}
+
+impl<'a> StepView<'a> {
+    /// The view of `sim`'s current step.
+    pub fn new(sim: &'a Simulation) -> Self {
+        StepView { sim }
+    }
+
+    fn quat_or_start(&self, b: usize, q: Vector4<f64>) -> Vector4<f64> {
+        // The homogeneous R(Q) is a rotation for every Q ≠ 0 (formulation.md §1); a zero or
+        // non-finite quaternion can only come from a broken iterate: fall back on Q^u.
+        if q.norm_squared() > 1e-300 && q.iter().all(|v| v.is_finite()) {
+            q
+        } else {
+            self.sim.bodies[b].state.q
+        }
+    }
+
+    /// Position `x` and rotation `R(Q)` of body `b` stored in `z`.
+    fn pose(&self, b: usize, z: &[f64]) -> (Vector3<f64>, Matrix3<f64>) {
+        let q = &z[self.sim.mcp.range(self.sim.bodies[b].q)];
+        let quat = self.quat_or_start(b, Vector4::new(q[3], q[4], q[5], q[6]));
+        (Vector3::new(q[0], q[1], q[2]), rotation_matrix(&quat))
+    }
+
+    fn free_velocity(&self, b: usize) -> Vector6<f64> {
+        let body = &self.sim.bodies[b];
+        let s = body.state;
+        let mp = &body.spec.mass;
+        let r = rotation_matrix(&s.q);
+        let iw = r * mp.inertia * r.transpose();
+        let lin = s.v + body.impulse.fixed_rows::<3>(0) / mp.mass;
+        // The inertia is validated symmetric positive definite when the scene is built.
+        let ang = match iw.cholesky() {
+            Some(ch) => s.w + ch.solve(&body.impulse.fixed_rows::<3>(3).into_owned()),
+            None => s.w,
+        };
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+}
+
+fn arr(v: &Vector3<f64>) -> [f64; 3] {
+    [v.x, v.y, v.z]
+}
+
+/// Non-negative least squares `min ‖A l − b‖, l ≥ 0` (Lawson–Hanson active set), for the face
+/// multipliers of C2 (3 rows, a handful of columns).
+fn nnls(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
+    let n = a.ncols();
+    let mut x = DVector::zeros(n);
+    let mut passive = vec![false; n];
+    let tol = 1e-14 * (1.0 + b.norm());
+    for _outer in 0..3 * n + 3 {
+        let w = a.transpose() * (b - a * &x);
+        let candidate = (0..n)
+            .filter(|&j| !passive[j] && w[j] > tol)
+            .max_by(|&i, &j| w[i].total_cmp(&w[j]));
+        let Some(j) = candidate else { break };
+        passive[j] = true;
+        for _inner in 0..3 * n + 3 {
+            let idx: Vec<usize> = (0..n).filter(|&j| passive[j]).collect();
+            let sub = DMatrix::from_fn(a.nrows(), idx.len(), |r, c| a[(r, idx[c])]);
+            let Ok(s) = sub.clone().svd(true, true).solve(b, 1e-13) else {
+                return x;
+            };
+            if s.iter().all(|v| *v > 0.0) {
+                for (k, &j) in idx.iter().enumerate() {
+                    x[j] = s[k];
+                }
+                break;
+            }
+            // Step towards s until a passive variable hits zero; drop it.
+            let mut alpha = 1.0f64;
+            for (k, &j) in idx.iter().enumerate() {
+                if s[k] <= 0.0 {
+                    let d = x[j] - s[k];
+                    if d > 0.0 {
+                        alpha = alpha.min(x[j] / d);
+                    }
+                }
+            }
+            for (k, &j) in idx.iter().enumerate() {
+                x[j] += alpha * (s[k] - x[j]);
+                if x[j] <= 1e-15 {
+                    x[j] = 0.0;
+                    passive[j] = false;
+                }
+            }
+        }
+    }
+    x
+}
+
+impl Mcp for StepView<'_> {
+    fn dim(&self) -> usize {
+        self.sim.mcp.dim()
+    }
+    fn lower(&self) -> &[f64] {
+        self.sim.mcp.lower()
+    }
+    fn upper(&self) -> &[f64] {
+        self.sim.mcp.upper()
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        self.sim.mcp.evaluate(z, f)
+    }
+    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+        self.sim.mcp.jacobian_pattern()
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        self.sim.mcp.jacobian(z, values)
+    }
+    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        self.sim.mcp.evaluate_with_jacobian(z, f, values)
+    }
+    fn component_name(&self, i: usize) -> String {
+        self.sim.mcp.component_name(i)
+    }
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        Some(self)
+    }
+}
+
+impl StepStructure for StepView<'_> {
+    fn step_length(&self) -> f64 {
+        self.sim.scene.h
+    }
+
+    fn num_bodies(&self) -> usize {
+        self.sim.bodies.len()
+    }
+
+    fn body(&self, b: usize) -> BodyDynamics {
+        let body = &self.sim.bodies[b];
+        let m = mass_matrix(body.spec.mass.mass, &body.spec.mass.inertia, &body.state.q);
+        let mut mass = [[0.0; 6]; 6];
+        for (i, row) in mass.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = m[(i, j)];
+            }
+        }
+        let f = self.free_velocity(b);
+        BodyDynamics {
+            mass,
+            free_velocity: [f[0], f[1], f[2], f[3], f[4], f[5]],
+        }
+    }
+
+    fn num_contacts(&self) -> usize {
+        self.sim.contacts.len()
+    }
+
+    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
+        self.sim
+            .bodies
+            .iter()
+            .map(|body| {
+                let nu = &z[self.sim.mcp.range(body.nu)];
+                [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
+            })
+            .collect()
+    }
+
+    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
+        let cv = &self.sim.contacts[c];
+        let body = &self.sim.bodies[cv.body];
+        let plane = &self.sim.scene.planes[cv.plane];
+        let (n, t, o) = plane.contact_frame();
+        let (x, r) = self.pose(cv.body, z);
+        let h = self.sim.scene.h;
+        let nu = &z[self.sim.mcp.range(body.nu)];
+        let trial = Vector6::from_column_slice(nu);
+        let free = self.free_velocity(cv.body);
+        let mut gap = f64::INFINITY;
+        let mut patch = Vec::new();
+        for (j, vb) in body.hull.vertices().iter().enumerate() {
+            let p = x + r * vb;
+            let g = plane.value(&p);
+            gap = gap.min(g);
+            let arm = p - x;
+            // Normal velocity of the vertex, n·(v + ω × arm), at both velocity guesses.
+            let rate = |nu: &Vector6<f64>| {
+                let v = nu.fixed_rows::<3>(0).into_owned();
+                let w = nu.fixed_rows::<3>(3).into_owned();
+                n.dot(&(v + w.cross(&arm)))
+            };
+            let approach = (-rate(&trial)).max(-rate(&free)).max(0.0);
+            if g <= band + 2.0 * h * approach {
+                patch.push(PatchVertex {
+                    index: j,
+                    position: arr(&p),
+                    gap: g,
+                });
+            }
+        }
+        let a1 = &z[self.sim.mcp.range(cv.a1)];
+        let f = self.sim.scene.friction;
+        ContactGeometry {
+            body: cv.body,
+            normal: arr(&n),
+            tangent: arr(&t),
+            bitangent: arr(&o),
+            center_of_mass: arr(&x),
+            gap,
+            patch,
+            ecp: [a1[0], a1[1], a1[2]],
+            friction: ContactFriction {
+                mu: f.mu,
+                e_t: f.e_t,
+                e_o: f.e_o,
+                e_r: f.e_r,
+            },
+        }
+    }
+
+    fn assemble(&self, point: &ConicPoint, z: &mut [f64]) {
+        let sim = self.sim;
+        let h = sim.scene.h;
+        for (b, body) in sim.bodies.iter().enumerate() {
+            let nu = point.velocities.get(b).copied().unwrap_or([0.0; 6]);
+            z[sim.mcp.range(body.nu)].copy_from_slice(&nu);
+            // Kinematic map (formulation.md §4.2), exactly as the KinematicMap block.
+            let s = body.state;
+            let v = Vector3::new(nu[0], nu[1], nu[2]);
+            let w = Vector3::new(nu[3], nu[4], nu[5]);
+            let x = s.x + v * h;
+            let q = s.q + kinematic_map(&s.q) * w * (0.5 * h);
+            z[sim.mcp.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
+        }
+        for (c, cv) in sim.contacts.iter().enumerate() {
+            let body = &sim.bodies[cv.body];
+            let plane = &sim.scene.planes[cv.plane];
+            let ng = plane.normal();
+            let (x, r) = self.pose(cv.body, z);
+            let world: Vec<Vector3<f64>> =
+                body.hull.vertices().iter().map(|vb| x + r * vb).collect();
+            let empty = ecp_model::ContactImpulses::default();
+            let imp = point.contacts.get(c).unwrap_or(&empty);
+            let pn: f64 = imp.vertex_impulses.iter().map(|(_, l)| l.max(0.0)).sum();
+            let a1 = if pn > 0.0 {
+                // Centre of pressure of the vertex impulses at the end-of-step configuration.
+                let mut a = Vector3::zeros();
+                for &(j, l) in &imp.vertex_impulses {
+                    if let Some(p) = world.get(j) {
+                        a += p * (l.max(0.0) / pn);
+                    }
+                }
+                a
+            } else {
+                // Separated: the closest feature of Conv(F) to G (a face, edge or vertex), at
+                // its centroid.
+                let gaps: Vec<f64> = world.iter().map(|p| plane.value(p)).collect();
+                let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+                let mut a = Vector3::zeros();
+                let mut k = 0.0;
+                for (p, g) in world.iter().zip(&gaps) {
+                    if *g <= gmin + SUPPORT_TIE {
+                        a += p;
+                        k += 1.0;
+                    }
+                }
+                a / f64::max(k, 1.0)
+            };
+            let lg = plane.value(&a1).max(0.0);
+            let a2 = a1 - ng * lg;
+            // Face multipliers (C2): −n_G in the cone of the outward normals of the faces
+            // active at a1.
+            let local = r.transpose() * (a1 - x);
+            let faces = body.hull.faces();
+            let active: Vec<usize> = (0..faces.len())
+                .filter(|&i| faces[i].value(&local) >= -FACE_ACTIVE)
+                .collect();
+            let mut l = vec![0.0; faces.len()];
+            if !active.is_empty() {
+                let a = DMatrix::from_fn(3, active.len(), |row, col| {
+                    (r * faces[active[col]].normal)[row]
+                });
+                let rhs = DVector::from_column_slice((-ng).as_slice());
+                let sol = nnls(&a, &rhs);
+                for (k, &i) in active.iter().enumerate() {
+                    l[i] = sol[k];
+                }
+            }
+            z[sim.mcp.range(cv.a1)].copy_from_slice(a1.as_slice());
+            z[sim.mcp.range(cv.a2)].copy_from_slice(a2.as_slice());
+            z[sim.mcp.range(cv.l)].copy_from_slice(&l);
+            z[sim.mcp.range(cv.lg)][0] = lg;
+            z[sim.mcp.range(cv.pn)][0] = pn;
+            z[sim.mcp.range(cv.pf)].copy_from_slice(&imp.friction);
+            z[sim.mcp.range(cv.sigma)][0] = imp.sigma.max(0.0);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn nnls_finds_the_cone_combination() {
+        // −e_z from the normals of the bottom face and a tilted front face.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let a = DMatrix::from_row_slice(3, 3, &[0.0, s, 1.0, 0.0, 0.0, 0.0, -1.0, -s, 0.0]);
+        let b = DVector::from_column_slice(&[0.0, 0.0, -1.0]);
+        let x = nnls(&a, &b);
+        assert!((&a * &x - &b).norm() < 1e-12, "{x}");
+        assert!(x.iter().all(|v| *v >= 0.0));
+        // Not in the cone: the best non-negative fit leaves a residual.
+        let b = DVector::from_column_slice(&[0.0, 0.0, 1.0]);
+        let x = nnls(&a, &b);
+        assert!(x.iter().all(|v| *v >= 0.0));
+        assert!((&a * &x - &b).norm() > 0.5);
+    }
+}

@@ -1,0 +1,129 @@
+//! The structural view of a contact step (solvers.md §3): what a structure-exploiting backend
+//! needs from a time step of the contact model, without the solver crate knowing the
+//! formulation's types.
+//!
+//! A step problem of formulation.md §3–§4 is, besides an MCP, a set of bodies with a mass matrix
+//! and a free-motion velocity, and a set of contacts between the convex hull Conv(F) of a body
+//! and a fixed half-space G. A backend such as the conic one (Anitescu 2006; Acary, Cadoux,
+//! Lemaréchal, Malick 2011) asks for the contact geometry at a trial end-of-step configuration
+//! (taken from a full MCP vector `z`), solves its own subproblem, and hands back velocities and
+//! impulses; [`StepStructure::assemble`] maps them to the full MCP vector (ν, q, a1, a2, l, l_g,
+//! p, σ) so that the result is judged by the same natural residual as every other backend
+//! (formulation.md §2).
+//!
+//! Vectors are plain arrays in the world frame (this crate has no linear-algebra dependency).
+//! The MCP of a step exposes its structure through [`crate::Mcp::structure`].
+
+/// Friction parameters of one contact (formulation.md §4.4): Coulomb coefficient `μ ≥ 0` and
+/// the semi-axes of the limit ellipsoid, `e_t, e_o > 0` dimensionless and `e_r > 0` a length.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ContactFriction {
+    /// Friction coefficient μ.
+    pub mu: f64,
+    /// Semi-axis along the first tangent t.
+    pub e_t: f64,
+    /// Semi-axis along the second tangent o.
+    pub e_o: f64,
+    /// Torsional semi-axis (m).
+    pub e_r: f64,
+}
+
+/// Dynamics of one body over the step (formulation.md §4.1), fixed for the whole step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyDynamics {
+    /// Generalised mass matrix `M(q^u) = diag(m I₃, R I_body Rᵀ)`, row-major.
+    pub mass: [[f64; 6]; 6],
+    /// Free-motion velocity `ν^u + M⁻¹ (p_app + p_vp)`: the end-of-step velocity without contact
+    /// impulses, with the applied, gravity and gyroscopic impulses exactly as the step's
+    /// Newton–Euler block discretises them.
+    pub free_velocity: [f64; 6],
+}
+
+/// A vertex of Conv(F) near G at a trial configuration.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct PatchVertex {
+    /// Index of the vertex in the hull's vertex list (stable for the body's lifetime): the map
+    /// back re-evaluates the vertex at the new configuration from it.
+    pub index: usize,
+    /// World position at the trial configuration.
+    pub position: [f64; 3],
+    /// Signed distance to G, `g(position)` (positive outside G).
+    pub gap: f64,
+}
+
+/// One contact (Conv(F) of a body against a fixed half-space G) evaluated at a trial
+/// end-of-step configuration (formulation.md §4.3–§4.4).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ContactGeometry {
+    /// Index of the body (in [`StepStructure::body`] numbering).
+    pub body: usize,
+    /// Unit normal `n` of G pointing into F.
+    pub normal: [f64; 3],
+    /// First unit tangent `t`.
+    pub tangent: [f64; 3],
+    /// Second unit tangent `o = n × t`.
+    pub bitangent: [f64; 3],
+    /// Centre of mass `x` at the trial configuration.
+    pub center_of_mass: [f64; 3],
+    /// Signed distance between Conv(F) and G: the smallest vertex gap over the whole hull.
+    pub gap: f64,
+    /// The vertices of Conv(F) in the tolerance band (see [`StepStructure::contact`]); the
+    /// contact patch is the part of their convex hull that touches G.
+    pub patch: Vec<PatchVertex>,
+    /// The current equivalent contact point `a1` of the trial point.
+    pub ecp: [f64; 3],
+    /// Friction parameters.
+    pub friction: ContactFriction,
+}
+
+/// Impulses of one contact in a conic solution.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ContactImpulses {
+    /// Normal impulses at patch vertices, `(vertex index, λ ≥ 0)`; their sum is `p_n` and their
+    /// centre of pressure (at the end-of-step configuration) is the ECP `a1`.
+    pub vertex_impulses: Vec<(usize, f64)>,
+    /// Friction wrench `(p_t, p_o, p_r)`, applied at the ECP.
+    pub friction: [f64; 3],
+    /// Slip magnitude `σ ≥ 0` (formulation.md §4.4).
+    pub sigma: f64,
+}
+
+/// A point of a structure-exploiting backend: end-of-step velocities and contact impulses.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct ConicPoint {
+    /// End-of-step velocity `ν = (v, ω)` of every body.
+    pub velocities: Vec<[f64; 6]>,
+    /// Impulses of every contact, in [`StepStructure::contact`] numbering.
+    pub contacts: Vec<ContactImpulses>,
+}
+
+/// What a structure-exploiting backend needs from a contact step (solvers.md §3, issue #6).
+///
+/// Implemented by the formulation crate for its time-step MCP; a backend reaches it through
+/// [`crate::Mcp::structure`].
+pub trait StepStructure {
+    /// Step length `h`.
+    fn step_length(&self) -> f64;
+    /// Number of bodies.
+    fn num_bodies(&self) -> usize;
+    /// Mass matrix and free-motion velocity of body `b`.
+    fn body(&self, b: usize) -> BodyDynamics;
+    /// Number of contacts.
+    fn num_contacts(&self) -> usize;
+    /// The end-of-step velocities `ν` stored in the full MCP vector `z`.
+    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]>;
+    /// Contact `c` at the end-of-step configuration `q` stored in `z` (with the ECP `a1` of `z`).
+    ///
+    /// The patch holds every vertex `j` of Conv(F) whose gap is at most
+    /// `band + 2 h max(0, −ġ_j)`, with `ġ_j` the normal velocity of the vertex at the velocities
+    /// of `z` or at the free-motion velocities, whichever approaches faster: vertices that may
+    /// touch G within the step.
+    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry;
+    /// Maps a conic point back to the full MCP vector: `ν` as given; `q` by the kinematic map
+    /// (formulation.md §4.2); per contact, with `p_n = Σ λ_j > 0`, `a1 = Σ λ_j v_j / p_n` at the
+    /// new configuration, otherwise `a1` the point of Conv(F) nearest to G; `a2` the projection
+    /// of `a1` on G; `l_g = max(g(a1), 0)`; the face multipliers `l ≥ 0` of the faces active at
+    /// `a1` with `Σ l_i ∇f_i = −∇g` (non-negative least squares); `p_n`, `p_f`, `σ` as given.
+    /// Every entry of `z` is overwritten.
+    fn assemble(&self, point: &ConicPoint, z: &mut [f64]);
+}

@@ -1,0 +1,510 @@
+//! Convex subproblems with clarabel (solvers.md §3): a backend that uses the structure of the
+//! contact step instead of treating it as a generic MCP.
+//!
+//! Each outer iteration fixes the contact geometry at the current end-of-step iterate (gap,
+//! contact frame, the vertices of Conv(F) near G, the ECP) and solves one convex QP over a
+//! product of cones with clarabel: normal impulses at the patch vertices `≥ 0` (their centre of
+//! pressure is the ECP) and the friction wrench in the ellipsoidal second-order cone
+//! `‖(p_t/e_t, p_o/e_o, p_r/e_r)‖ ≤ μ Σ p_n`. In velocity form, per body `b` and contact `c`:
+//!
+//! ```text
+//! min  Σ_b ½ (ν_b − ν_free,b)ᵀ M_b (ν_b − ν_free,b)
+//! s.t. g_j/h + W_{n,j}ᵀ(ν_b − ν_b^k) + s_c − μ a_c ≥ 0                 every patch vertex j  (dual λ_j)
+//!      (a_c, e_t W_tᵀν_b, e_o W_oᵀν_b, e_r W_rᵀν_b) ∈ SOC(4)                                 (dual (μ p_n, p_f/e))
+//! ```
+//!
+//! `W_{n,j} = [n; (v_j − x) × n]`, `W_t = [t; (a1 − x) × t]`, `W_o`, `W_r = [0; n]`
+//! (formulation.md §4.1), `s_c` the De Saxcé shift. Its KKT conditions are the discrete
+//! Newton–Euler equations with `p_n = Σ λ_j` at the centre of pressure, the ellipsoidal
+//! friction cone with maximum dissipation, and complementarity of each `λ_j` with the shifted,
+//! linearised gap of its vertex: at a fixed point, exactly formulation.md §4.
+//!
+//! - [`ConicMode::Exact`] (default): the De Saxcé / Acary–Cadoux fixed point. The normal
+//!   velocity of every patch vertex is shifted by `μ ‖E u_T‖` of the previous iterate
+//!   (Acary, Cadoux, Lemaréchal, Malick, CMAME 2011), which makes a fixed point satisfy exact
+//!   Coulomb (maximum-dissipation) friction, and the geometry is re-evaluated at the new
+//!   end-of-step configuration (geometric implicitness). The iteration stops when the full step
+//!   MCP's natural residual (formulation.md §2, computed by the model on the mapped-back vector)
+//!   is below [`ConicSettings::tolerance`]. Two devices make it converge to 1e-10 in a few
+//!   iterations ([`ConicSettings::polish`], [`ConicSettings::anderson_memory`]): each QP's
+//!   solution is polished on its identified active set (loaded vertices' linearised gaps made
+//!   exactly zero by a minimum-norm correction of their impulses; each contact's friction from
+//!   its exact local maximum-dissipation problem), which removes the interior-point stopping
+//!   error, and the outer fixed point is Anderson-accelerated. Neither is a Newton step on the
+//!   MCP; a final semismooth-Newton polish exists but is off by default
+//!   ([`ConicSettings::newton_polish`]).
+//! - [`ConicMode::AnitescuRelaxation`]: one QP without the shift, at the warm start's geometry
+//!   (Anitescu, Math. Prog. 2006). Convex and cheap, but it is a different model: a sliding
+//!   contact separates with normal velocity `μ ‖E u_T‖`, so sliding bodies drift off the
+//!   surface. Its summary is labelled (`solver = "conic-anitescu"`, counter
+//!   `"anitescu_relaxation" = 1`) and judged like any other point: by the exact step MCP's
+//!   natural residual, so a relaxed step that is not an exact solution comes back as
+//!   [`SolveError::NotConverged`] with [`Termination::MaxIterations`] (one QP) and the relaxed
+//!   point as its best iterate (a time stepper takes it and records the step as not converged).
+//!
+//! The backend needs the MCP's structural view ([`ecp_model::Mcp::structure`],
+//! [`ecp_model::StepStructure`]); a generic MCP is rejected with
+//! [`SolveError::InvalidProblem`].
+//!
+//! The closest-point problem between convex sets is a clarabel QP too: [`closest_point`].
+//!
+//! References: Anitescu (Math. Prog. 105, 2006); Acary, Cadoux, Lemaréchal, Malick (CMAME 200,
+//! 2011); Tasora & Anitescu (CMAME 200, 2011); Kaufman, Sueda, James, Pai (SIGGRAPH Asia 2008).
+
+mod anderson;
+pub mod closest_point;
+mod qp;
+mod step;
+
+use std::time::Instant;
+
+use clarabel::solver::DefaultSettings;
+pub use clarabel::solver::SolverStatus as ClarabelStatus;
+pub use qp::status_code;
+
+use ecp_model::{
+    IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport, StepKind, Termination,
+    finish_solve, natural_residual, validate_start,
+};
+
+use crate::newton::{NewtonSettings, NewtonSolver};
+
+/// Which model the conic backend solves (solvers.md §3).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum ConicMode {
+    /// The exact step model: De Saxcé / Acary–Cadoux fixed point with geometry re-evaluated at
+    /// each iterate, stopped on the full natural residual.
+    #[default]
+    Exact,
+    /// Anitescu's convex relaxation, solved once (single shot) at the warm start's geometry.
+    /// NOT the step model of formulation.md: sliding contacts drift off the surface.
+    AnitescuRelaxation,
+}
+
+/// Settings of the conic backend, with documented defaults.
+#[derive(Clone, Debug)]
+pub struct ConicSettings {
+    /// Stop when the natural residual of the mapped-back MCP vector is at most this.
+    /// Default `1e-10` (the Newton backend's default; issue #6 asks for ≤ 1e-8).
+    pub tolerance: f64,
+    /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
+    pub max_iterations: usize,
+    /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
+    /// iterations. Default 8.
+    pub stagnation_window: usize,
+    /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
+    /// twice the distance they may approach G within the step, enter the QP
+    /// ([`ecp_model::StepStructure::contact`]). Default `1e-3`.
+    pub patch_band: f64,
+    /// The model solved. Default [`ConicMode::Exact`].
+    pub mode: ConicMode,
+    /// Polish each QP solution on its identified active set (exact mode only): the normal
+    /// impulses of the loaded vertices are corrected so that their linearised gaps vanish, and
+    /// each contact's friction impulse is the exact solution of its local maximum-dissipation
+    /// problem, in three Gauss–Seidel sweeps. This removes the interior-point method's stopping
+    /// error (about 1e-9 in the velocities) from the fixed point; it is not a Newton step on the
+    /// MCP. With `false` the plain fixed point floors at 1e-9..1e-10 in the natural residual.
+    /// Default `true`.
+    pub polish: bool,
+    /// Anderson acceleration of the outer fixed point: number of previous iterates mixed
+    /// (Walker & Ni 2011); 0 gives the plain De Saxcé / Acary–Cadoux iteration. Default 4.
+    pub anderson_memory: usize,
+    /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
+    /// tolerance (exact mode only), reported in the counter `"newton_polish"`. Default 0: the
+    /// conic iteration alone must converge.
+    pub newton_polish: usize,
+    /// Record a per-iteration trace in the summary. Default `false`.
+    pub trace: bool,
+    /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
+    /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`,
+    /// `tol_feas`) at `1e-12` and `tol_ktratio` at `1e-10` (the step's complementarity is judged
+    /// at `1e-10` after the length rows are scaled by `1/h`), `max_iter = 100`, and
+    /// `max_step_fraction = 0.9` (with 0.99 clarabel stopped at `AlmostSolved` on the desk).
+    pub clarabel: DefaultSettings<f64>,
+}
+
+/// clarabel settings used by default (see [`ConicSettings::clarabel`]).
+pub fn default_clarabel_settings() -> DefaultSettings<f64> {
+    DefaultSettings {
+        verbose: false,
+        tol_gap_abs: 1e-12,
+        tol_gap_rel: 1e-12,
+        tol_feas: 1e-12,
+        tol_ktratio: 1e-10,
+        max_iter: 100,
+        max_step_fraction: 0.9,
+        ..DefaultSettings::default()
+    }
+}
+
+impl Default for ConicSettings {
+    fn default() -> Self {
+        ConicSettings {
+            tolerance: 1e-10,
+            max_iterations: 50,
+            stagnation_window: 8,
+            patch_band: 1e-3,
+            mode: ConicMode::Exact,
+            anderson_memory: 4,
+            polish: true,
+            newton_polish: 0,
+            trace: false,
+            clarabel: default_clarabel_settings(),
+        }
+    }
+}
+
+/// The conic backend (solvers.md §3). Implements [`McpSolver`] for MCPs that expose a
+/// [`ecp_model::StepStructure`] (the time-step MCP of ecp-formulations).
+///
+/// Counters in the summary: `"clarabel_iterations"` (interior-point iterations, all QPs),
+/// `"clarabel_status"` (last status, [`status_code`]), `"patch_vertices"` (vertex rows of the
+/// last QP), `"anitescu_relaxation"` (1 in that mode), `"newton_polish"` (Newton iterations
+/// after the fixed point, 0 unless enabled and needed).
+pub struct ConicSolver {
+    settings: ConicSettings,
+    last_status: Option<ClarabelStatus>,
+    last_error: Option<String>,
+}
+
+impl ConicSolver {
+    /// A solver with the given settings.
+    pub fn new(settings: ConicSettings) -> Self {
+        ConicSolver {
+            settings,
+            last_status: None,
+            last_error: None,
+        }
+    }
+    /// The settings.
+    pub fn settings(&self) -> &ConicSettings {
+        &self.settings
+    }
+    /// Mutable settings.
+    pub fn settings_mut(&mut self) -> &mut ConicSettings {
+        &mut self.settings
+    }
+    /// clarabel's status of the last QP solved (passes through the reason of a failure).
+    pub fn last_clarabel_status(&self) -> Option<ClarabelStatus> {
+        self.last_status
+    }
+    /// Why the last solve's subproblem failed, when it did (clarabel's status, or why clarabel
+    /// could not be called: non-finite data, rejected problem).
+    pub fn last_subproblem_error(&self) -> Option<&str> {
+        self.last_error.as_deref()
+    }
+
+    fn label(&self) -> &'static str {
+        match self.settings.mode {
+            ConicMode::Exact => "conic",
+            ConicMode::AnitescuRelaxation => "conic-anitescu",
+        }
+    }
+}
+
+/// Book-keeping of one solve.
+struct Run {
+    started: Instant,
+    f_evals: usize,
+    clarabel_iterations: usize,
+    status: Option<ClarabelStatus>,
+    patch_vertices: usize,
+    newton_polish: usize,
+    trace: Vec<IterationRecord>,
+}
+
+impl McpSolver for ConicSolver {
+    fn name(&self) -> &str {
+        self.label()
+    }
+
+    fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        validate_start(mcp, z0)?;
+        self.last_status = None;
+        self.last_error = None;
+        let Some(structure) = mcp.structure() else {
+            return Err(SolveError::InvalidProblem(
+                "the conic backend needs the structural view of a contact step \
+                 (Mcp::structure, solvers.md §3); this MCP has none: use the Newton or PATH \
+                 backend, or pass Simulation::structured_mcp()"
+                    .into(),
+            ));
+        };
+        let n = mcp.dim();
+        let (lower, upper) = (mcp.lower(), mcp.upper());
+        let nb = structure.num_bodies();
+        let nc = structure.num_contacts();
+        let bodies: Vec<_> = (0..nb).map(|b| structure.body(b)).collect();
+        if bodies.iter().any(|b| {
+            b.free_velocity
+                .iter()
+                .chain(b.mass.iter().flatten())
+                .any(|v| !v.is_finite())
+        }) {
+            return Err(SolveError::InvalidProblem(
+                "the step's mass matrix or free-motion velocity is not finite".into(),
+            ));
+        }
+        let exact = self.settings.mode == ConicMode::Exact;
+        let max_outer = if exact {
+            self.settings.max_iterations.max(1)
+        } else {
+            1
+        };
+        let mut run = Run {
+            started: Instant::now(),
+            f_evals: 0,
+            clarabel_iterations: 0,
+            status: None,
+            patch_vertices: 0,
+            newton_polish: 0,
+            trace: Vec::new(),
+        };
+        let mut f = vec![0.0; n];
+        let mut z = z0.to_vec();
+        mcp.evaluate(&z, &mut f);
+        run.f_evals += 1;
+        let mut residual = natural_residual(&z, &f, lower, upper);
+        let mut best_z = z.clone();
+        let mut best_residual = residual;
+        let mut since_improvement = 0usize;
+        let mut stall_reference = residual;
+        let mut termination = Termination::MaxIterations;
+        let mut iterations = 0;
+        let mut z_new = vec![0.0; n];
+        let h = structure.step_length();
+        // The fixed-point state: velocities, De Saxcé shifts and ECPs (the ECPs scaled by 1/h to
+        // velocity units). `z_in` is the full vector the geometry is evaluated at.
+        let mut z_in = z0.to_vec();
+        let mut state: Option<State> = None;
+        let mut anderson = anderson::Anderson::new(if exact {
+            self.settings.anderson_memory
+        } else {
+            0
+        });
+        let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
+        for it in 0..max_outer {
+            let mut geometry: Vec<_> = (0..nc)
+                .map(|c| structure.contact(c, &z_in, self.settings.patch_band))
+                .collect();
+            let x = match state.take() {
+                Some(x) => x,
+                None => {
+                    let nu = structure.velocities(&z_in);
+                    let shifts = geometry
+                        .iter()
+                        .map(|g| {
+                            let v = nu.get(g.body).copied().unwrap_or([0.0; 6]);
+                            if exact {
+                                step::de_saxce_shift(g, &v)
+                            } else {
+                                0.0
+                            }
+                        })
+                        .collect();
+                    let ecps = geometry.iter().map(|g| g.ecp).collect();
+                    State { nu, shifts, ecps }
+                }
+            };
+            for (g, e) in geometry.iter_mut().zip(&x.ecps) {
+                g.ecp = *e;
+            }
+            let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts);
+            run.patch_vertices = sub.patch_vertices;
+            let result = match sub.qp.solve(&self.settings.clarabel) {
+                Ok(r) => r,
+                Err(msg) => {
+                    self.last_error = Some(msg);
+                    termination = Termination::SubproblemFailed;
+                    break;
+                }
+            };
+            run.clarabel_iterations += result.iterations as usize;
+            run.status = Some(result.status);
+            self.last_status = Some(result.status);
+            iterations = it + 1;
+            if !qp::usable(result.status) {
+                self.last_error = Some(format!(
+                    "clarabel returned {:?} on the QP of outer iteration {it}",
+                    result.status
+                ));
+                termination = Termination::SubproblemFailed;
+                break;
+            }
+            let polish = exact && self.settings.polish;
+            let point = sub.extract(&result, &bodies, polish);
+            structure.assemble(&point, &mut z_new);
+            mcp.evaluate(&z_new, &mut f);
+            run.f_evals += 1;
+            let new_residual = natural_residual(&z_new, &f, lower, upper);
+            if self.settings.trace {
+                let step_norm = z_new
+                    .iter()
+                    .zip(&z)
+                    .map(|(a, b)| (a - b).abs())
+                    .fold(0.0, f64::max);
+                run.trace.push(IterationRecord {
+                    iteration: it,
+                    residual,
+                    merit: residual,
+                    step: StepKind::Conic,
+                    step_length: 1.0,
+                    direction_norm: step_norm,
+                });
+            }
+            std::mem::swap(&mut z, &mut z_new);
+            let previous_residual = residual;
+            residual = new_residual;
+            if residual.is_finite() && (residual < best_residual || !best_residual.is_finite()) {
+                best_residual = residual;
+                best_z.copy_from_slice(&z);
+            }
+            if !exact {
+                // The relaxation is one QP; the summary judges its point like any other.
+                termination = Termination::Converged;
+                break;
+            }
+            if residual <= self.settings.tolerance {
+                termination = Termination::Converged;
+                break;
+            }
+            if best_residual < 0.9 * stall_reference {
+                stall_reference = best_residual;
+                since_improvement = 0;
+            } else {
+                since_improvement += 1;
+                if since_improvement >= self.settings.stagnation_window {
+                    termination = Termination::Stagnated;
+                    break;
+                }
+            }
+            // G(x): the new velocities, the plain De Saxcé update μσ and the new ECPs.
+            let new_geometry: Vec<_> = (0..nc)
+                .map(|c| structure.contact(c, &z, self.settings.patch_band))
+                .collect();
+            let g = State {
+                nu: point.velocities.clone(),
+                shifts: new_geometry
+                    .iter()
+                    .enumerate()
+                    .map(|(c, geo)| {
+                        geo.friction.mu * point.contacts.get(c).map_or(0.0, |p| p.sigma)
+                    })
+                    .collect(),
+                ecps: new_geometry.iter().map(|geo| geo.ecp).collect(),
+            };
+            if residual.is_nan() || residual > 10.0 * previous_residual {
+                // The mixing made things worse: restart it from the plain update.
+                anderson.reset();
+            }
+            let mixed = anderson.next(&x.flatten(h), &g.flatten(h));
+            let next = State::unflatten(&mixed, &g, h);
+            last_impulses.clone_from(&point.contacts);
+            let seed = ecp_model::ConicPoint {
+                velocities: next.nu.clone(),
+                contacts: last_impulses.clone(),
+            };
+            structure.assemble(&seed, &mut z_in);
+            state = Some(next);
+        }
+        if exact {
+            // Return the best iterate; a later iterate may have been worse.
+            z.copy_from_slice(&best_z);
+            if termination != Termination::Converged
+                && self.settings.newton_polish > 0
+                && best_residual.is_finite()
+            {
+                let mut newton = NewtonSolver::new(NewtonSettings {
+                    tolerance: self.settings.tolerance,
+                    max_iterations: self.settings.newton_polish,
+                    ..NewtonSettings::default()
+                });
+                let polished = match newton.solve(mcp, &z) {
+                    Ok(sol) => Some(sol),
+                    Err(SolveError::NotConverged { best }) => Some(*best),
+                    Err(SolveError::InvalidProblem(_)) => None,
+                };
+                if let Some(sol) = polished {
+                    run.newton_polish = sol.summary.iterations;
+                    run.f_evals += sol.summary.f_evals;
+                    if sol.summary.residual < best_residual {
+                        z.copy_from_slice(&sol.z);
+                        best_residual = sol.summary.residual;
+                    }
+                    if best_residual <= self.settings.tolerance {
+                        termination = Termination::Converged;
+                    }
+                }
+            }
+        }
+        // The relaxation's single QP is reported as the iteration limit (one QP) when its point
+        // is not a solution of the exact model.
+        let termination = if exact {
+            termination
+        } else {
+            Termination::MaxIterations
+        };
+        finish_solve(
+            mcp,
+            z,
+            SolveReport {
+                solver: self.label(),
+                termination,
+                tolerance: self.settings.tolerance,
+                iterations,
+                f_evals: run.f_evals,
+                jac_evals: 0,
+                started: run.started,
+                trace: run.trace,
+                counters: vec![
+                    ("clarabel_iterations", run.clarabel_iterations),
+                    ("clarabel_status", run.status.map_or(0, status_code)),
+                    ("patch_vertices", run.patch_vertices),
+                    (
+                        "anitescu_relaxation",
+                        usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
+                    ),
+                    ("newton_polish", run.newton_polish),
+                ],
+            },
+        )
+    }
+}
+
+/// The state of the outer fixed point: velocities per body, De Saxcé shifts and ECPs per
+/// contact.
+struct State {
+    nu: Vec<[f64; 6]>,
+    shifts: Vec<f64>,
+    ecps: Vec<[f64; 3]>,
+}
+
+impl State {
+    /// One vector in velocity units (ECPs divided by h), for the accelerator.
+    fn flatten(&self, h: f64) -> Vec<f64> {
+        let mut v: Vec<f64> = self.nu.iter().flatten().copied().collect();
+        v.extend(&self.shifts);
+        v.extend(self.ecps.iter().flatten().map(|e| e / h));
+        v
+    }
+    /// The inverse of [`State::flatten`], with the shape of `like`; shifts stay ≥ 0.
+    fn unflatten(v: &[f64], like: &State, h: f64) -> State {
+        let nb = like.nu.len();
+        let nc = like.shifts.len();
+        let nu = (0..nb)
+            .map(|b| {
+                let mut x = [0.0; 6];
+                x.copy_from_slice(&v[6 * b..6 * b + 6]);
+                x
+            })
+            .collect();
+        let shifts = (0..nc).map(|c| v[6 * nb + c].max(0.0)).collect();
+        let ecps = (0..nc)
+            .map(|c| {
+                let o = 6 * nb + nc + 3 * c;
+                [v[o] * h, v[o + 1] * h, v[o + 2] * h]
+            })
+            .collect();
+        State { nu, shifts, ecps }
+    }
+}
