@@ -134,41 +134,26 @@ impl Default for SolverConfig {
     }
 }
 
-/// Builds the solver of `config`; an unavailable backend is an [`InputErrorKind::UnknownName`]
-/// error that says which ones exist.
+/// Builds the solver of `config`: the backend's documented default settings, with the scene's
+/// tolerance and iteration limit where given. (A `Result` so that backends with settings that
+/// can be invalid fit the same call.)
 pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputError> {
-    match config.kind {
-        SolverKind::Newton => {
-            let mut s = NewtonSettings::default();
-            if let Some(t) = config.tolerance {
-                s.tolerance = t;
-            }
-            if let Some(m) = config.max_iterations {
-                s.max_iterations = m;
-            }
-            Ok(Box::new(NewtonSolver::new(s)))
-        }
-        SolverKind::Path => {
-            let mut s = PathSettings::default();
-            if let Some(t) = config.tolerance {
-                s.tolerance = t;
-            }
-            if let Some(m) = config.max_iterations {
-                s.max_iterations = m;
-            }
-            Ok(Box::new(PathSolver::new(s)))
-        }
-        SolverKind::Conic => {
-            let mut s = ConicSettings::default();
-            if let Some(t) = config.tolerance {
-                s.tolerance = t;
-            }
-            if let Some(m) = config.max_iterations {
-                s.max_iterations = m;
-            }
-            Ok(Box::new(ConicSolver::new(s)))
-        }
+    // Each backend's settings struct has these two fields under the same names.
+    macro_rules! configured {
+        ($settings:ident, $solver:ident) => {{
+            let d = $settings::default();
+            Box::new($solver::new($settings {
+                tolerance: config.tolerance.unwrap_or(d.tolerance),
+                max_iterations: config.max_iterations.unwrap_or(d.max_iterations),
+                ..d
+            })) as Box<dyn McpSolver>
+        }};
     }
+    Ok(match config.kind {
+        SolverKind::Newton => configured!(NewtonSettings, NewtonSolver),
+        SolverKind::Path => configured!(PathSettings, PathSolver),
+        SolverKind::Conic => configured!(ConicSettings, ConicSolver),
+    })
 }
 
 /// The error for a formulation named in the spec but not in this build.
