@@ -555,9 +555,14 @@ fn checker_finds_a_planted_wrong_entry() {
         worst.failed && (worst.row, worst.block, worst.col) == (0, 1, 2),
         "worst entry is not the planted one:\n{bad}"
     );
-    // Analytic −2 p_r / e_r² + 0.5 = −1.5, numeric −2.
-    assert!((worst.analytic - (-1.5)).abs() < 1e-12, "{bad}");
-    assert!((worst.numeric - (-2.0)).abs() < 1e-6, "{bad}");
+    // ∂(μ p_n − ‖E⁻¹p‖)/∂p_r = −(p_r / e_r²) / ‖E⁻¹p‖; the planted entry adds 0.5.
+    let norm = ((pf[0] / friction.e_t).powi(2)
+        + (pf[1] / friction.e_o).powi(2)
+        + (pf[2] / friction.e_r).powi(2))
+    .sqrt();
+    let exact = -(pf[2] / (friction.e_r * friction.e_r)) / norm;
+    assert!((worst.analytic - (exact + 0.5)).abs() < 1e-12, "{bad}");
+    assert!((worst.numeric - exact).abs() < 1e-6, "{bad}");
     assert!((bad.max_abs_error - 0.5).abs() < 1e-6, "{bad}");
     let text = bad.to_string();
     assert!(

@@ -273,6 +273,27 @@ fn a5_tilted_drop_comes_to_rest_flat(kind: SolverKind) {
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
     assert_dissipative("A5 tilted", &recs, e0);
+    // Free fall until the first touch: no friction impulse and no rotation (ω0 = 0, no torque
+    // about the CM). A squared ellipsoid row would let p_f ≈ √(1e-10) = 1e-5 through here.
+    let first_touch = recs
+        .iter()
+        .position(|r| r.contacts[0].mode != ContactMode::None)
+        .expect("A5 tilted never lands");
+    assert!(
+        first_touch > 5,
+        "A5 tilted lands too early: step {first_touch}"
+    );
+    for r in &recs[..first_touch] {
+        let c = &r.contacts[0];
+        let pf = c.pt.abs().max(c.po.abs()).max(c.pr.abs());
+        assert!(
+            pf <= 1e-9,
+            "A5 tilted free fall, step {}: friction impulse {pf:e}",
+            r.step
+        );
+        let w = r.bodies[0].w.amax();
+        assert!(w <= 1e-9, "A5 tilted free fall, step {}: ω = {w:e}", r.step);
+    }
     let modes: Vec<ContactMode> = recs.iter().map(|r| r.contacts[0].mode).collect();
     assert!(
         modes.contains(&ContactMode::Point),

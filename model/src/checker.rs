@@ -276,29 +276,26 @@ pub fn check_residual_block(
         all: Vec::new(),
         pairs: Vec::new(),
     };
-    let mut rp = vec![0.0; m];
-    let mut rm = vec![0.0; m];
+    let mut diff = Differences::new(m);
     for (k, &(off, size)) in ranges.iter().enumerate() {
         for j in 0..size {
             let c = off + j;
             let x0 = z[c];
             let h = opts.relative_step * x0.abs().max(1.0);
-            z[c] = x0 + h;
-            block.evaluate(Params::new(&z, &ranges), &mut rp);
-            z[c] = x0 - h;
-            block.evaluate(Params::new(&z, &ranges), &mut rm);
+            diff.compute(x0, h, |x, out| {
+                z[c] = x;
+                block.evaluate(Params::new(&z, &ranges), out);
+            });
             z[c] = x0;
             for i in 0..m {
-                let numeric = (rp[i] - rm[i]) / (2.0 * h);
-                let noise = 4.0 * f64::EPSILON * rp[i].abs().max(rm[i].abs()) / (2.0 * h);
                 collector.push(
                     i,
                     k,
                     j,
                     format!("{}[{}] / param{}[{}]", block.name(), i, k, j),
                     analytic[c * m + i],
-                    numeric,
-                    noise,
+                    diff.numeric[i],
+                    diff.noise[i],
                 );
             }
         }
@@ -337,8 +334,7 @@ pub fn check_mcp(mcp: &dyn Mcp, z: &[f64], opts: &CheckOptions) -> JacobianRepor
     let mut dense = vec![0.0; n * n];
     pattern.to_dense(&values, &mut dense);
     let mut zz = z.to_vec();
-    let mut fp = vec![0.0; n];
-    let mut fm = vec![0.0; n];
+    let mut diff = Differences::new(n);
     let mut collector = Collector {
         opts: *opts,
         all: Vec::new(),
@@ -347,14 +343,13 @@ pub fn check_mcp(mcp: &dyn Mcp, z: &[f64], opts: &CheckOptions) -> JacobianRepor
     for j in 0..n {
         let x0 = zz[j];
         let h = opts.relative_step * x0.abs().max(1.0);
-        zz[j] = x0 + h;
-        mcp.evaluate(&zz, &mut fp);
-        zz[j] = x0 - h;
-        mcp.evaluate(&zz, &mut fm);
+        diff.compute(x0, h, |x, out| {
+            zz[j] = x;
+            mcp.evaluate(&zz, out);
+        });
         zz[j] = x0;
         for i in 0..n {
-            let numeric = (fp[i] - fm[i]) / (2.0 * h);
-            let noise = 4.0 * f64::EPSILON * fp[i].abs().max(fm[i].abs()) / (2.0 * h);
+            let (numeric, noise) = (diff.numeric[i], diff.noise[i]);
             let analytic = dense[j * n + i];
             if analytic == 0.0 && numeric == 0.0 {
                 continue;
@@ -371,4 +366,52 @@ pub fn check_mcp(mcp: &dyn Mcp, z: &[f64], opts: &CheckOptions) -> JacobianRepor
         }
     }
     collector.finish("MCP Jacobian".to_string())
+}
+
+/// Central differences in one coordinate at steps `h` and `h/2`, combined by Richardson
+/// extrapolation. `noise` bounds the round-off of the combination plus the truncation error
+/// estimated from the two steps: it is large only where the function bends sharply within the
+/// step (near a kink such as `‖p‖` at `p ≈ 0`), where a finite difference cannot be trusted.
+struct Differences {
+    plus: Vec<f64>,
+    minus: Vec<f64>,
+    coarse: Vec<f64>,
+    coarse_noise: Vec<f64>,
+    numeric: Vec<f64>,
+    noise: Vec<f64>,
+}
+
+impl Differences {
+    fn new(m: usize) -> Self {
+        Differences {
+            plus: vec![0.0; m],
+            minus: vec![0.0; m],
+            coarse: vec![0.0; m],
+            coarse_noise: vec![0.0; m],
+            numeric: vec![0.0; m],
+            noise: vec![0.0; m],
+        }
+    }
+
+    /// Fills `numeric` and `noise` for the coordinate at `x0`; `eval(x, out)` evaluates the
+    /// residuals with that coordinate set to `x`.
+    fn compute(&mut self, x0: f64, h: f64, mut eval: impl FnMut(f64, &mut [f64])) {
+        for (pass, step) in [h, 0.5 * h].into_iter().enumerate() {
+            eval(x0 + step, &mut self.plus);
+            eval(x0 - step, &mut self.minus);
+            for i in 0..self.plus.len() {
+                let (p, m) = (self.plus[i], self.minus[i]);
+                let d = (p - m) / (2.0 * step);
+                let roundoff = 4.0 * f64::EPSILON * p.abs().max(m.abs()) / (2.0 * step);
+                if pass == 0 {
+                    self.coarse[i] = d;
+                    self.coarse_noise[i] = roundoff;
+                } else {
+                    self.numeric[i] = (4.0 * d - self.coarse[i]) / 3.0;
+                    self.noise[i] =
+                        (4.0 * roundoff + self.coarse_noise[i]) / 3.0 + (d - self.coarse[i]).abs();
+                }
+            }
+        }
+    }
 }
