@@ -16,12 +16,12 @@
 //!
 //! The free flight itself is checked too (linear and angular impulse, kinematic map).
 //!
-//! Known defect (backend / formulation, not the closest points): while separated, `p_n = 0`
-//! leaves the friction block (p_f, σ) degenerate, and the default Newton backend often ends a
-//! free-flight step with the σ row at 1e-9..4e-9 after 200 iterations (most T-bar poses), and on
-//! about 1 pose in 150 it stagnates far from the solution. The property tests therefore require
-//! every component except p_f and σ to be converged to 1e-10 (and skip the rare far
-//! stagnations); the strict "natural residual ≤ 1e-10" requirement of formulation.md §5 is in the
+//! Known defect (Newton backend, not the closest points): while separated, `p_n = 0` leaves the
+//! friction block (p_f, σ) degenerate, and on some poses the Newton backend stagnates far from
+//! the solution (before the ellipsoid row took its cone form it also often ended with the σ row
+//! at 1e-9..4e-9 after 200 iterations). The property tests therefore require every component
+//! except p_f and σ to be converged to 1e-10 with Newton (and skip the rare far stagnations);
+//! the strict "natural residual ≤ 1e-10" requirement of formulation.md §5 is in the
 //! `#[ignore]`d tests at the end, with the failing poses as regression cases. The PATH-like
 //! backend solves every one of these steps to 1e-10: its `_with_path` twins are not ignored.
 
@@ -571,8 +571,9 @@ fn t_bar_flat_pitching_step_converges_with_path() {
     assert_converged(t_bar_scene(&f), SolverKind::Path).unwrap_or_else(|e| panic!("{e}"));
 }
 
-/// A rotated T-bar 16 mm above the ground: 200 iterations (196 Levenberg–Marquardt steps) end at
-/// natural residual 7.4e-10, worst component σ, with |p_f| ≈ 2.7e-5 while separated.
+/// A rotated T-bar 16 mm above the ground. With the squared ellipsoid row, Newton's 200
+/// iterations (196 Levenberg–Marquardt steps) ended at natural residual 7.4e-10, worst component
+/// σ, with |p_f| ≈ 2.7e-5 while separated; the cone form of the row solves it.
 fn t_bar_rotated_step_pose() -> Float {
     Float {
         plane: HalfSpace::ground(),
@@ -602,7 +603,6 @@ fn t_bar_rotated_step_pose() -> Float {
 }
 
 #[test]
-#[ignore = "known defect: stops at 7.4e-10 after 200 iterations"]
 fn t_bar_rotated_step_converges() {
     let f = t_bar_rotated_step_pose();
     assert_converged(t_bar_scene(&f), SolverKind::Newton).unwrap_or_else(|e| panic!("{e}"));
