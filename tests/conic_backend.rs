@@ -40,13 +40,8 @@ fn run(scene: Scene, solver: &mut dyn McpSolver) -> Vec<StepRecord> {
 /// Runs `name` with the conic backend and, at every step, solves the same step problem (same
 /// start state and warm start) with the semismooth Newton backend; checks the conic residual
 /// and the velocity difference, and returns the run's numbers.
-///
-/// Newton's known defect (tests/closest_points.rs): while a contact is open (`p_n = 0`), the
-/// friction impulse is only bounded by `‖p_f‖ ≤ √residual`, so a converged Newton step may carry
-/// a spurious `p_f ~ 1e-5` that moves the velocities by more than 1e-6. On such steps the
-/// comparison allows Newton's own spurious impulse (`10 ‖p_f‖` bounds its effect on a body of
-/// mass ≥ 1 kg with inertia ≥ 0.1 kg m² and lever ≤ 1 m), and the conic velocities must instead
-/// be the exact free flight `ν_free` to 1e-12 whenever the conic step has no contact impulse.
+/// Whenever the conic step has no contact impulse its velocities must also be the exact free
+/// flight `ν_free` to 1e-12.
 fn check_against_newton(name: &str) {
     let mut sim = Simulation::new(scene(name)).expect("valid scene");
     let mut conic = ConicSolver::new(ConicSettings::default());
@@ -54,13 +49,12 @@ fn check_against_newton(name: &str) {
     let mut max_res: f64 = 0.0;
     let mut max_dv: f64 = 0.0;
     let mut outer = 0usize;
-    let mut excused = 0usize;
     let mut newton_failures = 0usize;
     let mut us: Vec<f64> = Vec::new();
     while !sim.finished() {
         sim.prepare_step().expect("prepare");
         let z0 = sim.z().to_vec();
-        let (newton_nu, free, spurious) = {
+        let (newton_nu, free) = {
             let view = sim.structured_mcp();
             // Newton from the plain warm start can fail where the stepper's own retry (from an
             // active-contact guess) would rescue it: then there is no reference for this step.
@@ -68,18 +62,7 @@ fn check_against_newton(name: &str) {
             let free: Vec<[f64; 6]> = (0..view.num_bodies())
                 .map(|b| view.body(b).free_velocity)
                 .collect();
-            // Friction impulse Newton carries on open contacts (p_n = 0).
-            let mut spurious: f64 = 0.0;
-            if let Some(sol) = &sol {
-                for c in sim.contacts() {
-                    let pn = sol.z[sim.mcp().range(c.pn)][0];
-                    let pf = &sol.z[sim.mcp().range(c.pf)];
-                    if pn <= 1e-9 {
-                        spurious = spurious.max(pf.iter().map(|v| v * v).sum::<f64>().sqrt());
-                    }
-                }
-            }
-            (sol.map(|s| view.velocities(&s.z)), free, spurious)
+            (sol.map(|s| view.velocities(&s.z)), free)
         };
         let c = sim.step(&mut conic).expect("step");
         assert!(
@@ -115,15 +98,11 @@ fn check_against_newton(name: &str) {
                 }
             }
         }
-        let allowed = DV + 10.0 * spurious;
         assert!(
-            dv <= allowed,
-            "{name}: step {}: conic and Newton velocities differ by {dv:.3e} (allowed {allowed:.3e})",
+            dv <= DV,
+            "{name}: step {}: conic and Newton velocities differ by {dv:.3e} (allowed {DV:.0e})",
             c.step
         );
-        if dv > DV {
-            excused += 1;
-        }
         if newton_nu.is_none() {
             newton_failures += 1;
         }
@@ -149,8 +128,7 @@ fn check_against_newton(name: &str) {
     us.sort_by(f64::total_cmp);
     println!(
         "{name}: {steps} steps, max residual {max_res:.2e}, max |dv| vs Newton {max_dv:.2e} \
-         ({excused} steps above 1e-6 by Newton's spurious open-contact friction, \
-         {newton_failures} steps without a Newton reference), \
+         ({newton_failures} steps without a Newton reference), \
          mean outer iterations {:.2}, median {:.0} us/step",
         outer as f64 / steps as f64,
         us[steps / 2]
