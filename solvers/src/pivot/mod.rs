@@ -38,7 +38,7 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::{
-    CscPattern, Mcp, McpSolver, Solution, SolveError, Summary, Termination, diagnose, mid,
+    CscPattern, Mcp, McpSolver, Solution, SolveError, SolveReport, Termination, finish_solve, mid,
     natural_residual, validate_start,
 };
 
@@ -1224,36 +1224,23 @@ impl McpSolver for Lemke {
                 (zs.clone(), p, self.refactorizations, Some(t))
             }
         };
-        let (residual, worst) = diagnose(mcp, &z);
-        let mut fz = vec![0.0; n];
-        mcp.evaluate(&z, &mut fz);
-        let termination = match termination {
-            Some(t) => t,
-            None if residual <= self.settings.tolerance => Termination::Converged,
-            // The affine model was solved but F is not affine (or the solve lost accuracy).
-            None => Termination::Stagnated,
-        };
-        let summary = Summary {
-            solver: "lemke".into(),
-            termination,
-            iterations: 1,
-            f_evals: 3,
-            jac_evals: 1,
-            residual,
-            fb_residual: ecp_model::fb_residual(&z, &fz, l, u),
-            worst,
-            time: start.elapsed(),
-            trace: Vec::new(),
-            counters: vec![("pivots", pivots), ("refactorizations", refactorizations)],
-        };
-        let solution = Solution { z, summary };
-        if solution.summary.converged() {
-            Ok(solution)
-        } else {
-            Err(SolveError::NotConverged {
-                best: Box::new(solution),
-            })
-        }
+        // A solved affine model of a non-affine F (or a solve that lost accuracy) is reported as
+        // stagnated by `finish_solve`, which judges the point by the model's natural residual.
+        finish_solve(
+            mcp,
+            z,
+            SolveReport {
+                solver: "lemke",
+                termination: termination.unwrap_or(Termination::Converged),
+                tolerance: self.settings.tolerance,
+                iterations: 1,
+                f_evals: 1,
+                jac_evals: 1,
+                started: start,
+                trace: Vec::new(),
+                counters: vec![("pivots", pivots), ("refactorizations", refactorizations)],
+            },
+        )
     }
 }
 
