@@ -226,7 +226,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
     if let Some(e) = &outcome.plot_error {
         eprintln!("warning: the plots were not written: {e}");
     }
-    if let Some(f) = &s.failure {
+    if let (Some(f), None) = (&s.failure, &outcome.stepper_error) {
         eprintln!(
             "error: step {} (t = {:.4} s) did not converge: {} (residual {:.3e}); the steps before \
              it are in {}; try --solver with another backend, a smaller h, or --keep-going",

@@ -152,7 +152,7 @@ pub struct Failure {
     pub t: f64,
     /// Why (the solver's termination, or the stepper's error).
     pub reason: String,
-    /// Natural residual of the best iterate.
+    /// Natural residual of the best iterate (`null` in JSON when the step has no iterate).
     pub residual: f64,
 }
 

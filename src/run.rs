@@ -147,6 +147,18 @@ pub fn run_scene(
         &records,
         planned,
     );
+    if let Some(message) = &stepper_error {
+        // The step the stepper refused is a failed step too, though it has no record.
+        summary.failed_steps += 1;
+        if summary.failure.is_none() {
+            summary.failure = Some(crate::output::Failure {
+                step: records.len() + 1,
+                t: records.len() as f64 * file.scene.h,
+                reason: message.clone(),
+                residual: f64::INFINITY,
+            });
+        }
+    }
     let (plots, plot_error) = if options.plots && !records.is_empty() {
         match crate::plots::write_plots(&options.out_dir.join("plots"), &file.scene, &records) {
             Ok(p) => (p, None),
