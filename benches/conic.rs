@@ -11,21 +11,18 @@ use ecp::model::{McpSolver, SolveError};
 use ecp::solvers::conic::closest_point::{ConvexSet, closest_points};
 use ecp::solvers::conic::{ConicMode, ConicSettings, ConicSolver, default_clarabel_settings};
 
+mod common;
+
 fn main() {
     divan::main();
 }
 
 fn desk_at_step_100(mode: ConicMode) -> (Simulation, ConicSolver, Vec<f64>) {
-    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
     let mut solver = ConicSolver::new(ConicSettings {
         mode,
         ..ConicSettings::default()
     });
-    for _ in 0..99 {
-        sim.step(&mut solver).expect("desk step");
-    }
-    sim.prepare_step().expect("prepare");
-    let z0 = sim.z().to_vec();
+    let (sim, z0) = common::desk_at_step_100(&mut solver);
     (sim, solver, z0)
 }
 

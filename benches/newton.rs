@@ -11,6 +11,8 @@ use ecp::model::McpSolver;
 use ecp::model::problems::{TestProblem, kojima_josephy, random_p_matrix_lcp};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
+mod common;
+
 fn main() {
     divan::main();
 }
@@ -39,13 +41,8 @@ fn p_matrix_lcp(bencher: divan::Bencher, (n, sparse): (usize, bool)) {
 
 #[divan::bench]
 fn desk_step(bencher: divan::Bencher) {
-    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
     let mut solver = NewtonSolver::new(NewtonSettings::default());
-    for _ in 0..99 {
-        sim.step(&mut solver).expect("desk step");
-    }
-    sim.prepare_step().expect("prepare");
-    let z0 = sim.z().to_vec();
+    let (sim, z0) = common::desk_at_step_100(&mut solver);
     bencher.bench_local(|| match solver.solve(sim.mcp(), &z0) {
         Ok(sol) => sol.summary.iterations,
         Err(e) => panic!("desk step: {e}"),

@@ -6,12 +6,12 @@
 //! - the PATH-like solver on one desk step (the 100th, warm-started), as `benches/newton.rs`
 //!   does for Newton.
 
-use ecp::formulations::scenarios;
-use ecp::formulations::stepper::Simulation;
 use ecp::model::problems::{kojima_josephy, random_p_matrix_lcp};
 use ecp::model::{Mcp, McpSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 use ecp::solvers::pivot::{Lemke, LemkeSettings};
+
+mod common;
 
 fn main() {
     divan::main();
@@ -57,13 +57,8 @@ fn path_kojima_josephy_start1(bencher: divan::Bencher) {
 
 #[divan::bench]
 fn path_desk_step(bencher: divan::Bencher) {
-    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
     let mut solver = PathSolver::new(PathSettings::default());
-    for _ in 0..99 {
-        sim.step(&mut solver).expect("desk step");
-    }
-    sim.prepare_step().expect("prepare");
-    let z0 = sim.z().to_vec();
+    let (sim, z0) = common::desk_at_step_100(&mut solver);
     bencher.bench_local(|| match solver.solve(sim.mcp(), &z0) {
         Ok(sol) => sol.summary.iterations,
         Err(e) => panic!("desk step: {e}"),

@@ -25,6 +25,9 @@
 //! `#[ignore]`d tests at the end, with the failing poses as regression cases. The PATH-like
 //! backend solves every one of these steps to 1e-10: its `_with_path` twins are not ignored.
 
+mod common;
+
+use common::strategies::{unit_quat, unit3, vec3};
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::blocks::FrictionParams;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
@@ -56,23 +59,6 @@ fn to_p(v: &V3) -> PVec {
 
 fn from_p(v: PVec) -> V3 {
     V3::new(v.x, v.y, v.z)
-}
-
-fn vec3(lo: f64, hi: f64) -> impl Strategy<Value = V3> {
-    (lo..hi, lo..hi, lo..hi).prop_map(|(a, b, c)| V3::new(a, b, c))
-}
-
-fn unit3() -> impl Strategy<Value = V3> {
-    vec3(-1.0, 1.0)
-        .prop_filter("direction away from zero", |v| v.norm() > 0.1)
-        .prop_map(|v| v.normalize())
-}
-
-fn unit_quat() -> impl Strategy<Value = Vector4<f64>> {
-    (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64)
-        .prop_map(|(a, b, c, d)| Vector4::new(a, b, c, d))
-        .prop_filter("quaternion away from zero", |q| q.norm() > 0.1)
-        .prop_map(|q| q.normalize())
 }
 
 /// G: the ground, or a tilted half-space with a random unit normal and offset.

@@ -5,9 +5,11 @@
 //! labelled in its summary and measurably not the exact model (it drifts off the surface on
 //! A1), and an MCP without the structural view is rejected.
 
+mod common;
+
+use common::scene;
 use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
 use ecp::model::{FnMcp, McpSolver, SolveError, StepStructure, Termination};
-use ecp::scene::load_scene;
 use ecp::solvers::conic::{ClarabelStatus, ConicMode, ConicSettings, ConicSolver, status_code};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
@@ -15,16 +17,6 @@ use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 const RESIDUAL: f64 = 1e-8;
 /// Largest velocity difference to the Newton backend, per step (issue #6).
 const DV: f64 = 1e-6;
-
-fn scene(name: &str) -> Scene {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scenes")
-        .join(format!("{name}.toml"));
-    match load_scene(&path) {
-        Ok(file) => file.scene,
-        Err(e) => panic!("{e}"),
-    }
-}
 
 fn run(scene: Scene, solver: &mut dyn McpSolver) -> Vec<StepRecord> {
     let mut sim = Simulation::new(scene).expect("valid scene");

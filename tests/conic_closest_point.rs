@@ -11,6 +11,9 @@
 //! 0), where only `closest_points` is checked (the pure QP form is accurate to about
 //! √tolerance there, by design; see the module docs).
 
+mod common;
+
+use common::strategies::{unit3, vec3};
 use ecp::formulations::geometry::ConvexHull;
 use ecp::solvers::conic::closest_point::{ConvexSet, closest_points, closest_points_qp};
 use ecp::solvers::conic::default_clarabel_settings;
@@ -35,16 +38,6 @@ fn from_p(v: PVec) -> V3 {
 
 fn arr(v: &V3) -> [f64; 3] {
     [v.x, v.y, v.z]
-}
-
-fn vec3(lo: f64, hi: f64) -> impl Strategy<Value = V3> {
-    (lo..hi, lo..hi, lo..hi).prop_map(|(a, b, c)| V3::new(a, b, c))
-}
-
-fn unit3() -> impl Strategy<Value = V3> {
-    vec3(-1.0, 1.0)
-        .prop_filter("direction away from zero", |v| v.norm() > 0.1)
-        .prop_map(|v| v.normalize())
 }
 
 fn rotation() -> impl Strategy<Value = UnitQuaternion<f64>> {

@@ -11,6 +11,9 @@
 //! One test plants a wrong Jacobian entry and checks that the checker finds exactly it, so a
 //! green run here means something.
 
+mod common;
+
+use common::strategies::{unit_quat, unit3, vec3};
 use std::sync::LazyLock;
 
 use ecp::formulations::blocks::{
@@ -33,25 +36,6 @@ type V3 = Vector3<f64>;
 // ---------------------------------------------------------------------------------------------
 // Strategies
 // ---------------------------------------------------------------------------------------------
-
-fn vec3(lo: f64, hi: f64) -> impl Strategy<Value = V3> {
-    (lo..hi, lo..hi, lo..hi).prop_map(|(a, b, c)| V3::new(a, b, c))
-}
-
-/// A uniformly-ish distributed unit vector.
-fn unit3() -> impl Strategy<Value = V3> {
-    vec3(-1.0, 1.0)
-        .prop_filter("direction away from zero", |v| v.norm() > 0.1)
-        .prop_map(|v| v.normalize())
-}
-
-/// A unit quaternion (scalar first).
-fn unit_quat() -> impl Strategy<Value = Vector4<f64>> {
-    (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64)
-        .prop_map(|(a, b, c, d)| Vector4::new(a, b, c, d))
-        .prop_filter("quaternion away from zero", |q| q.norm() > 0.1)
-        .prop_map(|q| q.normalize())
-}
 
 /// A quaternion of norm between 0.5 and 2: the end-of-step Q is a free unknown.
 fn non_unit_quat() -> impl Strategy<Value = Vector4<f64>> {

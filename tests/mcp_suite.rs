@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{Run, check_solution, exceeds, run_suite};
+use common::{Run, Verdict, exceeds, judge_suite, run_suite};
 use ecp_model::problems::lcp;
 use ecp_model::{McpSolver, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
@@ -17,31 +17,16 @@ fn every_suite_pair_converges_to_a_known_solution() {
     // carries a finite best iterate (never NaN). Semismooth Newton is a descent method on
     // ½‖Φ‖², so it can stop at a non-solution local minimiser of that merit function (measured:
     // Kojima–Shindo from MCPLIB start 7); the issue accepts up to 10 % such pairs.
-    let mut failures = Vec::new();
-    let mut unsolved = Vec::new();
-    let mut pairs = 0;
-    for (p, runs) in run_suite(&mut NewtonSolver::new(NewtonSettings::default())) {
-        for run in runs {
-            pairs += 1;
-            let tag = format!("{} from {}", run.problem, run.start);
-            match &run.result {
-                Err(e) => {
-                    let finite = e.best().is_some_and(|b| b.z.iter().all(|v| v.is_finite()));
-                    if !finite {
-                        failures.push(format!("{tag}: error without a finite best iterate: {e}"));
-                    }
-                    unsolved.push(format!("{tag}: {e}"));
-                }
-                Ok(sol) => {
-                    if exceeds(run.residual, 1e-8) {
-                        failures.push(format!("{tag}: natural residual {:.3e}", run.residual));
-                    } else if let Err(why) = check_solution(&p, &sol.z, run.residual) {
-                        failures.push(format!("{tag}: {why}"));
-                    }
-                }
-            }
-        }
-    }
+    let Verdict {
+        pairs,
+        failures,
+        unsolved,
+        ..
+    } = judge_suite(
+        &mut NewtonSolver::new(NewtonSettings::default()),
+        "newton",
+        1e-8,
+    );
     assert!(pairs > 0);
     assert!(
         unsolved.len() * 10 <= pairs,

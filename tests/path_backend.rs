@@ -5,7 +5,7 @@
 
 mod common;
 
-use common::{check_solution, exceeds, run_suite};
+use common::{Verdict, judge_suite};
 use ecp_model::problems::{degenerate, lcp, murty, suite};
 use ecp_model::{FnMcp, McpSolver, SolveError, Termination, residual_of};
 use ecp_solvers::path::{PathSettings, PathSolver};
@@ -16,34 +16,12 @@ use proptest::prelude::*;
 fn path_solves_95_percent_of_the_suite_to_known_solutions() {
     // Issue #5: at least 95 % of the (problem, start) pairs to natural residual ≤ 1e-10; every
     // returned solution is right; every failure carries a finite best iterate.
-    let mut failures = Vec::new();
-    let mut misses = Vec::new();
-    let mut pairs = 0;
-    for (p, runs) in run_suite(&mut PathSolver::new(PathSettings::default())) {
-        for run in runs {
-            pairs += 1;
-            let tag = format!("{} from {}", run.problem, run.start);
-            if exceeds(run.residual, 1e-10) {
-                misses.push(format!("{tag}: residual {:.3e}", run.residual));
-            }
-            match &run.result {
-                Err(e) => {
-                    let finite = e.best().is_some_and(|b| b.z.iter().all(|v| v.is_finite()));
-                    if !finite {
-                        failures.push(format!("{tag}: error without a finite best iterate: {e}"));
-                    }
-                }
-                Ok(sol) => {
-                    assert_eq!(sol.summary.solver, "path");
-                    if exceeds(run.residual, 1e-10) {
-                        failures.push(format!("{tag}: natural residual {:.3e}", run.residual));
-                    } else if let Err(why) = check_solution(&p, &sol.z, run.residual) {
-                        failures.push(format!("{tag}: {why}"));
-                    }
-                }
-            }
-        }
-    }
+    let Verdict {
+        pairs,
+        failures,
+        misses,
+        ..
+    } = judge_suite(&mut PathSolver::new(PathSettings::default()), "path", 1e-10);
     assert!(pairs > 0);
     assert!(
         misses.len() * 20 <= pairs,

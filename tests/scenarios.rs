@@ -4,25 +4,16 @@
 //! The scene files are also compared with the Rust constructors of
 //! `ecp::formulations::scenarios`, so the two cannot drift.
 
+mod common;
+
+use common::scene;
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::ContactMode;
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
-use ecp::scene::load_scene;
 
 const G: f64 = 9.8;
 const H: f64 = 0.01;
-
-/// The scene of `scenes/<name>.toml`.
-fn scene(name: &str) -> Scene {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scenes")
-        .join(format!("{name}.toml"));
-    match load_scene(&path) {
-        Ok(file) => file.scene,
-        Err(e) => panic!("{e}"),
-    }
-}
 
 /// Runs a scene to the end with backend `kind`; every step must converge to ≤ 1e-10 and keep
 /// every vertex of the real body above −1e-9.

@@ -187,6 +187,18 @@ pub struct PathSolver {
 }
 
 impl PathSolver {
+    /// Makes the trial point current and returns its natural residual, keeping the best point
+    /// seen (shared by crash and path steps).
+    fn accept_trial(&mut self, l: &[f64], u: &[f64], best_residual: &mut f64) -> f64 {
+        std::mem::swap(&mut self.current, &mut self.trial);
+        let residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        if residual < *best_residual {
+            *best_residual = residual;
+            self.best_z.copy_from_slice(&self.current.z);
+        }
+        residual
+    }
+
     /// A solver with the given settings.
     pub fn new(settings: PathSettings) -> Self {
         let lemke = Lemke::new(settings.lemke.clone());
@@ -526,13 +538,8 @@ impl PathSolver {
                 );
                 *iterations += 1;
                 counters.crash_steps += 1;
-                std::mem::swap(&mut self.current, &mut self.trial);
                 have_jac = false;
-                residual = natural_residual(&self.current.z, &self.current.f, l, u);
-                if residual < *best_residual {
-                    *best_residual = residual;
-                    self.best_z.copy_from_slice(&self.current.z);
-                }
+                residual = self.accept_trial(l, u, best_residual);
                 if residual <= s.tolerance {
                     break;
                 }
@@ -672,13 +679,8 @@ impl PathSolver {
             );
             *iterations += 1;
             counters.path_steps += 1;
-            std::mem::swap(&mut self.current, &mut self.trial);
             have_jac = false;
-            residual = natural_residual(&self.current.z, &self.current.f, l, u);
-            if residual < *best_residual {
-                *best_residual = residual;
-                self.best_z.copy_from_slice(&self.current.z);
-            }
+            residual = self.accept_trial(l, u, best_residual);
             if self.current.merit < self.checkpoint.merit
                 && (since_checkpoint == 0 || self.current.merit <= (1.0 - sigma) * reference)
             {

@@ -91,3 +91,96 @@ pub fn check_solution(p: &TestProblem, z: &[f64], residual: f64) -> Result<(), S
         },
     }
 }
+
+/// Verdict on every (problem, start) pair of the suite for one backend.
+pub struct Verdict {
+    /// Pairs run.
+    pub pairs: usize,
+    /// Wrong answers: a returned point that is not a solution, or an error without a finite
+    /// best iterate.
+    pub failures: Vec<String>,
+    /// Pairs that ended in an error (with a finite best iterate).
+    pub unsolved: Vec<String>,
+    /// Pairs whose point misses the default tolerance 1e-10.
+    pub misses: Vec<String>,
+}
+
+/// Runs the suite with `solver` (whose summaries must name it `name`) and judges every pair: a
+/// returned point must have natural residual ≤ `solution_tol` and be a known solution.
+pub fn judge_suite(solver: &mut dyn McpSolver, name: &str, solution_tol: f64) -> Verdict {
+    let mut v = Verdict {
+        pairs: 0,
+        failures: Vec::new(),
+        unsolved: Vec::new(),
+        misses: Vec::new(),
+    };
+    for (p, runs) in run_suite(solver) {
+        for run in runs {
+            v.pairs += 1;
+            let tag = format!("{} from {}", run.problem, run.start);
+            if exceeds(run.residual, 1e-10) {
+                v.misses
+                    .push(format!("{tag}: residual {:.3e}", run.residual));
+            }
+            match &run.result {
+                Err(e) => {
+                    let finite = e.best().is_some_and(|b| b.z.iter().all(|x| x.is_finite()));
+                    if !finite {
+                        v.failures
+                            .push(format!("{tag}: error without a finite best iterate: {e}"));
+                    }
+                    v.unsolved.push(format!("{tag}: {e}"));
+                }
+                Ok(sol) => {
+                    if sol.summary.solver != name {
+                        v.failures
+                            .push(format!("{tag}: summary names {}", sol.summary.solver));
+                    } else if exceeds(run.residual, solution_tol) {
+                        v.failures
+                            .push(format!("{tag}: natural residual {:.3e}", run.residual));
+                    } else if let Err(why) = check_solution(&p, &sol.z, run.residual) {
+                        v.failures.push(format!("{tag}: {why}"));
+                    }
+                }
+            }
+        }
+    }
+    v
+}
+
+/// The scene of `scenes/<name>.toml` (the integration tests run the shipped files).
+pub fn scene(name: &str) -> ecp::formulations::stepper::Scene {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(format!("{name}.toml"));
+    match ecp::scene::load_scene(&path) {
+        Ok(file) => file.scene,
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// Proptest strategies shared by the geometry and Jacobian property tests.
+pub mod strategies {
+    use nalgebra::{Vector3, Vector4};
+    use proptest::prelude::*;
+
+    /// A vector with components in `[lo, hi)`.
+    pub fn vec3(lo: f64, hi: f64) -> impl Strategy<Value = Vector3<f64>> {
+        (lo..hi, lo..hi, lo..hi).prop_map(|(a, b, c)| Vector3::new(a, b, c))
+    }
+
+    /// A uniformly-ish distributed unit vector.
+    pub fn unit3() -> impl Strategy<Value = Vector3<f64>> {
+        vec3(-1.0, 1.0)
+            .prop_filter("direction away from zero", |v| v.norm() > 0.1)
+            .prop_map(|v| v.normalize())
+    }
+
+    /// A unit quaternion (scalar first).
+    pub fn unit_quat() -> impl Strategy<Value = Vector4<f64>> {
+        (-1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64, -1.0..1.0f64)
+            .prop_map(|(a, b, c, d)| Vector4::new(a, b, c, d))
+            .prop_filter("quaternion away from zero", |q| q.norm() > 0.1)
+            .prop_map(|q| q.normalize())
+    }
+}

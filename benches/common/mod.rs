@@ -1,0 +1,17 @@
+//! Set-up shared by the benchmarks.
+
+use ecp::formulations::scenarios;
+use ecp::formulations::stepper::Simulation;
+use ecp::model::McpSolver;
+
+/// The desk after 99 steps with `solver`, with the 100th step prepared: the simulation and the
+/// warm start of that step, so every backend is timed on the same step problem.
+pub fn desk_at_step_100(solver: &mut dyn McpSolver) -> (Simulation, Vec<f64>) {
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    for _ in 0..99 {
+        sim.step(solver).expect("desk step");
+    }
+    sim.prepare_step().expect("prepare");
+    let z0 = sim.z().to_vec();
+    (sim, z0)
+}
