@@ -17,8 +17,13 @@
 #![warn(missing_docs)]
 
 pub mod blocks;
+pub mod formulation;
 pub mod geometry;
+pub mod point;
+pub mod reduced;
 pub mod rotation;
 pub mod scenarios;
 pub mod stepper;
 pub mod structure;
+
+pub use formulation::{Formulation, Stepper, build_stepper};

@@ -12,6 +12,7 @@ use crate::blocks::{
     ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, FrictionParams,
     HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, mass_matrix,
 };
+use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{
     ContactMode, ConvexHull, GeometryError, HalfSpace, MassProperties, Shape, contact_mode,
     min_gap, world_vertices,
@@ -159,6 +160,17 @@ pub enum SceneError {
         /// Penetration depth.
         depth: f64,
     },
+    /// The formulation does not apply to this scene or state (formulation.md §7: the reduced
+    /// sliding model needs the whole patch sliding, for instance).
+    #[error("the {formulation} formulation does not apply{at}: {reason}", at = step.map(|s| format!(" at step {s}")).unwrap_or_default())]
+    NotApplicable {
+        /// The formulation.
+        formulation: crate::formulation::Formulation,
+        /// The step at which it stopped applying (`None`: the scene as given).
+        step: Option<usize>,
+        /// Why, and what to do instead.
+        reason: String,
+    },
     /// The modelling layer rejected the problem.
     #[error("model: {0}")]
     Model(#[from] ecp_model::ModelError),
@@ -171,6 +183,9 @@ pub struct ContactVars {
     pub body: usize,
     /// Half-space index.
     pub plane: usize,
+    /// The convex piece of the body this contact belongs to (union formulation, §7.1);
+    /// `None` for the hull formulation, whose contact is Conv(F) itself.
+    pub piece: Option<usize>,
     /// ECP on Conv(F).
     pub a1: VarId,
     /// ECP on G.
@@ -347,14 +362,36 @@ pub struct Simulation {
     pub(crate) bodies: Vec<BodyData>,
     pub(crate) contacts: Vec<ContactVars>,
     pub(crate) mcp: BlockMcp,
+    /// The convex set of each contact (parallel to `contacts`): Conv(F) for the hull
+    /// formulation, the piece's hull for the union formulation.
+    pub(crate) contact_hulls: Vec<ConvexHull>,
+    formulation: Formulation,
     z: Vec<f64>,
     step: usize,
     t: f64,
 }
 
 impl Simulation {
-    /// Validates the scene and builds the step MCP.
+    /// Validates the scene and builds the step MCP of the hull formulation (the paper's).
     pub fn new(scene: Scene) -> Result<Self, SceneError> {
+        Self::with_formulation(scene, Formulation::Hull)
+    }
+
+    /// Validates the scene and builds the step MCP of `formulation`, which must be
+    /// [`Formulation::Hull`] (one contact between Conv(F) and each half-space) or
+    /// [`Formulation::Union`] (formulation.md §7.1: one contact, with its own ECP, multipliers,
+    /// impulses and friction ellipsoid, between each convex piece of F and each half-space).
+    /// The other formulations have their own steppers ([`crate::build_stepper`]).
+    pub fn with_formulation(scene: Scene, formulation: Formulation) -> Result<Self, SceneError> {
+        if !matches!(formulation, Formulation::Hull | Formulation::Union) {
+            return Err(SceneError::NotApplicable {
+                formulation,
+                step: None,
+                reason: "the ECP stepper builds the hull and union formulations only; use \
+                         ecp_formulations::build_stepper for the others"
+                    .into(),
+            });
+        }
         if !(scene.h > 0.0 && scene.h.is_finite()) {
             return Err(SceneError::Parameter {
                 what: "h".into(),
@@ -395,6 +432,7 @@ impl Simulation {
         let mut problem = Problem::new();
         let mut bodies = Vec::new();
         let mut contacts = Vec::new();
+        let mut contact_hulls = Vec::new();
         for (b, spec) in scene.bodies.iter().enumerate() {
             let hull = spec.shape.hull().map_err(|source| SceneError::Geometry {
                 body: spec.name.clone(),
@@ -425,38 +463,62 @@ impl Simulation {
                 VarBlock::free(format!("{}.q", spec.name), 7)
                     .with_component_names(["x", "y", "z", "qw", "qx", "qy", "qz"]),
             );
-            let m = hull.num_faces();
+            // The convex sets that get a contact: Conv(F), or every piece (union).
+            let sets: Vec<(Option<usize>, ConvexHull)> = match formulation {
+                Formulation::Union => {
+                    let mut sets = Vec::new();
+                    for (i, piece) in spec.shape.pieces().iter().enumerate() {
+                        let h = piece.hull().map_err(|source| SceneError::Geometry {
+                            body: format!("{} (piece {i})", spec.name),
+                            source,
+                        })?;
+                        sets.push((Some(i), h));
+                    }
+                    sets
+                }
+                _ => vec![(None, hull.clone())],
+            };
             let mut frames = Vec::new();
             for (p, plane) in scene.planes.iter().enumerate() {
-                let tag = if scene.planes.len() > 1 || scene.bodies.len() > 1 {
-                    format!("{}.c{}", spec.name, p)
-                } else {
-                    "contact".to_string()
-                };
-                let cv = ContactVars {
-                    body: b,
-                    plane: p,
-                    a1: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.a1"), 3)
-                            .with_component_names(["x", "y", "z"]),
-                    ),
-                    a2: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.a2"), 3)
-                            .with_component_names(["x", "y", "z"]),
-                    ),
-                    l: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.l"), m)),
-                    lg: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.lg"), 1)),
-                    pn: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.pn"), 1)),
-                    pf: problem.add_variable_block(
-                        VarBlock::free(format!("{tag}.pf"), 3)
-                            .with_component_names(["pt", "po", "pr"]),
-                    ),
-                    sigma: problem
-                        .add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
-                };
-                let (n, t, o) = plane.contact_frame();
-                frames.push(ContactFrame { n, t, o });
-                contacts.push(cv);
+                for (piece, set) in &sets {
+                    let m = set.num_faces();
+                    let mut tag = if scene.planes.len() > 1 || scene.bodies.len() > 1 {
+                        format!("{}.c{}", spec.name, p)
+                    } else {
+                        "contact".to_string()
+                    };
+                    if let Some(i) = piece {
+                        tag = format!("{tag}.piece{i}");
+                    }
+                    let cv = ContactVars {
+                        body: b,
+                        plane: p,
+                        piece: *piece,
+                        a1: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.a1"), 3)
+                                .with_component_names(["x", "y", "z"]),
+                        ),
+                        a2: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.a2"), 3)
+                                .with_component_names(["x", "y", "z"]),
+                        ),
+                        l: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.l"), m)),
+                        lg: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.lg"), 1)),
+                        pn: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.pn"), 1)),
+                        pf: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.pf"), 3)
+                                .with_component_names(["pt", "po", "pr"]),
+                        ),
+                        sigma: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
+                    };
+                    let (n, t, o) = plane.contact_frame();
+                    frames.push(ContactFrame { n, t, o });
+                    contacts.push(cv);
+                    contact_hulls.push(set.clone());
+                }
             }
             bodies.push(BodyData {
                 spec: spec.clone(),
@@ -473,9 +535,13 @@ impl Simulation {
 
         // Residual blocks (formulation.md §4), paired as in §3.
         for (b, body) in bodies.iter_mut().enumerate() {
-            let mine: Vec<&ContactVars> = contacts.iter().filter(|c| c.body == b).collect();
+            let mine: Vec<(&ContactVars, &ConvexHull)> = contacts
+                .iter()
+                .zip(&contact_hulls)
+                .filter(|(c, _)| c.body == b)
+                .collect();
             let mut reads = vec![body.nu, body.q];
-            for c in &mine {
+            for (c, _) in &mine {
                 reads.extend([c.a1, c.pn, c.pf]);
             }
             body.newton_euler = problem.add_residual_block(
@@ -497,14 +563,14 @@ impl Simulation {
                 },
                 &[body.q, body.nu],
             )?;
-            let normals: Vec<Vector3<f64>> = body.hull.faces().iter().map(|f| f.normal).collect();
-            let offsets: Vec<f64> = body.hull.faces().iter().map(|f| f.offset).collect();
             // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
             // like a velocity error Δv, which keeps the merit function away from the spurious
             // "free fall with zero impulses" minimiser (measured: with unscaled rows most of the
             // analytic scenarios stall there; with m/h the residual stalls near 1e-10).
             let scale = GEOMETRY_SCALE / scene.h;
-            for (c, frame) in mine.iter().zip(&body.frames) {
+            for ((c, set), frame) in mine.iter().zip(&body.frames) {
+                let normals: Vec<Vector3<f64>> = set.faces().iter().map(|f| f.normal).collect();
+                let offsets: Vec<f64> = set.faces().iter().map(|f| f.offset).collect();
                 let plane = &scene.planes[c.plane];
                 let ng = plane.normal();
                 problem.add_residual_block(
@@ -520,8 +586,8 @@ impl Simulation {
                 problem.add_residual_block(
                     c.l,
                     HullFaces {
-                        face_normals: normals.clone(),
-                        offsets: offsets.clone(),
+                        face_normals: normals,
+                        offsets,
                         scale,
                     },
                     &[c.a1, body.q],
@@ -567,6 +633,8 @@ impl Simulation {
             scene,
             bodies,
             contacts,
+            contact_hulls,
+            formulation,
             mcp,
             step: 0,
             t: 0.0,
@@ -583,8 +651,8 @@ impl Simulation {
             let (nu, s) = (self.bodies[b].nu, self.bodies[b].state);
             self.put(nu, &[s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z]);
         }
-        for c in self.contacts.clone() {
-            self.contact_guess(&c, false);
+        for i in 0..self.contacts.len() {
+            self.contact_guess(i, false);
         }
     }
 
@@ -598,14 +666,16 @@ impl Simulation {
     /// slip rate — a point of the sliding branch of §4.4. Otherwise impulses and σ start at 0.
     /// Starting active matters: `p_n = 0` zeroes every friction row, and the merit function of a
     /// Newton method has a spurious minimiser near "free fall with zero impulses".
-    fn contact_guess(&mut self, c: &ContactVars, force_active: bool) {
+    fn contact_guess(&mut self, i: usize, force_active: bool) {
+        let c = &self.contacts[i];
         let body = &self.bodies[c.body];
+        let set = &self.contact_hulls[i];
         let plane = &self.scene.planes[c.plane];
         let s = body.state;
         let r = rotation_matrix(&s.q);
         let ng = plane.normal();
         let dir_body = r.transpose() * (-ng);
-        let verts = body.hull.vertices();
+        let verts = set.vertices();
         let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(s.x + r * v))).collect();
         let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
         let mut a1 = Vector3::zeros();
@@ -618,8 +688,8 @@ impl Simulation {
         }
         a1 /= f64::max(count, 1.0);
         let a2 = plane.project(&a1);
-        let k = body.hull.most_aligned_face(&dir_body);
-        let mut l = vec![0.0; body.hull.num_faces()];
+        let k = set.most_aligned_face(&dir_body);
+        let mut l = vec![0.0; set.num_faces()];
         l[k] = 1.0;
         let gap = gmin.max(0.0);
         let f = self.scene.friction;
@@ -645,6 +715,7 @@ impl Simulation {
                 sigma = slip;
             }
         }
+        let c = self.contacts[i];
         self.put(c.a1, a1.as_slice());
         self.put(c.a2, a2.as_slice());
         self.put(c.l, &l);
@@ -692,6 +763,15 @@ impl Simulation {
     /// Convex hull of body `b`.
     pub fn hull(&self, b: usize) -> &ConvexHull {
         &self.bodies[b].hull
+    }
+    /// The convex set of contact `i` ([`Simulation::contacts`]): Conv(F) of its body for the
+    /// hull formulation, its piece's hull for the union formulation.
+    pub fn contact_hull(&self, i: usize) -> &ConvexHull {
+        &self.contact_hulls[i]
+    }
+    /// The formulation of this step problem (hull or union).
+    pub fn formulation(&self) -> Formulation {
+        self.formulation
     }
     /// Current time.
     pub fn time(&self) -> f64 {
@@ -768,15 +848,16 @@ impl Simulation {
             // closed or closing (a warm start from a separated step is a poor start for a
             // landing step). The record says so.
             let warm = self.z.clone();
-            for c in self.contacts.clone() {
+            for i in 0..self.contacts.len() {
+                let c = self.contacts[i];
                 let body = &self.bodies[c.body];
                 let plane = &self.scene.planes[c.plane];
                 let r = rotation_matrix(&body.state.q);
-                let gap = min_gap(body.hull.vertices(), &body.state.x, &r, plane);
+                let gap = min_gap(self.contact_hulls[i].vertices(), &body.state.x, &r, plane);
                 let approach =
                     -(body.state.v + self.scene.gravity * self.scene.h).dot(&plane.normal());
                 if gap <= approach.max(0.0) * self.scene.h + 1e-9 {
-                    self.contact_guess(&c, true);
+                    self.contact_guess(i, true);
                 }
             }
             retried = true;
@@ -888,5 +969,26 @@ impl Simulation {
             }
         }
         Ok(failed)
+    }
+}
+
+impl Stepper for Simulation {
+    fn formulation(&self) -> Formulation {
+        self.formulation
+    }
+    fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    fn contacts_per_body(&self) -> usize {
+        self.contacts.len() / self.bodies.len().max(1)
+    }
+    fn state(&self, b: usize) -> BodyState {
+        self.bodies[b].state
+    }
+    fn steps_taken(&self) -> usize {
+        self.step
+    }
+    fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        Simulation::step(self, solver)
     }
 }

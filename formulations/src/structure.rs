@@ -208,7 +208,7 @@ impl StepStructure for StepView<'_> {
         let free = self.free_velocity(cv.body);
         let mut gap = f64::INFINITY;
         let mut patch = Vec::new();
-        for (j, vb) in body.hull.vertices().iter().enumerate() {
+        for (j, vb) in self.sim.contact_hulls[c].vertices().iter().enumerate() {
             let p = x + r * vb;
             let g = plane.value(&p);
             gap = gap.min(g);
@@ -263,12 +263,11 @@ impl StepStructure for StepView<'_> {
             z[sim.mcp.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
         }
         for (c, cv) in sim.contacts.iter().enumerate() {
-            let body = &sim.bodies[cv.body];
             let plane = &sim.scene.planes[cv.plane];
             let ng = plane.normal();
             let (x, r) = self.pose(cv.body, z);
-            let world: Vec<Vector3<f64>> =
-                body.hull.vertices().iter().map(|vb| x + r * vb).collect();
+            let set = &sim.contact_hulls[c];
+            let world: Vec<Vector3<f64>> = set.vertices().iter().map(|vb| x + r * vb).collect();
             let empty = ecp_model::ContactImpulses::default();
             let imp = point.contacts.get(c).unwrap_or(&empty);
             let pn: f64 = imp.vertex_impulses.iter().map(|(_, l)| l.max(0.0)).sum();
@@ -301,7 +300,7 @@ impl StepStructure for StepView<'_> {
             // Face multipliers (C2): −n_G in the cone of the outward normals of the faces
             // active at a1.
             let local = r.transpose() * (a1 - x);
-            let faces = body.hull.faces();
+            let faces = set.faces();
             let active: Vec<usize> = (0..faces.len())
                 .filter(|&i| faces[i].value(&local) >= -FACE_ACTIVE)
                 .collect();
