@@ -36,43 +36,7 @@ impl SolverKind {
     }
 }
 
-/// A contact formulation (formulation.md §3 and §7).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Formulation {
-    /// The paper's model: one contact between Conv(body) and each half-space (the ECP).
-    Hull,
-    /// One contact per convex piece (formulation.md §7.1).
-    Union,
-    /// The reduced sliding model with the patch known in advance (formulation.md §7.2).
-    Reduced,
-    /// Point contacts at the vertices (formulation.md §7.3).
-    Point,
-}
-
-impl Formulation {
-    /// Every formulation name.
-    pub const ALL: [Formulation; 4] = [
-        Formulation::Hull,
-        Formulation::Union,
-        Formulation::Reduced,
-        Formulation::Point,
-    ];
-
-    /// The name used in files and on the command line.
-    pub fn as_str(&self) -> &'static str {
-        match self {
-            Formulation::Hull => "hull",
-            Formulation::Union => "union",
-            Formulation::Reduced => "reduced",
-            Formulation::Point => "point",
-        }
-    }
-
-    /// Whether this build has the formulation.
-    pub fn is_available(&self) -> bool {
-        matches!(self, Formulation::Hull)
-    }
-}
+pub use ecp_formulations::Formulation;
 
 /// `Display` as the name, and `FromStr` from the name with an error listing every name.
 macro_rules! named {
@@ -102,7 +66,6 @@ macro_rules! named {
 }
 
 named!(SolverKind, "solver");
-named!(Formulation, "formulation");
 
 fn names<T: fmt::Display>(items: &[T]) -> String {
     items
@@ -156,18 +119,25 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
     })
 }
 
-/// The error for a formulation named in the spec but not in this build.
-pub fn unavailable_formulation(kind: Formulation) -> InputError {
-    let available: Vec<Formulation> = Formulation::ALL
-        .into_iter()
-        .filter(|f| f.is_available())
-        .collect();
-    InputError::option(
-        "--formulation",
-        InputErrorKind::UnknownName,
-        format!(
-            "the formulation \"{kind}\" is not available in this build; available: {}",
-            names(&available)
-        ),
-    )
+/// Checks that `solver` can solve the step problems of `formulation`: the conic backend needs the
+/// structural view of an ECP step ([`ecp_model::StepStructure`]), which only the hull and union
+/// formulations build.
+pub fn check_combination(solver: SolverKind, formulation: Formulation) -> Result<(), InputError> {
+    if solver == SolverKind::Conic && !formulation.has_step_structure() {
+        let able: Vec<Formulation> = Formulation::ALL
+            .into_iter()
+            .filter(|f| f.has_step_structure())
+            .collect();
+        return Err(InputError::option(
+            "--solver",
+            InputErrorKind::UnknownName,
+            format!(
+                "the conic backend cannot solve the {formulation} formulation: it needs the \
+                 contact structure of an ECP step, which only {} build; use --solver newton or \
+                 --solver path with --formulation {formulation}",
+                names(&able)
+            ),
+        ));
+    }
+    Ok(())
 }

@@ -32,14 +32,19 @@ pub struct TrajectoryWriter {
 }
 
 impl TrajectoryWriter {
-    /// Creates (truncates) `path` and writes the header for `scene`'s bodies and contacts.
-    pub fn create(path: &Path, scene: &Scene) -> Result<Self, OutputError> {
+    /// Creates (truncates) `path` and writes the header for `scene`'s bodies with
+    /// `contacts_per_body` contacts each ([`ecp_formulations::Stepper::contacts_per_body`]).
+    pub fn create(
+        path: &Path,
+        scene: &Scene,
+        contacts_per_body: usize,
+    ) -> Result<Self, OutputError> {
         if let Some(dir) = path.parent() {
             std::fs::create_dir_all(dir).map_err(io_err(dir))?;
         }
         let file = File::create(path).map_err(io_err(path))?;
         let mut out = csv::Writer::from_writer(BufWriter::new(file));
-        let header = StepRecord::csv_header(scene.bodies.len(), scene.planes.len());
+        let header = StepRecord::csv_header(scene.bodies.len(), contacts_per_body);
         let mut w = TrajectoryWriter {
             path: path.to_path_buf(),
             out: {

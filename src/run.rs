@@ -5,11 +5,10 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use ecp_formulations::stepper::{Simulation, StepRecord};
+use ecp_formulations::build_stepper;
+use ecp_formulations::stepper::StepRecord;
 
-use crate::backends::{
-    Formulation, SolverConfig, SolverKind, make_solver, unavailable_formulation,
-};
+use crate::backends::{Formulation, SolverConfig, SolverKind, check_combination, make_solver};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
     CompareReport, CompareRun, OutputError, RunSummary, TrajectoryWriter, max_velocity_differences,
@@ -89,13 +88,11 @@ pub enum RunError {
 
 fn resolve(file: &SceneFile, options: &RunOptions) -> Result<SolverConfig, InputError> {
     let formulation = options.formulation.unwrap_or(file.formulation);
-    if !formulation.is_available() {
-        return Err(unavailable_formulation(formulation));
-    }
     let mut config = file.solver.clone();
     if let Some(kind) = options.solver {
         config.kind = kind;
     }
+    check_combination(config.kind, formulation)?;
     Ok(config)
 }
 
@@ -110,7 +107,7 @@ pub fn run_scene(
     let config = resolve(file, options)?;
     let formulation = options.formulation.unwrap_or(file.formulation);
     let mut solver = make_solver(&config)?;
-    let mut sim = Simulation::new(file.scene.clone()).map_err(|e| InputError {
+    let mut sim = build_stepper(file.scene.clone(), formulation).map_err(|e| InputError {
         file: Some(file.path.clone()),
         key: None,
         line: None,
@@ -120,7 +117,11 @@ pub fn run_scene(
     let planned = options
         .steps
         .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
-    let mut csv = TrajectoryWriter::create(&options.out_dir.join("trajectory.csv"), &file.scene)?;
+    let mut csv = TrajectoryWriter::create(
+        &options.out_dir.join("trajectory.csv"),
+        &file.scene,
+        sim.contacts_per_body(),
+    )?;
     let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
     while records.len() < planned {
@@ -189,8 +190,8 @@ pub fn compare_scene(
     mut on_run: impl FnMut(&str),
 ) -> Result<CompareReport, RunError> {
     for f in formulations {
-        if !f.is_available() {
-            return Err(unavailable_formulation(*f).into());
+        for s in solvers {
+            check_combination(*s, *f)?;
         }
     }
     for s in solvers {

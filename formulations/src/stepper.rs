@@ -176,6 +176,43 @@ pub enum SceneError {
     Model(#[from] ecp_model::ModelError),
 }
 
+/// Fraction of a body's extent along a plane's normal within which a piece's lowest point must
+/// lie, above the body's lowest point, for the piece to get a contact in the union formulation.
+pub const UNION_REACH: f64 = 0.25;
+
+/// The pieces of `spec` that get a contact in the union formulation (formulation.md §7.1: "one
+/// contact per convex piece that can touch G"): for some plane, the piece's lowest vertex at the
+/// initial state is within [`UNION_REACH`] of the body's extent along the normal above the
+/// body's lowest vertex. For the desk that is the four legs (the top slab is 0.85 m above the
+/// feet of a 0.9 m body), for the T-bar both bars. A piece far from every plane could touch one
+/// only after the body turns over, which the union model's fixed set of contacts does not
+/// follow; a contact for it would add a separated contact whose ECP is not unique (§6) to every
+/// step.
+pub fn union_pieces(spec: &BodySpec, state: &BodyState, planes: &[HalfSpace]) -> Vec<usize> {
+    let r = rotation_matrix(&state.q);
+    let pieces = spec.shape.pieces();
+    let mut chosen = vec![false; pieces.len()];
+    for plane in planes {
+        let heights: Vec<f64> = pieces
+            .iter()
+            .map(|p| min_gap(&p.vertices(), &state.x, &r, plane))
+            .collect();
+        let all: Vec<f64> = world_vertices(spec.shape.vertices(), &state.x, &r)
+            .iter()
+            .map(|v| plane.value(v))
+            .collect();
+        let lo = all.iter().copied().fold(f64::INFINITY, f64::min);
+        let hi = all.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+        let reach = UNION_REACH * (hi - lo);
+        for (k, h) in heights.iter().enumerate() {
+            if *h <= lo + reach {
+                chosen[k] = true;
+            }
+        }
+    }
+    (0..pieces.len()).filter(|&k| chosen[k]).collect()
+}
+
 /// Handles of one contact's variable blocks.
 #[derive(Clone, Copy, Debug)]
 pub struct ContactVars {
@@ -467,7 +504,8 @@ impl Simulation {
             let sets: Vec<(Option<usize>, ConvexHull)> = match formulation {
                 Formulation::Union => {
                     let mut sets = Vec::new();
-                    for (i, piece) in spec.shape.pieces().iter().enumerate() {
+                    for i in union_pieces(spec, &state, &scene.planes) {
+                        let piece = &spec.shape.pieces()[i];
                         let h = piece.hull().map_err(|source| SceneError::Geometry {
                             body: format!("{} (piece {i})", spec.name),
                             source,
