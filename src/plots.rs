@@ -113,6 +113,60 @@ pub fn write_plots(
     Ok(written)
 }
 
+/// One panel of a figure drawn by [`write_time_series`]: curves `(label, points (t, y))`.
+#[derive(Clone, Debug, Default)]
+pub struct TimePanel {
+    /// Panel title.
+    pub title: String,
+    /// y-axis description.
+    pub y_desc: &'static str,
+    /// Logarithmic y axis (non-positive values are left out).
+    pub log_y: bool,
+    /// The curves, in legend order.
+    pub curves: Vec<(String, Vec<(f64, f64)>)>,
+}
+
+/// Writes a figure of stacked time-series panels (shared t axis) to `path`, in the style of the
+/// run plots: used by reports that put several runs side by side.
+pub fn write_time_series(path: &Path, title: &str, panels: &[TimePanel]) -> Result<(), PlotError> {
+    register_bundled_font()?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|source| PlotError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let panels: Vec<Panel> = panels
+        .iter()
+        .map(|p| Panel {
+            title: p.title.clone(),
+            x_desc: "t [s]",
+            y_desc: p.y_desc,
+            y_axis: if p.log_y { YAxis::Log } else { YAxis::Linear },
+            series: p
+                .curves
+                .iter()
+                .enumerate()
+                .map(|(k, (label, points))| {
+                    let points = if p.log_y {
+                        points.iter().filter(|(_, y)| *y > 0.0).copied().collect()
+                    } else {
+                        points.clone()
+                    };
+                    Series::new(label.clone(), points, PALETTE[k % PALETTE.len()])
+                })
+                .collect(),
+        })
+        .collect();
+    let height = 120 + 330 * panels.len() as u32;
+    render(path, (SIZE.0, height), |root| draw_figure(root, title, &panels)).map_err(|e| {
+        PlotError::Draw {
+            path: path.to_path_buf(),
+            message: e.0,
+        }
+    })
+}
+
 /// Registers the bundled font once per process; later calls return the first outcome.
 fn register_bundled_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
