@@ -193,7 +193,9 @@ fn copy_figure(from: Option<&PathBuf>, name: &str) -> Option<String> {
 }
 
 fn plot_named<'a>(o: &'a RunOutcome, name: &str) -> Option<&'a PathBuf> {
-    o.plots.iter().find(|p| p.file_name().is_some_and(|f| f == name))
+    o.plots
+        .iter()
+        .find(|p| p.file_name().is_some_and(|f| f == name))
 }
 
 fn run_row(doc: &mut String, r: &Run, reference: &[StepRecord]) -> Result<(), Error> {
@@ -277,7 +279,8 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
             .find(|r| r.formulation == f && r.solver == s)
             .filter(|r| r.ok().is_some())
     };
-    let hull = find(Formulation::Hull, SolverKind::Newton).ok_or("the hull/Newton desk run failed")?;
+    let hull =
+        find(Formulation::Hull, SolverKind::Newton).ok_or("the hull/Newton desk run failed")?;
     let reference = hull.records();
 
     writeln!(doc, "## 1. The desk (paper example 1, scenarios.md B)\n")?;
@@ -299,7 +302,10 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     }
 
     // The paper's ratios: same backend for the three formulations.
-    writeln!(doc, "\n**Cost ratios** (mean solve time per step; the paper: union/hull ≈ 9, hull/reduced ≈ 2.4, in MATLAB):\n")?;
+    writeln!(
+        doc,
+        "\n**Cost ratios** (mean solve time per step; the paper: union/hull ≈ 9, hull/reduced ≈ 2.4, in MATLAB):\n"
+    )?;
     writeln!(
         doc,
         "| backend | hull µs (mean / median) | union µs | reduced µs | union / hull (mean / median) | hull / reduced (mean / median) |"
@@ -307,7 +313,11 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     writeln!(doc, "|---|---|---|---|---|---|")?;
     for s in [SolverKind::Newton, SolverKind::Path, SolverKind::Conic] {
         let t = |f| find(f, s).map_or((f64::NAN, f64::NAN), |r| (r.mean_us, r.median_us));
-        let (h, u, r) = (t(Formulation::Hull), t(Formulation::Union), t(Formulation::Reduced));
+        let (h, u, r) = (
+            t(Formulation::Hull),
+            t(Formulation::Union),
+            t(Formulation::Reduced),
+        );
         let ratio = |a: (f64, f64), b: (f64, f64)| {
             if a.0.is_finite() && b.0.is_finite() {
                 format!("{:.1} / {:.1}", a.0 / b.0, a.1 / b.1)
@@ -409,15 +419,41 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     }
 
     // Why union and hull differ: pure translation against spin, and union's own non-uniqueness.
-    writeln!(doc, "### Does the union-of-pieces model agree with the hull model?\n")?;
+    writeln!(
+        doc,
+        "### Does the union-of-pieces model agree with the hull model?\n"
+    )?;
     let still = without_spin(&file);
     eprintln!("desk without spin …");
-    let t_hull = run(&still, "desk-translation", Formulation::Hull, SolverKind::Newton, 1, false);
-    let t_union_path = run(&still, "desk-translation", Formulation::Union, SolverKind::Path, 1, false);
-    let t_union_newton =
-        run(&still, "desk-translation", Formulation::Union, SolverKind::Newton, 1, false);
+    let t_hull = run(
+        &still,
+        "desk-translation",
+        Formulation::Hull,
+        SolverKind::Newton,
+        1,
+        false,
+    );
+    let t_union_path = run(
+        &still,
+        "desk-translation",
+        Formulation::Union,
+        SolverKind::Path,
+        1,
+        false,
+    );
+    let t_union_newton = run(
+        &still,
+        "desk-translation",
+        Formulation::Union,
+        SolverKind::Newton,
+        1,
+        false,
+    );
     let mut lines = Vec::new();
-    for (name, r) in [("union-path", &t_union_path), ("union-newton", &t_union_newton)] {
+    for (name, r) in [
+        ("union-path", &t_union_path),
+        ("union-newton", &t_union_newton),
+    ] {
         match (&r.outcome, &t_hull.outcome) {
             (Ok(o), Ok(h)) => {
                 let (dv, dw) = velocity_diffs(&o.records, &h.records);
@@ -526,10 +562,23 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
     eprintln!("T-bar …");
     let runs: Vec<Run> = [SolverKind::Newton, SolverKind::Path, SolverKind::Conic]
         .into_iter()
-        .map(|s| run(&file, "tbar", Formulation::Hull, s, 1, s == SolverKind::Newton))
+        .map(|s| {
+            run(
+                &file,
+                "tbar",
+                Formulation::Hull,
+                s,
+                1,
+                s == SolverKind::Newton,
+            )
+        })
         .collect();
     let Some(main) = runs[0].ok() else {
-        writeln!(doc, "The T-bar run failed: {:?}\n", runs[0].outcome.as_ref().err())?;
+        writeln!(
+            doc,
+            "The T-bar run failed: {:?}\n",
+            runs[0].outcome.as_ref().err()
+        )?;
         return Ok(());
     };
     let recs = &main.records;
@@ -541,7 +590,10 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
          computed from the state alone (vertices of the real body within {MODE_TOLERANCE:e} m \
          of the ground), after every step.\n"
     )?;
-    writeln!(doc, "| from t (s) | to t (s) | mode | touching vertices (body indices) |")?;
+    writeln!(
+        doc,
+        "| from t (s) | to t (s) | mode | touching vertices (body indices) |"
+    )?;
     writeln!(doc, "|---|---|---|---|")?;
     let mut start = 0;
     for k in 1..=recs.len() {
@@ -610,9 +662,15 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
     }
     writeln!(doc)?;
     for (name, caption) in [
-        ("ecp.png", "ECP coordinates over time (a_z stays on the ground while in contact)"),
+        (
+            "ecp.png",
+            "ECP coordinates over time (a_z stays on the ground while in contact)",
+        ),
         ("contact_mode.png", "contact mode over time"),
-        ("footprint.png", "snapshots: pieces, touching vertices, their hull, CM and ECP"),
+        (
+            "footprint.png",
+            "snapshots: pieces, touching vertices, their hull, CM and ECP",
+        ),
         ("velocity.png", "velocities"),
     ] {
         if let Some(fig) = copy_figure(plot_named(main, name), &format!("tbar_{name}")) {
@@ -623,7 +681,10 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
 }
 
 fn point_section(doc: &mut String) -> Result<(), Error> {
-    writeln!(doc, "## 3. Point contacts against the ECP model (formulation.md §7.3)\n")?;
+    writeln!(
+        doc,
+        "## 3. Point contacts against the ECP model (formulation.md §7.3)\n"
+    )?;
     let a1 = load_scene(Path::new("scenes/a1_sliding.toml"))?;
     eprintln!("A1 point vs hull …");
     let hull = run(&a1, "a1", Formulation::Hull, SolverKind::Newton, 1, false);
@@ -687,11 +748,7 @@ fn point_section(doc: &mut String) -> Result<(), Error> {
         pn.records.get(k).map_or(0.0, |r| r.t),
         split(&point_n)
     )?;
-    writeln!(
-        doc,
-        "| the same, PATH (N s) | {} |",
-        split(&point_p)
-    )?;
+    writeln!(doc, "| the same, PATH (N s) | {} |", split(&point_p))?;
     if let Some(ecp) = h.records.get(k) {
         writeln!(
             doc,
@@ -710,15 +767,29 @@ fn point_section(doc: &mut String) -> Result<(), Error> {
     )?;
 
     // The penetration artefact: rotating bodies with a gap linearised at the step start.
-    writeln!(doc, "**Penetration with a linearised gap.** Max penetration over the run of any vertex (m):\n")?;
-    writeln!(doc, "| scene | ECP model (hull) | point model |\n|---|---|---|")?;
+    writeln!(
+        doc,
+        "**Penetration with a linearised gap.** Max penetration over the run of any vertex (m):\n"
+    )?;
+    writeln!(
+        doc,
+        "| scene | ECP model (hull) | point model |\n|---|---|---|"
+    )?;
     for name in ["a6_tip_110", "a5_drop_tilted", "desk"] {
         let file = load_scene(&PathBuf::from(format!("scenes/{name}.toml")))?;
         let h = run(&file, name, Formulation::Hull, SolverKind::Newton, 1, false);
-        let p = run(&file, name, Formulation::Point, SolverKind::Newton, 1, false);
+        let p = run(
+            &file,
+            name,
+            Formulation::Point,
+            SolverKind::Newton,
+            1,
+            false,
+        );
         let pen = |r: &Run| {
-            r.ok()
-                .map_or("did not run".to_string(), |o| sci(o.summary.max_penetration))
+            r.ok().map_or("did not run".to_string(), |o| {
+                sci(o.summary.max_penetration)
+            })
         };
         writeln!(doc, "| {name} | {} | {} |", pen(&h), pen(&p))?;
     }

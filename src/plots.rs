@@ -159,11 +159,12 @@ pub fn write_time_series(path: &Path, title: &str, panels: &[TimePanel]) -> Resu
         })
         .collect();
     let height = 120 + 330 * panels.len() as u32;
-    render(path, (SIZE.0, height), |root| draw_figure(root, title, &panels)).map_err(|e| {
-        PlotError::Draw {
-            path: path.to_path_buf(),
-            message: e.0,
-        }
+    render(path, (SIZE.0, height), |root| {
+        draw_figure(root, title, &panels)
+    })
+    .map_err(|e| PlotError::Draw {
+        path: path.to_path_buf(),
+        message: e.0,
     })
 }
 
