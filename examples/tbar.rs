@@ -53,6 +53,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_tilt = max_tilt.max(tilt);
         times.push(rec.solve_us);
         failed += usize::from(!rec.converged);
+        if rec
+            .summary
+            .counters
+            .iter()
+            .any(|(name, n)| *name == "retries" && *n > 0)
+        {
+            println!(
+                "t={:.2} solved on the stepper's retry ({} iterations, {:.0} µs)",
+                rec.t, rec.summary.iterations, rec.solve_us
+            );
+        }
         if !rec.converged {
             println!(
                 "t={:.2} NOT CONVERGED: {} after {} iterations, residual {:.2e}",

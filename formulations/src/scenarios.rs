@@ -234,9 +234,9 @@ pub fn desk() -> Scene {
     }
 }
 
-/// `min(max(s, 0), 1)`: the unit ramp of the T-bar's load windows.
+/// `min(max(s, 0), 1)`: the unit ramp of the T-bar's load windows (`s` is finite here).
 fn ramp(s: f64) -> f64 {
-    s.max(0.0).min(1.0)
+    s.clamp(0.0, 1.0)
 }
 
 /// Trapezoidal window of the T-bar's load: 0 before `a` and after `b`, rising and falling
@@ -247,14 +247,14 @@ fn window(t: f64, a: f64, b: f64, r: f64) -> f64 {
 
 /// C: the paper's T-bar (scenarios.md §C): 2 kg, uniform density, lying flat, μ = 0.22, 5 s.
 /// The gripper's wrench (world frame, at the CM) is the design of `scenes/tbar.toml`, where it
-/// is explained: a 1.7 N m torque pulse on [0.5, 0.9] s about the hull's slanted edge on the
+/// is explained: a 1.7 N m torque pulse on [0.8, 1.2] s about the hull's slanted edge on the
 /// +y side, direction (−2, 1, 0)/√5, one on [1.8, 2.2] s about the −y slanted edge,
 /// (2, 1, 0)/√5, each with 0.1 s ramps (two-point contacts, then flat again), and on
 /// [3.0, 3.8] s (0.05 s ramps) a push `f_x = 5` N with a yaw torque `τ_z = 0.3` N m (it slides
 /// and turns in surface contact).
 pub fn t_bar() -> Scene {
     let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
-        let a = 1.7 * window(t, 0.5, 0.9, 0.1);
+        let a = 1.7 * window(t, 0.8, 1.2, 0.1);
         let b = 1.7 * window(t, 1.8, 2.2, 0.1);
         let yaw = window(t, 3.0, 3.8, 0.05);
         let s5 = 5f64.sqrt();
