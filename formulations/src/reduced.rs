@@ -1,24 +1,778 @@
-//! Placeholder: the reduced sliding model (§7.2) is being written (issue #7).
+//! The reduced sliding model (formulation.md §7.2; Xie & Chakraborty 2018b): a body sliding with
+//! a whole face of Conv(F) on one fixed half-space, in planar motion (in-plane translation and
+//! spin about the plane normal). The derivation is in `docs/reduced-sliding.md`; equation numbers
+//! (R1)–(R14) below refer to it.
+//!
+//! With planar motion (`v·n = 0`, `ω = ω_n n`) the normal balance fixes `p_n` (R4), the two
+//! tilting-moment balances fix the ECP's in-plane offset `ρ` (R6), Newton–Euler gives the
+//! friction impulses as functions of the velocities (R5, R7), and the step of the hull model
+//! (formulation.md §3–§4) reduces to four equations in `(v_t, v_o, ω_n, σ)`: the three
+//! maximum-dissipation rows (R10) and the friction ellipsoid in its cone form (R11) — the same
+//! form as [`crate::blocks::FrictionEllipsoid`], so the two models have the same solution set.
+//! The step MCP has four unknowns and two residual blocks, [`ReducedFriction`] and
+//! [`ReducedEllipsoid`], built once and updated per step with
+//! [`BlockMcp::replace_residual_block`].
+//!
+//! The model applies while the body stays in that planar sliding (or sticking) motion:
+//! [`ReducedSliding::new`] refuses scenes it does not describe and [`ReducedSliding`]'s
+//! [`Stepper::step`] stops with [`SceneError::NotApplicable`] at the step where the normal
+//! impulse would vanish (lift-off) or the ECP would leave the convex hull of the contact patch
+//! (tipping). Sticking (`σ = 0`) is a branch of the same complementarity problem and needs no
+//! special handling.
 
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Vector3, Vector4};
+
+use ecp_model::{
+    BlockMcp, JacobianBlocks, McpSolver, Params, Problem, ResId, SolveError, Summary, VarBlock,
+    VarId,
+};
+
+use crate::blocks::{ContactFrame, FrictionParams};
 use crate::formulation::{Formulation, Stepper};
-use crate::stepper::{BodyState, Scene, SceneError, StepRecord};
-use ecp_model::McpSolver;
+use crate::geometry::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
+use crate::stepper::{
+    BodySpec, BodyState, ContactRecord, MODE_TOLERANCE, Scene, SceneError, StepRecord,
+};
 
-/// Placeholder for the reduced sliding model (§7.2).
+/// Distance to the plane (m) within which a vertex of the body belongs to the contact patch at
+/// construction.
+pub const PATCH_TOLERANCE: f64 = 1e-9;
+
+/// How far (m) the ECP may lie outside the convex hull of the contact patch before the step is
+/// refused as tipping (R14). Round-off of the ECP is ~1e-15 m on the reference scenes; the hull
+/// model keeps a tipping body's ECP on the hull's edge to ~1e-9 (formulation.md §9).
+pub const ECP_TOLERANCE: f64 = 1e-9;
+
+/// Relative tolerance on the initial velocity's normal component and the initial angular
+/// velocity's tangential component (m/s and rad/s, relative to `max(1, |v|)`, `max(1, |ω|)`).
+pub const PLANAR_TOLERANCE: f64 = 1e-9;
+
+const NOT_APPLICABLE_HINT: &str = "use the hull formulation (--formulation hull), which handles \
+                                   every contact mode";
+
+/// The per-step data of the reduced sliding model (docs/reduced-sliding.md, (R1)–(R3)): the
+/// contact frame, friction, mass, CM height and the known momenta at the start of the step.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlidingStepData {
+    /// Contact frame `(n, t, o)` of the half-space (n into the body).
+    pub frame: ContactFrame,
+    /// Friction parameters μ, `e_t`, `e_o`, `e_r`.
+    pub friction: FrictionParams,
+    /// Mass m.
+    pub mass: f64,
+    /// Height H of the CM above the plane, `g(x^u)` (R3): `r·n = −H` at the end of the step.
+    pub height: f64,
+    /// Linear momentum plus applied impulse, `P = m v^u + h (m g + f_app(t_u))` (R1).
+    pub momentum: Vector3<f64>,
+    /// `J = I_w n` with `I_w = R(Q^u) I_body R(Q^u)ᵀ` (R2): the angular momentum per unit spin
+    /// about n.
+    pub spin_inertia: Vector3<f64>,
+    /// Angular momentum plus applied angular impulse,
+    /// `C = I_w ω^u + h τ_app(t_u) − h ω^u × (I_w ω^u)` (R2, the gyroscopic term explicit).
+    pub angular: Vector3<f64>,
+}
+
+/// The impulses, ECP offset and slip of a candidate `y = (v_t, v_o, ω_n)` (R4)–(R9), with
+/// their derivatives with respect to `y` (entry `[k][j]` is `∂(·)_k/∂y_j`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlidingPoint {
+    /// Normal impulse `p_n` (R4), independent of `y`.
+    pub pn: f64,
+    /// Friction impulses `(p_t, p_o, p_r)` (R5, R7).
+    pub pf: [f64; 3],
+    /// In-plane ECP offset from the CM's projection, `(ρ_t, ρ_o)` (R6).
+    pub rho: [f64; 2],
+    /// Slip at the ECP `(W_tᵀν, W_oᵀν, W_rᵀν)` (R8).
+    pub slip: [f64; 3],
+    /// `∂p_f/∂y`.
+    pub d_pf: [[f64; 3]; 3],
+    /// `∂ρ/∂y`.
+    pub d_rho: [[f64; 2]; 3],
+    /// `∂slip/∂y`.
+    pub d_slip: [[f64; 3]; 3],
+}
+
+impl SlidingStepData {
+    /// The normal impulse fixed by the normal balance with `v·n = 0` (R4): `p_n = −n·P`.
+    pub fn normal_impulse(&self) -> f64 {
+        -self.frame.n.dot(&self.momentum)
+    }
+
+    /// Impulses, ECP offset and slip at `y = (v_t, v_o, ω_n)`, and their derivatives.
+    /// Needs `p_n > 0` (the stepper refuses the step otherwise); with `p_n = 0` the offsets are
+    /// not finite.
+    pub fn point(&self, y: &[f64]) -> SlidingPoint {
+        let ContactFrame { n, t, o } = self.frame;
+        let (m, hh) = (self.mass, self.height);
+        let pn = self.normal_impulse();
+        let (vt, vo, wn) = (y[0], y[1], y[2]);
+        // (R5) tangential balance.
+        let pt = m * vt - t.dot(&self.momentum);
+        let po = m * vo - o.dot(&self.momentum);
+        // (R2) moment balance: L = ω_n J − C = r × f_c + n p_r.
+        let l = self.spin_inertia * wn - self.angular;
+        let (jt, jo, jn) = (
+            t.dot(&self.spin_inertia),
+            o.dot(&self.spin_inertia),
+            n.dot(&self.spin_inertia),
+        );
+        // (R6) tilting-moment balances about t and o give the ECP offset.
+        let rho_o = (t.dot(&l) - hh * po) / pn;
+        let rho_t = -(o.dot(&l) + hh * pt) / pn;
+        // (R7) spin balance about n gives the torsional impulse.
+        let pr = n.dot(&l) - rho_t * po + rho_o * pt;
+        let d_pt = [m, 0.0, 0.0];
+        let d_po = [0.0, m, 0.0];
+        let d_rho_o = [0.0, -hh * m / pn, jt / pn];
+        let d_rho_t = [-hh * m / pn, 0.0, -jo / pn];
+        let mut d_pr = [0.0; 3];
+        for j in 0..3 {
+            d_pr[j] = -(d_rho_t[j] * po + rho_t * d_po[j]) + d_rho_o[j] * pt + rho_o * d_pt[j];
+        }
+        d_pr[2] += jn;
+        // (R8) slip of the body point at the ECP: v + ω × r = v + ω_n (ρ_t o − ρ_o t).
+        let slip = [vt - wn * rho_o, vo + wn * rho_t, wn];
+        let mut d_slip = [[0.0; 3]; 3];
+        for j in 0..3 {
+            d_slip[0][j] = -wn * d_rho_o[j];
+            d_slip[1][j] = wn * d_rho_t[j];
+        }
+        d_slip[0][0] += 1.0;
+        d_slip[0][2] -= rho_o;
+        d_slip[1][1] += 1.0;
+        d_slip[1][2] += rho_t;
+        d_slip[2][2] = 1.0;
+        let mut d_rho = [[0.0; 2]; 3];
+        for j in 0..3 {
+            d_rho[j] = [d_rho_t[j], d_rho_o[j]];
+        }
+        SlidingPoint {
+            pn,
+            pf: [pt, po, pr],
+            rho: [rho_t, rho_o],
+            slip,
+            d_pf: [d_pt, d_po, d_pr],
+            d_rho,
+            d_slip,
+        }
+    }
+
+    fn friction_scales(&self) -> [f64; 3] {
+        let f = &self.friction;
+        [
+            f.e_t * f.e_t * f.mu,
+            f.e_o * f.e_o * f.mu,
+            f.e_r * f.e_r * f.mu,
+        ]
+    }
+}
+
+/// Maximum-dissipation rows of the reduced model (R10), paired with `y = (v_t, v_o, ω_n)`:
+/// `0 = e_k² μ p_n s_k(y) + p_k(y) σ` for `k = t, o, r`, with the impulses and the slip at the
+/// ECP eliminated through (R4)–(R8). Reads `y` (3) and `σ` (1).
+#[derive(Clone, Debug)]
+pub struct ReducedFriction {
+    /// The step's data.
+    pub data: SlidingStepData,
+}
+
+impl ecp_model::ResidualBlock for ReducedFriction {
+    fn name(&self) -> &str {
+        "reduced_friction"
+    }
+    fn num_residuals(&self) -> usize {
+        3
+    }
+    fn parameter_sizes(&self) -> &[usize] {
+        &[3, 1]
+    }
+    fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
+        let p = self.data.point(x.block(0));
+        let sigma = x.block(1)[0];
+        let s = self.data.friction_scales();
+        for k in 0..3 {
+            out[k] = s[k] * p.pn * p.slip[k] + p.pf[k] * sigma;
+        }
+    }
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        let p = self.data.point(x.block(0));
+        let sigma = x.block(1)[0];
+        let s = self.data.friction_scales();
+        for k in 0..3 {
+            for j in 0..3 {
+                jac.set(0, k, j, s[k] * p.pn * p.d_slip[k][j] + p.d_pf[k][j] * sigma);
+            }
+            jac.set(1, k, 0, p.pf[k]);
+        }
+    }
+}
+
+/// Friction ellipsoid of the reduced model in its cone form (R11), paired with σ:
+/// `0 ≤ μ p_n − ‖E⁻¹ p_f(y)‖ ⊥ σ ≥ 0`, `E = diag(e_t, e_o, e_r)` — the row of
+/// [`crate::blocks::FrictionEllipsoid`] with the impulses eliminated. Reads `y` (3).
+#[derive(Clone, Debug)]
+pub struct ReducedEllipsoid {
+    /// The step's data.
+    pub data: SlidingStepData,
+}
+
+impl ecp_model::ResidualBlock for ReducedEllipsoid {
+    fn name(&self) -> &str {
+        "reduced_ellipsoid"
+    }
+    fn num_residuals(&self) -> usize {
+        1
+    }
+    fn parameter_sizes(&self) -> &[usize] {
+        &[3]
+    }
+    fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
+        let p = self.data.point(x.block(0));
+        out[0] = self.data.friction.mu * p.pn - scaled_norm(&self.data.friction, &p.pf).0;
+    }
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        let p = self.data.point(x.block(0));
+        let (norm, g) = scaled_norm(&self.data.friction, &p.pf);
+        // At p_f = 0 the norm has the unit ball as generalised gradient; 0 is an element of it
+        // (as in FrictionEllipsoid).
+        if norm > 0.0 {
+            for j in 0..3 {
+                let d: f64 = (0..3).map(|k| g[k] * p.d_pf[k][j]).sum();
+                jac.set(0, 0, j, -d / norm);
+            }
+        }
+    }
+}
+
+/// `‖E⁻¹ p‖` and `E⁻² p` (its gradient times the norm).
+fn scaled_norm(f: &FrictionParams, p: &[f64; 3]) -> (f64, [f64; 3]) {
+    let e = [f.e_t, f.e_o, f.e_r];
+    let u = [p[0] / e[0], p[1] / e[1], p[2] / e[2]];
+    let norm = (u[0] * u[0] + u[1] * u[1] + u[2] * u[2]).sqrt();
+    (norm, [u[0] / e[0], u[1] / e[1], u[2] / e[2]])
+}
+
+/// The convex hull of the contact patch as a polygon in the body frame (R14): 2-D coordinates
+/// in an orthonormal basis `(u1, u2)` of the contact face, counter-clockwise.
+#[derive(Clone, Debug)]
+struct PatchPolygon {
+    u1: Vector3<f64>,
+    u2: Vector3<f64>,
+    corners: Vec<[f64; 2]>,
+}
+
+impl PatchPolygon {
+    /// The polygon of the body-frame points `patch` of a face with body-frame normal `nb`.
+    fn new(patch: &[Vector3<f64>], nb: &Vector3<f64>) -> Self {
+        let seed = if nb.x.abs() > 0.9 {
+            Vector3::y()
+        } else {
+            Vector3::x()
+        };
+        let u1 = (seed - nb * nb.dot(&seed)).normalize();
+        let u2 = nb.cross(&u1);
+        let pts: Vec<[f64; 2]> = patch.iter().map(|p| [p.dot(&u1), p.dot(&u2)]).collect();
+        PatchPolygon {
+            u1,
+            u2,
+            corners: convex_polygon(pts),
+        }
+    }
+
+    /// Largest signed distance (m) of the body-frame point `p` (projected on the face) beyond
+    /// the polygon's edges: ≤ 0 inside, the distance to the nearest edge line outside.
+    fn outside_distance(&self, p: &Vector3<f64>) -> f64 {
+        let q = [p.dot(&self.u1), p.dot(&self.u2)];
+        let k = self.corners.len();
+        let mut worst = f64::NEG_INFINITY;
+        for i in 0..k {
+            let a = self.corners[i];
+            let b = self.corners[(i + 1) % k];
+            let e = [b[0] - a[0], b[1] - a[1]];
+            let len = (e[0] * e[0] + e[1] * e[1]).sqrt();
+            if len <= 1e-15 {
+                continue;
+            }
+            // Outward normal of a counter-clockwise polygon's edge.
+            let d = (e[1] * (q[0] - a[0]) - e[0] * (q[1] - a[1])) / len;
+            worst = worst.max(d);
+        }
+        worst
+    }
+}
+
+/// Counter-clockwise convex hull of 2-D points (Andrew's monotone chain), collinear points
+/// dropped.
+fn convex_polygon(mut pts: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
+    pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
+    pts.dedup_by(|a, b| (a[0] - b[0]).abs() <= 1e-15 && (a[1] - b[1]).abs() <= 1e-15);
+    if pts.len() < 3 {
+        return pts;
+    }
+    let cross = |o: &[f64; 2], a: &[f64; 2], b: &[f64; 2]| {
+        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+    };
+    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * pts.len());
+    for pass in 0..2 {
+        let start = hull.len();
+        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
+            Box::new(pts.iter())
+        } else {
+            Box::new(pts.iter().rev())
+        };
+        for p in iter {
+            while hull.len() >= start + 2
+                && cross(&hull[hull.len() - 2], &hull[hull.len() - 1], p) <= 0.0
+            {
+                hull.pop();
+            }
+            hull.push(*p);
+        }
+        hull.pop();
+    }
+    hull
+}
+
+/// The reduced sliding model as a time stepper (formulation.md §7.2): one body with a face of
+/// Conv(F) on one half-space, sliding or sticking in planar motion. Its step MCP has the four
+/// unknowns `(v_t, v_o, ω_n, σ)`; its [`StepRecord`]s have the shape of the hull stepper's.
 pub struct ReducedSliding {
     scene: Scene,
+    body: BodySpec,
+    plane: HalfSpace,
+    frame: ContactFrame,
+    patch: PatchPolygon,
+    mcp: BlockMcp,
+    velocity: VarId,
+    sigma: VarId,
+    friction_block: ResId,
+    ellipsoid_block: ResId,
+    data: SlidingStepData,
+    z: Vec<f64>,
+    state: BodyState,
+    step: usize,
 }
 
 impl ReducedSliding {
-    /// Not yet available.
+    /// Validates that the reduced model describes `scene` and builds its step MCP.
+    ///
+    /// Refuses with [`SceneError::NotApplicable`] (`step: None`): more or fewer than one body or
+    /// one half-space; a body not resting with a face of Conv(F) on the plane (fewer than three
+    /// non-collinear vertices within [`PATCH_TOLERANCE`]); an initial velocity with a normal
+    /// component or an angular velocity with a tangential one ([`PLANAR_TOLERANCE`]); a contact
+    /// that is not loaded at t = 0 (normal impulse ≤ 0). Bad parameters and penetration are
+    /// [`SceneError::Parameter`] and [`SceneError::InitialPenetration`], as for the hull stepper.
     pub fn new(scene: Scene) -> Result<Self, SceneError> {
-        let _ = &scene;
-        Err(SceneError::NotApplicable {
+        let refuse = |reason: String| SceneError::NotApplicable {
             formulation: Formulation::Reduced,
             step: None,
-            reason: "not implemented yet".into(),
+            reason: format!("{reason}; {NOT_APPLICABLE_HINT}"),
+        };
+        if scene.bodies.len() != 1 {
+            return Err(refuse(format!(
+                "the reduced sliding model describes one body, the scene has {}",
+                scene.bodies.len()
+            )));
+        }
+        if scene.planes.len() != 1 {
+            return Err(refuse(format!(
+                "the reduced sliding model describes one contact with one half-space, the scene \
+                 has {} half-spaces",
+                scene.planes.len()
+            )));
+        }
+        validate_parameters(&scene)?;
+        let body = scene.bodies[0].clone();
+        let plane = scene.planes[0];
+        let (n, t, o) = plane.contact_frame();
+        let frame = ContactFrame { n, t, o };
+
+        let mut state = body.initial;
+        state.q = quat_normalize(&state.q).ok_or_else(|| SceneError::Parameter {
+            what: format!("{}.orientation", body.name),
+            value: 0.0,
+            hint: "the initial quaternion must be non-zero",
+        })?;
+        if body
+            .initial
+            .x
+            .iter()
+            .chain(body.initial.v.iter())
+            .chain(body.initial.w.iter())
+            .any(|c| !c.is_finite())
+        {
+            return Err(SceneError::Parameter {
+                what: format!("{}.initial state", body.name),
+                value: f64::NAN,
+                hint: "the initial position and velocities must be finite",
+            });
+        }
+        let r = rotation_matrix(&state.q);
+        let gap = min_gap(body.shape.vertices(), &state.x, &r, &plane);
+        if gap < -PATCH_TOLERANCE {
+            return Err(SceneError::InitialPenetration {
+                body: body.name.clone(),
+                plane: 0,
+                depth: -gap,
+            });
+        }
+        // (R12) patch contact: a face of Conv(F) on the plane.
+        let world = world_vertices(body.shape.vertices(), &state.x, &r);
+        let mode = contact_mode(&world, &plane, PATCH_TOLERANCE);
+        if mode != ContactMode::Patch {
+            return Err(refuse(format!(
+                "body '{}' does not rest with a face of its convex hull on the half-space (its \
+                 contact is '{mode}': fewer than three non-collinear vertices within {:e} m of \
+                 the plane, lowest vertex {gap:.3e} m above it)",
+                body.name, PATCH_TOLERANCE
+            )));
+        }
+        // (R13) planar motion.
+        let vn = state.v.dot(&n);
+        if vn.abs() > PLANAR_TOLERANCE * state.v.norm().max(1.0) {
+            return Err(refuse(format!(
+                "body '{}' starts with a velocity of {vn:.3e} m/s along the plane normal; the \
+                 reduced model needs planar motion (an impact or lift-off is not sliding)",
+                body.name
+            )));
+        }
+        let w_tan = (state.w - n * state.w.dot(&n)).norm();
+        if w_tan > PLANAR_TOLERANCE * state.w.norm().max(1.0) {
+            return Err(refuse(format!(
+                "body '{}' starts with an angular velocity of {w_tan:.3e} rad/s about an axis \
+                 in the plane; the reduced model needs spin about the plane normal only \
+                 (tilting is not sliding)",
+                body.name
+            )));
+        }
+        let patch: Vec<Vector3<f64>> = body
+            .shape
+            .vertices()
+            .iter()
+            .filter(|v| plane.value(&(state.x + r * *v)) <= PATCH_TOLERANCE)
+            .copied()
+            .collect();
+        let nb = r.transpose() * n;
+        let patch = PatchPolygon::new(&patch, &nb);
+
+        let mut problem = Problem::new();
+        let velocity = problem.add_variable_block(
+            VarBlock::free(format!("{}.velocity", body.name), 3)
+                .with_component_names(["vt", "vo", "wn"]),
+        );
+        let sigma =
+            problem.add_variable_block(VarBlock::nonnegative(format!("{}.sigma", body.name), 1));
+        let data = SlidingStepData {
+            frame,
+            friction: scene.friction,
+            mass: body.mass.mass,
+            height: plane.value(&state.x),
+            momentum: Vector3::zeros(),
+            spin_inertia: Vector3::zeros(),
+            angular: Vector3::zeros(),
+        };
+        let friction_block =
+            problem.add_residual_block(velocity, ReducedFriction { data }, &[velocity, sigma])?;
+        let ellipsoid_block =
+            problem.add_residual_block(sigma, ReducedEllipsoid { data }, &[velocity])?;
+        let mcp = problem.build()?;
+        let dim = ecp_model::Mcp::dim(&mcp);
+        let mut stepper = ReducedSliding {
+            scene,
+            body,
+            plane,
+            frame,
+            patch,
+            mcp,
+            velocity,
+            sigma,
+            friction_block,
+            ellipsoid_block,
+            data,
+            z: vec![0.0; dim],
+            state,
+            step: 0,
+        };
+        // (R4) the contact must be loaded at the first step.
+        let first = stepper.step_data();
+        let pn = first.normal_impulse();
+        if pn.is_nan() || pn <= 0.0 {
+            return Err(refuse(format!(
+                "the normal impulse of the first step would be {pn:.3e} N s: gravity and the \
+                 applied load do not press body '{}' onto the half-space",
+                stepper.body.name
+            )));
+        }
+        stepper.data = first;
+        stepper.sliding_guess();
+        Ok(stepper)
+    }
+
+    /// The data (R1)–(R3) of the step from the current state at `t_u`.
+    fn step_data(&self) -> SlidingStepData {
+        let s = self.state;
+        let h = self.scene.h;
+        let mp = &self.body.mass;
+        let r = rotation_matrix(&s.q);
+        let iw = r * mp.inertia * r.transpose();
+        let load = self.body.load.at(self.time());
+        let force = self.scene.gravity * mp.mass + load.fixed_rows::<3>(0).into_owned();
+        let torque = load.fixed_rows::<3>(3).into_owned() - s.w.cross(&(iw * s.w));
+        SlidingStepData {
+            frame: self.frame,
+            friction: self.scene.friction,
+            mass: mp.mass,
+            height: self.plane.value(&s.x),
+            momentum: s.v * mp.mass + force * h,
+            spin_inertia: iw * self.frame.n,
+            angular: iw * s.w + torque * h,
+        }
+    }
+
+    /// Warm start on the sliding branch from the current velocities: `y` from the state, σ the
+    /// slip rate at the CM's projection `‖E s‖` (what the friction rows give on the ellipsoid).
+    fn sliding_guess(&mut self) {
+        let s = self.state;
+        let ContactFrame { n, t, o } = self.frame;
+        let y = [t.dot(&s.v), o.dot(&s.v), n.dot(&s.w)];
+        let f = self.scene.friction;
+        let sigma =
+            ((f.e_t * y[0]).powi(2) + (f.e_o * y[1]).powi(2) + (f.e_r * y[2]).powi(2)).sqrt();
+        self.put(self.velocity, &y);
+        self.put(self.sigma, &[sigma]);
+    }
+
+    fn put(&mut self, v: VarId, values: &[f64]) {
+        let range = self.mcp.range(v);
+        self.z[range].copy_from_slice(values);
+    }
+
+    fn get(&self, v: VarId) -> &[f64] {
+        &self.z[self.mcp.range(v)]
+    }
+
+    /// The assembled step MCP (its data are those of the last step prepared): unknowns
+    /// `(v_t, v_o, ω_n, σ)`.
+    pub fn mcp(&self) -> &BlockMcp {
+        &self.mcp
+    }
+
+    /// The current unknown vector (last solution, or the warm start of the next step).
+    pub fn z(&self) -> &[f64] {
+        &self.z
+    }
+
+    /// The data of the step last prepared.
+    pub fn step_data_prepared(&self) -> &SlidingStepData {
+        &self.data
+    }
+
+    /// The step's impulses, ECP offset and slip at the unknowns `z` of [`ReducedSliding::mcp`].
+    pub fn point_at(&self, z: &[f64]) -> SlidingPoint {
+        self.data.point(&z[self.mcp.range(self.velocity)])
+    }
+
+    /// Updates the per-step data (R1)–(R3) at `t_u` and replaces the two residual blocks; the
+    /// warm start is the previous solution. Refuses the step (lift-off) when the normal impulse
+    /// (R4) would be ≤ 0.
+    pub fn prepare_step(&mut self) -> Result<(), SceneError> {
+        let data = self.step_data();
+        let pn = data.normal_impulse();
+        if pn.is_nan() || pn <= 0.0 {
+            return Err(SceneError::NotApplicable {
+                formulation: Formulation::Reduced,
+                step: Some(self.step + 1),
+                reason: format!(
+                    "lift-off: the normal impulse would be {pn:.3e} N s at t = {:.6} s (the \
+                     applied load no longer presses body '{}' onto the half-space); {}",
+                    self.time(),
+                    self.body.name,
+                    NOT_APPLICABLE_HINT
+                ),
+            });
+        }
+        self.data = data;
+        self.mcp
+            .replace_residual_block(self.friction_block, Arc::new(ReducedFriction { data }))?;
+        self.mcp
+            .replace_residual_block(self.ellipsoid_block, Arc::new(ReducedEllipsoid { data }))?;
+        Ok(())
+    }
+
+    /// Current time.
+    pub fn time(&self) -> f64 {
+        self.step as f64 * self.scene.h
+    }
+
+    /// Advances one step with `solver` (see [`Stepper::step`]).
+    pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        self.prepare_step()?;
+        let warm = self.z.clone();
+        let started = Instant::now();
+        let mut result = solver.solve(&self.mcp, &self.z);
+        let mut retries = 0;
+        if result.is_err() {
+            // Deterministic retries: from rest on the sticking branch, then on the sliding
+            // branch from the start-of-step velocities.
+            for guess in 0..2 {
+                if guess == 0 {
+                    self.z.iter_mut().for_each(|v| *v = 0.0);
+                } else {
+                    self.sliding_guess();
+                }
+                retries += 1;
+                if let Ok(sol) = solver.solve(&self.mcp, &self.z) {
+                    result = Ok(sol);
+                    break;
+                }
+            }
+            self.z.copy_from_slice(&warm);
+        }
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        let (z, summary, converged) = match result {
+            Ok(mut sol) => {
+                sol.summary.counters.push(("retries", retries));
+                (sol.z, sol.summary, true)
+            }
+            Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),
+            Err(SolveError::InvalidProblem(msg)) => {
+                return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
+            }
+        };
+        self.finish_step(z, summary, converged, solve_us)
+    }
+
+    /// Takes the solution `z`: refuses it when the ECP leaves the patch (R14), else advances the
+    /// state with the kinematic map exactly as the hull stepper does and records the step.
+    fn finish_step(
+        &mut self,
+        z: Vec<f64>,
+        summary: Summary,
+        converged: bool,
+        solve_us: f64,
+    ) -> Result<StepRecord, SceneError> {
+        let h = self.scene.h;
+        let p = self.point_at(&z);
+        let y = &z[self.mcp.range(self.velocity)];
+        let ContactFrame { n, t, o } = self.frame;
+        let s0 = self.state;
+        let v = t * y[0] + o * y[1];
+        let w = n * y[2];
+        let x = s0.x + v * h;
+        // (R9) kinematic map with ω = ω_n n, then renormalised (formulation.md §4.2).
+        let q_raw: Vector4<f64> = s0.q + kinematic_map(&s0.q) * w * (0.5 * h);
+        let q = quat_normalize(&q_raw).unwrap_or(s0.q);
+        let r = rotation_matrix(&q);
+        let rho = t * p.rho[0] + o * p.rho[1];
+        let a1 = x - n * self.data.height + rho;
+        // (R14) the ECP must stay in the convex hull of the patch, which moves with the body.
+        let outside = self.patch.outside_distance(&(r.transpose() * (a1 - x)));
+        if outside.is_nan() || outside > ECP_TOLERANCE {
+            let solve_note = if converged {
+                String::new()
+            } else {
+                format!(
+                    " (the step's solve did not converge: natural residual {:.3e})",
+                    summary.residual
+                )
+            };
+            return Err(SceneError::NotApplicable {
+                formulation: Formulation::Reduced,
+                step: Some(self.step + 1),
+                reason: format!(
+                    "tipping: the ECP that balances the tilting moments would lie {outside:.3e} m \
+                     outside the convex hull of the contact patch (tolerance {ECP_TOLERANCE:e} m) \
+                     at t = {:.6} s, so body '{}' would tip over the patch's edge{solve_note}; {}",
+                    self.time() + h,
+                    self.body.name,
+                    NOT_APPLICABLE_HINT
+                ),
+            });
+        }
+        self.z.copy_from_slice(&z);
+        let state = BodyState { x, q, v, w };
+        self.state = state;
+        self.step += 1;
+        let verts = world_vertices(self.body.shape.vertices(), &x, &r);
+        let contact = ContactRecord {
+            a1,
+            a2: a1,
+            lg: 0.0,
+            pn: p.pn,
+            pt: p.pf[0],
+            po: p.pf[1],
+            pr: p.pf[2],
+            sigma: self.get(self.sigma)[0],
+            min_gap: min_gap(self.body.shape.vertices(), &x, &r, &self.plane),
+            mode: contact_mode(&verts, &self.plane, MODE_TOLERANCE),
+        };
+        Ok(StepRecord {
+            step: self.step,
+            t: self.time(),
+            bodies: vec![state],
+            contacts: vec![contact],
+            energy: self.energy(),
+            summary,
+            converged,
+            solve_us,
         })
     }
+
+    /// Kinetic plus potential energy (gravity) in the current state, as the hull stepper computes
+    /// it.
+    pub fn energy(&self) -> f64 {
+        let s = self.state;
+        let mp = &self.body.mass;
+        let r = rotation_matrix(&s.q);
+        let iw = r * mp.inertia * r.transpose();
+        0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
+            - mp.mass * self.scene.gravity.dot(&s.x)
+    }
+}
+
+/// The parameter checks of the hull stepper (step, duration, friction, gravity).
+fn validate_parameters(scene: &Scene) -> Result<(), SceneError> {
+    if !(scene.h > 0.0 && scene.h.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "h".into(),
+            value: scene.h,
+            hint: "the step length must be a positive number of seconds",
+        });
+    }
+    if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "duration".into(),
+            value: scene.duration,
+            hint: "the duration must be a non-negative number of seconds",
+        });
+    }
+    let f = scene.friction;
+    for (what, v, positive) in [
+        ("mu", f.mu, false),
+        ("e_t", f.e_t, true),
+        ("e_o", f.e_o, true),
+        ("e_r", f.e_r, true),
+    ] {
+        if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
+            return Err(SceneError::Parameter {
+                what: what.into(),
+                value: v,
+                hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o, e_r > 0",
+            });
+        }
+    }
+    if scene.gravity.iter().any(|g| !g.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "gravity".into(),
+            value: f64::NAN,
+            hint: "gravity must be a finite vector",
+        });
+    }
+    Ok(())
 }
 
 impl Stepper for ReducedSliding {
@@ -32,12 +786,35 @@ impl Stepper for ReducedSliding {
         1
     }
     fn state(&self, _b: usize) -> BodyState {
-        unimplemented!()
+        self.state
     }
     fn steps_taken(&self) -> usize {
-        0
+        self.step
     }
-    fn step(&mut self, _solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
-        unimplemented!()
+    fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        ReducedSliding::step(self, solver)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn square_polygon_distances() {
+        let pts = [
+            Vector3::new(-0.25, -0.25, -0.45),
+            Vector3::new(0.25, -0.25, -0.45),
+            Vector3::new(0.25, 0.25, -0.45),
+            Vector3::new(-0.25, 0.25, -0.45),
+            Vector3::new(0.0, 0.25, -0.45),
+            Vector3::new(0.1, 0.1, -0.45),
+        ];
+        let poly = PatchPolygon::new(&pts, &Vector3::new(0.0, 0.0, -1.0));
+        assert_eq!(poly.corners.len(), 4);
+        let d = poly.outside_distance(&Vector3::new(0.0, 0.0, -0.45));
+        assert!((d + 0.25).abs() < 1e-15, "{d}");
+        let d = poly.outside_distance(&Vector3::new(0.3, 0.1, -0.45));
+        assert!((d - 0.05).abs() < 1e-15, "{d}");
     }
 }
