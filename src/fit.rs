@@ -2,18 +2,25 @@
 //! reference `trajectory.csv`, exposed as an argmin problem ([`CostFunction`] and [`Gradient`])
 //! so that any argmin solver can drive it, and the driver behind `ecp fit` ([`fit`]).
 //!
-//! The optimisation variables are **log-coordinates relative to the start**: parameter `i` is
-//! `θ_i = θ0_i · exp(u_i)`, so `u = 0` is the scene's own values, every parameter stays positive
-//! whatever step a solver tries (μ ≥ 0, e_r > 0, masses > 0), and parameters of different units
-//! (μ is 0.2, a mass 15 kg) get comparable scales.
+//! The parameters are the [`Param`]s of the sensitivities (`mu`, `e_t`, `e_o`, `e_r`, `mass`,
+//! `i_xx`, ..., named as in scene files), and the gradient is the adjoint trajectory gradient of
+//! [`ecp_formulations::sensitivity`] (or central finite differences, `--gradient fd`).
 //!
-//! The loss (the tracking loss of `docs/fitting.md`) compares the simulated body states after
-//! each step with the reference rows:
+//! The optimisation variables are **coordinates relative to the start**. A parameter that must
+//! be positive (μ, e_t, e_o, e_r, a mass, a diagonal inertia entry) is `θ_i = θ0_i · exp(u_i)`:
+//! it stays positive whatever step a solver tries, and parameters of different units (μ is 0.2,
+//! a mass 15 kg) get comparable scales. Any other parameter (an off-diagonal inertia entry, an
+//! initial state, a constant load) is `θ_i = θ0_i + s_i u_i` with `s_i = |θ0_i|`, or 1 when
+//! `θ0_i = 0`. So `u = 0` is the scene's own values.
 //!
-//! `L(θ) = 1/(2N) Σ_{k=1..N} Σ_b [ w_x‖x_k − x̂_k‖² + w_q‖Q_k − Q̂_k‖² + w_v‖v_k − v̂_k‖² + w_ω‖ω_k − ω̂_k‖² ]`
+//! The loss is the [`ReferenceLoss`] of the sensitivities: a sum over the fitted steps and the
+//! bodies of weighted squared differences to the reference states,
 //!
-//! with the default weights `w_v = 1 s²/m²`, `w_ω = 1 s²`, `w_x = w_q = 0` (μ and e_r act on
-//! the velocities first; positions are their integrals and add nothing for noise-free data).
+//! `L(θ) = Σ_{k=1..N} Σ_b [ w_x‖x_k − x̂_k‖² + w_q(1 − (Q_k·Q̂_k)²) + w_ψ(ψ_k − ψ̂_k)² + w_v‖v_k − v̂_k‖² + w_ω‖ω_k − ω̂_k‖² ]`
+//!
+//! with the default weights of `ecp fit`, `w_v = 1 s²/m²` and `w_ω = 1 s²` (the others 0): μ and
+//! e_r act on the velocities first, and positions, their integrals, add nothing for noise-free
+//! data ([`default_weights`]).
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
@@ -25,6 +32,10 @@ use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::neldermead::NelderMead;
 use argmin::solver::quasinewton::LBFGS;
 use ecp_formulations::rotation::{kinematic_map, quat_normalize};
+use ecp_formulations::sensitivity::{
+    GradientMode, GradientOptions, ModeEvent, Param, ReferenceLoss, ReferenceWeights, STATE_SIZE,
+    TrajectoryLoss, trajectory_gradient_with,
+};
 use ecp_formulations::stepper::{BodyState, Scene, StepRecord};
 use nalgebra::{Vector3, Vector4};
 use serde::Serialize;
@@ -32,157 +43,90 @@ use serde::Serialize;
 use crate::backends::{Formulation, SolverConfig, make_solver};
 use crate::error::{InputError, InputErrorKind};
 
-/// A scene parameter that can be fitted, named as in scene files.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum FitParam {
-    /// Friction coefficient μ (`[friction] mu`, formulation.md §4.4).
-    Mu,
-    /// Tangential semi-axis e_t of the friction ellipsoid (`[friction] e_t`).
-    Et,
-    /// Tangential semi-axis e_o (`[friction] e_o`).
-    Eo,
-    /// Torsional semi-axis e_r, in metres (`[friction] e_r`).
-    Er,
-    /// Mass of body `b` (`bodies[b].mass`).
-    Mass(usize),
-    /// Diagonal entry `(axis, axis)` of the body-frame inertia of body `b` (`bodies[b].inertia`).
-    Inertia(usize, usize),
-}
-
-/// The names `ecp fit --params` accepts (a body suffix `_b<i>` selects a body other than 0).
-pub const PARAM_NAMES: [&str; 7] = [
-    "mu",
-    "e_t",
-    "e_o",
-    "e_r",
-    "mass",
-    "inertia_xx",
-    "inertia_yy",
-];
-
-/// Every accepted name, for error messages (`inertia_zz` included).
-fn all_param_names() -> String {
-    let mut names: Vec<&str> = PARAM_NAMES.to_vec();
-    names.push("inertia_zz");
-    names.join(", ")
-}
-
-impl FitParam {
-    /// Parses a parameter name as written on the command line: `mu`, `e_t`, `e_o`, `e_r`,
-    /// `mass`, `inertia_xx`, `inertia_yy`, `inertia_zz`, the body ones optionally suffixed
-    /// `_b<i>` (body `i`, default 0). `bodies` is the scene's number of bodies.
-    pub fn parse(name: &str, bodies: usize) -> Result<Self, String> {
-        let name = name.trim();
-        let unknown = || {
-            format!(
-                "unknown parameter \"{name}\"; the parameters that can be fitted are {} \
-                 (mass and inertia take a body suffix _b<i> in scenes with several bodies)",
-                all_param_names()
-            )
-        };
-        let (base, body) = match name.rsplit_once("_b") {
-            Some((base, idx)) if !idx.is_empty() && idx.bytes().all(|c| c.is_ascii_digit()) => {
-                (base, Some(idx.parse::<usize>().map_err(|_| unknown())?))
-            }
-            _ => (name, None),
-        };
-        let b = body.unwrap_or(0);
-        let p = match base {
-            "mu" => FitParam::Mu,
-            "e_t" => FitParam::Et,
-            "e_o" => FitParam::Eo,
-            "e_r" => FitParam::Er,
-            "mass" => FitParam::Mass(b),
-            "inertia_xx" => FitParam::Inertia(b, 0),
-            "inertia_yy" => FitParam::Inertia(b, 1),
-            "inertia_zz" => FitParam::Inertia(b, 2),
-            _ => return Err(unknown()),
-        };
-        match p {
-            FitParam::Mass(b) | FitParam::Inertia(b, _) if b >= bodies => Err(format!(
-                "parameter \"{name}\" names body {b}, but the scene has {bodies} bod{}",
-                if bodies == 1 { "y" } else { "ies" }
-            )),
-            FitParam::Mu | FitParam::Et | FitParam::Eo | FitParam::Er if body.is_some() => {
-                Err(format!(
-                    "parameter \"{name}\": friction parameters are shared by every contact and \
-                     take no body suffix; write \"{base}\""
-                ))
-            }
-            p => Ok(p),
-        }
-    }
-
-    /// The name used in reports (the inverse of [`FitParam::parse`]; body 0 has no suffix).
-    pub fn name(&self) -> String {
-        let suffix = |b: usize| {
-            if b == 0 {
-                String::new()
-            } else {
-                format!("_b{b}")
-            }
-        };
-        match *self {
-            FitParam::Mu => "mu".into(),
-            FitParam::Et => "e_t".into(),
-            FitParam::Eo => "e_o".into(),
-            FitParam::Er => "e_r".into(),
-            FitParam::Mass(b) => format!("mass{}", suffix(b)),
-            FitParam::Inertia(b, a) => {
-                format!("inertia_{}{}", ["xx", "yy", "zz"][a.min(2)], suffix(b))
-            }
-        }
-    }
-
-    /// The parameter's value in `scene`.
-    pub fn get(&self, scene: &Scene) -> f64 {
-        match *self {
-            FitParam::Mu => scene.friction.mu,
-            FitParam::Et => scene.friction.e_t,
-            FitParam::Eo => scene.friction.e_o,
-            FitParam::Er => scene.friction.e_r,
-            FitParam::Mass(b) => scene.bodies[b].mass.mass,
-            FitParam::Inertia(b, a) => scene.bodies[b].mass.inertia[(a, a)],
-        }
-    }
-
-    /// Sets the parameter in `scene`.
-    pub fn set(&self, scene: &mut Scene, value: f64) {
-        match *self {
-            FitParam::Mu => scene.friction.mu = value,
-            FitParam::Et => scene.friction.e_t = value,
-            FitParam::Eo => scene.friction.e_o = value,
-            FitParam::Er => scene.friction.e_r = value,
-            FitParam::Mass(b) => scene.bodies[b].mass.mass = value,
-            FitParam::Inertia(b, a) => scene.bodies[b].mass.inertia[(a, a)] = value,
-        }
-    }
-}
-
-/// Parses a comma-separated list of parameter names (`mu,e_r`); duplicates are refused.
-pub fn parse_params(list: &[String], bodies: usize) -> Result<Vec<FitParam>, InputError> {
+/// Parses a comma-separated list of parameter names (`mu,e_r`, `mass[1]`; [`Param`]'s names)
+/// and checks each against `scene` (body index, a load that is a function of time);
+/// duplicates are refused.
+pub fn parse_params(list: &[String], scene: &Scene) -> Result<Vec<Param>, InputError> {
     let bad = |msg: String| InputError::option("--params", InputErrorKind::UnknownName, msg);
-    let mut params: Vec<FitParam> = Vec::new();
+    let mut params: Vec<Param> = Vec::new();
     for name in list.iter().flat_map(|s| s.split(',')) {
         if name.trim().is_empty() {
             continue;
         }
-        let p = FitParam::parse(name, bodies).map_err(bad)?;
+        let p: Param = name.parse().map_err(|e| bad(format!("{e}")))?;
+        p.get(scene).map_err(|e| bad(format!("{e}")))?;
         if params.contains(&p) {
             return Err(bad(format!(
-                "parameter \"{}\" is listed twice; name each parameter once",
-                p.name()
+                "parameter \"{p}\" is listed twice; name each parameter once"
             )));
         }
         params.push(p);
     }
     if params.is_empty() {
-        return Err(bad(format!(
-            "no parameter to fit; name at least one, e.g. --params mu,e_r (the parameters are {})",
-            all_param_names()
-        )));
+        return Err(bad(
+            "no parameter to fit; name at least one, e.g. --params mu,e_r (the parameters are \
+             mu, e_t, e_o, e_r, mass, i_xx, i_yy, i_zz, ...)"
+                .into(),
+        ));
     }
     Ok(params)
+}
+
+/// How a parameter maps to its optimisation coordinate (module docs).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Coordinate {
+    /// `θ = θ0 · exp(u)`: parameters that must stay positive.
+    Log,
+    /// `θ = θ0 + scale · u`.
+    Linear {
+        /// `|θ0|`, or 1 when `θ0 = 0`.
+        scale: f64,
+    },
+}
+
+impl Coordinate {
+    /// The coordinate of parameter `p` starting at `start`.
+    pub fn of(p: &Param, start: f64) -> Self {
+        let positive = match p {
+            Param::Mu | Param::Et | Param::Eo | Param::Er | Param::Mass { .. } => true,
+            Param::Inertia { entry, .. } => {
+                let (i, j) = entry.position();
+                i == j
+            }
+            _ => false,
+        };
+        if positive {
+            Coordinate::Log
+        } else {
+            Coordinate::Linear {
+                scale: if start != 0.0 { start.abs() } else { 1.0 },
+            }
+        }
+    }
+
+    /// `θ(u)`.
+    pub fn value(&self, start: f64, u: f64) -> f64 {
+        match *self {
+            Coordinate::Log => start * u.exp(),
+            Coordinate::Linear { scale } => start + scale * u,
+        }
+    }
+
+    /// `u(θ)`.
+    pub fn coordinate(&self, start: f64, value: f64) -> f64 {
+        match *self {
+            Coordinate::Log => (value / start).ln(),
+            Coordinate::Linear { scale } => (value - start) / scale,
+        }
+    }
+
+    /// `dθ/du` at `u`.
+    pub fn derivative(&self, start: f64, u: f64) -> f64 {
+        match *self {
+            Coordinate::Log => start * u.exp(),
+            Coordinate::Linear { scale } => scale,
+        }
+    }
 }
 
 /// A reference trajectory: the body states of a `trajectory.csv`, one row per step.
@@ -432,92 +376,72 @@ pub fn read_reference(path: &Path, bodies: usize) -> Result<ReferenceTrajectory,
     })
 }
 
-/// Weights of the tracking loss (module docs): position (1/m²), orientation quaternion (1),
-/// linear velocity (s²/m²) and angular velocity (s²).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-pub struct TrackingWeights {
-    /// `w_x`.
-    pub position: f64,
-    /// `w_q`.
-    pub orientation: f64,
-    /// `w_v`.
-    pub velocity: f64,
-    /// `w_ω`.
-    pub angular_velocity: f64,
-}
-
-impl Default for TrackingWeights {
-    fn default() -> Self {
-        TrackingWeights {
-            position: 0.0,
-            orientation: 0.0,
-            velocity: 1.0,
-            angular_velocity: 1.0,
-        }
+/// The loss weights of `ecp fit`: `w_v = 1` (s²/m²) and `w_ω = 1` (s²), the others 0.
+pub fn default_weights() -> ReferenceWeights {
+    ReferenceWeights {
+        position: 0.0,
+        orientation: 0.0,
+        yaw: 0.0,
+        velocity: 1.0,
+        angular_velocity: 1.0,
     }
 }
 
-impl TrackingWeights {
-    /// Parses `v=1,w=1,x=0,q=0` (any subset; the others keep their defaults).
-    pub fn parse(text: &str) -> Result<Self, InputError> {
-        let bad = |msg: String| InputError::option("--weights", InputErrorKind::InvalidValue, msg);
-        let mut w = TrackingWeights::default();
-        for item in text.split(',').filter(|s| !s.trim().is_empty()) {
-            let Some((k, v)) = item.split_once('=') else {
+/// Parses loss weights `v=1,w=1,x=0,q=0,yaw=0` (velocity, angular velocity, position,
+/// orientation, yaw; any subset, the others keep [`default_weights`]).
+pub fn parse_weights(text: &str) -> Result<ReferenceWeights, InputError> {
+    let bad = |msg: String| InputError::option("--weights", InputErrorKind::InvalidValue, msg);
+    let mut w = default_weights();
+    for item in text.split(',').filter(|s| !s.trim().is_empty()) {
+        let Some((k, v)) = item.split_once('=') else {
+            return Err(bad(format!(
+                "\"{item}\" is not key=value; write e.g. --weights v=1,w=1,x=0"
+            )));
+        };
+        let value: f64 = match v.trim().parse() {
+            Ok(x) if x >= 0.0 && f64::is_finite(x) => x,
+            _ => {
                 return Err(bad(format!(
-                    "\"{item}\" is not key=value; write e.g. --weights v=1,w=1,x=0,q=0"
+                    "weight {} = \"{}\" must be a finite number ≥ 0",
+                    k.trim(),
+                    v.trim()
                 )));
-            };
-            let value: f64 = match v.trim().parse() {
-                Ok(x) if x >= 0.0 && f64::is_finite(x) => x,
-                _ => {
-                    return Err(bad(format!(
-                        "weight {k} = \"{v}\" must be a finite number ≥ 0"
-                    )));
-                }
-            };
-            match k.trim() {
-                "x" => w.position = value,
-                "q" => w.orientation = value,
-                "v" => w.velocity = value,
-                "w" => w.angular_velocity = value,
-                other => {
-                    return Err(bad(format!(
-                        "unknown weight \"{other}\"; the weights are x (position), q \
-                         (orientation), v (velocity) and w (angular velocity)"
-                    )));
-                }
+            }
+        };
+        match k.trim() {
+            "x" => w.position = value,
+            "q" => w.orientation = value,
+            "yaw" => w.yaw = value,
+            "v" => w.velocity = value,
+            "w" => w.angular_velocity = value,
+            other => {
+                return Err(bad(format!(
+                    "unknown weight \"{other}\"; the weights are x (position), q \
+                     (orientation), yaw, v (velocity) and w (angular velocity)"
+                )));
             }
         }
-        if w.position + w.orientation + w.velocity + w.angular_velocity <= 0.0 {
-            return Err(bad("every weight is zero; the loss would be 0".into()));
-        }
-        Ok(w)
     }
-
-    /// The tracking loss of simulated `records` against the reference (module docs).
-    pub fn loss(&self, records: &[StepRecord], reference: &ReferenceTrajectory) -> f64 {
-        let n = reference.steps().max(1) as f64;
-        let mut sum = 0.0;
-        for (rec, want) in records.iter().zip(&reference.states) {
-            for (s, r) in rec.bodies.iter().zip(want) {
-                sum += self.position * (s.x - r.x).norm_squared()
-                    + self.orientation * (s.q - r.q).norm_squared()
-                    + self.velocity * (s.v - r.v).norm_squared()
-                    + self.angular_velocity * (s.w - r.w).norm_squared();
-            }
-        }
-        0.5 * sum / n
+    if w.position + w.orientation + w.yaw + w.velocity + w.angular_velocity <= 0.0 {
+        return Err(bad(
+            "every weight is zero, so the loss would be 0; give one > 0".into(),
+        ));
     }
+    Ok(w)
 }
 
 /// How the gradient of the loss is computed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum GradientMethod {
-    /// Central finite differences over re-simulations (2 extra runs per parameter), relative
-    /// step 1e-5 in each parameter.
+    /// The adjoint trajectory gradient (one backward sweep over the step sensitivities;
+    /// hull and union formulations).
     #[default]
+    Adjoint,
+    /// The forward trajectory gradient (tangents carried along; same numbers as the adjoint).
+    Forward,
+    /// Central finite differences over re-simulations (2 extra runs per parameter), step
+    /// [`FD_STEP`] in the coordinates `u`.
     Fd,
 }
 
@@ -525,13 +449,15 @@ impl GradientMethod {
     /// The name used on the command line and in reports.
     pub fn as_str(&self) -> &'static str {
         match self {
+            GradientMethod::Adjoint => "adjoint",
+            GradientMethod::Forward => "forward",
             GradientMethod::Fd => "fd",
         }
     }
 }
 
-/// Relative step of the central differences (in log-coordinates): balances truncation
-/// (∝ δ²) against the solver's residual tolerance 1e-10 (∝ 1/δ).
+/// Step of the central differences in the coordinates `u` (a relative step of 1e-5 for the
+/// log-coordinates): balances truncation (∝ δ²) against the step solver's residual (∝ 1/δ).
 pub const FD_STEP: f64 = 1e-5;
 
 /// Why a loss evaluation failed.
@@ -540,20 +466,17 @@ pub enum FitError {
     /// Bad input (scene, reference, parameter names, options).
     #[error(transparent)]
     Input(#[from] InputError),
-    /// A step of the simulation did not converge, or could not be set up, at these parameters.
+    /// A step of the simulation did not converge, or could not be set up or differentiated, at
+    /// these parameters.
     #[error(
-        "step {step} (t = {t:.4} s) of the simulation at {params} failed: {reason}; the optimiser \
-         tried parameters where the step solver does not converge — try --solver with another \
-         backend, a start closer to the solution, or fewer --steps"
+        "the simulation at {params} failed: {reason}; the optimiser tried parameters where the \
+         step fails — try --solver with another backend, a start closer to the solution, fewer \
+         --steps, or --gradient fd"
     )]
-    StepFailed {
-        /// Step index, from 1.
-        step: usize,
-        /// Time at the end of the step.
-        t: f64,
+    Simulation {
         /// The parameters, `name = value, ...`.
         params: String,
-        /// What the solver or the stepper said.
+        /// What the solver, the stepper or the sensitivities said.
         reason: String,
     },
     /// The optimiser itself failed.
@@ -564,52 +487,62 @@ pub enum FitError {
 /// Counters of a [`TrajectoryProblem`], shared with the fitting driver.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct EvalCounts {
-    /// Calls of [`CostFunction::cost`] that were not answered from the cache.
+    /// Loss evaluations (calls of [`CostFunction::cost`] not answered from the cache).
     pub cost_evals: usize,
-    /// Calls of [`Gradient::gradient`] that were not answered from the cache.
+    /// Gradient evaluations (calls of [`Gradient::gradient`] not answered from the cache).
     pub gradient_evals: usize,
-    /// Simulations of the whole trajectory (including those of finite differences).
+    /// Simulations of the whole window, those of finite differences and of the analytic
+    /// gradients included.
     pub simulations: usize,
 }
 
 #[derive(Default)]
 struct Shared {
     counts: EvalCounts,
-    /// Last point evaluated: `(u, loss, gradient)`.
+    /// Last point evaluated: `(u, loss, dL/du)`.
     cache: Option<(Vec<f64>, f64, Option<Vec<f64>>)>,
-    /// The last evaluation error (argmin's L-BFGS turns a line-search error into a termination
-    /// reason; the driver reads the cause here).
+    /// Mode switches and degeneracies of the last analytic gradient.
+    events: Vec<ModeEvent>,
+    /// Whether a solver asked for a gradient (then the cost comes with one, see
+    /// [`TrajectoryProblem::cost`](CostFunction::cost)).
+    gradient_asked: bool,
+    /// The last evaluation error (argmin's L-BFGS turns an error inside its line search into a
+    /// termination reason; the driver reads the cause here).
     last_error: Option<FitError>,
 }
 
 /// The trajectory loss of a scene against a reference as an argmin problem over the
-/// log-coordinates `u` (module docs): `cost(u) = scale · L(θ0 ∘ exp(u))`, and its gradient.
+/// coordinates `u` (module docs): `cost(u) = scale · L(θ(u))` and its gradient
+/// `scale · dL/du`, with `Param = Vec<f64>`.
 ///
 /// ```no_run
-/// use argmin::core::{CostFunction, Executor, State};
+/// use argmin::core::{Executor, State};
 /// use argmin::solver::linesearch::MoreThuenteLineSearch;
 /// use argmin::solver::quasinewton::LBFGS;
-/// use ecp::fit::{FitParam, ReferenceTrajectory, TrajectoryProblem};
+/// use ecp::fit::{TrajectoryProblem, read_reference};
+/// use ecp_formulations::sensitivity::Param;
 ///
 /// let file = ecp::scene::load_scene("scenes/desk.toml".as_ref()).unwrap();
-/// let reference = ecp::fit::read_reference("out/desk/trajectory.csv".as_ref(), 1).unwrap();
-/// let problem = TrajectoryProblem::new(&file, reference, vec![FitParam::Mu, FitParam::Er]).unwrap();
+/// let reference = read_reference("out/desk/trajectory.csv".as_ref(), 1).unwrap();
+/// let problem = TrajectoryProblem::new(&file, reference, vec![Param::Mu, Param::Er]).unwrap();
 /// let solver = LBFGS::new(MoreThuenteLineSearch::new(), 7);
-/// let result = Executor::new(problem, solver)
+/// let result = Executor::new(problem.clone(), solver)
 ///     .configure(|s| s.param(vec![0.0, 0.0]).max_iters(50))
 ///     .run()
 ///     .unwrap();
-/// println!("{:?}", result.state.get_best_param());
+/// let u = result.state.get_best_param().unwrap();
+/// println!("mu, e_r = {:?}", problem.values_at(u));
 /// ```
 #[derive(Clone)]
 pub struct TrajectoryProblem {
     scene: Scene,
     formulation: Formulation,
     solver: SolverConfig,
-    params: Vec<FitParam>,
+    params: Vec<Param>,
+    coordinates: Vec<Coordinate>,
     start: Vec<f64>,
     reference: ReferenceTrajectory,
-    weights: TrackingWeights,
+    loss: ReferenceLoss,
     gradient: GradientMethod,
     scale: f64,
     shared: Arc<Mutex<Shared>>,
@@ -617,12 +550,13 @@ pub struct TrajectoryProblem {
 
 impl TrajectoryProblem {
     /// The problem of fitting `params` of the scene file's scene (its solver and formulation)
-    /// to `reference` (checked against the scene), from the scene's values, default weights and
-    /// finite-difference gradients. The scene's duration is cut to the reference's length.
+    /// to `reference` (checked against the scene), from the scene's values, with
+    /// [`default_weights`] and adjoint gradients. The scene's duration is cut to the
+    /// reference's length.
     pub fn new(
         file: &crate::scene::SceneFile,
         reference: ReferenceTrajectory,
-        params: Vec<FitParam>,
+        params: Vec<Param>,
     ) -> Result<Self, FitError> {
         Self::from_scene(
             file.scene.clone(),
@@ -639,59 +573,110 @@ impl TrajectoryProblem {
         formulation: Formulation,
         solver: SolverConfig,
         reference: ReferenceTrajectory,
-        params: Vec<FitParam>,
+        params: Vec<Param>,
     ) -> Result<Self, FitError> {
         reference.check_against(&scene)?;
         crate::backends::check_combination(solver.kind, formulation)?;
         make_solver(&solver)?;
         scene.duration = reference.steps() as f64 * scene.h;
-        let start: Vec<f64> = params.iter().map(|p| p.get(&scene)).collect();
-        for (p, v) in params.iter().zip(&start) {
-            if !(v.is_finite() && *v > 0.0) {
-                return Err(InputError::option(
-                    "--params",
-                    InputErrorKind::InvalidValue,
-                    format!(
-                        "parameter {} starts at {v} in the scene; fitting works in \
-                         log-coordinates and needs a positive start value (set it in the scene \
-                         file, e.g. a small positive μ instead of 0)",
-                        p.name()
-                    ),
-                )
+        let mut start = Vec::with_capacity(params.len());
+        let mut coordinates = Vec::with_capacity(params.len());
+        for p in &params {
+            let bad = |message: String| {
+                InputError::option("--params", InputErrorKind::InvalidValue, message)
+            };
+            let v = p.get(&scene).map_err(|e| bad(e.to_string()))?;
+            let c = Coordinate::of(p, v);
+            if c == Coordinate::Log && !(v.is_finite() && v > 0.0) {
+                return Err(bad(format!(
+                    "parameter {p} starts at {v} in the scene; it is fitted in log-coordinates \
+                     (so that it stays positive) and needs a positive start value: set one in \
+                     the scene file, e.g. a small positive μ instead of 0"
+                ))
                 .into());
             }
+            start.push(v);
+            coordinates.push(c);
         }
+        let loss = ReferenceLoss::new(reference.states.clone(), default_weights());
         Ok(TrajectoryProblem {
             scene,
             formulation,
             solver,
             params,
+            coordinates,
             start,
             reference,
-            weights: TrackingWeights::default(),
+            loss,
             gradient: GradientMethod::default(),
             scale: 1.0,
             shared: Arc::new(Mutex::new(Shared::default())),
         })
     }
 
+    /// The one-step problem (the step loss): fit `params` so that one step of `scene` from the
+    /// body states `start` ends at `target` (the states one step `h` later, e.g. two
+    /// consecutive rows of a measured trajectory).
+    pub fn for_step(
+        mut scene: Scene,
+        formulation: Formulation,
+        solver: SolverConfig,
+        start: &[BodyState],
+        target: &[BodyState],
+        params: Vec<Param>,
+    ) -> Result<Self, FitError> {
+        if start.len() != scene.bodies.len() || target.len() != scene.bodies.len() {
+            return Err(FitError::Optimiser(format!(
+                "the step problem needs one start and one target state per body: the scene has \
+                 {} bodies, {} start and {} target states were given",
+                scene.bodies.len(),
+                start.len(),
+                target.len()
+            )));
+        }
+        for (body, s) in scene.bodies.iter_mut().zip(start) {
+            body.initial = *s;
+        }
+        scene.duration = scene.h;
+        let reference = ReferenceTrajectory {
+            path: PathBuf::from("<step target>"),
+            times: vec![scene.h],
+            states: vec![target.to_vec()],
+        };
+        Self::from_scene(scene, formulation, solver, reference, params)
+    }
+
     /// Uses these loss weights.
-    pub fn with_weights(mut self, weights: TrackingWeights) -> Self {
-        self.weights = weights;
+    pub fn with_weights(mut self, weights: ReferenceWeights) -> Self {
+        self.loss.weights = weights;
         self.shared().cache = None;
         self
     }
 
-    /// Uses this gradient method.
-    pub fn with_gradient(mut self, gradient: GradientMethod) -> Self {
+    /// Uses this gradient method; the analytic ones need the hull or union formulation (the
+    /// step sensitivities differentiate the ECP step).
+    pub fn with_gradient(mut self, gradient: GradientMethod) -> Result<Self, FitError> {
+        if gradient != GradientMethod::Fd && !self.formulation.has_step_structure() {
+            return Err(InputError::option(
+                "--gradient",
+                InputErrorKind::UnknownName,
+                format!(
+                    "the {} gradient differentiates the ECP step, which the {} formulation does \
+                     not build; use --gradient fd, or --formulation hull or union",
+                    gradient.as_str(),
+                    self.formulation
+                ),
+            )
+            .into());
+        }
         self.gradient = gradient;
         self.shared().cache = None;
-        self
+        Ok(self)
     }
 
     /// Multiplies the cost (and gradient) argmin sees by `scale` (> 0): the fitting driver
-    /// uses it so that the first L-BFGS step, `−scale·∇L`, changes no parameter by more than
-    /// 10 % (argmin's L-BFGS starts with the plain gradient as step).
+    /// uses it so that the first L-BFGS step, `−scale·∇L`, moves no coordinate by more than
+    /// 0.1 (argmin's L-BFGS takes the plain gradient as its first direction, step 1).
     pub fn with_cost_scale(mut self, scale: f64) -> Self {
         self.scale = scale;
         self
@@ -703,8 +688,13 @@ impl TrajectoryProblem {
     }
 
     /// The fitted parameters.
-    pub fn params(&self) -> &[FitParam] {
+    pub fn params(&self) -> &[Param] {
         &self.params
+    }
+
+    /// Their coordinates.
+    pub fn coordinates(&self) -> &[Coordinate] {
+        &self.coordinates
     }
 
     /// The parameters' start values θ0 (the scene's).
@@ -712,27 +702,38 @@ impl TrajectoryProblem {
         &self.start
     }
 
-    /// The parameter values at log-coordinates `u`: `θ0 ∘ exp(u)`.
+    /// The gradient method.
+    pub fn gradient_method(&self) -> GradientMethod {
+        self.gradient
+    }
+
+    /// Steps in the fitted window.
+    pub fn steps(&self) -> usize {
+        self.reference.steps()
+    }
+
+    /// The parameter values at coordinates `u`.
     pub fn values_at(&self, u: &[f64]) -> Vec<f64> {
-        self.start
-            .iter()
-            .zip(u)
-            .map(|(t0, ui)| t0 * ui.exp())
+        (0..self.start.len())
+            .map(|i| self.coordinates[i].value(self.start[i], u[i]))
             .collect()
     }
 
-    /// The log-coordinates of parameter values `theta`.
+    /// The coordinates of parameter values `theta`.
     pub fn coordinates_of(&self, theta: &[f64]) -> Vec<f64> {
-        self.start
-            .iter()
-            .zip(theta)
-            .map(|(t0, t)| (t / t0).ln())
+        (0..self.start.len())
+            .map(|i| self.coordinates[i].coordinate(self.start[i], theta[i]))
             .collect()
     }
 
     /// Counters so far.
     pub fn counts(&self) -> EvalCounts {
         self.shared().counts
+    }
+
+    /// Mode switches and degeneracies reported by the last analytic gradient.
+    pub fn mode_events(&self) -> Vec<ModeEvent> {
+        self.shared().events.clone()
     }
 
     /// A handle on the counters and the last error that outlives the problem (argmin takes
@@ -750,29 +751,30 @@ impl TrajectoryProblem {
         self.params
             .iter()
             .zip(theta)
-            .map(|(p, v)| format!("{} = {v}", p.name()))
+            .map(|(p, v)| format!("{p} = {v}"))
             .collect::<Vec<_>>()
             .join(", ")
     }
 
     /// The scene at parameter values `theta`.
-    pub fn scene_at(&self, theta: &[f64]) -> Scene {
+    pub fn scene_at(&self, theta: &[f64]) -> Result<Scene, FitError> {
         let mut scene = self.scene.clone();
         for (p, v) in self.params.iter().zip(theta) {
-            p.set(&mut scene, *v);
+            p.set(&mut scene, *v).map_err(|e| FitError::Simulation {
+                params: self.describe(theta),
+                reason: e.to_string(),
+            })?;
         }
-        scene
+        Ok(scene)
     }
 
-    /// Simulates the reference's steps at parameter values `theta`.
+    /// Simulates the window at parameter values `theta` (any formulation).
     pub fn simulate(&self, theta: &[f64]) -> Result<Vec<StepRecord>, FitError> {
         self.shared().counts.simulations += 1;
-        let scene = self.scene_at(theta);
-        let fail = |step: usize, reason: String| FitError::StepFailed {
-            step,
-            t: step as f64 * scene.h,
+        let scene = self.scene_at(theta)?;
+        let fail = |step: usize, reason: String| FitError::Simulation {
             params: self.describe(theta),
-            reason,
+            reason: format!("step {step} (t = {:.4} s): {reason}", step as f64 * scene.h),
         };
         let mut stepper = ecp_formulations::build_stepper(scene.clone(), self.formulation)
             .map_err(|e| fail(0, e.to_string()))?;
@@ -797,17 +799,28 @@ impl TrajectoryProblem {
         Ok(records)
     }
 
-    /// The (unscaled) loss L at log-coordinates `u`.
-    pub fn loss(&self, u: &[f64]) -> Result<f64, FitError> {
-        self.check_len(u)?;
-        let theta = self.values_at(u);
-        let records = self.simulate(&theta)?;
-        Ok(self.weights.loss(&records, &self.reference))
+    /// The loss of simulated `records`.
+    pub fn loss_of(&self, records: &[StepRecord]) -> f64 {
+        let n = records.len();
+        let mut scratch = vec![0.0; STATE_SIZE * self.scene.bodies.len()];
+        records
+            .iter()
+            .map(|r| self.loss.step_term(r, n, &mut scratch))
+            .sum()
     }
 
-    /// The (unscaled) loss and its gradient with respect to `u` (dL/du_i = θ_i dL/dθ_i).
+    /// The (unscaled) loss L at coordinates `u`.
+    pub fn loss(&self, u: &[f64]) -> Result<f64, FitError> {
+        self.check_len(u)?;
+        let records = self.simulate(&self.values_at(u))?;
+        Ok(self.loss_of(&records))
+    }
+
+    /// The (unscaled) loss and its gradient with respect to `u`
+    /// (`dL/du_i = dL/dθ_i · dθ_i/du_i`).
     pub fn loss_and_gradient(&self, u: &[f64]) -> Result<(f64, Vec<f64>), FitError> {
         self.check_len(u)?;
+        let theta = self.values_at(u);
         match self.gradient {
             GradientMethod::Fd => {
                 let loss = match self.cached(u, false) {
@@ -824,15 +837,43 @@ impl TrajectoryProblem {
                 }
                 Ok((loss, grad))
             }
+            GradientMethod::Adjoint | GradientMethod::Forward => {
+                self.shared().counts.simulations += 1;
+                let scene = self.scene_at(&theta)?;
+                let mut solver = make_solver(&self.solver)?;
+                let options = GradientOptions {
+                    mode: if self.gradient == GradientMethod::Forward {
+                        GradientMode::Forward
+                    } else {
+                        GradientMode::Adjoint
+                    },
+                    formulation: self.formulation,
+                    ..GradientOptions::default()
+                };
+                let g = trajectory_gradient_with(
+                    &scene,
+                    &self.params,
+                    &self.loss,
+                    solver.as_mut(),
+                    &options,
+                )
+                .map_err(|e| FitError::Simulation {
+                    params: self.describe(&theta),
+                    reason: e.to_string(),
+                })?;
+                self.shared().events = g.events;
+                let grad = (0..u.len())
+                    .map(|i| g.gradient[i] * self.coordinates[i].derivative(self.start[i], u[i]))
+                    .collect();
+                Ok((g.loss, grad))
+            }
         }
     }
 
     fn check_len(&self, u: &[f64]) -> Result<(), FitError> {
         if u.len() != self.params.len() || u.iter().any(|x| !x.is_finite()) {
             return Err(FitError::Optimiser(format!(
-                "the parameter vector has {} entries ({:?}), the problem fits {} finite ones",
-                u.len(),
-                u,
+                "the coordinate vector {u:?} should have {} finite entries, one per parameter",
                 self.params.len()
             )));
         }
@@ -847,8 +888,7 @@ impl TrajectoryProblem {
     }
 
     fn cached(&self, u: &[f64], need_gradient: bool) -> Option<(f64, Option<Vec<f64>>)> {
-        let shared = self.shared();
-        match &shared.cache {
+        match &self.shared().cache {
             Some((cu, c, g)) if cu.as_slice() == u && (!need_gradient || g.is_some()) => {
                 Some((*c, g.clone()))
             }
@@ -861,14 +901,25 @@ impl CostFunction for TrajectoryProblem {
     type Param = Vec<f64>;
     type Output = f64;
 
+    /// `scale · L(θ(u))`. Once the solver has asked for a gradient (it is gradient-based), and
+    /// with an analytic gradient method, the gradient is computed and cached with the loss: it
+    /// costs little more than the simulation, and line searches ask for both at each trial
+    /// point. A derivative-free solver only pays for simulations.
     fn cost(&self, u: &Self::Param) -> Result<f64, argmin::core::Error> {
         if let Some((c, _)) = self.cached(u, false) {
             return Ok(self.scale * c);
         }
-        let c = self.record(self.loss(u))?;
+        let eager = self.gradient != GradientMethod::Fd && self.shared().gradient_asked;
+        let (c, g) = if !eager {
+            (self.record(self.loss(u))?, None)
+        } else {
+            let (c, g) = self.record(self.loss_and_gradient(u))?;
+            self.shared().counts.gradient_evals += 1;
+            (c, Some(g))
+        };
         let mut shared = self.shared();
         shared.counts.cost_evals += 1;
-        shared.cache = Some((u.clone(), c, None));
+        shared.cache = Some((u.clone(), c, g));
         Ok(self.scale * c)
     }
 }
@@ -877,7 +928,9 @@ impl Gradient for TrajectoryProblem {
     type Param = Vec<f64>;
     type Gradient = Vec<f64>;
 
+    /// `scale · dL/du`.
     fn gradient(&self, u: &Self::Param) -> Result<Vec<f64>, argmin::core::Error> {
+        self.shared().gradient_asked = true;
         if let Some((_, Some(g))) = self.cached(u, true) {
             return Ok(g.iter().map(|x| self.scale * x).collect());
         }
@@ -889,8 +942,8 @@ impl Gradient for TrajectoryProblem {
     }
 }
 
-/// Counters and the last evaluation error of a [`TrajectoryProblem`], readable after argmin
-/// has consumed the problem.
+/// Counters, mode events and the last evaluation error of a [`TrajectoryProblem`], readable
+/// after argmin has consumed the problem.
 #[derive(Clone)]
 pub struct FitMonitor(Arc<Mutex<Shared>>);
 
@@ -970,11 +1023,18 @@ pub struct FitReport {
     pub iterations: u64,
     /// Wall time of the whole fit, seconds.
     pub wall_s: f64,
-    /// Euclidean norm of dL/du at the fitted values (log-coordinates; L-BFGS only).
+    /// Euclidean norm of dL/du at the fitted values (the coordinates of the module docs),
+    /// from the adjoint gradient where the formulation has one, else from the problem's method
+    /// (absent for Nelder–Mead on a formulation without step sensitivities).
     pub gradient_norm: Option<f64>,
+    /// Mode switches and reportable degeneracies inside the window at the fitted values (the
+    /// loss is only piecewise smooth across them); 0 when none, or when not computed.
+    pub mode_events: usize,
+    /// The first of them, described.
+    pub first_mode_event: Option<String>,
     /// `lbfgs` or `nelder-mead`.
     pub method: Method,
-    /// How gradients were computed (`null` for Nelder–Mead).
+    /// How L-BFGS's gradients were computed (`null` for Nelder–Mead).
     pub gradient: Option<GradientMethod>,
     /// Why the optimiser stopped.
     pub termination: String,
@@ -1061,18 +1121,22 @@ pub fn fit(problem: TrajectoryProblem, options: &FitOptions) -> Result<FitReport
         }
     };
     let error = monitor.last_error().map(|e| e.to_string());
-    // The loss (and, for L-BFGS, the gradient) at the best point: usually cached.
-    let (cost, gradient_norm) = match options.method {
-        Method::Lbfgs => {
-            let g = Gradient::gradient(&problem, &best_u).map_err(map_err)?;
-            let c = CostFunction::cost(&problem, &best_u).map_err(map_err)?;
-            let s = problem.cost_scale();
-            (c / s, Some(g.iter().map(|x| x * x).sum::<f64>().sqrt() / s))
-        }
-        Method::NelderMead => {
-            let c = CostFunction::cost(&problem, &best_u).map_err(map_err)?;
-            (c / problem.cost_scale(), None)
-        }
+    let counts = monitor.counts();
+    // Diagnostics at the best point, outside the optimiser's counts: the loss, the gradient
+    // (adjoint where the formulation has step sensitivities) and the mode events.
+    let diagnostics = if problem.formulation.has_step_structure() {
+        problem.clone().with_gradient(GradientMethod::Adjoint)?
+    } else {
+        problem.clone().with_gradient(GradientMethod::Fd)?
+    };
+    let (cost, gradient_norm, events) = match diagnostics.loss_and_gradient(&best_u) {
+        Ok((c, g)) => (
+            c,
+            Some(g.iter().map(|x| x * x).sum::<f64>().sqrt()),
+            diagnostics.mode_events(),
+        ),
+        // The best point was evaluated before, so this only fails if the gradient does.
+        Err(_) => (diagnostics.loss(&best_u)?, None, Vec::new()),
     };
     let theta = problem.values_at(&best_u);
     let named = |values: &[f64]| -> BTreeMap<String, f64> {
@@ -1080,7 +1144,7 @@ pub fn fit(problem: TrajectoryProblem, options: &FitOptions) -> Result<FitReport
             .params()
             .iter()
             .zip(values)
-            .map(|(p, v)| (p.name(), *v))
+            .map(|(p, v)| (p.to_string(), *v))
             .collect()
     };
     Ok(FitReport {
@@ -1091,11 +1155,15 @@ pub fn fit(problem: TrajectoryProblem, options: &FitOptions) -> Result<FitReport
         iterations,
         wall_s: started.elapsed().as_secs_f64(),
         gradient_norm,
+        mode_events: events.len(),
+        first_mode_event: events
+            .first()
+            .map(|e| format!("step {}: {:?}", e.step, e.kind)),
         method: options.method,
         gradient: (options.method == Method::Lbfgs).then_some(problem.gradient),
         termination,
-        steps: problem.reference.steps(),
-        counts: monitor.counts(),
+        steps: problem.steps(),
+        counts,
         error,
     })
 }

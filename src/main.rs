@@ -83,14 +83,16 @@ enum Command {
         /// possibly shorter than the scene's duration).
         #[arg(long, value_name = "TRAJ.csv")]
         reference: PathBuf,
-        /// Comma-separated parameters to fit: mu, e_t, e_o, e_r, mass, inertia_xx, inertia_yy,
-        /// inertia_zz (mass and inertia of body i > 0 with the suffix _b<i>).
+        /// Comma-separated parameters to fit: mu, e_t, e_o, e_r, mass, i_xx, i_yy, i_zz, i_xy,
+        /// i_xz, i_yz, the initial state x0 .. wz0, a constant load fx .. tz (body i > 0 as
+        /// mass[i]).
         #[arg(long, value_delimiter = ',', required = true)]
         params: Vec<String>,
         /// Optimiser.
         #[arg(long, value_enum, default_value_t = Method::Lbfgs)]
         method: Method,
-        /// How L-BFGS gets the loss gradient.
+        /// How L-BFGS gets the loss gradient: adjoint (the trajectory sensitivities), forward,
+        /// or fd (central finite differences).
         #[arg(long, value_enum, default_value_t = GradientMethod::default())]
         gradient: GradientMethod,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
@@ -105,8 +107,8 @@ enum Command {
         /// Fit only the first N steps of the reference.
         #[arg(long, value_name = "N")]
         steps: Option<usize>,
-        /// Loss weights, e.g. v=1,w=1,x=0,q=0 (velocity, angular velocity, position,
-        /// orientation) [default: v=1,w=1].
+        /// Loss weights, e.g. v=1,w=1,x=0,q=0,yaw=0 (velocity, angular velocity, position,
+        /// orientation, yaw) [default: v=1,w=1].
         #[arg(long, value_name = "LIST")]
         weights: Option<String>,
         /// Stopping tolerance (lbfgs: scaled gradient norm; nelder-mead: spread of the
@@ -381,12 +383,14 @@ struct FitRequest {
 /// optimisation (the JSON then has the best point so far and "error"), 2 for bad input.
 fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
     use ecp::error::{InputError, InputErrorKind};
-    use ecp::fit::{FitOptions, TrackingWeights, TrajectoryProblem, parse_params, read_reference};
+    use ecp::fit::{
+        FitOptions, TrajectoryProblem, default_weights, parse_params, parse_weights, read_reference,
+    };
 
-    let params = parse_params(&request.params, file.scene.bodies.len())?;
+    let params = parse_params(&request.params, &file.scene)?;
     let weights = match &request.weights {
-        Some(w) => TrackingWeights::parse(w)?,
-        None => TrackingWeights::default(),
+        Some(w) => parse_weights(w)?,
+        None => default_weights(),
     };
     if let Some(t) = request.tolerance
         && !(t.is_finite() && t >= 0.0)
@@ -426,7 +430,7 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
         tolerance: request.tolerance.unwrap_or(FitOptions::default().tolerance),
     };
     let report = problem
-        .map(|p| p.with_weights(weights).with_gradient(request.gradient))
+        .and_then(|p| p.with_weights(weights).with_gradient(request.gradient))
         .and_then(|p| ecp::fit::fit(p, &options));
     match report {
         Ok(report) => {
