@@ -72,6 +72,28 @@ pub fn parse_params(list: &[String], scene: &Scene) -> Result<Vec<Param>, InputE
     Ok(params)
 }
 
+/// Overrides parameter values of `scene` from `name=value` pairs (`mu=0.286,e_r=0.07`): the
+/// start of a fit other than the scene file's values (`ecp fit --start`).
+pub fn apply_start(scene: &mut Scene, text: &str) -> Result<(), InputError> {
+    let bad = |msg: String| InputError::option("--start", InputErrorKind::InvalidValue, msg);
+    for item in text.split(',').filter(|s| !s.trim().is_empty()) {
+        let Some((name, value)) = item.split_once('=') else {
+            return Err(bad(format!(
+                "\"{item}\" is not name=value; write e.g. --start mu=0.286,e_r=0.07"
+            )));
+        };
+        let p: Param = name.parse().map_err(|e| bad(format!("{e}")))?;
+        let v: f64 = value.trim().parse().map_err(|_| {
+            bad(format!(
+                "the value of {p}, \"{}\", is not a number",
+                value.trim()
+            ))
+        })?;
+        p.set(scene, v).map_err(|e| bad(e.to_string()))?;
+    }
+    Ok(())
+}
+
 /// How a parameter maps to its optimisation coordinate (module docs).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Coordinate {
@@ -469,9 +491,8 @@ pub enum FitError {
     /// A step of the simulation did not converge, or could not be set up or differentiated, at
     /// these parameters.
     #[error(
-        "the simulation at {params} failed: {reason}; the optimiser tried parameters where the \
-         step fails — try --solver with another backend, a start closer to the solution, fewer \
-         --steps, or --gradient fd"
+        "the simulation at {params} failed: {reason} (if these parameters are far from the \
+         start, the optimiser went there: try a start closer to the solution or fewer --steps)"
     )]
     Simulation {
         /// The parameters, `name = value, ...`.

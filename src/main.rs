@@ -111,6 +111,9 @@ enum Command {
         /// orientation, yaw) [default: v=1,w=1].
         #[arg(long, value_name = "LIST")]
         weights: Option<String>,
+        /// Start values other than the scene's, e.g. mu=0.286,e_r=0.07.
+        #[arg(long, value_name = "LIST")]
+        start: Option<String>,
         /// Stopping tolerance (lbfgs: scaled gradient norm; nelder-mead: spread of the
         /// simplex's scaled costs) [default: 1e-12].
         #[arg(long)]
@@ -195,6 +198,7 @@ fn main() -> ExitCode {
             max_iters,
             steps,
             weights,
+            start,
             tolerance,
         } => load(&scene).and_then(|file| {
             let request = FitRequest {
@@ -207,6 +211,7 @@ fn main() -> ExitCode {
                 max_iters,
                 steps,
                 weights,
+                start,
                 tolerance,
             };
             fit(&file, &request)
@@ -376,6 +381,7 @@ struct FitRequest {
     max_iters: Option<u64>,
     steps: Option<usize>,
     weights: Option<String>,
+    start: Option<String>,
     tolerance: Option<f64>,
 }
 
@@ -387,7 +393,11 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
         FitOptions, TrajectoryProblem, default_weights, parse_params, parse_weights, read_reference,
     };
 
-    let params = parse_params(&request.params, &file.scene)?;
+    let mut scene = file.scene.clone();
+    if let Some(text) = &request.start {
+        ecp::fit::apply_start(&mut scene, text)?;
+    }
+    let params = parse_params(&request.params, &scene)?;
     let weights = match &request.weights {
         Some(w) => parse_weights(w)?,
         None => default_weights(),
@@ -419,8 +429,7 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
         config.kind = kind;
     }
     let formulation = request.formulation.unwrap_or(file.formulation);
-    let problem =
-        TrajectoryProblem::from_scene(file.scene.clone(), formulation, config, reference, params);
+    let problem = TrajectoryProblem::from_scene(scene, formulation, config, reference, params);
     let options = FitOptions {
         method: request.method,
         max_iters: request.max_iters.unwrap_or(match request.method {

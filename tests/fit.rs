@@ -429,3 +429,69 @@ fn reference_reads_back_the_writer_exactly() {
     reference.check_against(&scene).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// A simulation that fails during the fit (here at the start: one Newton iteration per step) is
+/// not bad input: exit status 1 and one message naming the parameters, no panic.
+#[test]
+fn cli_reports_a_failed_simulation_with_exit_status_1() {
+    let dir = temp_dir("fail");
+    let reference = reference_file("scenes/desk.toml", 5, &dir);
+    let scene = dir.join("one_iteration.toml");
+    std::fs::write(
+        &scene,
+        std::fs::read_to_string("scenes/desk.toml")
+            .unwrap()
+            .replace("tolerance = 1e-10", "tolerance = 1e-10\nmax_iterations = 1"),
+    )
+    .unwrap();
+    let out = ecp(&[
+        "fit",
+        scene.to_str().unwrap(),
+        "--reference",
+        reference.to_str().unwrap(),
+        "--params",
+        "mu,e_r",
+    ]);
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(1), "{err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(
+        err.contains("mu = 0.22, e_r = 0.1") && err.contains("did not converge"),
+        "{err}"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Any argmin solver drives the problem: L-BFGS with the Hager–Zhang line search, straight
+/// from argmin's `Executor`, with the cost scaled so that the first step is moderate and the
+/// line search's steps bounded (unbounded, its bracketing phase tries e_r = e^{huge} = inf,
+/// which is an evaluation error, reported as the termination reason).
+#[test]
+fn argmin_drives_the_problem_directly() {
+    use argmin::core::{Executor, State};
+    use argmin::solver::linesearch::HagerZhangLineSearch;
+    use argmin::solver::quasinewton::LBFGS;
+    let p = problem(GradientMethod::Adjoint);
+    let (_, g0) = p.loss_and_gradient(&[0.0, 0.0]).unwrap();
+    let gmax = g0.iter().fold(0.0f64, |m, g| m.max(g.abs()));
+    let p = p.with_cost_scale(0.1 / gmax);
+    let line_search = HagerZhangLineSearch::new().with_bounds(0.0, 10.0).unwrap();
+    let solver = LBFGS::new(line_search, 7)
+        .with_tolerance_grad(1e-12)
+        .unwrap()
+        .with_tolerance_cost(0.0)
+        .unwrap();
+    let result = Executor::new(p.clone(), solver)
+        .configure(|s| s.param(vec![0.0, 0.0]).max_iters(60))
+        .run()
+        .unwrap();
+    let theta = p.values_at(result.state.get_best_param().unwrap());
+    assert!(
+        (theta[0] - 0.22).abs() <= 1e-6,
+        "{theta:?} {:?} {:?}",
+        result.state.get_termination_status(),
+        p.monitor().last_error()
+    );
+    assert!((theta[1] - 0.1).abs() <= 1e-5, "{theta:?}");
+    assert!(p.counts().cost_evals > 0 && p.monitor().last_error().is_none());
+}
