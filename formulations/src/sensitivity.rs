@@ -16,7 +16,11 @@
 //! - a contact with `p_n` at its bound 0 (separated, or touching without force) has its friction
 //!   impulses and σ **held** (`dz = 0`): the ellipsoid's cone forces `p_f = 0` and σ is
 //!   undetermined there, while the linearised friction rows vanish (formulation.md §6), so the
-//!   implicit function theorem says nothing about them;
+//!   implicit function theorem says nothing about them. Its closest-point unknowns (a1, a2, l,
+//!   l_g) do not enter the motion rows then, and they need not be unique (a hull edge parallel
+//!   to the plane): they are solved in a second stage, with the motion fixed, so a singular or
+//!   inconsistent closest-point block cannot spoil the motion derivatives
+//!   ([`Degeneracy::SeparatedGeometry`]);
 //! - weakly active components (`p_n = 0` touching, `σ = 0` on the stick/slip boundary, a face
 //!   multiplier 0 with the ECP on that face's edge) are held at their bound — the one-sided
 //!   derivative of the branch that keeps the active set — and reported as [`Degeneracy`]s with
@@ -631,6 +635,15 @@ pub enum Degeneracy {
         /// Relative residual of the regularised solve (≈ 0: consistent).
         consistency: f64,
     },
+    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not
+    /// unique (a hull edge or face parallel to the plane, formulation.md §6): they got the
+    /// minimum-norm derivative. The motion derivatives do not depend on them (they enter
+    /// Newton–Euler and friction only through `p_n` and `p_f`, both 0), so a trajectory does not
+    /// report this; `consistency` ≫ 0 means the ECP's derivative does not exist (it jumps).
+    SeparatedGeometry {
+        /// Relative residual of the regularised solve of that sub-block.
+        consistency: f64,
+    },
 }
 
 impl Degeneracy {
@@ -639,7 +652,7 @@ impl Degeneracy {
     pub fn is_reportable(&self) -> bool {
         match self {
             Degeneracy::WeaklyActive { two_sided, .. } => !two_sided,
-            Degeneracy::FrictionHeld { .. } => false,
+            Degeneracy::FrictionHeld { .. } | Degeneracy::SeparatedGeometry { .. } => false,
             Degeneracy::Singular { .. } => true,
         }
     }
@@ -664,7 +677,7 @@ pub struct StepSensitivity {
     pub status: Vec<ComponentStatus>,
     /// Degenerate points met.
     pub degeneracies: Vec<Degeneracy>,
-    /// How the reduced system was solved.
+    /// How the reduced system of the motion (and of the closed contacts) was solved.
     pub solve: SolveKind,
 }
 
@@ -746,6 +759,10 @@ impl StepDifferentiator {
         let opts = &self.options.active_set;
         let mut status = classify(z, &f, mcp.lower(), mcp.upper(), opts);
         let mut degeneracies = Vec::new();
+        // Contacts with p_n at 0: friction held; their closest-point unknowns (a1, a2, l, l_g)
+        // do not enter the motion rows while p_n = p_f = 0, so they are solved in a second
+        // stage (below) and cannot spoil the motion derivatives when they are not unique.
+        let mut geometry = Vec::new();
         for (i, c) in sim.contacts().iter().enumerate() {
             let pn = mcp.offset(c.pn);
             if status[pn] != ComponentStatus::Free {
@@ -753,6 +770,9 @@ impl StepDifferentiator {
                     status[k] = ComponentStatus::Held;
                 }
                 degeneracies.push(Degeneracy::FrictionHeld { contact: i });
+                for v in [c.a1, c.a2, c.l, c.lg] {
+                    geometry.extend(mcp.range(v));
+                }
             }
         }
         let bodies = sim.scene().bodies.len();
@@ -783,17 +803,50 @@ impl StepDifferentiator {
         };
         let mut rhs = vec![0.0; n * p];
         mcp.data_jacobian(z, p, &column, &mut rhs)?;
-        let d = self.system.differentiate(mcp, z, &status, &rhs, p, opts)?;
-        for w in &d.weak {
+        // Stage 1: everything but the held-contact geometry.
+        let mut first = status.clone();
+        for &i in &geometry {
+            first[i] = ComponentStatus::Held;
+        }
+        let d = self.system.differentiate(mcp, z, &first, &rhs, p, opts)?;
+        let mut dz = d.dz;
+        if let SolveKind::Regularised { consistency } = d.solve {
+            degeneracies.push(Degeneracy::Singular { consistency });
+        }
+        // Stage 2: the held-contact geometry, the rest fixed at its stage-1 derivative:
+        // J_gg dz_g = −(∂F_g/∂θ + J_g· dz₁).
+        if !geometry.is_empty() {
+            let pattern = mcp.jacobian_pattern().clone();
+            let jac = self.system.jacobian_values().to_vec();
+            let mut second = vec![ComponentStatus::Held; n];
+            for &i in &geometry {
+                second[i] = status[i];
+            }
+            let mut rhs2 = rhs.clone();
+            let mut jdz = vec![0.0; n];
+            for c in 0..p {
+                pattern.mul_vec(&jac, &dz[c * n..(c + 1) * n], &mut jdz);
+                for (r, j) in rhs2[c * n..(c + 1) * n].iter_mut().zip(&jdz) {
+                    *r += j;
+                }
+            }
+            let d2 = self.system.differentiate(mcp, z, &second, &rhs2, p, opts)?;
+            for (a, b) in dz.iter_mut().zip(&d2.dz) {
+                *a += b;
+            }
+            if let SolveKind::Regularised { consistency } = d2.solve {
+                degeneracies.push(Degeneracy::SeparatedGeometry { consistency });
+            }
+        }
+        // Slopes along the combined derivative (stage 1 alone holds the contact geometry).
+        let weak = self.system.weak_slopes(mcp, &status, &dz, &rhs, p, opts);
+        for w in &weak {
             degeneracies.push(Degeneracy::WeaklyActive {
                 component: mcp.component_name(w.index),
                 index: w.index,
                 slope: w.slope,
                 two_sided: w.two_sided,
             });
-        }
-        if let SolveKind::Regularised { consistency } = d.solve {
-            degeneracies.push(Degeneracy::Singular { consistency });
         }
         // The stored state: x, Q/|Q|, v, ω.
         let m = STATE_SIZE * bodies;
@@ -805,7 +858,7 @@ impl StepDifferentiator {
             let norm = qraw.norm();
             let qn = qraw / norm;
             for c in 0..p {
-                let col = &d.dz[c * n..(c + 1) * n];
+                let col = &dz[c * n..(c + 1) * n];
                 let out = &mut state[c * m + STATE_SIZE * b..c * m + STATE_SIZE * (b + 1)];
                 out[..3].copy_from_slice(&col[q0..q0 + 3]);
                 let dq = Vector4::new(col[q0 + 3], col[q0 + 4], col[q0 + 5], col[q0 + 6]);
@@ -814,15 +867,24 @@ impl StepDifferentiator {
                 out[7..13].copy_from_slice(&col[nu0..nu0 + 6]);
             }
         }
+        let solve = degeneracies
+            .iter()
+            .find_map(|d| match d {
+                Degeneracy::Singular { consistency } => Some(SolveKind::Regularised {
+                    consistency: *consistency,
+                }),
+                _ => None,
+            })
+            .unwrap_or(SolveKind::Direct);
         Ok(StepSensitivity {
             step: last.step,
             inputs,
             n,
-            dz: d.dz,
+            dz,
             state,
             status,
             degeneracies,
-            solve: d.solve,
+            solve,
         })
     }
 }

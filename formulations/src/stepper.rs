@@ -841,6 +841,41 @@ impl Simulation {
     pub fn time(&self) -> f64 {
         self.t
     }
+    /// Replaces the current state of body `b` (its quaternion is normalised), for example to
+    /// restart a step from a perturbed state (finite differences, model-predictive control).
+    /// Unlike [`Simulation::new`] it accepts a state that penetrates a half-space: the next
+    /// step's contact conditions resolve it. The warm start of the next step keeps the previous
+    /// solution's impulses.
+    pub fn set_state(&mut self, b: usize, state: BodyState) -> Result<(), SceneError> {
+        let name = match self.bodies.get(b) {
+            Some(body) => body.spec.name.clone(),
+            None => {
+                return Err(SceneError::Parameter {
+                    what: format!("body index {b}"),
+                    value: b as f64,
+                    hint: "the body index must be less than the number of bodies",
+                });
+            }
+        };
+        let finite = state
+            .x
+            .iter()
+            .chain(&state.v)
+            .chain(&state.w)
+            .all(|v| v.is_finite());
+        let q = quat_normalize(&state.q);
+        match q {
+            Some(q) if finite => {
+                self.bodies[b].state = BodyState { q, ..state };
+                Ok(())
+            }
+            _ => Err(SceneError::Parameter {
+                what: format!("{name}.state"),
+                value: f64::NAN,
+                hint: "the state must be finite with a non-zero quaternion",
+            }),
+        }
+    }
     /// The last step taken, while the step problem in [`Simulation::mcp`] is still its own
     /// (`None` before the first step and after [`Simulation::prepare_step`]).
     pub fn last_step(&self) -> Option<&LastStep> {

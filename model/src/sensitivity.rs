@@ -486,11 +486,34 @@ impl ReducedSystem {
         p: usize,
         opts: &ActiveSetOptions,
     ) -> Result<ImplicitDerivative, ImplicitError> {
-        let n = mcp.dim();
         self.factor(mcp, z, status)?;
         let mut dz = dfdtheta.to_vec();
         let solve = self.solve_columns(&mut dz, p)?;
-        // Slope of each weakly active residual along the held branch: dF_i = J_i dz + ∂F_i/∂θ.
+        let weak = self.weak_slopes(mcp, status, &dz, dfdtheta, p, opts);
+        Ok(ImplicitDerivative {
+            dz,
+            columns: p,
+            weak,
+            solve,
+        })
+    }
+}
+
+impl ReducedSystem {
+    /// The slope `max_k |dF_i/dθ_k|`, `dF = J(z*) dz + ∂F/∂θ`, of every weakly active component
+    /// of `status` along a derivative `dz` (`n × p`), with `J(z*)` from the last
+    /// [`ReducedSystem::factor`]. [`ReducedSystem::differentiate`] calls it; call it again when
+    /// the derivative is assembled from several solves with the same `J(z*)`.
+    pub fn weak_slopes(
+        &self,
+        mcp: &dyn Mcp,
+        status: &[ComponentStatus],
+        dz: &[f64],
+        dfdtheta: &[f64],
+        p: usize,
+        opts: &ActiveSetOptions,
+    ) -> Vec<WeakComponent> {
+        let n = mcp.dim();
         let mut weak: Vec<WeakComponent> = status
             .iter()
             .enumerate()
@@ -501,28 +524,24 @@ impl ReducedSystem {
                 two_sided: true,
             })
             .collect();
-        if !weak.is_empty() {
-            let pattern = mcp.jacobian_pattern();
-            let mut jdz = vec![0.0; n];
-            let mut scale = 1.0f64;
-            for k in 0..p {
-                let col = &dfdtheta[k * n..(k + 1) * n];
-                scale = scale.max(col.iter().fold(0.0f64, |m, v| m.max(v.abs())));
-                pattern.mul_vec(&self.jac, &dz[k * n..(k + 1) * n], &mut jdz);
-                for w in weak.iter_mut() {
-                    w.slope = w.slope.max((jdz[w.index] + col[w.index]).abs());
-                }
-            }
+        if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() {
+            return weak;
+        }
+        let pattern = mcp.jacobian_pattern();
+        let mut jdz = vec![0.0; n];
+        let mut scale = 1.0f64;
+        for k in 0..p {
+            let col = &dfdtheta[k * n..(k + 1) * n];
+            scale = scale.max(col.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+            pattern.mul_vec(&self.jac, &dz[k * n..(k + 1) * n], &mut jdz);
             for w in weak.iter_mut() {
-                w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
+                w.slope = w.slope.max((jdz[w.index] + col[w.index]).abs());
             }
         }
-        Ok(ImplicitDerivative {
-            dz,
-            columns: p,
-            weak,
-            solve,
-        })
+        for w in weak.iter_mut() {
+            w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
+        }
+        weak
     }
 }
 
