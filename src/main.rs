@@ -361,6 +361,14 @@ fn compare(
             r.max_diff_w
         );
     }
+    for k in &report.skipped {
+        sayln!(
+            "{:<10} {:<8} skipped: {}",
+            k.formulation,
+            k.solver,
+            k.reason
+        );
+    }
     sayln!("written {}", options.out_dir.join("compare.json").display());
     let all_ok = report.runs.iter().all(|r| r.summary.failed_steps == 0);
     Ok(if all_ok {

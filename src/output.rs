@@ -329,6 +329,20 @@ pub struct CompareReport {
     pub scene: String,
     /// One entry per (formulation, solver), in the order run.
     pub runs: Vec<CompareRun>,
+    /// Combinations that could not run (the conic backend with a formulation that has no step
+    /// structure, a formulation that does not apply to the scene), with the reason.
+    pub skipped: Vec<SkippedRun>,
+}
+
+/// A combination of `compare` that did not run, and why.
+#[derive(Clone, Debug, Serialize, PartialEq)]
+pub struct SkippedRun {
+    /// Contact formulation.
+    pub formulation: String,
+    /// Solver backend.
+    pub solver: String,
+    /// Why it did not run.
+    pub reason: String,
 }
 
 /// Max over common steps and bodies of the absolute differences in linear and angular velocity.

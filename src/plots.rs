@@ -113,6 +113,61 @@ pub fn write_plots(
     Ok(written)
 }
 
+/// One panel of a figure drawn by [`write_time_series`]: curves `(label, points (t, y))`.
+#[derive(Clone, Debug, Default)]
+pub struct TimePanel {
+    /// Panel title.
+    pub title: String,
+    /// y-axis description.
+    pub y_desc: &'static str,
+    /// Logarithmic y axis (non-positive values are left out).
+    pub log_y: bool,
+    /// The curves, in legend order.
+    pub curves: Vec<(String, Vec<(f64, f64)>)>,
+}
+
+/// Writes a figure of stacked time-series panels (shared t axis) to `path`, in the style of the
+/// run plots: used by reports that put several runs side by side.
+pub fn write_time_series(path: &Path, title: &str, panels: &[TimePanel]) -> Result<(), PlotError> {
+    register_bundled_font()?;
+    if let Some(dir) = path.parent().filter(|d| !d.as_os_str().is_empty()) {
+        std::fs::create_dir_all(dir).map_err(|source| PlotError::Io {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+    }
+    let panels: Vec<Panel> = panels
+        .iter()
+        .map(|p| Panel {
+            title: p.title.clone(),
+            x_desc: "t [s]",
+            y_desc: p.y_desc,
+            y_axis: if p.log_y { YAxis::Log } else { YAxis::Linear },
+            series: p
+                .curves
+                .iter()
+                .enumerate()
+                .map(|(k, (label, points))| {
+                    let points = if p.log_y {
+                        points.iter().filter(|(_, y)| *y > 0.0).copied().collect()
+                    } else {
+                        points.clone()
+                    };
+                    Series::new(label.clone(), points, PALETTE[k % PALETTE.len()])
+                })
+                .collect(),
+        })
+        .collect();
+    let height = 120 + 330 * panels.len() as u32;
+    render(path, (SIZE.0, height), |root| {
+        draw_figure(root, title, &panels)
+    })
+    .map_err(|e| PlotError::Draw {
+        path: path.to_path_buf(),
+        message: e.0,
+    })
+}
+
 /// Registers the bundled font once per process; later calls return the first outcome.
 fn register_bundled_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
@@ -187,19 +242,25 @@ fn body_suffix(scene: &Scene, b: usize, count: usize) -> String {
     }
 }
 
-/// Legend suffix for contact `c` (body-major, then plane): empty when there is only one.
-fn contact_suffix(scene: &Scene, c: usize, count: usize) -> String {
+/// Contacts per body in the records (the hull formulation has one per plane; the union and
+/// point formulations have one per piece or point and plane).
+fn contacts_per_body(scene: &Scene, records: &[StepRecord]) -> usize {
+    let contacts = records.iter().map(|r| r.contacts.len()).max().unwrap_or(0);
+    (contacts / scene.bodies.len().max(1)).max(1)
+}
+
+/// Legend suffix for contact `c` (body-major): empty when there is only one.
+fn contact_suffix(scene: &Scene, c: usize, count: usize, per_body: usize) -> String {
     if count <= 1 {
         return String::new();
     }
-    let planes = scene.planes.len().max(1);
-    let (b, p) = (c / planes, c % planes);
+    let (b, j) = (c / per_body, c % per_body);
     let body = scene
         .bodies
         .get(b)
         .map_or_else(|| format!("body {b}"), |s| s.name.clone());
-    if scene.planes.len() > 1 {
-        format!(" [{body}/plane {p}]")
+    if per_body > 1 {
+        format!(" [{body}/contact {j}]")
     } else {
         format!(" [{body}]")
     }
@@ -619,10 +680,11 @@ fn contact_series(
     components: &[Component<ContactRecord>],
 ) -> Vec<Series> {
     let contacts = contact_count(records);
+    let per_body = contacts_per_body(scene, records);
     (0..contacts)
         .flat_map(|c| {
             components.iter().map(move |(name, color, f)| {
-                let label = format!("{name}{}", contact_suffix(scene, c, contacts));
+                let label = format!("{name}{}", contact_suffix(scene, c, contacts, per_body));
                 Series::new(label, contact_points(records, c, f), shade(*color, c))
             })
         })
@@ -726,12 +788,32 @@ fn mode_level(mode: ContactMode) -> f64 {
 
 fn mode_plot(root: &Area<'_>, scene: &Scene, records: &[StepRecord]) -> Result<(), DrawError> {
     let contacts = contact_count(records);
+    let per_body = contacts_per_body(scene, records);
+    // The mode is a property of a body and a plane, shared by the union's and the point
+    // formulation's contacts: draw each distinct mode history once.
+    let mut shown: Vec<Vec<ContactMode>> = Vec::new();
+    let distinct: Vec<usize> = (0..contacts)
+        .filter(|&c| {
+            let history: Vec<ContactMode> = records
+                .iter()
+                .filter_map(|r| r.contacts.get(c).map(|k| k.mode))
+                .collect();
+            let new = !shown.contains(&history);
+            if new {
+                shown.push(history);
+            }
+            new
+        })
+        .collect();
+    let contacts = distinct.len();
     // The mode recorded at the end of a step holds over that step: draw it as a step line
     // from t − h to t. Several contacts are offset slightly so that they do not hide each other.
     let h = if scene.h.is_finite() { scene.h } else { 0.0 };
-    let series = (0..contacts)
-        .map(|c| {
-            let offset = (c as f64 - (contacts as f64 - 1.0) / 2.0) * 0.08;
+    let series = distinct
+        .iter()
+        .enumerate()
+        .map(|(k, &c)| {
+            let offset = (k as f64 - (contacts as f64 - 1.0) / 2.0) * 0.08;
             let points = records
                 .iter()
                 .flat_map(|r| {
@@ -742,8 +824,8 @@ fn mode_plot(root: &Area<'_>, scene: &Scene, records: &[StepRecord]) -> Result<(
                     [(r.t - h, y), (r.t, y)]
                 })
                 .collect();
-            let label = format!("mode{}", contact_suffix(scene, c, contacts));
-            Series::new(label, points, PALETTE[c % PALETTE.len()])
+            let label = format!("mode{}", contact_suffix(scene, c, contacts, per_body));
+            Series::new(label, points, PALETTE[k % PALETTE.len()])
         })
         .collect();
     let panels = [Panel {
@@ -819,7 +901,9 @@ struct Footprint {
     /// 2-D hull of `patch`.
     patch_hull: Vec<(f64, f64)>,
     cm: (f64, f64),
-    ecp: Option<(f64, f64)>,
+    /// The ECP of the body's contact, or with several contacts per body (union, point
+    /// formulations) the contact points that carry a normal impulse.
+    ecp: Vec<(f64, f64)>,
 }
 
 /// In-plane axes `(t, o)` of plane 0 (world x, y for the ground, or without planes).
@@ -865,10 +949,13 @@ fn footprint(
             .map(project)
             .collect()
     });
-    let contact = record.contacts.get(b * scene.planes.len().max(1));
-    let ecp = contact
+    let per_body = (record.contacts.len() / scene.bodies.len().max(1)).max(1);
+    let mine = record.contacts.iter().skip(b * per_body).take(per_body);
+    let ecp = mine
+        .filter(|c| per_body == 1 || c.pn > 0.0)
         .map(|c| project(&c.a1))
-        .filter(|p| p.0.is_finite() && p.1.is_finite());
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+        .collect();
     Some(Footprint {
         pieces,
         patch_hull: hull_2d(patch.clone()),
@@ -1200,7 +1287,7 @@ fn draw_footprint(
         }
         Layer::Markers => {
             chart.draw_series([Cross::new(f.cm, 7, color.stroke_width(2))])?;
-            if let Some(ecp) = f.ecp {
+            for &ecp in &f.ecp {
                 chart.draw_series([Circle::new(ecp, 6, color.filled())])?;
                 chart.draw_series([Circle::new(ecp, 6, BLACK.stroke_width(1))])?;
             }

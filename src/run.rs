@@ -11,8 +11,8 @@ use ecp_formulations::stepper::StepRecord;
 use crate::backends::{Formulation, SolverConfig, SolverKind, check_combination, make_solver};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
-    CompareReport, CompareRun, OutputError, RunSummary, TrajectoryWriter, max_velocity_differences,
-    write_json,
+    CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
+    max_velocity_differences, write_json,
 };
 use crate::scene::SceneFile;
 
@@ -189,11 +189,6 @@ pub fn compare_scene(
     options: &RunOptions,
     mut on_run: impl FnMut(&str),
 ) -> Result<CompareReport, RunError> {
-    for f in formulations {
-        for s in solvers {
-            check_combination(*s, *f)?;
-        }
-    }
     for s in solvers {
         make_solver(&SolverConfig {
             kind: *s,
@@ -201,10 +196,21 @@ pub fn compare_scene(
         })?;
     }
     let mut runs: Vec<CompareRun> = Vec::new();
+    let mut skipped: Vec<SkippedRun> = Vec::new();
+    let mut first_error: Option<RunError> = None;
     let mut first: Option<Vec<StepRecord>> = None;
     for f in formulations {
         for s in solvers {
             let label = format!("{f}-{s}");
+            let skip = |reason: String| SkippedRun {
+                formulation: f.to_string(),
+                solver: s.to_string(),
+                reason,
+            };
+            if let Err(e) = check_combination(*s, *f) {
+                skipped.push(skip(e.message.clone()));
+                continue;
+            }
             on_run(&label);
             let run_options = RunOptions {
                 out_dir: options.out_dir.join(&label),
@@ -213,7 +219,17 @@ pub fn compare_scene(
                 plots: false,
                 ..options.clone()
             };
-            let outcome = run_scene(file, &run_options, |_| {})?;
+            let outcome = match run_scene(file, &run_options, |_| {}) {
+                Ok(o) => o,
+                // A formulation that refuses the scene (formulation.md §7.2) is reported, and
+                // the other combinations still run.
+                Err(RunError::Input(e)) => {
+                    skipped.push(skip(e.message.clone()));
+                    first_error.get_or_insert(RunError::Input(e));
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             let (max_diff_v, max_diff_w) = match &first {
                 Some(reference) => max_velocity_differences(reference, &outcome.records),
                 None => (0.0, 0.0),
@@ -228,9 +244,26 @@ pub fn compare_scene(
             });
         }
     }
+    if runs.is_empty() {
+        return Err(first_error.unwrap_or_else(|| {
+            RunError::Input(InputError::option(
+                "--solvers",
+                InputErrorKind::UnknownName,
+                format!(
+                    "no combination of the solvers and formulations can run: {}",
+                    skipped
+                        .iter()
+                        .map(|k| format!("{}-{}: {}", k.formulation, k.solver, k.reason))
+                        .collect::<Vec<_>>()
+                        .join("; ")
+                ),
+            ))
+        }));
+    }
     let report = CompareReport {
         scene: file.scene.name.clone(),
         runs,
+        skipped,
     };
     write_json(&options.out_dir.join("compare.json"), &report)?;
     Ok(report)

@@ -233,3 +233,63 @@ pub fn desk() -> Scene {
         duration: 4.0,
     }
 }
+
+/// `min(max(s, 0), 1)`: the unit ramp of the T-bar's load windows (`s` is finite here).
+fn ramp(s: f64) -> f64 {
+    s.clamp(0.0, 1.0)
+}
+
+/// Trapezoidal window of the T-bar's load: 0 before `a` and after `b`, rising and falling
+/// linearly over `r` seconds, 1 in between (`scenes/tbar.toml` writes the same with min/max).
+fn window(t: f64, a: f64, b: f64, r: f64) -> f64 {
+    ramp((t - a) / r) * ramp((b - t) / r)
+}
+
+/// C: the paper's T-bar (scenarios.md §C): 2 kg, uniform density, lying flat, μ = 0.22, 5 s.
+/// The gripper's wrench (world frame, at the CM) is the design of `scenes/tbar.toml`, where it
+/// is explained: a 1.7 N m torque pulse on [0.8, 1.2] s about the hull's slanted edge on the
+/// +y side, direction (−2, 1, 0)/√5, one on [1.8, 2.2] s about the −y slanted edge,
+/// (2, 1, 0)/√5, each with 0.1 s ramps (two-point contacts, then flat again), and on
+/// [3.0, 3.8] s (0.05 s ramps) a push `f_x = 5` N with a yaw torque `τ_z = 0.3` N m (it slides
+/// and turns in surface contact).
+pub fn t_bar() -> Scene {
+    let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
+        let a = 1.7 * window(t, 0.8, 1.2, 0.1);
+        let b = 1.7 * window(t, 1.8, 2.2, 0.1);
+        let yaw = window(t, 3.0, 3.8, 0.05);
+        let s5 = 5f64.sqrt();
+        Vector6::new(
+            5.0 * yaw,
+            0.0,
+            0.0,
+            -2.0 / s5 * a + 2.0 / s5 * b,
+            1.0 / s5 * a + 1.0 / s5 * b,
+            0.3 * yaw,
+        )
+    });
+    let mass = match MassProperties::t_bar(2.0) {
+        Ok(m) => m,
+        Err(e) => unreachable!("constant T-bar is valid: {e}"),
+    };
+    Scene {
+        name: "tbar".into(),
+        bodies: vec![BodySpec {
+            name: "tbar".into(),
+            mass,
+            shape: Shape::t_bar(),
+            // Flat: the bottom face (z = −0.025 in the body frame) on the ground.
+            initial: BodyState::at_rest(Vector3::new(0.0, 0.0, 0.025)),
+            load: Load::Function(load),
+        }],
+        planes: vec![HalfSpace::ground()],
+        friction: FrictionParams {
+            mu: 0.22,
+            e_t: 1.0,
+            e_o: 1.0,
+            e_r: 0.1,
+        },
+        gravity: Vector3::new(0.0, 0.0, -G),
+        h: 0.01,
+        duration: 5.0,
+    }
+}
