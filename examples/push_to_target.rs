@@ -35,6 +35,14 @@ use ecp::formulations::stepper::{Load, Scene};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use nalgebra::{Vector3, Vector6};
 
+/// `println!` that ignores a closed standard output (`... | head`).
+macro_rules! say {
+    ($($arg:tt)*) => {{
+        use std::io::Write;
+        let _ = writeln!(std::io::stdout(), $($arg)*);
+    }};
+}
+
 /// Force segments over the horizon.
 const SEGMENTS: usize = 10;
 /// Horizon (s).
@@ -169,11 +177,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .flat_map(|_| [40.0 * dir.x, 40.0 * dir.y])
         .collect();
     let first = problem.evaluate(&f0)?;
-    println!(
+    say!(
         "desk, target ({tx}, {ty}) m at t = {HORIZON} s, {SEGMENTS} force segments of {} s",
         problem.segment_duration()
     );
-    println!(
+    say!(
         "start: 40 N towards the target, miss {:.4} m, J = {:.4e}",
         (first.final_position - target).norm(),
         first.cost
@@ -195,23 +203,30 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let sims = stats.lock().map(|s| s.0).unwrap_or(0);
     let end = problem.evaluate(&best)?;
     let miss = (end.final_position - target).norm();
-    println!(
+    say!(
         "L-BFGS: {} iterations, {sims} simulations with adjoint gradients, {wall:.2} s ({})",
         state.get_iter(),
         state.get_termination_status()
     );
-    println!(
+    say!(
         "final CM ({:.6}, {:.6}) m, miss {:.3e} m, J = {:.4e}, mode events {}",
-        end.final_position.x, end.final_position.y, miss, end.cost, end.events
+        end.final_position.x,
+        end.final_position.y,
+        miss,
+        end.cost,
+        end.events
     );
-    println!("force profile:");
-    println!(
+    say!("force profile:");
+    say!(
         "  {:>11} {:>10} {:>10} {:>10}",
-        "t (s)", "f_x (N)", "f_y (N)", "|f| (N)"
+        "t (s)",
+        "f_x (N)",
+        "f_y (N)",
+        "|f| (N)"
     );
     for (k, f) in best.chunks(2).enumerate() {
         let t0 = k as f64 * problem.segment_duration();
-        println!(
+        say!(
             "  {:>4.1}–{:<4.1}  {:>10.3} {:>10.3} {:>10.3}",
             t0,
             t0 + problem.segment_duration(),
