@@ -28,6 +28,7 @@ pub use ecp_solvers as solvers;
 
 pub mod backends;
 pub mod error;
+pub mod fit;
 pub mod lcp;
 pub mod output;
 pub mod plots;

@@ -9,6 +9,7 @@ use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
 use ecp::backends::{Formulation, SolverKind};
+use ecp::fit::{FitError, GradientMethod, Method};
 use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
 use ecp::scene::{SceneFile, load_scene};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -71,6 +72,52 @@ enum Command {
     Check {
         /// The scene file.
         scene: PathBuf,
+    },
+    /// Fit scene parameters (mu, e_r, ...) so that the simulated trajectory matches a reference
+    /// trajectory.csv, starting from the scene's values; print JSON {"params", "cost",
+    /// "iterations", "wall_s", ...} (docs/fitting.md).
+    Fit {
+        /// The scene file.
+        scene: PathBuf,
+        /// The reference trajectory (a trajectory.csv written by `ecp run` for this scene,
+        /// possibly shorter than the scene's duration).
+        #[arg(long, value_name = "TRAJ.csv")]
+        reference: PathBuf,
+        /// Comma-separated parameters to fit: mu, e_t, e_o, e_r, mass, i_xx, i_yy, i_zz, i_xy,
+        /// i_xz, i_yz, the initial state x0 .. wz0, a constant load fx .. tz (body i > 0 as
+        /// mass[i]).
+        #[arg(long, value_delimiter = ',', required = true)]
+        params: Vec<String>,
+        /// Optimiser.
+        #[arg(long, value_enum, default_value_t = Method::Lbfgs)]
+        method: Method,
+        /// How L-BFGS gets the loss gradient: adjoint (the trajectory sensitivities), forward,
+        /// or fd (central finite differences).
+        #[arg(long, value_enum, default_value_t = GradientMethod::default())]
+        gradient: GradientMethod,
+        /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
+        #[arg(long)]
+        solver: Option<SolverKind>,
+        /// Contact formulation, instead of the scene's.
+        #[arg(long)]
+        formulation: Option<Formulation>,
+        /// Iteration limit of the optimiser [default: 100 for lbfgs, 400 for nelder-mead].
+        #[arg(long, value_name = "N")]
+        max_iters: Option<u64>,
+        /// Fit only the first N steps of the reference.
+        #[arg(long, value_name = "N")]
+        steps: Option<usize>,
+        /// Loss weights, e.g. v=1,w=1,x=0,q=0,yaw=0 (velocity, angular velocity, position,
+        /// orientation, yaw) [default: v=1,w=1].
+        #[arg(long, value_name = "LIST")]
+        weights: Option<String>,
+        /// Start values other than the scene's, e.g. mu=0.286,e_r=0.07.
+        #[arg(long, value_name = "LIST")]
+        start: Option<String>,
+        /// Stopping tolerance (lbfgs: scaled gradient norm; nelder-mead: spread of the
+        /// simplex's scaled costs) [default: 1e-12].
+        #[arg(long)]
+        tolerance: Option<f64>,
     },
     /// Solve an LCP {"M": [[..],..], "q": [..]} with Lemke's method; print JSON
     /// {"z", "w", "pivots", "solve_us", "residual"} (exit status 1 when it has no solution).
@@ -139,6 +186,35 @@ fn main() -> ExitCode {
                 &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
                 &options,
             )
+        }),
+        Command::Fit {
+            scene,
+            reference,
+            params,
+            method,
+            gradient,
+            solver,
+            formulation,
+            max_iters,
+            steps,
+            weights,
+            start,
+            tolerance,
+        } => load(&scene).and_then(|file| {
+            let request = FitRequest {
+                reference,
+                params,
+                method,
+                gradient,
+                solver,
+                formulation,
+                max_iters,
+                steps,
+                weights,
+                start,
+                tolerance,
+            };
+            fit(&file, &request)
         }),
         Command::Check { scene } => load(&scene).map(|file| {
             say!("{}", ecp::scene::describe(&file));
@@ -300,4 +376,98 @@ fn compare(
     } else {
         ExitCode::from(1)
     })
+}
+
+/// The options of `ecp fit`.
+struct FitRequest {
+    reference: PathBuf,
+    params: Vec<String>,
+    method: Method,
+    gradient: GradientMethod,
+    solver: Option<SolverKind>,
+    formulation: Option<Formulation>,
+    max_iters: Option<u64>,
+    steps: Option<usize>,
+    weights: Option<String>,
+    start: Option<String>,
+    tolerance: Option<f64>,
+}
+
+/// `ecp fit`: exit status 0 when the optimiser finished, 1 when a simulation failed during the
+/// optimisation (the JSON then has the best point so far and "error"), 2 for bad input.
+fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
+    use ecp::error::{InputError, InputErrorKind};
+    use ecp::fit::{
+        FitOptions, TrajectoryProblem, default_weights, parse_params, parse_weights, read_reference,
+    };
+
+    let mut scene = file.scene.clone();
+    if let Some(text) = &request.start {
+        ecp::fit::apply_start(&mut scene, text)?;
+    }
+    let params = parse_params(&request.params, &scene)?;
+    let weights = match &request.weights {
+        Some(w) => parse_weights(w)?,
+        None => default_weights(),
+    };
+    if let Some(t) = request.tolerance
+        && !(t.is_finite() && t >= 0.0)
+    {
+        return Err(InputError::option(
+            "--tolerance",
+            InputErrorKind::InvalidValue,
+            format!("the tolerance must be a finite number ≥ 0, not {t}"),
+        )
+        .into());
+    }
+    if request.steps == Some(0) {
+        return Err(InputError::option(
+            "--steps",
+            InputErrorKind::InvalidValue,
+            "fit at least one step (--steps 1 or more)",
+        )
+        .into());
+    }
+    let mut reference = read_reference(&request.reference, file.scene.bodies.len())?;
+    if let Some(n) = request.steps {
+        reference = reference.truncated(n);
+    }
+    let mut config = file.solver.clone();
+    if let Some(kind) = request.solver {
+        config.kind = kind;
+    }
+    let formulation = request.formulation.unwrap_or(file.formulation);
+    let problem = TrajectoryProblem::from_scene(scene, formulation, config, reference, params);
+    let options = FitOptions {
+        method: request.method,
+        max_iters: request.max_iters.unwrap_or(match request.method {
+            Method::Lbfgs => 100,
+            Method::NelderMead => 400,
+        }),
+        tolerance: request.tolerance.unwrap_or(FitOptions::default().tolerance),
+    };
+    let report = problem
+        .and_then(|p| p.with_weights(weights).with_gradient(request.gradient))
+        .and_then(|p| ecp::fit::fit(p, &options));
+    match report {
+        Ok(report) => {
+            let json = serde_json::to_string(&report).map_err(|e| {
+                RunError::Output(ecp::output::OutputError {
+                    path: PathBuf::from("<stdout>"),
+                    source: e.into(),
+                })
+            })?;
+            sayln!("{json}");
+            if let Some(e) = &report.error {
+                eprintln!("error: the fit stopped early: {e}");
+                return Ok(ExitCode::from(1));
+            }
+            Ok(ExitCode::SUCCESS)
+        }
+        Err(FitError::Input(e)) => Err(e.into()),
+        Err(e) => {
+            eprintln!("error: {e}");
+            Ok(ExitCode::from(1))
+        }
+    }
 }

@@ -10,6 +10,13 @@
 //!
 //! One test plants a wrong Jacobian entry and checks that the checker finds exactly it, so a
 //! green run here means something.
+//!
+//! The blocks that depend on model parameters (data θ: the Newton–Euler block's mass, inertia,
+//! start state and load; the kinematic map's start state; the friction blocks' μ, e_t, e_o, e_r)
+//! have their data Jacobians `∂r/∂θ` checked the same way (`check_data_jacobian`,
+//! `check_block_mcp_data`), on the same random states plus random body data (full symmetric
+//! inertias, unit and non-unit start quaternions); a planted error in a data Jacobian is found
+//! too.
 
 mod common;
 
@@ -17,16 +24,17 @@ use common::strategies::{unit_quat, unit3, vec3};
 use std::sync::LazyLock;
 
 use ecp::formulations::blocks::{
-    ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, FrictionParams,
-    HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, mass_matrix,
+    BodyStepData, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
+    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NEWTON_EULER_DATA, NewtonEuler,
+    NonPenetration, NormalCone, mass_matrix,
 };
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
 use ecp::model::{
-    CheckOptions, JacobianBlocks, JacobianReport, Mcp, Params, ResidualBlock, VarId,
-    check_block_mcp, check_residual_block,
+    CheckOptions, DataJacobian, JacobianBlocks, JacobianReport, Mcp, Params, ResidualBlock, VarId,
+    check_block_mcp, check_block_mcp_data, check_data_jacobian, check_residual_block,
 };
 use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 use proptest::prelude::*;
@@ -464,6 +472,171 @@ proptest! {
     }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Data Jacobians ∂r/∂θ
+// ---------------------------------------------------------------------------------------------
+
+/// Body data of a Newton–Euler block: a full symmetric positive definite inertia (principal
+/// moments in a random body frame), a unit or non-unit start quaternion, random velocities,
+/// loads, gravity and step.
+fn body_data() -> impl Strategy<Value = BodyStepData> {
+    (
+        (0.5..20.0f64, vec3(0.01, 2.0), unit_quat()),
+        prop_oneof![unit_quat(), non_unit_quat()],
+        (six(-3.0, 3.0), six(-50.0, 50.0)),
+        (vec3(-10.0, 10.0), prop_oneof![Just(0.01), 1e-3..0.05f64]),
+    )
+        .prop_map(
+            |((mass, moments, axes), q_start, (nu, wrench), (gravity, h))| {
+                let r = rotation_matrix(&axes);
+                BodyStepData {
+                    mass,
+                    inertia: r * Matrix3::from_diagonal(&moments) * r.transpose(),
+                    q_start,
+                    nu_start: Vector6::from_row_slice(&nu),
+                    wrench: Vector6::from_row_slice(&wrench),
+                    gravity,
+                    h,
+                }
+            },
+        )
+}
+
+/// Checks a block's data Jacobian with default options: within tolerance, and every entry
+/// compared.
+fn check_data(
+    block: &dyn ResidualBlock,
+    params: &[&[f64]],
+) -> Result<JacobianReport, TestCaseError> {
+    let report = check_data_jacobian(block, params, &CheckOptions::default())
+        .map_err(|e| TestCaseError::fail(format!("checker rejected {}: {e}", block.name())))?;
+    prop_assert_eq!(
+        report.entries,
+        block.num_residuals() * block.num_data(),
+        "not every data entry of {} was compared",
+        block.name()
+    );
+    prop_assert!(report.ok(), "{}", report);
+    Ok(report)
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
+
+    /// The body-data form (mass, inertia, start state, load: 23 data), with two contacts, and
+    /// the plain form (ν^u and the impulse: 12 data).
+    #[test]
+    fn newton_euler_data(case in case(), data in body_data()) {
+        let s = case.realise();
+        let (c0, c1) = (&s.contacts[0], &s.contacts[1]);
+        let ne = NewtonEuler::for_body(data, vec![c0.frame, c1.frame]);
+        prop_assert_eq!(ne.num_data(), NEWTON_EULER_DATA.len());
+        check_data(&ne, &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf])?;
+        // The body-data form is the plain form with M and the impulse computed from the data.
+        let plain = NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![c0.frame]);
+        let body = NewtonEuler::for_body(data, vec![c0.frame]);
+        let (mut a, mut b) = ([0.0; 6], [0.0; 6]);
+        let ranges = [(0, 6), (6, 7), (13, 3), (16, 1), (17, 3)];
+        let z: Vec<f64> = [&s.nu[..], &s.q, &c0.a1, &c0.pn, &c0.pf].concat();
+        plain.evaluate(Params::new(&z, &ranges), &mut a);
+        body.evaluate(Params::new(&z, &ranges), &mut b);
+        prop_assert_eq!(a, b);
+        check_data(&case.newton_euler(&s, 1), &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf])?;
+    }
+
+    #[test]
+    fn kinematic_map_data(case in case()) {
+        let s = case.realise();
+        let km = KinematicMap { x_start: case.x_start, q_start: case.q_start, h: case.h };
+        check_data(&km, &[&s.q, &s.nu])?;
+    }
+
+    #[test]
+    fn friction_data(case in case()) {
+        let s = case.realise();
+        for c in &s.contacts {
+            let b = FrictionDissipation { frame: c.frame, friction: case.friction };
+            check_data(&b, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf, &c.sigma])?;
+            let b = FrictionEllipsoid { friction: case.friction };
+            check_data(&b, &[&c.pn, &c.pf])?;
+        }
+    }
+}
+
+/// FrictionDissipation with one planted error in its data Jacobian: `∂r_1/∂e_o` is off by 0.25.
+struct PlantedDataError(FrictionDissipation);
+
+impl ResidualBlock for PlantedDataError {
+    fn name(&self) -> &str {
+        "planted_data"
+    }
+    fn num_residuals(&self) -> usize {
+        self.0.num_residuals()
+    }
+    fn parameter_sizes(&self) -> &[usize] {
+        self.0.parameter_sizes()
+    }
+    fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
+        self.0.evaluate(x, out);
+    }
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        self.0.jacobian(x, jac);
+    }
+    fn num_data(&self) -> usize {
+        self.0.num_data()
+    }
+    fn data(&self, theta: &mut [f64]) {
+        self.0.data(theta);
+    }
+    fn data_name(&self, k: usize) -> String {
+        self.0.data_name(k)
+    }
+    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
+        self.0.evaluate_with_data(x, theta, out);
+    }
+    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
+        self.0.data_jacobian(x, jac);
+        jac.add(1, 2, 0.25);
+    }
+}
+
+#[test]
+fn checker_finds_a_planted_wrong_data_entry() {
+    let g = HalfSpace::ground();
+    let block = FrictionDissipation {
+        frame: frame_of(&g),
+        friction: FrictionParams {
+            mu: 0.3,
+            e_t: 1.0,
+            e_o: 1.2,
+            e_r: 0.1,
+        },
+    };
+    let (nu, q) = (
+        [0.5, -0.2, 0.0, 0.0, 0.0, 1.0],
+        [0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0],
+    );
+    let (a1, pn, pf, sigma) = ([0.01, 0.02, 0.0], [1.5], [-0.2, 0.1, 0.01], [0.4]);
+    let params: [&[f64]; 6] = [&nu, &q, &a1, &pn, &pf, &sigma];
+    let good = check_data_jacobian(&block, &params, &CheckOptions::default()).expect("sizes");
+    assert!(good.ok() && good.entries == 12, "{good}");
+    let bad = check_data_jacobian(&PlantedDataError(block), &params, &CheckOptions::default())
+        .expect("sizes");
+    assert_eq!(bad.failures, 1, "{bad}");
+    let worst = &bad.worst[0];
+    assert!(worst.failed && (worst.row, worst.col) == (1, 2), "{bad}");
+    // ∂r_o/∂e_o = 2 e_o μ p_n (W_oᵀν) with W_oᵀν = o·v + ((a1 − x) × o)·ω.
+    let (_, t, o) = g.contact_frame();
+    let _ = t;
+    let r = V3::new(a1[0] - q[0], a1[1] - q[1], a1[2] - q[2]);
+    let slip =
+        o.dot(&V3::new(nu[0], nu[1], nu[2])) + r.cross(&o).dot(&V3::new(nu[3], nu[4], nu[5]));
+    let exact = 2.0 * 1.2 * 0.3 * 1.5 * slip;
+    assert!((worst.numeric - exact).abs() < 1e-8, "{bad}");
+    assert!((worst.analytic - exact - 0.25).abs() < 1e-12, "{bad}");
+    assert!(bad.to_string().contains("planted_data[1] / e_o"), "{bad}");
+}
+
 /// The contact frames used above are right-handed and orthonormal, so the blocks are tested
 /// with the frames the stepper really builds.
 #[test]
@@ -640,6 +813,22 @@ fn check_mcp_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseE
     Ok(())
 }
 
+/// Checks the data Jacobian of every residual block that has data: one Newton–Euler and one
+/// kinematic-map block per body, two friction blocks per contact.
+fn check_mcp_data_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseError> {
+    let reports = check_block_mcp_data(sim.mcp(), z, &CheckOptions::default());
+    prop_assert_eq!(
+        reports.len(),
+        2 * sim.scene().bodies.len() + 2 * sim.contacts().len(),
+        "{}: not every block with data was checked",
+        what
+    );
+    for rep in &reports {
+        prop_assert!(rep.ok(), "{} ({}):\n{}", sim.scene().name, what, rep);
+    }
+    Ok(())
+}
+
 #[test]
 fn every_scenario_mcp_at_its_warm_start() {
     for scene in all_scenes() {
@@ -648,6 +837,7 @@ fn every_scenario_mcp_at_its_warm_start() {
         let z = sim.z().to_vec();
         assert_eq!(z.len(), sim.mcp().dim());
         check_mcp_at(&sim, &z, "warm start").expect("warm start");
+        check_mcp_data_at(&sim, &z, "warm start").expect("warm start (data)");
     }
 }
 
@@ -681,6 +871,7 @@ proptest! {
                 }
             }
             check_mcp_at(&sim, &z, "perturbed")?;
+            check_mcp_data_at(&sim, &z, "perturbed")?;
         }
     }
 }

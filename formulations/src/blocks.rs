@@ -3,10 +3,24 @@
 //! Each block is paired with the variable block of the same length listed in formulation.md §3
 //! and carries its analytic Jacobian; every one is checked against central differences by the
 //! model's Jacobian checker (unit tests here and property tests in `tests/`).
+//!
+//! Blocks whose residual depends on model parameters also declare them as **data θ**
+//! ([`ResidualBlock::num_data`]; not the variable blocks of `parameter_sizes`) and write
+//! `∂r/∂θ` analytically, for the step sensitivities of [`crate::sensitivity`]:
+//!
+//! | block | data θ |
+//! |---|---|
+//! | [`NewtonEuler`] built by [`NewtonEuler::for_body`] | [`NEWTON_EULER_DATA`]: m, I_body (6), Q^u (4), v^u, ω^u, applied force and torque |
+//! | [`NewtonEuler`] built by [`NewtonEuler::new`] | ν^u (6) and the impulse `p_app + p_vp` (6) |
+//! | [`KinematicMap`] | [`KINEMATIC_MAP_DATA`]: x^u (3), Q^u (4) |
+//! | [`FrictionDissipation`], [`FrictionEllipsoid`] | [`FRICTION_DATA`]: μ, e_t, e_o, e_r |
+//!
+//! The contact-geometry blocks (C1–C5) depend only on the shapes, the half-spaces and the row
+//! scale, which are not differentiated; they declare no data.
 
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector4, Vector6};
 
-use ecp_model::{JacobianBlocks, Params, ResidualBlock};
+use ecp_model::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
 
 use crate::rotation::{kinematic_map, rotation_matrix, rotation_matrix_derivatives};
 
@@ -44,11 +58,141 @@ pub struct ContactFrame {
     pub o: Vector3<f64>,
 }
 
+/// Names of the data θ of a [`NewtonEuler`] block built by [`NewtonEuler::for_body`], in order:
+/// mass, the six entries of the symmetric body-frame inertia (the parametrisation of
+/// [`BodyStepData::inertia`]: `I_xx, I_yy, I_zz, I_xy, I_xz, I_yz`, an off-diagonal datum moving
+/// both of its entries), the start-of-step quaternion, linear and angular velocity, and the
+/// applied force and torque at the CM (world frame, without gravity).
+pub const NEWTON_EULER_DATA: [&str; 23] = [
+    "mass",
+    "I_xx",
+    "I_yy",
+    "I_zz",
+    "I_xy",
+    "I_xz",
+    "I_yz",
+    "q_start.w",
+    "q_start.x",
+    "q_start.y",
+    "q_start.z",
+    "v_start.x",
+    "v_start.y",
+    "v_start.z",
+    "w_start.x",
+    "w_start.y",
+    "w_start.z",
+    "force.x",
+    "force.y",
+    "force.z",
+    "torque.x",
+    "torque.y",
+    "torque.z",
+];
+
+/// Names of the data θ of a [`NewtonEuler`] block built by [`NewtonEuler::new`]: `ν^u` and the
+/// applied impulse `p_app + p_vp`.
+pub const NEWTON_EULER_PLAIN_DATA: [&str; 12] = [
+    "v_start.x",
+    "v_start.y",
+    "v_start.z",
+    "w_start.x",
+    "w_start.y",
+    "w_start.z",
+    "impulse.fx",
+    "impulse.fy",
+    "impulse.fz",
+    "impulse.tx",
+    "impulse.ty",
+    "impulse.tz",
+];
+
+/// The inertia entries of the data parametrisation, `(row, col)` in the order of
+/// [`NEWTON_EULER_DATA`] (`I_xx, I_yy, I_zz, I_xy, I_xz, I_yz`).
+pub const INERTIA_ENTRIES: [(usize, usize); 6] = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)];
+
+/// The symmetric unit matrix of inertia datum `k` ([`INERTIA_ENTRIES`]): `∂I_body/∂θ_k`.
+pub fn inertia_direction(k: usize) -> Matrix3<f64> {
+    let (i, j) = INERTIA_ENTRIES[k];
+    let mut e = Matrix3::zeros();
+    e[(i, j)] = 1.0;
+    e[(j, i)] = 1.0;
+    e
+}
+
+/// What a body's Newton–Euler block is computed from (formulation.md §4.1): its mass
+/// properties, its state at the start of the step and the applied load. These are the block's
+/// data θ ([`NEWTON_EULER_DATA`]); gravity and the step length are fixed.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BodyStepData {
+    /// Mass m.
+    pub mass: f64,
+    /// Body-frame inertia about the CM (symmetric; parametrised by its six upper entries).
+    pub inertia: Matrix3<f64>,
+    /// Orientation at the start of the step `Q^u` (M and the gyroscopic term are evaluated there).
+    pub q_start: Vector4<f64>,
+    /// Generalised velocity at the start of the step `ν^u = (v^u, ω^u)`.
+    pub nu_start: Vector6<f64>,
+    /// Applied wrench at the CM, world frame, `(force, torque)`, without gravity.
+    pub wrench: Vector6<f64>,
+    /// Gravity acceleration.
+    pub gravity: Vector3<f64>,
+    /// Step length h.
+    pub h: f64,
+}
+
+impl BodyStepData {
+    /// The generalised mass matrix `diag(m I, R I_body Rᵀ)` at `Q^u`.
+    pub fn mass_matrix(&self) -> Matrix6<f64> {
+        mass_matrix(self.mass, &self.inertia, &self.q_start)
+    }
+
+    /// The applied impulse `p_app + p_vp = h [m g + f; τ − ω^u × (I_w ω^u)]`.
+    pub fn impulse(&self) -> Vector6<f64> {
+        let r = rotation_matrix(&self.q_start);
+        let iw = r * self.inertia * r.transpose();
+        let w = v3(self.nu_start.as_slice(), 3);
+        let force = self.gravity * self.mass + v3(self.wrench.as_slice(), 0);
+        let torque = v3(self.wrench.as_slice(), 3) - w.cross(&(iw * w));
+        let mut p = Vector6::zeros();
+        for i in 0..3 {
+            p[i] = self.h * force[i];
+            p[3 + i] = self.h * torque[i];
+        }
+        p
+    }
+
+    /// Writes the data θ ([`NEWTON_EULER_DATA`]).
+    fn write(&self, theta: &mut [f64]) {
+        theta[0] = self.mass;
+        for (k, (i, j)) in INERTIA_ENTRIES.iter().enumerate() {
+            theta[1 + k] = self.inertia[(*i, *j)];
+        }
+        theta[7..11].copy_from_slice(self.q_start.as_slice());
+        theta[11..17].copy_from_slice(self.nu_start.as_slice());
+        theta[17..23].copy_from_slice(self.wrench.as_slice());
+    }
+
+    /// A copy with the data θ replaced.
+    fn with_theta(&self, theta: &[f64]) -> Self {
+        let mut d = *self;
+        d.mass = theta[0];
+        for (k, (i, j)) in INERTIA_ENTRIES.iter().enumerate() {
+            d.inertia[(*i, *j)] = theta[1 + k];
+            d.inertia[(*j, *i)] = theta[1 + k];
+        }
+        d.q_start = v4(theta, 7);
+        d.nu_start = Vector6::from_column_slice(&theta[11..17]);
+        d.wrench = Vector6::from_column_slice(&theta[17..23]);
+        d
+    }
+}
+
 /// Discrete Newton–Euler equations (formulation.md §4.1, paper eq. (discrete_NE)):
 /// `0 = −M(q^u)(ν − ν^u) + Σ_c (W_n p_n + W_t p_t + W_o p_o + W_r p_r) + p_app + p_vp`,
 /// with `W_n = [n; r × n]`, `r = a1 − x^{u+1}` per contact.
 ///
 /// Reads `ν` (6), `q` (7), and per contact `a1` (3), `p_n` (1), `p_f = (p_t, p_o, p_r)` (3).
+/// Its data θ depend on the constructor (module documentation).
 #[derive(Clone, Debug)]
 pub struct NewtonEuler {
     /// Generalised mass matrix at the start of the step, `diag(m I, R I_body Rᵀ)`.
@@ -59,11 +203,15 @@ pub struct NewtonEuler {
     pub impulse: Vector6<f64>,
     /// Contact frames, one per contact acting on this body.
     pub frames: Vec<ContactFrame>,
+    /// What `mass` and `impulse` were computed from, when built by [`NewtonEuler::for_body`].
+    pub body: Option<BodyStepData>,
     sizes: Vec<usize>,
 }
 
 impl NewtonEuler {
-    /// Builds the block for a body with the given contacts.
+    /// Builds the block for a body with the given contacts from its mass matrix, start velocity
+    /// and applied impulse; its data θ are then `ν^u` and the impulse
+    /// ([`NEWTON_EULER_PLAIN_DATA`]).
     pub fn new(
         mass: Matrix6<f64>,
         nu_start: Vector6<f64>,
@@ -79,8 +227,44 @@ impl NewtonEuler {
             nu_start,
             impulse,
             frames,
+            body: None,
             sizes,
         }
+    }
+
+    /// Builds the block from the body's mass properties, start-of-step state and load; its data
+    /// θ are those of [`NEWTON_EULER_DATA`], so the step sensitivities reach the mass, the
+    /// inertia, the start state and the load.
+    pub fn for_body(body: BodyStepData, frames: Vec<ContactFrame>) -> Self {
+        let mut ne = Self::new(body.mass_matrix(), body.nu_start, body.impulse(), frames);
+        ne.body = Some(body);
+        ne
+    }
+
+    /// The residual for given mass matrix, start velocity and impulse.
+    fn residual(
+        &self,
+        mass: &Matrix6<f64>,
+        nu_start: &Vector6<f64>,
+        impulse: &Vector6<f64>,
+        x: Params<'_>,
+        out: &mut [f64],
+    ) {
+        let nu = Vector6::from_column_slice(x.block(0));
+        let pos = v3(x.block(1), 0);
+        let mut r = -mass * (nu - nu_start) + impulse;
+        for (c, fr) in self.frames.iter().enumerate() {
+            let a1 = v3(x.block(2 + 3 * c), 0);
+            let pn = x.block(3 + 3 * c)[0];
+            let pf = x.block(4 + 3 * c);
+            let force = fr.n * pn + fr.t * pf[0] + fr.o * pf[1];
+            let torque = (a1 - pos).cross(&force) + fr.n * pf[2];
+            for i in 0..3 {
+                r[i] += force[i];
+                r[3 + i] += torque[i];
+            }
+        }
+        out.copy_from_slice(r.as_slice());
     }
 }
 
@@ -95,21 +279,7 @@ impl ResidualBlock for NewtonEuler {
         &self.sizes
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let nu = Vector6::from_column_slice(x.block(0));
-        let pos = v3(x.block(1), 0);
-        let mut r = -self.mass * (nu - self.nu_start) + self.impulse;
-        for (c, fr) in self.frames.iter().enumerate() {
-            let a1 = v3(x.block(2 + 3 * c), 0);
-            let pn = x.block(3 + 3 * c)[0];
-            let pf = x.block(4 + 3 * c);
-            let force = fr.n * pn + fr.t * pf[0] + fr.o * pf[1];
-            let torque = (a1 - pos).cross(&force) + fr.n * pf[2];
-            for i in 0..3 {
-                r[i] += force[i];
-                r[3 + i] += torque[i];
-            }
-        }
-        out.copy_from_slice(r.as_slice());
+        self.residual(&self.mass, &self.nu_start, &self.impulse, x, out);
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         for j in 0..6 {
@@ -144,6 +314,105 @@ impl ResidualBlock for NewtonEuler {
                     jac.set(k, 3 + i, j, ang[i]);
                 }
             }
+        }
+    }
+    fn num_data(&self) -> usize {
+        if self.body.is_some() {
+            NEWTON_EULER_DATA.len()
+        } else {
+            NEWTON_EULER_PLAIN_DATA.len()
+        }
+    }
+    fn data(&self, theta: &mut [f64]) {
+        match &self.body {
+            Some(b) => b.write(theta),
+            None => {
+                theta[..6].copy_from_slice(self.nu_start.as_slice());
+                theta[6..12].copy_from_slice(self.impulse.as_slice());
+            }
+        }
+    }
+    fn data_name(&self, k: usize) -> String {
+        let names: &[&str] = if self.body.is_some() {
+            &NEWTON_EULER_DATA
+        } else {
+            &NEWTON_EULER_PLAIN_DATA
+        };
+        names
+            .get(k)
+            .map_or_else(|| format!("theta{k}"), |s| (*s).to_string())
+    }
+    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
+        match &self.body {
+            Some(b) => {
+                let d = b.with_theta(theta);
+                self.residual(&d.mass_matrix(), &d.nu_start, &d.impulse(), x, out);
+            }
+            None => {
+                let nu_start = Vector6::from_column_slice(&theta[..6]);
+                let impulse = Vector6::from_column_slice(&theta[6..12]);
+                self.residual(&self.mass, &nu_start, &impulse, x, out);
+            }
+        }
+    }
+    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
+        let Some(b) = &self.body else {
+            // r = −M (ν − ν^u) + p: ∂r/∂ν^u = M, ∂r/∂p = I.
+            for j in 0..6 {
+                for i in 0..6 {
+                    jac.set(i, j, self.mass[(i, j)]);
+                }
+                jac.set(j, 6 + j, 1.0);
+            }
+            return;
+        };
+        let nu = x.block(0);
+        let dv = v3(nu, 0) - v3(b.nu_start.as_slice(), 0);
+        let w1 = v3(nu, 3);
+        let w0 = v3(b.nu_start.as_slice(), 3);
+        let dw = w1 - w0;
+        let h = b.h;
+        let r = rotation_matrix(&b.q_start);
+        let iw = r * b.inertia * r.transpose();
+        // Angular rows depend on the world inertia I_w through −I_w (ω − ω^u) − h ω^u × (I_w ω^u);
+        // their derivative along a change D of I_w is −D (ω − ω^u) − h ω^u × (D ω^u).
+        let along = |d: &Matrix3<f64>| -(d * dw) - (w0.cross(&(d * w0))) * h;
+        // Mass: −(v − v^u) + h g.
+        let dm = -dv + b.gravity * h;
+        for i in 0..3 {
+            jac.set(i, 0, dm[i]);
+        }
+        // Inertia entries: D = R E_k Rᵀ.
+        for k in 0..6 {
+            let col = along(&(r * inertia_direction(k) * r.transpose()));
+            for i in 0..3 {
+                jac.set(3 + i, 1 + k, col[i]);
+            }
+        }
+        // Start quaternion: D = ∂R I Rᵀ + R I ∂Rᵀ.
+        let dr = rotation_matrix_derivatives(&b.q_start);
+        for (k, d) in dr.iter().enumerate() {
+            let di = d * b.inertia * r.transpose() + r * b.inertia * d.transpose();
+            let col = along(&di);
+            for i in 0..3 {
+                jac.set(3 + i, 7 + k, col[i]);
+            }
+        }
+        // Start velocity: ∂/∂v^u = m I.
+        for i in 0..3 {
+            jac.set(i, 11 + i, b.mass);
+        }
+        // Start angular velocity: I_w − h ∂(ω × I_w ω)/∂ω = I_w − h ([ω]× I_w − [I_w ω]×).
+        let gyro = crate::rotation::skew(&w0) * iw - crate::rotation::skew(&(iw * w0));
+        let dw0 = iw - gyro * h;
+        for i in 0..3 {
+            for j in 0..3 {
+                jac.set(3 + i, 14 + j, dw0[(i, j)]);
+            }
+        }
+        // Applied force and torque: h I.
+        for i in 0..6 {
+            jac.set(i, 17 + i, h);
         }
     }
 }
@@ -194,6 +463,73 @@ impl ResidualBlock for KinematicMap {
             }
         }
     }
+    fn num_data(&self) -> usize {
+        KINEMATIC_MAP_DATA.len()
+    }
+    fn data(&self, theta: &mut [f64]) {
+        theta[..3].copy_from_slice(self.x_start.as_slice());
+        theta[3..7].copy_from_slice(self.q_start.as_slice());
+    }
+    fn data_name(&self, k: usize) -> String {
+        KINEMATIC_MAP_DATA
+            .get(k)
+            .map_or_else(|| format!("theta{k}"), |s| (*s).to_string())
+    }
+    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
+        let km = KinematicMap {
+            x_start: v3(theta, 0),
+            q_start: v4(theta, 3),
+            h: self.h,
+        };
+        km.evaluate(x, out);
+    }
+    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
+        for i in 0..7 {
+            jac.set(i, i, 1.0);
+        }
+        // E(Q) ω is linear in Q: its derivative along Q_k is E(e_k) ω.
+        let w = v3(x.block(1), 3);
+        for k in 0..4 {
+            let col = kinematic_map(&Vector4::ith(k, 1.0)) * w * (0.5 * self.h);
+            for i in 0..4 {
+                jac.add(3 + i, 3 + k, col[i]);
+            }
+        }
+    }
+}
+
+/// Names of the data θ of a [`KinematicMap`] block: the start-of-step position and quaternion.
+pub const KINEMATIC_MAP_DATA: [&str; 7] = [
+    "x_start.x",
+    "x_start.y",
+    "x_start.z",
+    "q_start.w",
+    "q_start.x",
+    "q_start.y",
+    "q_start.z",
+];
+
+/// Names of the data θ of the friction blocks ([`FrictionDissipation`], [`FrictionEllipsoid`]).
+pub const FRICTION_DATA: [&str; 4] = ["mu", "e_t", "e_o", "e_r"];
+
+impl FrictionParams {
+    fn write(&self, theta: &mut [f64]) {
+        theta[..4].copy_from_slice(&[self.mu, self.e_t, self.e_o, self.e_r]);
+    }
+    fn from_theta(theta: &[f64]) -> Self {
+        FrictionParams {
+            mu: theta[0],
+            e_t: theta[1],
+            e_o: theta[2],
+            e_r: theta[3],
+        }
+    }
+}
+
+fn friction_data_name(k: usize) -> String {
+    FRICTION_DATA
+        .get(k)
+        .map_or_else(|| format!("theta{k}"), |s| (*s).to_string())
 }
 
 /// Contact condition C1 (formulation.md §4.3): `0 = a1 − a2 − l_g ∇g(a2)`, normalised on the
@@ -514,6 +850,33 @@ impl ResidualBlock for FrictionDissipation {
             jac.set(5, i, 0, pf[i]);
         }
     }
+    fn num_data(&self) -> usize {
+        FRICTION_DATA.len()
+    }
+    fn data(&self, theta: &mut [f64]) {
+        self.friction.write(theta);
+    }
+    fn data_name(&self, k: usize) -> String {
+        friction_data_name(k)
+    }
+    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
+        let b = FrictionDissipation {
+            frame: self.frame,
+            friction: FrictionParams::from_theta(theta),
+        };
+        b.evaluate(x, out);
+    }
+    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
+        // r_i = e_i² μ p_n slip_i + p_i σ.
+        let slip = self.slip(x.block(0), &v3(x.block(1), 0), &v3(x.block(2), 0));
+        let pn = x.block(3)[0];
+        let f = &self.friction;
+        let e = [f.e_t, f.e_o, f.e_r];
+        for i in 0..3 {
+            jac.set(i, 0, e[i] * e[i] * pn * slip[i]);
+            jac.set(i, 1 + i, 2.0 * e[i] * f.mu * pn * slip[i]);
+        }
+    }
 }
 
 /// Friction ellipsoid slack (formulation.md §4.4, paper eq. (friction_c)), in its cone form
@@ -555,6 +918,36 @@ impl ResidualBlock for FrictionEllipsoid {
         for k in 0..3 {
             let d = if norm > 0.0 { -scaled[k] / norm } else { 0.0 };
             jac.set(1, 0, k, d);
+        }
+    }
+    fn num_data(&self) -> usize {
+        FRICTION_DATA.len()
+    }
+    fn data(&self, theta: &mut [f64]) {
+        self.friction.write(theta);
+    }
+    fn data_name(&self, k: usize) -> String {
+        friction_data_name(k)
+    }
+    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
+        let b = FrictionEllipsoid {
+            friction: FrictionParams::from_theta(theta),
+        };
+        b.evaluate(x, out);
+    }
+    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
+        // r = μ p_n − ‖u‖, u_k = p_k/e_k: ∂‖u‖/∂e_k = −u_k²/(e_k ‖u‖); at p = 0 the kink, 0
+        // (the same element of the generalised gradient as the variable Jacobian uses).
+        let f = &self.friction;
+        let p = x.block(1);
+        let (norm, _) = scaled_norm(f, p);
+        jac.set(0, 0, x.block(0)[0]);
+        let e = [f.e_t, f.e_o, f.e_r];
+        if norm > 0.0 {
+            for k in 0..3 {
+                let u = p[k] / e[k];
+                jac.set(0, 1 + k, u * u / (e[k] * norm));
+            }
         }
     }
 }

@@ -23,6 +23,7 @@ pub mod point;
 pub mod reduced;
 pub mod rotation;
 pub mod scenarios;
+pub mod sensitivity;
 pub mod stepper;
 pub mod structure;
 

@@ -4,13 +4,14 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
+use nalgebra::{Vector3, Vector4, Vector6};
 
 use ecp_model::{BlockMcp, McpSolver, Problem, ResId, SolveError, Summary, VarBlock, VarId};
 
 use crate::blocks::{
-    ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, FrictionParams,
-    HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, mass_matrix,
+    BodyStepData, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
+    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
+    NormalCone, mass_matrix,
 };
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{
@@ -406,6 +407,28 @@ pub struct Simulation {
     z: Vec<f64>,
     step: usize,
     t: f64,
+    /// The residual blocks of the friction law (for the step sensitivities' data map).
+    pub(crate) friction_blocks: Vec<ResId>,
+    /// The last step taken, while its step problem is still the one in `mcp`.
+    last: Option<LastStep>,
+}
+
+/// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
+/// stay in [`Simulation::mcp`] until the next [`Simulation::prepare_step`], which clears this.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LastStep {
+    /// The step's index, from 1.
+    pub step: usize,
+    /// Time at the start of the step, `t_u` (the loads were evaluated there).
+    pub t_start: f64,
+    /// Body states at the start of the step.
+    pub start: Vec<BodyState>,
+    /// Applied wrench of each body at `t_u`, `(force, torque)` at the CM, world frame.
+    pub wrenches: Vec<Vector6<f64>>,
+    /// The solution as the backend returned it (the end-of-step `Q` not yet renormalised).
+    pub z: Vec<f64>,
+    /// Whether the step converged.
+    pub converged: bool,
 }
 
 impl Simulation {
@@ -572,6 +595,7 @@ impl Simulation {
         }
 
         // Residual blocks (formulation.md §4), paired as in §3.
+        let mut friction_blocks = Vec::new();
         for (b, body) in bodies.iter_mut().enumerate() {
             let mine: Vec<(&ContactVars, &ConvexHull)> = contacts
                 .iter()
@@ -648,21 +672,21 @@ impl Simulation {
                     },
                     &[c.a1],
                 )?;
-                problem.add_residual_block(
+                friction_blocks.push(problem.add_residual_block(
                     c.pf,
                     FrictionDissipation {
                         frame: *frame,
                         friction: scene.friction,
                     },
                     &[body.nu, body.q, c.a1, c.pn, c.pf, c.sigma],
-                )?;
-                problem.add_residual_block(
+                )?);
+                friction_blocks.push(problem.add_residual_block(
                     c.sigma,
                     FrictionEllipsoid {
                         friction: scene.friction,
                     },
                     &[c.pn, c.pf],
-                )?;
+                )?);
             }
         }
         let mcp = problem.build()?;
@@ -676,6 +700,8 @@ impl Simulation {
             mcp,
             step: 0,
             t: 0.0,
+            friction_blocks,
+            last: None,
         };
         sim.initial_guess();
         Ok(sim)
@@ -815,6 +841,58 @@ impl Simulation {
     pub fn time(&self) -> f64 {
         self.t
     }
+    /// Replaces the current state of body `b` (its quaternion is normalised), for example to
+    /// restart a step from a perturbed state (finite differences, model-predictive control).
+    /// Unlike [`Simulation::new`] it accepts a state that penetrates a half-space: the next
+    /// step's contact conditions resolve it. The warm start of the next step keeps the previous
+    /// solution's impulses.
+    pub fn set_state(&mut self, b: usize, state: BodyState) -> Result<(), SceneError> {
+        let name = match self.bodies.get(b) {
+            Some(body) => body.spec.name.clone(),
+            None => {
+                return Err(SceneError::Parameter {
+                    what: format!("body index {b}"),
+                    value: b as f64,
+                    hint: "the body index must be less than the number of bodies",
+                });
+            }
+        };
+        let finite = state
+            .x
+            .iter()
+            .chain(&state.v)
+            .chain(&state.w)
+            .all(|v| v.is_finite());
+        let q = quat_normalize(&state.q);
+        match q {
+            Some(q) if finite => {
+                self.bodies[b].state = BodyState { q, ..state };
+                Ok(())
+            }
+            _ => Err(SceneError::Parameter {
+                what: format!("{name}.state"),
+                value: f64::NAN,
+                hint: "the state must be finite with a non-zero quaternion",
+            }),
+        }
+    }
+    /// The last step taken, while the step problem in [`Simulation::mcp`] is still its own
+    /// (`None` before the first step and after [`Simulation::prepare_step`]).
+    pub fn last_step(&self) -> Option<&LastStep> {
+        self.last.as_ref()
+    }
+    /// The handles of body `b`'s velocity `ν` and configuration `q` blocks.
+    pub fn body_vars(&self, b: usize) -> (VarId, VarId) {
+        (self.bodies[b].nu, self.bodies[b].q)
+    }
+    /// The residual blocks of body `b`: its Newton–Euler and kinematic-map blocks.
+    pub fn body_blocks(&self, b: usize) -> (ResId, ResId) {
+        (self.bodies[b].newton_euler, self.bodies[b].kinematic)
+    }
+    /// The residual blocks of the friction law (dissipation and ellipsoid of every contact).
+    pub fn friction_blocks(&self) -> &[ResId] {
+        &self.friction_blocks
+    }
     /// Steps taken.
     pub fn steps_taken(&self) -> usize {
         self.step
@@ -829,28 +907,28 @@ impl Simulation {
     /// its starting point.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
         let h = self.scene.h;
+        self.last = None;
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
             let mp = &body.spec.mass;
-            let r = rotation_matrix(&s.q);
-            let iw: Matrix3<f64> = r * mp.inertia * r.transpose();
             let load = body.spec.load.at(self.t);
-            let mut impulse = Vector6::zeros();
-            let force = self.scene.gravity * mp.mass + load.fixed_rows::<3>(0).into_owned();
-            let gyro = -s.w.cross(&(iw * s.w));
-            let torque = load.fixed_rows::<3>(3).into_owned() + gyro;
-            for i in 0..3 {
-                impulse[i] = h * force[i];
-                impulse[3 + i] = h * torque[i];
-            }
             let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
-            let ne = NewtonEuler::new(
-                mass_matrix(mp.mass, &mp.inertia, &s.q),
-                nu_start,
-                impulse,
+            // Built from the body's data so the step sensitivities reach m, I, the start state
+            // and the load (blocks.rs, NEWTON_EULER_DATA).
+            let ne = NewtonEuler::for_body(
+                BodyStepData {
+                    mass: mp.mass,
+                    inertia: mp.inertia,
+                    q_start: s.q,
+                    nu_start,
+                    wrench: load,
+                    gravity: self.scene.gravity,
+                    h,
+                },
                 body.frames.clone(),
             );
+            let impulse = ne.impulse;
             let km = KinematicMap {
                 x_start: s.x,
                 q_start: s.q,
@@ -916,9 +994,25 @@ impl Simulation {
             }
         };
         self.z.copy_from_slice(&z);
+        let t_start = self.t;
+        let start: Vec<BodyState> = self.bodies.iter().map(|b| b.state).collect();
+        let wrenches = self
+            .bodies
+            .iter()
+            .map(|b| b.spec.load.at(t_start))
+            .collect();
         self.step += 1;
         self.t = self.step as f64 * self.scene.h;
-        Ok(self.finish_step(summary, converged, solve_us))
+        let record = self.finish_step(summary, converged, solve_us);
+        self.last = Some(LastStep {
+            step: self.step,
+            t_start,
+            start,
+            wrenches,
+            z,
+            converged,
+        });
+        Ok(record)
     }
 
     fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {

@@ -44,13 +44,14 @@ pub mod pattern;
 pub mod problem;
 pub mod problems;
 pub mod residual;
+pub mod sensitivity;
 pub mod solver;
 pub mod structure;
 
 pub use bounds::{BoundKind, Bounds, VarBlock};
 pub use checker::{
-    BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_block_mcp, check_mcp,
-    check_residual_block,
+    BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_block_mcp,
+    check_block_mcp_data, check_data_jacobian, check_mcp, check_residual_block,
 };
 pub use mcp::{
     FnMcp, Mcp, WorstComponent, diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister,
@@ -58,7 +59,7 @@ pub use mcp::{
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
-pub use residual::{JacobianBlocks, Params, ResidualBlock};
+pub use residual::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
     Termination, finish_solve, validate_start,

@@ -6,7 +6,7 @@ use crate::ModelError;
 use crate::bounds::VarBlock;
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
-use crate::residual::{JacobianBlocks, Params, ResidualBlock};
+use crate::residual::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
 
 /// Handle of a variable block inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -309,6 +309,67 @@ impl BlockMcp {
             });
         }
         old.block = block;
+        Ok(())
+    }
+
+    /// Assembles `∂F/∂θ` at `z` for a vector θ of `p` model parameters (the data of the residual
+    /// blocks, [`ResidualBlock::num_data`]): `column(r, k)` names the entry of θ that datum `k`
+    /// of residual block `r` is, or `None` when that datum is not differentiated. Several data
+    /// may map to the same entry (a shared coefficient such as μ); their derivatives add up.
+    ///
+    /// `out` is the dense `n × p` matrix, column-major, overwritten. An entry of `column` out of
+    /// range is an error (nothing is written).
+    pub fn data_jacobian(
+        &self,
+        z: &[f64],
+        p: usize,
+        column: &dyn Fn(ResId, usize) -> Option<usize>,
+        out: &mut [f64],
+    ) -> Result<(), ModelError> {
+        if z.len() != self.n || out.len() != self.n * p {
+            return Err(ModelError::Dimension(format!(
+                "data_jacobian: z has {} entries (problem: {}), out has {} (needs {} × {})",
+                z.len(),
+                self.n,
+                out.len(),
+                self.n,
+                p
+            )));
+        }
+        // Validate the map first, so a bad map leaves `out` untouched.
+        for (r, b) in self.blocks.iter().enumerate() {
+            for k in 0..b.block.num_data() {
+                if let Some(c) = column(ResId(r), k)
+                    && c >= p
+                {
+                    return Err(ModelError::Dimension(format!(
+                        "data_jacobian: datum '{}' of block '{}' maps to column {c}, but θ has {p} entries",
+                        b.block.data_name(k),
+                        b.block.name()
+                    )));
+                }
+            }
+        }
+        out.fill(0.0);
+        let mut local = Vec::new();
+        for (r, b) in self.blocks.iter().enumerate() {
+            let nd = b.block.num_data();
+            if nd == 0 {
+                continue;
+            }
+            local.clear();
+            local.resize(b.rows * nd, 0.0);
+            let mut jac = DataJacobian::new(&mut local, b.rows, nd);
+            b.block.data_jacobian(Params::new(z, &b.ranges), &mut jac);
+            for k in 0..nd {
+                if let Some(c) = column(ResId(r), k) {
+                    let dst = &mut out[c * self.n + b.row0..c * self.n + b.row0 + b.rows];
+                    for (d, v) in dst.iter_mut().zip(&local[k * b.rows..(k + 1) * b.rows]) {
+                        *d += v;
+                    }
+                }
+            }
+        }
         Ok(())
     }
 

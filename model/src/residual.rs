@@ -1,4 +1,15 @@
 //! Residual blocks: the pieces of `F` a model is built from (Ceres' cost functions, for MCPs).
+//!
+//! Two kinds of inputs enter a residual block, and the names keep them apart:
+//!
+//! - **variable blocks** (the unknowns `z` of the MCP), whose sizes a block declares in
+//!   [`ResidualBlock::parameter_sizes`] — "parameter blocks" in Ceres' words, kept for
+//!   familiarity — and whose Jacobian it writes in [`ResidualBlock::jacobian`];
+//! - **data θ** (model parameters: coefficients such as μ, the mass and inertia, the
+//!   start-of-step state, the applied loads), fixed during a solve, which a block declares with
+//!   [`ResidualBlock::num_data`] and differentiates in [`ResidualBlock::data_jacobian`]. Their
+//!   derivatives are what implicit differentiation of a solution needs (`dz/dθ = −J⁻¹ ∂F/∂θ` on
+//!   the free components, [`crate::sensitivity`]).
 
 /// Read-only view of the variable blocks a residual block reads, in the order it declared them.
 ///
@@ -101,6 +112,49 @@ impl<'a> JacobianBlocks<'a> {
     }
 }
 
+/// Write access to the dense Jacobian `∂r/∂θ` of one residual block with respect to its data θ
+/// (see the module documentation), `rows × num_data`, column-major. It starts zeroed, so a
+/// block writes only its non-zeros.
+#[derive(Debug)]
+pub struct DataJacobian<'a> {
+    values: &'a mut [f64],
+    rows: usize,
+    cols: usize,
+}
+
+impl<'a> DataJacobian<'a> {
+    /// Wraps a column-major `rows × cols` buffer (`values.len() == rows * cols`).
+    pub fn new(values: &'a mut [f64], rows: usize, cols: usize) -> Self {
+        debug_assert_eq!(values.len(), rows * cols);
+        DataJacobian { values, rows, cols }
+    }
+    /// Number of residual rows.
+    pub fn rows(&self) -> usize {
+        self.rows
+    }
+    /// Number of data θ (columns).
+    pub fn cols(&self) -> usize {
+        self.cols
+    }
+    /// Sets entry `(i, k)`: `∂r_i/∂θ_k`.
+    #[inline]
+    pub fn set(&mut self, i: usize, k: usize, v: f64) {
+        debug_assert!(i < self.rows && k < self.cols);
+        self.values[k * self.rows + i] = v;
+    }
+    /// Adds to entry `(i, k)`.
+    #[inline]
+    pub fn add(&mut self, i: usize, k: usize, v: f64) {
+        debug_assert!(i < self.rows && k < self.cols);
+        self.values[k * self.rows + i] += v;
+    }
+    /// Entry `(i, k)`.
+    #[inline]
+    pub fn get(&self, i: usize, k: usize) -> f64 {
+        self.values[k * self.rows + i]
+    }
+}
+
 /// A block of residual equations `r(x_1, …, x_K)` with an analytic Jacobian.
 ///
 /// The block declares the sizes of the variable blocks it reads; the problem builder binds
@@ -122,4 +176,26 @@ pub trait ResidualBlock: Send + Sync {
         self.evaluate(x, out);
         self.jacobian(x, jac);
     }
+
+    /// Number of scalar **data** θ the residual depends on (model parameters, not unknowns:
+    /// see the module documentation; not to be confused with the variable blocks of
+    /// [`ResidualBlock::parameter_sizes`]). Default 0: a block without declared data is treated
+    /// as independent of every model parameter.
+    fn num_data(&self) -> usize {
+        0
+    }
+    /// Writes the block's current data θ into `theta` (length [`ResidualBlock::num_data`]).
+    fn data(&self, _theta: &mut [f64]) {}
+    /// Name of datum `k`, for reports (e.g. `"mu"`, `"q_start.w"`).
+    fn data_name(&self, k: usize) -> String {
+        format!("theta{k}")
+    }
+    /// Evaluates the residual at `x` with the data replaced by `theta`. It must agree with
+    /// [`ResidualBlock::evaluate`] when `theta` is the block's own data; the Jacobian checker
+    /// ([`crate::check_data_jacobian`]) differentiates it by central differences.
+    fn evaluate_with_data(&self, x: Params<'_>, _theta: &[f64], out: &mut [f64]) {
+        self.evaluate(x, out);
+    }
+    /// Writes `∂r/∂θ` at `x` and the block's current data. `jac` starts zeroed.
+    fn data_jacobian(&self, _x: Params<'_>, _jac: &mut DataJacobian<'_>) {}
 }

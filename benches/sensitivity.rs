@@ -1,0 +1,95 @@
+//! Cost of the step sensitivities relative to the step solve (issue #8, item 6):
+//! `cargo bench --bench sensitivity`.
+//!
+//! - `desk_step_solve`: the 100th desk step solved by the Newton backend from its warm start
+//!   (as in `--bench newton`);
+//! - `desk_step_sensitivity`: the derivatives of that step's solution with respect to all 30
+//!   step inputs (friction, mass, inertia, start state, load): one Jacobian and one data-Jacobian
+//!   evaluation, one factorisation of the reduced Jacobian (symbolic analysis reused), 30 solves;
+//! - `desk_100_steps_*`: the first 100 desk steps alone, with the adjoint gradient of a
+//!   reference loss for μ and e_r (and every step's wrench), and with the forward one.
+
+use ecp::formulations::Formulation;
+use ecp::formulations::scenarios;
+use ecp::formulations::sensitivity::{
+    GradientMode, Param, ReferenceLoss, ReferenceWeights, SensitivityOptions, StepDifferentiator,
+    trajectory_gradient, trajectory_loss,
+};
+use ecp::formulations::stepper::{Scene, Simulation};
+use ecp::model::McpSolver;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+
+mod common;
+
+fn main() {
+    divan::main();
+}
+
+#[divan::bench]
+fn desk_step_solve(bencher: divan::Bencher) {
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let (sim, z0) = common::desk_at_step_100(&mut solver);
+    bencher.bench_local(|| match solver.solve(&sim.structured_mcp(), &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
+#[divan::bench]
+fn desk_step_sensitivity(bencher: divan::Bencher) {
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    for _ in 0..100 {
+        sim.step(&mut solver).expect("desk step");
+    }
+    let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+    bencher.bench_local(|| match differ.differentiate(&sim) {
+        Ok(s) => s.dz.len(),
+        Err(e) => panic!("desk sensitivity: {e}"),
+    });
+}
+
+/// The desk's first second (100 steps) and a reference loss on its own trajectory.
+fn desk_100() -> (Scene, ReferenceLoss) {
+    let mut scene = scenarios::desk();
+    scene.duration = 1.0;
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut sim = Simulation::new(scene.clone()).expect("desk");
+    let mut records = Vec::new();
+    while !sim.finished() {
+        records.push(sim.step(&mut solver).expect("desk step"));
+    }
+    let loss = ReferenceLoss::from_records(&records, ReferenceWeights::default());
+    (scene, loss)
+}
+
+#[divan::bench(sample_count = 10)]
+fn desk_100_steps_run(bencher: divan::Bencher) {
+    let (scene, loss) = desk_100();
+    bencher.bench_local(|| {
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        trajectory_loss(&scene, &loss, &mut solver, Formulation::Hull)
+            .expect("desk run")
+            .0
+    });
+}
+
+fn gradient(bencher: divan::Bencher, mode: GradientMode) {
+    let (scene, loss) = desk_100();
+    bencher.bench_local(|| {
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        trajectory_gradient(&scene, &[Param::Mu, Param::Er], &loss, &mut solver, mode)
+            .expect("desk gradient")
+            .loss
+    });
+}
+
+#[divan::bench(sample_count = 10)]
+fn desk_100_steps_adjoint_gradient(bencher: divan::Bencher) {
+    gradient(bencher, GradientMode::Adjoint);
+}
+
+#[divan::bench(sample_count = 10)]
+fn desk_100_steps_forward_gradient(bencher: divan::Bencher) {
+    gradient(bencher, GradientMode::Forward);
+}

@@ -1,0 +1,1420 @@
+//! Step and trajectory sensitivities by implicit differentiation (issue #8).
+//!
+//! **Step sensitivities.** At a converged step of a [`Simulation`] (hull formulation; the union
+//! formulation uses the same code, but its impulses are not unique, so its reduced Jacobian is
+//! usually singular and the regularised solve is reported), [`step_sensitivity`] returns the
+//! derivatives of the step's solution `z*` — ν, q (before the renormalisation of Q), the ECPs,
+//! multipliers and impulses — and of the stored end-of-step state (x, Q renormalised, v, ω)
+//! with respect to every **step input** ([`StepInput`]): the friction parameters μ, e_t, e_o,
+//! e_r, each body's mass and body-frame inertia (six entries of the symmetric matrix,
+//! [`InertiaEntry`]), its start-of-step state `x^u, Q^u, v^u, ω^u`, and the applied wrench of the
+//! step (force and torque at the CM, world frame, evaluated at `t_u`). The residual blocks state
+//! their derivatives with respect to these data (`blocks.rs`), `ecp_model::sensitivity` does
+//! the implicit differentiation with the active set, and this module adds what only the
+//! formulation knows:
+//!
+//! - a contact with `p_n` at its bound 0 (separated, or touching without force) has its friction
+//!   impulses and σ **held** (`dz = 0`): the ellipsoid's cone forces `p_f = 0` and σ is
+//!   undetermined there, while the linearised friction rows vanish (formulation.md §6), so the
+//!   implicit function theorem says nothing about them. Its closest-point unknowns (a1, a2, l,
+//!   l_g) do not enter the motion rows then, and they need not be unique (a hull edge parallel
+//!   to the plane): they are solved in a second stage, with the motion fixed, so a singular or
+//!   inconsistent closest-point block cannot spoil the motion derivatives
+//!   ([`Degeneracy::SeparatedGeometry`]);
+//! - weakly active components (`p_n = 0` touching, `σ = 0` on the stick/slip boundary, a face
+//!   multiplier 0 with the ECP on that face's edge) are held at their bound — the one-sided
+//!   derivative of the branch that keeps the active set — and reported as [`Degeneracy`]s with
+//!   the slope of their residual along that branch; those whose slope is 0 (the gap multiplier
+//!   `l_g` of every closed contact) are two-sided and harmless;
+//! - a singular reduced Jacobian gets the minimum-norm solution ([`SolveKind::Regularised`]),
+//!   reported.
+//!
+//! **Trajectory gradients.** [`trajectory_gradient`] runs a scene and chains the step
+//! sensitivities of the state passed between steps (x, Q normalised, v, ω per body) for a scalar
+//! [`TrajectoryLoss`] — [`ReferenceLoss`] (weighted squared differences to a reference
+//! trajectory, every step) or [`TerminalPositionLoss`] (the CM at the last step) — and returns
+//! `dL/dθ` for the scene parameters ([`Param`]) and `dL/dw_k` for the applied wrench of every
+//! step, so any load parametrisation can be chained by the caller. Each step's Jacobian of the
+//! next state with respect to the step inputs is formed once (one factorisation and one solve per
+//! step input); [`GradientMode::Forward`] carries `dstate/dθ` forward (and, for the wrench
+//! gradients, one tangent per past step: cost quadratic in the number of steps), and
+//! [`GradientMode::Adjoint`] sweeps back once (cost linear in the steps and independent of the
+//! number of parameters). Both give the same numbers to round-off. Every change of the active set
+//! between steps and every one-sided or singular step is reported in
+//! [`TrajectoryGradient::events`], never hidden.
+//!
+//! ```
+//! use ecp_formulations::{scenarios, sensitivity::*};
+//! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+//!
+//! // A1: dL/dμ of the final position of the sliding box after 10 steps.
+//! let mut scene = scenarios::a1_sliding();
+//! scene.duration = 0.1;
+//! let mut solver = NewtonSolver::new(NewtonSettings::default());
+//! let loss = TerminalPositionLoss { body: 0, target: nalgebra::Vector3::zeros(), weight: 1.0 };
+//! let g = trajectory_gradient(&scene, &[Param::Mu], &loss, &mut solver, GradientMode::Adjoint)
+//!     .unwrap();
+//! // x_K = h Σ_k (1 − μ g h k) ⇒ dx_K/dμ = −g h² Σ k = −9.8e-4 · 55; L = x_K² + H².
+//! let x = g.records.last().unwrap().bodies[0].x.x;
+//! assert!((g.gradient[0] - 2.0 * x * (-9.8e-4 * 55.0)).abs() < 1e-9);
+//! assert!(g.events.is_empty());
+//! ```
+
+use std::fmt;
+use std::str::FromStr;
+
+use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
+
+use ecp_model::sensitivity::{
+    ActiveSetOptions, ComponentStatus, ImplicitError, ReducedSystem, SolveKind, classify,
+};
+use ecp_model::{Mcp, McpSolver, ModelError, ResId};
+
+use crate::formulation::Formulation;
+use crate::geometry::MassProperties;
+use crate::stepper::{BodyState, Load, Scene, SceneError, Simulation, StepRecord};
+
+/// Size of one body's state passed between steps: x (3), Q normalised (4), v (3), ω (3).
+pub const STATE_SIZE: usize = 13;
+/// Step inputs per body ([`StepInput`]): mass, inertia (6), x, Q, v, ω, force, torque.
+pub const BODY_INPUTS: usize = 26;
+/// Step inputs shared by all bodies: μ, e_t, e_o, e_r.
+pub const FRICTION_INPUTS: usize = 4;
+
+/// An entry of the symmetric body-frame inertia matrix, the inertia parametrisation of the
+/// sensitivities: an off-diagonal entry moves both `I_ij` and `I_ji`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InertiaEntry {
+    /// `I_xx`.
+    Xx,
+    /// `I_yy`.
+    Yy,
+    /// `I_zz`.
+    Zz,
+    /// `I_xy = I_yx`.
+    Xy,
+    /// `I_xz = I_zx`.
+    Xz,
+    /// `I_yz = I_zy`.
+    Yz,
+}
+
+impl InertiaEntry {
+    /// The six entries, in the order of the data of the Newton–Euler block.
+    pub const ALL: [InertiaEntry; 6] = [
+        InertiaEntry::Xx,
+        InertiaEntry::Yy,
+        InertiaEntry::Zz,
+        InertiaEntry::Xy,
+        InertiaEntry::Xz,
+        InertiaEntry::Yz,
+    ];
+    /// Index 0..6 in [`InertiaEntry::ALL`].
+    pub fn index(&self) -> usize {
+        *self as usize
+    }
+    /// `(row, col)` of the entry (row ≤ col).
+    pub fn position(&self) -> (usize, usize) {
+        crate::blocks::INERTIA_ENTRIES[self.index()]
+    }
+    fn suffix(&self) -> &'static str {
+        ["xx", "yy", "zz", "xy", "xz", "yz"][self.index()]
+    }
+}
+
+/// A scalar model parameter θ of a [`Scene`], for trajectory gradients and fitting.
+///
+/// Names (for [`Param::from_str`] and `Display`): `mu`, `e_t`, `e_o`, `e_r`; per body `mass`,
+/// `i_xx`, `i_yy`, `i_zz`, `i_xy`, `i_xz`, `i_yz`, the initial state `x0`, `y0`, `z0`, `qw0`,
+/// `qx0`, `qy0`, `qz0`, `vx0`, `vy0`, `vz0`, `wx0`, `wy0`, `wz0`, and the components of a
+/// constant applied load `fx`, `fy`, `fz`, `tx`, `ty`, `tz`; a body other than 0 is written
+/// `mass[1]`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Param {
+    /// Friction coefficient μ (all contacts).
+    Mu,
+    /// Tangential semi-axis e_t of the friction ellipsoid.
+    Et,
+    /// Tangential semi-axis e_o.
+    Eo,
+    /// Torsional semi-axis e_r (m).
+    Er,
+    /// Mass of a body.
+    Mass {
+        /// Body index.
+        body: usize,
+    },
+    /// An entry of a body's body-frame inertia.
+    Inertia {
+        /// Body index.
+        body: usize,
+        /// Which entry.
+        entry: InertiaEntry,
+    },
+    /// A coordinate of a body's initial CM position.
+    InitialPosition {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2 for x, y, z.
+        axis: usize,
+    },
+    /// A component of a body's initial quaternion (w, x, y, z) as given in the scene; the
+    /// simulation normalises it, and the derivative goes through that normalisation.
+    InitialOrientation {
+        /// Body index.
+        body: usize,
+        /// 0..4 for w, x, y, z.
+        component: usize,
+    },
+    /// A component of a body's initial linear velocity.
+    InitialVelocity {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2 for x, y, z.
+        axis: usize,
+    },
+    /// A component of a body's initial angular velocity (world frame).
+    InitialAngularVelocity {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2 for x, y, z.
+        axis: usize,
+    },
+    /// A component of a body's constant applied wrench (`Load::Constant`, or `Load::None` read
+    /// as zero): 0..3 force, 3..6 torque. Its gradient is the sum of the per-step wrench
+    /// gradients; a load given as a function of time has no such parameter.
+    Load {
+        /// Body index.
+        body: usize,
+        /// 0..6: fx, fy, fz, τx, τy, τz.
+        component: usize,
+    },
+}
+
+const STATE_NAMES: [&str; 13] = [
+    "x0", "y0", "z0", "qw0", "qx0", "qy0", "qz0", "vx0", "vy0", "vz0", "wx0", "wy0", "wz0",
+];
+const LOAD_NAMES: [&str; 6] = ["fx", "fy", "fz", "tx", "ty", "tz"];
+
+impl Param {
+    /// The body the parameter belongs to (`None` for the friction parameters).
+    pub fn body(&self) -> Option<usize> {
+        match *self {
+            Param::Mu | Param::Et | Param::Eo | Param::Er => None,
+            Param::Mass { body }
+            | Param::Inertia { body, .. }
+            | Param::InitialPosition { body, .. }
+            | Param::InitialOrientation { body, .. }
+            | Param::InitialVelocity { body, .. }
+            | Param::InitialAngularVelocity { body, .. }
+            | Param::Load { body, .. } => Some(body),
+        }
+    }
+
+    fn check_index(&self, scene: &Scene) -> Result<(), SensitivityError> {
+        let (index, limit) = match *self {
+            Param::InitialPosition { axis, .. }
+            | Param::InitialVelocity { axis, .. }
+            | Param::InitialAngularVelocity { axis, .. } => (axis, 3),
+            Param::InitialOrientation { component, .. } => (component, 4),
+            Param::Load { component, .. } => (component, 6),
+            _ => (0, 1),
+        };
+        if index >= limit {
+            return Err(SensitivityError::Param(format!(
+                "parameter {self:?}: component {index} out of range (0..{limit})"
+            )));
+        }
+        if let Some(b) = self.body()
+            && b >= scene.bodies.len()
+        {
+            return Err(SensitivityError::Param(format!(
+                "parameter {self} names body {b}, but scene '{}' has {} bod{}",
+                scene.name,
+                scene.bodies.len(),
+                if scene.bodies.len() == 1 { "y" } else { "ies" }
+            )));
+        }
+        Ok(())
+    }
+
+    /// The parameter's value in `scene`.
+    pub fn get(&self, scene: &Scene) -> Result<f64, SensitivityError> {
+        self.check_index(scene)?;
+        let f = &scene.friction;
+        Ok(match *self {
+            Param::Mu => f.mu,
+            Param::Et => f.e_t,
+            Param::Eo => f.e_o,
+            Param::Er => f.e_r,
+            Param::Mass { body } => scene.bodies[body].mass.mass,
+            Param::Inertia { body, entry } => {
+                let (i, j) = entry.position();
+                scene.bodies[body].mass.inertia[(i, j)]
+            }
+            Param::InitialPosition { body, axis } => scene.bodies[body].initial.x[axis],
+            Param::InitialOrientation { body, component } => {
+                scene.bodies[body].initial.q[component]
+            }
+            Param::InitialVelocity { body, axis } => scene.bodies[body].initial.v[axis],
+            Param::InitialAngularVelocity { body, axis } => scene.bodies[body].initial.w[axis],
+            Param::Load { body, component } => match &scene.bodies[body].load {
+                Load::None => 0.0,
+                Load::Constant(w) => w[component],
+                Load::Function(_) => return Err(self.function_load(scene, body)),
+            },
+        })
+    }
+
+    fn function_load(&self, scene: &Scene, body: usize) -> SensitivityError {
+        SensitivityError::Param(format!(
+            "parameter {self}: the load of body '{}' is a function of time, not a constant; \
+             use the per-step wrench gradient (TrajectoryGradient::wrench_gradient) and chain \
+             your load parametrisation through it",
+            scene.bodies[body].name
+        ))
+    }
+
+    /// Sets the parameter's value in `scene`, with the checks the simulation makes (μ ≥ 0,
+    /// e_t, e_o, e_r > 0, mass > 0, a symmetric positive definite inertia, finite values).
+    pub fn set(&self, scene: &mut Scene, value: f64) -> Result<(), SensitivityError> {
+        self.check_index(scene)?;
+        let invalid = |hint: &'static str| SensitivityError::Invalid {
+            param: self.to_string(),
+            value,
+            hint,
+        };
+        if !value.is_finite() {
+            return Err(invalid("parameter values must be finite"));
+        }
+        let f = &mut scene.friction;
+        match *self {
+            Param::Mu if value < 0.0 => return Err(invalid("μ must be ≥ 0")),
+            Param::Mu => f.mu = value,
+            Param::Et | Param::Eo | Param::Er if value <= 0.0 => {
+                return Err(invalid("the ellipsoid semi-axes e_t, e_o, e_r must be > 0"));
+            }
+            Param::Et => f.e_t = value,
+            Param::Eo => f.e_o = value,
+            Param::Er => f.e_r = value,
+            Param::Mass { body } => {
+                let mp = &scene.bodies[body].mass;
+                scene.bodies[body].mass = MassProperties::new(value, mp.inertia)
+                    .map_err(|_| invalid("the mass must be > 0"))?;
+            }
+            Param::Inertia { body, entry } => {
+                let mp = &scene.bodies[body].mass;
+                let (i, j) = entry.position();
+                let mut inertia: Matrix3<f64> = mp.inertia;
+                inertia[(i, j)] = value;
+                inertia[(j, i)] = value;
+                scene.bodies[body].mass = MassProperties::new(mp.mass, inertia)
+                    .map_err(|_| invalid("the inertia must stay symmetric positive definite"))?;
+            }
+            Param::InitialPosition { body, axis } => scene.bodies[body].initial.x[axis] = value,
+            Param::InitialOrientation { body, component } => {
+                scene.bodies[body].initial.q[component] = value;
+            }
+            Param::InitialVelocity { body, axis } => scene.bodies[body].initial.v[axis] = value,
+            Param::InitialAngularVelocity { body, axis } => {
+                scene.bodies[body].initial.w[axis] = value;
+            }
+            Param::Load { body, component } => {
+                let mut w = match &scene.bodies[body].load {
+                    Load::None => Vector6::zeros(),
+                    Load::Constant(w) => *w,
+                    Load::Function(_) => return Err(self.function_load(scene, body)),
+                };
+                w[component] = value;
+                scene.bodies[body].load = Load::Constant(w);
+            }
+        }
+        Ok(())
+    }
+
+    /// The step input this parameter is at every step, if it is one (the initial-state
+    /// parameters enter through the initial state instead).
+    fn step_input(&self) -> Option<StepInput> {
+        Some(match *self {
+            Param::Mu => StepInput::Mu,
+            Param::Et => StepInput::Et,
+            Param::Eo => StepInput::Eo,
+            Param::Er => StepInput::Er,
+            Param::Mass { body } => StepInput::Mass { body },
+            Param::Inertia { body, entry } => StepInput::Inertia { body, entry },
+            Param::Load { body, component } if component < 3 => StepInput::Force {
+                body,
+                axis: component,
+            },
+            Param::Load { body, component } => StepInput::Torque {
+                body,
+                axis: component - 3,
+            },
+            _ => return None,
+        })
+    }
+}
+
+impl fmt::Display for Param {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let (name, body): (String, Option<usize>) = match *self {
+            Param::Mu => ("mu".into(), None),
+            Param::Et => ("e_t".into(), None),
+            Param::Eo => ("e_o".into(), None),
+            Param::Er => ("e_r".into(), None),
+            Param::Mass { body } => ("mass".into(), Some(body)),
+            Param::Inertia { body, entry } => (format!("i_{}", entry.suffix()), Some(body)),
+            Param::InitialPosition { body, axis } => (STATE_NAMES[axis % 3].into(), Some(body)),
+            Param::InitialOrientation { body, component } => {
+                (STATE_NAMES[3 + component % 4].into(), Some(body))
+            }
+            Param::InitialVelocity { body, axis } => (STATE_NAMES[7 + axis % 3].into(), Some(body)),
+            Param::InitialAngularVelocity { body, axis } => {
+                (STATE_NAMES[10 + axis % 3].into(), Some(body))
+            }
+            Param::Load { body, component } => (LOAD_NAMES[component % 6].into(), Some(body)),
+        };
+        match body {
+            Some(b) if b > 0 => write!(f, "{name}[{b}]"),
+            _ => f.write_str(&name),
+        }
+    }
+}
+
+impl FromStr for Param {
+    type Err = SensitivityError;
+    fn from_str(s: &str) -> Result<Self, SensitivityError> {
+        let s = s.trim();
+        let (name, body) = match s.split_once('[') {
+            Some((n, rest)) => {
+                let b = rest
+                    .strip_suffix(']')
+                    .and_then(|b| b.trim().parse::<usize>().ok())
+                    .ok_or_else(|| {
+                        SensitivityError::Param(format!(
+                            "parameter \"{s}\": a body index is written name[b] with b a number, e.g. mass[1]"
+                        ))
+                    })?;
+                (n.trim(), b)
+            }
+            None => (s, 0),
+        };
+        let global = match name {
+            "mu" => Some(Param::Mu),
+            "e_t" => Some(Param::Et),
+            "e_o" => Some(Param::Eo),
+            "e_r" => Some(Param::Er),
+            _ => None,
+        };
+        if let Some(p) = global {
+            if s.contains('[') {
+                return Err(SensitivityError::Param(format!(
+                    "parameter \"{s}\": {name} is shared by all contacts and takes no body index"
+                )));
+            }
+            return Ok(p);
+        }
+        if name == "mass" {
+            return Ok(Param::Mass { body });
+        }
+        if let Some(e) = InertiaEntry::ALL
+            .iter()
+            .find(|e| name == format!("i_{}", e.suffix()))
+        {
+            return Ok(Param::Inertia { body, entry: *e });
+        }
+        if let Some(k) = STATE_NAMES.iter().position(|n| *n == name) {
+            return Ok(match k {
+                0..3 => Param::InitialPosition { body, axis: k },
+                3..7 => Param::InitialOrientation {
+                    body,
+                    component: k - 3,
+                },
+                7..10 => Param::InitialVelocity { body, axis: k - 7 },
+                _ => Param::InitialAngularVelocity { body, axis: k - 10 },
+            });
+        }
+        if let Some(k) = LOAD_NAMES.iter().position(|n| *n == name) {
+            return Ok(Param::Load { body, component: k });
+        }
+        Err(SensitivityError::Param(format!(
+            "unknown parameter \"{s}\"; the parameters are mu, e_t, e_o, e_r, mass, \
+             i_xx, i_yy, i_zz, i_xy, i_xz, i_yz, {}, {} (a body other than 0 as mass[1])",
+            STATE_NAMES.join(", "),
+            LOAD_NAMES.join(", ")
+        )))
+    }
+}
+
+/// An input of one step: the columns of a [`StepSensitivity`].
+///
+/// Column layout ([`StepInput::index`]): μ, e_t, e_o, e_r, then per body
+/// ([`BODY_INPUTS`] = 26): mass, the six inertia entries, the start-of-step position (3),
+/// quaternion (4, the stored unit `Q^u`), velocity (3), angular velocity (3), and the applied
+/// force (3) and torque (3) of the step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum StepInput {
+    /// μ.
+    Mu,
+    /// e_t.
+    Et,
+    /// e_o.
+    Eo,
+    /// e_r.
+    Er,
+    /// Mass of a body.
+    Mass {
+        /// Body index.
+        body: usize,
+    },
+    /// An entry of a body's inertia.
+    Inertia {
+        /// Body index.
+        body: usize,
+        /// Which entry.
+        entry: InertiaEntry,
+    },
+    /// Start-of-step CM position `x^u`.
+    Position {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2.
+        axis: usize,
+    },
+    /// Start-of-step quaternion `Q^u` (a component of the 4-vector).
+    Orientation {
+        /// Body index.
+        body: usize,
+        /// 0..4 for w, x, y, z.
+        component: usize,
+    },
+    /// Start-of-step velocity `v^u`.
+    Velocity {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2.
+        axis: usize,
+    },
+    /// Start-of-step angular velocity `ω^u`.
+    AngularVelocity {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2.
+        axis: usize,
+    },
+    /// Applied force of the step (at the CM, world frame).
+    Force {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2.
+        axis: usize,
+    },
+    /// Applied torque of the step (world frame).
+    Torque {
+        /// Body index.
+        body: usize,
+        /// 0, 1, 2.
+        axis: usize,
+    },
+}
+
+impl StepInput {
+    /// Column of this input for a scene of `bodies` bodies (`None` when out of range).
+    pub fn index(&self, bodies: usize) -> Option<usize> {
+        let (body, offset, len, k) = match *self {
+            StepInput::Mu => return Some(0),
+            StepInput::Et => return Some(1),
+            StepInput::Eo => return Some(2),
+            StepInput::Er => return Some(3),
+            StepInput::Mass { body } => (body, 0, 1, 0),
+            StepInput::Inertia { body, entry } => (body, 1, 6, entry.index()),
+            StepInput::Position { body, axis } => (body, 7, 3, axis),
+            StepInput::Orientation { body, component } => (body, 10, 4, component),
+            StepInput::Velocity { body, axis } => (body, 14, 3, axis),
+            StepInput::AngularVelocity { body, axis } => (body, 17, 3, axis),
+            StepInput::Force { body, axis } => (body, 20, 3, axis),
+            StepInput::Torque { body, axis } => (body, 23, 3, axis),
+        };
+        (body < bodies && k < len).then_some(FRICTION_INPUTS + BODY_INPUTS * body + offset + k)
+    }
+
+    /// Every step input of a scene with `bodies` bodies, in column order.
+    pub fn all(bodies: usize) -> Vec<StepInput> {
+        let mut v = vec![StepInput::Mu, StepInput::Et, StepInput::Eo, StepInput::Er];
+        for body in 0..bodies {
+            v.push(StepInput::Mass { body });
+            v.extend(
+                InertiaEntry::ALL
+                    .iter()
+                    .map(|&entry| StepInput::Inertia { body, entry }),
+            );
+            v.extend((0..3).map(|axis| StepInput::Position { body, axis }));
+            v.extend((0..4).map(|component| StepInput::Orientation { body, component }));
+            v.extend((0..3).map(|axis| StepInput::Velocity { body, axis }));
+            v.extend((0..3).map(|axis| StepInput::AngularVelocity { body, axis }));
+            v.extend((0..3).map(|axis| StepInput::Force { body, axis }));
+            v.extend((0..3).map(|axis| StepInput::Torque { body, axis }));
+        }
+        v
+    }
+}
+
+/// Errors of the sensitivity computations.
+#[derive(Debug, thiserror::Error)]
+pub enum SensitivityError {
+    /// No step to differentiate.
+    #[error(
+        "no step to differentiate: call step_sensitivity right after Simulation::step (prepare_step replaces the step's data)"
+    )]
+    NoStep,
+    /// The step did not converge: its derivatives would be meaningless.
+    #[error(
+        "step {step} did not converge (natural residual {residual:.3e}); sensitivities need a converged step: try another solver (--solver path) or a smaller h"
+    )]
+    NotConverged {
+        /// The step.
+        step: usize,
+        /// Its natural residual.
+        residual: f64,
+    },
+    /// A parameter name or index is wrong.
+    #[error("{0}")]
+    Param(String),
+    /// A parameter value is out of range.
+    #[error("{param} = {value} is invalid: {hint}")]
+    Invalid {
+        /// The parameter.
+        param: String,
+        /// The value given.
+        value: f64,
+        /// How to fix it.
+        hint: &'static str,
+    },
+    /// The loss does not fit the scene (reference length, body index).
+    #[error("loss: {0}")]
+    Loss(String),
+    /// Setting up or stepping the simulation failed.
+    #[error(transparent)]
+    Scene(#[from] SceneError),
+    /// The implicit differentiation failed.
+    #[error(transparent)]
+    Implicit(#[from] ImplicitError),
+    /// The modelling layer rejected a request.
+    #[error("model: {0}")]
+    Model(#[from] ModelError),
+}
+
+/// Options of the step sensitivities.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct SensitivityOptions {
+    /// Active-set classification and degeneracy tolerances.
+    pub active_set: ActiveSetOptions,
+}
+
+/// A degenerate point met by a step sensitivity (module documentation).
+#[derive(Clone, Debug, PartialEq)]
+pub enum Degeneracy {
+    /// A component at its bound with residual ≈ 0, held at the bound.
+    WeaklyActive {
+        /// Component name, e.g. `"contact.pn[0]"`.
+        component: String,
+        /// Index in `z`.
+        index: usize,
+        /// `max_k |dF_i/dθ_k|` along the held branch.
+        slope: f64,
+        /// True when the slope is 0 (to the tolerance): the derivative is two-sided.
+        two_sided: bool,
+    },
+    /// A contact with `p_n` at 0: its friction impulses and σ are held.
+    FrictionHeld {
+        /// Contact index ([`Simulation::contacts`]).
+        contact: usize,
+    },
+    /// The reduced Jacobian is singular: minimum-norm derivative.
+    Singular {
+        /// Relative residual of the regularised solve (≈ 0: consistent).
+        consistency: f64,
+    },
+    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not
+    /// unique (a hull edge or face parallel to the plane, formulation.md §6): they got the
+    /// minimum-norm derivative. The motion derivatives do not depend on them (they enter
+    /// Newton–Euler and friction only through `p_n` and `p_f`, both 0), so a trajectory does not
+    /// report this; `consistency` ≫ 0 means the ECP's derivative does not exist (it jumps).
+    SeparatedGeometry {
+        /// Relative residual of the regularised solve of that sub-block.
+        consistency: f64,
+    },
+}
+
+impl Degeneracy {
+    /// True when the derivative is not a plain two-sided derivative here (a one-sided weakly
+    /// active component or a singular system): what a trajectory reports as an event.
+    pub fn is_reportable(&self) -> bool {
+        match self {
+            Degeneracy::WeaklyActive { two_sided, .. } => !two_sided,
+            Degeneracy::FrictionHeld { .. } | Degeneracy::SeparatedGeometry { .. } => false,
+            Degeneracy::Singular { .. } => true,
+        }
+    }
+}
+
+/// The derivatives of one step (module documentation).
+#[derive(Clone, Debug, PartialEq)]
+pub struct StepSensitivity {
+    /// The step differentiated (from 1).
+    pub step: usize,
+    /// The columns: every step input ([`StepInput::all`]).
+    pub inputs: Vec<StepInput>,
+    /// Number of unknowns `n` of the step problem.
+    pub n: usize,
+    /// `dz*/d(input)`, `n × inputs.len()`, column-major, in the layout of
+    /// [`Simulation::mcp`]: ν, q (Q before renormalisation), ECPs, multipliers, impulses.
+    pub dz: Vec<f64>,
+    /// Derivatives of the stored end-of-step state, `(13 · bodies) × inputs.len()`,
+    /// column-major: per body x, Q (renormalised), v, ω.
+    pub state: Vec<f64>,
+    /// The active-set status of every component of `z`.
+    pub status: Vec<ComponentStatus>,
+    /// Degenerate points met.
+    pub degeneracies: Vec<Degeneracy>,
+    /// How the reduced system of the motion (and of the closed contacts) was solved.
+    pub solve: SolveKind,
+}
+
+impl StepSensitivity {
+    /// Column of `input`, if the step has it.
+    pub fn column(&self, input: StepInput) -> Option<usize> {
+        self.inputs.iter().position(|i| *i == input)
+    }
+    /// `dz*/d(input)` (length `n`), or `None` for an input the scene does not have.
+    pub fn dz(&self, input: StepInput) -> Option<&[f64]> {
+        let c = self.column(input)?;
+        Some(&self.dz[c * self.n..(c + 1) * self.n])
+    }
+    /// Derivative of the stored end-of-step state (13 per body) with respect to `input`.
+    pub fn d_state(&self, input: StepInput) -> Option<&[f64]> {
+        let c = self.column(input)?;
+        let m = self.state.len() / self.inputs.len().max(1);
+        Some(&self.state[c * m..(c + 1) * m])
+    }
+    /// True when no reportable degeneracy was met ([`Degeneracy::is_reportable`]).
+    pub fn is_regular(&self) -> bool {
+        !self.degeneracies.iter().any(Degeneracy::is_reportable)
+    }
+}
+
+/// Where a residual block's data go among the step inputs.
+#[derive(Clone, Copy)]
+enum DataMap {
+    None,
+    /// Newton–Euler of a body: data (NEWTON_EULER_DATA) → body inputs.
+    NewtonEuler(usize),
+    /// Kinematic map of a body: x^u, Q^u.
+    Kinematic(usize),
+    /// Friction blocks: μ, e_t, e_o, e_r.
+    Friction,
+}
+
+/// Offsets within a body's inputs of the Newton–Euler data (mass, inertia, Q^u, v^u, ω^u,
+/// force, torque).
+fn newton_euler_column(k: usize) -> usize {
+    match k {
+        0..7 => k,           // mass, inertia
+        7..11 => 10 + k - 7, // Q^u
+        _ => 14 + k - 11,    // v^u, ω^u, force, torque (contiguous)
+    }
+}
+
+/// Step-sensitivity workspace, reused from step to step (the reduced system keeps its
+/// symbolic analysis).
+#[derive(Debug, Default)]
+pub struct StepDifferentiator {
+    options: SensitivityOptions,
+    system: ReducedSystem,
+}
+
+impl StepDifferentiator {
+    /// A workspace with the given options.
+    pub fn new(options: SensitivityOptions) -> Self {
+        StepDifferentiator {
+            options,
+            system: ReducedSystem::new(),
+        }
+    }
+
+    /// The step sensitivities of the last step `sim` took (module documentation).
+    pub fn differentiate(&mut self, sim: &Simulation) -> Result<StepSensitivity, SensitivityError> {
+        let last = sim.last_step().ok_or(SensitivityError::NoStep)?;
+        let mcp = sim.mcp();
+        let n = mcp.dim();
+        let z = &last.z;
+        let mut f = vec![0.0; n];
+        mcp.evaluate(z, &mut f);
+        if !last.converged {
+            return Err(SensitivityError::NotConverged {
+                step: last.step,
+                residual: ecp_model::natural_residual(z, &f, mcp.lower(), mcp.upper()),
+            });
+        }
+        let opts = &self.options.active_set;
+        let mut status = classify(z, &f, mcp.lower(), mcp.upper(), opts);
+        let mut degeneracies = Vec::new();
+        // Contacts with p_n at 0: friction held; their closest-point unknowns (a1, a2, l, l_g)
+        // do not enter the motion rows while p_n = p_f = 0, so they are solved in a second
+        // stage (below) and cannot spoil the motion derivatives when they are not unique.
+        let mut geometry = Vec::new();
+        for (i, c) in sim.contacts().iter().enumerate() {
+            let pn = mcp.offset(c.pn);
+            if status[pn] != ComponentStatus::Free {
+                for k in mcp.range(c.pf).chain(mcp.range(c.sigma)) {
+                    status[k] = ComponentStatus::Held;
+                }
+                degeneracies.push(Degeneracy::FrictionHeld { contact: i });
+                for v in [c.a1, c.a2, c.l, c.lg] {
+                    geometry.extend(mcp.range(v));
+                }
+            }
+        }
+        let bodies = sim.scene().bodies.len();
+        let inputs = StepInput::all(bodies);
+        let p = inputs.len();
+        let mut map = vec![DataMap::None; mcp.num_residual_blocks()];
+        for b in 0..bodies {
+            let (ne, km) = sim.body_blocks(b);
+            map[ne.0] = DataMap::NewtonEuler(b);
+            map[km.0] = DataMap::Kinematic(b);
+        }
+        for r in sim.friction_blocks() {
+            map[r.0] = DataMap::Friction;
+        }
+        let column = |r: ResId, k: usize| -> Option<usize> {
+            let base = |b: usize| FRICTION_INPUTS + BODY_INPUTS * b;
+            match map[r.0] {
+                DataMap::None => None,
+                DataMap::Friction => (k < FRICTION_INPUTS).then_some(k),
+                DataMap::NewtonEuler(b) => {
+                    let (block, _, _) = mcp.residual_block(r);
+                    // Only the body-data form has the layout of NEWTON_EULER_DATA.
+                    (block.num_data() == crate::blocks::NEWTON_EULER_DATA.len())
+                        .then(|| base(b) + newton_euler_column(k))
+                }
+                DataMap::Kinematic(b) => (k < 7).then_some(base(b) + 7 + k),
+            }
+        };
+        let mut rhs = vec![0.0; n * p];
+        mcp.data_jacobian(z, p, &column, &mut rhs)?;
+        // Stage 1: everything but the held-contact geometry.
+        let mut first = status.clone();
+        for &i in &geometry {
+            first[i] = ComponentStatus::Held;
+        }
+        let d = self.system.differentiate(mcp, z, &first, &rhs, p, opts)?;
+        let mut dz = d.dz;
+        if let SolveKind::Regularised { consistency } = d.solve {
+            degeneracies.push(Degeneracy::Singular { consistency });
+        }
+        // Stage 2: the held-contact geometry, the rest fixed at its stage-1 derivative:
+        // J_gg dz_g = −(∂F_g/∂θ + J_g· dz₁).
+        if !geometry.is_empty() {
+            let pattern = mcp.jacobian_pattern().clone();
+            let jac = self.system.jacobian_values().to_vec();
+            let mut second = vec![ComponentStatus::Held; n];
+            for &i in &geometry {
+                second[i] = status[i];
+            }
+            let mut rhs2 = rhs.clone();
+            let mut jdz = vec![0.0; n];
+            for c in 0..p {
+                pattern.mul_vec(&jac, &dz[c * n..(c + 1) * n], &mut jdz);
+                for (r, j) in rhs2[c * n..(c + 1) * n].iter_mut().zip(&jdz) {
+                    *r += j;
+                }
+            }
+            let d2 = self.system.differentiate(mcp, z, &second, &rhs2, p, opts)?;
+            for (a, b) in dz.iter_mut().zip(&d2.dz) {
+                *a += b;
+            }
+            if let SolveKind::Regularised { consistency } = d2.solve {
+                degeneracies.push(Degeneracy::SeparatedGeometry { consistency });
+            }
+        }
+        // Slopes along the combined derivative (stage 1 alone holds the contact geometry).
+        let weak = self.system.weak_slopes(mcp, &status, &dz, &rhs, p, opts);
+        for w in &weak {
+            degeneracies.push(Degeneracy::WeaklyActive {
+                component: mcp.component_name(w.index),
+                index: w.index,
+                slope: w.slope,
+                two_sided: w.two_sided,
+            });
+        }
+        // The stored state: x, Q/|Q|, v, ω.
+        let m = STATE_SIZE * bodies;
+        let mut state = vec![0.0; m * p];
+        for b in 0..bodies {
+            let (nu_id, q_id) = sim.body_vars(b);
+            let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
+            let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
+            let norm = qraw.norm();
+            let qn = qraw / norm;
+            for c in 0..p {
+                let col = &dz[c * n..(c + 1) * n];
+                let out = &mut state[c * m + STATE_SIZE * b..c * m + STATE_SIZE * (b + 1)];
+                out[..3].copy_from_slice(&col[q0..q0 + 3]);
+                let dq = Vector4::new(col[q0 + 3], col[q0 + 4], col[q0 + 5], col[q0 + 6]);
+                let dqn = (dq - qn * qn.dot(&dq)) / norm;
+                out[3..7].copy_from_slice(dqn.as_slice());
+                out[7..13].copy_from_slice(&col[nu0..nu0 + 6]);
+            }
+        }
+        let solve = degeneracies
+            .iter()
+            .find_map(|d| match d {
+                Degeneracy::Singular { consistency } => Some(SolveKind::Regularised {
+                    consistency: *consistency,
+                }),
+                _ => None,
+            })
+            .unwrap_or(SolveKind::Direct);
+        Ok(StepSensitivity {
+            step: last.step,
+            inputs,
+            n,
+            dz,
+            state,
+            status,
+            degeneracies,
+            solve,
+        })
+    }
+}
+
+/// The step sensitivities of the last step `sim` took ([`StepDifferentiator::differentiate`]
+/// with a fresh workspace; keep a [`StepDifferentiator`] to reuse it across steps).
+pub fn step_sensitivity(
+    sim: &Simulation,
+    options: &SensitivityOptions,
+) -> Result<StepSensitivity, SensitivityError> {
+    StepDifferentiator::new(*options).differentiate(sim)
+}
+
+/// A scalar loss of a trajectory, a sum of per-step terms of the body states after each step.
+pub trait TrajectoryLoss {
+    /// Checks that the loss fits `scene` run for `steps` steps; the message says what is wrong.
+    fn check(&self, _scene: &Scene, _steps: usize) -> Result<(), String> {
+        Ok(())
+    }
+    /// The term of the step of `record` (of `steps` in all), and its gradient with respect to
+    /// the body states after the step, added into `grad` (13 per body: x, Q, v, ω; zeroed by
+    /// the caller).
+    fn step_term(&self, record: &StepRecord, steps: usize, grad: &mut [f64]) -> f64;
+}
+
+/// Weights of the terms of a [`ReferenceLoss`] (all ≥ 0).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReferenceWeights {
+    /// On `|x − x_ref|²` (1/m²).
+    pub position: f64,
+    /// On `1 − (Q·Q_ref)²` (≈ θ²/4 for a small rotation θ between the two; sign-invariant).
+    pub orientation: f64,
+    /// On the squared yaw difference, wrapped to (−π, π] (yaw = rotation about world z of the
+    /// body x axis, `atan2(2(wz + xy), 1 − 2(y² + z²))`).
+    pub yaw: f64,
+    /// On `|v − v_ref|²`.
+    pub velocity: f64,
+    /// On `|ω − ω_ref|²`.
+    pub angular_velocity: f64,
+}
+
+impl Default for ReferenceWeights {
+    /// Position only (weight 1).
+    fn default() -> Self {
+        ReferenceWeights {
+            position: 1.0,
+            orientation: 0.0,
+            yaw: 0.0,
+            velocity: 0.0,
+            angular_velocity: 0.0,
+        }
+    }
+}
+
+/// `L = Σ_steps Σ_bodies` of the weighted squared differences to a reference trajectory
+/// ([`ReferenceWeights`]).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ReferenceLoss {
+    /// Reference states: `reference[k][b]` is body `b` after step `k + 1`.
+    pub reference: Vec<Vec<BodyState>>,
+    /// Term weights.
+    pub weights: ReferenceWeights,
+}
+
+impl ReferenceLoss {
+    /// From reference states `reference[k][b]` (body `b` after step `k + 1`).
+    pub fn new(reference: Vec<Vec<BodyState>>, weights: ReferenceWeights) -> Self {
+        ReferenceLoss { reference, weights }
+    }
+    /// From the records of a run.
+    pub fn from_records(records: &[StepRecord], weights: ReferenceWeights) -> Self {
+        Self::new(records.iter().map(|r| r.bodies.clone()).collect(), weights)
+    }
+}
+
+/// Yaw of a unit quaternion and its gradient with respect to (w, x, y, z).
+pub fn yaw_and_gradient(q: &Vector4<f64>) -> (f64, Vector4<f64>) {
+    let (w, x, y, z) = (q[0], q[1], q[2], q[3]);
+    let a = 2.0 * (w * z + x * y);
+    let b = 1.0 - 2.0 * (y * y + z * z);
+    let da = Vector4::new(2.0 * z, 2.0 * y, 2.0 * x, 2.0 * w);
+    let db = Vector4::new(0.0, 0.0, -4.0 * y, -4.0 * z);
+    let r2 = a * a + b * b;
+    let grad = if r2 > 0.0 {
+        (da * b - db * a) / r2
+    } else {
+        Vector4::zeros()
+    };
+    (a.atan2(b), grad)
+}
+
+/// An angle wrapped to (−π, π].
+fn wrap(a: f64) -> f64 {
+    let t = std::f64::consts::TAU;
+    let r = a.rem_euclid(t);
+    if r > std::f64::consts::PI { r - t } else { r }
+}
+
+impl TrajectoryLoss for ReferenceLoss {
+    fn check(&self, scene: &Scene, steps: usize) -> Result<(), String> {
+        let w = &self.weights;
+        for (name, v) in [
+            ("position", w.position),
+            ("orientation", w.orientation),
+            ("yaw", w.yaw),
+            ("velocity", w.velocity),
+            ("angular_velocity", w.angular_velocity),
+        ] {
+            if !(v >= 0.0 && v.is_finite()) {
+                return Err(format!(
+                    "weight {name} = {v}: weights must be finite and ≥ 0"
+                ));
+            }
+        }
+        if self.reference.len() < steps {
+            return Err(format!(
+                "the reference has {} steps, the run has {steps}; give a reference as long as the run (or shorten the scene's duration)",
+                self.reference.len()
+            ));
+        }
+        let nb = scene.bodies.len();
+        if let Some(k) = self.reference[..steps].iter().position(|r| r.len() != nb) {
+            return Err(format!(
+                "reference step {} has {} bodies, the scene has {nb}",
+                k + 1,
+                self.reference[k].len()
+            ));
+        }
+        Ok(())
+    }
+
+    fn step_term(&self, record: &StepRecord, _steps: usize, grad: &mut [f64]) -> f64 {
+        let Some(refs) = record
+            .step
+            .checked_sub(1)
+            .and_then(|k| self.reference.get(k))
+        else {
+            return 0.0;
+        };
+        let w = &self.weights;
+        let mut total = 0.0;
+        for (b, (s, r)) in record.bodies.iter().zip(refs).enumerate() {
+            let g = &mut grad[STATE_SIZE * b..STATE_SIZE * (b + 1)];
+            let dx = s.x - r.x;
+            let dv = s.v - r.v;
+            let dw = s.w - r.w;
+            let c = s.q.dot(&r.q);
+            total += w.position * dx.norm_squared()
+                + w.orientation * (1.0 - c * c)
+                + w.velocity * dv.norm_squared()
+                + w.angular_velocity * dw.norm_squared();
+            for i in 0..3 {
+                g[i] += 2.0 * w.position * dx[i];
+                g[7 + i] += 2.0 * w.velocity * dv[i];
+                g[10 + i] += 2.0 * w.angular_velocity * dw[i];
+            }
+            for i in 0..4 {
+                g[3 + i] += -2.0 * w.orientation * c * r.q[i];
+            }
+            if w.yaw != 0.0 {
+                let (ys, gs) = yaw_and_gradient(&s.q);
+                let (yr, _) = yaw_and_gradient(&r.q);
+                let d = wrap(ys - yr);
+                total += w.yaw * d * d;
+                for i in 0..4 {
+                    g[3 + i] += 2.0 * w.yaw * d * gs[i];
+                }
+            }
+        }
+        total
+    }
+}
+
+/// `L = weight · |x_body − target|²` at the last step (e.g. reach a target at t = 1 s: set the
+/// scene's duration to 1 s).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TerminalPositionLoss {
+    /// Which body's CM.
+    pub body: usize,
+    /// Target CM position.
+    pub target: Vector3<f64>,
+    /// Weight (≥ 0).
+    pub weight: f64,
+}
+
+impl TrajectoryLoss for TerminalPositionLoss {
+    fn check(&self, scene: &Scene, steps: usize) -> Result<(), String> {
+        if self.body >= scene.bodies.len() {
+            return Err(format!(
+                "terminal position of body {}, but the scene has {} bodies",
+                self.body,
+                scene.bodies.len()
+            ));
+        }
+        if !(self.weight >= 0.0 && self.weight.is_finite())
+            || self.target.iter().any(|v| !v.is_finite())
+        {
+            return Err("the weight must be finite and ≥ 0, the target finite".into());
+        }
+        if steps == 0 {
+            return Err("the scene has no steps (duration 0)".into());
+        }
+        Ok(())
+    }
+
+    fn step_term(&self, record: &StepRecord, steps: usize, grad: &mut [f64]) -> f64 {
+        if record.step != steps {
+            return 0.0;
+        }
+        let Some(s) = record.bodies.get(self.body) else {
+            return 0.0;
+        };
+        let d = s.x - self.target;
+        for i in 0..3 {
+            grad[STATE_SIZE * self.body + i] += 2.0 * self.weight * d[i];
+        }
+        self.weight * d.norm_squared()
+    }
+}
+
+/// How [`trajectory_gradient`] accumulates the chain of step Jacobians.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum GradientMode {
+    /// Carries `dstate/dθ` forward (and one tangent per past step's wrench): good for few
+    /// parameters and short runs.
+    Forward,
+    /// One backward sweep of the adjoint state: cost independent of the number of parameters.
+    #[default]
+    Adjoint,
+}
+
+/// Options of [`trajectory_gradient_with`].
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct GradientOptions {
+    /// Forward or adjoint accumulation.
+    pub mode: GradientMode,
+    /// [`Formulation::Hull`] (default) or [`Formulation::Union`].
+    pub formulation: Formulation,
+    /// Step-sensitivity options.
+    pub sensitivity: SensitivityOptions,
+}
+
+/// A mode switch or degeneracy inside the differentiated window.
+#[derive(Clone, Debug, PartialEq)]
+pub enum ModeEventKind {
+    /// A component's active-set status changed since the previous step (a contact opened or
+    /// closed, stick ↔ slip, the ECP reached or left a hull edge): the loss is only piecewise
+    /// smooth across it.
+    ActiveSetChanged {
+        /// Component name.
+        component: String,
+        /// Status at the previous step.
+        from: ComponentStatus,
+        /// Status at this step.
+        to: ComponentStatus,
+    },
+    /// A reportable degeneracy of the step ([`Degeneracy::is_reportable`]).
+    Degenerate(Degeneracy),
+}
+
+/// A [`ModeEventKind`] at a step.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ModeEvent {
+    /// The step (from 1).
+    pub step: usize,
+    /// What happened.
+    pub kind: ModeEventKind,
+}
+
+/// The result of [`trajectory_gradient`].
+#[derive(Clone, Debug)]
+pub struct TrajectoryGradient {
+    /// The loss.
+    pub loss: f64,
+    /// The parameters differentiated.
+    pub params: Vec<Param>,
+    /// `dL/dθ`, one entry per parameter.
+    pub gradient: Vec<f64>,
+    /// `dL/dw_k`: `wrench_gradient[k][b]` is the derivative with respect to the wrench
+    /// `(force, torque)` applied to body `b` over step `k + 1` (evaluated at `t_k = k h`).
+    pub wrench_gradient: Vec<Vec<Vector6<f64>>>,
+    /// The records of the run.
+    pub records: Vec<StepRecord>,
+    /// Mode switches and degeneracies inside the window, in step order.
+    pub events: Vec<ModeEvent>,
+    /// How the gradient was accumulated.
+    pub mode: GradientMode,
+}
+
+/// The loss of a run of `scene` (no derivatives: for derivative-free optimisers), with the
+/// records. A step that does not converge is an error.
+pub fn trajectory_loss(
+    scene: &Scene,
+    loss: &dyn TrajectoryLoss,
+    solver: &mut dyn McpSolver,
+    formulation: Formulation,
+) -> Result<(f64, Vec<StepRecord>), SensitivityError> {
+    let steps = scene.num_steps();
+    loss.check(scene, steps).map_err(SensitivityError::Loss)?;
+    let mut sim = Simulation::with_formulation(scene.clone(), formulation)?;
+    let mut grad = vec![0.0; STATE_SIZE * scene.bodies.len()];
+    let mut total = 0.0;
+    let mut records = Vec::with_capacity(steps);
+    while !sim.finished() {
+        let rec = sim.step(solver)?;
+        if !rec.converged {
+            return Err(SensitivityError::NotConverged {
+                step: rec.step,
+                residual: rec.summary.residual,
+            });
+        }
+        total += loss.step_term(&rec, steps, &mut grad);
+        records.push(rec);
+    }
+    Ok((total, records))
+}
+
+/// The gradient of `loss` over a run of `scene` with respect to `params` and to the wrench of
+/// every step, hull formulation (module documentation).
+pub fn trajectory_gradient(
+    scene: &Scene,
+    params: &[Param],
+    loss: &dyn TrajectoryLoss,
+    solver: &mut dyn McpSolver,
+    mode: GradientMode,
+) -> Result<TrajectoryGradient, SensitivityError> {
+    trajectory_gradient_with(
+        scene,
+        params,
+        loss,
+        solver,
+        &GradientOptions {
+            mode,
+            ..GradientOptions::default()
+        },
+    )
+}
+
+/// [`trajectory_gradient`] with all options.
+pub fn trajectory_gradient_with(
+    scene: &Scene,
+    params: &[Param],
+    loss: &dyn TrajectoryLoss,
+    solver: &mut dyn McpSolver,
+    options: &GradientOptions,
+) -> Result<TrajectoryGradient, SensitivityError> {
+    for p in params {
+        p.get(scene)?;
+    }
+    let steps = scene.num_steps();
+    loss.check(scene, steps).map_err(SensitivityError::Loss)?;
+    let mut sim = Simulation::with_formulation(scene.clone(), options.formulation)?;
+    let nb = scene.bodies.len();
+    let ns = STATE_SIZE * nb;
+    let np = params.len();
+    let inputs = StepInput::all(nb);
+    let pi = inputs.len();
+
+    // Initial tangent ds₀/dθ (ns × np): the initial-state parameters, through the
+    // normalisation of Q that Simulation::new applies.
+    let mut s0 = vec![0.0; ns * np];
+    for (j, p) in params.iter().enumerate() {
+        let col = &mut s0[j * ns..(j + 1) * ns];
+        match *p {
+            Param::InitialPosition { body, axis } => col[STATE_SIZE * body + axis] = 1.0,
+            Param::InitialVelocity { body, axis } => col[STATE_SIZE * body + 7 + axis] = 1.0,
+            Param::InitialAngularVelocity { body, axis } => {
+                col[STATE_SIZE * body + 10 + axis] = 1.0;
+            }
+            Param::InitialOrientation { body, component } => {
+                let q = scene.bodies[body].initial.q;
+                let norm = q.norm();
+                let qn = q / norm;
+                for i in 0..4 {
+                    let e = if i == component { 1.0 } else { 0.0 };
+                    col[STATE_SIZE * body + 3 + i] = (e - qn[i] * qn[component]) / norm;
+                }
+            }
+            _ => {}
+        }
+    }
+    // The step-input column each parameter is at every step.
+    let param_cols: Vec<Option<usize>> = params
+        .iter()
+        .map(|p| p.step_input().and_then(|i| i.index(nb)))
+        .collect();
+    // State component i of body b is step input base(b) + 7 + i (x, Q, v, ω are contiguous).
+    let state_col =
+        |i: usize| FRICTION_INPUTS + BODY_INPUTS * (i / STATE_SIZE) + 7 + i % STATE_SIZE;
+    let wrench_col = |b: usize, c: usize| FRICTION_INPUTS + BODY_INPUTS * b + 20 + c;
+
+    let mut differ = StepDifferentiator::new(options.sensitivity);
+    let mut jacobians: Vec<Vec<f64>> = Vec::with_capacity(steps); // ns × pi per step
+    let mut loss_grads: Vec<Vec<f64>> = Vec::with_capacity(steps);
+    let mut records = Vec::with_capacity(steps);
+    let mut events = Vec::new();
+    let mut total = 0.0;
+    let mut previous: Option<Vec<ComponentStatus>> = None;
+    while !sim.finished() {
+        let rec = sim.step(solver)?;
+        if !rec.converged {
+            return Err(SensitivityError::NotConverged {
+                step: rec.step,
+                residual: rec.summary.residual,
+            });
+        }
+        let sens = differ.differentiate(&sim)?;
+        if let Some(prev) = &previous {
+            for (i, (a, b)) in prev.iter().zip(&sens.status).enumerate() {
+                if a != b {
+                    events.push(ModeEvent {
+                        step: rec.step,
+                        kind: ModeEventKind::ActiveSetChanged {
+                            component: sim.mcp().component_name(i),
+                            from: *a,
+                            to: *b,
+                        },
+                    });
+                }
+            }
+        }
+        for d in sens.degeneracies.iter().filter(|d| d.is_reportable()) {
+            events.push(ModeEvent {
+                step: rec.step,
+                kind: ModeEventKind::Degenerate(d.clone()),
+            });
+        }
+        let mut g = vec![0.0; ns];
+        total += loss.step_term(&rec, steps, &mut g);
+        loss_grads.push(g);
+        previous = Some(sens.status);
+        jacobians.push(sens.state);
+        records.push(rec);
+    }
+    let k_steps = records.len();
+    let entry = |jac: &[f64], row: usize, col: usize| jac[col * ns + row];
+
+    let mut gradient = vec![0.0; np];
+    let mut wrench_gradient = vec![vec![Vector6::zeros(); nb]; k_steps];
+    match options.mode {
+        GradientMode::Adjoint => {
+            let mut lambda = vec![0.0; ns];
+            let mut next = vec![0.0; ns];
+            for k in (0..k_steps).rev() {
+                let jac = &jacobians[k];
+                for (l, g) in lambda.iter_mut().zip(&loss_grads[k]) {
+                    *l += g;
+                }
+                let dot = |col: usize| (0..ns).map(|r| entry(jac, r, col) * lambda[r]).sum::<f64>();
+                for (j, c) in param_cols.iter().enumerate() {
+                    if let Some(c) = c {
+                        gradient[j] += dot(*c);
+                    }
+                }
+                for (b, w) in wrench_gradient[k].iter_mut().enumerate() {
+                    for c in 0..6 {
+                        w[c] = dot(wrench_col(b, c));
+                    }
+                }
+                for (i, v) in next.iter_mut().enumerate() {
+                    *v = dot(state_col(i));
+                }
+                std::mem::swap(&mut lambda, &mut next);
+            }
+            for (j, g) in gradient.iter_mut().enumerate() {
+                *g += (0..ns).map(|r| s0[j * ns + r] * lambda[r]).sum::<f64>();
+            }
+        }
+        GradientMode::Forward => {
+            // Tangents: np parameter columns, then 6 nb columns per past step's wrench.
+            let mut tangent = s0.clone();
+            let mut cols = np;
+            for k in 0..k_steps {
+                let jac = &jacobians[k];
+                // New tangent = G_s · old + G_θ (parameters) or G_w (this step's wrench).
+                let new_cols = cols + 6 * nb;
+                let mut updated = vec![0.0; ns * new_cols];
+                for c in 0..cols {
+                    let old = &tangent[c * ns..(c + 1) * ns];
+                    let out = &mut updated[c * ns..(c + 1) * ns];
+                    for (i, &o) in old.iter().enumerate() {
+                        if o != 0.0 {
+                            let sc = state_col(i);
+                            for (r, v) in out.iter_mut().enumerate() {
+                                *v += entry(jac, r, sc) * o;
+                            }
+                        }
+                    }
+                    if c < np
+                        && let Some(pc) = param_cols[c]
+                    {
+                        for (r, v) in out.iter_mut().enumerate() {
+                            *v += entry(jac, r, pc);
+                        }
+                    }
+                }
+                for b in 0..nb {
+                    for w in 0..6 {
+                        let c = cols + 6 * b + w;
+                        let wc = wrench_col(b, w);
+                        for r in 0..ns {
+                            updated[c * ns + r] = entry(jac, r, wc);
+                        }
+                    }
+                }
+                tangent = updated;
+                cols = new_cols;
+                // Accumulate g_kᵀ · tangent.
+                let g = &loss_grads[k];
+                for c in 0..cols {
+                    let v: f64 = (0..ns).map(|r| g[r] * tangent[c * ns + r]).sum();
+                    if c < np {
+                        gradient[c] += v;
+                    } else {
+                        let w = c - np;
+                        let (step, rest) = (w / (6 * nb), w % (6 * nb));
+                        wrench_gradient[step][rest / 6][rest % 6] += v;
+                    }
+                }
+            }
+        }
+    }
+    let _ = pi;
+    Ok(TrajectoryGradient {
+        loss: total,
+        params: params.to_vec(),
+        gradient,
+        wrench_gradient,
+        records,
+        events,
+        mode: options.mode,
+    })
+}

@@ -1,0 +1,734 @@
+//! Sensitivities of an MCP solution by implicit differentiation with the active set.
+//!
+//! At a solution `z*` of the MCP `(l, u, F(·; θ))` (formulation.md §2) each component is
+//!
+//! - **free** (`l_i < z_i < u_i`, so `F_i = 0`): its row of the implicit function theorem is
+//!   `J_i dz + ∂F_i/∂θ dθ = 0`;
+//! - **strongly active** (at a bound with `F_i` strictly away from 0, of the right sign): a small
+//!   change of θ keeps it at the bound, `dz_i = 0`;
+//! - **weakly active** (at a bound with `F_i ≈ 0`: `p_n = 0` at a touching contact, `σ = 0` on
+//!   the stick/slip boundary, a face multiplier 0 with the ECP on that face's edge): the solution
+//!   map has a kink there and only one-sided derivatives exist. **Choice made here: they are held
+//!   at the bound like the strongly active ones** (`dz_i = 0`, the derivative of the branch that
+//!   keeps the active set), and each is reported with the largest derivative `|dF_i/dθ_k|` of its
+//!   residual along that branch. When that slope is zero (to a tolerance) the branch never leaves
+//!   the bound to first order and the derivative is two-sided after all — the gap multiplier
+//!   `l_g` of every closed contact is such a case; otherwise the derivative is one-sided, valid
+//!   for the perturbations that make `F_i ≥ 0` (`≤ 0` at an upper bound), and the caller should
+//!   report it;
+//! - **held** by the caller, who knows more than the bounds say (a separated contact's friction
+//!   impulses, `≡ 0` by the ellipsoid's cone, [`ComponentStatus::Held`]).
+//!
+//! Held rows become unit rows, the others stay rows of `J`: the **reduced matrix** `A`, with the
+//! sparsity pattern of `J` (whose diagonal is always stored), so the linear solver's symbolic
+//! analysis is done once and reused for every step and every active set. Then
+//! `dz/dθ = −A⁻¹ P ∂F/∂θ` where `P` zeroes the held rows.
+//!
+//! **Singular `A`** (non-unique multipliers, an ECP free to slide over a face parallel to the
+//! plane, impulses shared between pieces): the solve falls back to the minimum-norm solution by
+//! iterated Tikhonov regularisation, `x ← x + (AᵀA + λI)⁻¹ Aᵀ (b − A x)` eight times from 0
+//! with `λ = 1e-10 max diag(AᵀA)` (dense, with [`DenseLu`]), which converges to the
+//! minimum-norm solution of a consistent system on every well-determined mode and leaves the
+//! null space at 0. [`SolveKind::Regularised`] reports it with the relative residual
+//! `‖b − A x‖∞ / ‖b‖∞` of the worst column: near 0 means the system was consistent (the
+//! undetermined components got their minimum-norm derivative, the determined ones are exact);
+//! large means no derivative exists (a mode switch) and the numbers are a least-squares guess.
+//!
+//! **Why not the backend's factorisation.** Backends factorise the matrix of their own method
+//! (Newton: the Fischer–Burmeister Jacobian at the last iterate but one, possibly a
+//! Levenberg–Marquardt normal matrix; PATH: a Lemke basis; conic: a KKT system), behind the
+//! [`crate::McpSolver`] trait. At a strictly complementary solution the Fischer–Burmeister
+//! Jacobian is exactly `A` (its derivative at `(0, F > 0)` is `(1, 0)`, at `(z > 0, 0)` it is
+//! `(0, 1)`), but evaluated at `z*`, not at the previous iterate; so this module factorises `A`
+//! once at `z*` — one numeric factorisation per step, reusing the symbolic analysis — and solves
+//! every θ column (or, for gradients, one transposed system) with it.
+
+use std::sync::Arc;
+
+use crate::linalg::{DenseLu, LinalgError, LinearSolver};
+use crate::mcp::Mcp;
+use crate::pattern::CscPattern;
+
+/// How a component of `z` sits at a solution (module documentation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ComponentStatus {
+    /// Strictly between its bounds: its row of `J` is kept.
+    Free,
+    /// At a bound with its residual strictly of the complementary sign: `dz_i = 0`.
+    Active,
+    /// At a bound with residual ≈ 0 (degenerate): held at the bound, `dz_i = 0`, reported.
+    WeaklyActive,
+    /// Held by the caller (`dz_i = 0`) for a reason the bounds do not show.
+    Held,
+}
+
+impl ComponentStatus {
+    /// True when `dz_i = 0` is imposed (every status but [`ComponentStatus::Free`]).
+    pub fn is_held(&self) -> bool {
+        !matches!(self, ComponentStatus::Free)
+    }
+    /// A short lower-case label for reports.
+    pub fn as_str(&self) -> &'static str {
+        match self {
+            ComponentStatus::Free => "free",
+            ComponentStatus::Active => "active",
+            ComponentStatus::WeaklyActive => "weakly_active",
+            ComponentStatus::Held => "held",
+        }
+    }
+}
+
+impl std::fmt::Display for ComponentStatus {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.as_str())
+    }
+}
+
+/// Tolerances of the active-set classification and of the degeneracy report.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ActiveSetOptions {
+    /// A component is at a bound when `|z_i − bound| ≤ tolerance`, and weakly active when also
+    /// `|F_i| ≤ tolerance`. Absolute, in the units of `z` and `F`; it must exceed the accuracy of
+    /// the solve (the steppers' natural residuals are ≤ 1e-10). Default `1e-8`.
+    pub tolerance: f64,
+    /// A weakly active component is two-sided when its residual's slope along the held branch,
+    /// `max_k |dF_i/dθ_k|`, is at most this times `max(1, max_k ‖∂F/∂θ_k‖∞)`. Default `1e-8`.
+    pub two_sided_tolerance: f64,
+}
+
+impl Default for ActiveSetOptions {
+    fn default() -> Self {
+        ActiveSetOptions {
+            tolerance: 1e-8,
+            two_sided_tolerance: 1e-8,
+        }
+    }
+}
+
+/// Classifies every component of a solution `z` with residual `f` and bounds `lower, upper`
+/// (module documentation). Components whose residual has the wrong sign at a bound (not a
+/// solution to the tolerance) count as weakly active, so they are reported, not hidden.
+pub fn classify(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    opts: &ActiveSetOptions,
+) -> Vec<ComponentStatus> {
+    let tol = opts.tolerance;
+    (0..z.len())
+        .map(|i| {
+            let (l, u) = (lower[i], upper[i]);
+            if l == u {
+                return ComponentStatus::Active;
+            }
+            let at_lower = l.is_finite() && z[i] - l <= tol;
+            let at_upper = u.is_finite() && u - z[i] <= tol;
+            if at_lower {
+                if f[i] > tol {
+                    ComponentStatus::Active
+                } else {
+                    ComponentStatus::WeaklyActive
+                }
+            } else if at_upper {
+                if -f[i] > tol {
+                    ComponentStatus::Active
+                } else {
+                    ComponentStatus::WeaklyActive
+                }
+            } else {
+                ComponentStatus::Free
+            }
+        })
+        .collect()
+}
+
+/// How the reduced system was solved.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum SolveKind {
+    /// LU of the reduced matrix.
+    Direct,
+    /// The reduced matrix is singular: minimum-norm solution by iterated Tikhonov
+    /// regularisation (module documentation).
+    Regularised {
+        /// Largest relative residual `‖b − A x‖∞ / ‖b‖∞` over the solved columns: ≈ 0 for a
+        /// consistent system, large when no derivative exists.
+        consistency: f64,
+    },
+}
+
+/// A weakly active component held at its bound, with the slope of its residual along the held
+/// branch (module documentation).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WeakComponent {
+    /// Index in `z`.
+    pub index: usize,
+    /// `max_k |dF_i/dθ_k|` along the held branch.
+    pub slope: f64,
+    /// True when the slope is zero to the tolerance: the derivative is two-sided.
+    pub two_sided: bool,
+}
+
+/// The derivative `dz/dθ` of a solution, with what the caller must know to trust it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ImplicitDerivative {
+    /// `dz/dθ`, `n × p`, column-major (column `k` is `dz/dθ_k`).
+    pub dz: Vec<f64>,
+    /// Number of columns `p`.
+    pub columns: usize,
+    /// The weakly active components, each with its slope.
+    pub weak: Vec<WeakComponent>,
+    /// How the reduced system was solved.
+    pub solve: SolveKind,
+}
+
+/// Failure of a sensitivity computation.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum ImplicitError {
+    /// Dimensions do not match the problem.
+    #[error("sensitivity: {0}")]
+    Dimension(String),
+    /// The Jacobian or a right-hand side is not finite at the solution.
+    #[error(
+        "sensitivity: the Jacobian or ∂F/∂θ is not finite at the solution; the step did not converge to a finite point"
+    )]
+    NonFinite,
+    /// Even the regularised system could not be solved.
+    #[error("sensitivity: the reduced system could not be solved: {0}")]
+    Linear(#[from] LinalgError),
+}
+
+/// Reduced-system workspace, kept between calls (module documentation): the Jacobian values,
+/// the reduced matrix and the linear solver whose symbolic analysis belongs to the pattern.
+#[derive(Default)]
+pub struct ReducedSystem {
+    linear: Option<LinearSolver>,
+    pattern: Option<Arc<CscPattern>>,
+    jac: Vec<f64>,
+    reduced: Vec<f64>,
+    held: Vec<bool>,
+    dense_max: usize,
+    regularised: Option<Regularised>,
+    work: Vec<f64>,
+}
+
+/// The fallback of a singular reduced matrix: `A` dense and an LU of `AᵀA + λI`.
+struct Regularised {
+    a: Vec<f64>,
+    lu: DenseLu,
+}
+
+/// Iterations of the regularised solve (module documentation).
+const TIKHONOV_ITERATIONS: usize = 8;
+/// `λ` relative to the largest diagonal entry of `AᵀA`.
+const TIKHONOV_LAMBDA: f64 = 1e-10;
+
+impl std::fmt::Debug for ReducedSystem {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "ReducedSystem {{ n: {}, regularised: {} }}",
+            self.held.len(),
+            self.regularised.is_some()
+        )
+    }
+}
+
+impl ReducedSystem {
+    /// An empty workspace; dense LU up to 120 unknowns, sparse LU above (like the Newton
+    /// backend).
+    pub fn new() -> Self {
+        Self::with_dense_max(120)
+    }
+
+    /// An empty workspace choosing dense LU up to `dense_max` unknowns.
+    pub fn with_dense_max(dense_max: usize) -> Self {
+        ReducedSystem {
+            dense_max,
+            ..Default::default()
+        }
+    }
+
+    /// The Jacobian values `J(z*)` of the last [`ReducedSystem::factor`], in the pattern's order.
+    pub fn jacobian_values(&self) -> &[f64] {
+        &self.jac
+    }
+
+    /// True when the last factorisation fell back to the regularised solve.
+    pub fn is_regularised(&self) -> bool {
+        self.regularised.is_some()
+    }
+
+    /// Evaluates `J` at the solution `z`, builds the reduced matrix for `status` and factorises
+    /// it (falling back to the regularised form when it is singular).
+    pub fn factor(
+        &mut self,
+        mcp: &dyn Mcp,
+        z: &[f64],
+        status: &[ComponentStatus],
+    ) -> Result<(), ImplicitError> {
+        let n = mcp.dim();
+        if z.len() != n || status.len() != n {
+            return Err(ImplicitError::Dimension(format!(
+                "z has {} entries and status {}, the problem has {n}",
+                z.len(),
+                status.len()
+            )));
+        }
+        let pattern = mcp.jacobian_pattern();
+        let reuse = self
+            .pattern
+            .as_ref()
+            .is_some_and(|p| Arc::ptr_eq(p, pattern) || **p == **pattern);
+        if !reuse || self.linear.is_none() {
+            self.linear = Some(LinearSolver::for_pattern(pattern, self.dense_max)?);
+            self.pattern = Some(pattern.clone());
+        }
+        self.jac.resize(pattern.nnz(), 0.0);
+        mcp.jacobian(z, &mut self.jac);
+        if self.jac.iter().any(|v| !v.is_finite()) {
+            return Err(ImplicitError::NonFinite);
+        }
+        self.held.clear();
+        self.held
+            .extend(status.iter().map(ComponentStatus::is_held));
+        self.reduced.clone_from(&self.jac);
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        for j in 0..n {
+            for p in cp[j]..cp[j + 1] {
+                if self.held[ri[p]] {
+                    self.reduced[p] = 0.0;
+                }
+            }
+        }
+        for (i, &p) in pattern.diag_pos().iter().enumerate() {
+            if self.held[i] {
+                self.reduced[p] = 1.0;
+            }
+        }
+        self.regularised = None;
+        let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+        match linear.factor(&self.reduced) {
+            Ok(()) => Ok(()),
+            Err(LinalgError::Singular { .. }) => self.regularise(),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// Builds the regularised fallback from the current reduced matrix.
+    fn regularise(&mut self) -> Result<(), ImplicitError> {
+        let pattern = self.pattern.as_ref().ok_or(LinalgError::NotFactored)?;
+        let n = pattern.dim();
+        let mut a = vec![0.0; n * n];
+        pattern.to_dense(&self.reduced, &mut a);
+        // N = AᵀA + λI, column-major (symmetric).
+        let mut normal = vec![0.0; n * n];
+        for j in 0..n {
+            for i in 0..=j {
+                let s: f64 = (0..n).map(|k| a[i * n + k] * a[j * n + k]).sum();
+                normal[j * n + i] = s;
+                normal[i * n + j] = s;
+            }
+        }
+        let max_diag = (0..n).map(|i| normal[i * n + i]).fold(0.0, f64::max);
+        let lambda = TIKHONOV_LAMBDA * max_diag.max(f64::MIN_POSITIVE);
+        for i in 0..n {
+            normal[i * n + i] += lambda;
+        }
+        let mut lu = DenseLu::new(n);
+        lu.factor(&normal)?;
+        self.regularised = Some(Regularised { a, lu });
+        Ok(())
+    }
+
+    /// Solves `A x = b` in place (regularised when `A` is singular); returns the relative
+    /// residual of the regularised solve (0 for a direct one).
+    fn solve_one(&mut self, b: &mut [f64]) -> Result<f64, ImplicitError> {
+        if self.regularised.is_none() {
+            let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+            self.work.clear();
+            self.work.extend_from_slice(b);
+            match linear.solve_in_place(b) {
+                Ok(()) => return Ok(0.0),
+                // A sparse LU reports near-singularity only when solving.
+                Err(LinalgError::Singular { .. }) => {
+                    b.copy_from_slice(&self.work);
+                    self.regularise()?;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        let reg = self.regularised.as_mut().ok_or(LinalgError::NotFactored)?;
+        let n = b.len();
+        let rhs = b.to_vec();
+        let bnorm = rhs.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let mut x = vec![0.0; n];
+        let mut r = rhs.clone();
+        let mut step = vec![0.0; n];
+        for _ in 0..TIKHONOV_ITERATIONS {
+            // step = N⁻¹ Aᵀ r
+            for (j, s) in step.iter_mut().enumerate() {
+                *s = (0..n).map(|k| reg.a[j * n + k] * r[k]).sum();
+            }
+            reg.lu.solve_in_place(&mut step)?;
+            for (xi, si) in x.iter_mut().zip(&step) {
+                *xi += si;
+            }
+            residual(&reg.a, &x, &rhs, &mut r);
+        }
+        let rnorm = r.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        b.copy_from_slice(&x);
+        Ok(if bnorm > 0.0 { rnorm / bnorm } else { rnorm })
+    }
+
+    /// `dz/dθ = −A⁻¹ P ∂F/∂θ` for the `p` columns of `rhs` (`∂F/∂θ`, `n × p` column-major),
+    /// overwritten by the result; returns how the system was solved. Call after
+    /// [`ReducedSystem::factor`].
+    pub fn solve_columns(&mut self, rhs: &mut [f64], p: usize) -> Result<SolveKind, ImplicitError> {
+        let n = self.held.len();
+        if rhs.len() != n * p {
+            return Err(ImplicitError::Dimension(format!(
+                "right-hand side has {} entries, expected {n} × {p}",
+                rhs.len()
+            )));
+        }
+        if rhs.iter().any(|v| !v.is_finite()) {
+            return Err(ImplicitError::NonFinite);
+        }
+        let mut worst = 0.0f64;
+        for col in rhs.chunks_exact_mut(n.max(1)).take(p) {
+            for (v, &h) in col.iter_mut().zip(&self.held) {
+                *v = if h { 0.0 } else { -*v };
+            }
+            worst = worst.max(self.solve_one(col)?);
+        }
+        Ok(self.kind(worst))
+    }
+
+    /// The adjoint of [`ReducedSystem::solve_columns`]: overwrites `g` by `μ = P A⁻ᵀ g`, so that
+    /// for every θ column `b = ∂F/∂θ_k`, `gᵀ dz/dθ_k = −μᵀ b`. One transposed solve gives the
+    /// gradient of a scalar `gᵀ z` with respect to any number of parameters. In the regularised
+    /// case it is the exact transpose of the iterated map, so both routes agree to round-off.
+    pub fn solve_transpose(&mut self, g: &mut [f64]) -> Result<SolveKind, ImplicitError> {
+        let n = self.held.len();
+        if g.len() != n {
+            return Err(ImplicitError::Dimension(format!(
+                "adjoint right-hand side has {} entries, expected {n}",
+                g.len()
+            )));
+        }
+        if g.iter().any(|v| !v.is_finite()) {
+            return Err(ImplicitError::NonFinite);
+        }
+        if self.regularised.is_none() {
+            let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+            self.work.clear();
+            self.work.extend_from_slice(g);
+            match linear.solve_transpose_in_place(g) {
+                Ok(()) => {
+                    for (v, &h) in g.iter_mut().zip(&self.held) {
+                        if h {
+                            *v = 0.0;
+                        }
+                    }
+                    return Ok(SolveKind::Direct);
+                }
+                Err(LinalgError::Singular { .. }) => {
+                    g.copy_from_slice(&self.work);
+                    self.regularise()?;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        let reg = self.regularised.as_mut().ok_or(LinalgError::NotFactored)?;
+        // Tᵀ g = Σ_j Mᵀ (I − Aᵀ Mᵀ)^j g with Mᵀ = A N⁻¹ (N symmetric).
+        let mut y = g.to_vec();
+        let mut acc = vec![0.0; n];
+        let mut t = vec![0.0; n];
+        let mut s = vec![0.0; n];
+        for _ in 0..TIKHONOV_ITERATIONS {
+            s.copy_from_slice(&y);
+            reg.lu.solve_in_place(&mut s)?;
+            for (i, ti) in t.iter_mut().enumerate() {
+                *ti = (0..n).map(|k| reg.a[k * n + i] * s[k]).sum();
+            }
+            for (a, ti) in acc.iter_mut().zip(&t) {
+                *a += ti;
+            }
+            for (j, yj) in y.iter_mut().enumerate() {
+                *yj -= (0..n).map(|k| reg.a[j * n + k] * t[k]).sum::<f64>();
+            }
+        }
+        for ((v, a), &h) in g.iter_mut().zip(&acc).zip(&self.held) {
+            *v = if h { 0.0 } else { *a };
+        }
+        Ok(SolveKind::Regularised { consistency: 0.0 })
+    }
+
+    fn kind(&self, worst: f64) -> SolveKind {
+        if self.regularised.is_some() {
+            SolveKind::Regularised { consistency: worst }
+        } else {
+            SolveKind::Direct
+        }
+    }
+
+    /// The whole implicit derivative at a solution: classifies nothing itself (give it the
+    /// `status` of [`classify`], adjusted with [`ComponentStatus::Held`] where the caller knows
+    /// better), factorises, solves the `p` columns of `dfdtheta` (`∂F/∂θ`, `n × p`
+    /// column-major) and measures the slope of every weakly active component.
+    pub fn differentiate(
+        &mut self,
+        mcp: &dyn Mcp,
+        z: &[f64],
+        status: &[ComponentStatus],
+        dfdtheta: &[f64],
+        p: usize,
+        opts: &ActiveSetOptions,
+    ) -> Result<ImplicitDerivative, ImplicitError> {
+        self.factor(mcp, z, status)?;
+        let mut dz = dfdtheta.to_vec();
+        let solve = self.solve_columns(&mut dz, p)?;
+        let weak = self.weak_slopes(mcp, status, &dz, dfdtheta, p, opts);
+        Ok(ImplicitDerivative {
+            dz,
+            columns: p,
+            weak,
+            solve,
+        })
+    }
+}
+
+impl ReducedSystem {
+    /// The slope `max_k |dF_i/dθ_k|`, `dF = J(z*) dz + ∂F/∂θ`, of every weakly active component
+    /// of `status` along a derivative `dz` (`n × p`), with `J(z*)` from the last
+    /// [`ReducedSystem::factor`]. [`ReducedSystem::differentiate`] calls it; call it again when
+    /// the derivative is assembled from several solves with the same `J(z*)`.
+    pub fn weak_slopes(
+        &self,
+        mcp: &dyn Mcp,
+        status: &[ComponentStatus],
+        dz: &[f64],
+        dfdtheta: &[f64],
+        p: usize,
+        opts: &ActiveSetOptions,
+    ) -> Vec<WeakComponent> {
+        let n = mcp.dim();
+        let mut weak: Vec<WeakComponent> = status
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
+            .map(|(index, _)| WeakComponent {
+                index,
+                slope: 0.0,
+                two_sided: true,
+            })
+            .collect();
+        if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() {
+            return weak;
+        }
+        let pattern = mcp.jacobian_pattern();
+        let mut jdz = vec![0.0; n];
+        let mut scale = 1.0f64;
+        for k in 0..p {
+            let col = &dfdtheta[k * n..(k + 1) * n];
+            scale = scale.max(col.iter().fold(0.0f64, |m, v| m.max(v.abs())));
+            pattern.mul_vec(&self.jac, &dz[k * n..(k + 1) * n], &mut jdz);
+            for w in weak.iter_mut() {
+                w.slope = w.slope.max((jdz[w.index] + col[w.index]).abs());
+            }
+        }
+        for w in weak.iter_mut() {
+            w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
+        }
+        weak
+    }
+}
+
+/// `r = b − A x` for a dense column-major `A`.
+fn residual(a: &[f64], x: &[f64], b: &[f64], r: &mut [f64]) {
+    let n = b.len();
+    r.copy_from_slice(b);
+    for (j, xj) in x.iter().enumerate() {
+        if *xj != 0.0 {
+            for i in 0..n {
+                r[i] -= a[j * n + i] * xj;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mcp::FnMcp;
+
+    /// F(z; θ) = M z + q(θ) with q = (θ₀, θ₁ − 1, 2): a 3-component LCP whose first component
+    /// is free-solved, the second at its bound and the third strongly active.
+    fn lcp(m: [[f64; 3]; 3]) -> FnMcp {
+        let mm = m;
+        FnMcp::dense(
+            vec![0.0; 3],
+            vec![f64::INFINITY; 3],
+            move |z: &[f64], f: &mut [f64]| {
+                for i in 0..3 {
+                    f[i] = (0..3).map(|j| mm[i][j] * z[j]).sum();
+                }
+            },
+            move |_z: &[f64], jac: &mut [f64]| {
+                for j in 0..3 {
+                    for i in 0..3 {
+                        jac[j * 3 + i] = mm[i][j];
+                    }
+                }
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn classify_tells_free_active_weak() {
+        let z = [1.0, 0.0, 0.0, 0.5, 0.0];
+        let f = [0.0, 2.0, 1e-12, 0.0, -1e-3];
+        let lo = [f64::NEG_INFINITY, 0.0, 0.0, 0.0, 0.0];
+        let up = [f64::INFINITY; 5];
+        let s = classify(&z, &f, &lo, &up, &ActiveSetOptions::default());
+        use ComponentStatus::*;
+        assert_eq!(s, vec![Free, Active, WeaklyActive, Free, WeaklyActive]);
+    }
+
+    /// F = M z + q with M = 2I + offdiag, q = (−2θ, 1, −1): z₁ at its bound (F₁ = 1 > 0),
+    /// z₀, z₂ free; dz/dθ on the free part is −M_ff⁻¹ ∂q_f/∂θ.
+    #[test]
+    fn derivative_matches_reduced_inverse() {
+        let m = [[2.0, 0.5, 0.3], [0.1, 2.0, 0.0], [0.4, 0.2, 3.0]];
+        let mcp = lcp(m);
+        // Solve the free 2×2 system for z₀, z₂ with q = (−2, ·, −1): [2 .3; .4 3] z = (2, 1).
+        let det = 2.0 * 3.0 - 0.3 * 0.4;
+        let z0 = (2.0 * 3.0 - 0.3 * 1.0) / det;
+        let z2 = (2.0 * 1.0 - 0.4 * 2.0) / det;
+        let z = [z0, 0.0, z2];
+        let status = [
+            ComponentStatus::Free,
+            ComponentStatus::Active,
+            ComponentStatus::Free,
+        ];
+        // ∂F/∂θ for q₀ = −2θ: column (−2, 0, 0); a second column ∂q₁ = 1 (held row).
+        let dfdtheta = [-2.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let mut sys = ReducedSystem::new();
+        let d = sys
+            .differentiate(
+                &mcp,
+                &z,
+                &status,
+                &dfdtheta,
+                2,
+                &ActiveSetOptions::default(),
+            )
+            .unwrap();
+        assert_eq!(d.solve, SolveKind::Direct);
+        // [2 .3; .4 3] dz = (2, 0) ⇒ dz₀ = 6/det, dz₂ = −0.8/det.
+        assert!((d.dz[0] - 6.0 / det).abs() < 1e-14);
+        assert_eq!(d.dz[1], 0.0);
+        assert!((d.dz[2] + 0.8 / det).abs() < 1e-14);
+        assert!(d.dz[3..].iter().all(|v| *v == 0.0));
+        // The adjoint gives the same gradient of g·z.
+        let g = [0.7, -0.2, 1.3];
+        let mut mu = g.to_vec();
+        sys.solve_transpose(&mut mu).unwrap();
+        for k in 0..2 {
+            let fwd: f64 = (0..3).map(|i| g[i] * d.dz[k * 3 + i]).sum();
+            let adj: f64 = -(0..3).map(|i| mu[i] * dfdtheta[k * 3 + i]).sum::<f64>();
+            assert!((fwd - adj).abs() < 1e-14, "{fwd} vs {adj}");
+        }
+    }
+
+    /// A singular reduced matrix (a zero row and column pair) falls back to the minimum-norm
+    /// solution, and the adjoint is its exact transpose.
+    #[test]
+    fn singular_system_gets_minimum_norm_and_matching_adjoint() {
+        let m = [[2.0, 0.0, 1.0], [0.0, 0.0, 0.0], [1.0, 0.0, 3.0]];
+        let mcp = FnMcp::dense(
+            vec![f64::NEG_INFINITY; 3],
+            vec![f64::INFINITY; 3],
+            move |z: &[f64], f: &mut [f64]| {
+                for i in 0..3 {
+                    f[i] = (0..3).map(|j| m[i][j] * z[j]).sum();
+                }
+            },
+            move |_z: &[f64], jac: &mut [f64]| {
+                for j in 0..3 {
+                    for i in 0..3 {
+                        jac[j * 3 + i] = m[i][j];
+                    }
+                }
+            },
+        )
+        .unwrap();
+        let status = [ComponentStatus::Free; 3];
+        let dfdtheta = [1.0, 0.0, 2.0];
+        let mut sys = ReducedSystem::new();
+        let d = sys
+            .differentiate(
+                &mcp,
+                &[0.0; 3],
+                &status,
+                &dfdtheta,
+                1,
+                &ActiveSetOptions::default(),
+            )
+            .unwrap();
+        // Consistent: [2 1; 1 3] (dz₀, dz₂) = −(1, 2) ⇒ (−0.2, −0.6); dz₁ undetermined → 0.
+        match d.solve {
+            SolveKind::Regularised { consistency } => assert!(consistency < 1e-12),
+            other => panic!("expected the regularised solve, got {other:?}"),
+        }
+        assert!((d.dz[0] + 0.2).abs() < 1e-12, "{:?}", d.dz);
+        assert!(d.dz[1].abs() < 1e-12, "{:?}", d.dz);
+        assert!((d.dz[2] + 0.6).abs() < 1e-12, "{:?}", d.dz);
+        let g = [0.3, 5.0, -1.0];
+        let mut mu = g.to_vec();
+        sys.solve_transpose(&mut mu).unwrap();
+        let fwd: f64 = (0..3).map(|i| g[i] * d.dz[i]).sum();
+        let adj: f64 = -(0..3).map(|i| mu[i] * dfdtheta[i]).sum::<f64>();
+        assert!((fwd - adj).abs() < 1e-13, "{fwd} vs {adj}");
+    }
+
+    /// A weakly active component whose residual moves along the held branch is one-sided; one
+    /// whose residual does not is two-sided.
+    #[test]
+    fn weak_components_are_measured() {
+        // F₀ = z₀ − θ (free, z₀ = θ = 1), F₁ = z₁ + z₀ − 1 (z₁ = 0, F₁ = 0: weak, slope 1),
+        // F₂ = z₂ (z₂ = 0, F₂ = 0: weak, slope 0).
+        let mcp = FnMcp::dense(
+            vec![f64::NEG_INFINITY, 0.0, 0.0],
+            vec![f64::INFINITY; 3],
+            |z: &[f64], f: &mut [f64]| {
+                f[0] = z[0] - 1.0;
+                f[1] = z[1] + z[0] - 1.0;
+                f[2] = z[2];
+            },
+            |_z: &[f64], jac: &mut [f64]| {
+                jac.fill(0.0);
+                jac[0] = 1.0; // (0,0)
+                jac[1] = 1.0; // (1,0)
+                jac[4] = 1.0; // (1,1)
+                jac[8] = 1.0; // (2,2)
+            },
+        )
+        .unwrap();
+        let z = [1.0, 0.0, 0.0];
+        let mut f = [0.0; 3];
+        mcp.evaluate(&z, &mut f);
+        let opts = ActiveSetOptions::default();
+        let status = classify(&z, &f, mcp.lower(), mcp.upper(), &opts);
+        let mut sys = ReducedSystem::new();
+        let d = sys
+            .differentiate(&mcp, &z, &status, &[-1.0, 0.0, 0.0], 1, &opts)
+            .unwrap();
+        assert_eq!(d.dz, vec![1.0, 0.0, 0.0]);
+        assert_eq!(d.weak.len(), 2);
+        assert!(!d.weak[0].two_sided && (d.weak[0].slope - 1.0).abs() < 1e-15);
+        assert!(d.weak[1].two_sided && d.weak[1].slope == 0.0);
+    }
+}
