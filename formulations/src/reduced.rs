@@ -412,6 +412,11 @@ impl ReducedSliding {
         }
         validate_parameters(&scene)?;
         let body = scene.bodies[0].clone();
+        // Conv(F) must exist, as for the hull stepper (a flat body has none).
+        body.shape.hull().map_err(|source| SceneError::Geometry {
+            body: body.name.clone(),
+            source,
+        })?;
         let plane = scene.planes[0];
         let (n, t, o) = plane.contact_frame();
         let frame = ContactFrame { n, t, o };
