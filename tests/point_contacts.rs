@@ -375,6 +375,27 @@ fn records_have_one_contact_per_point() {
     assert_eq!(feet, 16, "16 foot corners");
 }
 
+/// The report helpers on hand-made records: the centre of pressure is the p_n-weighted mean of
+/// the points (none without load), the penetration the deepest vertex (0 when all are above).
+#[test]
+fn centre_of_pressure_and_penetration_helpers() {
+    let mut rec = run_point(scenarios::a1_sliding(), SolverKind::Newton, 1).remove(0);
+    for c in rec.contacts.iter_mut() {
+        c.pn = 0.0;
+        c.min_gap = 0.0;
+    }
+    assert_eq!(centre_of_pressure(&rec.contacts), None);
+    rec.contacts[0].pn = 1.0;
+    rec.contacts[1].pn = 3.0;
+    let (a, b) = (rec.contacts[0].a1, rec.contacts[1].a1);
+    let cop = centre_of_pressure(&rec.contacts).expect("loaded");
+    assert!((cop - (a + b * 3.0) / 4.0).norm() < 1e-15);
+    assert_eq!(penetration(&rec), 0.0);
+    rec.contacts[2].min_gap = -2e-3;
+    rec.contacts[3].min_gap = -1e-3;
+    assert_eq!(penetration(&rec), 2e-3);
+}
+
 #[test]
 fn bad_set_up_is_refused_with_a_reason() {
     let mut scene = scenarios::a1_sliding();
@@ -584,6 +605,43 @@ fn a1_corner_split_is_not_unique() {
             "{kind}: the split did not follow the start ({diff:.3e})"
         );
     }
+}
+
+/// Scenario A3 (spinning in place) on the four corners: a point has no torsional friction, so
+/// the spin is braked by the corners' sliding friction at their lever arm `|r| = 0.2√2` m instead
+/// of the ellipsoid's `e_r = 0.1` m: `ω_z^k = 2 − (μ m g |r| / I_zz) h k` (deceleration
+/// 31.18 rad/s², 2.83 times the ECP model's 11.025) until it would change sign, then 0; no
+/// translation. The same lever-arm effect makes the desk's point model spin down faster than
+/// the ECP model (`desk_point_model_first_second`).
+#[test]
+fn a3_point_model_brakes_the_spin_by_corner_friction() {
+    let izz: f64 = 10.0 / 12.0 * (0.16 + 0.16);
+    let lever = 0.2 * 2f64.sqrt();
+    let decel = 0.3 * 10.0 * G * lever / izz;
+    assert_close("A3 point-model deceleration", decel, 31.18, 5e-3);
+    let mut stopped = false;
+    for kind in [SolverKind::Newton, SolverKind::Path] {
+        for r in run_point(scenarios::a3_spin(), kind, usize::MAX) {
+            let analytic = 2.0 - decel * H * r.step as f64;
+            stopped = analytic < 0.0;
+            let b = &r.bodies[0];
+            // As in A1: 1e-8 at rest, where σ = 0 and a friction-row residual of 1e-10
+            // allows a slip of ~1e-9 m/s.
+            let (wz, tol) = if stopped {
+                (0.0, 1e-8)
+            } else {
+                (analytic, 1e-9)
+            };
+            assert_close(
+                &format!("A3 point ω_z ({kind}), step {}", r.step),
+                b.w.z,
+                wz,
+                tol,
+            );
+            assert!(b.v.norm() <= 1e-8, "A3 point model translates: {}", b.v);
+        }
+    }
+    assert!(stopped, "A3 point model never stopped spinning");
 }
 
 // ---------------------------------------------------------------------------------------------
