@@ -1240,8 +1240,6 @@ pub fn trajectory_gradient_with(
     let nb = scene.bodies.len();
     let ns = STATE_SIZE * nb;
     let np = params.len();
-    let inputs = StepInput::all(nb);
-    let pi = inputs.len();
 
     // Initial tangent ds₀/dθ (ns × np): the initial-state parameters, through the
     // normalisation of Q that Simulation::new applies.
@@ -1407,7 +1405,6 @@ pub fn trajectory_gradient_with(
             }
         }
     }
-    let _ = pi;
     Ok(TrajectoryGradient {
         loss: total,
         params: params.to_vec(),

@@ -321,6 +321,14 @@ impl ReducedSystem {
         let n = pattern.dim();
         let mut a = vec![0.0; n * n];
         pattern.to_dense(&self.reduced, &mut a);
+        // Held components are 0 exactly: drop their columns from the free rows, so the matrix
+        // is block-diagonal (free block, identity) and the least-squares fit of an inconsistent
+        // free block cannot move them.
+        for j in (0..n).filter(|&j| self.held[j]) {
+            for i in (0..n).filter(|&i| !self.held[i]) {
+                a[j * n + i] = 0.0;
+            }
+        }
         // N = AᵀA + λI, column-major (symmetric).
         let mut normal = vec![0.0; n * n];
         for j in 0..n {
