@@ -1,0 +1,345 @@
+//! Minimum-norm least-squares solutions of `H d = b` for a square, possibly singular dense `H`:
+//! the generalised Newton step of the semismooth Newton backend when `H` is rank-deficient
+//! (formulation.md §6: at the solutions of the union-of-pieces model the impulses and the
+//! per-piece ECPs are not unique, so `H` is singular on the whole solution set).
+//!
+//! A complete orthogonal decomposition, as LAPACK's `xGELSY` computes it (Golub & Van Loan,
+//! "Matrix Computations", 4th ed., §5.4.2 and §5.5.2): Householder QR with column pivoting
+//! `H P = Q [R₁₁ R₁₂; 0 R₂₂]`, stopped at the numerical rank `r` (the largest remaining column
+//! norm below `tol · |R₀₀|`, so `R₂₂` is dropped), then `[R₁₁ R₁₂] = [T 0] Wᵀ` by Householder
+//! reflections from the right. The minimum-norm solution of `min ‖H d − b‖` is
+//! `d = P W [T⁻¹ (Qᵀ b)₁..r; 0]`.
+//!
+//! When `H` is nonsingular this is the Newton step; when the system is consistent with a
+//! solution set of constant rank (the union model), the iteration `d = −H⁺Φ` is the
+//! Gauss–Newton method with the Moore–Penrose inverse, which converges quadratically to a point
+//! of the solution set (Ben-Israel, J. Math. Anal. Appl. 15, 1966; Nashed & Chen, Numer. Math.
+//! 66, 1993), where Levenberg–Marquardt with a damping floor converges linearly.
+//!
+//! Written here, like the pivotal solver's basis factorisation, because it needs the numerical
+//! rank and the pivot order, and allocates nothing after the first call.
+
+/// The decomposition of one matrix and the buffers to solve with it.
+#[derive(Debug, Default)]
+pub(crate) struct MinNorm {
+    n: usize,
+    /// Column-major `n × n`: R (and T) on and above the diagonal, the QR reflectors below it,
+    /// the right reflectors in columns `r..n` of rows `0..r`.
+    a: Vec<f64>,
+    /// Scalars of the left (QR) reflectors.
+    tau: Vec<f64>,
+    /// Scalars of the right reflectors.
+    tau_right: Vec<f64>,
+    /// Column `k` of `H P` is column `perm[k]` of `H`.
+    perm: Vec<usize>,
+    /// Partial column norms (current and at the last recomputation).
+    norms: Vec<f64>,
+    norms_ref: Vec<f64>,
+    work: Vec<f64>,
+    rank: usize,
+    factored: bool,
+}
+
+impl MinNorm {
+    /// Decomposes the column-major `n × n` matrix `h`, treating as zero everything beyond the
+    /// first column whose remaining norm is at most `rel_tol` times the largest column norm.
+    /// Returns the numerical rank; `None` when `h` holds a non-finite entry.
+    pub(crate) fn factor(&mut self, n: usize, h: &[f64], rel_tol: f64) -> Option<usize> {
+        self.factored = false;
+        if h.len() != n * n || h.iter().any(|v| !v.is_finite()) {
+            return None;
+        }
+        self.n = n;
+        self.a.clear();
+        self.a.extend_from_slice(h);
+        self.tau.clear();
+        self.tau.resize(n, 0.0);
+        self.tau_right.clear();
+        self.tau_right.resize(n, 0.0);
+        self.perm.clear();
+        self.perm.extend(0..n);
+        self.work.clear();
+        self.work.resize(n, 0.0);
+        self.norms.clear();
+        let a = &mut self.a;
+        self.norms
+            .extend((0..n).map(|j| norm(&a[j * n..(j + 1) * n])));
+        self.norms_ref.clone_from(&self.norms);
+        let largest = self.norms.iter().copied().fold(0.0, f64::max);
+        let threshold = rel_tol * largest;
+        let mut rank = n;
+        for k in 0..n {
+            // Pivot: the remaining column of largest norm.
+            let mut p = k;
+            for j in k + 1..n {
+                if self.norms[j] > self.norms[p] {
+                    p = j;
+                }
+            }
+            if self.norms[p] <= threshold {
+                rank = k;
+                break;
+            }
+            if p != k {
+                for i in 0..n {
+                    a.swap(k * n + i, p * n + i);
+                }
+                self.perm.swap(k, p);
+                self.norms.swap(k, p);
+                self.norms_ref.swap(k, p);
+            }
+            // Householder reflector zeroing a[k+1.., k].
+            let col = &mut a[k * n..(k + 1) * n];
+            let alpha = col[k];
+            let xnorm = norm(&col[k + 1..]);
+            if xnorm == 0.0 {
+                self.tau[k] = 0.0;
+            } else {
+                let beta = -alpha.signum() * alpha.hypot(xnorm);
+                self.tau[k] = (beta - alpha) / beta;
+                let scale = 1.0 / (alpha - beta);
+                for v in &mut col[k + 1..] {
+                    *v *= scale;
+                }
+                col[k] = beta;
+            }
+            let tau = self.tau[k];
+            // Apply it to the remaining columns and downdate their norms.
+            let (head, tail) = a.split_at_mut((k + 1) * n);
+            let v = &head[k * n + k + 1..(k + 1) * n];
+            for (jj, col) in tail.chunks_exact_mut(n).enumerate() {
+                let j = k + 1 + jj;
+                let (top, below) = col[k..].split_at_mut(1);
+                if tau != 0.0 {
+                    let w = tau * (top[0] + dot(v, below));
+                    top[0] -= w;
+                    for (x, vi) in below.iter_mut().zip(v) {
+                        *x -= w * vi;
+                    }
+                }
+                if self.norms[j] > 0.0 {
+                    let t = top[0] / self.norms[j];
+                    let t = (1.0 - t * t).max(0.0);
+                    let ratio = self.norms[j] / self.norms_ref[j];
+                    if t * ratio * ratio <= 1e-8 {
+                        // Cancellation: recompute (LAPACK xLAQP2's safeguard).
+                        self.norms[j] = norm(below);
+                        self.norms_ref[j] = self.norms[j];
+                    } else {
+                        self.norms[j] *= t.sqrt();
+                    }
+                }
+            }
+        }
+        // [R₁₁ R₁₂] = [T 0] Wᵀ: reflectors from the right, last row first, each acting on
+        // coordinate k and the trailing coordinates r..n.
+        if rank < n {
+            for k in (0..rank).rev() {
+                let alpha = a[k * n + k];
+                let mut xnorm = 0.0f64;
+                for j in rank..n {
+                    xnorm = xnorm.hypot(a[j * n + k]);
+                }
+                if xnorm == 0.0 {
+                    self.tau_right[k] = 0.0;
+                    continue;
+                }
+                let beta = -alpha.signum() * alpha.hypot(xnorm);
+                let tau = (beta - alpha) / beta;
+                let scale = 1.0 / (alpha - beta);
+                for j in rank..n {
+                    a[j * n + k] *= scale;
+                }
+                a[k * n + k] = beta;
+                self.tau_right[k] = tau;
+                // Rows above k: row ← row − τ (row · v) vᵀ, v = (1 at k, a[k, r..n]).
+                for i in 0..k {
+                    let mut w = a[k * n + i];
+                    for j in rank..n {
+                        w += a[j * n + i] * a[j * n + k];
+                    }
+                    w *= tau;
+                    a[k * n + i] -= w;
+                    for j in rank..n {
+                        a[j * n + i] -= w * a[j * n + k];
+                    }
+                }
+            }
+        }
+        self.rank = rank;
+        self.factored = true;
+        Some(rank)
+    }
+
+    /// The numerical rank found by the last [`MinNorm::factor`].
+    #[cfg(test)]
+    pub(crate) fn rank(&self) -> usize {
+        self.rank
+    }
+
+    /// Overwrites `b` with the minimum-norm least-squares solution of `H d = b`. Returns `false`
+    /// (leaving `b` unspecified) without a valid decomposition or when the result is not finite.
+    pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> bool {
+        let (n, r) = (self.n, self.rank);
+        if !self.factored || b.len() != n {
+            return false;
+        }
+        let a = &self.a;
+        // c = Qᵀ b (only the first r entries matter).
+        for k in 0..r {
+            let tau = self.tau[k];
+            if tau == 0.0 {
+                continue;
+            }
+            let mut w = b[k];
+            for i in k + 1..n {
+                w += a[k * n + i] * b[i];
+            }
+            w *= tau;
+            b[k] -= w;
+            for i in k + 1..n {
+                b[i] -= w * a[k * n + i];
+            }
+        }
+        // u = [T⁻¹ c₁..r; 0].
+        let u = &mut self.work;
+        u.fill(0.0);
+        for k in (0..r).rev() {
+            let mut s = b[k];
+            for j in k + 1..r {
+                s -= a[j * n + k] * u[j];
+            }
+            u[k] = s / a[k * n + k];
+        }
+        // y = W u = Z_{r−1} ⋯ Z₀ u: apply Z₀ first.
+        if r < n {
+            for k in 0..r {
+                let tau = self.tau_right[k];
+                if tau == 0.0 {
+                    continue;
+                }
+                let mut w = u[k];
+                for j in r..n {
+                    w += a[j * n + k] * u[j];
+                }
+                w *= tau;
+                u[k] -= w;
+                for j in r..n {
+                    u[j] -= w * a[j * n + k];
+                }
+            }
+        }
+        // d = P y.
+        for k in 0..n {
+            b[self.perm[k]] = u[k];
+        }
+        b.iter().all(|v| v.is_finite())
+    }
+}
+
+/// Dot product with four partial sums (lets the compiler use SIMD lanes).
+fn dot(a: &[f64], b: &[f64]) -> f64 {
+    let n = a.len().min(b.len());
+    let (a, b) = (&a[..n], &b[..n]);
+    let mut acc = [0.0f64; 4];
+    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
+    let (ra, rb) = (ca.remainder(), cb.remainder());
+    for (x, y) in ca.zip(cb) {
+        for l in 0..4 {
+            acc[l] += x[l] * y[l];
+        }
+    }
+    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
+    (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
+}
+
+fn norm(v: &[f64]) -> f64 {
+    // Scaled sum of squares: the columns of H span many orders of magnitude.
+    let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+    if m == 0.0 || !m.is_finite() {
+        return m;
+    }
+    m * v.iter().map(|x| (x / m) * (x / m)).sum::<f64>().sqrt()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn matvec(n: usize, a: &[f64], x: &[f64]) -> Vec<f64> {
+        (0..n)
+            .map(|i| (0..n).map(|j| a[j * n + i] * x[j]).sum())
+            .collect()
+    }
+
+    #[test]
+    fn nonsingular_system_is_solved_exactly() {
+        // Column-major 3 × 3.
+        let a = [4.0, 1.0, 0.5, -2.0, 3.0, 1.0, 0.0, 1.0, 5.0];
+        let x = [1.0, -2.0, 0.5];
+        let mut b = matvec(3, &a, &x);
+        let mut s = MinNorm::default();
+        assert_eq!(s.factor(3, &a, 1e-12), Some(3));
+        assert!(s.solve_in_place(&mut b));
+        for i in 0..3 {
+            assert!((b[i] - x[i]).abs() < 1e-14, "{b:?}");
+        }
+    }
+
+    #[test]
+    fn rank_deficient_consistent_system_gets_the_minimum_norm_solution() {
+        // H = u vᵀ + w yᵀ (rank 2 in R⁴); b = H x₀ for some x₀. The minimum-norm solution lies
+        // in the row space span(v, y) and solves H d = b exactly.
+        let u = [1.0, 2.0, 0.0, -1.0];
+        let v = [0.5, -1.0, 2.0, 1.0];
+        let w = [0.0, 1.0, 1.0, 3.0];
+        let y = [1.0, 1.0, 0.0, -2.0];
+        let n = 4;
+        let mut a = vec![0.0; n * n];
+        for i in 0..n {
+            for j in 0..n {
+                a[j * n + i] = u[i] * v[j] + w[i] * y[j];
+            }
+        }
+        let x0 = [0.3, -0.7, 1.1, 2.0];
+        let b0 = matvec(n, &a, &x0);
+        let mut d = b0.clone();
+        let mut s = MinNorm::default();
+        assert_eq!(s.factor(n, &a, 1e-12), Some(2));
+        assert_eq!(s.rank(), 2);
+        assert!(s.solve_in_place(&mut d));
+        let hd = matvec(n, &a, &d);
+        for i in 0..n {
+            assert!((hd[i] - b0[i]).abs() < 1e-13, "{hd:?} vs {b0:?}");
+        }
+        // d ⟂ null(H): null(H) = {z : v·z = 0, y·z = 0}. Project d on it: d must equal its
+        // component in span(v, y), i.e. d = α v + β y.
+        let gram = [[dot(&v, &v), dot(&v, &y)], [dot(&v, &y), dot(&y, &y)]];
+        let rhs = [dot(&v, &d), dot(&y, &d)];
+        let det = gram[0][0] * gram[1][1] - gram[0][1] * gram[1][0];
+        let alpha = (rhs[0] * gram[1][1] - rhs[1] * gram[0][1]) / det;
+        let beta = (gram[0][0] * rhs[1] - gram[1][0] * rhs[0]) / det;
+        for i in 0..n {
+            assert!((d[i] - (alpha * v[i] + beta * y[i])).abs() < 1e-13, "{d:?}");
+        }
+    }
+
+    #[test]
+    fn inconsistent_system_gets_the_least_squares_solution() {
+        // H = diag(2, 0): min ‖H d − b‖ with b = (4, 1) gives d = (2, 0).
+        let a = [2.0, 0.0, 0.0, 0.0];
+        let mut b = [4.0, 1.0];
+        let mut s = MinNorm::default();
+        assert_eq!(s.factor(2, &a, 1e-12), Some(1));
+        assert!(s.solve_in_place(&mut b));
+        assert!((b[0] - 2.0).abs() < 1e-15 && b[1] == 0.0, "{b:?}");
+    }
+
+    #[test]
+    fn non_finite_matrix_is_refused() {
+        let mut s = MinNorm::default();
+        assert_eq!(s.factor(1, &[f64::NAN], 1e-12), None);
+        let mut b = [1.0];
+        assert!(!s.solve_in_place(&mut b));
+    }
+}
