@@ -56,10 +56,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("desk", scenarios::desk()),
     ];
     println!(
-        "| scene | backend | steps | conv. point/hull | max |Δv| | max |Δω| | penetration point | penetration hull | max gap under load (point) | max |CoP − ECP| | µs/step point (mean, median) | µs/step hull (mean, median) |"
+        "| scene | backend | steps | conv. point/hull | max |Δv| | max |Δω| | penetration point | penetration hull | max gap under load (point) | max |CoP − ECP| | µs/step point (mean, median) | µs/step hull (mean, median) | iterations/step point, hull |"
     );
-    println!("|---|---|---|---|---|---|---|---|---|---|---|---|");
+    println!("|---|---|---|---|---|---|---|---|---|---|---|---|---|");
+    let mut agreement = Vec::new();
     for (name, scene) in scenes {
+        let mut by_backend: Vec<(Vec<StepRecord>, Vec<StepRecord>)> = Vec::new();
         for backend in ["newton", "path"] {
             let mut solver: Box<dyn McpSolver> = match backend {
                 "newton" => Box::new(NewtonSolver::new(NewtonSettings::default())),
@@ -91,10 +93,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                     .filter(|x| x.converged && x.summary.residual <= 1e-10)
                     .count()
             };
+            let iters = |r: &[StepRecord]| {
+                r.iter().map(|x| x.summary.iterations as f64).sum::<f64>() / r.len().max(1) as f64
+            };
             let tp: Vec<f64> = p.iter().map(|r| r.solve_us).collect();
             let th: Vec<f64> = h.iter().map(|r| r.solve_us).collect();
             println!(
-                "| {name} | {backend} | {} | {}/{} | {dv:.3e} | {dw:.3e} | {:.3e} | {:.3e} | {gap_loaded:.3e} | {dcop:.3e} | {:.0}, {:.0} | {:.0}, {:.0} |",
+                "| {name} | {backend} | {} | {}/{} | {dv:.3e} | {dw:.3e} | {:.3e} | {:.3e} | {gap_loaded:.3e} | {dcop:.3e} | {:.0}, {:.0} | {:.0}, {:.0} | {:.1}, {:.1} |",
                 p.len(),
                 conv(&p),
                 conv(&h),
@@ -104,8 +109,34 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 median(tp.clone()),
                 mean(&th),
                 median(th.clone()),
+                iters(&p),
+                iters(&h),
             );
+            by_backend.push((p, h));
         }
+        // Newton against PATH on the same model: the motion of a model is unique only when
+        // both backends find the same one.
+        let gap = |a: &[StepRecord], b: &[StepRecord]| {
+            a.iter().zip(b).fold((0.0f64, 0.0f64), |(v, w), (x, y)| {
+                (
+                    v.max((x.bodies[0].v - y.bodies[0].v).norm()),
+                    w.max((x.bodies[0].w - y.bodies[0].w).norm()),
+                )
+            })
+        };
+        let (pv, pw) = gap(&by_backend[0].0, &by_backend[1].0);
+        let (hv, hw) = gap(&by_backend[0].1, &by_backend[1].1);
+        agreement.push(format!(
+            "| {name} | {pv:.3e} | {pw:.3e} | {hv:.3e} | {hw:.3e} |"
+        ));
+    }
+    println!();
+    println!("Newton against PATH, same model: max |Δv|, |Δω|");
+    println!();
+    println!("| scene | point Δv | point Δω | hull Δv | hull Δω |");
+    println!("|---|---|---|---|---|");
+    for line in agreement {
+        println!("{line}");
     }
     Ok(())
 }

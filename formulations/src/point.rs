@@ -17,13 +17,21 @@
 //!   ([`PointFrictionDissipation`]) and `0 ≤ μ p_n − ‖(p_t/e_t, p_o/e_o)‖ ⊥ σ ≥ 0`
 //!   ([`PointFrictionEllipsoid`]).
 //!
-//! The two artefacts the paper points at show up here: the load split among the points is not
-//! unique when more than three of them touch (only the total wrench, hence the centre of
-//! pressure of a flat patch, is; [`centre_of_pressure`]), and the gap is linearised, so the end
-//! of a step can leave a vertex below the plane when the body rotates ([`penetration`]).
+//! The artefacts the paper points at show up here (measured in `tests/point_contacts.rs` and
+//! the example `point_vs_ecp`):
+//! - the load split among the points is not unique when more than three of them touch. In pure
+//!   translation the motion still is (the total wrench is, hence the [`centre_of_pressure`] of
+//!   a flat patch, which equals the ECP model's ECP), but when the body turns while it slides the corners
+//!   slip in different directions, the friction wrench depends on the split, and the motion is
+//!   not unique either (the desk: Newton and PATH converge to ω_z 1e-2 rad/s apart);
+//! - the gap is linearised: the rotation over a step moves a vertex towards the rotation axis
+//!   through the CM, off its linear prediction by `O(h² |ω|² |r|)`. When ω is parallel to the
+//!   plane (tipping) that lifts the vertices in contact, which then carry load across a gap;
+//!   when ω is tilted from the normal (a spinning body landing) a vertex can end below the plane
+//!   ([`penetration`]).
 //!
 //! ```
-//! use ecp_formulations::{point::PointContacts, scenarios, Stepper};
+//! use ecp_formulations::{point::PointContacts, scenarios};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
 //! // Scenario A1 on its four bottom corners: the same μ g h deceleration as the ECP model.
