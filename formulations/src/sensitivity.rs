@@ -1,11 +1,9 @@
 //! Step and trajectory sensitivities by implicit differentiation (issue #8).
 //!
-//! **Step sensitivities.** At a converged step of a [`Simulation`] (hull formulation; the union
-//! formulation uses the same code, but its impulses are not unique, so its reduced Jacobian is
-//! usually singular and the regularised solve is reported), [`step_sensitivity`] returns the
-//! derivatives of the step's solution `z*` — ν, q (before the renormalisation of Q), the ECPs,
-//! multipliers and impulses — and of the stored end-of-step state (x, Q renormalised, v, ω)
-//! with respect to every **step input** ([`StepInput`]): the friction parameters μ, e_t, e_o,
+//! **Step sensitivities.** At a converged step of a [`Simulation`] of the hull formulation,
+//! [`step_sensitivity`] returns the derivatives of the step's solution `z*` — ν, q (before the
+//! renormalisation of Q), the ECPs, multipliers and impulses — and of the stored end-of-step
+//! state (x, Q renormalised, v, ω) with respect to every **step input** ([`StepInput`]): the friction parameters μ, e_t, e_o,
 //! e_r, each body's mass and body-frame inertia (six entries of the symmetric matrix,
 //! [`InertiaEntry`]), its start-of-step state `x^u, Q^u, v^u, ω^u`, and the applied wrench of the
 //! step (force and torque at the CM, world frame, evaluated at `t_u`). The residual blocks state
@@ -28,6 +26,14 @@
 //!   `l_g` of every closed contact) are two-sided and harmless;
 //! - a singular reduced Jacobian gets the minimum-norm solution ([`SolveKind::Regularised`]),
 //!   reported.
+//!
+//! **Only the hull formulation is supported.** The union formulation (formulation.md §7.1) runs
+//! through the same code, but its impulses are shared between the pieces and not unique: its
+//! reduced Jacobian is singular, and inconsistent for the data columns (measured on the desk with
+//! the PATH backend: relative residual 0.08 of the minimum-norm solve; the Newton backend does not
+//! converge on that step), so its derivatives are least-squares guesses. They are reported as
+//! [`Degeneracy::Singular`] at every step, never passed off as exact. The reduced and point
+//! formulations have their own steppers and no sensitivities.
 //!
 //! **Trajectory gradients.** [`trajectory_gradient`] runs a scene and chains the step
 //! sensitivities of the state passed between steps (x, Q normalised, v, ω per body) for a scalar

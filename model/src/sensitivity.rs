@@ -403,11 +403,28 @@ impl ReducedSystem {
         if rhs.iter().any(|v| !v.is_finite()) {
             return Err(ImplicitError::NonFinite);
         }
-        let mut worst = 0.0f64;
         for col in rhs.chunks_exact_mut(n.max(1)).take(p) {
             for (v, &h) in col.iter_mut().zip(&self.held) {
                 *v = if h { 0.0 } else { -*v };
             }
+        }
+        if self.regularised.is_none() {
+            // All columns in one call; a sparse LU reports near-singularity only when solving,
+            // then the columns are solved again, regularised.
+            let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+            self.work.clear();
+            self.work.extend_from_slice(rhs);
+            match linear.solve_many_in_place(rhs, p) {
+                Ok(()) => return Ok(SolveKind::Direct),
+                Err(LinalgError::Singular { .. }) => {
+                    rhs.copy_from_slice(&self.work);
+                    self.regularise()?;
+                }
+                Err(e) => return Err(e.into()),
+            }
+        }
+        let mut worst = 0.0f64;
+        for col in rhs.chunks_exact_mut(n.max(1)).take(p) {
             worst = worst.max(self.solve_one(col)?);
         }
         Ok(self.kind(worst))
@@ -535,15 +552,31 @@ impl ReducedSystem {
         if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() {
             return weak;
         }
+        // The weak rows of J(z*), gathered once: (which weak component, column, value).
         let pattern = mcp.jacobian_pattern();
-        let mut jdz = vec![0.0; n];
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        let mut rows = Vec::new();
+        for j in 0..n {
+            for q in cp[j]..cp[j + 1] {
+                if let Some(w) = weak.iter().position(|w| w.index == ri[q]) {
+                    rows.push((w, j, self.jac[q]));
+                }
+            }
+        }
         let mut scale = 1.0f64;
+        let mut df = vec![0.0; weak.len()];
         for k in 0..p {
             let col = &dfdtheta[k * n..(k + 1) * n];
+            let dzk = &dz[k * n..(k + 1) * n];
             scale = scale.max(col.iter().fold(0.0f64, |m, v| m.max(v.abs())));
-            pattern.mul_vec(&self.jac, &dz[k * n..(k + 1) * n], &mut jdz);
-            for w in weak.iter_mut() {
-                w.slope = w.slope.max((jdz[w.index] + col[w.index]).abs());
+            for (d, w) in df.iter_mut().zip(&weak) {
+                *d = col[w.index];
+            }
+            for &(w, j, v) in &rows {
+                df[w] += v * dzk[j];
+            }
+            for (w, d) in weak.iter_mut().zip(&df) {
+                w.slope = w.slope.max(d.abs());
             }
         }
         for w in weak.iter_mut() {
