@@ -412,41 +412,8 @@ pub struct PointContacts {
 
 /// Checks the scene like the ECP stepper does and returns the normalised initial states.
 fn validate(scene: &Scene) -> Result<Vec<BodyState>, SceneError> {
-    if !(scene.h > 0.0 && scene.h.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "h".into(),
-            value: scene.h,
-            hint: "the step length must be a positive number of seconds",
-        });
-    }
-    if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "duration".into(),
-            value: scene.duration,
-            hint: "the duration must be a non-negative number of seconds",
-        });
-    }
-    let f = scene.friction;
-    for (what, v, positive) in [
-        ("mu", f.mu, false),
-        ("e_t", f.e_t, true),
-        ("e_o", f.e_o, true),
-    ] {
-        if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
-            return Err(SceneError::Parameter {
-                what: what.into(),
-                value: v,
-                hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o > 0",
-            });
-        }
-    }
-    if scene.gravity.iter().any(|g| !g.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "gravity".into(),
-            value: f64::NAN,
-            hint: "gravity must be a finite vector",
-        });
-    }
+    // No torsional friction at a point: e_r is not used.
+    crate::stepper::validate_parameters(scene, false)?;
     let mut states = Vec::with_capacity(scene.bodies.len());
     for spec in &scene.bodies {
         let mut state = spec.initial;

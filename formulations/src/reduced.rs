@@ -410,7 +410,7 @@ impl ReducedSliding {
                 scene.planes.len()
             )));
         }
-        validate_parameters(&scene)?;
+        crate::stepper::validate_parameters(&scene, true)?;
         let body = scene.bodies[0].clone();
         // Conv(F) must exist, as for the hull stepper (a flat body has none).
         body.shape.hull().map_err(|source| SceneError::Geometry {
@@ -792,47 +792,6 @@ impl ReducedSliding {
         0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
             - mp.mass * self.scene.gravity.dot(&s.x)
     }
-}
-
-/// The parameter checks of the hull stepper (step, duration, friction, gravity).
-fn validate_parameters(scene: &Scene) -> Result<(), SceneError> {
-    if !(scene.h > 0.0 && scene.h.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "h".into(),
-            value: scene.h,
-            hint: "the step length must be a positive number of seconds",
-        });
-    }
-    if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "duration".into(),
-            value: scene.duration,
-            hint: "the duration must be a non-negative number of seconds",
-        });
-    }
-    let f = scene.friction;
-    for (what, v, positive) in [
-        ("mu", f.mu, false),
-        ("e_t", f.e_t, true),
-        ("e_o", f.e_o, true),
-        ("e_r", f.e_r, true),
-    ] {
-        if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
-            return Err(SceneError::Parameter {
-                what: what.into(),
-                value: v,
-                hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o, e_r > 0",
-            });
-        }
-    }
-    if scene.gravity.iter().any(|g| !g.is_finite()) {
-        return Err(SceneError::Parameter {
-            what: "gravity".into(),
-            value: f64::NAN,
-            hint: "gravity must be a finite vector",
-        });
-    }
-    Ok(())
 }
 
 impl Stepper for ReducedSliding {

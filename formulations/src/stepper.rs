@@ -177,6 +177,51 @@ pub enum SceneError {
     Model(#[from] ecp_model::ModelError),
 }
 
+/// The scene checks every formulation shares: step, duration, friction (`e_r` only when the
+/// formulation has torsional friction) and gravity.
+pub(crate) fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneError> {
+    if !(scene.h > 0.0 && scene.h.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "h".into(),
+            value: scene.h,
+            hint: "the step length must be a positive number of seconds",
+        });
+    }
+    if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "duration".into(),
+            value: scene.duration,
+            hint: "the duration must be a non-negative number of seconds",
+        });
+    }
+    let f = scene.friction;
+    let mut checks = vec![
+        ("mu", f.mu, false),
+        ("e_t", f.e_t, true),
+        ("e_o", f.e_o, true),
+    ];
+    if torsion {
+        checks.push(("e_r", f.e_r, true));
+    }
+    for (what, v, positive) in checks {
+        if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
+            return Err(SceneError::Parameter {
+                what: what.into(),
+                value: v,
+                hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o, e_r > 0",
+            });
+        }
+    }
+    if scene.gravity.iter().any(|g| !g.is_finite()) {
+        return Err(SceneError::Parameter {
+            what: "gravity".into(),
+            value: f64::NAN,
+            hint: "gravity must be a finite vector",
+        });
+    }
+    Ok(())
+}
+
 /// Fraction of a body's extent along a plane's normal within which a piece's lowest point must
 /// lie, above the body's lowest point, for the piece to get a contact in the union formulation.
 pub const UNION_REACH: f64 = 0.25;
@@ -452,42 +497,7 @@ impl Simulation {
                     .into(),
             });
         }
-        if !(scene.h > 0.0 && scene.h.is_finite()) {
-            return Err(SceneError::Parameter {
-                what: "h".into(),
-                value: scene.h,
-                hint: "the step length must be a positive number of seconds",
-            });
-        }
-        if !(scene.duration >= 0.0 && scene.duration.is_finite()) {
-            return Err(SceneError::Parameter {
-                what: "duration".into(),
-                value: scene.duration,
-                hint: "the duration must be a non-negative number of seconds",
-            });
-        }
-        let f = scene.friction;
-        for (what, v, positive) in [
-            ("mu", f.mu, false),
-            ("e_t", f.e_t, true),
-            ("e_o", f.e_o, true),
-            ("e_r", f.e_r, true),
-        ] {
-            if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
-                return Err(SceneError::Parameter {
-                    what: what.into(),
-                    value: v,
-                    hint: "friction parameters must be finite, μ ≥ 0 and e_t, e_o, e_r > 0",
-                });
-            }
-        }
-        if scene.gravity.iter().any(|g| !g.is_finite()) {
-            return Err(SceneError::Parameter {
-                what: "gravity".into(),
-                value: f64::NAN,
-                hint: "gravity must be a finite vector",
-            });
-        }
+        validate_parameters(&scene, true)?;
 
         let mut problem = Problem::new();
         let mut bodies = Vec::new();
