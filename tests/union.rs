@@ -145,9 +145,7 @@ fn union_desk_first_100_steps_converge_with_path() {
     );
 }
 
-/// Work in progress: the conic backend's fixed point does not converge on the union model yet.
 #[test]
-#[ignore]
 fn union_desk_first_100_steps_converge_with_conic() {
     run(
         scenarios::desk(),
@@ -170,7 +168,7 @@ fn union_desk_all_steps_converge_with_every_backend() {
 
 #[test]
 fn union_t_bar_converges_with_every_backend() {
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in SolverKind::ALL {
         let recs = run(t_bar_sliding(), Formulation::Union, kind, None);
         assert_eq!(recs.len(), 100, "{kind}");
         assert_eq!(recs[0].contacts.len(), 2, "{kind}");

@@ -80,6 +80,9 @@ pub struct NewtonSettings {
     /// pivoted QR falls below this times the largest column norm are treated as dependent.
     /// Default `1e-10`.
     pub rank_tolerance: f64,
+    /// The minimum-norm step is tried only near a solution: when the natural residual is at most
+    /// this, or `Ψ` has fallen below `1e-6` of its value at the start. Default `1e-3`.
+    pub min_norm_radius: f64,
     /// Watchdog of the minimum-norm steps: a full step that fails the Armijo test is still
     /// taken, and the iteration returns to the point before it when Ψ has not fallen below
     /// its value there within this many steps (0: monotone only). Default 4.
@@ -103,6 +106,7 @@ impl Default for NewtonSettings {
             dense_max: 120,
             min_norm_step: true,
             rank_tolerance: 1e-10,
+            min_norm_radius: 1e-3,
             watchdog_steps: 4,
             trace: false,
         }
@@ -436,6 +440,7 @@ impl NewtonSolver {
         let mut have_jac = true;
         fb_vector(&ws.z, &ws.f, l, u, &mut ws.phi);
         let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
+        let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
         let mut best_residual = residual;
@@ -514,6 +519,14 @@ impl NewtonSolver {
                     accepted = Some((1.0, p));
                 }
             }
+            // Near a solution (natural residual ≤ min_norm_radius, or Ψ down by 1e6 from the
+            // start) the minimum-norm step is taken as below. Farther out it is taken only when
+            // it decreases Ψ fast (by half at least), without the watchdog or backtracking:
+            // there the undamped Gauss–Newton step can follow directions of tiny singular values
+            // into the basin of the spurious p_n > 0 minimiser of separated steps (measured on
+            // the rotated free-flight T-bar of tests/closest_points.rs), which
+            // Levenberg–Marquardt's damping avoids.
+            let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
             if accepted.is_none() && !newton_ok && !ws.dense.is_empty() {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
@@ -534,12 +547,12 @@ impl NewtonSolver {
                             // set: Ψ rises for a step or two, then falls quadratically); failing
                             // that, backtracking.
                             if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
-                                if p <= psi + s.armijo * slope
+                                if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
                                     || natural_residual(&ws.z_trial, &ws.f_trial, l, u)
                                         <= s.tolerance
                                 {
                                     accepted = Some((1.0, p));
-                                } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
+                                } else if local && s.watchdog_steps > 0 && psi < watchdog_ceiling {
                                     if checkpoint.is_none() {
                                         ws.z_check.copy_from_slice(&ws.z);
                                         ws.f_check.copy_from_slice(&ws.f);
@@ -552,7 +565,7 @@ impl NewtonSolver {
                                 }
                             }
                             let mut t = s.backtrack;
-                            while accepted.is_none() && t >= MIN_NORM_SHORTEST_STEP {
+                            while local && accepted.is_none() && t >= MIN_NORM_SHORTEST_STEP {
                                 if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
                                     && (p <= psi + s.armijo * t * slope
                                         || natural_residual(&ws.z_trial, &ws.f_trial, l, u)

@@ -42,6 +42,17 @@
 //!   [`SolveError::NotConverged`] with [`Termination::MaxIterations`] (one QP) and the relaxed
 //!   point as its best iterate (a time stepper takes it and records the step as not converged).
 //!
+//! Bodies with several contacts (the union-of-pieces model, formulation.md §7.1, where each
+//! convex piece of the desk or the T-bar has its own contact): the QP's velocities are unique but
+//! its impulses are not — how the load is shared between the pieces and where each piece's
+//! centre of pressure lies are left open, by the step model itself — and each piece's centre of
+//! pressure becomes its ECP, where its friction acts, in the next QP. Left to the interior-point
+//! method, the choice changes from one outer iteration to the next and the fixed point cycles.
+//! Those contacts are anchored by a proximal term on their normal wrench
+//! ([`ConicSettings::anchor_moment`], [`ConicSettings::anchor_load`]; the derivation is in the
+//! `step` module), which vanishes at a fixed point; the polish then corrects their impulses
+//! towards the same anchored member, and computes their friction at their centres of pressure.
+//!
 //! The backend needs the MCP's structural view ([`ecp_model::Mcp::structure`],
 //! [`ecp_model::StepStructure`]); a generic MCP is rejected with
 //! [`SolveError::InvalidProblem`].
@@ -90,7 +101,8 @@ pub struct ConicSettings {
     /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
     pub max_iterations: usize,
     /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
-    /// iterations. Default 8.
+    /// iterations. Default 20 (the union desk's last digits can take a dozen iterations when a
+    /// leg is nearly unloaded: with 8, 1 of its 400 steps stops at 1.2e-10).
     pub stagnation_window: usize,
     /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
     /// twice the distance they may approach G within the step, enter the QP
@@ -109,6 +121,21 @@ pub struct ConicSettings {
     /// Anderson acceleration of the outer fixed point: number of previous iterates mixed
     /// (Walker & Ni 2011); 0 gives the plain De Saxcé / Acary–Cadoux iteration. Default 4.
     pub anderson_memory: usize,
+    /// Weight `ρ_m` of the centre-of-pressure anchor of the contacts of bodies with several
+    /// contacts (exact mode; the proximal term described in the module doc), relative to the
+    /// body's mean angular mobility `mean_i 1/M_{ωω,ii}`. The union-of-pieces model
+    /// (formulation.md §7.1) needs it: without it the per-piece centres of pressure and loads,
+    /// which the model does not determine, jump between outer iterations and the fixed point
+    /// cycles (residual stuck near 1e-3 on every union-desk step). The term vanishes at a fixed
+    /// point; larger values hold the centres of pressure more firmly. 0 disables both anchors.
+    /// Default 1000. Measured on the 400-step union desk (failed steps, `anchor_load` 0.1):
+    /// 30 → 16, 100 → 23, 300 → 0, 1000 → 0 (5.0 outer iterations per step), 3000 → 0.
+    pub anchor_moment: f64,
+    /// Weight `ρ_n` of the load anchor (the same proximal term on each such contact's normal
+    /// impulse), relative to the contact's normal mobility `W_nᵀM⁻¹W_n`. Default `0.1`
+    /// (with `anchor_moment` 300: 0.03, 0.1 and 1 all give 0 failed union-desk steps; with 100,
+    /// 0.01 gives 28).
+    pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
     /// tolerance (exact mode only), reported in the counter `"newton_polish"`. Default 0: the
     /// conic iteration alone must converge.
@@ -142,11 +169,13 @@ impl Default for ConicSettings {
         ConicSettings {
             tolerance: 1e-10,
             max_iterations: 50,
-            stagnation_window: 8,
+            stagnation_window: 20,
             patch_band: 1e-3,
             mode: ConicMode::Exact,
             anderson_memory: 4,
             polish: true,
+            anchor_moment: 1000.0,
+            anchor_load: 0.1,
             newton_polish: 0,
             trace: false,
             clarabel: default_clarabel_settings(),
@@ -309,7 +338,16 @@ impl McpSolver for ConicSolver {
             for (g, e) in geometry.iter_mut().zip(&x.ecps) {
                 g.ecp = *e;
             }
-            let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts);
+            let previous_loads: Vec<f64> = last_impulses
+                .iter()
+                .map(|p| p.vertex_impulses.iter().map(|(_, l)| l).sum())
+                .collect();
+            let anchor = exact.then_some(step::Anchor {
+                moment: self.settings.anchor_moment,
+                load: self.settings.anchor_load,
+                previous_loads: (!previous_loads.is_empty()).then_some(previous_loads.as_slice()),
+            });
+            let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
             run.patch_vertices = sub.patch_vertices;
             let result = match sub.qp.solve(&self.settings.clarabel) {
                 Ok(r) => r,
@@ -378,10 +416,18 @@ impl McpSolver for ConicSolver {
                     break;
                 }
             }
-            // G(x): the new velocities, the plain De Saxcé update μσ and the new ECPs.
+            // G(x): the new velocities, the plain De Saxcé update μσ and the new ECPs. An
+            // anchored contact left without load keeps its ECP: the closest feature of a
+            // separated piece (a corner) would move its friction there, and the contact would
+            // cycle between loaded and unloaded.
             let new_geometry: Vec<_> = (0..nc)
                 .map(|c| structure.contact(c, &z, self.settings.patch_band))
                 .collect();
+            let anchored = if self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0 {
+                step::anchored_contacts(&geometry, nb)
+            } else {
+                vec![false; nc]
+            };
             let g = State {
                 nu: point.velocities.clone(),
                 shifts: new_geometry
@@ -391,7 +437,20 @@ impl McpSolver for ConicSolver {
                         geo.friction.mu * point.contacts.get(c).map_or(0.0, |p| p.sigma)
                     })
                     .collect(),
-                ecps: new_geometry.iter().map(|geo| geo.ecp).collect(),
+                ecps: new_geometry
+                    .iter()
+                    .enumerate()
+                    .map(|(c, geo)| {
+                        let unloaded = point
+                            .contacts
+                            .get(c)
+                            .is_none_or(|p| p.vertex_impulses.iter().all(|(_, l)| *l <= 0.0));
+                        match x.ecps.get(c) {
+                            Some(e) if anchored[c] && unloaded => *e,
+                            _ => geo.ecp,
+                        }
+                    })
+                    .collect(),
             };
             if residual.is_nan() || residual > 10.0 * previous_residual {
                 // The mixing made things worse: restart it from the plain update.

@@ -20,6 +20,27 @@
 //! impulse opposing the slip (maximum dissipation), and complementarity of each `λ_j` with its
 //! shifted, linearised gap. At a fixed point (`ν = ν^k`, geometry unchanged, `s_c` equal to the
 //! new slip) these are exactly the conditions of formulation.md §4.
+//!
+//! **Anchored contacts** (a body with several loaded contacts, such as the union-of-pieces model
+//! of formulation.md §7.1): the QP's velocities are unique but its impulses are not, and neither
+//! is the solution of the step model — how the load is shared between the desk's legs, and where
+//! in its foot each leg's centre of pressure lies, are left open (the Jacobian of the step MCP
+//! has a 9-dimensional null space on the union desk). The interior-point method returns a
+//! different member of that set at each outer iteration; the centre of pressure of each contact
+//! becomes its ECP for the next QP, where its friction acts, so the fixed point cycles
+//! (measured: period-2 cycles with `‖Δz‖ ≈ 0.8`, residual stuck at 1e-3). Anchored contacts get
+//! a proximal term in the dual, centred on the previous iterate: three free variables per
+//! contact, `ξ_c ∈ R²` and `ζ_c`, enter each of its vertex rows as `+ b_jᵀξ_c + ζ_c`, with
+//! `b_j` the tangential components of `v_j − e_c` (`e_c` the contact's current ECP), at cost
+//! `‖ξ_c‖²/(2ρ_m) + ζ_c²/(2ρ_n) + p_{n,c}^k ζ_c`. The KKT conditions give
+//! `ξ_c = ρ_m p_{n,c} (CoP_c − e_c)` and `ζ_c = ρ_n (p_{n,c} − p_{n,c}^k)`, i.e. the dual gains
+//! `−½ρ_m‖p_{n,c}(CoP_c − e_c)‖² − ½ρ_n (p_{n,c} − p_{n,c}^k)²`: of the impulses that solve the
+//! QP, the ones whose centre of pressure stays at the ECP and whose load stays near the previous
+//! one. Both terms vanish at a fixed point (the ECP update makes `CoP_c = e_c`, and the load no
+//! longer changes), so the fixed point is still exactly formulation.md §4; away from it they
+//! relax each row by at most what the contact moved in one iteration. This is the proximal point
+//! method on the dual (Rockafellar, SIAM J. Control Optim. 14, 1976), restricted to the
+//! contact's normal wrench.
 
 use ecp_model::{BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, StepStructure};
 
@@ -35,6 +56,10 @@ fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
 
 fn sub(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
     [a[0] - b[0], a[1] - b[1], a[2] - b[2]]
+}
+
+fn dot3(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
 fn dot6(a: &[f64; 6], b: &[f64; 6]) -> f64 {
@@ -61,6 +86,12 @@ struct ContactRows {
     gap_rates: Vec<f64>,
     /// Friction wrenches `W_t, W_o, W_r` at the current ECP.
     friction_wrenches: [[f64; 6]; 3],
+    /// World positions of the patch vertices, in row order.
+    positions: Vec<[f64; 3]>,
+    /// The contact's geometry (frame, CM), for friction wrenches at another point.
+    frame: ContactGeometry,
+    /// The proximal anchor of this contact `(ρ_m, ρ_n, p_n^k)`, when anchored.
+    anchor: Option<(f64, f64, f64)>,
     /// Ellipsoid semi-axes `(e_t, e_o, e_r)`.
     axes: [f64; 3],
     /// First row of the second-order cone, when μ > 0.
@@ -99,15 +130,45 @@ pub(crate) fn de_saxce_shift(g: &ContactGeometry, nu: &[f64; 6]) -> f64 {
     f.mu * slip
 }
 
+/// The proximal anchor of the contacts of bodies with several contacts (see the module doc).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Anchor<'a> {
+    /// `ρ_m` relative to the body's mean angular mobility `mean_i 1/M_{ωω,ii}`: weight of the
+    /// centre-of-pressure anchor. 0 disables the anchor.
+    pub moment: f64,
+    /// `ρ_n` relative to the contact's normal mobility `W_n(e)ᵀM⁻¹W_n(e)`: weight of the load
+    /// anchor.
+    pub load: f64,
+    /// The previous iterate's normal impulse `p_{n,c}^k` of every contact; `None` at the first
+    /// iteration (the load anchor is then a small Tikhonov term towards 0).
+    pub previous_loads: Option<&'a [f64]>,
+}
+
+/// Which contacts are anchored: those with a patch whose body has at least two of them.
+pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize) -> Vec<bool> {
+    let mut per_body = vec![0usize; num_bodies];
+    for g in geometry {
+        if !g.patch.is_empty() && g.body < num_bodies {
+            per_body[g.body] += 1;
+        }
+    }
+    geometry
+        .iter()
+        .map(|g| !g.patch.is_empty() && g.body < num_bodies && per_body[g.body] >= 2)
+        .collect()
+}
+
 /// Builds the subproblem at the trial point (geometry from `geometry`, trial velocities
 /// `trial`) with the normal shift `shifts[c]` of every contact: the De Saxcé shift (exact
-/// mode) or zero (Anitescu's relaxation).
+/// mode) or zero (Anitescu's relaxation); with `anchor`, the contacts of bodies with several
+/// contacts get the proximal anchor of the module doc.
 pub(crate) fn build(
     structure: &dyn StepStructure,
     bodies: &[BodyDynamics],
     trial: &[[f64; 6]],
     geometry: &[ContactGeometry],
     shifts: &[f64],
+    anchor: Option<Anchor<'_>>,
 ) -> StepQp {
     let h = structure.step_length();
     let nb = bodies.len();
@@ -117,7 +178,38 @@ pub(crate) fn build(
         .filter(|(_, g)| !g.patch.is_empty() && g.friction.mu > 0.0)
         .map(|(c, _)| c)
         .collect();
-    let mut qp = ConicQp::new(6 * nb + friction_vars.len());
+    // Columns of the anchor variables (ξ_c, ζ_c) of each anchored contact.
+    let anchor = anchor.filter(|a| a.moment > 0.0 && a.load > 0.0);
+    let weights: Vec<Option<(f64, f64)>> = match anchor {
+        Some(a) => anchored_contacts(geometry, nb)
+            .into_iter()
+            .zip(geometry)
+            .map(|(anchored, g)| {
+                if !anchored {
+                    return None;
+                }
+                let m = &bodies[g.body].mass;
+                let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
+                let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
+                let normal = dot6(&we, &solve6(m, &we));
+                let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
+                (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
+                    .then_some((rho_m, rho_n))
+            })
+            .collect(),
+        None => vec![None; geometry.len()],
+    };
+    let mut next_col = 6 * nb + friction_vars.len();
+    let anchor_cols: Vec<Option<usize>> = weights
+        .iter()
+        .map(|w| {
+            w.map(|_| {
+                next_col += 3;
+                next_col - 3
+            })
+        })
+        .collect();
+    let mut qp = ConicQp::new(next_col);
     for (b, body) in bodies.iter().enumerate() {
         for i in 0..6 {
             for j in i..6 {
@@ -148,6 +240,7 @@ pub(crate) fn build(
             .map(|k| 6 * nb + k);
         let first_row = qp.rows();
         let mut vertices = Vec::with_capacity(g.patch.len());
+        let mut positions = Vec::with_capacity(g.patch.len());
         let mut gap_rates = Vec::with_capacity(g.patch.len());
         let mut normal_wrenches = Vec::with_capacity(g.patch.len());
         for v in &g.patch {
@@ -156,11 +249,29 @@ pub(crate) fn build(
             if let Some(a) = a_col {
                 coeffs.push((a, f.mu));
             }
+            if let Some(col) = anchor_cols[c] {
+                // + b_jᵀξ_c + ζ_c (the row is s = b − A x).
+                let arm = sub(&v.position, &g.ecp);
+                coeffs.push((col, -dot3(&arm, &g.tangent)));
+                coeffs.push((col + 1, -dot3(&arm, &g.bitangent)));
+                coeffs.push((col + 2, -1.0));
+            }
             let rate = v.gap / h - dot6(&w, nu_k);
             qp.push_row(&coeffs, rate + s);
             gap_rates.push(rate);
             vertices.push(v.index);
+            positions.push(v.position);
             normal_wrenches.push(w);
+        }
+        if let (Some(col), Some((rho_m, rho_n)), Some(a)) = (anchor_cols[c], weights[c], anchor) {
+            qp.add_p(col, col, 1.0 / rho_m);
+            qp.add_p(col + 1, col + 1, 1.0 / rho_m);
+            qp.add_p(col + 2, col + 2, 1.0 / rho_n);
+            qp.q[col + 2] = a
+                .previous_loads
+                .and_then(|p| p.get(c))
+                .copied()
+                .unwrap_or(0.0);
         }
         qp.cones.push(Cone::Nonnegative(g.patch.len()));
         patch_vertices += g.patch.len();
@@ -185,6 +296,19 @@ pub(crate) fn build(
             axes,
             soc_row,
             mu: f.mu,
+            positions,
+            frame: ContactGeometry {
+                patch: Vec::new(),
+                ..g.clone()
+            },
+            anchor: weights[c].map(|(rho_m, rho_n)| {
+                let previous = anchor
+                    .and_then(|a| a.previous_loads)
+                    .and_then(|p| p.get(c))
+                    .copied()
+                    .unwrap_or(0.0);
+                (rho_m, rho_n, previous)
+            }),
         }));
     }
     StepQp {
@@ -206,9 +330,11 @@ impl StepQp {
     ///   solution of its local maximum-dissipation problem (the per-contact problem of the
     ///   Acary–Cadoux / NSGS literature), `min ½ pᵀA p + u₀ᵀp` over the ellipsoid
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
-    ///   ([`local_friction`]), in two Gauss–Seidel sweeps over the contacts of a body, starting
+    ///   ([`local_friction`]), in three Gauss–Seidel sweeps over the contacts of a body, starting
     ///   from clarabel's dual; it sticks with `u_T = 0` exactly or slides with
-    ///   `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly (formulation.md §4.4);
+    ///   `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly (formulation.md §4.4); the friction of an
+    ///   anchored contact acts at the centre of pressure of its corrected normal impulses (the
+    ///   ECP of the assembled point) rather than at the ECP the QP was built at;
     /// - the velocities are recomputed from the impulses by the Newton–Euler equations,
     ///   `ν = ν_free + M⁻¹ Σ W p`, so that the dynamics hold to round-off.
     ///
@@ -254,22 +380,40 @@ impl StepQp {
             });
         }
         let sweeps = if polish { 3 } else { 0 };
+        // The friction wrenches each contact's friction currently acts through.
+        let mut current: Vec<[[f64; 6]; 3]> = self
+            .contacts
+            .iter()
+            .map(|r| r.as_ref().map_or([[0.0; 6]; 3], |r| r.friction_wrenches))
+            .collect();
         for _sweep in 0..sweeps {
             self.correct_normal_impulses(bodies, &mut contacts, &mut wrench_sum);
-            for (rows, imp) in self.contacts.iter().zip(contacts.iter_mut()) {
+            for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
                     continue;
                 }
                 let b = rows.body;
                 let body = &bodies[b];
-                let wf = &rows.friction_wrenches;
-                // Remove this contact's friction, then solve its local problem.
+                // Remove this contact's friction, then solve its local problem with the friction
+                // acting at the centre of pressure of the normal impulses (the ECP a1 of the
+                // point that is assembled, formulation.md §4.1, §4.4), which may differ from
+                // the ECP the QP was built at until the fixed point converges.
                 for i in 0..3 {
                     for k in 0..6 {
-                        wrench_sum[b][k] -= imp.friction[i] * wf[i][k];
+                        wrench_sum[b][k] -= imp.friction[i] * current[c][i][k];
                     }
                 }
+                if rows.anchor.is_some()
+                    && let Some(cop) = rows.centre_of_pressure(&imp.vertex_impulses)
+                {
+                    current[c] = friction_wrenches(&ContactGeometry {
+                        ecp: cop,
+                        patch: Vec::new(),
+                        ..rows.frame.clone()
+                    });
+                }
+                let wf = &current[c];
                 let dv = solve6(&body.mass, &wrench_sum[b]);
                 let mut nu0 = body.free_velocity;
                 for k in 0..6 {
@@ -326,6 +470,25 @@ impl StepQp {
     }
 }
 
+impl ContactRows {
+    /// Centre of pressure of the normal impulses `(vertex index, λ)` of this contact (in row
+    /// order); `None` without load.
+    fn centre_of_pressure(&self, impulses: &[(usize, f64)]) -> Option<[f64; 3]> {
+        let mut total = 0.0;
+        let mut p = [0.0; 3];
+        for (k, &(_, l)) in impulses.iter().enumerate() {
+            let (Some(x), true) = (self.positions.get(k), l > 0.0) else {
+                continue;
+            };
+            total += l;
+            for i in 0..3 {
+                p[i] += l * x[i];
+            }
+        }
+        (total > 0.0 && total.is_finite()).then(|| p.map(|v| v / total))
+    }
+}
+
 impl StepQp {
     /// Normal part of the active-set polish: with the friction impulses fixed, corrects the
     /// normal impulses of the loaded vertices (`λ_j > 0`) of each body by the minimum-norm step
@@ -333,6 +496,13 @@ impl StepQp {
     /// `ν = ν_free + M⁻¹ Σ W p`: the Delassus system `W_Jᵀ M⁻¹ W_J δλ = −gap` solved by a
     /// pseudo-inverse (four coplanar vertices make it singular; the ECP stays unique). A
     /// correction that would make some `λ_j` negative is scaled back to keep them ≥ 0.
+    ///
+    /// When the body has anchored contacts (several contacts, module doc), the correction is
+    /// not the minimum-norm one but the one that minimises the anchor's penalty
+    /// ([`StepQp::anchored_correction`]): the loaded vertices' gaps fix only the body's total
+    /// normal wrench, and along the rest (load split, centres of pressure) the QP's own
+    /// optimum is decided by the anchor alone, so the polish picks exactly that member instead
+    /// of keeping the interior-point method's round-off in those directions.
     fn correct_normal_impulses(
         &self,
         bodies: &[BodyDynamics],
@@ -382,7 +552,17 @@ impl StepQp {
                     .map_or(0.0, |rows| rows.gap_rates[kk]);
                 r[i] = -(rate + dot6(&w[i], &nu));
             }
-            let Some(delta) = pseudo_solve(d, &r) else {
+            let anchored = loaded.iter().any(|&(c, _)| {
+                self.contacts[c]
+                    .as_ref()
+                    .is_some_and(|r| r.anchor.is_some())
+            });
+            let delta = if anchored {
+                self.anchored_correction(&loaded, contacts, d, &r)
+            } else {
+                pseudo_solve(d, &r)
+            };
+            let Some(delta) = delta else {
                 continue;
             };
             // Largest step in [0, 1] keeping every λ ≥ 0.
@@ -405,10 +585,98 @@ impl StepQp {
     }
 }
 
-/// Minimum-norm solution of the symmetric positive semi-definite system `D x = r` (cyclic
-/// Jacobi eigen-decomposition, eigenvalues below `1e-12` of the largest dropped).
-fn pseudo_solve(mut d: Vec<Vec<f64>>, r: &[f64]) -> Option<Vec<f64>> {
-    let n = r.len();
+impl StepQp {
+    /// The correction `δ` of the loaded normal impulses `λ` (list `loaded` of (contact, row))
+    /// that solves the Delassus system `D δ = r` (in the least-squares sense, like
+    /// [`pseudo_solve`]) and, among its solutions, minimises the anchor penalty
+    /// `Σ_c ½ρ_m‖A_c(λ + δ)‖² + ½ρ_n(1_cᵀ(λ + δ) − p_{n,c}^k)²` of the anchored contacts plus
+    /// `½τ‖δ‖²` (`A_c`: the tangential lever arms about the contact's ECP; `τ` tiny, for the
+    /// load patterns the anchor does not see). Solved as the KKT system
+    /// `[Q Uᵣ; Uᵣᵀ 0] [δ; y] = [−g; S⁻¹Uᵣᵀr]` on the range `Uᵣ` of `D = U S Uᵀ`.
+    fn anchored_correction(
+        &self,
+        loaded: &[(usize, usize)],
+        contacts: &[ContactImpulses],
+        d: Vec<Vec<f64>>,
+        r: &[f64],
+    ) -> Option<Vec<f64>> {
+        let k = loaded.len();
+        // Q and g = ∇(anchor penalty) at δ = 0.
+        let mut q = vec![vec![0.0; k]; k];
+        let mut g = vec![0.0; k];
+        let mut groups: Vec<usize> = loaded.iter().map(|&(c, _)| c).collect();
+        groups.dedup();
+        for &c in &groups {
+            let Some(rows) = self.contacts[c].as_ref() else {
+                continue;
+            };
+            let Some((rho_m, rho_n, previous)) = rows.anchor else {
+                continue;
+            };
+            let members: Vec<usize> = (0..k).filter(|&i| loaded[i].0 == c).collect();
+            let e = rows.frame.ecp;
+            let arms: Vec<[f64; 2]> = members
+                .iter()
+                .map(|&i| {
+                    let x = rows.positions.get(loaded[i].1).copied().unwrap_or(e);
+                    let arm = sub(&x, &e);
+                    [
+                        dot3(&arm, &rows.frame.tangent),
+                        dot3(&arm, &rows.frame.bitangent),
+                    ]
+                })
+                .collect();
+            let lambda: Vec<f64> = members
+                .iter()
+                .map(|&i| contacts[c].vertex_impulses[loaded[i].1].1)
+                .collect();
+            let moment = [0, 1].map(|a| {
+                (0..members.len())
+                    .map(|m| arms[m][a] * lambda[m])
+                    .sum::<f64>()
+            });
+            let load: f64 = lambda.iter().sum();
+            for (mi, &i) in members.iter().enumerate() {
+                g[i] += rho_m * (arms[mi][0] * moment[0] + arms[mi][1] * moment[1])
+                    + rho_n * (load - previous);
+                for (mj, &j) in members.iter().enumerate() {
+                    q[i][j] +=
+                        rho_m * (arms[mi][0] * arms[mj][0] + arms[mi][1] * arms[mj][1]) + rho_n;
+                }
+            }
+        }
+        let scale = (0..k).map(|i| q[i][i]).fold(0.0, f64::max);
+        let tau = 1e-8 * if scale > 0.0 { scale } else { 1.0 };
+        for i in 0..k {
+            q[i][i] += tau;
+        }
+        // Range of D and the constraint Uᵣᵀδ = S⁻¹Uᵣᵀr.
+        let (eig, vecs) = symmetric_eigen(d)?;
+        let max_eig = eig.iter().copied().fold(0.0, f64::max);
+        let range: Vec<usize> = (0..k).filter(|&m| eig[m] > 1e-12 * max_eig).collect();
+        let n = k + range.len();
+        let mut a = vec![vec![0.0; n]; n];
+        let mut rhs = vec![0.0; n];
+        for i in 0..k {
+            a[i][..k].copy_from_slice(&q[i]);
+            rhs[i] = -g[i];
+        }
+        for (m, &col) in range.iter().enumerate() {
+            for i in 0..k {
+                a[i][k + m] = vecs[i][col];
+                a[k + m][i] = vecs[i][col];
+            }
+            rhs[k + m] = (0..k).map(|i| vecs[i][col] * r[i]).sum::<f64>() / eig[col];
+        }
+        let x = solve_dense(a, rhs)?;
+        Some(x[..k].to_vec())
+    }
+}
+
+/// Eigen-decomposition of a symmetric matrix by cyclic Jacobi rotations: eigenvalues and the
+/// eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
+fn symmetric_eigen(mut d: Vec<Vec<f64>>) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+    let n = d.len();
     let mut v = vec![vec![0.0; n]; n];
     for i in 0..n {
         v[i][i] = 1.0;
@@ -450,13 +718,53 @@ fn pseudo_solve(mut d: Vec<Vec<f64>>, r: &[f64]) -> Option<Vec<f64>> {
             }
         }
     }
-    let max_eig = (0..n).map(|i| d[i][i].abs()).fold(0.0, f64::max);
+    let eig: Vec<f64> = (0..n).map(|i| d[i][i]).collect();
+    eig.iter().all(|e| e.is_finite()).then_some((eig, v))
+}
+
+/// Solves the dense square system `A x = b` by Gaussian elimination with partial pivoting;
+/// `None` when `A` is numerically singular or the result is not finite.
+fn solve_dense(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    let n = b.len();
+    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
+    for col in 0..n {
+        let p = (col..n).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
+        let pivot = a[p][col].abs();
+        if pivot.is_nan() || pivot <= 1e-14 * scale {
+            return None;
+        }
+        a.swap(col, p);
+        b.swap(col, p);
+        for row in col + 1..n {
+            let f = a[row][col] / a[col][col];
+            if f != 0.0 {
+                for k in col..n {
+                    a[row][k] -= f * a[col][k];
+                }
+                b[row] -= f * b[col];
+            }
+        }
+    }
+    let mut x = vec![0.0; n];
+    for row in (0..n).rev() {
+        let s: f64 = (row + 1..n).map(|k| a[row][k] * x[k]).sum();
+        x[row] = (b[row] - s) / a[row][row];
+    }
+    x.iter().all(|v| v.is_finite()).then_some(x)
+}
+
+/// Minimum-norm solution of the symmetric positive semi-definite system `D x = r` (cyclic
+/// Jacobi eigen-decomposition, eigenvalues below `1e-12` of the largest dropped).
+fn pseudo_solve(d: Vec<Vec<f64>>, r: &[f64]) -> Option<Vec<f64>> {
+    let n = r.len();
+    let (eig, v) = symmetric_eigen(d)?;
+    let max_eig = eig.iter().map(|e| e.abs()).fold(0.0, f64::max);
     if max_eig.is_nan() || max_eig <= 0.0 || !max_eig.is_finite() {
         return None;
     }
     let mut x = vec![0.0; n];
     for k in 0..n {
-        let e = d[k][k];
+        let e = eig[k];
         if e > 1e-12 * max_eig {
             let proj: f64 = (0..n).map(|i| v[i][k] * r[i]).sum::<f64>() / e;
             for i in 0..n {
@@ -683,6 +991,76 @@ mod tests {
             let dx: f64 = (0..3).map(|j| d[i][j] * x[j]).sum();
             assert!((dx - r[i]).abs() < 1e-12);
         }
+    }
+
+    fn contact(body: usize, patch: usize) -> ContactGeometry {
+        ContactGeometry {
+            body,
+            normal: [0.0, 0.0, 1.0],
+            tangent: [1.0, 0.0, 0.0],
+            bitangent: [0.0, 1.0, 0.0],
+            center_of_mass: [0.0; 3],
+            gap: 0.0,
+            patch: (0..patch)
+                .map(|j| ecp_model::PatchVertex {
+                    index: j,
+                    position: [j as f64, 0.0, 0.0],
+                    gap: 0.0,
+                })
+                .collect(),
+            ecp: [0.0; 3],
+            friction: ecp_model::ContactFriction {
+                mu: 0.2,
+                e_t: 1.0,
+                e_o: 1.0,
+                e_r: 0.1,
+            },
+        }
+    }
+
+    #[test]
+    fn only_bodies_with_several_loaded_contacts_are_anchored() {
+        // Body 0: two contacts with a patch (anchored) and one without; body 1: one contact.
+        let g = [contact(0, 4), contact(0, 4), contact(0, 0), contact(1, 4)];
+        assert_eq!(anchored_contacts(&g, 2), vec![true, true, false, false]);
+        // A contact naming a body that does not exist is never anchored.
+        assert_eq!(anchored_contacts(&g, 1), vec![true, true, false, false]);
+    }
+
+    #[test]
+    fn symmetric_eigen_reconstructs_the_matrix() {
+        let d = vec![
+            vec![4.0, 1.0, 0.0],
+            vec![1.0, 3.0, 0.5],
+            vec![0.0, 0.5, 2.0],
+        ];
+        let (eig, v) = symmetric_eigen(d.clone()).expect("finite");
+        for i in 0..3 {
+            for j in 0..3 {
+                let a: f64 = (0..3).map(|k| v[i][k] * eig[k] * v[j][k]).sum();
+                assert!(
+                    (a - d[i][j]).abs() < 1e-13,
+                    "({i}, {j}): {a} vs {}",
+                    d[i][j]
+                );
+            }
+        }
+        assert!(symmetric_eigen(vec![vec![f64::NAN]]).is_none());
+    }
+
+    #[test]
+    fn solve_dense_solves_and_refuses_singular_systems() {
+        let a = vec![
+            vec![0.0, 2.0, 1.0],
+            vec![1.0, 1.0, 0.0],
+            vec![3.0, 0.0, 1.0],
+        ];
+        let x = solve_dense(a.clone(), vec![5.0, 3.0, 6.0]).expect("nonsingular");
+        for i in 0..3 {
+            let ax: f64 = (0..3).map(|j| a[i][j] * x[j]).sum();
+            assert!((ax - [5.0, 3.0, 6.0][i]).abs() < 1e-14);
+        }
+        assert!(solve_dense(vec![vec![1.0, 2.0], vec![2.0, 4.0]], vec![1.0, 2.0]).is_none());
     }
 
     #[test]
