@@ -795,14 +795,21 @@ fn point_section(doc: &mut String) -> Result<(), Error> {
     let mut spinning = load_scene(Path::new("scenes/a5_drop_tilted.toml"))?;
     spinning.scene.name = "a5_drop_tilted_spinning".into();
     spinning.scene.bodies[0].initial.w = nalgebra::Vector3::new(0.0, 0.0, 10.0);
-    scenes.insert(2, ("a5_drop_tilted, spinning at ω_z = 10 rad/s".into(), spinning));
+    scenes.insert(
+        2,
+        (
+            "a5_drop_tilted, spinning at ω_z = 10 rad/s".into(),
+            spinning,
+        ),
+    );
     for (name, file) in &scenes {
         let tag = file.scene.name.clone();
         let h = run(file, &tag, Formulation::Hull, SolverKind::Path, 1, false);
         let p = run(file, &tag, Formulation::Point, SolverKind::Path, 1, false);
         let pen = |r: &Run| {
-            r.ok()
-                .map_or("did not run".to_string(), |o| sci(o.summary.max_penetration))
+            r.ok().map_or("did not run".to_string(), |o| {
+                sci(o.summary.max_penetration)
+            })
         };
         let loaded_gap = p.ok().map_or("—".to_string(), |o| {
             sci(o
