@@ -620,6 +620,17 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
             start = k;
         }
     }
+    writeln!(
+        doc,
+        "\nThe paper's sequence (surface → two-point → another two-point → surface → rotation in \
+         surface contact) comes out of the simulation, with the bar lying flat for a while \
+         between the two two-point contacts. The two pairs are the ends of the two slanted edges \
+         of Conv(T-bar) (a crossbar corner and the stem tip's corner on the same side; the ECP \
+         lies on that hull edge, outside the body). They share no vertex and lie on opposite \
+         sides of the bottom face, so with inelastic contact the bar passes through a surface \
+         (or a point) contact on its way from one to the other; the paper's snapshots do not \
+         show what happens in between. The schedule and its reasoning are in the scene file.\n"
+    )?;
     let in_contact: Vec<&StepRecord> = recs.iter().filter(|r| r.contacts[0].pn > 0.0).collect();
     let max_az = in_contact
         .iter()
