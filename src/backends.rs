@@ -101,6 +101,16 @@ impl Default for SolverConfig {
 /// tolerance and iteration limit where given. (A `Result` so that backends with settings that
 /// can be invalid fit the same call.)
 pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputError> {
+    make_solver_for(config, Formulation::Hull)
+}
+
+/// [`make_solver`] for the step problems of `formulation`: the union formulation's solutions are
+/// not isolated (formulation.md §6, §7.1), and the Newton backend then takes minimum-norm
+/// least-squares steps ([`NewtonSettings::min_norm_step`]), which it does not by default.
+pub fn make_solver_for(
+    config: &SolverConfig,
+    formulation: Formulation,
+) -> Result<Box<dyn McpSolver>, InputError> {
     // Each backend's settings struct has these two fields under the same names.
     macro_rules! configured {
         ($settings:ident, $solver:ident) => {{
@@ -113,6 +123,15 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
         }};
     }
     Ok(match config.kind {
+        SolverKind::Newton if formulation == Formulation::Union => {
+            let d = NewtonSettings::default();
+            Box::new(NewtonSolver::new(NewtonSettings {
+                tolerance: config.tolerance.unwrap_or(d.tolerance),
+                max_iterations: config.max_iterations.unwrap_or(d.max_iterations),
+                min_norm_step: true,
+                ..d
+            })) as Box<dyn McpSolver>
+        }
         SolverKind::Newton => configured!(NewtonSettings, NewtonSolver),
         SolverKind::Path => configured!(PathSettings, PathSolver),
         SolverKind::Conic => configured!(ConicSettings, ConicSolver),

@@ -8,7 +8,9 @@ use std::time::Instant;
 use ecp_formulations::build_stepper;
 use ecp_formulations::stepper::StepRecord;
 
-use crate::backends::{Formulation, SolverConfig, SolverKind, check_combination, make_solver};
+use crate::backends::{
+    Formulation, SolverConfig, SolverKind, check_combination, make_solver, make_solver_for,
+};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
     CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
@@ -106,7 +108,7 @@ pub fn run_scene(
     let start = Instant::now();
     let config = resolve(file, options)?;
     let formulation = options.formulation.unwrap_or(file.formulation);
-    let mut solver = make_solver(&config)?;
+    let mut solver = make_solver_for(&config, formulation)?;
     let mut sim = build_stepper(file.scene.clone(), formulation).map_err(|e| InputError {
         file: Some(file.path.clone()),
         key: None,

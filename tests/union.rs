@@ -20,7 +20,7 @@ use std::sync::Arc;
 
 use nalgebra::{Vector3, Vector4, Vector6};
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver};
+use ecp::backends::{SolverConfig, SolverKind, make_solver_for};
 use ecp::formulations::Formulation;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::scenarios;
@@ -39,10 +39,13 @@ fn run(
 ) -> Vec<StepRecord> {
     let name = format!("{} ({formulation}, {kind})", scene.name);
     let mut sim = Simulation::with_formulation(scene, formulation).expect("valid scene");
-    let mut solver = make_solver(&SolverConfig {
-        kind,
-        ..SolverConfig::default()
-    })
+    let mut solver = make_solver_for(
+        &SolverConfig {
+            kind,
+            ..SolverConfig::default()
+        },
+        formulation,
+    )
     .expect("backend available");
     let steps = steps.unwrap_or(usize::MAX);
     let mut records: Vec<StepRecord> = Vec::new();
