@@ -45,7 +45,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Matrix3, Matrix6, Vector3, Vector4, Vector6};
+use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
 
 use ecp_model::{
     BlockMcp, JacobianBlocks, McpSolver, Params, Problem, ResId, ResidualBlock, SolveError,
@@ -57,7 +57,7 @@ use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{contact_mode, min_gap, world_vertices};
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
 use crate::stepper::{
-    BodySpec, BodyState, ContactRecord, MODE_TOLERANCE, Scene, SceneError, StepRecord,
+    BodySpec, BodyState, ContactRecord, MODE_TOLERANCE, Scene, SceneError, StepRecord, stored_state,
 };
 
 /// A point whose gap at the step start is at most this (m) is closed: its impulse starts active.
@@ -884,19 +884,14 @@ impl PointContacts {
     fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
         let mut states = Vec::with_capacity(self.bodies.len());
         for b in 0..self.bodies.len() {
-            let nu = self.get(self.bodies[b].nu).to_vec();
-            let q = self.get(self.bodies[b].q).to_vec();
-            let quat = Vector4::new(q[3], q[4], q[5], q[6]);
-            let quat = quat_normalize(&quat).unwrap_or(self.bodies[b].state.q);
-            let state = BodyState {
-                x: Vector3::new(q[0], q[1], q[2]),
-                q: quat,
-                v: Vector3::new(nu[0], nu[1], nu[2]),
-                w: Vector3::new(nu[3], nu[4], nu[5]),
-            };
+            let (state, q_stored) = stored_state(
+                self.get(self.bodies[b].nu),
+                self.get(self.bodies[b].q),
+                &self.bodies[b].state.q,
+            );
             // Store the renormalised Q in the warm start too.
             let qr = self.bodies[b].q;
-            self.put(qr, &[q[0], q[1], q[2], quat[0], quat[1], quat[2], quat[3]]);
+            self.put(qr, &q_stored);
             self.bodies[b].state = state;
             states.push(state);
         }

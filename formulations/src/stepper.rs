@@ -177,6 +177,27 @@ pub enum SceneError {
     Model(#[from] ecp_model::ModelError),
 }
 
+/// The state stored at the end of a step from the solution's ν and q blocks, with Q
+/// renormalised (formulation.md §4.2; `fallback` replaces a zero quaternion), and the q block
+/// with the renormalised Q for the warm start of the next step.
+pub(crate) fn stored_state(
+    nu: &[f64],
+    q: &[f64],
+    fallback: &Vector4<f64>,
+) -> (BodyState, [f64; 7]) {
+    let quat = quat_normalize(&Vector4::new(q[3], q[4], q[5], q[6])).unwrap_or(*fallback);
+    let state = BodyState {
+        x: Vector3::new(q[0], q[1], q[2]),
+        q: quat,
+        v: Vector3::new(nu[0], nu[1], nu[2]),
+        w: Vector3::new(nu[3], nu[4], nu[5]),
+    };
+    (
+        state,
+        [q[0], q[1], q[2], quat[0], quat[1], quat[2], quat[3]],
+    )
+}
+
 /// The scene checks every formulation shares: step, duration, friction (`e_r` only when the
 /// formulation has torsional friction) and gravity.
 pub(crate) fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneError> {
@@ -1028,19 +1049,14 @@ impl Simulation {
     fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
         let mut states = Vec::with_capacity(self.bodies.len());
         for b in 0..self.bodies.len() {
-            let nu = self.get(self.bodies[b].nu).to_vec();
-            let q = self.get(self.bodies[b].q).to_vec();
-            let quat = Vector4::new(q[3], q[4], q[5], q[6]);
-            let quat = quat_normalize(&quat).unwrap_or(self.bodies[b].state.q);
-            let state = BodyState {
-                x: Vector3::new(q[0], q[1], q[2]),
-                q: quat,
-                v: Vector3::new(nu[0], nu[1], nu[2]),
-                w: Vector3::new(nu[3], nu[4], nu[5]),
-            };
+            let (state, q_stored) = stored_state(
+                self.get(self.bodies[b].nu),
+                self.get(self.bodies[b].q),
+                &self.bodies[b].state.q,
+            );
             // Store the renormalised Q in the warm start too.
             let qr = self.bodies[b].q;
-            self.put(qr, &[q[0], q[1], q[2], quat[0], quat[1], quat[2], quat[3]]);
+            self.put(qr, &q_stored);
             self.bodies[b].state = state;
             states.push(state);
         }
