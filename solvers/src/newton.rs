@@ -22,9 +22,11 @@
 //! ignores the face until the step has crossed it), where `Ψ` rises for one step; a watchdog
 //! (Chamberlain, Powell, Lemaréchal, Pedersen, Math. Prog. Study 16, 1982; as in PATH) takes
 //! such a step and returns to the point before it when `Ψ` has not fallen below its value there
-//! within [`NewtonSettings::watchdog_steps`] steps. Minimum-norm steps count as Newton steps in
-//! the summary, with their own counters `"min_norm_steps"`, `"nonmonotone_steps"` (taken under
-//! the watchdog) and `"watchdog_restores"`.
+//! within [`NewtonSettings::watchdog_steps`] steps. Far from a solution
+//! ([`NewtonSettings::min_norm_radius`]) the minimum-norm step is only taken when it halves `Ψ`
+//! at once, and Levenberg–Marquardt globalises as before. Minimum-norm steps count as Newton
+//! steps in the summary, with their own counters `"min_norm_steps"`, `"nonmonotone_steps"`
+//! (taken under the watchdog) and `"watchdog_restores"`.
 //!
 //! References: De Luca, Facchinei, Kanzow, Math. Prog. 75 (1996); Billups, PhD thesis (1995);
 //! Munson, Facchinei, Ferris, Fischer, Kanzow, INFORMS J. Computing 13 (2001); Ben-Israel,
@@ -83,8 +85,12 @@ pub struct NewtonSettings {
     /// pivoted QR falls below this times the largest column norm are treated as dependent.
     /// Default `1e-10`.
     pub rank_tolerance: f64,
-    /// The minimum-norm step is tried only near a solution: when the natural residual is at most
-    /// this, or `Ψ` has fallen below `1e-6` of its value at the start. Default `1e-3`.
+    /// "Near a solution" for the minimum-norm step: the natural residual is at most this, or `Ψ`
+    /// has fallen below `1e-6` of its value at the start. Near a solution the step is taken with
+    /// the watchdog and backtracking; farther out only when it halves `Ψ` at once, so that
+    /// Levenberg–Marquardt's damping keeps the globalisation (the undamped step led a
+    /// separated T-bar step of tests/closest_points.rs into the spurious `p_n > 0` minimiser).
+    /// Default `1e-3`.
     pub min_norm_radius: f64,
     /// Watchdog of the minimum-norm steps: a full step that fails the Armijo test is still
     /// taken, and the iteration returns to the point before it when Ψ has not fallen below
