@@ -6,7 +6,8 @@
 //! element `H = D_a + D_b J` of the generalised Jacobian (at degenerate pairs the element of
 //! De Luca, Facchinei and Kanzow), solves `H d = −Φ`, and accepts the step by an Armijo search on
 //! `Ψ = ½‖Φ‖²`. When `H` is singular or `d` fails the descent test `∇Ψᵀd ≤ −ρ‖d‖^p`, it first
-//! tries (dense problems) the minimum-norm least-squares step `d = −H⁺Φ`, then a
+//! tries, when enabled ([`NewtonSettings::min_norm_step`], on for the union formulation), the
+//! minimum-norm least-squares step `d = −H⁺Φ` on dense problems, then a
 //! Levenberg–Marquardt step `(HᵀH + λI) d = −HᵀΦ`, and failing that the steepest-descent
 //! step `−∇Ψ`. Linear systems use dense LU for small problems and a sparse LU (analysed once per
 //! pattern) for large ones.
