@@ -54,10 +54,11 @@ use ecp_model::{
 
 use crate::blocks::{ContactFrame, FrictionParams, KinematicMap, mass_matrix};
 use crate::formulation::{Formulation, Stepper};
-use crate::geometry::{contact_mode, min_gap, world_vertices};
+use crate::geometry::min_gap;
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
 use crate::stepper::{
-    BodySpec, BodyState, ContactRecord, MODE_TOLERANCE, Scene, SceneError, StepRecord, stored_state,
+    BodySpec, BodyState, ContactRecord, Scene, SceneError, StepRecord, body_energy, gaps_and_modes,
+    stored_state,
 };
 
 /// A point whose gap at the step start is at most this (m) is closed: its impulse starts active.
@@ -895,14 +896,21 @@ impl PointContacts {
             self.bodies[b].state = state;
             states.push(state);
         }
+        let table = gaps_and_modes(
+            &self
+                .bodies
+                .iter()
+                .map(|b| (&b.spec.shape, b.state))
+                .collect::<Vec<_>>(),
+            &self.scene.planes,
+        );
         let mut contacts = Vec::with_capacity(self.contacts.len());
         for c in &self.contacts {
             let body = &self.bodies[c.body];
             let plane = &self.scene.planes[c.plane];
             let s = body.state;
-            let rot = rotation_matrix(&s.q);
-            let a = s.x + rot * body.points[c.point];
-            let verts = world_vertices(body.spec.shape.vertices(), &s.x, &rot);
+            let a = s.x + rotation_matrix(&s.q) * body.points[c.point];
+            let (gap, mode) = table[c.body][c.plane];
             let pf = self.get(c.pf);
             contacts.push(ContactRecord {
                 a1: a,
@@ -913,8 +921,8 @@ impl PointContacts {
                 po: pf[1],
                 pr: 0.0,
                 sigma: self.get(c.sigma)[0],
-                min_gap: min_gap(body.spec.shape.vertices(), &s.x, &rot, plane),
-                mode: contact_mode(&verts, plane, MODE_TOLERANCE),
+                min_gap: gap,
+                mode,
             });
         }
         StepRecord {
@@ -933,14 +941,7 @@ impl PointContacts {
     pub fn energy(&self) -> f64 {
         self.bodies
             .iter()
-            .map(|b| {
-                let s = b.state;
-                let mp = &b.spec.mass;
-                let r = rotation_matrix(&s.q);
-                let iw = r * mp.inertia * r.transpose();
-                0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
-                    - mp.mass * self.scene.gravity.dot(&s.x)
-            })
+            .map(|b| body_energy(&b.spec.mass, &b.state, &self.scene.gravity))
             .sum()
     }
 }

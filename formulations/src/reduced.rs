@@ -785,12 +785,7 @@ impl ReducedSliding {
     /// Kinetic plus potential energy (gravity) in the current state, as the hull stepper computes
     /// it.
     pub fn energy(&self) -> f64 {
-        let s = self.state;
-        let mp = &self.body.mass;
-        let r = rotation_matrix(&s.q);
-        let iw = r * mp.inertia * r.transpose();
-        0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
-            - mp.mass * self.scene.gravity.dot(&s.x)
+        crate::stepper::body_energy(&self.body.mass, &self.state, &self.scene.gravity)
     }
 }
 

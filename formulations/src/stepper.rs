@@ -198,6 +198,39 @@ pub(crate) fn stored_state(
     )
 }
 
+/// Kinetic plus gravitational potential energy of one body in `state` (formulation.md §8).
+pub(crate) fn body_energy(mass: &MassProperties, state: &BodyState, gravity: &Vector3<f64>) -> f64 {
+    let r = rotation_matrix(&state.q);
+    let iw = r * mass.inertia * r.transpose();
+    0.5 * mass.mass * state.v.norm_squared() + 0.5 * state.w.dot(&(iw * state.w))
+        - mass.mass * gravity.dot(&state.x)
+}
+
+/// Minimum gap and contact mode of every body (at `states`) against every plane, indexed
+/// `[body][plane]`: computed once per step and shared by all the contacts of a (body, plane)
+/// pair (one per piece in the union formulation, one per point in the point formulation).
+pub(crate) fn gaps_and_modes(
+    bodies: &[(&Shape, BodyState)],
+    planes: &[HalfSpace],
+) -> Vec<Vec<(f64, ContactMode)>> {
+    bodies
+        .iter()
+        .map(|(shape, s)| {
+            let r = rotation_matrix(&s.q);
+            let verts = world_vertices(shape.vertices(), &s.x, &r);
+            planes
+                .iter()
+                .map(|plane| {
+                    (
+                        min_gap(shape.vertices(), &s.x, &r, plane),
+                        contact_mode(&verts, plane, MODE_TOLERANCE),
+                    )
+                })
+                .collect()
+        })
+        .collect()
+}
+
 /// The scene checks every formulation shares: step, duration, friction (`e_r` only when the
 /// formulation has torsional friction) and gravity.
 pub(crate) fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneError> {
@@ -1060,13 +1093,17 @@ impl Simulation {
             self.bodies[b].state = state;
             states.push(state);
         }
+        let table = gaps_and_modes(
+            &self
+                .bodies
+                .iter()
+                .map(|b| (&b.spec.shape, b.state))
+                .collect::<Vec<_>>(),
+            &self.scene.planes,
+        );
         let mut contacts = Vec::with_capacity(self.contacts.len());
         for c in &self.contacts {
-            let body = &self.bodies[c.body];
-            let plane = &self.scene.planes[c.plane];
-            let s = body.state;
-            let r = rotation_matrix(&s.q);
-            let verts = world_vertices(body.spec.shape.vertices(), &s.x, &r);
+            let (gap, mode) = table[c.body][c.plane];
             let a1 = self.get(c.a1);
             let a2 = self.get(c.a2);
             let pf = self.get(c.pf);
@@ -1079,8 +1116,8 @@ impl Simulation {
                 po: pf[1],
                 pr: pf[2],
                 sigma: self.get(c.sigma)[0],
-                min_gap: min_gap(body.spec.shape.vertices(), &s.x, &r, plane),
-                mode: contact_mode(&verts, plane, MODE_TOLERANCE),
+                min_gap: gap,
+                mode,
             });
         }
         let energy = self.energy();
@@ -1100,14 +1137,7 @@ impl Simulation {
     pub fn energy(&self) -> f64 {
         self.bodies
             .iter()
-            .map(|b| {
-                let s = b.state;
-                let mp = &b.spec.mass;
-                let r = rotation_matrix(&s.q);
-                let iw = r * mp.inertia * r.transpose();
-                0.5 * mp.mass * s.v.norm_squared() + 0.5 * s.w.dot(&(iw * s.w))
-                    - mp.mass * self.scene.gravity.dot(&s.x)
-            })
+            .map(|b| body_energy(&b.spec.mass, &b.state, &self.scene.gravity))
             .sum()
     }
 
