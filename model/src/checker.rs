@@ -231,13 +231,13 @@ impl Collector {
     }
 }
 
-/// Checks one residual block's analytic Jacobian at `params` (one slice per variable block it
-/// reads) against central differences, block by block.
-pub fn check_residual_block(
+/// `params` (one slice per variable block `block` reads) as one flat vector with the
+/// `(offset, length)` ranges that [`Params`] views it through, and the block's declared sizes;
+/// an error when the slices do not have those sizes.
+fn flat_params(
     block: &dyn ResidualBlock,
     params: &[&[f64]],
-    opts: &CheckOptions,
-) -> Result<JacobianReport, ModelError> {
+) -> Result<(Vec<f64>, Vec<(usize, usize)>, Vec<usize>), ModelError> {
     let sizes = block.parameter_sizes().to_vec();
     if sizes.len() != params.len() || sizes.iter().zip(params).any(|(s, p)| *s != p.len()) {
         return Err(ModelError::InvalidBlock {
@@ -249,15 +249,26 @@ pub fn check_residual_block(
             ),
         });
     }
-    let m = block.num_residuals();
-    // Flat copy of the parameters plus ranges, so Params can view them.
-    let mut z: Vec<f64> = params.iter().flat_map(|p| p.iter().copied()).collect();
+    let z: Vec<f64> = params.iter().flat_map(|p| p.iter().copied()).collect();
     let mut ranges = Vec::with_capacity(sizes.len());
     let mut o = 0;
     for &s in &sizes {
         ranges.push((o, s));
         o += s;
     }
+    Ok((z, ranges, sizes))
+}
+
+/// Checks one residual block's analytic Jacobian at `params` (one slice per variable block it
+/// reads) against central differences, block by block.
+pub fn check_residual_block(
+    block: &dyn ResidualBlock,
+    params: &[&[f64]],
+    opts: &CheckOptions,
+) -> Result<JacobianReport, ModelError> {
+    let (mut z, ranges, sizes) = flat_params(block, params)?;
+    let o = z.len();
+    let m = block.num_residuals();
     // Local dense storage: block k column j row i at (start_k + j) * m + i.
     let total_cols = o;
     let col_pos: Vec<usize> = (0..total_cols).map(|c| c * m).collect();
@@ -344,26 +355,9 @@ pub fn check_data_jacobian(
     params: &[&[f64]],
     opts: &CheckOptions,
 ) -> Result<JacobianReport, ModelError> {
-    let sizes = block.parameter_sizes().to_vec();
-    if sizes.len() != params.len() || sizes.iter().zip(params).any(|(s, p)| *s != p.len()) {
-        return Err(ModelError::InvalidBlock {
-            block: block.name().to_string(),
-            reason: format!(
-                "checker given parameter sizes {:?}, block declares {:?}",
-                params.iter().map(|p| p.len()).collect::<Vec<_>>(),
-                sizes
-            ),
-        });
-    }
+    let (z, ranges, _) = flat_params(block, params)?;
     let m = block.num_residuals();
     let nd = block.num_data();
-    let z: Vec<f64> = params.iter().flat_map(|p| p.iter().copied()).collect();
-    let mut ranges = Vec::with_capacity(sizes.len());
-    let mut o = 0;
-    for &s in &sizes {
-        ranges.push((o, s));
-        o += s;
-    }
     let x = Params::new(&z, &ranges);
     let mut theta = vec![0.0; nd];
     block.data(&mut theta);
