@@ -231,13 +231,13 @@ impl Collector {
     }
 }
 
+/// A flat copy of a block's variables, the `(offset, length)` range of each, and their sizes.
+type FlatParams = (Vec<f64>, Vec<(usize, usize)>, Vec<usize>);
+
 /// `params` (one slice per variable block `block` reads) as one flat vector with the
 /// `(offset, length)` ranges that [`Params`] views it through, and the block's declared sizes;
 /// an error when the slices do not have those sizes.
-fn flat_params(
-    block: &dyn ResidualBlock,
-    params: &[&[f64]],
-) -> Result<(Vec<f64>, Vec<(usize, usize)>, Vec<usize>), ModelError> {
+fn flat_params(block: &dyn ResidualBlock, params: &[&[f64]]) -> Result<FlatParams, ModelError> {
     let sizes = block.parameter_sizes().to_vec();
     if sizes.len() != params.len() || sizes.iter().zip(params).any(|(s, p)| *s != p.len()) {
         return Err(ModelError::InvalidBlock {
