@@ -5,9 +5,7 @@ use std::fmt;
 use std::str::FromStr;
 
 use ecp_model::McpSolver;
-use ecp_solvers::conic::{ConicSettings, ConicSolver};
-use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
-use ecp_solvers::path::{PathSettings, PathSolver};
+use ecp_solvers::registry::{BackendOptions, Registry};
 
 use crate::error::{InputError, InputErrorKind};
 
@@ -105,37 +103,28 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
 }
 
 /// [`make_solver`] for the step problems of `formulation`: the union formulation's solutions are
-/// not isolated (formulation.md §6, §7.1), and the Newton backend then takes minimum-norm
-/// least-squares steps ([`NewtonSettings::min_norm_step`]), which it does not by default.
+/// not isolated, and the Newton backend then takes minimum-norm least-squares steps
+/// ([`ecp_solvers::NewtonSettings::min_norm_step`]), which it does not by default. Every solver
+/// comes from [`ecp_solvers::Registry`], so the command line, the fallbacks and fitting build
+/// each backend the same way.
 pub fn make_solver_for(
     config: &SolverConfig,
     formulation: Formulation,
 ) -> Result<Box<dyn McpSolver>, InputError> {
-    // Each backend's settings struct has these two fields under the same names.
-    macro_rules! configured {
-        ($settings:ident, $solver:ident) => {{
-            let d = $settings::default();
-            Box::new($solver::new($settings {
-                tolerance: config.tolerance.unwrap_or(d.tolerance),
-                max_iterations: config.max_iterations.unwrap_or(d.max_iterations),
-                ..d
-            })) as Box<dyn McpSolver>
-        }};
-    }
-    Ok(match config.kind {
-        SolverKind::Newton if formulation == Formulation::Union => {
-            let d = NewtonSettings::default();
-            Box::new(NewtonSolver::new(NewtonSettings {
-                tolerance: config.tolerance.unwrap_or(d.tolerance),
-                max_iterations: config.max_iterations.unwrap_or(d.max_iterations),
-                min_norm_step: true,
-                ..d
-            })) as Box<dyn McpSolver>
-        }
-        SolverKind::Newton => configured!(NewtonSettings, NewtonSolver),
-        SolverKind::Path => configured!(PathSettings, PathSolver),
-        SolverKind::Conic => configured!(ConicSettings, ConicSolver),
-    })
+    let options = BackendOptions {
+        tolerance: config.tolerance,
+        max_iterations: config.max_iterations,
+        non_isolated_solutions: formulation == Formulation::Union,
+    };
+    Registry::builtin()
+        .build(config.kind.as_str(), &options)
+        .map_err(|e| {
+            InputError::option(
+                "[solver]",
+                InputErrorKind::InvalidValue,
+                format!("{e}; fix the scene's [solver] table"),
+            )
+        })
 }
 
 /// Checks that `solver` can solve the step problems of `formulation`: the conic backend needs the

@@ -40,7 +40,7 @@ use ecp_formulations::stepper::{BodyState, Scene, StepRecord};
 use nalgebra::{Vector3, Vector4};
 use serde::Serialize;
 
-use crate::backends::{Formulation, SolverConfig, make_solver};
+use crate::backends::{Formulation, SolverConfig, make_solver_for};
 use crate::error::{InputError, InputErrorKind};
 
 /// Parses a comma-separated list of parameter names (`mu,e_r`, `mass[1]`; [`Param`]'s names)
@@ -598,7 +598,7 @@ impl TrajectoryProblem {
     ) -> Result<Self, FitError> {
         reference.check_against(&scene)?;
         crate::backends::check_combination(solver.kind, formulation)?;
-        make_solver(&solver)?;
+        make_solver_for(&solver, formulation)?;
         scene.duration = reference.steps() as f64 * scene.h;
         let mut start = Vec::with_capacity(params.len());
         let mut coordinates = Vec::with_capacity(params.len());
@@ -799,7 +799,7 @@ impl TrajectoryProblem {
         };
         let mut stepper = ecp_formulations::build_stepper(scene.clone(), self.formulation)
             .map_err(|e| fail(0, e.to_string()))?;
-        let mut solver = make_solver(&self.solver)?;
+        let mut solver = make_solver_for(&self.solver, self.formulation)?;
         let n = self.reference.steps();
         let mut records = Vec::with_capacity(n);
         for k in 1..=n {
@@ -861,7 +861,7 @@ impl TrajectoryProblem {
             GradientMethod::Adjoint | GradientMethod::Forward => {
                 self.shared().counts.simulations += 1;
                 let scene = self.scene_at(&theta)?;
-                let mut solver = make_solver(&self.solver)?;
+                let mut solver = make_solver_for(&self.solver, self.formulation)?;
                 let options = GradientOptions {
                     mode: if self.gradient == GradientMethod::Forward {
                         GradientMode::Forward

@@ -47,9 +47,14 @@ enum Command {
         /// No progress bar and no summary on standard output.
         #[arg(long)]
         quiet: bool,
-        /// Go on after a step that did not converge (from its best iterate) instead of stopping.
+        /// Go on after a step that no backend, fallback or substep could solve, instead of
+        /// stopping; the failed step keeps the bodies' state at its start (never its iterate).
         #[arg(long)]
         keep_going: bool,
+        /// Do not fall back on other backends and substeps when the backend cannot solve a
+        /// step (docs/fallbacks.md); such a step then fails at once.
+        #[arg(long)]
+        no_fallbacks: bool,
     },
     /// Run every combination of solvers and formulations on one scene and compare them.
     Compare {
@@ -156,6 +161,7 @@ fn main() -> ExitCode {
             no_plots,
             quiet,
             keep_going,
+            no_fallbacks,
         } => load(&scene).and_then(|file| {
             let options = RunOptions {
                 out_dir: out.unwrap_or_else(|| RunOptions::default_out_dir(&file)),
@@ -164,6 +170,7 @@ fn main() -> ExitCode {
                 steps,
                 plots: !no_plots,
                 keep_going,
+                fallbacks: !no_fallbacks,
             };
             run(&file, &options, quiet)
         }),
@@ -304,8 +311,9 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
     }
     if let (Some(f), None) = (&s.failure, &outcome.stepper_error) {
         eprintln!(
-            "error: step {} (t = {:.4} s) did not converge: {} (residual {:.3e}); the steps before \
-             it are in {}; try --solver with another backend, a smaller h, or --keep-going",
+            "error: step {} (t = {:.4} s) could not be solved, by its backend or any fallback: {} \
+             (best residual {:.3e}); the steps before it are in {}; try a smaller h or \
+             --keep-going (which keeps the bodies' state over a failed step)",
             f.step,
             f.t,
             f.reason,

@@ -5,6 +5,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
+use ecp_formulations::StepMethod;
 use ecp_formulations::stepper::{Scene, StepRecord};
 use serde::Serialize;
 
@@ -161,6 +162,38 @@ pub struct Failure {
     pub residual: f64,
 }
 
+/// How many steps needed which fallback (`summary.json`'s `fallbacks`).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct FallbackCounts {
+    /// Steps solved in one piece by a fallback backend.
+    pub backend: usize,
+    /// Steps solved in substeps.
+    pub substeps: usize,
+    /// Steps no fallback could solve (the bodies kept their state at the step's start).
+    pub failed: usize,
+    /// Steps solved by each fallback backend, by name.
+    pub by_backend: std::collections::BTreeMap<String, usize>,
+}
+
+impl FallbackCounts {
+    /// The counts over `records`.
+    pub fn of(records: &[StepRecord]) -> Self {
+        let mut c = FallbackCounts::default();
+        for r in records {
+            match &r.method {
+                StepMethod::Direct => {}
+                StepMethod::Backend(name) => {
+                    c.backend += 1;
+                    *c.by_backend.entry(name.clone()).or_default() += 1;
+                }
+                StepMethod::Substeps { .. } => c.substeps += 1,
+                StepMethod::Failed | StepMethod::Unchecked => c.failed += 1,
+            }
+        }
+        c
+    }
+}
+
 /// `summary.json` (interfaces.md), plus a few extra fields.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct RunSummary {
@@ -197,6 +230,8 @@ pub struct RunSummary {
     pub final_bodies: Vec<FinalState>,
     /// Steps the stepper re-solved once from its active-contact guess.
     pub retries: usize,
+    /// Steps that needed a fallback, by kind (`docs/fallbacks.md`).
+    pub fallbacks: FallbackCounts,
     /// The first failure, if any.
     pub failure: Option<Failure>,
     /// Steps the scene asked for (the run may stop earlier on a failure or `--steps`).
@@ -287,6 +322,7 @@ impl RunSummary {
                 .filter(|(name, _)| *name == "retries")
                 .map(|(_, n)| *n)
                 .sum(),
+            fallbacks: FallbackCounts::of(records),
             failure: records.iter().find(|r| !r.converged).map(|r| Failure {
                 step: r.step,
                 t: r.t - scene.h,

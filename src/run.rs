@@ -5,8 +5,8 @@
 use std::path::PathBuf;
 use std::time::Instant;
 
-use ecp_formulations::build_stepper;
 use ecp_formulations::stepper::StepRecord;
+use ecp_formulations::{Fallbacks, build_stepper};
 
 use crate::backends::{
     Formulation, SolverConfig, SolverKind, check_combination, make_solver, make_solver_for,
@@ -31,8 +31,12 @@ pub struct RunOptions {
     pub steps: Option<usize>,
     /// Write PNG plots into `out_dir/plots`.
     pub plots: bool,
-    /// Go on after a step that did not converge (from its best iterate) instead of stopping.
+    /// Go on after a step that no backend or fallback could solve, instead of stopping. The
+    /// failed step's iterate is never taken: the bodies keep their state at its start.
     pub keep_going: bool,
+    /// Try other backends, then substeps, when the backend cannot solve a step
+    /// (`docs/fallbacks.md`). On by default.
+    pub fallbacks: bool,
 }
 
 impl Default for RunOptions {
@@ -44,6 +48,7 @@ impl Default for RunOptions {
             steps: None,
             plots: true,
             keep_going: false,
+            fallbacks: true,
         }
     }
 }
@@ -98,6 +103,27 @@ fn resolve(file: &SceneFile, options: &RunOptions) -> Result<SolverConfig, Input
     Ok(config)
 }
 
+/// The default fallbacks of a run with `config` on `formulation`: every other backend that can
+/// solve the formulation, most robust first (PATH, Newton, conic), with the same tolerance and
+/// iteration limit, then substeps down to `h/16`.
+pub fn fallbacks_for(
+    config: &SolverConfig,
+    formulation: Formulation,
+) -> Result<Fallbacks, InputError> {
+    let mut backends = Vec::new();
+    for kind in [SolverKind::Path, SolverKind::Newton, SolverKind::Conic] {
+        if kind == config.kind || check_combination(kind, formulation).is_err() {
+            continue;
+        }
+        let other = SolverConfig {
+            kind,
+            ..config.clone()
+        };
+        backends.push(make_solver_for(&other, formulation)?);
+    }
+    Ok(Fallbacks::new(backends))
+}
+
 /// Simulates `file` and writes its outputs into `options.out_dir`. `on_step` sees each record
 /// right after its CSV row is on disk (the CLI's progress bar uses it).
 pub fn run_scene(
@@ -109,6 +135,11 @@ pub fn run_scene(
     let config = resolve(file, options)?;
     let formulation = options.formulation.unwrap_or(file.formulation);
     let mut solver = make_solver_for(&config, formulation)?;
+    let mut fallbacks = if options.fallbacks {
+        fallbacks_for(&config, formulation)?
+    } else {
+        Fallbacks::none()
+    };
     let mut sim = build_stepper(file.scene.clone(), formulation).map_err(|e| InputError {
         file: Some(file.path.clone()),
         key: None,
@@ -127,7 +158,7 @@ pub fn run_scene(
     let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
     while records.len() < planned {
-        match sim.step(solver.as_mut()) {
+        match sim.step_with(solver.as_mut(), &mut fallbacks) {
             Ok(rec) => {
                 csv.write(&rec)?;
                 on_step(&rec);

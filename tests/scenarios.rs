@@ -399,7 +399,7 @@ fn trajectory_rows_follow_the_interface_contract() {
     let header = StepRecord::csv_header(1, 1);
     assert_eq!(
         header.join(","),
-        "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,ecp_x,ecp_y,ecp_z,pn,pt,po,pr,sigma,min_gap,mode,iterations,residual,solve_us"
+        "t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,ecp_x,ecp_y,ecp_z,pn,pt,po,pr,sigma,min_gap,mode,iterations,residual,solve_us,fallback"
     );
     let mut scene = scene("a1_sliding");
     scene.duration = 0.02;

@@ -14,6 +14,7 @@ use std::str::FromStr;
 
 use ecp_model::McpSolver;
 
+use crate::fallback::Fallbacks;
 use crate::stepper::{BodyState, Scene, SceneError, StepRecord};
 
 /// A contact formulation (formulation.md §3 and §7).
@@ -91,10 +92,28 @@ pub trait Stepper {
     fn state(&self, b: usize) -> BodyState;
     /// Steps taken so far.
     fn steps_taken(&self) -> usize;
-    /// Advances one step with `solver`. A step that does not converge is still taken with the
-    /// best iterate and reported as such; an error means the step could not be set up (for
-    /// instance a formulation whose assumptions stopped holding).
+    /// Advances one step with `solver`. A step that does not converge is reported as failed
+    /// (`converged == false`, [`crate::StepMethod::Failed`]) and the bodies keep their state at its
+    /// start: a failed iterate is never taken as a solution. An error means the step could not
+    /// be set up (for instance a formulation whose assumptions stopped holding).
     fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError>;
+
+    /// [`Stepper::step`] with fallbacks for a step `solver` cannot solve (other backends, then
+    /// substeps; see [`Fallbacks`]). A formulation that cannot use them (see
+    /// [`Stepper::supports_fallbacks`]) takes the step with `solver` alone.
+    fn step_with(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+    ) -> Result<StepRecord, SceneError> {
+        let _ = fallbacks;
+        self.step(solver)
+    }
+
+    /// Whether [`Stepper::step_with`] uses its fallbacks.
+    fn supports_fallbacks(&self) -> bool {
+        false
+    }
 
     /// Current time.
     fn time(&self) -> f64 {

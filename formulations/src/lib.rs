@@ -17,6 +17,7 @@
 #![warn(missing_docs)]
 
 pub mod blocks;
+pub mod fallback;
 pub mod formulation;
 pub mod geometry;
 pub mod point;
@@ -27,4 +28,5 @@ pub mod sensitivity;
 pub mod stepper;
 pub mod structure;
 
+pub use fallback::{Fallbacks, StepMethod};
 pub use formulation::{Formulation, Stepper, build_stepper};

@@ -53,6 +53,7 @@ use ecp_model::{
 };
 
 use crate::blocks::{ContactFrame, FrictionParams, KinematicMap, mass_matrix};
+use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::min_gap;
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
@@ -839,8 +840,8 @@ impl PointContacts {
         Ok(())
     }
 
-    /// Advances one step with `solver`. A step that does not converge is still taken with the
-    /// best iterate (and reported as such); the caller decides whether to stop.
+    /// Advances one step with `solver` (see [`Stepper::step`]): a step that does not converge is
+    /// reported as failed and the bodies keep their state at its start.
     pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
         self.prepare_step()?;
         let started = Instant::now();
@@ -877,25 +878,33 @@ impl PointContacts {
                 return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
             }
         };
-        self.z.copy_from_slice(&z);
         self.step += 1;
+        if converged {
+            self.z.copy_from_slice(&z);
+            self.commit();
+        }
         Ok(self.finish_step(summary, converged, solve_us))
     }
 
-    fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
-        let mut states = Vec::with_capacity(self.bodies.len());
+    /// Takes the solution in `z`: the end-of-step state (Q renormalised, also in the warm
+    /// start) becomes the current state.
+    fn commit(&mut self) {
         for b in 0..self.bodies.len() {
             let (state, q_stored) = stored_state(
                 self.get(self.bodies[b].nu),
                 self.get(self.bodies[b].q),
                 &self.bodies[b].state.q,
             );
-            // Store the renormalised Q in the warm start too.
             let qr = self.bodies[b].q;
             self.put(qr, &q_stored);
             self.bodies[b].state = state;
-            states.push(state);
         }
+    }
+
+    /// The record of the step just taken. A step that did not converge keeps the bodies' state
+    /// at its start: its iterate is never taken (`docs/fallbacks.md`).
+    fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
+        let states: Vec<_> = self.bodies.iter().map(|b| b.state).collect();
         let table = gaps_and_modes(
             &self
                 .bodies
@@ -934,6 +943,11 @@ impl PointContacts {
             summary,
             converged,
             solve_us,
+            method: if converged {
+                StepMethod::Direct
+            } else {
+                StepMethod::Failed
+            },
         }
     }
 

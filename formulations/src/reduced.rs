@@ -31,6 +31,7 @@ use ecp_model::{
 };
 
 use crate::blocks::{ContactFrame, FrictionParams};
+use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
@@ -702,6 +703,38 @@ impl ReducedSliding {
                 return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
             }
         };
+        if !converged {
+            // Never take a failed iterate: keep the state at the start of the step.
+            self.step += 1;
+            let s0 = self.state;
+            let r = rotation_matrix(&s0.q);
+            let verts = world_vertices(self.body.shape.vertices(), &s0.x, &r);
+            // No impulses were taken; the ECP is reported below the CM.
+            let a1 = s0.x - self.frame.n * self.data.height;
+            let contact = ContactRecord {
+                a1,
+                a2: a1,
+                lg: 0.0,
+                pn: 0.0,
+                pt: 0.0,
+                po: 0.0,
+                pr: 0.0,
+                sigma: 0.0,
+                min_gap: min_gap(self.body.shape.vertices(), &s0.x, &r, &self.plane),
+                mode: contact_mode(&verts, &self.plane, MODE_TOLERANCE),
+            };
+            return Ok(StepRecord {
+                step: self.step,
+                t: self.time(),
+                bodies: vec![s0],
+                contacts: vec![contact],
+                energy: self.energy(),
+                summary,
+                converged,
+                solve_us,
+                method: StepMethod::Failed,
+            });
+        }
         self.finish_step(z, summary, converged, solve_us)
     }
 
@@ -779,6 +812,7 @@ impl ReducedSliding {
             summary,
             converged,
             solve_us,
+            method: StepMethod::Direct,
         })
     }
 

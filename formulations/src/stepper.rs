@@ -13,6 +13,7 @@ use crate::blocks::{
     FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
     NormalCone, mass_matrix,
 };
+use crate::fallback::{Fallbacks, StepMethod};
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{
     ContactMode, ConvexHull, GeometryError, HalfSpace, MassProperties, Shape, contact_mode,
@@ -392,14 +393,17 @@ pub struct StepRecord {
     pub energy: f64,
     /// Solver summary (of the best iterate when the step did not converge).
     pub summary: Summary,
-    /// Whether the step converged.
+    /// Whether the step was solved (by its backend or a fallback). A step that was not keeps
+    /// the bodies' state at its start (`docs/fallbacks.md`).
     pub converged: bool,
-    /// Wall time of the solve in microseconds.
+    /// Wall time of the solve in microseconds (every attempt, fallbacks included).
     pub solve_us: f64,
+    /// How the step was solved: directly, by a fallback backend, in substeps, or not at all.
+    pub method: StepMethod,
 }
 
 /// The `trajectory.csv` columns of one body and one contact (interfaces.md).
-pub const TRAJECTORY_COLUMNS: [&str; 27] = [
+pub const TRAJECTORY_COLUMNS: [&str; 28] = [
     "t",
     "x",
     "y",
@@ -427,6 +431,7 @@ pub const TRAJECTORY_COLUMNS: [&str; 27] = [
     "iterations",
     "residual",
     "solve_us",
+    "fallback",
 ];
 
 impl StepRecord {
@@ -489,6 +494,7 @@ impl StepRecord {
         f.push(self.summary.iterations.to_string());
         f.push(format!("{:e}", self.summary.residual));
         f.push(format!("{:.3}", self.solve_us));
+        f.push(self.method.column());
         f
     }
 }
@@ -970,13 +976,18 @@ impl Simulation {
     /// start state) and the warm start. After this, `mcp()` and `z()` are the step problem and
     /// its starting point.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
-        let h = self.scene.h;
+        self.prepare_span(self.t, self.scene.h)
+    }
+
+    /// [`Simulation::prepare_step`] for the span `[t0, t0 + h]` from the current state: a whole
+    /// step, or a substep of a step its backend could not solve ([`Fallbacks`]).
+    fn prepare_span(&mut self, t0: f64, h: f64) -> Result<(), SceneError> {
         self.last = None;
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
             let mp = &body.spec.mass;
-            let load = body.spec.load.at(self.t);
+            let load = body.spec.load.at(t0);
             let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
             // Built from the body's data so the step sensitivities reach m, I, the start state
             // and the load (blocks.rs, NEWTON_EULER_DATA).
@@ -1016,83 +1027,262 @@ impl Simulation {
         Ok(())
     }
 
-    /// Advances one step with `solver`. A step that does not converge is still taken with the
-    /// best iterate (and reported as such); the caller decides whether to stop.
-    pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
-        self.prepare_step()?;
-        let started = Instant::now();
-        let mut result = solver.solve(&self.structured_mcp(), &self.z);
-        let mut retried = false;
-        if result.is_err() {
-            // One deterministic retry from the active-contact guess of every contact that is
-            // closed or closing (a warm start from a separated step is a poor start for a
-            // landing step). The record says so.
-            let warm = self.z.clone();
-            for i in 0..self.contacts.len() {
-                let c = self.contacts[i];
-                let body = &self.bodies[c.body];
-                let plane = &self.scene.planes[c.plane];
-                let r = rotation_matrix(&body.state.q);
-                let gap = min_gap(self.contact_hulls[i].vertices(), &body.state.x, &r, plane);
-                let approach =
-                    -(body.state.v + self.scene.gravity * self.scene.h).dot(&plane.normal());
-                if gap <= approach.max(0.0) * self.scene.h + 1e-9 {
-                    self.contact_guess(i, true);
-                }
-            }
-            retried = true;
-            match solver.solve(&self.structured_mcp(), &self.z) {
-                Ok(sol) => result = Ok(sol),
-                Err(_) => self.z.copy_from_slice(&warm),
+    /// Solves the prepared span of length `h` with `solver` from the warm start in `z`, with one
+    /// deterministic retry from the active-contact guess of every contact that is closed or
+    /// closing (a warm start from a separated step is a poor start for a landing step). On
+    /// success `z` holds the solution; on failure it is left at the warm start.
+    fn solve_prepared(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        h: f64,
+    ) -> Result<ecp_model::Solution, SolveError> {
+        let result = solver.solve(&self.structured_mcp(), &self.z);
+        if result.is_ok() {
+            return result;
+        }
+        let warm = self.z.clone();
+        for i in 0..self.contacts.len() {
+            let c = self.contacts[i];
+            let body = &self.bodies[c.body];
+            let plane = &self.scene.planes[c.plane];
+            let r = rotation_matrix(&body.state.q);
+            let gap = min_gap(self.contact_hulls[i].vertices(), &body.state.x, &r, plane);
+            let approach = -(body.state.v + self.scene.gravity * h).dot(&plane.normal());
+            if gap <= approach.max(0.0) * h + 1e-9 {
+                self.contact_guess(i, true);
             }
         }
-        let solve_us = started.elapsed().as_secs_f64() * 1e6;
-        let (z, summary, converged) = match result {
+        match solver.solve(&self.structured_mcp(), &self.z) {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", usize::from(retried)));
-                (sol.z, sol.summary, true)
+                sol.summary.counters.push(("retries", 1));
+                Ok(sol)
             }
-            Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),
-            Err(SolveError::InvalidProblem(msg)) => {
-                return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
+            Err(e) => {
+                self.z.copy_from_slice(&warm);
+                // Report the first attempt's best iterate when it was the better one.
+                Err(match (result, e) {
+                    (
+                        Err(SolveError::NotConverged { best: a }),
+                        SolveError::NotConverged { best: b },
+                    ) => SolveError::NotConverged {
+                        best: if a.summary.residual <= b.summary.residual {
+                            a
+                        } else {
+                            b
+                        },
+                    },
+                    (_, e) => e,
+                })
             }
-        };
-        self.z.copy_from_slice(&z);
-        let t_start = self.t;
-        let start: Vec<BodyState> = self.bodies.iter().map(|b| b.state).collect();
-        let wrenches = self
-            .bodies
-            .iter()
-            .map(|b| b.spec.load.at(t_start))
-            .collect();
-        self.step += 1;
-        self.t = self.step as f64 * self.scene.h;
-        let record = self.finish_step(summary, converged, solve_us);
-        self.last = Some(LastStep {
-            step: self.step,
-            t_start,
-            start,
-            wrenches,
-            z,
-            converged,
-        });
-        Ok(record)
+        }
     }
 
-    fn finish_step(&mut self, summary: Summary, converged: bool, solve_us: f64) -> StepRecord {
-        let mut states = Vec::with_capacity(self.bodies.len());
+    /// Takes the solution `z` of the prepared span: the end-of-span state (Q renormalised, also
+    /// in the warm start) becomes the current state.
+    fn commit(&mut self, z: &[f64]) {
+        self.z.copy_from_slice(z);
         for b in 0..self.bodies.len() {
             let (state, q_stored) = stored_state(
                 self.get(self.bodies[b].nu),
                 self.get(self.bodies[b].q),
                 &self.bodies[b].state.q,
             );
-            // Store the renormalised Q in the warm start too.
             let qr = self.bodies[b].q;
             self.put(qr, &q_stored);
             self.bodies[b].state = state;
-            states.push(state);
         }
+    }
+
+    fn checkpoint(&self) -> (Vec<BodyState>, Vec<f64>) {
+        (
+            self.bodies.iter().map(|b| b.state).collect(),
+            self.z.clone(),
+        )
+    }
+
+    fn restore(&mut self, checkpoint: &(Vec<BodyState>, Vec<f64>)) {
+        for (body, state) in self.bodies.iter_mut().zip(&checkpoint.0) {
+            body.state = *state;
+        }
+        self.z.copy_from_slice(&checkpoint.1);
+    }
+
+    /// Advances one step with `solver` and no fallback. A step that does not converge is
+    /// reported as failed and the bodies keep their state at its start (`docs/fallbacks.md`);
+    /// the caller decides whether to go on.
+    pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        self.step_with(solver, &mut Fallbacks::none())
+    }
+
+    /// Advances one step with `solver`; when it cannot solve the step, with the `fallbacks`:
+    /// each fallback backend on the same step problem, then substeps (bisecting only the pieces
+    /// that fail, down to `h / 2^max_halvings`), each piece tried with `solver` and then each
+    /// fallback backend. Every accepted piece passed the backend's natural-residual test. When
+    /// everything fails the step is reported as failed ([`StepMethod::Failed`]) and the bodies
+    /// keep their state at its start.
+    pub fn step_with(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+    ) -> Result<StepRecord, SceneError> {
+        let (t0, h) = (self.t, self.scene.h);
+        let started = Instant::now();
+        let start = self.checkpoint();
+        self.prepare_span(t0, h)?;
+        let wrenches: Vec<Vector6<f64>> = self.bodies.iter().map(|b| b.spec.load.at(t0)).collect();
+        let first = self.solve_prepared(solver, h);
+        let (summary, method, z_last) = match first {
+            Ok(sol) => {
+                self.commit(&sol.z);
+                (sol.summary, StepMethod::Direct, Some(sol.z))
+            }
+            Err(SolveError::InvalidProblem(msg)) => {
+                return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
+            }
+            Err(SolveError::NotConverged { best }) => {
+                let mut solved = None;
+                for k in 0..fallbacks.backends.len() {
+                    self.restore(&start);
+                    self.prepare_span(t0, h)?;
+                    if let Ok(sol) = self.solve_prepared(fallbacks.backends[k].as_mut(), h) {
+                        self.commit(&sol.z);
+                        let name = fallbacks.backends[k].name().to_string();
+                        solved = Some((sol.summary, StepMethod::Backend(name), Some(sol.z)));
+                        break;
+                    }
+                }
+                if solved.is_none() && fallbacks.max_halvings > 0 {
+                    self.restore(&start);
+                    let mut pieces = Vec::new();
+                    let mut last_summary = None;
+                    let ok = self.solve_halves(
+                        solver,
+                        fallbacks,
+                        t0,
+                        h,
+                        1,
+                        &mut pieces,
+                        &mut last_summary,
+                    )?;
+                    if let (true, Some(s)) = (ok, last_summary) {
+                        let finest = pieces.iter().copied().max().unwrap_or(1);
+                        solved = Some((
+                            s,
+                            StepMethod::Substeps {
+                                pieces: pieces.len(),
+                                finest,
+                            },
+                            None,
+                        ));
+                    }
+                }
+                match solved {
+                    Some(s) => s,
+                    None => {
+                        // Exhausted: never take an infeasible iterate; keep the last feasible
+                        // state, the one at the start of the step.
+                        self.restore(&start);
+                        (best.summary, StepMethod::Failed, None)
+                    }
+                }
+            }
+        };
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        let converged = method.solved();
+        self.step += 1;
+        self.t = self.step as f64 * self.scene.h;
+        // The step problem in `mcp` is this step's own only when it was solved in one piece.
+        self.last = z_last.map(|z| LastStep {
+            step: self.step,
+            t_start: t0,
+            start: start.0,
+            wrenches,
+            z,
+            converged,
+        });
+        Ok(self.record(summary, converged, solve_us, method))
+    }
+
+    /// Takes one step with `solver` and takes its point **whether or not it solves the step
+    /// problem**: for studying a relaxed model (the conic backend's Anitescu mode) whose points
+    /// are not solutions of this one. The record says so: `converged` is the backend's verdict
+    /// and a point that failed it is marked [`StepMethod::Unchecked`]. The run driver never
+    /// calls this.
+    pub fn step_unchecked(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        let (t0, h) = (self.t, self.scene.h);
+        let started = Instant::now();
+        self.prepare_span(t0, h)?;
+        let (z, summary, method) = match solver.solve(&self.structured_mcp(), &self.z) {
+            Ok(sol) => (sol.z, sol.summary, StepMethod::Direct),
+            Err(SolveError::NotConverged { best }) => (best.z, best.summary, StepMethod::Unchecked),
+            Err(SolveError::InvalidProblem(msg)) => {
+                return Err(SceneError::Model(ecp_model::ModelError::Dimension(msg)));
+            }
+        };
+        self.commit(&z);
+        self.step += 1;
+        self.t = self.step as f64 * self.scene.h;
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        Ok(self.record(summary, method.solved(), solve_us, method))
+    }
+
+    /// Solves `[t0, t0 + h]` from the current state as two halves, each with `solver` then the
+    /// fallback backends, bisecting a half again when all fail, down to `depth =
+    /// max_halvings`. Appends each accepted piece's denominator (2^depth) to `pieces`; returns
+    /// whether the whole span was covered.
+    #[allow(clippy::too_many_arguments)]
+    fn solve_halves(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+        t0: f64,
+        h: f64,
+        depth: u32,
+        pieces: &mut Vec<usize>,
+        last: &mut Option<Summary>,
+    ) -> Result<bool, SceneError> {
+        let half = 0.5 * h;
+        for k in 0..2 {
+            let ts = t0 + k as f64 * half;
+            let before = self.checkpoint();
+            let mut done = false;
+            for s in 0..=fallbacks.backends.len() {
+                self.restore(&before);
+                self.prepare_span(ts, half)?;
+                let result = if s == 0 {
+                    self.solve_prepared(solver, half)
+                } else {
+                    self.solve_prepared(fallbacks.backends[s - 1].as_mut(), half)
+                };
+                if let Ok(sol) = result {
+                    self.commit(&sol.z);
+                    *last = Some(sol.summary);
+                    pieces.push(1 << depth);
+                    done = true;
+                    break;
+                }
+            }
+            if !done {
+                self.restore(&before);
+                if depth >= fallbacks.max_halvings
+                    || !self.solve_halves(solver, fallbacks, ts, half, depth + 1, pieces, last)?
+                {
+                    return Ok(false);
+                }
+            }
+        }
+        Ok(true)
+    }
+
+    /// The record of the step just taken, from the current state and `z`.
+    fn record(
+        &mut self,
+        summary: Summary,
+        converged: bool,
+        solve_us: f64,
+        method: StepMethod,
+    ) -> StepRecord {
+        let states: Vec<BodyState> = self.bodies.iter().map(|b| b.state).collect();
         let table = gaps_and_modes(
             &self
                 .bodies
@@ -1130,6 +1320,7 @@ impl Simulation {
             summary,
             converged,
             solve_us,
+            method,
         }
     }
 
@@ -1178,5 +1369,15 @@ impl Stepper for Simulation {
     }
     fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
         Simulation::step(self, solver)
+    }
+    fn step_with(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+    ) -> Result<StepRecord, SceneError> {
+        Simulation::step_with(self, solver, fallbacks)
+    }
+    fn supports_fallbacks(&self) -> bool {
+        true
     }
 }

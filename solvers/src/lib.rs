@@ -35,6 +35,7 @@ pub mod newton;
 mod normal_equations;
 pub mod path;
 pub mod pivot;
+pub mod registry;
 
 pub use newton::{NewtonSettings, NewtonSolver};
 pub use path::{PathSettings, PathSolver};
@@ -42,3 +43,4 @@ pub use pivot::{
     AffineMatrix, AffineMcp, AffineStart, AntiCycling, Lemke, LemkeSettings, PivotError, PivotPath,
     PivotSolution,
 };
+pub use registry::{Backend, BackendOptions, Registry, RegistryError, SettingsError};
