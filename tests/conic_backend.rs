@@ -51,8 +51,11 @@ fn check_against_newton(name: &str) {
             // Newton from the plain warm start can fail where the stepper's own retry (from an
             // active-contact guess) would rescue it: then there is no reference for this step.
             let sol = newton.solve(&view, &z0).ok();
+            // The free-motion velocity of the step's rows at its solution (the mass matrix and
+            // the gyroscopic impulse are those of the end of the step).
+            let at = sol.as_ref().map_or(z0.as_slice(), |s| s.z.as_slice());
             let free: Vec<[f64; 6]> = (0..view.num_bodies())
-                .map(|b| view.body(b).free_velocity)
+                .map(|b| view.body(b, at).free_velocity)
                 .collect();
             (sol.map(|s| view.velocities(&s.z)), free)
         };
