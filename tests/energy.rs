@@ -231,10 +231,11 @@ fn tumbling_box_in_free_flight_never_gains_energy() {
 }
 
 /// The same box dropped tumbling from 0.6 m onto the ground (μ = 0.5), 3 s: it lands, rocks on
-/// its edges and comes to rest. Kinetic plus potential energy (scale: the initial energy above the ground)
-/// never rises by more than 1e-12 of it except at steps where a loaded contact opens (`p_n > 0`
-/// and the normal velocity of the ECP at the end of the step separating: the rows pin the
-/// end-of-step gap, not the normal velocity); those steps are counted and their rises reported.
+/// its edges and comes to rest. Kinetic plus potential energy (scale: the initial energy above
+/// the ground) never rises by more than 1e-12 of it except at steps where a loaded contact
+/// opens (`p_n > 0` and the normal velocity of the ECP at the end of the step separating: the
+/// rows pin the end-of-step gap, not the normal velocity); those steps are counted and their
+/// rises reported.
 #[test]
 fn tumbling_box_landing_gains_energy_only_where_a_loaded_contact_opens() {
     let s0 = BodyState {
@@ -286,7 +287,7 @@ fn tumbling_box_landing_gains_energy_only_where_a_loaded_contact_opens() {
         other.is_empty(),
         "energy rose at steps without an opening contact: {other:?}"
     );
-    // Measured (PATH): 6 steps (31–36, the box rolling over its landing edge, the ECP leaving
+    // Measured (PATH): 6 steps (31–36, just after the landing, the ECP leaving
     // the ground at 8–11 mm/s with p_n ≈ 0.15 N s), the largest rise 5.4e-5 of the initial
     // energy; 272 of the 300 steps carry load.
     assert!(
