@@ -202,6 +202,30 @@ impl BodyStepData {
         Some(Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z))
     }
 
+    /// The Jacobian of the angular rows of [`BodyStepData::inertial_rows`] (the translational
+    /// ones are `−m (v − v^u)`): with `I_w1 = R1 I_body R1ᵀ` and `L = I_w1 ω`,
+    /// `∂/∂ω = −I_w1 − h ([ω]× I_w1 − [L]×)` and, column `k` of `∂/∂Q`,
+    /// `−D_k ω + ∂R1_k I_body R0ᵀ ω^u − h ω × (D_k ω)` with `D_k = ∂R1_k I_body R1ᵀ + R1 I_body ∂R1_kᵀ`.
+    pub fn inertial_jacobian(
+        &self,
+        nu: &Vector6<f64>,
+        q: &Vector4<f64>,
+    ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
+        let w1 = v3(nu.as_slice(), 3);
+        let r0 = rotation_matrix(&self.q_start);
+        let r1 = rotation_matrix(q);
+        let iw1 = r1 * self.inertia * r1.transpose();
+        let l1 = iw1 * w1;
+        let dw = -iw1 - (crate::rotation::skew(&w1) * iw1 - crate::rotation::skew(&l1)) * self.h;
+        let omega0 = r0.transpose() * v3(self.nu_start.as_slice(), 3);
+        let dr = rotation_matrix_derivatives(q);
+        let dq = dr.map(|d| {
+            let dl = (d * self.inertia * r1.transpose() + r1 * self.inertia * d.transpose()) * w1;
+            -dl + d * (self.inertia * omega0) - w1.cross(&dl) * self.h
+        });
+        (dw, dq)
+    }
+
     /// Writes the data θ ([`NEWTON_EULER_DATA`]).
     fn write(&self, theta: &mut [f64]) {
         theta[0] = self.mass;
@@ -373,30 +397,15 @@ impl ResidualBlock for NewtonEuler {
                 }
             }
             Some(b) => {
-                // Translation: −m I. Rotation, with L = I_w1 ω, I_w1 = R1 I_b R1ᵀ:
-                // ∂/∂ω = −I_w1 − h ([ω]× I_w1 − [L]×);
-                // ∂/∂Q_k = −D_k ω + ∂R1_k I_b R0ᵀ ω^u − h ω × (D_k ω),
-                // D_k = ∂R1_k I_b R1ᵀ + R1 I_b ∂R1_kᵀ.
-                let q1 = v4(x.block(1), 3);
-                let w1 = v3(x.block(0), 3);
-                let r0 = rotation_matrix(&b.q_start);
-                let r1 = rotation_matrix(&q1);
-                let iw1 = r1 * b.inertia * r1.transpose();
-                let l1 = iw1 * w1;
-                let dw =
-                    -iw1 - (crate::rotation::skew(&w1) * iw1 - crate::rotation::skew(&l1)) * b.h;
+                let nu = Vector6::from_column_slice(x.block(0));
+                let (dw, dq) = b.inertial_jacobian(&nu, &v4(x.block(1), 3));
                 for i in 0..3 {
                     jac.set(0, i, i, -b.mass);
                     for j in 0..3 {
                         jac.set(0, 3 + i, 3 + j, dw[(i, j)]);
                     }
                 }
-                let omega0 = r0.transpose() * v3(b.nu_start.as_slice(), 3);
-                let dr = rotation_matrix_derivatives(&q1);
-                for (k, d) in dr.iter().enumerate() {
-                    let dk = d * b.inertia * r1.transpose() + r1 * b.inertia * d.transpose();
-                    let dl = dk * w1;
-                    let col = -dl + d * (b.inertia * omega0) - w1.cross(&dl) * b.h;
+                for (k, col) in dq.iter().enumerate() {
                     for i in 0..3 {
                         jac.set(1, 3 + i, 3 + k, col[i]);
                     }
