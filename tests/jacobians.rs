@@ -540,7 +540,8 @@ proptest! {
         let plain = NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![c0.frame]);
         let body = NewtonEuler::for_body(data, vec![c0.frame]);
         let bare = NewtonEuler::for_body(data, vec![]);
-        let bare_plain = NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![]);
+        let bare_plain =
+            NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![]);
         let (mut a, mut b, mut c, mut d) = ([0.0; 6], [0.0; 6], [0.0; 6], [0.0; 6]);
         let ranges = [(0, 6), (6, 7), (13, 3), (16, 1), (17, 3)];
         let z: Vec<f64> = [&s.nu[..], &s.q, &c0.a1, &c0.pn, &c0.pf].concat();

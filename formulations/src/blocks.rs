@@ -182,30 +182,11 @@ impl BodyStepData {
         Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
     }
 
-    /// The free-motion velocity of the rows of [`NewtonEuler::for_body`] with the end-of-step
-    /// orientation `Q` and the gyroscopic term at a trial angular velocity `ω̃` held fixed:
-    /// `v^u + h (g + f/m)` and `ω = I_w1⁻¹ (R1 I_body R0ᵀ ω^u + h τ − h ω̃ × (I_w1 ω̃))`,
-    /// `I_w1 = R(Q) I_body R(Q)ᵀ`. At `ω̃` = the solution's ω and `Q` its orientation, it is the
-    /// velocity the step reaches without contact impulses; a backend that holds `M` and the
-    /// free velocity fixed in a subproblem iterates on it (`None` when `I_w1` is not positive
-    /// definite).
-    pub fn free_velocity(&self, q: &Vector4<f64>, w_trial: &Vector3<f64>) -> Option<Vector6<f64>> {
-        let r0 = rotation_matrix(&self.q_start);
-        let r1 = rotation_matrix(q);
-        let iw1 = r1 * self.inertia * r1.transpose();
-        let p = self.impulse();
-        let w0 = v3(self.nu_start.as_slice(), 3);
-        let rhs = r1 * (self.inertia * (r0.transpose() * w0)) + v3(p.as_slice(), 3)
-            - w_trial.cross(&(iw1 * w_trial)) * self.h;
-        let w = iw1.cholesky()?.solve(&rhs);
-        let v = v3(self.nu_start.as_slice(), 0) + v3(p.as_slice(), 0) / self.mass;
-        Some(Vector6::new(v.x, v.y, v.z, w.x, w.y, w.z))
-    }
-
     /// The Jacobian of the angular rows of [`BodyStepData::inertial_rows`] (the translational
     /// ones are `−m (v − v^u)`): with `I_w1 = R1 I_body R1ᵀ` and `L = I_w1 ω`,
     /// `∂/∂ω = −I_w1 − h ([ω]× I_w1 − [L]×)` and, column `k` of `∂/∂Q`,
-    /// `−D_k ω + ∂R1_k I_body R0ᵀ ω^u − h ω × (D_k ω)` with `D_k = ∂R1_k I_body R1ᵀ + R1 I_body ∂R1_kᵀ`.
+    /// `−D_k ω + ∂R1_k I_body R0ᵀ ω^u − h ω × (D_k ω)`, with
+    /// `D_k = ∂R1_k I_body R1ᵀ + R1 I_body ∂R1_kᵀ`.
     pub fn inertial_jacobian(
         &self,
         nu: &Vector6<f64>,

@@ -61,7 +61,9 @@ impl<'a> StepView<'a> {
     /// impulses) with the end-of-step orientation `R1` and the gyroscopic impulse at the trial
     /// angular velocity `w_trial` held fixed: `v^u + p_lin/m` and
     /// `I_w1⁻¹ (R1 I_b R0ᵀ ω^u + p_ang − h ω̃ × (I_w1 ω̃))`, `I_w1 = R1 I_b R1ᵀ`
-    /// ([`crate::blocks::BodyStepData::free_velocity`]).
+    /// ([`crate::blocks::BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`). At
+    /// the step's solution (ω̃ its ω, R1 its orientation) it is the velocity the step reaches
+    /// without contact impulses.
     fn free_velocity(&self, b: usize, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
         let body = &self.sim.bodies[b];
         let s = body.state;
