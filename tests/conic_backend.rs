@@ -18,6 +18,10 @@ use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 const RESIDUAL: f64 = 1e-8;
 /// Largest velocity difference to the Newton backend, per step (issue #6).
 const DV: f64 = 1e-6;
+/// Largest difference between a step without contact impulses and the free-motion velocity at
+/// its end point (which depends on the end-of-step orientation and angular velocity,
+/// `docs/energy.md`).
+const FREE: f64 = 1e-12;
 
 fn run(scene: Scene, solver: &mut dyn McpSolver) -> Vec<StepRecord> {
     let mut sim = Simulation::new(scene).expect("valid scene");
@@ -33,14 +37,15 @@ fn run(scene: Scene, solver: &mut dyn McpSolver) -> Vec<StepRecord> {
 /// Runs `name` with the conic backend and, at every step, solves the same step problem (same
 /// start state and warm start) with the semismooth Newton backend; checks the conic residual
 /// and the velocity difference, and returns the run's numbers.
-/// Whenever the conic step has no contact impulse its velocities must also be the exact free
-/// flight `ν_free` to 1e-12.
+/// Whenever the conic step has no contact impulse its velocities must also be the free flight
+/// `ν_free` at its end point, to `FREE`.
 fn check_against_newton(name: &str) {
     let mut sim = Simulation::new(scene(name)).expect("valid scene");
     let mut conic = ConicSolver::new(ConicSettings::default());
     let mut newton = NewtonSolver::new(NewtonSettings::default());
     let mut max_res: f64 = 0.0;
     let mut max_dv: f64 = 0.0;
+    let mut max_free: f64 = 0.0;
     let mut outer = 0usize;
     let mut newton_failures = 0usize;
     let mut us: Vec<f64> = Vec::new();
@@ -52,8 +57,15 @@ fn check_against_newton(name: &str) {
             // Newton from the plain warm start can fail where the stepper's own retry (from an
             // active-contact guess) would rescue it: then there is no reference for this step.
             let sol = newton.solve(&view, &z0).ok();
+            // The free-motion velocity of the step's rows at the conic solution of the same
+            // problem (the mass matrix and the gyroscopic impulse are those of the end of the
+            // step, so it depends on the solution).
+            let own = ConicSolver::new(ConicSettings::default())
+                .solve(&view, &z0)
+                .ok();
+            let at = own.as_ref().map_or(z0.as_slice(), |s| s.z.as_slice());
             let free: Vec<[f64; 6]> = (0..view.num_bodies())
-                .map(|b| view.body(b).free_velocity)
+                .map(|b| view.body(b, at).free_velocity)
                 .collect();
             (sol.map(|s| view.velocities(&s.z)), free)
         };
@@ -83,9 +95,11 @@ fn check_against_newton(name: &str) {
             }
             if c.contacts.iter().all(|k| k.pn == 0.0) {
                 for i in 0..6 {
+                    let off = (nu[i] - free[b][i]).abs();
+                    max_free = max_free.max(off);
                     assert!(
-                        (nu[i] - free[b][i]).abs() <= 1e-12,
-                        "{name}: step {}: no contact impulse but not free flight",
+                        off <= FREE,
+                        "{name}: step {}: no contact impulse but not free flight ({off:.3e})",
                         c.step
                     );
                 }
@@ -121,7 +135,8 @@ fn check_against_newton(name: &str) {
     us.sort_by(f64::total_cmp);
     println!(
         "{name}: {steps} steps, max residual {max_res:.2e}, max |dv| vs Newton {max_dv:.2e} \
-         ({newton_failures} steps without a Newton reference), \
+         ({newton_failures} steps without a Newton reference), max |ν − ν_free| in free \
+         flight {max_free:.2e}, \
          mean outer iterations {:.2}, median {:.0} us/step",
         outer as f64 / steps as f64,
         us[steps / 2]

@@ -18,13 +18,13 @@ mod common;
 use common::strategies::{unit_quat, unit3, vec3};
 
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
-use ecp::formulations::blocks::{ContactFrame, FrictionParams, mass_matrix};
+use ecp::formulations::blocks::{BodyStepData, ContactFrame, FrictionParams, mass_matrix};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::point::{
     PointContacts, PointFrictionDissipation, PointFrictionEllipsoid, PointNewtonEuler,
     PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
 };
-use ecp::formulations::rotation::rotation_matrix;
+use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, SceneError, Simulation, StepRecord};
 use ecp::formulations::{Formulation, Stepper, build_stepper};
@@ -188,6 +188,26 @@ proptest! {
             params.push(&p.pf);
         }
         check(&ne, &params)?;
+        // The form the stepper uses: mass matrix and gyroscopic impulse at the end of the step,
+        // reading the configuration q (7) as well; its end orientation is the start one turned
+        // by the kinematic map.
+        let body = BodyStepData {
+            mass: case.mass,
+            inertia: Matrix3::from_diagonal(&case.inertia),
+            q_start: case.q_start,
+            nu_start: Vector6::from_row_slice(&case.nu_start),
+            wrench: Vector6::from_row_slice(&case.impulse),
+            gravity: Vector3::new(0.0, 0.0, -9.8),
+            h: case.h,
+        };
+        let q_end = case.q_start
+            + kinematic_map(&case.q_start) * Vector3::new(case.nu[3], case.nu[4], case.nu[5])
+                * (0.5 * case.h);
+        let q = [0.1, -0.2, 0.3, q_end[0], q_end[1], q_end[2], q_end[3]];
+        let end = PointNewtonEuler::for_body(body, wrenches.clone());
+        let mut end_params: Vec<&[f64]> = vec![&case.nu, &q];
+        end_params.extend_from_slice(&params[1..]);
+        check(&end, &end_params)?;
         for ((p, w), (pn, sigma)) in case.points.iter().zip(&wrenches).zip(pns.iter().zip(&sigmas)) {
             let np = PointNonPenetration { gap: case.gap, h: case.h, normal_wrench: w.normal };
             check(&np, &[&case.nu])?;

@@ -903,8 +903,15 @@ fn sliding_to_rest_reports_the_stick_switch() {
 // ---------------------------------------------------------------------------------------------
 
 fn one_step(scene: Scene) -> (Simulation, StepRecord, StepSensitivity) {
+    one_step_with(scene, &mut newton())
+}
+
+fn one_step_with(
+    scene: Scene,
+    solver: &mut NewtonSolver,
+) -> (Simulation, StepRecord, StepSensitivity) {
     let mut sim = Simulation::new(scene).expect("scene");
-    let rec = sim.step(&mut newton()).expect("step");
+    let rec = sim.step(solver).expect("step");
     assert!(rec.converged);
     let sens = step_sensitivity(&sim, &SensitivityOptions::default()).expect("sensitivity");
     (sim, rec, sens)
@@ -1071,7 +1078,19 @@ fn separated_contact_gives_free_flight_derivatives() {
 /// moves rigidly with the body.
 #[test]
 fn separated_vertex_contact_has_a_unique_ecp() {
-    let (sim, _, sens) = one_step(scenarios::a5_drop_tilted());
+    // A free-flight step (p_n = 0, the friction block degenerate): the default Newton
+    // iteration reaches 2.1e-12 in 24 iterations and then stagnates at 2.0e-13 on the angular
+    // rows, short of this file's 1e-13; the minimum-norm step converges (5.6e-15, 25
+    // iterations). With the previous Newton–Euler rows (linear in ν) the default iteration
+    // reached 9.6e-14 (docs/energy.md).
+    let (sim, _, sens) = one_step_with(
+        scenarios::a5_drop_tilted(),
+        &mut NewtonSolver::new(NewtonSettings {
+            tolerance: 1e-13,
+            min_norm_step: true,
+            ..NewtonSettings::default()
+        }),
+    );
     assert!(
         sens.degeneracies
             .contains(&Degeneracy::FrictionHeld { contact: 0 })

@@ -128,7 +128,8 @@ pub struct BodyStepData {
     pub mass: f64,
     /// Body-frame inertia about the CM (symmetric; parametrised by its six upper entries).
     pub inertia: Matrix3<f64>,
-    /// Orientation at the start of the step `Q^u` (M and the gyroscopic term are evaluated there).
+    /// Orientation at the start of the step `Q^u` (the body-frame angular velocity the step
+    /// starts from is `R(Q^u)ᵀ ω^u`).
     pub q_start: Vector4<f64>,
     /// Generalised velocity at the start of the step `ν^u = (v^u, ω^u)`.
     pub nu_start: Vector6<f64>,
@@ -141,24 +142,69 @@ pub struct BodyStepData {
 }
 
 impl BodyStepData {
-    /// The generalised mass matrix `diag(m I, R I_body Rᵀ)` at `Q^u`.
+    /// The generalised mass matrix `diag(m I, R I_body Rᵀ)` at `Q^u` (the mass matrix of the
+    /// start of the step; the rows of [`NewtonEuler::for_body`] use the one of the end).
     pub fn mass_matrix(&self) -> Matrix6<f64> {
         mass_matrix(self.mass, &self.inertia, &self.q_start)
     }
 
-    /// The applied impulse `p_app + p_vp = h [m g + f; τ − ω^u × (I_w ω^u)]`.
+    /// The applied impulse `p_app = h [m g + f; τ]` (gravity and the load at `t_u`). The
+    /// gyroscopic impulse is not in it: [`NewtonEuler::for_body`] writes it at the end of the
+    /// step, in its rows.
     pub fn impulse(&self) -> Vector6<f64> {
-        let r = rotation_matrix(&self.q_start);
-        let iw = r * self.inertia * r.transpose();
-        let w = v3(self.nu_start.as_slice(), 3);
         let force = self.gravity * self.mass + v3(self.wrench.as_slice(), 0);
-        let torque = v3(self.wrench.as_slice(), 3) - w.cross(&(iw * w));
+        let torque = v3(self.wrench.as_slice(), 3);
         let mut p = Vector6::zeros();
         for i in 0..3 {
             p[i] = self.h * force[i];
             p[3 + i] = self.h * torque[i];
         }
         p
+    }
+
+    /// The inertial part of the rows of [`NewtonEuler::for_body`] at the end-of-step velocity
+    /// `ν = (v, ω)` and orientation `Q` (`R1 = R(Q)`, `R0 = R(Q^u)`, `I_w1 = R1 I_body R1ᵀ`):
+    /// `[−m (v − v^u); −I_w1 ω + R1 I_body R0ᵀ ω^u − h ω × (I_w1 ω)]`, to which the applied
+    /// impulse ([`BodyStepData::impulse`]) and the contact impulses are added. See
+    /// [`NewtonEuler`] and `docs/energy.md`.
+    pub fn inertial_rows(&self, nu: &Vector6<f64>, q: &Vector4<f64>) -> Vector6<f64> {
+        let r0 = rotation_matrix(&self.q_start);
+        let r1 = rotation_matrix(q);
+        let (v0, w0) = (
+            v3(self.nu_start.as_slice(), 0),
+            v3(self.nu_start.as_slice(), 3),
+        );
+        let (v1, w1) = (v3(nu.as_slice(), 0), v3(nu.as_slice(), 3));
+        let lin = -(v1 - v0) * self.mass;
+        let l1 = r1 * (self.inertia * (r1.transpose() * w1));
+        let carried = r1 * (self.inertia * (r0.transpose() * w0));
+        let ang = -l1 + carried - w1.cross(&l1) * self.h;
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// The Jacobian of the angular rows of [`BodyStepData::inertial_rows`] (the translational
+    /// ones are `−m (v − v^u)`): with `I_w1 = R1 I_body R1ᵀ` and `L = I_w1 ω`,
+    /// `∂/∂ω = −I_w1 − h ([ω]× I_w1 − [L]×)` and, column `k` of `∂/∂Q`,
+    /// `−D_k ω + ∂R1_k I_body R0ᵀ ω^u − h ω × (D_k ω)`, with
+    /// `D_k = ∂R1_k I_body R1ᵀ + R1 I_body ∂R1_kᵀ`.
+    pub fn inertial_jacobian(
+        &self,
+        nu: &Vector6<f64>,
+        q: &Vector4<f64>,
+    ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
+        let w1 = v3(nu.as_slice(), 3);
+        let r0 = rotation_matrix(&self.q_start);
+        let r1 = rotation_matrix(q);
+        let iw1 = r1 * self.inertia * r1.transpose();
+        let l1 = iw1 * w1;
+        let dw = -iw1 - (crate::rotation::skew(&w1) * iw1 - crate::rotation::skew(&l1)) * self.h;
+        let omega0 = r0.transpose() * v3(self.nu_start.as_slice(), 3);
+        let dr = rotation_matrix_derivatives(q);
+        let dq = dr.map(|d| {
+            let dl = (d * self.inertia * r1.transpose() + r1 * self.inertia * d.transpose()) * w1;
+            -dl + d * (self.inertia * omega0) - w1.cross(&dl) * self.h
+        });
+        (dw, dq)
     }
 
     /// Writes the data θ ([`NEWTON_EULER_DATA`]).
@@ -187,23 +233,47 @@ impl BodyStepData {
     }
 }
 
-/// Discrete Newton–Euler equations (formulation.md §4.1, paper eq. (discrete_NE)):
-/// `0 = −M(q^u)(ν − ν^u) + Σ_c (W_n p_n + W_t p_t + W_o p_o + W_r p_r) + p_app + p_vp`,
-/// with `W_n = [n; r × n]`, `r = a1 − x^{u+1}` per contact.
+/// Discrete Newton–Euler equations (formulation.md §4.1, the paper's eq. (discrete_NE)),
+/// `0 = −M^{u+1}(ν^{u+1} − ν^u) + P_c + p_app + p_vp`, with the contact impulse
+/// `P_c = Σ_c (W_n p_n + W_t p_t + W_o p_o + W_r p_r)`, `W_n = [n; r × n]`, `r = a1 − x^{u+1}`
+/// per contact.
+///
+/// Two forms, by constructor:
+///
+/// - [`NewtonEuler::for_body`], the one the steppers use: the mass matrix of the **end** of the
+///   step, as the paper writes it (`M^{u+1}`), and the gyroscopic impulse at the end-of-step
+///   velocity. The rotational rows are the body-frame balance at the end of the step, with
+///   `Ω = Rᵀω`, `R0 = R(Q^u)`, `R1 = R(Q^{u+1})`, `I_b` the body-frame inertia:
+///   `I_b (Ω^{u+1} − Ω^u) + h Ω^{u+1} × I_b Ω^{u+1} = R1ᵀ τ`, written in the world frame
+///   (multiplied by `R1`):
+///   `0 = −R1 I_b R1ᵀ ω + R1 I_b R0ᵀ ω^u − h ω × (R1 I_b R1ᵀ ω) + τ`
+///   (τ: applied and contact angular impulses). Dotted with `Ω^{u+1}`, the gyroscopic term
+///   vanishes and, without applied or contact impulses,
+///   `½ Ω^{u+1}·I_b Ω^{u+1} − ½ Ω^u·I_b Ω^u = −½ ΔΩ·I_b ΔΩ ≤ 0`: the step cannot feed kinetic
+///   energy in (the explicit term `−h ω^u × (I_w ω^u)` with `M(q^u)` could, by up to a percent
+///   a second for a tumbling body; `docs/energy.md`). The translational rows
+///   `0 = −m (v − v^u) + h (m g + f) + Σ f_c` with `x^{u+1} = x^u + h v` change kinetic plus
+///   potential energy by `−½ m |Δv|²`. The block reads `Q^{u+1}` (the q block) through `R1`,
+///   and `R(Q)` is a rotation for every `Q ≠ 0`, so the renormalised stored quaternion has the
+///   same `R1`. Its data θ are [`NEWTON_EULER_DATA`].
+/// - [`NewtonEuler::new`]: a given mass matrix and applied impulse, linear in ν,
+///   `0 = −M (ν − ν^u) + Σ_c W p + p` (data θ [`NEWTON_EULER_PLAIN_DATA`]).
 ///
 /// Reads `ν` (6), `q` (7), and per contact `a1` (3), `p_n` (1), `p_f = (p_t, p_o, p_r)` (3).
-/// Its data θ depend on the constructor (module documentation).
 #[derive(Clone, Debug)]
 pub struct NewtonEuler {
-    /// Generalised mass matrix at the start of the step, `diag(m I, R I_body Rᵀ)`.
+    /// The mass matrix of the plain form; for [`NewtonEuler::for_body`] the one of the start
+    /// of the step, `diag(m I, R(Q^u) I_body R(Q^u)ᵀ)`, for reference (its rows use `M^{u+1}`).
     pub mass: Matrix6<f64>,
     /// Generalised velocity at the start of the step.
     pub nu_start: Vector6<f64>,
-    /// Applied impulse over the step (gravity, loads and the gyroscopic term), `p_app + p_vp`.
+    /// Applied impulse over the step: for the plain form whatever was given (gravity, loads
+    /// and possibly an explicit gyroscopic term); for [`NewtonEuler::for_body`] `p_app`
+    /// (gravity and the load; the gyroscopic impulse is in the rows).
     pub impulse: Vector6<f64>,
     /// Contact frames, one per contact acting on this body.
     pub frames: Vec<ContactFrame>,
-    /// What `mass` and `impulse` were computed from, when built by [`NewtonEuler::for_body`].
+    /// What the rows are computed from, when built by [`NewtonEuler::for_body`].
     pub body: Option<BodyStepData>,
     sizes: Vec<usize>,
 }
@@ -232,8 +302,9 @@ impl NewtonEuler {
         }
     }
 
-    /// Builds the block from the body's mass properties, start-of-step state and load; its data
-    /// θ are those of [`NEWTON_EULER_DATA`], so the step sensitivities reach the mass, the
+    /// Builds the energy-stable rows (mass matrix and gyroscopic term at the end of the step,
+    /// see [`NewtonEuler`]) from the body's mass properties, start-of-step state and load; its
+    /// data θ are those of [`NEWTON_EULER_DATA`], so the step sensitivities reach the mass, the
     /// inertia, the start state and the load.
     pub fn for_body(body: BodyStepData, frames: Vec<ContactFrame>) -> Self {
         let mut ne = Self::new(body.mass_matrix(), body.nu_start, body.impulse(), frames);
@@ -241,18 +312,9 @@ impl NewtonEuler {
         ne
     }
 
-    /// The residual for given mass matrix, start velocity and impulse.
-    fn residual(
-        &self,
-        mass: &Matrix6<f64>,
-        nu_start: &Vector6<f64>,
-        impulse: &Vector6<f64>,
-        x: Params<'_>,
-        out: &mut [f64],
-    ) {
-        let nu = Vector6::from_column_slice(x.block(0));
+    /// Adds the contact impulses `Σ_c W p` to `r`.
+    fn add_contacts(&self, x: Params<'_>, r: &mut Vector6<f64>) {
         let pos = v3(x.block(1), 0);
-        let mut r = -mass * (nu - nu_start) + impulse;
         for (c, fr) in self.frames.iter().enumerate() {
             let a1 = v3(x.block(2 + 3 * c), 0);
             let pn = x.block(3 + 3 * c)[0];
@@ -264,6 +326,28 @@ impl NewtonEuler {
                 r[3 + i] += torque[i];
             }
         }
+    }
+
+    /// The residual of the plain form for given mass matrix, start velocity and impulse.
+    fn residual(
+        &self,
+        mass: &Matrix6<f64>,
+        nu_start: &Vector6<f64>,
+        impulse: &Vector6<f64>,
+        x: Params<'_>,
+        out: &mut [f64],
+    ) {
+        let nu = Vector6::from_column_slice(x.block(0));
+        let mut r = -mass * (nu - nu_start) + impulse;
+        self.add_contacts(x, &mut r);
+        out.copy_from_slice(r.as_slice());
+    }
+
+    /// The residual of the body form for given body data.
+    fn body_residual(&self, b: &BodyStepData, x: Params<'_>, out: &mut [f64]) {
+        let nu = Vector6::from_column_slice(x.block(0));
+        let mut r = b.inertial_rows(&nu, &v4(x.block(1), 3)) + b.impulse();
+        self.add_contacts(x, &mut r);
         out.copy_from_slice(r.as_slice());
     }
 }
@@ -279,12 +363,34 @@ impl ResidualBlock for NewtonEuler {
         &self.sizes
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        self.residual(&self.mass, &self.nu_start, &self.impulse, x, out);
+        match &self.body {
+            Some(b) => self.body_residual(b, x, out),
+            None => self.residual(&self.mass, &self.nu_start, &self.impulse, x, out),
+        }
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        for j in 0..6 {
-            for i in 0..6 {
-                jac.set(0, i, j, -self.mass[(i, j)]);
+        match &self.body {
+            None => {
+                for j in 0..6 {
+                    for i in 0..6 {
+                        jac.set(0, i, j, -self.mass[(i, j)]);
+                    }
+                }
+            }
+            Some(b) => {
+                let nu = Vector6::from_column_slice(x.block(0));
+                let (dw, dq) = b.inertial_jacobian(&nu, &v4(x.block(1), 3));
+                for i in 0..3 {
+                    jac.set(0, i, i, -b.mass);
+                    for j in 0..3 {
+                        jac.set(0, 3 + i, 3 + j, dw[(i, j)]);
+                    }
+                }
+                for (k, col) in dq.iter().enumerate() {
+                    for i in 0..3 {
+                        jac.set(1, 3 + i, 3 + k, col[i]);
+                    }
+                }
             }
         }
         let pos = v3(x.block(1), 0);
@@ -344,10 +450,7 @@ impl ResidualBlock for NewtonEuler {
     }
     fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
         match &self.body {
-            Some(b) => {
-                let d = b.with_theta(theta);
-                self.residual(&d.mass_matrix(), &d.nu_start, &d.impulse(), x, out);
-            }
+            Some(b) => self.body_residual(&b.with_theta(theta), x, out),
             None => {
                 let nu_start = Vector6::from_column_slice(&theta[..6]);
                 let impulse = Vector6::from_column_slice(&theta[6..12]);
@@ -370,44 +473,38 @@ impl ResidualBlock for NewtonEuler {
         let dv = v3(nu, 0) - v3(b.nu_start.as_slice(), 0);
         let w1 = v3(nu, 3);
         let w0 = v3(b.nu_start.as_slice(), 3);
-        let dw = w1 - w0;
         let h = b.h;
-        let r = rotation_matrix(&b.q_start);
-        let iw = r * b.inertia * r.transpose();
-        // Angular rows depend on the world inertia I_w through −I_w (ω − ω^u) − h ω^u × (I_w ω^u);
-        // their derivative along a change D of I_w is −D (ω − ω^u) − h ω^u × (D ω^u).
-        let along = |d: &Matrix3<f64>| -(d * dw) - (w0.cross(&(d * w0))) * h;
+        let r0 = rotation_matrix(&b.q_start);
+        let r1 = rotation_matrix(&v4(x.block(1), 3));
         // Mass: −(v − v^u) + h g.
         let dm = -dv + b.gravity * h;
         for i in 0..3 {
             jac.set(i, 0, dm[i]);
         }
-        // Inertia entries: D = R E_k Rᵀ.
+        // Inertia entries, E_k = ∂I_b/∂θ_k: the rotational rows
+        // −R1 I_b R1ᵀ ω + R1 I_b R0ᵀ ω^u − h ω × (R1 I_b R1ᵀ ω) are linear in I_b.
         for k in 0..6 {
-            let col = along(&(r * inertia_direction(k) * r.transpose()));
+            let e = inertia_direction(k);
+            let dl = r1 * (e * (r1.transpose() * w1));
+            let col = -dl + r1 * (e * (r0.transpose() * w0)) - w1.cross(&dl) * h;
             for i in 0..3 {
                 jac.set(3 + i, 1 + k, col[i]);
             }
         }
-        // Start quaternion: D = ∂R I Rᵀ + R I ∂Rᵀ.
+        // Start quaternion: only R0 = R(Q^u) in R1 I_b R0ᵀ ω^u.
         let dr = rotation_matrix_derivatives(&b.q_start);
         for (k, d) in dr.iter().enumerate() {
-            let di = d * b.inertia * r.transpose() + r * b.inertia * d.transpose();
-            let col = along(&di);
+            let col = r1 * (b.inertia * (d.transpose() * w0));
             for i in 0..3 {
                 jac.set(3 + i, 7 + k, col[i]);
             }
         }
-        // Start velocity: ∂/∂v^u = m I.
+        // Start velocity: ∂/∂v^u = m I; start angular velocity: ∂/∂ω^u = R1 I_b R0ᵀ.
+        let carry = r1 * b.inertia * r0.transpose();
         for i in 0..3 {
             jac.set(i, 11 + i, b.mass);
-        }
-        // Start angular velocity: I_w − h ∂(ω × I_w ω)/∂ω = I_w − h ([ω]× I_w − [I_w ω]×).
-        let gyro = crate::rotation::skew(&w0) * iw - crate::rotation::skew(&(iw * w0));
-        let dw0 = iw - gyro * h;
-        for i in 0..3 {
             for j in 0..3 {
-                jac.set(3 + i, 14 + j, dw0[(i, j)]);
+                jac.set(3 + i, 14 + j, carry[(i, j)]);
             }
         }
         // Applied force and torque: h I.

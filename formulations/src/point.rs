@@ -8,7 +8,8 @@
 //! its wrenches `W_n,i = [n; r_i × n]`, `W_t,i = [t; r_i × t]`, `W_o,i = [o; r_i × o]` and its
 //! gap `g_i(q^u)`. The step problem per body and half-space is then
 //!
-//! - Newton–Euler (§4.1) with every point's wrench, linear in ν ([`PointNewtonEuler`]);
+//! - Newton–Euler (§4.1) with every point's wrench, its mass matrix and gyroscopic impulse
+//!   at the end of the step as in the hull model (`docs/energy.md`; [`PointNewtonEuler`]);
 //! - the kinematic map (§4.2, [`KinematicMap`]);
 //! - non-penetration of the linearised gap, in velocity units,
 //!   `0 ≤ p_n,i ⊥ g_i(q^u)/h + W_n,iᵀ ν ≥ 0` ([`PointNonPenetration`]);
@@ -45,14 +46,14 @@
 use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Matrix3, Matrix6, Vector3, Vector6};
+use nalgebra::{Matrix6, Vector3, Vector4, Vector6};
 
 use ecp_model::{
     BlockMcp, JacobianBlocks, McpSolver, Params, Problem, ResId, ResidualBlock, SolveError,
     Summary, VarBlock, VarId,
 };
 
-use crate::blocks::{ContactFrame, FrictionParams, KinematicMap, mass_matrix};
+use crate::blocks::{BodyStepData, ContactFrame, FrictionParams, KinematicMap};
 use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::min_gap;
@@ -111,25 +112,34 @@ impl PointWrenches {
 }
 
 /// Discrete Newton–Euler equations of a body on point contacts (formulation.md §4.1, §7.3):
-/// `0 = −M(q^u)(ν − ν^u) + Σ_i (W_n,i p_n,i + W_t,i p_t,i + W_o,i p_o,i) + p_app + p_vp`,
-/// with the wrenches of the start of the step, so the block is linear in every unknown.
+/// `0 = −M(ν − ν^u) + Σ_i (W_n,i p_n,i + W_t,i p_t,i + W_o,i p_o,i) + p_app + p_vp`,
+/// with the wrenches of the start of the step.
 ///
-/// Reads `ν` (6) and, per point, `p_n` (1) and `p_f = (p_t, p_o)` (2).
+/// Two forms, by constructor: [`PointNewtonEuler::for_body`], the one the stepper uses, writes
+/// the inertial part as the hull model does — the mass matrix and the gyroscopic impulse at the
+/// end of the step ([`crate::blocks::NewtonEuler`], `docs/energy.md`), so a step without applied
+/// work cannot feed kinetic energy in; it reads `ν` (6), `q` (7) and, per point, `p_n` (1) and
+/// `p_f = (p_t, p_o)` (2). [`PointNewtonEuler::new`] takes a given mass matrix and applied
+/// impulse, linear in every unknown, and reads `ν` (6) and, per point, `p_n` and `p_f`.
 #[derive(Clone, Debug)]
 pub struct PointNewtonEuler {
-    /// Generalised mass matrix at the start of the step, `diag(m I, R I_body Rᵀ)`.
+    /// Generalised mass matrix of the plain form (for [`PointNewtonEuler::for_body`], the one of
+    /// the start of the step, for reference).
     pub mass: Matrix6<f64>,
     /// Generalised velocity at the start of the step.
     pub nu_start: Vector6<f64>,
-    /// Applied impulse over the step (gravity, loads and the gyroscopic term), `p_app + p_vp`.
+    /// Applied impulse over the step: for the plain form whatever was given; for
+    /// [`PointNewtonEuler::for_body`] `p_app` (the gyroscopic impulse is in the rows).
     pub impulse: Vector6<f64>,
     /// Wrenches of the points acting on this body, in the order of the blocks read.
     pub wrenches: Vec<PointWrenches>,
+    /// What the rows are computed from, when built by [`PointNewtonEuler::for_body`].
+    pub body: Option<BodyStepData>,
     sizes: Vec<usize>,
 }
 
 impl PointNewtonEuler {
-    /// The block for a body with the given point wrenches.
+    /// The block for a body with the given point wrenches, mass matrix and applied impulse.
     pub fn new(
         mass: Matrix6<f64>,
         nu_start: Vector6<f64>,
@@ -145,8 +155,23 @@ impl PointNewtonEuler {
             nu_start,
             impulse,
             wrenches,
+            body: None,
             sizes,
         }
+    }
+
+    /// The block with the end-of-step mass matrix and gyroscopic impulse computed from the
+    /// body's data (see [`PointNewtonEuler`]).
+    pub fn for_body(body: BodyStepData, wrenches: Vec<PointWrenches>) -> Self {
+        let mut ne = Self::new(body.mass_matrix(), body.nu_start, body.impulse(), wrenches);
+        ne.sizes.insert(1, 7);
+        ne.body = Some(body);
+        ne
+    }
+
+    /// Index of the first point block among the blocks read.
+    fn first_point(&self) -> usize {
+        if self.body.is_some() { 2 } else { 1 }
     }
 }
 
@@ -162,25 +187,53 @@ impl ResidualBlock for PointNewtonEuler {
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let nu = Vector6::from_column_slice(x.block(0));
-        let mut r = -self.mass * (nu - self.nu_start) + self.impulse;
+        let mut r = match &self.body {
+            Some(b) => {
+                let q = x.block(1);
+                b.inertial_rows(&nu, &Vector4::new(q[3], q[4], q[5], q[6])) + self.impulse
+            }
+            None => -self.mass * (nu - self.nu_start) + self.impulse,
+        };
+        let k0 = self.first_point();
         for (c, w) in self.wrenches.iter().enumerate() {
-            let pn = x.block(1 + 2 * c)[0];
-            let pf = x.block(2 + 2 * c);
+            let pn = x.block(k0 + 2 * c)[0];
+            let pf = x.block(k0 + 1 + 2 * c);
             r += w.normal * pn + w.t * pf[0] + w.o * pf[1];
         }
         out.copy_from_slice(r.as_slice());
     }
-    fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        for j in 0..6 {
-            for i in 0..6 {
-                jac.set(0, i, j, -self.mass[(i, j)]);
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        match &self.body {
+            Some(b) => {
+                let nu = Vector6::from_column_slice(x.block(0));
+                let q = x.block(1);
+                let (dw, dq) = b.inertial_jacobian(&nu, &Vector4::new(q[3], q[4], q[5], q[6]));
+                for i in 0..3 {
+                    jac.set(0, i, i, -b.mass);
+                    for j in 0..3 {
+                        jac.set(0, 3 + i, 3 + j, dw[(i, j)]);
+                    }
+                }
+                for (k, col) in dq.iter().enumerate() {
+                    for i in 0..3 {
+                        jac.set(1, 3 + i, 3 + k, col[i]);
+                    }
+                }
+            }
+            None => {
+                for j in 0..6 {
+                    for i in 0..6 {
+                        jac.set(0, i, j, -self.mass[(i, j)]);
+                    }
+                }
             }
         }
+        let k0 = self.first_point();
         for (c, w) in self.wrenches.iter().enumerate() {
             for i in 0..6 {
-                jac.set(1 + 2 * c, i, 0, w.normal[i]);
-                jac.set(2 + 2 * c, i, 0, w.t[i]);
-                jac.set(2 + 2 * c, i, 1, w.o[i]);
+                jac.set(k0 + 2 * c, i, 0, w.normal[i]);
+                jac.set(k0 + 1 + 2 * c, i, 0, w.t[i]);
+                jac.set(k0 + 1 + 2 * c, i, 1, w.o[i]);
             }
         }
     }
@@ -547,18 +600,22 @@ impl PointContacts {
         let zero = PointWrenches::new(&Vector3::zeros(), &frame0);
         for (b, body) in bodies.iter_mut().enumerate() {
             let mine: Vec<&PointVars> = contacts.iter().filter(|c| c.body == b).collect();
-            let mut reads = vec![body.nu];
+            let mut reads = vec![body.nu, body.q];
             for c in &mine {
                 reads.extend([c.pn, c.pf]);
             }
+            let placeholder = BodyStepData {
+                mass: body.spec.mass.mass,
+                inertia: body.spec.mass.inertia,
+                q_start: body.state.q,
+                nu_start: Vector6::zeros(),
+                wrench: Vector6::zeros(),
+                gravity: scene.gravity,
+                h: scene.h,
+            };
             body.newton_euler = problem.add_residual_block(
                 body.nu,
-                PointNewtonEuler::new(
-                    Matrix6::identity(),
-                    Vector6::zeros(),
-                    Vector6::zeros(),
-                    vec![zero; mine.len()],
-                ),
+                PointNewtonEuler::for_body(placeholder, vec![zero; mine.len()]),
                 &reads,
             )?;
             body.kinematic = problem.add_residual_block(
@@ -727,8 +784,9 @@ impl PointContacts {
         }
     }
 
-    /// Updates the per-step data (mass matrix, applied and gyroscopic impulses, the points'
-    /// wrenches and gaps, all at the start of the step) and the warm start: the previous
+    /// Updates the per-step data (the body data of the Newton–Euler rows, whose mass matrix and
+    /// gyroscopic impulse are those of the end of the step, and the points' wrenches and gaps at
+    /// the start of the step) and the warm start: the previous
     /// solution, `q` predicted by the kinematic map, and a fresh start for every point that
     /// carried no load in the previous step (the active guess when it is closed, together with
     /// the other closed points of its body and half-space; `p = 0` and σ = [`OPEN_SIGMA`] when
@@ -742,15 +800,7 @@ impl PointContacts {
             let s = body.state;
             let mp = &body.spec.mass;
             let rot = rotation_matrix(&s.q);
-            let iw: Matrix3<f64> = rot * mp.inertia * rot.transpose();
             let load = body.spec.load.at(t_u);
-            let force = self.scene.gravity * mp.mass + load.fixed_rows::<3>(0).into_owned();
-            let torque = load.fixed_rows::<3>(3).into_owned() - s.w.cross(&(iw * s.w));
-            let mut impulse = Vector6::zeros();
-            for i in 0..3 {
-                impulse[i] = h * force[i];
-                impulse[3 + i] = h * torque[i];
-            }
             let mut wrenches = Vec::new();
             let mut updates = Vec::new();
             for (i, c) in self.contacts.iter().enumerate() {
@@ -777,10 +827,16 @@ impl PointContacts {
                 ));
             }
             let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
-            let ne = PointNewtonEuler::new(
-                mass_matrix(mp.mass, &mp.inertia, &s.q),
-                nu_start,
-                impulse,
+            let ne = PointNewtonEuler::for_body(
+                BodyStepData {
+                    mass: mp.mass,
+                    inertia: mp.inertia,
+                    q_start: s.q,
+                    nu_start,
+                    wrench: load,
+                    gravity: self.scene.gravity,
+                    h,
+                },
                 wrenches,
             );
             let km = KinematicMap {

@@ -349,7 +349,7 @@ pub(crate) struct BodyData {
     kinematic: ResId,
     frames: Vec<ContactFrame>,
     pub(crate) state: BodyState,
-    /// `p_app + p_vp` of the step being prepared (read by the structural view, issue #6).
+    /// `p_app` of the step being prepared (gravity and the load; read by the structural view).
     pub(crate) impulse: Vector6<f64>,
 }
 
@@ -972,8 +972,10 @@ impl Simulation {
         self.step >= self.scene.num_steps()
     }
 
-    /// Updates the per-step data (mass matrix at q^u, applied and gyroscopic impulses at t_u,
-    /// start state) and the warm start. After this, `mcp()` and `z()` are the step problem and
+    /// Updates the per-step data (the body data of the Newton–Euler rows — mass properties,
+    /// start state, applied impulse at t_u; their mass matrix and gyroscopic impulse are those
+    /// of the end of the step, `docs/energy.md` — and the kinematic map's start state) and the
+    /// warm start. After this, `mcp()` and `z()` are the step problem and
     /// its starting point.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
         self.prepare_span(self.t, self.scene.h)

@@ -9,14 +9,13 @@
 
 use std::sync::Arc;
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector4, Vector6};
 
 use ecp_model::{
     BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, CscPattern, Mcp, PatchVertex,
     StepStructure,
 };
 
-use crate::blocks::mass_matrix;
 use crate::rotation::{kinematic_map, rotation_matrix};
 use crate::stepper::Simulation;
 
@@ -58,19 +57,41 @@ impl<'a> StepView<'a> {
         (Vector3::new(q[0], q[1], q[2]), rotation_matrix(&quat))
     }
 
-    fn free_velocity(&self, b: usize) -> Vector6<f64> {
+    /// The free-motion velocity of body `b` (the step's Newton–Euler rows without contact
+    /// impulses) with the end-of-step orientation `R1` and the gyroscopic impulse at the trial
+    /// angular velocity `w_trial` held fixed: `v^u + p_lin/m` and
+    /// `I_w1⁻¹ (R1 I_b R0ᵀ ω^u + p_ang − h ω̃ × (I_w1 ω̃))`, `I_w1 = R1 I_b R1ᵀ`
+    /// ([`crate::blocks::BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`). At
+    /// the step's solution (ω̃ its ω, R1 its orientation) it is the velocity the step reaches
+    /// without contact impulses.
+    fn free_velocity(&self, b: usize, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
         let body = &self.sim.bodies[b];
         let s = body.state;
         let mp = &body.spec.mass;
-        let r = rotation_matrix(&s.q);
-        let iw = r * mp.inertia * r.transpose();
+        let r0 = rotation_matrix(&s.q);
+        let iw1 = r1 * mp.inertia * r1.transpose();
         let lin = s.v + body.impulse.fixed_rows::<3>(0) / mp.mass;
+        let rhs = r1 * (mp.inertia * (r0.transpose() * s.w)) + body.impulse.fixed_rows::<3>(3)
+            - w_trial.cross(&(iw1 * w_trial)) * self.sim.scene.h;
         // The inertia is validated symmetric positive definite when the scene is built.
-        let ang = match iw.cholesky() {
-            Some(ch) => s.w + ch.solve(&body.impulse.fixed_rows::<3>(3).into_owned()),
+        let ang = match iw1.cholesky() {
+            Some(ch) => ch.solve(&rhs),
             None => s.w,
         };
         Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// The trial end-of-step rotation and angular velocity of body `b` stored in `z`.
+    fn trial(&self, b: usize, z: &[f64]) -> (Matrix3<f64>, Vector3<f64>) {
+        let (_, r1) = self.pose(b, z);
+        let nu = &z[self.sim.mcp.range(self.sim.bodies[b].nu)];
+        let w = Vector3::new(nu[3], nu[4], nu[5]);
+        let w = if w.iter().all(|v| v.is_finite()) {
+            w
+        } else {
+            self.sim.bodies[b].state.w
+        };
+        (r1, w)
     }
 }
 
@@ -165,16 +186,24 @@ impl StepStructure for StepView<'_> {
         self.sim.bodies.len()
     }
 
-    fn body(&self, b: usize) -> BodyDynamics {
+    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
         let body = &self.sim.bodies[b];
-        let m = mass_matrix(body.spec.mass.mass, &body.spec.mass.inertia, &body.state.q);
+        let (r1, w_trial) = self.trial(b, z);
+        let iw1 = r1 * body.spec.mass.inertia * r1.transpose();
+        let mut m = Matrix6::zeros();
+        for i in 0..3 {
+            m[(i, i)] = body.spec.mass.mass;
+            for j in 0..3 {
+                m[(3 + i, 3 + j)] = iw1[(i, j)];
+            }
+        }
         let mut mass = [[0.0; 6]; 6];
         for (i, row) in mass.iter_mut().enumerate() {
             for (j, v) in row.iter_mut().enumerate() {
                 *v = m[(i, j)];
             }
         }
-        let f = self.free_velocity(b);
+        let f = self.free_velocity(b, &r1, &w_trial);
         BodyDynamics {
             mass,
             free_velocity: [f[0], f[1], f[2], f[3], f[4], f[5]],
@@ -205,7 +234,8 @@ impl StepStructure for StepView<'_> {
         let h = self.sim.scene.h;
         let nu = &z[self.sim.mcp.range(body.nu)];
         let trial = Vector6::from_column_slice(nu);
-        let free = self.free_velocity(cv.body);
+        let (r1, w_trial) = self.trial(cv.body, z);
+        let free = self.free_velocity(cv.body, &r1, &w_trial);
         let mut gap = f64::INFINITY;
         let mut patch = Vec::new();
         for (j, vb) in self.sim.contact_hulls[c].vertices().iter().enumerate() {

@@ -28,14 +28,20 @@ pub struct ContactFriction {
     pub e_r: f64,
 }
 
-/// Dynamics of one body over the step (formulation.md §4.1), fixed for the whole step.
+/// Dynamics of one body over the step (formulation.md §4.1) at a trial end-of-step point.
+///
+/// The step's Newton–Euler rows use the mass matrix of the end of the step and the gyroscopic
+/// impulse at the end-of-step angular velocity (the paper's `M^{u+1}`), so both depend on the
+/// trial point; a backend that holds them fixed in a subproblem re-evaluates them at each outer
+/// iterate (a fixed point whose limit satisfies the step's rows).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyDynamics {
-    /// Generalised mass matrix `M(q^u) = diag(m I₃, R I_body Rᵀ)`, row-major.
+    /// Generalised mass matrix `M = diag(m I₃, R I_body Rᵀ)` at the trial end-of-step
+    /// orientation, row-major.
     pub mass: [[f64; 6]; 6],
-    /// Free-motion velocity `ν^u + M⁻¹ (p_app + p_vp)`: the end-of-step velocity without contact
-    /// impulses, with the applied, gravity and gyroscopic impulses exactly as the step's
-    /// Newton–Euler block discretises them.
+    /// Free-motion velocity: the end-of-step velocity without contact impulses, with the
+    /// applied, gravity and gyroscopic impulses as the step's Newton–Euler block discretises
+    /// them, the gyroscopic impulse evaluated at the trial angular velocity.
     pub free_velocity: [f64; 6],
 }
 
@@ -106,8 +112,9 @@ pub trait StepStructure {
     fn step_length(&self) -> f64;
     /// Number of bodies.
     fn num_bodies(&self) -> usize;
-    /// Mass matrix and free-motion velocity of body `b`.
-    fn body(&self, b: usize) -> BodyDynamics;
+    /// Mass matrix and free-motion velocity of body `b` at the trial end-of-step point stored in
+    /// `z` (its orientation and angular velocity; see [`BodyDynamics`]).
+    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics;
     /// Number of contacts.
     fn num_contacts(&self) -> usize;
     /// The end-of-step velocities `ν` stored in the full MCP vector `z`.

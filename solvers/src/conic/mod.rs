@@ -263,13 +263,22 @@ impl McpSolver for ConicSolver {
         let (lower, upper) = (mcp.lower(), mcp.upper());
         let nb = structure.num_bodies();
         let nc = structure.num_contacts();
-        let bodies: Vec<_> = (0..nb).map(|b| structure.body(b)).collect();
-        if bodies.iter().any(|b| {
-            b.free_velocity
-                .iter()
-                .chain(b.mass.iter().flatten())
-                .any(|v| !v.is_finite())
-        }) {
+        // The mass matrix and the free-motion velocity are those of the step's Newton–Euler
+        // rows at a trial end-of-step point (the end-of-step orientation and the gyroscopic
+        // impulse at the trial ω, `ecp_model::BodyDynamics`): evaluated at the point the
+        // geometry is evaluated at, so the fixed point converges to the step's solution.
+        let dynamics = |z: &[f64]| -> Vec<ecp_model::BodyDynamics> {
+            (0..nb).map(|b| structure.body(b, z)).collect()
+        };
+        let finite = |bodies: &[ecp_model::BodyDynamics]| {
+            bodies.iter().all(|b| {
+                b.free_velocity
+                    .iter()
+                    .chain(b.mass.iter().flatten())
+                    .all(|v| v.is_finite())
+            })
+        };
+        if !finite(&dynamics(z0)) {
             return Err(SolveError::InvalidProblem(
                 "the step's mass matrix or free-motion velocity is not finite".into(),
             ));
@@ -347,6 +356,14 @@ impl McpSolver for ConicSolver {
                 load: self.settings.anchor_load,
                 previous_loads: (!previous_loads.is_empty()).then_some(previous_loads.as_slice()),
             });
+            let bodies = dynamics(&z_in);
+            if !finite(&bodies) {
+                self.last_error = Some(format!(
+                    "the mass matrix or free-motion velocity of outer iteration {it} is not finite"
+                ));
+                termination = Termination::SubproblemFailed;
+                break;
+            }
             let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
             run.patch_vertices = sub.patch_vertices;
             let result = match sub.qp.solve(&self.settings.clarabel) {
