@@ -381,7 +381,7 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         ctx
     );
 
-    // Free flight: no gravity, no contact, so `M(ν − ν^u) = h p_vp` up to the friction impulse
+    // Free flight: no gravity, no contact, so the inertial rows vanish up to the friction impulse
     // the natural residual lets through. The σ row `μ²p_n² − Σ p_k²/e_k²` is quadratic with
     // zero gradient at p_f = 0, so a residual r only bounds |p_k| ≤ e_k √(r + μ²p_n²): the
     // spurious impulse is O(√r), not O(r).
@@ -396,10 +396,12 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         force_bound,
         friction_residual
     );
+    // The angular rows with the mass matrix and the gyroscopic impulse at the end of the step
+    // (docs/energy.md): `R1 I_b R1ᵀ ω − R1 I_b R0ᵀ ω^u + h ω × (R1 I_b R1ᵀ ω)`.
     let r0 = rotation_matrix(&start.q);
-    let iw = r0 * mass.inertia * r0.transpose();
-    let gyro = -start.w.cross(&(iw * start.w)) * H;
-    let dl = iw * (end.w - start.w) - gyro;
+    let r1 = rotation_matrix(&end.q);
+    let l1 = r1 * mass.inertia * r1.transpose() * end.w;
+    let dl = l1 - r1 * mass.inertia * r0.transpose() * start.w + end.w.cross(&l1) * H;
     let torque_bound = (c.a1 - end.x).norm() * force_bound + fp.e_r * slack + 1e-9;
     prop_assert!(
         dl.norm() <= torque_bound,

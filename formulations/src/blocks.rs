@@ -233,7 +233,7 @@ impl BodyStepData {
     }
 }
 
-/// Discrete Newton–Euler equations (formulation.md §4.1, the paper's eq. (discrete_NE)),
+/// Discrete Newton–Euler equations (the paper's eq. (discrete_NE)),
 /// `0 = −M^{u+1}(ν^{u+1} − ν^u) + P_c + p_app + p_vp`, with the contact impulse
 /// `P_c = Σ_c (W_n p_n + W_t p_t + W_o p_o + W_r p_r)`, `W_n = [n; r × n]`, `r = a1 − x^{u+1}`
 /// per contact.

@@ -8,7 +8,7 @@
 //! its wrenches `W_n,i = [n; r_i × n]`, `W_t,i = [t; r_i × t]`, `W_o,i = [o; r_i × o]` and its
 //! gap `g_i(q^u)`. The step problem per body and half-space is then
 //!
-//! - Newton–Euler (§4.1) with every point's wrench, its mass matrix and gyroscopic impulse
+//! - Newton–Euler with every point's wrench, its mass matrix and gyroscopic impulse
 //!   at the end of the step as in the hull model (`docs/energy.md`; [`PointNewtonEuler`]);
 //! - the kinematic map (§4.2, [`KinematicMap`]);
 //! - non-penetration of the linearised gap, in velocity units,

@@ -28,7 +28,7 @@ pub struct ContactFriction {
     pub e_r: f64,
 }
 
-/// Dynamics of one body over the step (formulation.md §4.1) at a trial end-of-step point.
+/// Dynamics of one body over the step at a trial end-of-step point.
 ///
 /// The step's Newton–Euler rows use the mass matrix of the end of the step and the gyroscopic
 /// impulse at the end-of-step angular velocity (the paper's `M^{u+1}`), so both depend on the
