@@ -220,18 +220,21 @@ fn fast_subset_newton_failing() {
 }
 
 /// The regression scenes of `tests/stress_regressions/` (every generated scene that ever
-/// failed with some backend), each run to its end with the backends `manifest.csv` lists for it.
+/// failed with some backend), each run to its end with the backends `manifest.csv` lists for it
+/// (only the scenes whose name contains `$ECP_STRESS_ONLY`, when set).
 fn regressions(solver: SolverKind) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions");
     let manifest = std::fs::read_to_string(dir.join("manifest.csv")).expect("manifest.csv");
     let out = temp_dir(&format!("regr-{solver}"));
+    // `ECP_STRESS_ONLY=TEXT` keeps the scenes whose name contains TEXT.
+    let only = std::env::var("ECP_STRESS_ONLY").ok();
     let mut results = Vec::new();
     for line in manifest.lines().skip(1) {
         let mut cols = line.split(',');
         let (Some(scene), Some(backend)) = (cols.next(), cols.next()) else {
             continue;
         };
-        if backend != solver.as_str() {
+        if backend != solver.as_str() || only.as_deref().is_some_and(|o| !scene.contains(o)) {
             continue;
         }
         let config = RunConfig {
