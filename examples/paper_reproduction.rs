@@ -72,6 +72,8 @@ fn run(
             formulation: Some(formulation),
             plots: plots && k == 0,
             keep_going: true,
+            // Each backend by itself: the report compares backends.
+            fallbacks: false,
             ..RunOptions::default()
         };
         match run_scene(file, &options, |_| {}) {

@@ -171,6 +171,7 @@ fn main() -> ExitCode {
                 plots: !no_plots,
                 keep_going,
                 fallbacks: !no_fallbacks,
+                time_limit: None,
             };
             run(&file, &options, quiet)
         }),

@@ -3,7 +3,7 @@
 //! layer over [`run_scene`] and [`compare_scene`].
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use ecp_formulations::stepper::StepRecord;
 use ecp_formulations::{Fallbacks, build_stepper};
@@ -37,6 +37,8 @@ pub struct RunOptions {
     /// Try other backends, then substeps, when the backend cannot solve a step
     /// (`docs/fallbacks.md`). On by default.
     pub fallbacks: bool,
+    /// Stop the run once it has taken this long (checked between steps); the outcome says so.
+    pub time_limit: Option<Duration>,
 }
 
 impl Default for RunOptions {
@@ -49,6 +51,7 @@ impl Default for RunOptions {
             plots: true,
             keep_going: false,
             fallbacks: true,
+            time_limit: None,
         }
     }
 }
@@ -73,12 +76,14 @@ pub struct RunOutcome {
     pub plot_error: Option<String>,
     /// The stepper's error that ended the run early, if any.
     pub stepper_error: Option<String>,
+    /// The run stopped at [`RunOptions::time_limit`] before its last step.
+    pub timed_out: bool,
 }
 
 impl RunOutcome {
     /// Every step converged and the run reached its end.
     pub fn succeeded(&self) -> bool {
-        self.summary.failed_steps == 0 && self.stepper_error.is_none()
+        self.summary.failed_steps == 0 && self.stepper_error.is_none() && !self.timed_out
     }
 }
 
@@ -157,7 +162,15 @@ pub fn run_scene(
     )?;
     let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
+    let mut timed_out = false;
     while records.len() < planned {
+        if options
+            .time_limit
+            .is_some_and(|limit| start.elapsed() > limit)
+        {
+            timed_out = true;
+            break;
+        }
         match sim.step_with(solver.as_mut(), &mut fallbacks) {
             Ok(rec) => {
                 csv.write(&rec)?;
@@ -209,6 +222,7 @@ pub fn run_scene(
         plots,
         plot_error,
         stepper_error,
+        timed_out,
     })
 }
 
