@@ -298,3 +298,66 @@ fn regressions_path() {
 fn regressions_conic() {
     regressions(SolverKind::Conic);
 }
+
+/// Every regression scene with the default settings of `ecp run` (Newton with the run driver's
+/// fallbacks: the other backends, then substeps), run past the first step at which any backend
+/// failed on it (plus 5 steps), must solve every step, stay out of the half-spaces and gain no
+/// energy: what a user gets on the scenes that once failed. The per-backend runs without
+/// fallbacks are `regressions_newton`, `regressions_path` and `regressions_conic` (ignored).
+#[test]
+fn regressions_with_default_settings() {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions");
+    let manifest = std::fs::read_to_string(dir.join("manifest.csv")).expect("manifest.csv");
+    let only = std::env::var("ECP_STRESS_ONLY").ok();
+    // Scene → the latest first failing step over its backends (a timeout: the whole run).
+    let mut scenes: std::collections::BTreeMap<String, Option<usize>> = Default::default();
+    for line in manifest.lines().skip(1) {
+        let mut cols = line.split(',');
+        let (Some(scene), Some(_), Some(step)) = (cols.next(), cols.next(), cols.next()) else {
+            continue;
+        };
+        if only.as_deref().is_some_and(|o| !scene.contains(o)) {
+            continue;
+        }
+        let step = step.parse::<usize>().ok();
+        let entry = scenes.entry(scene.to_string()).or_insert(Some(0));
+        *entry = match (*entry, step) {
+            (Some(a), Some(b)) => Some(a.max(b)),
+            _ => None,
+        };
+    }
+    assert!(
+        only.is_some() || scenes.len() >= 100,
+        "{} scenes",
+        scenes.len()
+    );
+    let out = temp_dir("regr-default");
+    let mut bad = Vec::new();
+    for (scene, step) in &scenes {
+        let config = RunConfig {
+            solver: SolverKind::Newton,
+            steps: step.map(|s| s + 5),
+            time_limit: Some(ecp::stress::runner::TIME_LIMIT),
+            out_dir: out.join(scene),
+            fallbacks: true,
+        };
+        let r = ecp::stress::run_file(&dir.join(format!("{scene}.toml")), &config);
+        if !r.passed() {
+            bad.push(format!(
+                "{scene}: {} failed steps (first {:?}), timeout {}, error {:?}, penetration {:e} m, energy rise {:e}",
+                r.failed_steps,
+                r.first_failed_step,
+                r.timed_out,
+                r.error,
+                r.max_penetration,
+                r.energy_rise_outside_openings
+            ));
+        }
+    }
+    std::fs::remove_dir_all(out).ok();
+    assert!(
+        bad.is_empty(),
+        "regression scenes that fail with the default settings:\n{}",
+        bad.join("\n")
+    );
+}
