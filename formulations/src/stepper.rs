@@ -516,7 +516,23 @@ pub struct Simulation {
     pub(crate) friction_blocks: Vec<ResId>,
     /// The last step taken, while its step problem is still the one in `mcp`.
     last: Option<LastStep>,
+    /// Origin of the step problem's coordinates: positions in `z` and in the blocks are relative
+    /// to it (world = origin + z). Zero until a body moves farther than [`RECENTRE_DISTANCE`]
+    /// from it, so that a scene far from the world origin is solved as precisely as the same
+    /// scene near it.
+    origin: Vector3<f64>,
+    /// The half-space blocks of each contact (C4 `HalfSpaceSide`, C5 `NonPenetration`), the
+    /// only ones that hold an absolute position (the plane's offset).
+    plane_blocks: Vec<(ResId, ResId)>,
+    /// The half-spaces in the step problem's coordinates (relative to `origin`).
+    pub(crate) step_planes: Vec<HalfSpace>,
 }
+
+/// Distance (m, any axis) from the step problem's origin beyond which the stepper moves the
+/// origin to the bodies' centroid. Round-off in the position rows grows with the coordinates'
+/// size (about 2e-16·|x|, amplified by the 1/h row scale), so far from the origin a step could
+/// not reach the tolerance; within this distance the loss is below 1e-11.
+pub const RECENTRE_DISTANCE: f64 = 100.0;
 
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
 /// stay in [`Simulation::mcp`] until the next [`Simulation::prepare_step`], which clears this.
@@ -666,6 +682,7 @@ impl Simulation {
 
         // Residual blocks (formulation.md §4), paired as in §3.
         let mut friction_blocks = Vec::new();
+        let mut plane_blocks = Vec::new();
         for (b, body) in bodies.iter_mut().enumerate() {
             let mine: Vec<(&ContactVars, &ConvexHull)> = contacts
                 .iter()
@@ -724,7 +741,7 @@ impl Simulation {
                     },
                     &[c.a1, body.q],
                 )?;
-                problem.add_residual_block(
+                let side = problem.add_residual_block(
                     c.lg,
                     HalfSpaceSide {
                         normal: ng,
@@ -733,7 +750,7 @@ impl Simulation {
                     },
                     &[c.a2],
                 )?;
-                problem.add_residual_block(
+                let pen = problem.add_residual_block(
                     c.pn,
                     NonPenetration {
                         normal: ng,
@@ -742,6 +759,7 @@ impl Simulation {
                     },
                     &[c.a1],
                 )?;
+                plane_blocks.push((side, pen));
                 friction_blocks.push(problem.add_residual_block(
                     c.pf,
                     FrictionDissipation {
@@ -772,7 +790,12 @@ impl Simulation {
             t: 0.0,
             friction_blocks,
             last: None,
+            origin: Vector3::zeros(),
+            plane_blocks,
+            step_planes: Vec::new(),
         };
+        sim.step_planes = sim.scene.planes.clone();
+        sim.recentre_if_far()?;
         sim.initial_guess();
         Ok(sim)
     }
@@ -850,8 +873,9 @@ impl Simulation {
             }
         }
         let c = self.contacts[i];
-        self.put(c.a1, a1.as_slice());
-        self.put(c.a2, a2.as_slice());
+        let o = self.origin;
+        self.put(c.a1, (a1 - o).as_slice());
+        self.put(c.a2, (a2 - o).as_slice());
         self.put(c.l, &l);
         self.put(c.lg, &[gap]);
         self.put(c.pn, &[pn]);
@@ -882,7 +906,9 @@ impl Simulation {
     pub fn structured_mcp(&self) -> crate::structure::StepView<'_> {
         crate::structure::StepView::new(self)
     }
-    /// The current unknown vector (last solution, or the warm start of the next step).
+    /// The current unknown vector (last solution, or the warm start of the next step). Its
+    /// positions are relative to [`Simulation::origin`] (zero unless the scene is far from the
+    /// world origin).
     pub fn z(&self) -> &[f64] {
         &self.z
     }
@@ -978,6 +1004,7 @@ impl Simulation {
     /// warm start. After this, `mcp()` and `z()` are the step problem and
     /// its starting point.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
+        self.recentre_if_far()?;
         self.prepare_span(self.t, self.scene.h)
     }
 
@@ -985,6 +1012,7 @@ impl Simulation {
     /// step, or a substep of a step its backend could not solve ([`Fallbacks`]).
     fn prepare_span(&mut self, t0: f64, h: f64) -> Result<(), SceneError> {
         self.last = None;
+        let o = self.origin;
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
@@ -1007,7 +1035,7 @@ impl Simulation {
             );
             let impulse = ne.impulse;
             let km = KinematicMap {
-                x_start: s.x,
+                x_start: s.x - o,
                 q_start: s.q,
                 h,
             };
@@ -1019,7 +1047,7 @@ impl Simulation {
             let nu_prev: Vec<f64> = self.get(nu_id).to_vec();
             let w = Vector3::new(nu_prev[3], nu_prev[4], nu_prev[5]);
             let v = Vector3::new(nu_prev[0], nu_prev[1], nu_prev[2]);
-            let x_pred = s.x + v * h;
+            let x_pred = s.x - o + v * h;
             let q_pred = s.q + kinematic_map(&s.q) * w * (0.5 * h);
             let q_guess = [
                 x_pred.x, x_pred.y, x_pred.z, q_pred[0], q_pred[1], q_pred[2], q_pred[3],
@@ -1091,8 +1119,89 @@ impl Simulation {
             );
             let qr = self.bodies[b].q;
             self.put(qr, &q_stored);
-            self.bodies[b].state = state;
+            self.bodies[b].state = BodyState {
+                x: state.x + self.origin,
+                ..state
+            };
         }
+    }
+
+    /// Moves the step problem's origin to the bodies' centroid when a body is farther than
+    /// [`RECENTRE_DISTANCE`] from it: the positions in the warm start and the half-spaces'
+    /// offsets are shifted; nothing else holds an absolute position.
+    fn recentre_if_far(&mut self) -> Result<(), SceneError> {
+        let far = self
+            .bodies
+            .iter()
+            .map(|b| (b.state.x - self.origin).amax())
+            .fold(0.0, f64::max);
+        if !(far > RECENTRE_DISTANCE) || self.bodies.is_empty() {
+            return Ok(());
+        }
+        let centroid = self
+            .bodies
+            .iter()
+            .fold(Vector3::zeros(), |acc, b| acc + b.state.x)
+            / self.bodies.len() as f64;
+        if !centroid.iter().all(|c| c.is_finite()) {
+            return Ok(());
+        }
+        let shift = centroid - self.origin;
+        for b in 0..self.bodies.len() {
+            let range = self.mcp.range(self.bodies[b].q);
+            for k in 0..3 {
+                self.z[range.start + k] -= shift[k];
+            }
+        }
+        for i in 0..self.contacts.len() {
+            let c = self.contacts[i];
+            for v in [c.a1, c.a2] {
+                let range = self.mcp.range(v);
+                for k in 0..3 {
+                    self.z[range.start + k] -= shift[k];
+                }
+            }
+        }
+        self.origin = centroid;
+        let scale = GEOMETRY_SCALE / self.scene.h;
+        for (p, plane) in self.scene.planes.iter().enumerate() {
+            let n = plane.normal();
+            self.step_planes[p] =
+                HalfSpace::new(n, plane.offset() - n.dot(&centroid)).map_err(|source| {
+                    SceneError::Geometry {
+                        body: format!("half-space #{p}"),
+                        source,
+                    }
+                })?;
+        }
+        for (i, c) in self.contacts.iter().enumerate() {
+            let plane = &self.step_planes[c.plane];
+            let (side, pen) = self.plane_blocks[i];
+            self.mcp.replace_residual_block(
+                side,
+                Arc::new(HalfSpaceSide {
+                    normal: plane.normal(),
+                    offset: plane.offset(),
+                    scale,
+                }),
+            )?;
+            self.mcp.replace_residual_block(
+                pen,
+                Arc::new(NonPenetration {
+                    normal: plane.normal(),
+                    offset: plane.offset(),
+                    scale,
+                }),
+            )?;
+        }
+        Ok(())
+    }
+
+    /// Origin of the step problem's coordinates: the positions in [`Simulation::z`] and in the
+    /// step problem are relative to it. It is zero unless a body went farther than
+    /// [`RECENTRE_DISTANCE`] from the world origin.
+    pub fn origin(&self) -> Vector3<f64> {
+        self.origin
     }
 
     fn checkpoint(&self) -> (Vec<BodyState>, Vec<f64>) {
@@ -1129,6 +1238,8 @@ impl Simulation {
     ) -> Result<StepRecord, SceneError> {
         let (t0, h) = (self.t, self.scene.h);
         let started = Instant::now();
+        // Before the checkpoint: the origin stays put within a step and its fallbacks.
+        self.recentre_if_far()?;
         let start = self.checkpoint();
         self.prepare_span(t0, h)?;
         let wrenches: Vec<Vector6<f64>> = self.bodies.iter().map(|b| b.spec.load.at(t0)).collect();
@@ -1213,6 +1324,7 @@ impl Simulation {
     pub fn step_unchecked(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
         let (t0, h) = (self.t, self.scene.h);
         let started = Instant::now();
+        self.recentre_if_far()?;
         self.prepare_span(t0, h)?;
         let (z, summary, method) = match solver.solve(&self.structured_mcp(), &self.z) {
             Ok(sol) => (sol.z, sol.summary, StepMethod::Direct),
@@ -1300,8 +1412,8 @@ impl Simulation {
             let a2 = self.get(c.a2);
             let pf = self.get(c.pf);
             contacts.push(ContactRecord {
-                a1: Vector3::new(a1[0], a1[1], a1[2]),
-                a2: Vector3::new(a2[0], a2[1], a2[2]),
+                a1: Vector3::new(a1[0], a1[1], a1[2]) + self.origin,
+                a2: Vector3::new(a2[0], a2[1], a2[2]) + self.origin,
                 lg: self.get(c.lg)[0],
                 pn: self.get(c.pn)[0],
                 pt: pf[0],

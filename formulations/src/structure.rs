@@ -228,7 +228,7 @@ impl StepStructure for StepView<'_> {
     fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
         let cv = &self.sim.contacts[c];
         let body = &self.sim.bodies[cv.body];
-        let plane = &self.sim.scene.planes[cv.plane];
+        let plane = &self.sim.step_planes[cv.plane];
         let (n, t, o) = plane.contact_frame();
         let (x, r) = self.pose(cv.body, z);
         let h = self.sim.scene.h;
@@ -288,12 +288,12 @@ impl StepStructure for StepView<'_> {
             let s = body.state;
             let v = Vector3::new(nu[0], nu[1], nu[2]);
             let w = Vector3::new(nu[3], nu[4], nu[5]);
-            let x = s.x + v * h;
+            let x = s.x - sim.origin() + v * h;
             let q = s.q + kinematic_map(&s.q) * w * (0.5 * h);
             z[sim.mcp.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
         }
         for (c, cv) in sim.contacts.iter().enumerate() {
-            let plane = &sim.scene.planes[cv.plane];
+            let plane = &sim.step_planes[cv.plane];
             let ng = plane.normal();
             let (x, r) = self.pose(cv.body, z);
             let set = &sim.contact_hulls[c];
