@@ -8,12 +8,19 @@
 //! - `tiled_box_N.obj`: the same box with each face tiled into a grid, about N vertices all on
 //!   the surface (the hull is the box).
 //!
+//! It also prints the time `ConvexHull::from_points` takes on each mesh's vertices (as read, with
+//! their repetitions), the hull stage of `ecp check` without the file parsing.
+//!
 //! `cargo run --release --example large_meshes -- DIR [N ...]` (default N: 100000 1000000), then
 //! e.g. `time target/release/ecp check DIR/box_1000000_obj.toml`.
 
 use std::fmt::Write as _;
 use std::io::Write as _;
 use std::path::Path;
+use std::time::Instant;
+
+use ecp::formulations::geometry::ConvexHull;
+use nalgebra::Vector3;
 
 type Tri = [[f32; 3]; 3];
 
@@ -139,7 +146,7 @@ fn write_stl(path: &Path, v: &[[f32; 3]], f: &[[usize; 3]]) -> std::io::Result<(
 
 fn write_scene(dir: &Path, mesh: &str) -> std::io::Result<()> {
     let scene = format!(
-        "[simulation]\nh = 0.01\nduration = 0.1\n[friction]\nmu = 0.3\n\
+        "[simulation]\nh = 0.01\nduration = 0.1\n[friction]\nmu = 0.3\ne_r = 0.1\n\
          [[half_spaces]]\nnormal = [0, 0, 1]\n[[bodies]]\nmass = 1\n\
          inertia = [0.01, 0.01, 0.01]\nposition = [0, 0, 0.5]\n[[bodies.pieces]]\n\
          mesh = \"{mesh}\"\n"
@@ -176,6 +183,26 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 }
                 write_scene(dir, &file)?;
                 println!("{file}: {} vertices, {} triangles", v.len(), f.len());
+            }
+            // The vertices as an STL reader sees them: three per triangle.
+            let soup: Vec<Vector3<f64>> = f
+                .iter()
+                .flat_map(|t| t.map(|i| v[i].map(f64::from).into()))
+                .collect();
+            let started = Instant::now();
+            let hull = ConvexHull::from_points(&soup);
+            let took = started.elapsed().as_secs_f64();
+            match hull {
+                Ok(h) => println!(
+                    "  hull of {} points: {} vertices, {} faces in {took:.3} s",
+                    soup.len(),
+                    h.vertices().len(),
+                    h.num_faces()
+                ),
+                Err(e) => println!(
+                    "  hull of {} points refused in {took:.3} s: {e}",
+                    soup.len()
+                ),
             }
         }
     }

@@ -43,14 +43,15 @@ pub enum GeometryError {
     /// A point set whose convex hull would have more vertices than a step problem can carry
     /// (one multiplier per face): a finely tessellated round body.
     #[error(
-        "the convex hull would have up to {count} vertices (after removing duplicates and \
+        "the convex hull would have at least {count} vertices (after removing duplicates and \
          interior points); at most {limit} are supported, because every face of the hull is an \
          unknown of each time step - simplify the mesh (decimate it to fewer than {limit} \
          vertices, e.g. with MeshLab's quadric edge collapse or Blender's Decimate modifier)"
     )]
     TooManyPoints {
-        /// Vertices of the hull, or candidate extreme points when there were more than
-        /// [`MAX_HULL_CANDIDATES`](super::MAX_HULL_CANDIDATES).
+        /// Vertices of the hull; `MAX_HULL_CANDIDATES + 1` when more than
+        /// [`MAX_HULL_CANDIDATES`](super::MAX_HULL_CANDIDATES) candidate extreme points were
+        /// found (the search stops there).
         count: usize,
         /// The limit, [`MAX_HULL_POINTS`](super::MAX_HULL_POINTS).
         limit: usize,

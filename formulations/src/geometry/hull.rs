@@ -194,19 +194,26 @@ pub fn prune_to_extreme_candidates(points: &[Vector3<f64>]) -> Vec<usize> {
 }
 
 /// The points of `idx` without exact repetitions (same coordinates bit for bit, after `-0.0`
-/// is read as `0.0`), first occurrences kept, in their original order.
-fn without_exact_duplicates(points: &[Vector3<f64>], mut idx: Vec<usize>) -> Vec<Vector3<f64>> {
-    let key = |i: usize| points[i].map(|c| if c == 0.0 { 0.0 } else { c });
-    idx.sort_by(|&a, &b| {
-        let (ka, kb) = (key(a), key(b));
-        ka.x.total_cmp(&kb.x)
-            .then(ka.y.total_cmp(&kb.y))
-            .then(ka.z.total_cmp(&kb.z))
-            .then(a.cmp(&b))
-    });
-    idx.dedup_by(|later, first| key(*later) == key(*first));
-    idx.sort_unstable();
-    idx.into_iter().map(|i| points[i]).collect()
+/// is read as `0.0`), first occurrences kept, in their original order; `None` as soon as more
+/// than `limit` distinct points are found.
+fn without_exact_duplicates(
+    points: &[Vector3<f64>],
+    idx: &[usize],
+    limit: usize,
+) -> Option<Vec<Vector3<f64>>> {
+    let mut seen = std::collections::HashSet::with_capacity(idx.len().min(limit + 1));
+    let mut out = Vec::new();
+    for &i in idx {
+        let p = points[i];
+        let key = [p.x, p.y, p.z].map(|c| if c == 0.0 { 0u64 } else { c.to_bits() });
+        if seen.insert(key) {
+            out.push(p);
+            if out.len() > limit {
+                return None;
+            }
+        }
+    }
+    Some(out)
 }
 
 /// Sorts `idx` counter-clockwise about `normal` around the centroid of the points.
@@ -265,13 +272,13 @@ impl ConvexHull {
         }
         let pruned;
         let points = if points.len() > PRUNE_ABOVE {
-            pruned = without_exact_duplicates(points, prune_to_extreme_candidates(points));
-            if pruned.len() > MAX_HULL_CANDIDATES {
-                return Err(GeometryError::TooManyPoints {
-                    count: pruned.len(),
+            let candidates = prune_to_extreme_candidates(points);
+            pruned = without_exact_duplicates(points, &candidates, MAX_HULL_CANDIDATES).ok_or(
+                GeometryError::TooManyPoints {
+                    count: MAX_HULL_CANDIDATES + 1,
                     limit: MAX_HULL_POINTS,
-                });
-            }
+                },
+            )?;
             &pruned[..]
         } else {
             points
