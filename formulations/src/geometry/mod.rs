@@ -7,7 +7,8 @@
 //!   at the centre of mass), possibly non-convex, with the scenario bodies;
 //! - [`MassProperties`]: validated mass and body-frame inertia;
 //! - [`HalfSpace`], [`contact_mode`], [`min_gap`]: the fixed half-space G and
-//!   the state-only queries on it.
+//!   the state-only queries on it;
+//! - [`convex_hull_2d`]: the convex hull of a planar point set (a contact patch).
 //!
 //! All public types use nalgebra; parry3d-f64 (glam based) is used only
 //! inside [`ConvexHull::from_points`].
@@ -16,12 +17,14 @@ mod error;
 mod hull;
 mod mass;
 mod plane;
+mod polygon;
 mod shape;
 
 pub use error::GeometryError;
 pub use hull::{ConvexHull, Face, prune_to_extreme_candidates};
 pub use mass::MassProperties;
 pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+pub use polygon::convex_hull_2d;
 pub use shape::{ConvexPiece, Shape};
 
 /// Distance below which two vertices are treated as the same point (m).
