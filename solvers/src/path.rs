@@ -853,7 +853,7 @@ impl McpSolver for PathSolver {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
-    use ecp_model::problems::{box_both_bounds, kojima_shindo};
+    use ecp_model::mcp_library::{box_both_bounds, kojima_shindo};
     use std::sync::Mutex;
 
     #[test]
