@@ -8,7 +8,7 @@
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::Simulation;
 use ecp::model::McpSolver;
-use ecp::model::problems::{TestProblem, kojima_josephy, random_p_matrix_lcp};
+use ecp::model::mcp_library::{TestProblem, kojima_josephy, random_p_matrix_lcp};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 mod common;

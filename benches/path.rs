@@ -1,12 +1,12 @@
 //! Benchmarks of the pivotal and PATH-like backends (issue #5): `cargo bench --bench path`.
 //!
 //! - Lemke's method on dense random P-matrix LCPs of size 10, 30, 100 and 300 (the matrices of
-//!   `problems::random_p_matrix_lcp`, `M = BᵀB + I + (C − Cᵀ)`);
+//!   `mcp_library::random_p_matrix_lcp`, `M = BᵀB + I + (C − Cᵀ)`);
 //! - the PATH-like solver on Kojima–Josephy (n = 4) from its first MCPLIB start;
 //! - the PATH-like solver on one desk step (the 100th, warm-started), as `benches/newton.rs`
 //!   does for Newton.
 
-use ecp::model::problems::{kojima_josephy, random_p_matrix_lcp};
+use ecp::model::mcp_library::{kojima_josephy, random_p_matrix_lcp};
 use ecp::model::{Mcp, McpSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 use ecp::solvers::pivot::{Lemke, LemkeSettings};

@@ -1,11 +1,11 @@
 //! Runs the semismooth Newton backend on every (problem, start) pair of the standard MCP test
-//! suite (`ecp_model::problems::suite`) and prints a Markdown table.
+//! suite (`ecp_model::mcp_library::suite`) and prints a Markdown table.
 //!
 //! ```text
 //! cargo run --release --example mcp_suite
 //! ```
 
-use ecp_model::problems::suite;
+use ecp_model::mcp_library::suite;
 use ecp_model::{McpSolver, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 

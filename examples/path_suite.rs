@@ -1,5 +1,5 @@
 //! Runs the PATH-like backend and semismooth Newton on every (problem, start) pair of the
-//! standard MCP test suite (`ecp_model::problems::suite`) and prints a Markdown table side by
+//! standard MCP test suite (`ecp_model::mcp_library::suite`) and prints a Markdown table side by
 //! side: iterations, natural residual (computed by the model) and wall time, plus PATH's pivots.
 //!
 //! ```text
@@ -11,7 +11,7 @@
 
 use std::time::{Duration, Instant};
 
-use ecp_model::problems::suite;
+use ecp_model::mcp_library::suite;
 use ecp_model::{McpSolver, Solution, SolveError, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp_solvers::path::{PathSettings, PathSolver};
@@ -27,7 +27,11 @@ struct Cell {
     pivots: usize,
 }
 
-fn measure(solver: &mut dyn McpSolver, p: &ecp_model::problems::TestProblem, z0: &[f64]) -> Cell {
+fn measure(
+    solver: &mut dyn McpSolver,
+    p: &ecp_model::mcp_library::TestProblem,
+    z0: &[f64],
+) -> Cell {
     let mut best = Duration::MAX;
     let mut last: Option<Result<Solution, SolveError>> = None;
     for _ in 0..REPEATS {

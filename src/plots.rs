@@ -12,14 +12,14 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::OnceLock;
 
-use nalgebra::{Vector2, Vector3};
+use nalgebra::Vector3;
 use plotters::coord::Shift;
 use plotters::coord::ranged1d::ValueFormatter;
 use plotters::coord::types::RangedCoordf64;
 use plotters::prelude::*;
 use plotters::style::text_anchor::{HPos, Pos, VPos};
 
-use ecp_formulations::geometry::{ContactMode, HalfSpace, world_vertices};
+use ecp_formulations::geometry::{ContactMode, HalfSpace, convex_hull_2d, world_vertices};
 use ecp_formulations::rotation::rotation_matrix;
 use ecp_formulations::stepper::{BodyState, ContactRecord, MODE_TOLERANCE, Scene, StepRecord};
 
@@ -965,39 +965,24 @@ fn footprint(
     })
 }
 
-/// Convex hull (counter-clockwise, Andrew's monotone chain) of the finite points; collinear
-/// and duplicate points are dropped, so 1 or 2 points come back for degenerate input.
-fn hull_2d(mut points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
-    points.retain(|p| p.0.is_finite() && p.1.is_finite());
-    points.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.total_cmp(&b.1)));
+/// Convex hull (counter-clockwise) of the finite points, with duplicates and collinear points
+/// dropped to a tolerance relative to the points' size, so 1 or 2 points come back for
+/// degenerate input.
+fn hull_2d(points: Vec<(f64, f64)>) -> Vec<(f64, f64)> {
+    let points: Vec<[f64; 2]> = points
+        .into_iter()
+        .filter(|p| p.0.is_finite() && p.1.is_finite())
+        .map(|p| [p.0, p.1])
+        .collect();
     let scale = points
         .iter()
-        .fold(1.0f64, |m, p| m.max(p.0.abs()).max(p.1.abs()));
-    // Relative tolerances: `eps` on lengths, `area_eps` on cross products (lengths squared).
+        .fold(1.0f64, |m, p| m.max(p[0].abs()).max(p[1].abs()));
+    // Relative tolerances: `eps` on lengths, `eps * scale` on cross products (lengths squared).
     let eps = 1e-12 * scale;
-    let area_eps = eps * scale;
-    points.dedup_by(|a, b| (a.0 - b.0).abs() <= eps && (a.1 - b.1).abs() <= eps);
-    if points.len() < 3 {
-        return points;
-    }
-    let cross = |o: (f64, f64), a: (f64, f64), b: (f64, f64)| {
-        Vector2::new(a.0 - o.0, a.1 - o.1).perp(&Vector2::new(b.0 - o.0, b.1 - o.1))
-    };
-    let mut hull: Vec<(f64, f64)> = Vec::with_capacity(points.len() + 1);
-    for pass in [points.clone(), points.iter().rev().copied().collect()] {
-        let start = hull.len();
-        for p in pass {
-            while hull.len() >= start + 2
-                && cross(hull[hull.len() - 2], hull[hull.len() - 1], p) <= area_eps
-            {
-                hull.pop();
-            }
-            hull.push(p);
-        }
-        // The last point of each chain is the first of the other.
-        hull.pop();
-    }
-    hull
+    convex_hull_2d(points, eps, eps * scale)
+        .into_iter()
+        .map(|p| (p[0], p[1]))
+        .collect()
 }
 
 /// Record indices shown in the footprint: the first step and evenly spaced ones to the last.

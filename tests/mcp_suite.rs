@@ -1,4 +1,4 @@
-//! The semismooth Newton backend on the standard MCP test suite (`ecp_model::problems`):
+//! The semismooth Newton backend on the standard MCP test suite (`ecp_model::mcp_library`):
 //! every (problem, start) pair must converge, land on a known solution where one is listed,
 //! and most pairs must reach the default tolerance. Random positive definite LCPs are checked
 //! with proptest.
@@ -6,7 +6,7 @@
 mod common;
 
 use common::{Run, Verdict, exceeds, judge_suite, run_suite};
-use ecp_model::problems::lcp;
+use ecp_model::mcp_library::lcp;
 use ecp_model::{McpSolver, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 use proptest::prelude::*;

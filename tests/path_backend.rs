@@ -6,7 +6,7 @@
 mod common;
 
 use common::{Verdict, judge_suite};
-use ecp_model::problems::{degenerate, lcp, murty, suite};
+use ecp_model::mcp_library::{degenerate, lcp, murty, suite};
 use ecp_model::{FnMcp, McpSolver, SolveError, Termination, residual_of};
 use ecp_solvers::path::{PathSettings, PathSolver};
 use ecp_solvers::pivot::{AntiCycling, Lemke, LemkeSettings, PivotError};
@@ -39,7 +39,7 @@ fn path_solves_95_percent_of_the_suite_to_known_solutions() {
 
 #[test]
 fn path_summary_reports_counters_and_trace() {
-    let p = ecp_model::problems::kojima_josephy();
+    let p = ecp_model::mcp_library::kojima_josephy();
     let mut solver = PathSolver::new(PathSettings {
         trace: true,
         ..PathSettings::default()

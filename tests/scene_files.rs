@@ -194,6 +194,120 @@ fn loads_must_be_finite_at_every_step_time() {
     assert!(parse_scene(&short, Path::new("x.toml")).is_ok());
 }
 
+/// Writes `v` and the triangles `f` as an OBJ file and as a binary STL file.
+fn write_obj_and_stl(dir: &Path, stem: &str, v: &[[f32; 3]], f: &[[usize; 3]]) {
+    let mut obj = String::new();
+    for p in v {
+        obj.push_str(&format!("v {} {} {}\n", p[0], p[1], p[2]));
+    }
+    for t in f {
+        obj.push_str(&format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1));
+    }
+    std::fs::write(dir.join(format!("{stem}.obj")), obj).expect("obj");
+    let triangles: Vec<stl_io::Triangle> = f
+        .iter()
+        .map(|t| stl_io::Triangle {
+            normal: stl_io::Normal::new([0.0, 0.0, 0.0]),
+            vertices: t.map(|i| stl_io::Vertex::new(v[i])),
+        })
+        .collect();
+    let mut stl = std::fs::File::create(dir.join(format!("{stem}.stl"))).expect("stl");
+    stl_io::write_stl(&mut stl, triangles.iter()).expect("write stl");
+}
+
+fn mesh_scene(dir: &Path, file: &str) -> PathBuf {
+    let text = format!(
+        "{HEAD}[[bodies]]\nmass = 1\ninertia = [0.01, 0.01, 0.01]\nposition = [0, 0, 0.5]\n\
+         [[bodies.pieces]]\nmesh = \"{file}\"\n"
+    );
+    let path = dir.join(format!("{}.toml", file.replace('.', "_")));
+    std::fs::write(&path, text).expect("scene");
+    path
+}
+
+#[test]
+fn large_meshes_are_pruned_to_their_hull_or_refused() {
+    let dir = temp_dir("large-mesh");
+    // A 0.4 × 0.3 × 0.2 m box: its 8 corners, 100 000 interior points, every vertex twice.
+    let h = [0.2f32, 0.15, 0.1];
+    let mut v: Vec<[f32; 3]> = (0..8)
+        .map(|i| {
+            [
+                if i & 1 == 0 { -h[0] } else { h[0] },
+                if i & 2 == 0 { -h[1] } else { h[1] },
+                if i & 4 == 0 { -h[2] } else { h[2] },
+            ]
+        })
+        .collect();
+    let mut state = 1u64;
+    let mut uniform = || {
+        state = state
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        ((state >> 11) as f64 / (1u64 << 53) as f64) as f32 * 1.98 - 0.99
+    };
+    for _ in 0..100_000 {
+        v.push([uniform() * h[0], uniform() * h[1], uniform() * h[2]]);
+    }
+    let copy = v.clone();
+    v.extend(copy);
+    let f: Vec<[usize; 3]> = (0..v.len() / 3)
+        .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+        .chain([[v.len() - 3, v.len() - 2, v.len() - 1]])
+        .collect();
+    write_obj_and_stl(&dir, "box", &v, &f);
+    for file in ["box.obj", "box.stl"] {
+        let loaded = load_scene(&mesh_scene(&dir, file)).unwrap_or_else(|e| panic!("{file}: {e}"));
+        let shape = &loaded.scene.bodies[0].shape;
+        assert_eq!(shape.vertices().len(), 8, "{file}");
+        for c in &v[..8] {
+            let c = Vector3::new(f64::from(c[0]), f64::from(c[1]), f64::from(c[2]));
+            assert!(has_vertex(shape, c, 0.0), "{file}: corner {c:?}");
+        }
+        let hull = shape.hull().expect("hull");
+        assert_eq!(hull.num_faces(), 6, "{file}");
+        let volume = 8.0 * f64::from(h[0]) * f64::from(h[1]) * f64::from(h[2]);
+        assert!((hull.volume() - volume).abs() < 1e-12, "{file}");
+    }
+
+    // An ellipsoid whose every vertex is an extreme point, above the limit: a mesh error that
+    // names the file, the key and how to fix it.
+    let rows = 40;
+    let cols = 80;
+    let mut e: Vec<[f32; 3]> = vec![[0.0, 0.0, 0.06], [0.0, 0.0, -0.06]];
+    for r in 1..rows {
+        let th = std::f64::consts::PI * r as f64 / rows as f64;
+        for c in 0..cols {
+            let ph = 2.0 * std::f64::consts::PI * c as f64 / cols as f64;
+            e.push([
+                (0.1 * th.sin() * ph.cos()) as f32,
+                (0.08 * th.sin() * ph.sin()) as f32,
+                (0.06 * th.cos()) as f32,
+            ]);
+        }
+    }
+    let faces: Vec<[usize; 3]> = (0..e.len() / 3)
+        .map(|k| [3 * k, 3 * k + 1, 3 * k + 2])
+        .chain([[e.len() - 3, e.len() - 2, e.len() - 1]])
+        .collect();
+    assert!(e.len() > ecp::formulations::geometry::MAX_HULL_POINTS);
+    write_obj_and_stl(&dir, "ellipsoid", &e, &faces);
+    for file in ["ellipsoid.obj", "ellipsoid.stl"] {
+        let err = load_scene(&mesh_scene(&dir, file)).expect_err("too many hull vertices");
+        let msg = err.to_string();
+        for part in [
+            "bodies[0].pieces[0].mesh",
+            "line",
+            &format!("{}", e.len()),
+            "at most 2000",
+            "decimate",
+        ] {
+            assert!(msg.contains(part), "{file}: `{part}` missing from: {msg}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(dir);
+}
+
 mod no_panic {
     use super::*;
     use proptest::prelude::*;
@@ -221,6 +335,12 @@ mod no_panic {
                 text = out;
             }
             let _ = parse_scene(&text, Path::new("edited.toml"));
+        }
+
+        /// Number-heavy expressions (scientific notation, stray exponents) never panic either.
+        #[test]
+        fn scientific_notation_never_panics(expr in "[-+0-9eE.*t()]{0,16}") {
+            let _ = ecp::scene::TimeExpression::parse(&expr).map(|e| e.eval(0.5));
         }
 
         /// Arbitrary load expressions parse or are refused, never panic, and loaded loads are finite.

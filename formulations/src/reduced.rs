@@ -33,7 +33,9 @@ use ecp_model::{
 use crate::blocks::{ContactFrame, FrictionParams};
 use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
-use crate::geometry::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+use crate::geometry::{
+    ContactMode, HalfSpace, contact_mode, convex_hull_2d, min_gap, world_vertices,
+};
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
 use crate::stepper::{
     BodySpec, BodyState, ContactRecord, MODE_TOLERANCE, Scene, SceneError, StepRecord,
@@ -303,7 +305,8 @@ impl PatchPolygon {
         PatchPolygon {
             u1,
             u2,
-            corners: convex_polygon(pts),
+            // Duplicates within 1e-15 m merged, collinear points dropped.
+            corners: convex_hull_2d(pts, 1e-15, 0.0),
         }
     }
 
@@ -327,38 +330,6 @@ impl PatchPolygon {
         }
         worst
     }
-}
-
-/// Counter-clockwise convex hull of 2-D points (Andrew's monotone chain), collinear points
-/// dropped.
-fn convex_polygon(mut pts: Vec<[f64; 2]>) -> Vec<[f64; 2]> {
-    pts.sort_by(|a, b| a[0].total_cmp(&b[0]).then(a[1].total_cmp(&b[1])));
-    pts.dedup_by(|a, b| (a[0] - b[0]).abs() <= 1e-15 && (a[1] - b[1]).abs() <= 1e-15);
-    if pts.len() < 3 {
-        return pts;
-    }
-    let cross = |o: &[f64; 2], a: &[f64; 2], b: &[f64; 2]| {
-        (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-    };
-    let mut hull: Vec<[f64; 2]> = Vec::with_capacity(2 * pts.len());
-    for pass in 0..2 {
-        let start = hull.len();
-        let iter: Box<dyn Iterator<Item = &[f64; 2]>> = if pass == 0 {
-            Box::new(pts.iter())
-        } else {
-            Box::new(pts.iter().rev())
-        };
-        for p in iter {
-            while hull.len() >= start + 2
-                && cross(&hull[hull.len() - 2], &hull[hull.len() - 1], p) <= 0.0
-            {
-                hull.pop();
-            }
-            hull.push(*p);
-        }
-        hull.pop();
-    }
-    hull
 }
 
 /// The reduced sliding model as a time stepper (formulation.md §7.2): one body with a face of

@@ -40,9 +40,13 @@ pub mod bounds;
 pub mod checker;
 pub mod linalg;
 pub mod mcp;
+/// Standard MCP test problems (MCPLIB, LCPs, friction NCPs) for judging backends: enabled by
+/// the `test-problems` feature (off by default; the workspace's tests, examples and benches
+/// turn it on).
+#[cfg(any(test, feature = "test-problems"))]
+pub mod mcp_library;
 pub mod pattern;
 pub mod problem;
-pub mod problems;
 pub mod residual;
 pub mod sensitivity;
 pub mod solver;

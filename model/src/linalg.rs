@@ -1,4 +1,5 @@
-//! Linear algebra behind one module: dense and sparse LU with faer.
+//! Linear algebra behind one module: dense and sparse LU and the symmetric eigen-decomposition
+//! with faer.
 //!
 //! faer's API moves between versions, so nothing else in the workspace names it. Both solvers
 //! keep their workspaces between factorisations: after the first call, factorising and solving
@@ -37,6 +38,36 @@ pub enum LinalgError {
 /// Pivot ratio below which a matrix is treated as singular: beyond it an LU solve loses all
 /// digits, and the Newton backend switches to its Levenberg–Marquardt safeguard.
 pub const SINGULAR_PIVOT_RATIO: f64 = 1e-13;
+
+/// Eigen-decomposition `A = U diag(λ) Uᵀ` of the symmetric `n × n` column-major matrix `a`
+/// (faer's self-adjoint eigensolver, which reads the lower triangle): the eigenvalues `λ` in
+/// nondecreasing order, and `U` column-major, its columns the unit eigenvectors.
+pub fn symmetric_eigen(a: &[f64], n: usize) -> Result<(Vec<f64>, Vec<f64>), LinalgError> {
+    if a.len() != n * n {
+        return Err(LinalgError::Factorization(format!(
+            "matrix has {} entries, expected {n} × {n}",
+            a.len()
+        )));
+    }
+    if a.iter().any(|v| !v.is_finite()) {
+        return Err(LinalgError::NonFinite);
+    }
+    let evd = MatRef::from_column_major_slice(a, n, n)
+        .self_adjoint_eigen(faer::Side::Lower)
+        .map_err(|e| LinalgError::Factorization(format!("eigensolver: {e:?}")))?;
+    let eig: Vec<f64> = evd.S().column_vector().iter().copied().collect();
+    let u = evd.U();
+    let mut vecs = vec![0.0; n * n];
+    for j in 0..n {
+        for i in 0..n {
+            vecs[j * n + i] = u[(i, j)];
+        }
+    }
+    if eig.iter().chain(&vecs).any(|v| !v.is_finite()) {
+        return Err(LinalgError::NonFinite);
+    }
+    Ok((eig, vecs))
+}
 
 /// Dense LU with partial pivoting, workspace kept between calls.
 pub struct DenseLu {
@@ -413,5 +444,26 @@ impl std::fmt::Debug for LinearSolver {
             LinearSolver::Dense { lu, .. } => write!(f, "LinearSolver::Dense({lu:?})"),
             LinearSolver::Sparse(s) => write!(f, "LinearSolver::Sparse({s:?})"),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn symmetric_eigen_reconstructs_the_matrix_and_refuses_nan() {
+        // Column-major (the matrix is symmetric, so row-major reads the same).
+        let a = [4.0, 1.0, 0.0, 1.0, 3.0, 0.5, 0.0, 0.5, 2.0];
+        let (eig, u) = symmetric_eigen(&a, 3).expect("finite");
+        assert!(eig.windows(2).all(|w| w[0] <= w[1]), "{eig:?}");
+        for i in 0..3 {
+            for j in 0..3 {
+                let r: f64 = (0..3).map(|k| u[k * 3 + i] * eig[k] * u[k * 3 + j]).sum();
+                assert!((r - a[j * 3 + i]).abs() < 1e-13, "({i}, {j}): {r}");
+            }
+        }
+        assert_eq!(symmetric_eigen(&[f64::NAN], 1), Err(LinalgError::NonFinite));
+        assert!(symmetric_eigen(&[1.0, 2.0], 2).is_err());
     }
 }

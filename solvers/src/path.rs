@@ -22,6 +22,11 @@
 //!   ray or its path search fails, `J` is replaced by `J + λI` (the path still starts at `x_k`,
 //!   since the linearisation agrees with `F_N` there), and `λ` is reduced again after progress.
 //!
+//! A trial point is accepted only where `F` and its Jacobian are finite: a non-finite value (a
+//! model evaluated outside its domain) fails the trial like an insufficient decrease, so the
+//! search backtracks along the path, perturbs the linearisation, and after a failed attempt goes
+//! on to the restarts. Only a start point where `F` or `J` is not finite ends the solve at once.
+//!
 //! After every accepted point, `x` is reset to the normal-map point of `z = π(x)` with the
 //! smallest merit (`x_i = l_i − F_i` where `z_i = l_i`, `F_i > 0`, likewise at upper bounds,
 //! `x_i = z_i` elsewhere); the merit is then the norm of the natural-map-like vector with the
@@ -172,6 +177,11 @@ pub struct PathSolver {
     checkpoint: Point,
     best_z: Vec<f64>,
     jac: Vec<f64>,
+    /// The Jacobian at `trial`, evaluated by the acceptance test; it becomes `jac` when the
+    /// trial is accepted.
+    trial_jac: Vec<f64>,
+    /// Whether `trial_jac` holds the Jacobian at `trial` (not needed at a converged trial).
+    trial_has_jac: bool,
     q: Vec<f64>,
     jz: Vec<f64>,
     step_x: Vec<f64>,
@@ -188,9 +198,13 @@ pub struct PathSolver {
 
 impl PathSolver {
     /// Makes the trial point current and returns its natural residual, keeping the best point
-    /// seen (shared by crash and path steps).
+    /// seen (shared by crash and path steps). The trial's Jacobian, when the acceptance test
+    /// evaluated it, becomes the current one (see [`PathSolver::trial_usable`]).
     fn accept_trial(&mut self, l: &[f64], u: &[f64], best_residual: &mut f64) -> f64 {
         std::mem::swap(&mut self.current, &mut self.trial);
+        if self.trial_has_jac {
+            std::mem::swap(&mut self.jac, &mut self.trial_jac);
+        }
         let residual = natural_residual(&self.current.z, &self.current.f, l, u);
         if residual < *best_residual {
             *best_residual = residual;
@@ -211,6 +225,8 @@ impl PathSolver {
             checkpoint: Point::default(),
             best_z: Vec::new(),
             jac: Vec::new(),
+            trial_jac: Vec::new(),
+            trial_has_jac: false,
             q: Vec::new(),
             jz: Vec::new(),
             step_x: Vec::new(),
@@ -253,6 +269,7 @@ impl PathSolver {
             v.resize(n, 0.0);
         }
         self.jac.resize(nnz, 0.0);
+        self.trial_jac.resize(nnz, 0.0);
         self.active.resize(n, 0);
         self.active_prev.resize(n, 0);
     }
@@ -306,6 +323,25 @@ fn norm_inf_diff(a: &[f64], b: &[f64]) -> f64 {
 }
 
 impl PathSolver {
+    /// The second half of the acceptance test of a trial point whose merit is finite: unless
+    /// the trial already solves the problem to `tolerance`, its Jacobian (needed for the next
+    /// step) is evaluated into `trial_jac` and must be finite. A trial where it is not fails
+    /// like one without enough decrease.
+    fn trial_usable(&mut self, mcp: &dyn Mcp, tolerance: f64, jac_evals: &mut usize) -> bool {
+        self.trial_has_jac = false;
+        if !self.trial.merit.is_finite() {
+            return false;
+        }
+        let (l, u) = (mcp.lower(), mcp.upper());
+        if natural_residual(&self.trial.z, &self.trial.f, l, u) <= tolerance {
+            return true;
+        }
+        mcp.jacobian(&self.trial.z, &mut self.trial_jac);
+        *jac_evals += 1;
+        self.trial_has_jac = self.trial_jac.iter().all(|v| v.is_finite());
+        self.trial_has_jac
+    }
+
     /// One projected Newton step of the crash phase from `self.current` (whose Jacobian is in
     /// `self.jac`): Newton on the variables left inside by `π(z − F)`, the others fixed at their
     /// bounds, then a projected backtracking search. Returns the accepted step length.
@@ -313,7 +349,9 @@ impl PathSolver {
         &mut self,
         mcp: &dyn Mcp,
         pattern: &CscPattern,
+        tolerance: f64,
         f_evals: &mut usize,
+        jac_evals: &mut usize,
     ) -> Option<f64> {
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
@@ -379,7 +417,9 @@ impl PathSolver {
                 self.trial.x[i] = self.current.z[i] + t * (self.step_x[i] - self.current.z[i]);
             }
             evaluate_at(mcp, &mut self.trial, f_evals);
-            if self.trial.merit <= (1.0 - sigma * t) * self.current.merit {
+            if self.trial.merit <= (1.0 - sigma * t) * self.current.merit
+                && self.trial_usable(mcp, tolerance, jac_evals)
+            {
                 return Some(t);
             }
             t *= 0.5;
@@ -517,13 +557,15 @@ impl PathSolver {
                 if *iterations - iterations_at_start >= s.max_iterations {
                     break;
                 }
-                mcp.jacobian(&self.current.z, &mut self.jac);
-                *jac_evals += 1;
-                have_jac = true;
+                if !have_jac {
+                    mcp.jacobian(&self.current.z, &mut self.jac);
+                    *jac_evals += 1;
+                    have_jac = true;
+                }
                 if self.jac.iter().any(|v| !v.is_finite()) {
                     break;
                 }
-                let Some(t) = self.crash_step(mcp, pattern, f_evals) else {
+                let Some(t) = self.crash_step(mcp, pattern, s.tolerance, f_evals, jac_evals) else {
                     break;
                 };
                 let norm = norm_inf_diff(&self.trial.x, &self.current.x);
@@ -538,7 +580,7 @@ impl PathSolver {
                 );
                 *iterations += 1;
                 counters.crash_steps += 1;
-                have_jac = false;
+                have_jac = self.trial_has_jac;
                 residual = self.accept_trial(l, u, best_residual);
                 if residual <= s.tolerance {
                     break;
@@ -607,10 +649,14 @@ impl PathSolver {
             let t_full = self.try_path_point(mcp, t_max, f_evals);
             let sigma = s.sufficient_decrease;
             let mut accepted: Option<f64> = None;
-            if self.trial.merit <= (1.0 - sigma * t_full) * reference {
+            let decrease = self.trial.merit <= (1.0 - sigma * t_full) * reference;
+            let watchdog_open = !monotone && since_checkpoint < s.watchdog;
+            let usable =
+                (decrease || watchdog_open) && self.trial_usable(mcp, s.tolerance, jac_evals);
+            if decrease && usable {
                 accepted = Some(t_full);
                 since_checkpoint = 0;
-            } else if !monotone && since_checkpoint < s.watchdog && self.trial.merit.is_finite() {
+            } else if watchdog_open && usable {
                 // Non-monotone: accept the Newton point and see where it leads.
                 accepted = Some(t_full);
                 since_checkpoint += 1;
@@ -645,7 +691,9 @@ impl PathSolver {
                     t *= s.backtrack;
                     counters.path_backtracks += 1;
                     let used = self.try_path_point(mcp, t, f_evals);
-                    if self.trial.merit <= (1.0 - sigma * used) * self.current.merit {
+                    if self.trial.merit <= (1.0 - sigma * used) * self.current.merit
+                        && self.trial_usable(mcp, s.tolerance, jac_evals)
+                    {
                         accepted = Some(used);
                         break;
                     }
@@ -679,7 +727,7 @@ impl PathSolver {
             );
             *iterations += 1;
             counters.path_steps += 1;
-            have_jac = false;
+            have_jac = self.trial_has_jac;
             residual = self.accept_trial(l, u, best_residual);
             if self.current.merit < self.checkpoint.merit
                 && (since_checkpoint == 0 || self.current.merit <= (1.0 - sigma) * reference)
@@ -805,7 +853,7 @@ impl McpSolver for PathSolver {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
-    use ecp_model::problems::{box_both_bounds, kojima_shindo};
+    use ecp_model::mcp_library::{box_both_bounds, kojima_shindo};
     use std::sync::Mutex;
 
     #[test]
@@ -921,6 +969,41 @@ mod tests {
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
         assert!(best.z.iter().all(|v| v.is_finite()));
+    }
+
+    /// `F(z) = √z + z − 2` on `z ≥ 0` (solution `z = 1`); `F` is not defined (NaN) below the
+    /// box and its Jacobian `1/(2√z) + 1` is infinite at the bound `z = 0`, which is where the
+    /// projection puts the Newton point from a start far to the right.
+    fn sqrt_at_the_bound() -> FnMcp {
+        FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0].sqrt() + z[0] - 2.0,
+            |z, j| j[0] = 0.5 / z[0].sqrt() + 1.0,
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn path_non_finite_jacobian_at_a_trial_point_is_a_failed_trial() {
+        // Both the crash step and the Newton path end at z = 0 (J = +∞ there): the trial must be
+        // refused and the step shortened instead of stopping with a non-finite function value.
+        for crash_iterations in [0, 50] {
+            let sol = PathSolver::new(PathSettings {
+                crash_iterations,
+                ..PathSettings::default()
+            })
+            .solve(&sqrt_at_the_bound(), &[100.0])
+            .unwrap_or_else(|e| panic!("crash {crash_iterations}: {e}"));
+            assert!((sol.z[0] - 1.0).abs() < 1e-10, "{:?}", sol.z);
+            assert!(sol.summary.converged());
+        }
+        // The start itself at z = 0 has an infinite Jacobian: reported, not iterated.
+        let err = PathSolver::new(PathSettings::default())
+            .solve(&sqrt_at_the_bound(), &[0.0])
+            .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
     }
 
     #[test]

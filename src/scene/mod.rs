@@ -41,7 +41,7 @@ use std::sync::Arc;
 
 use ecp_formulations::blocks::FrictionParams;
 use ecp_formulations::geometry::{
-    ConvexPiece, GeometryError, HalfSpace, MassProperties, Shape, min_gap,
+    ConvexHull, ConvexPiece, GeometryError, HalfSpace, MassProperties, Shape, min_gap,
 };
 use ecp_formulations::rotation::{quat_from_rpy_deg, quat_normalize, rotation_matrix};
 use ecp_formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
@@ -632,7 +632,14 @@ impl Context<'_> {
             (pts.into_iter().map(|v| v * scale).collect(), k)
         };
         let r = rotation_matrix(&q);
-        let piece = ConvexPiece::Points(points.iter().map(|v| center + r * v).collect());
+        let points: Vec<Vector3<f64>> = points.iter().map(|v| center + r * v).collect();
+        if p.mesh.is_some() {
+            // A mesh may have 10⁶ vertices: keep only its hull's extreme vertices, once, so that
+            // the shape and every step work with those (the hull is the same).
+            let hull = ConvexHull::from_points(&points).map_err(|e| self.geometry(&k, e))?;
+            return Ok(ConvexPiece::Points(hull.vertices().to_vec()));
+        }
+        let piece = ConvexPiece::Points(points);
         piece.validate().map_err(|e| self.geometry(&k, e))?;
         Ok(piece)
     }

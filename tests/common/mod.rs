@@ -1,9 +1,9 @@
 //! Helpers shared by the backends' MCP-suite tests: run every (problem, start) pair of
-//! `ecp_model::problems::suite()` and check a returned point against the known solutions.
+//! `ecp_model::mcp_library::suite()` and check a returned point against the known solutions.
 
 #![allow(dead_code)]
 
-use ecp_model::problems::{FRICTION_SIGMA, TestProblem, suite};
+use ecp_model::mcp_library::{FRICTION_SIGMA, TestProblem, suite};
 use ecp_model::{McpSolver, Solution, SolveError, residual_of};
 
 /// Outcome of one (problem, start) solve, judged by the model's residual, not the summary.

@@ -40,6 +40,23 @@ pub enum GeometryError {
         diameter: f64,
     },
 
+    /// A point set whose convex hull would have more vertices than a step problem can carry
+    /// (one multiplier per face): a finely tessellated round body.
+    #[error(
+        "the convex hull would have at least {count} vertices (after removing duplicates and \
+         interior points); at most {limit} are supported, because every face of the hull is an \
+         unknown of each time step - simplify the mesh (decimate it to fewer than {limit} \
+         vertices, e.g. with MeshLab's quadric edge collapse or Blender's Decimate modifier)"
+    )]
+    TooManyPoints {
+        /// Vertices of the hull; `MAX_HULL_CANDIDATES + 1` when more than
+        /// [`MAX_HULL_CANDIDATES`](super::MAX_HULL_CANDIDATES) candidate extreme points were
+        /// found (the search stops there).
+        count: usize,
+        /// The limit, [`MAX_HULL_POINTS`](super::MAX_HULL_POINTS).
+        limit: usize,
+    },
+
     /// parry3d could not build the hull although the points looked non-degenerate.
     #[error(
         "the convex hull computation failed for {count} points; the points are probably \

@@ -4,7 +4,10 @@ use nalgebra::Vector3;
 use parry3d_f64::math::Vector as PVec;
 use parry3d_f64::shape::ConvexPolyhedron;
 
-use super::{FLATNESS_TOL, GeometryError, VERTEX_MERGE_TOL, dedupe_points};
+use super::{
+    FLATNESS_TOL, GeometryError, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL,
+    dedupe_points,
+};
 
 /// Two faces whose unit normals satisfy `n1·n2 > 1 − PLANE_DUP_TOL` (and whose
 /// offsets agree) are the same plane and are merged.
@@ -115,6 +118,104 @@ fn check_not_flat(points: &[Vector3<f64>], diam: f64) -> Result<(), GeometryErro
     Ok(())
 }
 
+/// Point sets up to this size go to the hull as they are; larger ones are first pruned with
+/// [`prune_to_extreme_candidates`] and rid of exact duplicates.
+const PRUNE_ABOVE: usize = 256;
+
+/// Relative distance (× the point set's size) within which a point outside the inner polytope of
+/// [`prune_to_extreme_candidates`] still counts as on it and is dropped.
+const PRUNE_TOL: f64 = 1e-12;
+
+/// Unit directions of the inner polytope: the 26 of a cube's faces, edges and corners, and 38
+/// spread over the sphere by the golden-angle spiral.
+fn prune_directions() -> Vec<Vector3<f64>> {
+    let mut dirs = Vec::with_capacity(64);
+    for x in [-1.0, 0.0, 1.0] {
+        for y in [-1.0, 0.0, 1.0] {
+            for z in [-1.0f64, 0.0, 1.0] {
+                let d = Vector3::new(x, y, z);
+                if d != Vector3::zeros() {
+                    dirs.push(d.normalize());
+                }
+            }
+        }
+    }
+    let k = 38;
+    let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+    for i in 0..k {
+        let z = 1.0 - (2.0 * i as f64 + 1.0) / k as f64;
+        let r = (1.0 - z * z).sqrt();
+        let a = golden * i as f64;
+        dirs.push(Vector3::new(r * a.cos(), r * a.sin(), z));
+    }
+    dirs
+}
+
+/// Indices of the points that can be extreme points of the set's convex hull, in their
+/// original order: a cheap filter before the hull of a large mesh.
+///
+/// The points that maximise `d·p` over a fixed set of 64 directions `d` are extreme points;
+/// their hull (the *inner polytope*) lies inside the hull of the whole set. A point inside the
+/// inner polytope, or outside it by at most `10⁻¹²` × the set's size, is dropped: the hull of
+/// what is kept then contains every dropped point to that distance, and equals the full hull
+/// exactly whenever no point lies that close outside a face of the inner polytope. Points on
+/// the surface of a finely subdivided box are dropped as well as interior ones. Non-finite
+/// coordinates, or an inner polytope that is flat, keep every point.
+pub fn prune_to_extreme_candidates(points: &[Vector3<f64>]) -> Vec<usize> {
+    let all = || (0..points.len()).collect::<Vec<usize>>();
+    if points.is_empty() || !points.iter().all(|p| p.iter().all(|c| c.is_finite())) {
+        return all();
+    }
+    let dirs = prune_directions();
+    let mut best = vec![(0usize, f64::NEG_INFINITY); dirs.len()];
+    for (i, p) in points.iter().enumerate() {
+        for (b, d) in best.iter_mut().zip(&dirs) {
+            let v = d.dot(p);
+            if v > b.1 {
+                *b = (i, v);
+            }
+        }
+    }
+    let mut inner_idx: Vec<usize> = best.iter().map(|b| b.0).collect();
+    inner_idx.sort_unstable();
+    inner_idx.dedup();
+    let inner_pts: Vec<Vector3<f64>> = inner_idx.iter().map(|&i| points[i]).collect();
+    let Ok(inner) = ConvexHull::from_points(&inner_pts) else {
+        return all();
+    };
+    let tol = PRUNE_TOL * diameter(points);
+    let mut is_inner = vec![false; points.len()];
+    for &i in &inner_idx {
+        is_inner[i] = true;
+    }
+    (0..points.len())
+        .filter(|&i| is_inner[i] || inner.faces.iter().any(|f| f.value(&points[i]) > tol))
+        .collect()
+}
+
+/// The points of `idx` without exact repetitions (same coordinates bit for bit, after `-0.0`
+/// is read as `0.0`), first occurrences kept, in their original order; `None` as soon as more
+/// than `limit` distinct points are found.
+fn without_exact_duplicates(
+    points: &[Vector3<f64>],
+    idx: &[usize],
+    limit: usize,
+) -> Option<Vec<Vector3<f64>>> {
+    let mut seen = std::collections::HashSet::with_capacity(idx.len().min(limit + 1));
+    let mut out = Vec::new();
+    for &i in idx {
+        let p = points[i];
+        let key = [p.x, p.y, p.z].map(|c| if c == 0.0 { 0u64 } else { c.to_bits() });
+        if seen.insert(key) {
+            out.push(p);
+            if out.len() > limit {
+                return None;
+            }
+        }
+    }
+    Some(out)
+}
+
 /// Sorts `idx` counter-clockwise about `normal` around the centroid of the points.
 fn order_ccw(idx: &mut [usize], vertices: &[Vector3<f64>], normal: &Vector3<f64>) {
     if idx.len() < 3 {
@@ -157,12 +258,31 @@ impl ConvexHull {
     /// coordinate, or a set that is coincident, collinear or coplanar
     /// (thickness below [`FLATNESS_TOL`](super::FLATNESS_TOL) × size).
     /// Interior and face points are dropped; only extreme vertices are kept.
+    ///
+    /// A set of more than 256 points (a mesh) is first reduced to the candidates of
+    /// [`prune_to_extreme_candidates`] without exact duplicates. More than
+    /// [`MAX_HULL_CANDIDATES`](super::MAX_HULL_CANDIDATES) candidates, or a hull with more
+    /// than [`MAX_HULL_POINTS`](super::MAX_HULL_POINTS) vertices, are refused
+    /// ([`GeometryError::TooManyPoints`]).
     pub fn from_points(points: &[Vector3<f64>]) -> Result<ConvexHull, GeometryError> {
         if let Some(i) = points.iter().position(|p| !p.iter().all(|c| c.is_finite())) {
             return Err(GeometryError::NonFinite {
                 what: format!("a coordinate of point {i}"),
             });
         }
+        let pruned;
+        let points = if points.len() > PRUNE_ABOVE {
+            let candidates = prune_to_extreme_candidates(points);
+            pruned = without_exact_duplicates(points, &candidates, MAX_HULL_CANDIDATES).ok_or(
+                GeometryError::TooManyPoints {
+                    count: MAX_HULL_CANDIDATES + 1,
+                    limit: MAX_HULL_POINTS,
+                },
+            )?;
+            &pruned[..]
+        } else {
+            points
+        };
         let pts = dedupe_points(points, VERTEX_MERGE_TOL);
         if pts.len() < 4 {
             return Err(GeometryError::TooFewPoints { count: pts.len() });
@@ -178,6 +298,12 @@ impl ConvexHull {
             .flatten()
             .ok_or(GeometryError::HullFailed { count: pts.len() })?;
 
+        if poly.points().len() > MAX_HULL_POINTS {
+            return Err(GeometryError::TooManyPoints {
+                count: poly.points().len(),
+                limit: MAX_HULL_POINTS,
+            });
+        }
         let vertices: Vec<Vector3<f64>> = poly.points().iter().map(|p| from_parry(*p)).collect();
         let adj = poly.vertices_adj_to_face();
         let mut faces: Vec<Face> = Vec::with_capacity(poly.faces().len());
@@ -451,5 +577,147 @@ mod tests {
         assert_eq!(h.num_faces(), 4);
         check_hull(&h, 1e-15);
         assert!((h.volume() - 1.0 / 6.0).abs() < 1e-15);
+    }
+
+    /// Deterministic pseudo-random numbers in [−1, 1).
+    fn lcg(seed: u64) -> impl FnMut() -> f64 {
+        let mut state = seed;
+        move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            (state >> 11) as f64 / (1u64 << 52) as f64 - 1.0
+        }
+    }
+
+    /// Vertices of parry's hull of all the points, without any pruning.
+    fn parry_hull_vertices(points: &[Vector3<f64>]) -> Vec<Vector3<f64>> {
+        let ppts: Vec<PVec> = points.iter().map(to_parry).collect();
+        ConvexPolyhedron::from_convex_hull(&ppts)
+            .unwrap()
+            .points()
+            .iter()
+            .map(|p| from_parry(*p))
+            .collect()
+    }
+
+    fn same_point_sets(a: &[Vector3<f64>], b: &[Vector3<f64>], tol: f64) -> bool {
+        a.len() == b.len()
+            && a.iter().all(|p| b.iter().any(|q| (p - q).amax() <= tol))
+            && b.iter().all(|p| a.iter().any(|q| (p - q).amax() <= tol))
+    }
+
+    #[test]
+    fn box_with_interior_and_repeated_points_is_pruned_to_its_corners() {
+        let r = rotation_matrix(&quat_from_rpy_deg(10.0, 20.0, 30.0));
+        let c = Vector3::new(0.5, -1.0, 2.0);
+        let corners: Vec<_> = box_corners(0.2, 0.15, 0.1)
+            .iter()
+            .map(|p| c + r * p)
+            .collect();
+        let mut rnd = lcg(7);
+        let mut pts = Vec::new();
+        for _ in 0..5000 {
+            let p = Vector3::new(0.2 * rnd(), 0.15 * rnd(), 0.1 * rnd());
+            pts.push(c + r * p);
+        }
+        // Every corner three times, interleaved with the interior points.
+        for k in 0..3 {
+            for (j, q) in corners.iter().enumerate() {
+                pts.insert(k * 1000 + j * 7, *q);
+            }
+        }
+        let kept = prune_to_extreme_candidates(&pts);
+        assert!(kept.len() < 30, "{} candidates kept", kept.len());
+        let h = ConvexHull::from_points(&pts).unwrap();
+        assert_eq!(h.vertices().len(), 8);
+        assert_eq!(h.num_faces(), 6);
+        check_hull(&h, 1e-12);
+        assert!(same_point_sets(h.vertices(), &corners, 1e-15));
+        assert!((h.volume() - 0.4 * 0.3 * 0.2).abs() < 1e-14);
+        for p in &pts {
+            assert!(h.contains(p, 1e-12));
+        }
+    }
+
+    #[test]
+    fn pruning_keeps_every_extreme_point_of_a_random_cloud() {
+        // Points in a ball: a few hundred of the 20 000 are extreme points.
+        let mut rnd = lcg(11);
+        let mut pts = Vec::new();
+        while pts.len() < 20_000 {
+            let p = Vector3::new(rnd(), rnd(), rnd());
+            if p.norm() <= 1.0 {
+                pts.push(Vector3::new(3.0, 2.0, 1.0).component_mul(&p));
+            }
+        }
+        let full = parry_hull_vertices(&pts);
+        let kept = prune_to_extreme_candidates(&pts);
+        assert!(kept.len() < pts.len() / 4, "{} kept", kept.len());
+        for v in &full {
+            assert!(
+                kept.iter().any(|&i| pts[i] == *v),
+                "extreme point {v:?} dropped"
+            );
+        }
+        let h = ConvexHull::from_points(&pts).unwrap();
+        assert!(same_point_sets(h.vertices(), &full, 0.0));
+        // Every point of the full set, pruned or not, is inside the hull.
+        for p in &pts {
+            assert!(h.contains(p, 1e-12));
+        }
+    }
+
+    #[test]
+    fn surface_points_of_a_tiled_box_are_dropped() {
+        let mut pts = Vec::new();
+        let k = 20;
+        for i in 0..=k {
+            for j in 0..=k {
+                let (a, b) = (
+                    2.0 * i as f64 / k as f64 - 1.0,
+                    2.0 * j as f64 / k as f64 - 1.0,
+                );
+                for s in [-1.0, 1.0] {
+                    pts.push(Vector3::new(s * 0.2, 0.15 * a, 0.1 * b));
+                    pts.push(Vector3::new(0.2 * a, s * 0.15, 0.1 * b));
+                    pts.push(Vector3::new(0.2 * a, 0.15 * b, s * 0.1));
+                }
+            }
+        }
+        let kept = prune_to_extreme_candidates(&pts);
+        let h = ConvexHull::from_points(&pts).unwrap();
+        assert_eq!(h.vertices().len(), 8);
+        assert_eq!(h.num_faces(), 6);
+        assert!(kept.len() < 30, "{} kept", kept.len());
+    }
+
+    #[test]
+    fn too_many_extreme_points_are_refused_with_the_limit() {
+        // A Fibonacci sphere: every point is an extreme point.
+        let n = MAX_HULL_POINTS + 1;
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let pts: Vec<_> = (0..n)
+            .map(|i| {
+                let z = 1.0 - (2.0 * i as f64 + 1.0) / n as f64;
+                let r = (1.0 - z * z).sqrt();
+                let a = golden * i as f64;
+                Vector3::new(r * a.cos(), r * a.sin(), z)
+            })
+            .collect();
+        let err = ConvexHull::from_points(&pts).unwrap_err();
+        assert_eq!(
+            err,
+            GeometryError::TooManyPoints {
+                count: n,
+                limit: MAX_HULL_POINTS
+            }
+        );
+        assert!(err.to_string().contains("decimate"), "{err}");
+        // Exactly the limit, some points repeated: accepted, every point a vertex.
+        let mut fewer = pts[..MAX_HULL_POINTS].to_vec();
+        fewer.extend_from_slice(&pts[..100]);
+        let h = ConvexHull::from_points(&fewer).unwrap();
+        assert_eq!(h.vertices().len(), MAX_HULL_POINTS);
     }
 }

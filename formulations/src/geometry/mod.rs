@@ -7,7 +7,8 @@
 //!   at the centre of mass), possibly non-convex, with the scenario bodies;
 //! - [`MassProperties`]: validated mass and body-frame inertia;
 //! - [`HalfSpace`], [`contact_mode`], [`min_gap`]: the fixed half-space G and
-//!   the state-only queries on it.
+//!   the state-only queries on it;
+//! - [`convex_hull_2d`]: the convex hull of a planar point set (a contact patch).
 //!
 //! All public types use nalgebra; parry3d-f64 (glam based) is used only
 //! inside [`ConvexHull::from_points`].
@@ -16,12 +17,14 @@ mod error;
 mod hull;
 mod mass;
 mod plane;
+mod polygon;
 mod shape;
 
 pub use error::GeometryError;
-pub use hull::{ConvexHull, Face};
+pub use hull::{ConvexHull, Face, prune_to_extreme_candidates};
 pub use mass::MassProperties;
 pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+pub use polygon::convex_hull_2d;
 pub use shape::{ConvexPiece, Shape};
 
 /// Distance below which two vertices are treated as the same point (m).
@@ -33,6 +36,17 @@ pub const VERTEX_MERGE_TOL: f64 = 1e-12;
 /// Relative thickness (thickness / diameter) below which a point set is
 /// rejected as flat by [`ConvexHull::from_points`].
 pub const FLATNESS_TOL: f64 = 1e-9;
+
+/// Largest number of vertices of a hull built by [`ConvexHull::from_points`]
+/// (`docs/scene-format.md`, meshes). The hull of `k` points has up to `2k − 4` faces and each
+/// face is an unknown of every time step, so a finely tessellated round body is refused with a
+/// message asking for a simplified mesh rather than made into a huge step problem.
+pub const MAX_HULL_POINTS: usize = 2000;
+
+/// Largest number of candidate extreme points (left after interior points and exact
+/// duplicates are removed) that [`ConvexHull::from_points`] hands to the hull algorithm; more
+/// are refused at once, since their hull would almost surely exceed [`MAX_HULL_POINTS`].
+pub const MAX_HULL_CANDIDATES: usize = 20_000;
 
 /// Removes points closer than `tol` to an earlier point, keeping first occurrences.
 fn dedupe_points(points: &[nalgebra::Vector3<f64>], tol: f64) -> Vec<nalgebra::Vector3<f64>> {

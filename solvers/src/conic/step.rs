@@ -42,6 +42,7 @@
 //! method on the dual (Rockafellar, SIAM J. Control Optim. 14, 1976), restricted to the
 //! contact's normal wrench.
 
+use ecp_model::linalg;
 use ecp_model::{BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, StepStructure};
 
 use super::qp::{Cone, ConicQp, QpResult};
@@ -673,88 +674,35 @@ impl StepQp {
     }
 }
 
-/// Eigen-decomposition of a symmetric matrix by cyclic Jacobi rotations: eigenvalues and the
-/// eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
-fn symmetric_eigen(mut d: Vec<Vec<f64>>) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+/// Eigen-decomposition of a symmetric matrix ([`linalg::symmetric_eigen`]): eigenvalues and
+/// the eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
+fn symmetric_eigen(d: Vec<Vec<f64>>) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
     let n = d.len();
-    let mut v = vec![vec![0.0; n]; n];
-    for i in 0..n {
-        v[i][i] = 1.0;
-    }
-    for _sweep in 0..60 {
-        let off: f64 = (0..n)
-            .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
-            .map(|(i, j)| d[i][j] * d[i][j])
-            .sum();
-        let diag: f64 = (0..n).map(|i| d[i][i] * d[i][i]).sum();
-        if off.is_nan() || off <= 1e-30 * diag {
-            break;
-        }
-        for p in 0..n {
-            for q in p + 1..n {
-                if d[p][q] == 0.0 {
-                    continue;
-                }
-                let theta = (d[q][q] - d[p][p]) / (2.0 * d[p][q]);
-                let t = theta.signum() / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let t = if theta == 0.0 { 1.0 } else { t };
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for k in 0..n {
-                    let (dkp, dkq) = (d[k][p], d[k][q]);
-                    d[k][p] = c * dkp - s * dkq;
-                    d[k][q] = s * dkp + c * dkq;
-                }
-                for k in 0..n {
-                    let (dpk, dqk) = (d[p][k], d[q][k]);
-                    d[p][k] = c * dpk - s * dqk;
-                    d[q][k] = s * dpk + c * dqk;
-                }
-                for k in 0..n {
-                    let (vkp, vkq) = (v[k][p], v[k][q]);
-                    v[k][p] = c * vkp - s * vkq;
-                    v[k][q] = s * vkp + c * vkq;
-                }
-            }
-        }
-    }
-    let eig: Vec<f64> = (0..n).map(|i| d[i][i]).collect();
-    eig.iter().all(|e| e.is_finite()).then_some((eig, v))
+    let a: Vec<f64> = (0..n)
+        .flat_map(|j| d.iter().map(move |row| row[j]))
+        .collect();
+    let (eig, u) = linalg::symmetric_eigen(&a, n).ok()?;
+    let v = (0..n)
+        .map(|i| (0..n).map(|j| u[j * n + i]).collect())
+        .collect();
+    Some((eig, v))
 }
 
-/// Solves the dense square system `A x = b` by Gaussian elimination with partial pivoting;
-/// `None` when `A` is numerically singular or the result is not finite.
-fn solve_dense(mut a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+/// Solves the dense square system `A x = b` ([`linalg::DenseLu`], partial pivoting); `None`
+/// when `A` is numerically singular or the result is not finite.
+fn solve_dense(a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
     let n = b.len();
-    let scale = a.iter().flatten().fold(0.0f64, |m, v| m.max(v.abs()));
-    for col in 0..n {
-        let p = (col..n).max_by(|&i, &j| a[i][col].abs().total_cmp(&a[j][col].abs()))?;
-        let pivot = a[p][col].abs();
-        if pivot.is_nan() || pivot <= 1e-14 * scale {
-            return None;
-        }
-        a.swap(col, p);
-        b.swap(col, p);
-        for row in col + 1..n {
-            let f = a[row][col] / a[col][col];
-            if f != 0.0 {
-                for k in col..n {
-                    a[row][k] -= f * a[col][k];
-                }
-                b[row] -= f * b[col];
-            }
-        }
-    }
-    let mut x = vec![0.0; n];
-    for row in (0..n).rev() {
-        let s: f64 = (row + 1..n).map(|k| a[row][k] * x[k]).sum();
-        x[row] = (b[row] - s) / a[row][row];
-    }
-    x.iter().all(|v| v.is_finite()).then_some(x)
+    let col: Vec<f64> = (0..n)
+        .flat_map(|j| a.iter().map(move |row| row[j]))
+        .collect();
+    let mut lu = linalg::DenseLu::new(n);
+    lu.factor(&col).ok()?;
+    lu.solve_in_place(&mut b).ok()?;
+    b.iter().all(|v| v.is_finite()).then_some(b)
 }
 
-/// Minimum-norm solution of the symmetric positive semi-definite system `D x = r` (cyclic
-/// Jacobi eigen-decomposition, eigenvalues below `1e-12` of the largest dropped).
+/// Minimum-norm solution of the symmetric positive semi-definite system `D x = r` (from its
+/// eigen-decomposition, eigenvalues below `1e-12` of the largest dropped).
 fn pseudo_solve(d: Vec<Vec<f64>>, r: &[f64]) -> Option<Vec<f64>> {
     let n = r.len();
     let (eig, v) = symmetric_eigen(d)?;

@@ -14,7 +14,7 @@
 //! (unit tests) and every analytic Jacobian agrees with central differences.
 //!
 //! ```
-//! use ecp_model::problems::{kojima_shindo, suite};
+//! use ecp_model::mcp_library::{kojima_shindo, suite};
 //! use ecp_model::residual_of;
 //!
 //! let p = kojima_shindo();
@@ -484,7 +484,7 @@ pub fn lcp(m: Vec<f64>, q: Vec<f64>) -> Result<TestProblem, ModelError> {
         mcp,
         starts: vec![("zero".into(), vec![0.0; n]), ("ones".into(), vec![1.0; n])],
         solutions: vec![],
-        note: "Dense LCP 0 <= z _|_ Mz + q >= 0 built by problems::lcp.",
+        note: "Dense LCP 0 <= z _|_ Mz + q >= 0 built by mcp_library::lcp.",
     })
 }
 
