@@ -299,13 +299,14 @@ fn regressions_conic() {
     regressions(SolverKind::Conic);
 }
 
-/// Every regression scene with the default settings of `ecp run` (Newton with the run driver's
-/// fallbacks: the other backends, then substeps), run past the first step at which any backend
-/// failed on it (plus 5 steps), must solve every step, stay out of the half-spaces and gain no
-/// energy: what a user gets on the scenes that once failed. The per-backend runs without
-/// fallbacks are `regressions_newton`, `regressions_path` and `regressions_conic` (ignored).
-#[test]
-fn regressions_with_default_settings() {
+/// The regression scenes with the default settings of `ecp run` (Newton with the run driver's
+/// fallbacks: the other backends, then substeps), each run past the first step at which any
+/// backend failed on it (plus 5 steps), keeping the scenes `keep` accepts (given that step; `None`
+/// for a run that timed out): every step must be solved, no vertex may sink below a half-space by
+/// more than 1e-8 m, and an unforced scene must not gain energy — what a user gets on the scenes
+/// that once failed. The per-backend runs without fallbacks are `regressions_newton`,
+/// `regressions_path` and `regressions_conic` (ignored).
+fn regressions_with_default_settings(keep: impl Fn(&str, Option<usize>) -> bool) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions");
     let manifest = std::fs::read_to_string(dir.join("manifest.csv")).expect("manifest.csv");
     let only = std::env::var("ECP_STRESS_ONLY").ok();
@@ -326,11 +327,8 @@ fn regressions_with_default_settings() {
             _ => None,
         };
     }
-    assert!(
-        only.is_some() || scenes.len() >= 100,
-        "{} scenes",
-        scenes.len()
-    );
+    scenes.retain(|scene, step| keep(scene, *step));
+    assert!(!scenes.is_empty(), "no regression scene selected");
     let out = temp_dir("regr-default");
     let mut bad = Vec::new();
     for (scene, step) in &scenes {
@@ -360,4 +358,28 @@ fn regressions_with_default_settings() {
         "regression scenes that fail with the default settings:\n{}",
         bad.join("\n")
     );
+}
+
+/// Scenes whose steps take seconds each with today's backends (`062_room_corner`: PATH spends
+/// minutes on one step); they run in the late test.
+const SLOW_SCENES: [&str; 1] = ["062_room_corner"];
+
+/// The regression scenes that failed within their first 100 steps (75 of 105), with the default
+/// settings: the part of the check that is quick in a debug build.
+#[test]
+fn regressions_with_default_settings_early() {
+    regressions_with_default_settings(|scene, step| {
+        step.is_some_and(|s| s <= 100) && !SLOW_SCENES.contains(&scene)
+    });
+}
+
+/// The other regression scenes (failing later, timing out, or slow), with the default settings.
+/// Slow in a debug build; run with
+/// `cargo test --release --test stress regressions_with_default_settings_late -- --ignored`.
+#[test]
+#[ignore]
+fn regressions_with_default_settings_late() {
+    regressions_with_default_settings(|scene, step| {
+        step.is_none_or(|s| s > 100) || SLOW_SCENES.contains(&scene)
+    });
 }
