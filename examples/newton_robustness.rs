@@ -331,7 +331,6 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             "path" => Box::new(PathSolver::new(PathSettings::default())),
             _ => Box::new(NewtonSolver::new(NewtonSettings {
                 trace: only.is_some(),
-                min_norm_step: std::env::var("NEWTON_MIN_NORM").is_ok(),
                 ..NewtonSettings::default()
             })),
         };

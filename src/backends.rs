@@ -106,7 +106,7 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
 
 /// [`make_solver`] for the step problems of `formulation`: the union formulation's solutions are
 /// not isolated (formulation.md §6, §7.1), and the Newton backend then takes minimum-norm
-/// least-squares steps ([`NewtonSettings::min_norm_step`]), which it does not by default.
+/// least-squares steps ([`NewtonSettings::min_norm_step`], now also the default).
 pub fn make_solver_for(
     config: &SolverConfig,
     formulation: Formulation,

@@ -1357,3 +1357,100 @@ fn face_cone_multipliers(
     }
     None
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::Mcp;
+
+    /// A 0.4 × 0.3 × 0.2 m box, 2 kg, tossed with spin, its lowest vertex 0.1 m above the
+    /// ground (no other vertex as low: the closest feature of Conv(F) is a vertex).
+    fn tossed_box() -> Scene {
+        let axis = Vector3::new(0.3, -0.8, 0.5);
+        let q = crate::rotation::quat_from_axis_angle(&axis, 0.9)
+            .unwrap_or_else(|| panic!("non-zero axis"));
+        let shape = Shape::cuboid(0.4, 0.3, 0.2).unwrap_or_else(|e| panic!("{e}"));
+        let r = rotation_matrix(&q);
+        let lowest = shape
+            .vertices()
+            .iter()
+            .map(|v| (r * v).z)
+            .fold(f64::INFINITY, f64::min);
+        Scene {
+            name: "toss".into(),
+            bodies: vec![BodySpec {
+                name: "box".into(),
+                mass: MassProperties::solid_cuboid(2.0, 0.4, 0.3, 0.2)
+                    .unwrap_or_else(|e| panic!("{e}")),
+                shape,
+                initial: BodyState {
+                    x: Vector3::new(0.0, 0.0, 0.1 - lowest),
+                    q,
+                    v: Vector3::new(0.5, -0.3, 1.0),
+                    w: Vector3::new(6.0, -4.0, 8.0),
+                },
+                load: Load::None,
+            }],
+            planes: vec![HalfSpace::ground()],
+            friction: FrictionParams {
+                mu: 0.5,
+                e_t: 1.0,
+                e_o: 1.0,
+                e_r: 0.02,
+            },
+            gravity: Vector3::new(0.0, 0.0, -9.8),
+            h: 0.007,
+            duration: 0.1,
+        }
+    }
+
+    /// The warm start of an open contact: the closest-point conditions C1–C4 hold at the
+    /// predicted pose (C2 with the multipliers of the three faces through the lowest vertex),
+    /// the friction rows vanish, and σ > 0.
+    #[test]
+    fn open_contact_warm_start_meets_the_closest_point_conditions() {
+        let mut sim = Simulation::new(tossed_box()).unwrap_or_else(|e| panic!("{e}"));
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let z = sim.z().to_vec();
+        let mcp = sim.mcp();
+        let mut f = vec![0.0; mcp.dim()];
+        mcp.evaluate(&z, &mut f);
+        let c = sim.contacts()[0];
+        let l = &z[mcp.range(c.l)];
+        assert_eq!(l.iter().filter(|v| **v > 0.0).count(), 3, "l = {l:?}");
+        // C2 rows are paired with a2, C1 rows with a1; C3 and C4 rows with l and l_g.
+        for (what, var) in [("C1", c.a1), ("C2", c.a2), ("friction", c.pf)] {
+            for i in mcp.range(var) {
+                assert!(
+                    f[i].abs() <= 1e-12,
+                    "{what}: {} = {:e}",
+                    mcp.component_name(i),
+                    f[i]
+                );
+            }
+        }
+        for i in mcp.range(c.l).chain(mcp.range(c.lg)) {
+            // Complementarity: multiplier 0 or row 0, both non-negative.
+            assert!(z[i] >= 0.0 && f[i] >= -1e-12 && (z[i] * f[i]).abs() <= 1e-12);
+        }
+        assert!(z[mcp.range(c.sigma)][0] > 0.0);
+        // The closest point is the lowest vertex at the predicted pose.
+        let (_, qv) = sim.body_vars(0);
+        let q = &z[mcp.range(qv)];
+        let x = Vector3::new(q[0], q[1], q[2]);
+        let rq = quat_normalize(&Vector4::new(q[3], q[4], q[5], q[6]))
+            .map(|q| rotation_matrix(&q))
+            .unwrap_or_else(|| panic!("non-zero quaternion"));
+        let lowest = sim
+            .hull(0)
+            .vertices()
+            .iter()
+            .map(|v| (x + rq * v).z)
+            .fold(f64::INFINITY, f64::min);
+        let a1 = &z[mcp.range(c.a1)];
+        assert!(
+            (a1[2] - lowest).abs() <= 1e-12,
+            "a1 {a1:?}, lowest {lowest}"
+        );
+    }
+}

@@ -6,7 +6,7 @@
 //! element `H = D_a + D_b J` of the generalised Jacobian (at degenerate pairs the element of
 //! De Luca, Facchinei and Kanzow), solves `H d = −Φ`, and accepts the step by an Armijo search on
 //! `Ψ = ½‖Φ‖²`. When `H` is singular or `d` fails the descent test `∇Ψᵀd ≤ −ρ‖d‖^p`, it first
-//! tries, when enabled ([`NewtonSettings::min_norm_step`], on for the union formulation), the
+//! tries, when enabled ([`NewtonSettings::min_norm_step`], on by default), the
 //! minimum-norm least-squares step `d = −H⁺Φ` on dense problems, then a
 //! Levenberg–Marquardt step `(HᵀH + λI) d = −HᵀΦ`, and failing that the steepest-descent
 //! step `−∇Ψ`. Linear systems use dense LU for small problems and a sparse LU (analysed once per
@@ -77,10 +77,12 @@ pub struct NewtonSettings {
     /// minimum-norm least-squares step `d = −H⁺Φ` (complete orthogonal decomposition, dense
     /// problems only) before the Levenberg–Marquardt safeguard. At the solutions of the
     /// union-of-pieces model `H` is singular on a whole solution set (formulation.md §6, §7.1);
-    /// there this step converges quadratically where Levenberg–Marquardt crawls. Default `false`:
-    /// on isolated but hard steps (a tipping box once in the air, measured on A6 at 110 N) its
-    /// non-monotone steps can lead to worse warm starts; `ecp::backends::make_solver_for` turns
-    /// it on for the union formulation.
+    /// there this step converges quadratically where Levenberg–Marquardt crawls. Default
+    /// `true`: it helps the hull model too (measured on the ordinary scenes of
+    /// `examples/newton_robustness.rs`: 244 → 96 failed steps of 5368, most of the gain on a
+    /// box thrown into a corner, docs/newton.md). Its non-monotone steps can lead to a worse end
+    /// point on isolated but hard steps (a tipping box once in the air, measured on A6 at
+    /// 110 N), so a solve that fails after taking them is restarted once without them.
     pub min_norm_step: bool,
     /// Numerical rank of `H` for the minimum-norm step: columns whose remaining norm in the
     /// pivoted QR falls below this times the largest column norm are treated as dependent.
@@ -97,6 +99,11 @@ pub struct NewtonSettings {
     /// taken, and the iteration returns to the point before it when Ψ has not fallen below
     /// its value there within this many steps (0: monotone only). Default 4.
     pub watchdog_steps: usize,
+    /// Give a zero column of `H` (a variable that does not enter the linearisation, such as the
+    /// slip rate σ of an open contact) its row's scale on the diagonal for the factorisation,
+    /// so that the Newton step is taken rather than failing the LU of the whole system
+    /// (docs/newton.md). Default `true`.
+    pub pin_zero_columns: bool,
     /// When the full Newton step fails the Armijo test, backtrack along the Newton direction
     /// (down to [`NewtonSettings::newton_shortest_step`]) and take that step instead of the
     /// Levenberg–Marquardt safeguard's when it lowers Ψ more. Without it, landing steps crawl
@@ -129,10 +136,11 @@ impl Default for NewtonSettings {
             lm_initial_damping: 1e-3,
             max_lm_trials: 30,
             dense_max: 120,
-            min_norm_step: false,
+            min_norm_step: true,
             rank_tolerance: 1e-10,
             min_norm_radius: 1e-3,
             watchdog_steps: 4,
+            pin_zero_columns: true,
             newton_line_search: true,
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
@@ -595,7 +603,7 @@ impl NewtonSolver {
             // σ of an open contact, where p_n = p_f = 0) get a unit of their row's scale on the
             // diagonal for the factorisation, so the step leaves them where their (consistent)
             // row puts them instead of failing the LU over the whole system.
-            let pinned = pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin);
+            let pinned = s.pin_zero_columns && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin);
             let mut newton_ok = linear.factor(&ws.h).is_ok();
             if newton_ok {
                 for i in 0..n {
@@ -631,6 +639,7 @@ impl NewtonSolver {
                     }
                 }
             }
+            let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
             if newton_ok && accepted.is_none() {
                 // The full Newton step, when it decreases Ψ enough (fast local convergence).
                 let slope = dot(&ws.grad, &ws.d);
@@ -669,7 +678,6 @@ impl NewtonSolver {
             // into the basin of the spurious p_n > 0 minimiser of separated steps (measured on
             // the rotated free-flight T-bar of tests/closest_points.rs), which
             // Levenberg–Marquardt's damping avoids.
-            let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
             if accepted.is_none() && !newton_ok && !ws.dense.is_empty() {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
@@ -909,5 +917,106 @@ impl NewtonSolver {
                 ],
             },
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::FnMcp;
+
+    /// The friction block of an open contact in miniature: `x` free with `F_x = x − 2`, the
+    /// friction impulse `p` free with `F_p = σ p` (the friction row at `p_n = 0`), and the slip
+    /// rate `σ ≥ 0` with `F_σ = −|p|` (the ellipsoid row at `p_n = 0`). At the start
+    /// `(0, 0, 1)` the σ column and the σ row of `H` are zero: σ is undetermined.
+    fn open_friction_block() -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY, f64::NEG_INFINITY, 0.0],
+            vec![f64::INFINITY; 3],
+            |z, f| {
+                f[0] = z[0] - 2.0;
+                f[1] = z[2] * z[1];
+                f[2] = -z[1].abs();
+            },
+            |z, j| {
+                // Column-major 3 × 3.
+                j[0] = 1.0;
+                j[4] = z[2];
+                j[5] = -if z[1] > 0.0 {
+                    1.0
+                } else if z[1] < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                };
+                j[7] = z[1];
+            },
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"))
+    }
+
+    #[test]
+    fn a_zero_column_of_h_is_pinned_and_the_newton_step_taken() {
+        let sol = NewtonSolver::new(NewtonSettings::default())
+            .solve(&open_friction_block(), &[0.0, 0.0, 1.0])
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!((sol.z[0] - 2.0).abs() <= 1e-12, "x = {}", sol.z[0]);
+        assert!(sol.z[1].abs() <= 1e-12, "p = {}", sol.z[1]);
+        // One Newton step solves it.
+        assert_eq!(sol.summary.counter("lm_steps"), 0);
+        assert_eq!(sol.summary.counter("min_norm_steps"), 0);
+        assert_eq!(sol.summary.counter("newton_steps"), 1);
+        assert_eq!(sol.summary.iterations, 1);
+        let unpinned = NewtonSolver::new(NewtonSettings {
+            pin_zero_columns: false,
+            ..NewtonSettings::default()
+        })
+        .solve(&open_friction_block(), &[0.0, 0.0, 1.0]);
+        let summary = match &unpinned {
+            Ok(sol) => &sol.summary,
+            Err(SolveError::NotConverged { best }) => &best.summary,
+            Err(e) => panic!("{e}"),
+        };
+        // Without it the LU fails and a safeguard step is taken instead.
+        assert!(
+            summary.counter("lm_steps") + summary.counter("min_norm_steps") > 0,
+            "{summary:?}"
+        );
+    }
+
+    #[test]
+    fn the_final_newton_step_polishes_a_residual_just_below_the_tolerance() {
+        // F(x) = x³ + x − 1 (free) from a point whose residual is between 1e-3 of the tolerance
+        // and the tolerance: the solve is converged at once, and the final step gains digits.
+        let mcp = FnMcp::dense(
+            vec![f64::NEG_INFINITY],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] * z[0] * z[0] + z[0] - 1.0,
+            |z, j| j[0] = 3.0 * z[0] * z[0] + 1.0,
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"));
+        let root = 0.682_327_803_828_019_3;
+        let start = [root + 2e-11];
+        let polished = NewtonSolver::new(NewtonSettings::default())
+            .solve(&mcp, &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            polished.summary.residual <= 1e-15,
+            "{:e}",
+            polished.summary.residual
+        );
+        assert_eq!(polished.summary.iterations, 1);
+        let plain = NewtonSolver::new(NewtonSettings {
+            polish_below: 1.0,
+            ..NewtonSettings::default()
+        })
+        .solve(&mcp, &start)
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            plain.summary.residual > 1e-11,
+            "{:e}",
+            plain.summary.residual
+        );
+        assert_eq!(plain.summary.iterations, 0);
     }
 }
