@@ -34,3 +34,4 @@ pub mod output;
 pub mod plots;
 pub mod run;
 pub mod scene;
+pub mod stress;

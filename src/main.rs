@@ -164,6 +164,7 @@ fn main() -> ExitCode {
                 steps,
                 plots: !no_plots,
                 keep_going,
+                time_limit: None,
             };
             run(&file, &options, quiet)
         }),

@@ -3,7 +3,7 @@
 //! layer over [`run_scene`] and [`compare_scene`].
 
 use std::path::PathBuf;
-use std::time::Instant;
+use std::time::{Duration, Instant};
 
 use ecp_formulations::build_stepper;
 use ecp_formulations::stepper::StepRecord;
@@ -33,6 +33,8 @@ pub struct RunOptions {
     pub plots: bool,
     /// Go on after a step that did not converge (from its best iterate) instead of stopping.
     pub keep_going: bool,
+    /// Stop the run once it has taken this long (checked between steps); the outcome says so.
+    pub time_limit: Option<Duration>,
 }
 
 impl Default for RunOptions {
@@ -44,6 +46,7 @@ impl Default for RunOptions {
             steps: None,
             plots: true,
             keep_going: false,
+            time_limit: None,
         }
     }
 }
@@ -68,12 +71,14 @@ pub struct RunOutcome {
     pub plot_error: Option<String>,
     /// The stepper's error that ended the run early, if any.
     pub stepper_error: Option<String>,
+    /// The run stopped at [`RunOptions::time_limit`] before its last step.
+    pub timed_out: bool,
 }
 
 impl RunOutcome {
     /// Every step converged and the run reached its end.
     pub fn succeeded(&self) -> bool {
-        self.summary.failed_steps == 0 && self.stepper_error.is_none()
+        self.summary.failed_steps == 0 && self.stepper_error.is_none() && !self.timed_out
     }
 }
 
@@ -126,7 +131,15 @@ pub fn run_scene(
     )?;
     let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
+    let mut timed_out = false;
     while records.len() < planned {
+        if options
+            .time_limit
+            .is_some_and(|limit| start.elapsed() > limit)
+        {
+            timed_out = true;
+            break;
+        }
         match sim.step(solver.as_mut()) {
             Ok(rec) => {
                 csv.write(&rec)?;
@@ -178,6 +191,7 @@ pub fn run_scene(
         plots,
         plot_error,
         stepper_error,
+        timed_out,
     })
 }
 

@@ -1,0 +1,112 @@
+//! The random-scene stress suite: a seeded [`generate`]or of ordinary scene files of every kind a
+//! new user would try, a [`runner`] that runs each with a backend as `ecp run SCENE --solver S
+//! --formulation hull --keep-going` does and measures the run independently (convergence,
+//! failed steps, penetration from the poses and the real body's vertices, energy of unforced
+//! scenes, wall time), and the [`report`] tables. `docs/stress.md` describes the categories, the
+//! columns and the command of the full run (`cargo run --release --example stress`).
+//!
+//! ```
+//! let scenes = ecp::stress::generate(7, 13);
+//! assert_eq!(scenes.len(), 13);
+//! assert_eq!(scenes, ecp::stress::generate(7, 13)); // the same text from the same seed
+//! ```
+
+pub mod generate;
+pub mod report;
+pub mod runner;
+
+use std::path::{Path, PathBuf};
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+pub use generate::{Category, StressScene, generate};
+pub use runner::{RunConfig, RunResult, run_file};
+
+use crate::backends::SolverKind;
+
+/// The seed of the documented full run.
+pub const DEFAULT_SEED: u64 = 20_260_525;
+
+/// The number of scenes of the documented full run (12 of each of the 13 categories).
+pub const DEFAULT_COUNT: usize = 156;
+
+/// Settings of a run of many scenes with several backends.
+#[derive(Clone, Debug)]
+pub struct SuiteOptions {
+    /// Output directory: `scenes/` (the scene and mesh files), `runs/<solver>/<scene>/`.
+    pub out_dir: PathBuf,
+    /// Backends, each run on every scene.
+    pub solvers: Vec<SolverKind>,
+    /// Stop every run after this many steps.
+    pub steps: Option<usize>,
+    /// Time limit of one run.
+    pub time_limit: Option<Duration>,
+    /// Runs at once (threads).
+    pub jobs: usize,
+}
+
+/// Writes `scenes` into `out_dir/scenes/` and runs each with every backend of `options`;
+/// `on_result` sees each result as it arrives. The results come back ordered by scene, then
+/// backend in the order given.
+pub fn run_suite(
+    scenes: &[StressScene],
+    options: &SuiteOptions,
+    on_result: impl Fn(&RunResult) + Sync,
+) -> std::io::Result<Vec<RunResult>> {
+    let scene_dir = options.out_dir.join("scenes");
+    let paths = scenes
+        .iter()
+        .map(|s| s.write_to(&scene_dir))
+        .collect::<std::io::Result<Vec<PathBuf>>>()?;
+    run_paths(&paths, options, on_result)
+}
+
+/// Runs the scene files `paths` with every backend of `options` (see [`run_suite`]).
+pub fn run_paths(
+    paths: &[PathBuf],
+    options: &SuiteOptions,
+    on_result: impl Fn(&RunResult) + Sync,
+) -> std::io::Result<Vec<RunResult>> {
+    let jobs: Vec<(usize, &Path, SolverKind)> = paths
+        .iter()
+        .enumerate()
+        .flat_map(|(i, p)| options.solvers.iter().map(move |s| (i, p.as_path(), *s)))
+        .collect();
+    let next = AtomicUsize::new(0);
+    let results: Mutex<Vec<(usize, usize, RunResult)>> = Mutex::new(Vec::new());
+    std::thread::scope(|scope| {
+        for _ in 0..options.jobs.max(1) {
+            scope.spawn(|| {
+                loop {
+                    let k = next.fetch_add(1, Ordering::SeqCst);
+                    let Some(&(i, path, solver)) = jobs.get(k) else {
+                        break;
+                    };
+                    let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
+                    let config = RunConfig {
+                        solver,
+                        steps: options.steps,
+                        time_limit: options.time_limit,
+                        out_dir: options
+                            .out_dir
+                            .join("runs")
+                            .join(solver.as_str())
+                            .join(stem),
+                    };
+                    let r = run_file(path, &config);
+                    on_result(&r);
+                    let order = options.solvers.iter().position(|s| *s == solver);
+                    if let Ok(mut all) = results.lock() {
+                        all.push((i, order.unwrap_or(0), r));
+                    }
+                }
+            });
+        }
+    });
+    let mut all = results.into_inner().map_err(|_| {
+        std::io::Error::other("a run panicked while holding the results; see its message above")
+    })?;
+    all.sort_by_key(|(i, o, _)| (*i, *o));
+    Ok(all.into_iter().map(|(_, _, r)| r).collect())
+}

@@ -1,0 +1,298 @@
+//! The random-scene stress suite (docs/stress.md): the generator's guarantees, the independent
+//! measures of the runner, a fast subset of the suite (one short scene per category with PATH
+//! and Newton), and the regression scenes of `tests/stress_regressions/`.
+//!
+//! The full run is `cargo run --release --example stress`; its summary is in docs/stress.md.
+
+use std::path::{Path, PathBuf};
+use std::time::Duration;
+
+use ecp::backends::SolverKind;
+use ecp::formulations::stepper::BodyState;
+use ecp::stress::runner::{ENERGY_LIMIT, PENETRATION_LIMIT, penetration, total_energy};
+use ecp::stress::{Category, DEFAULT_COUNT, DEFAULT_SEED, RunConfig, RunResult, generate};
+use nalgebra::{Vector3, Vector4};
+
+fn temp_dir(tag: &str) -> PathBuf {
+    let d = std::env::temp_dir().join(format!("ecp-stress-{tag}-{}", std::process::id()));
+    std::fs::create_dir_all(&d).expect("temp dir");
+    d
+}
+
+/// The documented suite: at least 150 scenes, every category at least 11 times, meshes in OBJ
+/// and STL and in millimetres, several-body scenes, forced and unforced ones, parameters in
+/// the issue's ranges; the same text from the same seed; every scene loads (so no body starts
+/// inside an obstacle), and the bodies of the touching categories start exactly touching.
+#[test]
+fn generator_covers_every_category_deterministically() {
+    let scenes = generate(DEFAULT_SEED, DEFAULT_COUNT);
+    assert!(scenes.len() >= 150);
+    assert_eq!(scenes, generate(DEFAULT_SEED, DEFAULT_COUNT));
+    assert_ne!(scenes[0].toml, generate(DEFAULT_SEED + 1, 1)[0].toml);
+    for c in Category::ALL {
+        let n = scenes.iter().filter(|s| s.category == c).count();
+        assert!(n >= 11, "{c}: {n} scenes");
+    }
+    let files: Vec<&String> = scenes
+        .iter()
+        .flat_map(|s| s.files.iter().map(|f| &f.0))
+        .collect();
+    assert!(files.iter().any(|f| f.ends_with(".obj")));
+    assert!(files.iter().any(|f| f.ends_with(".stl")));
+    assert!(scenes.iter().any(|s| s.toml.contains("scale = 0.001")));
+    assert!(scenes.iter().any(|s| s.unforced) && scenes.iter().any(|s| !s.unforced));
+    let dir = temp_dir("gen");
+    for s in &scenes {
+        let path = s.write_to(&dir).expect("writes");
+        let file = ecp::scene::load_scene(&path).unwrap_or_else(|e| panic!("{}: {e}", s.name));
+        let sc = &file.scene;
+        assert!((1e-3..=1e-2).contains(&sc.h), "{}: h = {}", s.name, sc.h);
+        assert!((0.5..=2.0).contains(&sc.duration), "{}", s.name);
+        assert!((0.1..=1.2).contains(&sc.friction.mu), "{}", s.name);
+        assert_eq!(
+            s.unforced,
+            file.loads.iter().all(|l| l.is_none()),
+            "{}: unforced flag",
+            s.name
+        );
+        if s.category == Category::MultiBody {
+            assert!(sc.bodies.len() >= 2, "{}", s.name);
+        }
+        let initial: Vec<BodyState> = sc.bodies.iter().map(|b| b.initial).collect();
+        let gaps = ecp::stress::runner::gaps_of(sc, &initial);
+        let lowest = gaps.iter().flatten().copied().fold(f64::INFINITY, f64::min);
+        assert!(lowest >= -1e-12, "{}: starts {lowest:e} m inside", s.name);
+        if matches!(
+            s.category,
+            Category::ConvexPush | Category::UnionRest | Category::UnionTip | Category::Ladder
+        ) {
+            assert!(lowest <= 1e-12, "{}: starts {lowest:e} m above", s.name);
+        }
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// The penetration is recomputed from the pose and the body's vertices: a 0.4 × 0.2 × 0.1 box
+/// turned 90° about x and sunk 0.01 m penetrates the floor by 0.01 m (to 1e-15).
+#[test]
+fn independent_penetration_of_a_sunk_box() {
+    let text = "[simulation]\nh = 0.01\nduration = 0.1\n[friction]\nmu = 0.3\ne_r = 0.1\n\
+                [[half_spaces]]\nnormal = [0, 0, 1]\n[[bodies]]\nmass = 1\ninertia = \"uniform\"\n\
+                position = [0, 0, 0.05]\n[[bodies.pieces]]\nbox = [0.4, 0.2, 0.1]\n";
+    let file = ecp::scene::parse_scene(text, "box.toml".as_ref()).expect("parses");
+    let half = std::f64::consts::FRAC_1_SQRT_2;
+    // Turned 90° about x: the 0.2 m edge is vertical, so the CM is 0.1 m above the floor.
+    let state = BodyState {
+        x: Vector3::new(0.3, -0.2, 0.09),
+        q: Vector4::new(half, half, 0.0, 0.0),
+        v: Vector3::zeros(),
+        w: Vector3::zeros(),
+    };
+    let pen = penetration(&file.scene, &[state]);
+    assert!((pen - 0.01).abs() <= 1e-15, "penetration {pen:e}");
+    let above = BodyState {
+        x: Vector3::new(0.0, 0.0, 0.11),
+        ..state
+    };
+    assert_eq!(penetration(&file.scene, &[above]), 0.0);
+}
+
+/// The runner's energy (from the recorded states) agrees with the stepper's own to 1e-12 of
+/// the scene's energy at every step of a tossed, spinning body.
+#[test]
+fn independent_energy_matches_the_stepper() {
+    let scene = generate(DEFAULT_SEED, 2)
+        .pop()
+        .expect("the second scene is a toss");
+    assert_eq!(scene.category, Category::ConvexToss);
+    let dir = temp_dir("energy");
+    let path = scene.write_to(&dir).expect("writes");
+    let file = ecp::scene::load_scene(&path).expect("loads");
+    let options = ecp::run::RunOptions {
+        out_dir: dir.join("run"),
+        solver: Some(SolverKind::Path),
+        steps: Some(20),
+        plots: false,
+        keep_going: true,
+        ..ecp::run::RunOptions::default()
+    };
+    let outcome = ecp::run::run_scene(&file, &options, |_| {}).expect("runs");
+    let scale = ecp::stress::runner::energy_scale(&file.scene);
+    for r in &outcome.records {
+        let e = total_energy(&file.scene, &r.bodies);
+        assert!(
+            (e - r.energy).abs() <= 1e-12 * scale,
+            "step {}: {e} vs the stepper's {}",
+            r.step,
+            r.energy
+        );
+    }
+    std::fs::remove_dir_all(dir).ok();
+}
+
+/// Steps of each run of the fast subset.
+const FAST_STEPS: usize = 40;
+
+/// Runs the first scene of each category in `cats` with `solver` for [`FAST_STEPS`] steps.
+fn fast_subset(solver: SolverKind, cats: &[Category]) -> Vec<RunResult> {
+    let dir = temp_dir(&format!("fast-{solver}"));
+    let scenes = generate(DEFAULT_SEED, Category::ALL.len());
+    let mut out = Vec::new();
+    for s in scenes.iter().filter(|s| cats.contains(&s.category)) {
+        let path = s.write_to(&dir.join("scenes")).expect("writes");
+        let config = RunConfig {
+            solver,
+            steps: Some(FAST_STEPS),
+            time_limit: Some(Duration::from_secs(600)),
+            out_dir: dir.join("runs").join(&s.name),
+        };
+        out.push(ecp::stress::run_file(&path, &config));
+    }
+    std::fs::remove_dir_all(dir).ok();
+    out
+}
+
+/// Every run converged at every step, penetrates at most [`PENETRATION_LIMIT`], and no unforced
+/// run gains more than [`ENERGY_LIMIT`] of its energy scale outside opening steps.
+fn assert_passed(results: &[RunResult]) {
+    let bad: Vec<String> = results
+        .iter()
+        .filter(|r| !r.passed())
+        .map(|r| {
+            format!(
+                "{} {}: {} of {} steps failed (first {:?}: {:?}), error {:?}, penetration {:e} m, \
+                 energy rise {:e}",
+                r.scene,
+                r.solver,
+                r.failed_steps,
+                r.steps,
+                r.first_failed_step,
+                r.first_failure,
+                r.error,
+                r.max_penetration,
+                r.energy_rise_outside_openings
+            )
+        })
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "runs that did not pass:\n{}",
+        bad.join("\n")
+    );
+    for r in results {
+        assert_eq!(r.steps, FAST_STEPS.min(r.planned_steps), "{}", r.scene);
+        assert!(r.max_penetration <= PENETRATION_LIMIT);
+        assert!(!r.unforced || r.energy_rise_outside_openings <= ENERGY_LIMIT);
+    }
+}
+
+#[test]
+fn fast_subset_path() {
+    assert_passed(&fast_subset(SolverKind::Path, &Category::ALL));
+}
+
+/// The categories whose first scene the Newton backend fails today within [`FAST_STEPS`] steps
+/// (steps that end at the iteration limit; the other backends solve them).
+const NEWTON_FAILS: [Category; 5] = [
+    Category::ConvexDrop,
+    Category::ConvexToss,
+    Category::CornerWall,
+    Category::Ladder,
+    Category::RoomCorner,
+];
+
+#[test]
+fn fast_subset_newton() {
+    let cats: Vec<Category> = Category::ALL
+        .into_iter()
+        .filter(|c| !NEWTON_FAILS.contains(c))
+        .collect();
+    assert_passed(&fast_subset(SolverKind::Newton, &cats));
+}
+
+/// Fails today: Newton stops at the iteration limit on the first drop, toss, floor-and-wall,
+/// ladder and room-corner scenes (docs/stress.md). Run with
+/// `cargo test --test stress fast_subset_newton_failing -- --ignored`.
+#[test]
+#[ignore]
+fn fast_subset_newton_failing() {
+    assert_passed(&fast_subset(SolverKind::Newton, &NEWTON_FAILS));
+}
+
+/// The regression scenes of `tests/stress_regressions/` (every generated scene that ever
+/// failed with some backend), each run to its end with the backends `manifest.csv` lists for it
+/// (only the scenes whose name contains `$ECP_STRESS_ONLY`, when set).
+fn regressions(solver: SolverKind) {
+    let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions");
+    let manifest = std::fs::read_to_string(dir.join("manifest.csv")).expect("manifest.csv");
+    let out = temp_dir(&format!("regr-{solver}"));
+    // `ECP_STRESS_ONLY=TEXT` keeps the scenes whose name contains TEXT.
+    let only = std::env::var("ECP_STRESS_ONLY").ok();
+    let mut results = Vec::new();
+    for line in manifest.lines().skip(1) {
+        let mut cols = line.split(',');
+        let (Some(scene), Some(backend)) = (cols.next(), cols.next()) else {
+            continue;
+        };
+        if backend != solver.as_str() || only.as_deref().is_some_and(|o| !scene.contains(o)) {
+            continue;
+        }
+        let config = RunConfig {
+            solver,
+            steps: None,
+            time_limit: Some(ecp::stress::runner::TIME_LIMIT),
+            out_dir: out.join(scene),
+        };
+        results.push(ecp::stress::run_file(
+            &dir.join(format!("{scene}.toml")),
+            &config,
+        ));
+    }
+    std::fs::remove_dir_all(out).ok();
+    let bad: Vec<String> = results
+        .iter()
+        .filter(|r| !r.passed())
+        .map(|r| {
+            format!(
+                "{} {}: {} failed steps (first {:?}), timeout {}, error {:?}, penetration {:e} m, energy rise {:e}",
+                r.scene,
+                r.solver,
+                r.failed_steps,
+                r.first_failed_step,
+                r.timed_out,
+                r.error,
+                r.max_penetration,
+                r.energy_rise_outside_openings
+            )
+        })
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "regression scenes that fail:\n{}",
+        bad.join("\n")
+    );
+}
+
+/// Fails today (docs/stress.md). Run with
+/// `cargo test --release --test stress regressions_newton -- --ignored`.
+#[test]
+#[ignore]
+fn regressions_newton() {
+    regressions(SolverKind::Newton);
+}
+
+/// Fails today (docs/stress.md). Run with
+/// `cargo test --release --test stress regressions_path -- --ignored`.
+#[test]
+#[ignore]
+fn regressions_path() {
+    regressions(SolverKind::Path);
+}
+
+/// Fails today (docs/stress.md). Run with
+/// `cargo test --release --test stress regressions_conic -- --ignored`.
+#[test]
+#[ignore]
+fn regressions_conic() {
+    regressions(SolverKind::Conic);
+}
