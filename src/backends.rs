@@ -103,10 +103,10 @@ pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputErr
 }
 
 /// [`make_solver`] for the step problems of `formulation`: the union formulation's solutions are
-/// not isolated, and the Newton backend then takes minimum-norm least-squares steps
-/// ([`ecp_solvers::NewtonSettings::min_norm_step`]), which it does not by default. Every solver
-/// comes from [`ecp_solvers::Registry`], so the command line, the fallbacks and fitting build
-/// each backend the same way.
+/// not isolated, and the Newton backend takes minimum-norm least-squares steps
+/// ([`ecp_solvers::NewtonSettings::min_norm_step`], also its default). Every solver comes from
+/// [`ecp_solvers::Registry`], so the command line, the fallbacks and fitting build each backend
+/// the same way.
 pub fn make_solver_for(
     config: &SolverConfig,
     formulation: Formulation,

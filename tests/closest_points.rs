@@ -16,14 +16,10 @@
 //!
 //! The free flight itself is checked too (linear and angular impulse, kinematic map).
 //!
-//! Known defect (Newton backend, not the closest points): while separated, `p_n = 0` leaves the
-//! friction block (p_f, σ) degenerate, and on some poses the Newton backend stagnates far from
-//! the solution (before the ellipsoid row took its cone form it also often ended with the σ row
-//! at 1e-9..4e-9 after 200 iterations). The property tests therefore require every component
-//! except p_f and σ to be converged to 1e-10 with Newton (and skip the rare far stagnations);
-//! the strict "natural residual ≤ 1e-10" requirement of formulation.md §5 is in the
-//! `#[ignore]`d tests at the end, with the failing poses as regression cases. The PATH-like
-//! backend solves every one of these steps to 1e-10: its `_with_path` twins are not ignored.
+//! Both backends must solve every one of these steps to a natural residual of 1e-10. The
+//! Newton backend used to stall on many of them (`p_n = 0` leaves the friction block (p_f, σ)
+//! degenerate); the poses it failed on are kept as regression cases at the end, and
+//! `docs/newton.md` records the mechanisms that removed those failures.
 
 mod common;
 
@@ -245,33 +241,16 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         friction_residual,
     } = solve_step(scene, kind)?;
 
-    // The PATH-like backend converges on every free-flight step (formulation.md §5 strictly).
-    if kind == SolverKind::Path {
-        prop_assert!(
-            rec.converged && rec.summary.residual <= 1e-10,
-            "path: {:?}, natural residual {:e}",
-            rec.summary.termination,
-            rec.summary.residual
-        );
-    }
-
-    // KNOWN DEFECT of the Newton backend (see the ignored tests at the end and the module docs): while separated,
-    // p_n = 0 and the friction block (p_f, σ) is degenerate; the backend often stops with the
-    // σ row of the friction ellipsoid at 1e-9..3e-9 after 200 iterations (most T-bar poses),
-    // and on rare poses it stagnates far from the solution. Convergence is asserted strictly
-    // only in the ignored tests; here every component that fixes the motion and the ECP
-    // (ν, q, a1, a2, l, l_g, p_n) must be converged to 1e-10, and the rare far stagnation is
-    // skipped rather than failed.
-    prop_assume!(
-        core_residual <= 1e-10,
-        "stagnated far from the solution (known defect)"
-    );
-    if rec.converged {
-        prop_assert!(rec.summary.residual <= 1e-10, "{:e}", rec.summary.residual);
-    }
+    // Both backends converge on every free-flight step (natural residual ≤ 1e-10). The Newton
+    // backend used to stall here in the degenerate friction block (p_n = 0, σ undetermined);
+    // docs/newton.md says which mechanisms removed that.
     prop_assert!(
-        friction_residual <= 1e-6,
-        "friction block residual {:e}",
+        rec.converged && rec.summary.residual <= 1e-10,
+        "{:?}: {:?}, natural residual {:e}, core {:e}, friction block {:e}",
+        kind,
+        rec.summary.termination,
+        rec.summary.residual,
+        core_residual,
         friction_residual
     );
 
@@ -473,11 +452,8 @@ proptest! {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Known defect: free-flight steps do not always converge to 1e-10.
-//
-// These assert what formulation.md §5 asks of every step (natural residual ≤ 1e-10 with the
-// default backend). They fail today and are ignored so that the suite stays usable; run them
-// with `cargo test --test closest_points -- --ignored`.
+// Free-flight steps converge to 1e-10 with either backend, with the poses the Newton backend
+// once failed on (it stalled in the degenerate friction block at p_n = 0) as regression cases.
 // ---------------------------------------------------------------------------------------------
 
 fn assert_converged(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
@@ -518,7 +494,6 @@ proptest! {
     })]
 
     #[test]
-    #[ignore = "known defect: separated steps stall in the degenerate friction block (p_n = 0)"]
     fn free_flight_box_steps_converge(f in float()) {
         assert_converged(box_scene(V3::new(0.4, 0.4, 0.2), &f), SolverKind::Newton)?;
     }
@@ -529,7 +504,6 @@ proptest! {
     }
 
     #[test]
-    #[ignore = "known defect: separated steps stall in the degenerate friction block (p_n = 0)"]
     fn free_flight_t_bar_steps_converge(f in float()) {
         assert_converged(t_bar_scene(&f), SolverKind::Newton)?;
     }
@@ -555,7 +529,6 @@ fn t_bar_flat_pitching_step_pose() -> Float {
 }
 
 #[test]
-#[ignore = "known defect: stagnates at 2.5e-4 with a spurious friction impulse"]
 fn t_bar_flat_pitching_step_converges() {
     let f = t_bar_flat_pitching_step_pose();
     assert_converged(t_bar_scene(&f), SolverKind::Newton).unwrap_or_else(|e| panic!("{e}"));
@@ -645,7 +618,6 @@ fn box_tilted_plane_step_pose() -> Float {
 }
 
 #[test]
-#[ignore = "known defect: stagnates at 2e-4 far from the solution"]
 fn box_tilted_plane_step_converges() {
     let f = box_tilted_plane_step_pose();
     assert_converged(box_scene(V3::new(0.4, 0.4, 0.2), &f), SolverKind::Newton)

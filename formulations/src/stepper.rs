@@ -824,33 +824,30 @@ impl Simulation {
     /// Starting active matters: `p_n = 0` zeroes every friction row, and the merit function of a
     /// Newton method has a spurious minimiser near "free fall with zero impulses".
     fn contact_guess(&mut self, i: usize, force_active: bool) {
+        let s = self.bodies[self.contacts[i].body].state;
+        self.contact_guess_at(i, force_active, &s.x, &rotation_matrix(&s.q));
+    }
+
+    /// [`Self::contact_guess`] with the closest points taken at the pose `(x, r)` (the
+    /// velocities are the current state's).
+    fn contact_guess_at(
+        &mut self,
+        i: usize,
+        force_active: bool,
+        x: &Vector3<f64>,
+        r: &nalgebra::Matrix3<f64>,
+    ) {
         let c = &self.contacts[i];
         let body = &self.bodies[c.body];
         let set = &self.contact_hulls[i];
         let plane = &self.scene.planes[c.plane];
         let s = body.state;
-        let r = rotation_matrix(&s.q);
         let ng = plane.normal();
-        let dir_body = r.transpose() * (-ng);
-        let verts = set.vertices();
-        let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(s.x + r * v))).collect();
-        let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
-        let mut a1 = Vector3::zeros();
-        let mut count: f64 = 0.0;
-        for (v, g) in verts.iter().zip(&gaps) {
-            if *g <= gmin + 1e-6 {
-                a1 += s.x + r * v;
-                count += 1.0;
-            }
-        }
-        a1 /= f64::max(count, 1.0);
+        let (a1, gmin, l) = closest_point_guess(set, plane, x, r);
         let a2 = plane.project(&a1);
-        let k = set.most_aligned_face(&dir_body);
-        let mut l = vec![0.0; set.num_faces()];
-        l[k] = 1.0;
         let gap = gmin.max(0.0);
         let f = self.scene.friction;
-        let (mut pn, mut pf, mut sigma) = (0.0, [0.0; 3], 0.0);
+        let (mut pn, mut pf, mut sigma) = (0.0, [0.0; 3], self.open_contact_sigma(i));
         if gap <= 1e-9 || force_active {
             let m = body.spec.mass.mass;
             let h = self.scene.h;
@@ -881,6 +878,37 @@ impl Simulation {
         self.put(c.pn, &[pn]);
         self.put(c.pf, &pf);
         self.put(c.sigma, &[sigma]);
+    }
+
+    /// The slip rate σ of the warm start of an open contact (`p_n = 0`): the slip speed of the
+    /// body at its ECP, `(e_t² v_t² + e_o² v_o² + e_r² ω_n²)^½`, and at least the speed gravity
+    /// gives in one step, `|g| h`.
+    ///
+    /// With `p_n = 0` every σ ≥ 0 solves the friction law, but σ = 0 together with `p_n = 0`
+    /// zeroes the whole linearisation of the friction rows `e² μ p_n W ν + p_f σ`: the friction
+    /// impulse is then free at first order, the Newton matrix is singular, and its safeguard
+    /// steps move `p_f` and `p_n` off zero into a spurious minimiser of the merit function
+    /// (docs/newton.md). With σ > 0 the rows pin `p_f` to 0.
+    fn open_contact_sigma(&self, i: usize) -> f64 {
+        let c = &self.contacts[i];
+        let s = self.bodies[c.body].state;
+        let plane = &self.scene.planes[c.plane];
+        let (ng, t, o) = plane.contact_frame();
+        let a1 = self.get(c.a1);
+        let rr = Vector3::new(a1[0], a1[1], a1[2]) - s.x;
+        let f = self.scene.friction;
+        let vt = t.dot(&s.v) + rr.cross(&t).dot(&s.w);
+        let vo = o.dot(&s.v) + rr.cross(&o).dot(&s.w);
+        let wn = ng.dot(&s.w);
+        let slip = ((f.e_t * vt).powi(2) + (f.e_o * vo).powi(2) + (f.e_r * wn).powi(2)).sqrt();
+        let floor = self.scene.gravity.norm() * self.scene.h;
+        if slip.is_finite() && slip > floor {
+            slip
+        } else if floor > 0.0 {
+            floor
+        } else {
+            1.0
+        }
     }
 
     fn put(&mut self, v: VarId, values: &[f64]) {
@@ -1013,6 +1041,8 @@ impl Simulation {
     fn prepare_span(&mut self, t0: f64, h: f64) -> Result<(), SceneError> {
         self.last = None;
         let o = self.origin;
+        // Per body: the predicted position (world frame) and rotation.
+        let mut motion = Vec::with_capacity(self.bodies.len());
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
@@ -1053,6 +1083,42 @@ impl Simulation {
                 x_pred.x, x_pred.y, x_pred.z, q_pred[0], q_pred[1], q_pred[2], q_pred[3],
             ];
             self.put(q_id, &q_guess);
+            let r_pred =
+                quat_normalize(&q_pred).map_or(rotation_matrix(&s.q), |q| rotation_matrix(&q));
+            motion.push((x_pred + o, r_pred));
+        }
+        // Contacts that ended the last step open (p_n = 0): the closest-point unknowns start at
+        // the closest points of the predicted pose (a1, a2, l_g, and face multipliers l that
+        // satisfy C2 there, see `closest_point_guess`) when that pose is still separated; σ stays > 0
+        // (see `open_contact_sigma`: the solution leaves σ free, and σ = 0 makes the friction
+        // rows' linearisation vanish at the warm start).
+        for i in 0..self.contacts.len() {
+            let c = self.contacts[i];
+            let m = self.bodies[c.body].spec.mass.mass;
+            let open_pn = 1e-12 * m * (self.scene.gravity.norm() * h).max(f64::MIN_POSITIVE);
+            if self.get(c.pn)[0] > open_pn {
+                continue;
+            }
+            let (x1, r1) = motion[c.body];
+            let plane = self.scene.planes[c.plane];
+            let (a1, gap, l) = closest_point_guess(&self.contact_hulls[i], &plane, &x1, &r1);
+            if !a1.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            if gap > 0.0 {
+                let a2 = plane.project(&a1);
+                self.put(c.a1, (a1 - o).as_slice());
+                self.put(c.a2, (a2 - o).as_slice());
+                self.put(c.lg, &[gap]);
+                self.put(c.l, &l);
+                let sigma = self.open_contact_sigma(i);
+                if self.get(c.sigma)[0] < sigma {
+                    self.put(c.sigma, &[sigma]);
+                }
+            } else {
+                // The predicted pose penetrates: the contact closes within the step.
+                self.contact_guess_at(i, true, &x1, &r1);
+            }
         }
         Ok(())
     }
@@ -1493,5 +1559,213 @@ impl Stepper for Simulation {
     }
     fn supports_fallbacks(&self) -> bool {
         true
+    }
+}
+
+/// The closest points of Conv(F) at pose `(x, r)` to the half-space: `a1` the centroid of the
+/// hull's vertices nearest to G (a face centre, an edge midpoint or a vertex), the gap there,
+/// and face multipliers `l ≥ 0` of the faces through `a1` with `Σ l_i n̂_i = −Rᵀ n_G` (the
+/// closest-point condition C2 of the paper's KKT system), found as the non-negative
+/// least-squares combination of at most three of those faces' normals. When no such
+/// combination fits (rounding at a nearly parallel face), multiplier 1 on the face most
+/// anti-parallel to `n_G`.
+///
+/// Only one face with multiplier 1 at a vertex or an edge leaves C2 unsatisfiable by the
+/// multipliers the Fischer–Burmeister Newton matrix treats as active, which makes that matrix
+/// singular at the warm start (measured on tossed boxes, docs/newton.md).
+pub(crate) fn closest_point_guess(
+    set: &ConvexHull,
+    plane: &HalfSpace,
+    x: &Vector3<f64>,
+    r: &nalgebra::Matrix3<f64>,
+) -> (Vector3<f64>, f64, Vec<f64>) {
+    let ng = plane.normal();
+    let dir_body = r.transpose() * (-ng);
+    let verts = set.vertices();
+    let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(x + r * v))).collect();
+    let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+    let mut a1_body = Vector3::zeros();
+    let mut count: f64 = 0.0;
+    for (v, g) in verts.iter().zip(&gaps) {
+        if *g <= gmin + 1e-6 {
+            a1_body += v;
+            count += 1.0;
+        }
+    }
+    a1_body /= f64::max(count, 1.0);
+    let a1 = x + r * a1_body;
+    let mut l = vec![0.0; set.num_faces()];
+    let size = verts
+        .iter()
+        .map(|v| v.norm())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let through: Vec<usize> = set
+        .faces()
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.value(&a1_body).abs() <= 1e-9 * size)
+        .map(|(i, _)| i)
+        .collect();
+    match face_cone_multipliers(set, &through, &dir_body) {
+        Some(best) => {
+            for (i, li) in best {
+                l[i] = li;
+            }
+        }
+        None => l[set.most_aligned_face(&dir_body)] = 1.0,
+    }
+    (a1, gmin, l)
+}
+
+/// Non-negative `l` over at most three of the faces `through` with `Σ l_i n̂_i = dir` (to
+/// 1e-9), the one with the fewest faces; `None` when there is none (or too many faces to try).
+fn face_cone_multipliers(
+    set: &ConvexHull,
+    through: &[usize],
+    dir: &Vector3<f64>,
+) -> Option<Vec<(usize, f64)>> {
+    if through.is_empty() || through.len() > 16 {
+        return None;
+    }
+    let faces = set.faces();
+    let k = through.len();
+    let fits = |idx: &[usize]| -> Option<Vec<(usize, f64)>> {
+        let cols: Vec<Vector3<f64>> = idx.iter().map(|&i| faces[i].normal).collect();
+        let m = cols.len();
+        // Normal equations of the m ≤ 3 columns.
+        let mut a = nalgebra::DMatrix::<f64>::zeros(m, m);
+        let mut b = nalgebra::DVector::<f64>::zeros(m);
+        for p in 0..m {
+            b[p] = cols[p].dot(dir);
+            for q in 0..m {
+                a[(p, q)] = cols[p].dot(&cols[q]);
+            }
+        }
+        let sol = a.lu().solve(&b)?;
+        if sol.iter().any(|v| !v.is_finite() || *v < 0.0) {
+            return None;
+        }
+        let fit: Vector3<f64> = cols.iter().zip(sol.iter()).map(|(c, s)| c * *s).sum();
+        ((fit - dir).norm() <= 1e-9).then(|| idx.iter().copied().zip(sol.iter().copied()).collect())
+    };
+    for i in 0..k {
+        if let Some(s) = fits(&[through[i]]) {
+            return Some(s);
+        }
+    }
+    for i in 0..k {
+        for j in i + 1..k {
+            if let Some(s) = fits(&[through[i], through[j]]) {
+                return Some(s);
+            }
+        }
+    }
+    for i in 0..k {
+        for j in i + 1..k {
+            for m in j + 1..k {
+                if let Some(s) = fits(&[through[i], through[j], through[m]]) {
+                    return Some(s);
+                }
+            }
+        }
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::Mcp;
+
+    /// A 0.4 × 0.3 × 0.2 m box, 2 kg, tossed with spin, its lowest vertex 0.1 m above the
+    /// ground (no other vertex as low: the closest feature of Conv(F) is a vertex).
+    fn tossed_box() -> Scene {
+        let axis = Vector3::new(0.3, -0.8, 0.5);
+        let q = crate::rotation::quat_from_axis_angle(&axis, 0.9)
+            .unwrap_or_else(|| panic!("non-zero axis"));
+        let shape = Shape::cuboid(0.4, 0.3, 0.2).unwrap_or_else(|e| panic!("{e}"));
+        let r = rotation_matrix(&q);
+        let lowest = shape
+            .vertices()
+            .iter()
+            .map(|v| (r * v).z)
+            .fold(f64::INFINITY, f64::min);
+        Scene {
+            name: "toss".into(),
+            bodies: vec![BodySpec {
+                name: "box".into(),
+                mass: MassProperties::solid_cuboid(2.0, 0.4, 0.3, 0.2)
+                    .unwrap_or_else(|e| panic!("{e}")),
+                shape,
+                initial: BodyState {
+                    x: Vector3::new(0.0, 0.0, 0.1 - lowest),
+                    q,
+                    v: Vector3::new(0.5, -0.3, 1.0),
+                    w: Vector3::new(6.0, -4.0, 8.0),
+                },
+                load: Load::None,
+            }],
+            planes: vec![HalfSpace::ground()],
+            friction: FrictionParams {
+                mu: 0.5,
+                e_t: 1.0,
+                e_o: 1.0,
+                e_r: 0.02,
+            },
+            gravity: Vector3::new(0.0, 0.0, -9.8),
+            h: 0.007,
+            duration: 0.1,
+        }
+    }
+
+    /// The warm start of an open contact: the closest-point conditions C1–C4 hold at the
+    /// predicted pose (C2 with the multipliers of the three faces through the lowest vertex),
+    /// the friction rows vanish, and σ > 0.
+    #[test]
+    fn open_contact_warm_start_meets_the_closest_point_conditions() {
+        let mut sim = Simulation::new(tossed_box()).unwrap_or_else(|e| panic!("{e}"));
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let z = sim.z().to_vec();
+        let mcp = sim.mcp();
+        let mut f = vec![0.0; mcp.dim()];
+        mcp.evaluate(&z, &mut f);
+        let c = sim.contacts()[0];
+        let l = &z[mcp.range(c.l)];
+        assert_eq!(l.iter().filter(|v| **v > 0.0).count(), 3, "l = {l:?}");
+        // C2 rows are paired with a2, C1 rows with a1; C3 and C4 rows with l and l_g.
+        for (what, var) in [("C1", c.a1), ("C2", c.a2), ("friction", c.pf)] {
+            for i in mcp.range(var) {
+                assert!(
+                    f[i].abs() <= 1e-12,
+                    "{what}: {} = {:e}",
+                    mcp.component_name(i),
+                    f[i]
+                );
+            }
+        }
+        for i in mcp.range(c.l).chain(mcp.range(c.lg)) {
+            // Complementarity: multiplier 0 or row 0, both non-negative.
+            assert!(z[i] >= 0.0 && f[i] >= -1e-12 && (z[i] * f[i]).abs() <= 1e-12);
+        }
+        assert!(z[mcp.range(c.sigma)][0] > 0.0);
+        // The closest point is the lowest vertex at the predicted pose.
+        let (_, qv) = sim.body_vars(0);
+        let q = &z[mcp.range(qv)];
+        let x = Vector3::new(q[0], q[1], q[2]);
+        let rq = quat_normalize(&Vector4::new(q[3], q[4], q[5], q[6]))
+            .map(|q| rotation_matrix(&q))
+            .unwrap_or_else(|| panic!("non-zero quaternion"));
+        let lowest = sim
+            .hull(0)
+            .vertices()
+            .iter()
+            .map(|v| (x + rq * v).z)
+            .fold(f64::INFINITY, f64::min);
+        let a1 = &z[mcp.range(c.a1)];
+        assert!(
+            (a1[2] - lowest).abs() <= 1e-12,
+            "a1 {a1:?}, lowest {lowest}"
+        );
     }
 }

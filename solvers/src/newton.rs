@@ -6,7 +6,7 @@
 //! element `H = D_a + D_b J` of the generalised Jacobian (at degenerate pairs the element of
 //! De Luca, Facchinei and Kanzow), solves `H d = −Φ`, and accepts the step by an Armijo search on
 //! `Ψ = ½‖Φ‖²`. When `H` is singular or `d` fails the descent test `∇Ψᵀd ≤ −ρ‖d‖^p`, it first
-//! tries, when enabled ([`NewtonSettings::min_norm_step`], on for the union formulation), the
+//! tries, when enabled ([`NewtonSettings::min_norm_step`], on by default), the
 //! minimum-norm least-squares step `d = −H⁺Φ` on dense problems, then a
 //! Levenberg–Marquardt step `(HᵀH + λI) d = −HᵀΦ`, and failing that the steepest-descent
 //! step `−∇Ψ`. Linear systems use dense LU for small problems and a sparse LU (analysed once per
@@ -77,10 +77,12 @@ pub struct NewtonSettings {
     /// minimum-norm least-squares step `d = −H⁺Φ` (complete orthogonal decomposition, dense
     /// problems only) before the Levenberg–Marquardt safeguard. At the solutions of the
     /// union-of-pieces model `H` is singular on a whole solution set (formulation.md §6, §7.1);
-    /// there this step converges quadratically where Levenberg–Marquardt crawls. Default `false`:
-    /// on isolated but hard steps (a tipping box once in the air, measured on A6 at 110 N) its
-    /// non-monotone steps can lead to worse warm starts; `ecp::backends::make_solver_for` turns
-    /// it on for the union formulation.
+    /// there this step converges quadratically where Levenberg–Marquardt crawls. Default
+    /// `true`: it helps the hull model too (measured on the ordinary scenes of
+    /// `examples/newton_robustness.rs`: 244 → 96 failed steps of 5368, most of the gain on a
+    /// box thrown into a corner, docs/newton.md). Its non-monotone steps can lead to a worse end
+    /// point on isolated but hard steps (a tipping box once in the air, measured on A6 at
+    /// 110 N), so a solve that fails after taking them is restarted once without them.
     pub min_norm_step: bool,
     /// Numerical rank of `H` for the minimum-norm step: columns whose remaining norm in the
     /// pivoted QR falls below this times the largest column norm are treated as dependent.
@@ -97,6 +99,26 @@ pub struct NewtonSettings {
     /// taken, and the iteration returns to the point before it when Ψ has not fallen below
     /// its value there within this many steps (0: monotone only). Default 4.
     pub watchdog_steps: usize,
+    /// Give a zero column of `H` (a variable that does not enter the linearisation, such as the
+    /// slip rate σ of an open contact) its row's scale on the diagonal for the factorisation,
+    /// so that the Newton step is taken rather than failing the LU of the whole system
+    /// (docs/newton.md). Default `true`.
+    pub pin_zero_columns: bool,
+    /// When the full Newton step fails the Armijo test, backtrack along the Newton direction
+    /// (down to [`NewtonSettings::newton_shortest_step`]) and take that step instead of the
+    /// Levenberg–Marquardt safeguard's when it lowers Ψ more. Without it, landing steps crawl
+    /// with Levenberg–Marquardt steps far from the solution; taken without the comparison,
+    /// tiny steps along poor Newton directions stall the spinning T-bar (docs/newton.md).
+    /// Default `true`.
+    pub newton_line_search: bool,
+    /// Shortest step length of that search. Default `1e-4`.
+    pub newton_shortest_step: f64,
+    /// A solve that reaches the tolerance with a natural residual above this fraction of it
+    /// takes one more full Newton step, kept when it lowers the residual: the local phase is
+    /// quadratic, so the step costs one factorisation and usually gains several digits. It
+    /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
+    /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md). Default `1e-3`.
+    pub polish_below: f64,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -114,10 +136,14 @@ impl Default for NewtonSettings {
             lm_initial_damping: 1e-3,
             max_lm_trials: 30,
             dense_max: 120,
-            min_norm_step: false,
+            min_norm_step: true,
             rank_tolerance: 1e-10,
             min_norm_radius: 1e-3,
             watchdog_steps: 4,
+            pin_zero_columns: true,
+            newton_line_search: true,
+            newton_shortest_step: 1e-4,
+            polish_below: 1e-3,
             trace: false,
         }
     }
@@ -149,6 +175,14 @@ struct Workspace {
     phi_check: Vec<f64>,
     /// Dense copy of `H` for the minimum-norm step (empty for sparse problems).
     dense: Vec<f64>,
+    /// Diagonal additions of [`pin_zero_columns`].
+    pin: Vec<f64>,
+    /// The point, F, Φ and direction of the Newton line search, while the
+    /// Levenberg–Marquardt step is tried.
+    z_alt: Vec<f64>,
+    f_alt: Vec<f64>,
+    phi_alt: Vec<f64>,
+    d_alt: Vec<f64>,
 }
 
 impl Workspace {
@@ -172,6 +206,11 @@ impl Workspace {
             &mut self.z_check,
             &mut self.f_check,
             &mut self.phi_check,
+            &mut self.pin,
+            &mut self.z_alt,
+            &mut self.f_alt,
+            &mut self.phi_alt,
+            &mut self.d_alt,
         ] {
             v.resize(n, 0.0);
         }
@@ -349,6 +388,55 @@ fn generalized_jacobian_rows(
     }
 }
 
+/// Adds to the diagonal of `h` (in `pattern`), for each column whose largest entry is at most
+/// [`ZERO_COLUMN`] times the largest entry of `h`, the largest entry of its row (1 when the row
+/// is zero too); records the additions in `pin` and returns whether there was any.
+fn pin_zero_columns(pattern: &CscPattern, h: &mut [f64], pin: &mut [f64]) -> bool {
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    let n = cp.len() - 1;
+    let largest = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let threshold = ZERO_COLUMN * largest;
+    let mut any = false;
+    for j in 0..n {
+        pin[j] = 0.0;
+        let col = cp[j]..cp[j + 1];
+        if h[col].iter().all(|v| v.abs() <= threshold) {
+            pin[j] = f64::NAN;
+            any = true;
+        }
+    }
+    if !any {
+        return false;
+    }
+    // Row scales of the pinned columns' rows (their own index: H is square with the diagonal
+    // pairing variable j with row j).
+    let mut row_scale = vec![0.0f64; n];
+    for j in 0..n {
+        for p in cp[j]..cp[j + 1] {
+            let r = ri[p];
+            if pin[r].is_nan() {
+                row_scale[r] = row_scale[r].max(h[p].abs());
+            }
+        }
+    }
+    for (j, &p) in pattern.diag_pos().iter().enumerate() {
+        if pin[j].is_nan() {
+            let c = if row_scale[j] > threshold {
+                row_scale[j]
+            } else {
+                1.0
+            };
+            pin[j] = c;
+            h[p] += c;
+        }
+    }
+    true
+}
+
+/// A column of `H` whose entries are all below this fraction of `H`'s largest entry counts as
+/// zero in [`pin_zero_columns`].
+const ZERO_COLUMN: f64 = 1e-13;
+
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
 /// or `None` when `F` is not finite.
 fn try_step(
@@ -442,6 +530,8 @@ impl NewtonSolver {
         let mut checkpoint: Option<f64> = None;
         let mut watchdog_count = 0usize;
         let mut watchdog_ceiling = f64::INFINITY;
+        // Taking the final full Newton step after convergence.
+        let mut polishing = false;
 
         ws.z.copy_from_slice(z0);
         mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
@@ -464,8 +554,13 @@ impl NewtonSolver {
 
         while termination == Termination::MaxIterations {
             if residual <= s.tolerance {
-                termination = Termination::Converged;
-                break;
+                // Converged; one more full Newton step when the residual is just below the
+                // tolerance (see `NewtonSettings::polish_below`).
+                if polishing || residual <= s.polish_below * s.tolerance {
+                    termination = Termination::Converged;
+                    break;
+                }
+                polishing = true;
             }
             if iterations >= s.max_iterations {
                 break;
@@ -504,12 +599,22 @@ impl NewtonSolver {
                 .linear
                 .as_mut()
                 .ok_or_else(|| SolveError::InvalidProblem("linear solver not prepared".into()))?;
+            // Variables that do not enter the linearisation (a zero column of H: the slip rate
+            // σ of an open contact, where p_n = p_f = 0) get a unit of their row's scale on the
+            // diagonal for the factorisation, so the step leaves them where their (consistent)
+            // row puts them instead of failing the LU over the whole system.
+            let pinned = s.pin_zero_columns && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin);
             let mut newton_ok = linear.factor(&ws.h).is_ok();
             if newton_ok {
                 for i in 0..n {
                     ws.d[i] = -ws.phi[i];
                 }
                 newton_ok = linear.solve_in_place(&mut ws.d).is_ok();
+            }
+            if pinned {
+                for (j, &p) in pattern.diag_pos().iter().enumerate() {
+                    ws.h[p] -= ws.pin[j];
+                }
             }
             let descent_ok = |d: &[f64], g: &[f64]| {
                 let nd = norm2(d);
@@ -519,7 +624,23 @@ impl NewtonSolver {
             newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
             let mut kind = StepKind::Newton;
             let mut accepted = None;
-            if newton_ok {
+            if polishing {
+                let better = if newton_ok {
+                    try_step(mcp, ws, 1.0, l, u, &mut f_evals)
+                        .filter(|_| natural_residual(&ws.z_trial, &ws.f_trial, l, u) < residual)
+                } else {
+                    None
+                };
+                match better {
+                    Some(p) => accepted = Some((1.0, p)),
+                    None => {
+                        termination = Termination::Converged;
+                        break;
+                    }
+                }
+            }
+            let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
+            if newton_ok && accepted.is_none() {
                 // The full Newton step, when it decreases Ψ enough (fast local convergence).
                 let slope = dot(&ws.grad, &ws.d);
                 if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
@@ -529,6 +650,27 @@ impl NewtonSolver {
                     accepted = Some((1.0, p));
                 }
             }
+            // The Armijo search along the Newton direction (De Luca–Facchinei–Kanzow), kept
+            // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
+            // whichever lowers Ψ more.
+            let mut newton_search = None;
+            if accepted.is_none() && newton_ok && s.newton_line_search {
+                let slope = dot(&ws.grad, &ws.d);
+                let mut t = s.backtrack;
+                while newton_search.is_none() && t >= s.newton_shortest_step {
+                    if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
+                        && (p <= psi + s.armijo * t * slope
+                            || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance)
+                    {
+                        newton_search = Some((t, p));
+                        ws.z_alt.copy_from_slice(&ws.z_trial);
+                        ws.f_alt.copy_from_slice(&ws.f_trial);
+                        ws.phi_alt.copy_from_slice(&ws.phi_trial);
+                        ws.d_alt.copy_from_slice(&ws.d);
+                    }
+                    t *= s.backtrack;
+                }
+            }
             // Near a solution (natural residual ≤ min_norm_radius, or Ψ down by 1e6 from the
             // start) the minimum-norm step is taken as below. Farther out it is taken only when
             // it decreases Ψ fast (by half at least), without the watchdog or backtracking:
@@ -536,7 +678,6 @@ impl NewtonSolver {
             // into the basin of the spurious p_n > 0 minimiser of separated steps (measured on
             // the rotated free-flight T-bar of tests/closest_points.rs), which
             // Levenberg–Marquardt's damping avoids.
-            let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
             if accepted.is_none() && !newton_ok && !ws.dense.is_empty() {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
@@ -642,6 +783,16 @@ impl NewtonSolver {
                         }
                     }
                 }
+            }
+            if let Some((t, p)) = newton_search
+                && accepted.is_none_or(|(_, q)| p < q)
+            {
+                std::mem::swap(&mut ws.z_trial, &mut ws.z_alt);
+                std::mem::swap(&mut ws.f_trial, &mut ws.f_alt);
+                std::mem::swap(&mut ws.phi_trial, &mut ws.phi_alt);
+                std::mem::swap(&mut ws.d, &mut ws.d_alt);
+                accepted = Some((t, p));
+                kind = StepKind::Newton;
             }
             if accepted.is_none() {
                 // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
@@ -766,5 +917,106 @@ impl NewtonSolver {
                 ],
             },
         )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::FnMcp;
+
+    /// The friction block of an open contact in miniature: `x` free with `F_x = x − 2`, the
+    /// friction impulse `p` free with `F_p = σ p` (the friction row at `p_n = 0`), and the slip
+    /// rate `σ ≥ 0` with `F_σ = −|p|` (the ellipsoid row at `p_n = 0`). At the start
+    /// `(0, 0, 1)` the σ column and the σ row of `H` are zero: σ is undetermined.
+    fn open_friction_block() -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY, f64::NEG_INFINITY, 0.0],
+            vec![f64::INFINITY; 3],
+            |z, f| {
+                f[0] = z[0] - 2.0;
+                f[1] = z[2] * z[1];
+                f[2] = -z[1].abs();
+            },
+            |z, j| {
+                // Column-major 3 × 3.
+                j[0] = 1.0;
+                j[4] = z[2];
+                j[5] = -if z[1] > 0.0 {
+                    1.0
+                } else if z[1] < 0.0 {
+                    -1.0
+                } else {
+                    0.0
+                };
+                j[7] = z[1];
+            },
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"))
+    }
+
+    #[test]
+    fn a_zero_column_of_h_is_pinned_and_the_newton_step_taken() {
+        let sol = NewtonSolver::new(NewtonSettings::default())
+            .solve(&open_friction_block(), &[0.0, 0.0, 1.0])
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!((sol.z[0] - 2.0).abs() <= 1e-12, "x = {}", sol.z[0]);
+        assert!(sol.z[1].abs() <= 1e-12, "p = {}", sol.z[1]);
+        // One Newton step solves it.
+        assert_eq!(sol.summary.counter("lm_steps"), 0);
+        assert_eq!(sol.summary.counter("min_norm_steps"), 0);
+        assert_eq!(sol.summary.counter("newton_steps"), 1);
+        assert_eq!(sol.summary.iterations, 1);
+        let unpinned = NewtonSolver::new(NewtonSettings {
+            pin_zero_columns: false,
+            ..NewtonSettings::default()
+        })
+        .solve(&open_friction_block(), &[0.0, 0.0, 1.0]);
+        let summary = match &unpinned {
+            Ok(sol) => &sol.summary,
+            Err(SolveError::NotConverged { best }) => &best.summary,
+            Err(e) => panic!("{e}"),
+        };
+        // Without it the LU fails and a safeguard step is taken instead.
+        assert!(
+            summary.counter("lm_steps") + summary.counter("min_norm_steps") > 0,
+            "{summary:?}"
+        );
+    }
+
+    #[test]
+    fn the_final_newton_step_polishes_a_residual_just_below_the_tolerance() {
+        // F(x) = x³ + x − 1 (free) from a point whose residual is between 1e-3 of the tolerance
+        // and the tolerance: the solve is converged at once, and the final step gains digits.
+        let mcp = FnMcp::dense(
+            vec![f64::NEG_INFINITY],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] * z[0] * z[0] + z[0] - 1.0,
+            |z, j| j[0] = 3.0 * z[0] * z[0] + 1.0,
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"));
+        let root = 0.682_327_803_828_019_3;
+        let start = [root + 2e-11];
+        let polished = NewtonSolver::new(NewtonSettings::default())
+            .solve(&mcp, &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            polished.summary.residual <= 1e-15,
+            "{:e}",
+            polished.summary.residual
+        );
+        assert_eq!(polished.summary.iterations, 1);
+        let plain = NewtonSolver::new(NewtonSettings {
+            polish_below: 1.0,
+            ..NewtonSettings::default()
+        })
+        .solve(&mcp, &start)
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            plain.summary.residual > 1e-11,
+            "{:e}",
+            plain.summary.residual
+        );
+        assert_eq!(plain.summary.iterations, 0);
     }
 }

@@ -388,8 +388,8 @@ impl Backend for NewtonBackend {
         let s = NewtonSettings {
             tolerance: o.tolerance.unwrap_or(d.tolerance),
             max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
-            // Minimum-norm steps converge where the solution set is not a point (docs/decisions.md).
-            min_norm_step: o.non_isolated_solutions,
+            // Minimum-norm steps converge where the solution set is not a point.
+            min_norm_step: d.min_norm_step || o.non_isolated_solutions,
             ..d
         };
         s.validate()?;
