@@ -1,4 +1,4 @@
-//! The random-scene stress suite: a seeded [`generate`]or of ordinary scene files of every kind a
+//! The random-scene stress suite: a seeded generator ([`generate()`]) of ordinary scene files of every kind a
 //! new user would try, a [`runner`] that runs each with a backend as `ecp run SCENE --solver S
 //! --formulation hull --keep-going` does and measures the run independently (convergence,
 //! failed steps, penetration from the poses and the real body's vertices, energy of unforced
