@@ -226,10 +226,9 @@ fn run_writes_trajectory_summary_and_status_0() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-#[test]
-fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
-    let dir = temp_dir("fail");
-    // Sliding needs several iterations; one is not enough, so the first step fails.
+/// A1 with Newton limited to one iteration per step, written into `dir`: its first step cannot
+/// be solved by Newton alone.
+fn a1_with_one_newton_iteration(dir: &Path) -> std::path::PathBuf {
     let text = std::fs::read_to_string(
         Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a1_sliding.toml"),
     )
@@ -240,6 +239,14 @@ fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
     );
     let scene = dir.join("a1_one_iteration.toml");
     std::fs::write(&scene, text).expect("write");
+    scene
+}
+
+#[test]
+fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
+    let dir = temp_dir("fail");
+    // Sliding needs several iterations; one is not enough, so the first step fails.
+    let scene = a1_with_one_newton_iteration(&dir);
     let out = dir.join("out");
     let o = ecp(&[
         "run",
@@ -266,16 +273,7 @@ fn a_step_the_backend_cannot_solve_is_solved_by_a_fallback_and_marked() {
     let dir = temp_dir("fallback");
     // One Newton iteration cannot solve A1's first step; the fallbacks (PATH, conic, then
     // substeps, each with the same one-iteration limit) must, with the same physics.
-    let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a1_sliding.toml"),
-    )
-    .expect("a1")
-    .replace(
-        "[solver]\nname = \"newton\"",
-        "[solver]\nname = \"newton\"\nmax_iterations = 1",
-    );
-    let scene = dir.join("a1_one_iteration.toml");
-    std::fs::write(&scene, text).expect("write");
+    let scene = a1_with_one_newton_iteration(&dir);
     let out = dir.join("out");
     let o = ecp(&[
         "run",
