@@ -22,6 +22,11 @@
 //!   ray or its path search fails, `J` is replaced by `J + λI` (the path still starts at `x_k`,
 //!   since the linearisation agrees with `F_N` there), and `λ` is reduced again after progress.
 //!
+//! After a failed first attempt, a second one from the start point uses a *guarded* watchdog
+//! (no non-monotone steps and no relaxation of `λ` after a step the path search had to shorten,
+//! until a full Newton step is accepted), then come the restarts. A wall-clock budget per solve
+//! (`time_limit`) bounds all of it, the pivoting included (docs/path.md).
+//!
 //! A trial point is accepted only where `F` and its Jacobian are finite: a non-finite value (a
 //! model evaluated outside its domain) fails the trial like an insufficient decrease, so the
 //! search backtracks along the path, perturbs the linearisation, and after a failed attempt goes
@@ -79,11 +84,23 @@ pub struct PathSettings {
     /// Restarts from the starting point after a failed attempt (PATH restarts with other
     /// settings): monotone, no crash, proximal term on from the first step. Default 2.
     pub restarts: usize,
+    /// After a failed first attempt, one more attempt from the start point with a *guarded*
+    /// watchdog before the restarts: once the path search has had to shorten a step (after a
+    /// return to the checkpoint), the iteration stays monotone and keeps its proximal term until
+    /// a full Newton step is accepted again. The unguarded watchdog can cycle near contact
+    /// changes, returning to a checkpoint that each time moved by a tiny step along its path and
+    /// leaving it again along the same diverging Newton points (docs/path.md). Default `true`.
+    pub guarded_watchdog: bool,
     /// Relative proximal term of the first restart (×10 for each further one). Default `1e-2`.
     pub restart_proximal: f64,
     /// Settings of the inner pivotal solver (pivot tolerances, limit, refactorisation period,
     /// anti-cycling rule).
     pub lemke: LemkeSettings,
+    /// Wall-clock budget of one solve (all attempts and restarts together), in seconds; when
+    /// it runs out, the solve stops with the best point found and `max_iterations` (the pivot
+    /// loop of the linearised problem is cut short too). `f64::INFINITY` for no limit.
+    /// Default 20.
+    pub time_limit: f64,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -104,7 +121,9 @@ impl Default for PathSettings {
             proximal_max: 1e8,
             restarts: 2,
             restart_proximal: 1e-2,
+            guarded_watchdog: true,
             lemke: LemkeSettings::default(),
+            time_limit: 20.0,
             trace: false,
         }
     }
@@ -145,6 +164,8 @@ struct Counters {
     path_backtracks: usize,
     ray_terminations: usize,
     restarts: usize,
+    guarded_attempts: usize,
+    time_limit_reached: usize,
 }
 
 /// What a solve accumulates over its attempts.
@@ -194,6 +215,8 @@ pub struct PathSolver {
     order: Vec<usize>,
     factor: BasisFactor,
     observer: Option<Box<dyn Observer>>,
+    /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
+    deadline: Option<Instant>,
 }
 
 impl PathSolver {
@@ -239,8 +262,14 @@ impl PathSolver {
             order: Vec::new(),
             factor: BasisFactor::default(),
             observer: None,
+            deadline: None,
         }
     }
+    /// Whether the wall-clock budget of the current solve is spent.
+    fn out_of_time(&self) -> bool {
+        self.deadline.is_some_and(|d| Instant::now() >= d)
+    }
+
     /// Attaches an observer that sees every iteration.
     pub fn with_observer(mut self, observer: Box<dyn Observer>) -> Self {
         self.observer = Some(observer);
@@ -498,6 +527,7 @@ impl PathSolver {
         z0: &[f64],
         s: &PathSettings,
         initial_lambda: f64,
+        guarded: bool,
         run: &mut Run,
     ) -> Termination {
         let n = mcp.dim();
@@ -554,7 +584,7 @@ impl PathSolver {
         if termination == Termination::MaxIterations && residual > s.tolerance && n > 0 {
             self.active_prev.fill(2);
             for _ in 0..s.crash_iterations {
-                if *iterations - iterations_at_start >= s.max_iterations {
+                if *iterations - iterations_at_start >= s.max_iterations || self.out_of_time() {
                     break;
                 }
                 if !have_jac {
@@ -611,6 +641,10 @@ impl PathSolver {
             if *iterations - iterations_at_start >= s.max_iterations {
                 break;
             }
+            if self.out_of_time() {
+                counters.time_limit_reached = 1;
+                break;
+            }
             if !have_jac {
                 mcp.jacobian(&self.current.z, &mut self.jac);
                 *jac_evals += 1;
@@ -630,6 +664,7 @@ impl PathSolver {
             let reach = loop {
                 match self.newton_path(pattern, l, u, lambda, counters) {
                     Ok(reach) => break Some(reach),
+                    Err(_) if self.out_of_time() => break None,
                     Err(_) => {
                         lambda = next_lambda(lambda, s, scale);
                         counters.proximal_perturbations += 1;
@@ -640,7 +675,11 @@ impl PathSolver {
                 }
             };
             let Some(t_max) = reach else {
-                termination = Termination::SubproblemFailed;
+                if self.out_of_time() {
+                    counters.time_limit_reached = 1;
+                } else {
+                    termination = Termination::SubproblemFailed;
+                }
                 break;
             };
             let reference = self.checkpoint.merit;
@@ -688,6 +727,9 @@ impl PathSolver {
                 let t_max = (1.0 - self.path.min_artificial()).clamp(0.0, 1.0);
                 let mut t = t_max;
                 for _ in 0..s.max_path_backtracks {
+                    if self.out_of_time() {
+                        break;
+                    }
                     t *= s.backtrack;
                     counters.path_backtracks += 1;
                     let used = self.try_path_point(mcp, t, f_evals);
@@ -697,6 +739,10 @@ impl PathSolver {
                         accepted = Some(used);
                         break;
                     }
+                }
+                if accepted.is_none() && self.out_of_time() {
+                    counters.time_limit_reached = 1;
+                    break;
                 }
                 if accepted.is_none() {
                     // No decrease along this path: perturb the linearisation and try again.
@@ -714,7 +760,14 @@ impl PathSolver {
                 termination = Termination::LineSearchFailed;
                 break;
             };
-            monotone = false;
+            // Guarded watchdog: a step shortened by the path search means the linearisation is
+            // poor here, so stay monotone (after a return to the checkpoint) and keep the
+            // proximal term until a full Newton step is accepted; otherwise the watchdog takes
+            // the same diverging Newton points again from a barely moved checkpoint.
+            let full_step = !guarded || t >= t_full;
+            if full_step {
+                monotone = false;
+            }
             let norm = norm_inf_diff(&self.trial.x, &self.current.x);
             record(
                 *iterations,
@@ -737,7 +790,7 @@ impl PathSolver {
                 checkpoint_lambda = lambda;
             }
             // Progress: relax the proximal term.
-            if lambda > 0.0 {
+            if lambda > 0.0 && full_step {
                 lambda *= s.proximal_reduction;
                 if lambda < 1e-12 * scale {
                     lambda = 0.0;
@@ -782,6 +835,12 @@ impl McpSolver for PathSolver {
         let n = mcp.dim();
         let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
         self.resize(n, pattern.nnz());
+        self.deadline = if s.time_limit.is_finite() {
+            started.checked_add(std::time::Duration::from_secs_f64(s.time_limit))
+        } else {
+            None
+        };
+        self.lemke.set_deadline(self.deadline);
         let mut run = Run {
             trace: Vec::new(),
             counters: Counters::default(),
@@ -790,7 +849,19 @@ impl McpSolver for PathSolver {
             iterations: 0,
             best_residual: f64::INFINITY,
         };
-        let mut termination = self.attempt(mcp, &pattern, z0, &s, 0.0, &mut run);
+        let mut termination = self.attempt(mcp, &pattern, z0, &s, 0.0, false, &mut run);
+        // A second attempt with the guarded watchdog (see `PathSettings::guarded_watchdog`).
+        if s.guarded_watchdog
+            && termination != Termination::Converged
+            && termination != Termination::NonFiniteFunction
+            && !self.out_of_time()
+        {
+            run.counters.guarded_attempts += 1;
+            let t = self.attempt(mcp, &pattern, z0, &s, 0.0, true, &mut run);
+            if t == Termination::Converged || run.best_residual <= s.tolerance {
+                termination = Termination::Converged;
+            }
+        }
         // Restarts from the start point, as PATH does after a failure: monotone, without the
         // crash, with the proximal term on from the first step (which keeps the Newton points of
         // singular or nearly singular linearisations close to the iterate).
@@ -804,11 +875,12 @@ impl McpSolver for PathSolver {
         while termination != Termination::Converged
             && termination != Termination::NonFiniteFunction
             && restarts < s.restarts
+            && !self.out_of_time()
         {
             restarts += 1;
             run.counters.restarts += 1;
             let lambda0 = s.restart_proximal * (10f64).powi(restarts as i32 - 1);
-            let t = self.attempt(mcp, &pattern, z0, &restart, lambda0, &mut run);
+            let t = self.attempt(mcp, &pattern, z0, &restart, lambda0, false, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -843,6 +915,8 @@ impl McpSolver for PathSolver {
                     ("proximal_perturbations", counters.proximal_perturbations),
                     ("ray_terminations", counters.ray_terminations),
                     ("restarts", counters.restarts),
+                    ("guarded_attempts", counters.guarded_attempts),
+                    ("time_limit_reached", counters.time_limit_reached),
                 ],
             },
         )
@@ -1004,6 +1078,67 @@ mod tests {
             .unwrap_err();
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
+    }
+
+    #[test]
+    fn path_guarded_watchdog_breaks_the_checkpoint_cycle() {
+        // Kojima–Josephy from MCPLIB start 6, without crash and restarts, 60 iterations per
+        // attempt: the unguarded watchdog keeps leaving its checkpoint along diverging Newton
+        // points after each short monotone step and runs out of iterations; the guarded attempt
+        // stays monotone with its proximal term after a shortened step and converges.
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let (label, z0) = &p.starts[5];
+        assert_eq!(label, "mcplib6");
+        let settings = PathSettings {
+            crash_iterations: 0,
+            restarts: 0,
+            max_iterations: 60,
+            guarded_watchdog: false,
+            ..PathSettings::default()
+        };
+        let err = PathSolver::new(settings.clone())
+            .solve(&p.mcp, z0)
+            .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::MaxIterations);
+        assert!(best.summary.counter("watchdog_restores") > 0);
+        let sol = PathSolver::new(PathSettings {
+            guarded_watchdog: true,
+            ..settings
+        })
+        .solve(&p.mcp, z0)
+        .unwrap();
+        assert!(sol.summary.residual <= 1e-10);
+        assert_eq!(sol.summary.counter("guarded_attempts"), 1);
+        assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
+    }
+
+    #[test]
+    fn path_time_limit_stops_the_solve_with_its_best_point() {
+        // Kojima–Shindo needs several pivotal steps from MCPLIB start 1; with a budget spent
+        // before the first one, the solve stops at once (no restarts) and reports it.
+        let p = kojima_shindo();
+        let z0 = &p.starts[0].1;
+        let err = PathSolver::new(PathSettings {
+            time_limit: 1e-9,
+            ..PathSettings::default()
+        })
+        .solve(&p.mcp, z0)
+        .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::MaxIterations);
+        assert_eq!(best.summary.counter("time_limit_reached"), 1);
+        assert_eq!(best.summary.counter("restarts"), 0);
+        assert_eq!(best.summary.iterations, 0);
+        // The same solve without a budget converges and does not report one.
+        let sol = PathSolver::new(PathSettings {
+            time_limit: f64::INFINITY,
+            ..PathSettings::default()
+        })
+        .solve(&p.mcp, z0)
+        .unwrap();
+        assert!(sol.summary.residual <= 1e-10);
+        assert_eq!(sol.summary.counter("time_limit_reached"), 0);
     }
 
     #[test]

@@ -326,6 +326,13 @@ impl PathSettings {
             self.restart_proximal,
             positive(self.restart_proximal),
             POSITIVE_HINT,
+        )?;
+        check(
+            n,
+            "time_limit",
+            self.time_limit,
+            self.time_limit > 0.0 && !self.time_limit.is_nan(),
+            "the time limit must be > 0 seconds (inf for none)",
         )
     }
 }
@@ -486,5 +493,18 @@ mod tests {
             ..Default::default()
         };
         assert_eq!(bad.validate().unwrap_err().setting, "backtrack");
+        for time_limit in [0.0, -1.0, f64::NAN, f64::NEG_INFINITY] {
+            let bad = PathSettings {
+                time_limit,
+                ..Default::default()
+            };
+            assert_eq!(bad.validate().unwrap_err().setting, "time_limit");
+        }
+        PathSettings {
+            time_limit: f64::INFINITY,
+            ..Default::default()
+        }
+        .validate()
+        .unwrap();
     }
 }

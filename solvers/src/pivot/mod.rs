@@ -411,6 +411,9 @@ pub struct Lemke {
     r: Vec<f64>,
     ties: Vec<usize>,
     refactorizations: usize,
+    /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
+    /// per-solve budget of a caller such as the PATH-like solver); `None` for no limit.
+    deadline: Option<std::time::Instant>,
 }
 
 /// Internal result of the ratio test.
@@ -446,6 +449,7 @@ impl Lemke {
             r: Vec::new(),
             ties: Vec::new(),
             refactorizations: 0,
+            deadline: None,
         }
     }
 
@@ -457,6 +461,12 @@ impl Lemke {
     /// Mutable settings.
     pub fn settings_mut(&mut self) -> &mut LemkeSettings {
         &mut self.settings
+    }
+
+    /// Sets (or clears) the wall-clock instant after which pivoting stops as if the pivot limit
+    /// had been reached; the limit is checked every 16 pivots.
+    pub fn set_deadline(&mut self, deadline: Option<std::time::Instant>) {
+        self.deadline = deadline;
     }
 
     /// Solves the LCP `0 ≤ z ⊥ M z + q ≥ 0` (`n = q.len()`, `m_row_major` the `n × n` matrix
@@ -880,7 +890,12 @@ impl Lemke {
         let mut dir = -1.0f64;
         let mut s_nonbasic = 1.0f64;
         loop {
-            if *pivots >= max_pivots {
+            if *pivots >= max_pivots
+                || (*pivots % 16 == 15
+                    && self
+                        .deadline
+                        .is_some_and(|d| std::time::Instant::now() >= d))
+            {
                 return Err(PivotError::MaxPivots { pivots: *pivots });
             }
             // alpha = B⁻¹ a_e; the basic variables move by delta = −dir·alpha per unit step.
