@@ -976,16 +976,13 @@ impl ResidualBlock for FrictionDissipation {
     }
 }
 
-/// Friction ellipsoid slack (formulation.md §4.4, paper eq. (friction_c)), in its cone form
+/// Friction cone (paper eq. (15), `friction_c`), in the cone form
 /// `0 ≤ μ p_n − ‖E⁻¹ p_f‖ ⊥ σ ≥ 0` with `E = diag(e_t, e_o, e_r)`. Reads `p_n` (1), `p_f` (3).
 ///
-/// The paper writes the squared row `μ² p_n² − p_t²/e_t² − p_o²/e_o² − p_r²/e_r²`. For `p_n ≥ 0`
-/// both rows have the same sign and the same zeros, so the MCP has the same solutions; but at
-/// `p_n = 0` (separated, or lifting off) the squared row only bounds the friction impulse by
-/// `|p_f| ≤ √r` for a natural residual `r`, so a step accepted at `r = 1e-10` could carry a
-/// spurious `p_f ≈ 1e-5` (measured: ω off by 9e-6 rad/s in the free fall of scenario A5 tilted
-/// with the Newton backend). The cone form bounds it by `r`. Its only kink is `p_f = 0`, where
-/// the Jacobian uses 0, an element of the generalised gradient.
+/// The paper writes the squared row `μ² p_n² − p_t²/e_t² − p_o²/e_o² − p_r²/e_r²`; for `p_n ≥ 0`
+/// both have the same solutions, but only the cone form bounds a spurious friction impulse at
+/// `p_n = 0` by the natural residual (`docs/decisions.md#friction-row-in-cone-form`). Its only
+/// kink is `p_f = 0`, where the Jacobian uses 0, an element of the generalised gradient.
 #[derive(Clone, Debug)]
 pub struct FrictionEllipsoid {
     /// Friction parameters.

@@ -869,13 +869,12 @@ impl PointContacts {
         // Every point that carried no load in the previous step gets a fresh start. A closed
         // one gets the active guess (p_n = 0 kills its friction rows, where Newton's merit has
         // a spurious minimiser), and so do the other closed points of its body and half-space,
-        // so that the guessed loads add up to the weight (measured: 627 Newton iterations in
-        // the desk's first 30 steps, 980 when only the unloaded point restarts). An open one
+        // so that the guessed loads add up to the weight. An open one
         // gets p = 0 and σ = OPEN_SIGMA. An unloaded point's
         // friction rows `p_f σ = 0` and `−‖p_f‖ ⊥ σ` hold for every σ ≥ 0, and a σ well away
         // from 0 keeps their Jacobian (σ I on p_f) regular; left at σ ≈ 0 they are doubly
-        // degenerate and Newton crawls (measured: 12–38 failed steps of 50 in A1 and A5 with
-        // σ = 0 or with the warm σ, none with σ = 1). Loaded points keep their warm values,
+        // degenerate and Newton crawls (docs/decisions.md#point-contacts-restarting-unloaded-points).
+        // Loaded points keep their warm values,
         // even when the curvature of the step left them a hair above the plane (tipping).
         let n = self.contacts.len();
         let closed: Vec<bool> = (0..n).map(|i| self.gap(i) <= CLOSED_GAP).collect();

@@ -190,9 +190,7 @@ impl SlidingStepData {
 ///
 /// The row scale `w_k = 1/(e_k² μ p_n)` ([`SlidingStepData::row_scales`]) does not change the
 /// solutions; it puts the rows in slip units, so that a natural residual r bounds the slip error
-/// of a sticking step by r. Unscaled, the torsion row of scenario A3 has the coefficient
-/// `e_r² μ p_n = 2.9e-3` N s m and a step accepted at r = 1e-10 may spin at 3e-8 rad/s
-/// (measured: ω_z drifted to 1.1e-9 rad/s while the box was at rest).
+/// of a sticking step by r (`docs/decisions.md#reduced-model-friction-rows-in-slip-units`).
 #[derive(Clone, Debug)]
 pub struct ReducedFriction {
     /// The step's data.
@@ -614,7 +612,7 @@ impl ReducedSliding {
     /// one Newton step on (R7), exact when J ∥ n). The hull stepper's warm start carries the
     /// previous impulses as unknowns; here they are functions of y, and starting from the
     /// previous *velocities* would start from the previous impulses minus the change of the
-    /// applied load (measured on the desk: 5.3 Newton iterations per step instead of 3).
+    /// applied load (`docs/decisions.md#reduced-model-warm-start-from-the-previous-impulses`).
     fn warm_start_from_impulses(&mut self, pf: [f64; 3]) {
         let d = &self.data;
         let ContactFrame { t, o, .. } = d.frame;

@@ -29,9 +29,9 @@
 //!
 //! **Only the hull formulation is supported.** The union formulation (formulation.md §7.1) runs
 //! through the same code, but its impulses are shared between the pieces and not unique: its
-//! reduced Jacobian is singular, and inconsistent for the data columns (measured on the desk with
-//! the PATH backend: relative residual 0.08 of the minimum-norm solve; the Newton backend does not
-//! converge on that step), so its derivatives are least-squares guesses. They are reported as
+//! reduced Jacobian is singular, and inconsistent for the data columns
+//! (`docs/decisions.md#sensitivities-the-hull-formulation-only`), so its derivatives are
+//! least-squares guesses. They are reported as
 //! [`Degeneracy::Singular`] at every step, never passed off as exact. The reduced and point
 //! formulations have their own steppers and no sensitivities.
 //!

@@ -713,9 +713,8 @@ impl Simulation {
                 &[body.q, body.nu],
             )?;
             // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
-            // like a velocity error Δv, which keeps the merit function away from the spurious
-            // "free fall with zero impulses" minimiser (measured: with unscaled rows most of the
-            // analytic scenarios stall there; with m/h the residual stalls near 1e-10).
+            // like a velocity error Δv (docs/model.md, "Contact conditions";
+            // docs/decisions.md#geometry-rows-scaled-by-1h).
             let scale = GEOMETRY_SCALE / scene.h;
             for ((c, set), frame) in mine.iter().zip(&body.frames) {
                 let normals: Vec<Vector3<f64>> = set.faces().iter().map(|f| f.normal).collect();

@@ -96,13 +96,12 @@ pub enum ConicMode {
 #[derive(Clone, Debug)]
 pub struct ConicSettings {
     /// Stop when the natural residual of the mapped-back MCP vector is at most this.
-    /// Default `1e-10` (the Newton backend's default; issue #6 asks for ≤ 1e-8).
+    /// Default `1e-10`, the Newton backend's default.
     pub tolerance: f64,
     /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
     pub max_iterations: usize,
     /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
-    /// iterations. Default 20 (the union desk's last digits can take a dozen iterations when a
-    /// leg is nearly unloaded: with 8, 1 of its 400 steps stops at 1.2e-10).
+    /// iterations. Default 20 (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub stagnation_window: usize,
     /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
     /// twice the distance they may approach G within the step, enter the QP
@@ -115,8 +114,7 @@ pub struct ConicSettings {
     /// each contact's friction impulse is the exact solution of its local maximum-dissipation
     /// problem, in three Gauss–Seidel sweeps. This removes the interior-point method's stopping
     /// error (about 1e-9 in the velocities) from the fixed point; it is not a Newton step on the
-    /// MCP. With `false` the plain fixed point floors at 1e-9..1e-10 in the natural residual.
-    /// Default `true`.
+    /// MCP. Default `true` (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub polish: bool,
     /// Anderson acceleration of the outer fixed point: number of previous iterates mixed
     /// (Walker & Ni 2011); 0 gives the plain De Saxcé / Acary–Cadoux iteration. Default 4.
@@ -124,17 +122,15 @@ pub struct ConicSettings {
     /// Weight `ρ_m` of the centre-of-pressure anchor of the contacts of bodies with several
     /// contacts (exact mode; the proximal term described in the module doc), relative to the
     /// body's mean angular mobility `mean_i 1/M_{ωω,ii}`. The union-of-pieces model
-    /// (formulation.md §7.1) needs it: without it the per-piece centres of pressure and loads,
-    /// which the model does not determine, jump between outer iterations and the fixed point
-    /// cycles (residual stuck near 1e-3 on every union-desk step). The term vanishes at a fixed
-    /// point; larger values hold the centres of pressure more firmly. 0 disables both anchors.
-    /// Default 1000. Measured on the 400-step union desk (failed steps, `anchor_load` 0.1):
-    /// 30 → 16, 100 → 23, 300 → 0, 1000 → 0 (5.0 outer iterations per step), 3000 → 0.
+    /// (`docs/model.md#union-of-convex-pieces`) needs it: without it the per-piece centres of
+    /// pressure and loads, which the model does not determine, jump between outer iterations and
+    /// the fixed point cycles. The term vanishes at a fixed point; larger values hold the centres
+    /// of pressure more firmly. 0 disables both anchors. Default 1000
+    /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_moment: f64,
     /// Weight `ρ_n` of the load anchor (the same proximal term on each such contact's normal
     /// impulse), relative to the contact's normal mobility `W_nᵀM⁻¹W_n`. Default `0.1`
-    /// (with `anchor_moment` 300: 0.03, 0.1 and 1 all give 0 failed union-desk steps; with 100,
-    /// 0.01 gives 28).
+    /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
     /// tolerance (exact mode only), reported in the counter `"newton_polish"`. Default 0: the
@@ -144,9 +140,8 @@ pub struct ConicSettings {
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
     /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`,
-    /// `tol_feas`) at `1e-12` and `tol_ktratio` at `1e-10` (the step's complementarity is judged
-    /// at `1e-10` after the length rows are scaled by `1/h`), `max_iter = 100`, and
-    /// `max_step_fraction = 0.9` (with 0.99 clarabel stopped at `AlmostSolved` on the desk).
+    /// `tol_feas`) at `1e-12` and `tol_ktratio` at `1e-10`, `max_iter = 100`, and
+    /// `max_step_fraction = 0.9` (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub clarabel: DefaultSettings<f64>,
 }
 

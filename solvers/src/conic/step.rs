@@ -28,7 +28,7 @@
 //! has a 9-dimensional null space on the union desk). The interior-point method returns a
 //! different member of that set at each outer iteration; the centre of pressure of each contact
 //! becomes its ECP for the next QP, where its friction acts, so the fixed point cycles
-//! (measured: period-2 cycles with `‖Δz‖ ≈ 0.8`, residual stuck at 1e-3). Anchored contacts get
+//! (`docs/decisions.md#conic-backend-anchor-weights`). Anchored contacts get
 //! a proximal term in the dual, centred on the previous iterate: three free variables per
 //! contact, `ξ_c ∈ R²` and `ζ_c`, enter each of its vertex rows as `+ b_jᵀξ_c + ζ_c`, with
 //! `b_j` the tangential components of `v_j − e_c` (`e_c` the contact's current ECP), at cost
