@@ -1,11 +1,11 @@
-//! The point-contact baseline (formulation.md §7.3) beside the ECP model (the paper's hull
-//! formulation) on the same scenes, with the Newton and PATH backends: largest differences in
+//! The point-contact baseline (`docs/model.md#point-contacts`) beside the ECP model (the paper's
+//! hull formulation) on the same scenes, with the Newton and PATH backends: largest differences in
 //! `v` and `ω`, largest penetration of each model, the largest gap across which a point still
 //! carries load, the centre of pressure against the ECP, and the solve time per step.
 //!
-//! ```text
+//! ``text
 //! cargo run --release --example point_vs_ecp
-//! ```
+//! ``
 
 use ecp::formulations::Stepper;
 use ecp::formulations::point::{PointContacts, centre_of_pressure, penetration};

@@ -1,4 +1,4 @@
-//! Cross-check of the equivalent contact points with parry3d-f64 (formulation.md §4.3).
+//! Cross-check of the equivalent contact points with parry3d-f64 (`docs/model.md#contact`).
 //!
 //! While a body is separated from the half-space G, conditions C1–C5 are the KKT conditions of
 //! the closest-point problem between Conv(F) at the END pose of the step and G: `a1` must be the
@@ -21,7 +21,7 @@
 //! the solution (before the ellipsoid row took its cone form it also often ended with the σ row
 //! at 1e-9..4e-9 after 200 iterations). The property tests therefore require every component
 //! except p_f and σ to be converged to 1e-10 with Newton (and skip the rare far stagnations);
-//! the strict "natural residual ≤ 1e-10" requirement of formulation.md §5 is in the
+//! the strict "natural residual ≤ 1e-10" requirement of `docs/model.md#stepper` is in the
 //! `#[ignore]`d tests at the end, with the failing poses as regression cases. The PATH-like
 //! backend solves every one of these steps to 1e-10: its `_with_path` twins are not ignored.
 
@@ -51,7 +51,7 @@ const TOL: f64 = 1e-9;
 const SEPARATED: f64 = 1e-6;
 /// Two hull vertices whose gaps differ by less than this make the closest feature an edge or a
 /// face: then `a1` is any point of that feature (the closest point of Conv(F) to G is not
-/// unique, formulation.md §6), so such poses are skipped.
+/// unique, `docs/model.md#degenerate-cases`), so such poses are skipped.
 const UNIQUE_MARGIN: f64 = 1e-6;
 
 fn to_p(v: &V3) -> PVec {
@@ -245,7 +245,7 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         friction_residual,
     } = solve_step(scene, kind)?;
 
-    // The PATH-like backend converges on every free-flight step (formulation.md §5 strictly).
+    // The PATH-like backend converges on every free-flight step (`docs/model.md#stepper` strictly).
     if kind == SolverKind::Path {
         prop_assert!(
             rec.converged && rec.summary.residual <= 1e-10,
@@ -409,7 +409,7 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         dl.norm(),
         torque_bound
     );
-    // The kinematic map (formulation.md §4.2), on the raw solution.
+    // The kinematic map (`docs/model.md#kinematic-map`), on the raw solution.
     let qo = q_offset(&sim);
     let q_raw = Vector4::new(z[qo + 3], z[qo + 4], z[qo + 5], z[qo + 6]);
     let q_pred = start.q + kinematic_map(&start.q) * end.w * (0.5 * H);
@@ -475,7 +475,7 @@ proptest! {
 // ---------------------------------------------------------------------------------------------
 // Known defect: free-flight steps do not always converge to 1e-10.
 //
-// These assert what formulation.md §5 asks of every step (natural residual ≤ 1e-10 with the
+// These assert what `docs/model.md#stepper` asks of every step (natural residual ≤ 1e-10 with the
 // default backend). They fail today and are ignored so that the suite stays usable; run them
 // with `cargo test --test closest_points -- --ignored`.
 // ---------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-//! Step and trajectory sensitivities by implicit differentiation (issue #8).
+//! Step and trajectory sensitivities by implicit differentiation (`docs/fitting.md`).
 //!
 //! **Step sensitivities.** At a converged step of a [`Simulation`] of the hull formulation,
 //! [`step_sensitivity`] returns the derivatives of the step's solution `z*` — ν, q (before the
@@ -13,12 +13,12 @@
 //!
 //! - a contact with `p_n` at its bound 0 (separated, or touching without force) has its friction
 //!   impulses and σ **held** (`dz = 0`): the ellipsoid's cone forces `p_f = 0` and σ is
-//!   undetermined there, while the linearised friction rows vanish (formulation.md §6), so the
-//!   implicit function theorem says nothing about them. Its closest-point unknowns (a1, a2, l,
-//!   l_g) do not enter the motion rows then, and they need not be unique (a hull edge parallel
-//!   to the plane): they are solved in a second stage, with the motion fixed, so a singular or
-//!   inconsistent closest-point block cannot spoil the motion derivatives
-//!   ([`Degeneracy::SeparatedGeometry`]);
+//!   undetermined there, while the linearised friction rows vanish
+//!   (`docs/model.md#degenerate-cases`), so the implicit function theorem says nothing about them.
+//!   Its closest-point unknowns (a1, a2, l, l_g) do not enter the motion rows then, and they need
+//!   not be unique (a hull edge parallel to the plane): they are solved in a second stage, with the
+//!   motion fixed, so a singular or inconsistent closest-point block cannot spoil the motion
+//!   derivatives ([`Degeneracy::SeparatedGeometry`]);
 //! - weakly active components (`p_n = 0` touching, `σ = 0` on the stick/slip boundary, a face
 //!   multiplier 0 with the ECP on that face's edge) are held at their bound — the one-sided
 //!   derivative of the branch that keeps the active set — and reported as [`Degeneracy`]s with
@@ -27,7 +27,7 @@
 //! - a singular reduced Jacobian gets the minimum-norm solution ([`SolveKind::Regularised`]),
 //!   reported.
 //!
-//! **Only the hull formulation is supported.** The union formulation (formulation.md §7.1) runs
+//! **Only the hull formulation is supported.** The union formulation (`docs/model.md#union`) runs
 //! through the same code, but its impulses are shared between the pieces and not unique: its
 //! reduced Jacobian is singular, and inconsistent for the data columns
 //! (`docs/decisions.md#sensitivities-the-hull-formulation-only`), so its derivatives are
@@ -49,7 +49,7 @@
 //! between steps and every one-sided or singular step is reported in
 //! [`TrajectoryGradient::events`], never hidden.
 //!
-//! ```
+//! ``
 //! use ecp_formulations::{scenarios, sensitivity::*};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
@@ -64,7 +64,7 @@
 //! let x = g.records.last().unwrap().bodies[0].x.x;
 //! assert!((g.gradient[0] - 2.0 * x * (-9.8e-4 * 55.0)).abs() < 1e-9);
 //! assert!(g.events.is_empty());
-//! ```
+//! ``
 
 use std::fmt;
 use std::str::FromStr;
@@ -641,8 +641,8 @@ pub enum Degeneracy {
         /// Relative residual of the regularised solve (≈ 0: consistent).
         consistency: f64,
     },
-    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not
-    /// unique (a hull edge or face parallel to the plane, formulation.md §6): they got the
+    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not unique (a
+    /// hull edge or face parallel to the plane, `docs/model.md#degenerate-cases`): they got the
     /// minimum-norm derivative. The motion derivatives do not depend on them (they enter
     /// Newton–Euler and friction only through `p_n` and `p_f`, both 0), so a trajectory does not
     /// report this; `consistency` ≫ 0 means the ECP's derivative does not exist (it jumps).

@@ -1,15 +1,15 @@
-//! The closest-point problem between two convex sets with clarabel (solvers.md §3,
-//! formulation.md §4.3): `min ‖p − q‖` over `p ∈ A`, `q ∈ B`.
+//! The closest-point problem between two convex sets with clarabel (`docs/backends.md#conic`,
+//! `docs/model.md#contact`): `min ‖p − q‖` over `p ∈ A`, `q ∈ B`.
 //!
-//! Two objectives with the same minimisers: the QP `½‖p − q‖²` ([`closest_points_qp`]) and
-//! the distance's epigraph `t` with `(t, p − q) ∈ SOC(4)`. Each is inaccurate where the other
-//! is not: the QP resolves a touching or overlapping pair only to about the square root of the
-//! tolerance, the epigraph form's points only to about `√(d · tolerance)`. [`closest_points`]
-//! solves the QP and re-solves in epigraph form when the distance is below `1e-4` or clarabel
-//! did not fully solve the QP (`docs/decisions.md#closest-points-qp-then-epigraph-form-near-contact`);
-//! agreement with parry's GJK is 1e-8 in the distance (`tests/conic_closest_point.rs`).
+//! Two objectives with the same minimisers: the QP `½‖p − q‖²` ([`closest_points_qp`]) and the
+//! distance's epigraph `t` with `(t, p − q) ∈ SOC(4)`. Each is inaccurate where the other is not:
+//! the QP resolves a touching or overlapping pair only to about the square root of the tolerance,
+//! the epigraph form's points only to about `√(d · tolerance)`. [`closest_points`] solves the QP
+//! and re-solves in epigraph form when the distance is below `1e-4` or clarabel did not fully solve
+//! the QP (`docs/decisions.md#closest-points-qp-then-epigraph-form-near-contact`); agreement with
+//! parry's GJK is 1e-8 in the distance (`tests/conic_closest_point.rs`).
 //!
-//! ```
+//! ``
 //! use ecp_solvers::conic::closest_point::{ConvexSet, closest_points};
 //! use ecp_solvers::conic::default_clarabel_settings;
 //!
@@ -26,7 +26,7 @@
 //! .unwrap();
 //! assert!((r.distance - 0.5).abs() < 1e-9);
 //! assert!(r.on_second[2].abs() < 1e-9);
-//! ```
+//! ``
 
 use clarabel::solver::{DefaultSettings, SolverStatus};
 

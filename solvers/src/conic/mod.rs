@@ -1,5 +1,5 @@
-//! Convex subproblems with clarabel (solvers.md §3): a backend that uses the structure of the
-//! contact step instead of treating it as a generic MCP.
+//! Convex subproblems with clarabel (`docs/backends.md#conic`): a backend that uses the structure
+//! of the contact step instead of treating it as a generic MCP.
 //!
 //! Each outer iteration fixes the contact geometry at the current end-of-step iterate (gap,
 //! contact frame, the vertices of Conv(F) near G, the ECP) and solves one convex QP over a
@@ -7,24 +7,24 @@
 //! pressure is the ECP) and the friction wrench in the ellipsoidal second-order cone
 //! `‖(p_t/e_t, p_o/e_o, p_r/e_r)‖ ≤ μ Σ p_n`. In velocity form, per body `b` and contact `c`:
 //!
-//! ```text
+//! ``text
 //! min  Σ_b ½ (ν_b − ν_free,b)ᵀ M_b (ν_b − ν_free,b)
 //! s.t. g_j/h + W_{n,j}ᵀ(ν_b − ν_b^k) + s_c − μ a_c ≥ 0                 every patch vertex j  (dual λ_j)
 //!      (a_c, e_t W_tᵀν_b, e_o W_oᵀν_b, e_r W_rᵀν_b) ∈ SOC(4)                                 (dual (μ p_n, p_f/e))
-//! ```
+//! ``
 //!
 //! `W_{n,j} = [n; (v_j − x) × n]`, `W_t = [t; (a1 − x) × t]`, `W_o`, `W_r = [0; n]`
-//! (formulation.md §4.1), `s_c` the De Saxcé shift. Its KKT conditions are the discrete
+//! (`docs/model.md#newton-euler`), `s_c` the De Saxcé shift. Its KKT conditions are the discrete
 //! Newton–Euler equations with `p_n = Σ λ_j` at the centre of pressure, the ellipsoidal
 //! friction cone with maximum dissipation, and complementarity of each `λ_j` with the shifted,
-//! linearised gap of its vertex: at a fixed point, exactly formulation.md §4.
+//! linearised gap of its vertex: at a fixed point, exactly `docs/model.md#residual-blocks`.
 //!
 //! - [`ConicMode::Exact`] (default): the De Saxcé / Acary–Cadoux fixed point. The normal
 //!   velocity of every patch vertex is shifted by `μ ‖E u_T‖` of the previous iterate
 //!   (Acary, Cadoux, Lemaréchal, Malick, CMAME 2011), which makes a fixed point satisfy exact
 //!   Coulomb (maximum-dissipation) friction, and the geometry is re-evaluated at the new
 //!   end-of-step configuration (geometric implicitness). The iteration stops when the full step
-//!   MCP's natural residual (formulation.md §2, computed by the model on the mapped-back vector)
+//!   MCP's natural residual (`docs/model.md#mcp`, computed by the model on the mapped-back vector)
 //!   is below [`ConicSettings::tolerance`]. Two devices make it converge to 1e-10 in a few
 //!   iterations ([`ConicSettings::polish`], [`ConicSettings::anderson_memory`]): each QP's
 //!   solution is polished on its identified active set (loaded vertices' linearised gaps made
@@ -42,7 +42,7 @@
 //!   [`SolveError::NotConverged`] with [`Termination::MaxIterations`] (one QP) and the relaxed
 //!   point as its best iterate (a time stepper takes it and records the step as not converged).
 //!
-//! Bodies with several contacts (the union-of-pieces model, formulation.md §7.1, where each
+//! Bodies with several contacts (the union-of-pieces model, `docs/model.md#union`, where each
 //! convex piece of the desk or the T-bar has its own contact): the QP's velocities are unique but
 //! its impulses are not — how the load is shared between the pieces and where each piece's
 //! centre of pressure lies are left open, by the step model itself — and each piece's centre of
@@ -80,7 +80,7 @@ use ecp_model::{
 
 use crate::newton::{NewtonSettings, NewtonSolver};
 
-/// Which model the conic backend solves (solvers.md §3).
+/// Which model the conic backend solves (`docs/backends.md#conic`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ConicMode {
     /// The exact step model: De Saxcé / Acary–Cadoux fixed point with geometry re-evaluated at
@@ -88,7 +88,7 @@ pub enum ConicMode {
     #[default]
     Exact,
     /// Anitescu's convex relaxation, solved once (single shot) at the warm start's geometry.
-    /// NOT the step model of formulation.md: sliding contacts drift off the surface.
+    /// NOT the step model of `docs/model.md`: sliding contacts drift off the surface.
     AnitescuRelaxation,
 }
 
@@ -122,7 +122,7 @@ pub struct ConicSettings {
     /// Weight `ρ_m` of the centre-of-pressure anchor of the contacts of bodies with several
     /// contacts (exact mode; the proximal term described in the module doc), relative to the
     /// body's mean angular mobility `mean_i 1/M_{ωω,ii}`. The union-of-pieces model
-    /// (`docs/model.md#union-of-convex-pieces`) needs it: without it the per-piece centres of
+    /// (`docs/model.md#union`) needs it: without it the per-piece centres of
     /// pressure and loads, which the model does not determine, jump between outer iterations and
     /// the fixed point cycles. The term vanishes at a fixed point; larger values hold the centres
     /// of pressure more firmly. 0 disables both anchors. Default 1000
@@ -139,9 +139,9 @@ pub struct ConicSettings {
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
-    /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`,
-    /// `tol_feas`) at `1e-12` and `tol_ktratio` at `1e-10`, `max_iter = 100`, and
-    /// `max_step_fraction = 0.9` (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
+    /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`, `tol_feas`)
+    /// at `1e-12` and `tol_ktratio` at `1e-10`, `max_iter = 100`, and `max_step_fraction = 0.9`
+    /// (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub clarabel: DefaultSettings<f64>,
 }
 
@@ -178,7 +178,7 @@ impl Default for ConicSettings {
     }
 }
 
-/// The conic backend (solvers.md §3). Implements [`McpSolver`] for MCPs that expose a
+/// The conic backend (`docs/backends.md#conic`). Implements [`McpSolver`] for MCPs that expose a
 /// [`ecp_model::StepStructure`] (the time-step MCP of ecp-formulations).
 ///
 /// Counters in the summary: `"clarabel_iterations"` (interior-point iterations, all QPs),
@@ -249,7 +249,7 @@ impl McpSolver for ConicSolver {
         let Some(structure) = mcp.structure() else {
             return Err(SolveError::InvalidProblem(
                 "the conic backend needs the structural view of a contact step \
-                 (Mcp::structure, solvers.md §3); this MCP has none: use the Newton or PATH \
+                 (Mcp::structure, docs/backends.md); this MCP has none: use the Newton or PATH \
                  backend, or pass Simulation::structured_mcp()"
                     .into(),
             ));
