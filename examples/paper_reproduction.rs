@@ -285,7 +285,10 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         find(Formulation::Hull, SolverKind::Newton).ok_or("the hull/Newton desk run failed")?;
     let reference = hull.records();
 
-    writeln!(doc, "## 1. The desk (paper example 1, `docs/model.md#scenarios`)\n")?;
+    writeln!(
+        doc,
+        "## 1. The desk (paper example 1, `docs/model.md#scenarios`)\n"
+    )?;
     writeln!(
         doc,
         "A 15 kg desk on four 6 cm square feet, pushed and twisted by periodic loads at the CM for \
@@ -560,7 +563,10 @@ fn touching(file: &SceneFile, r: &StepRecord) -> Vec<usize> {
 }
 
 fn tbar_section(doc: &mut String) -> Result<(), Error> {
-    writeln!(doc, "## 2. The T-bar (paper example 2, `docs/model.md#scenarios`)\n")?;
+    writeln!(
+        doc,
+        "## 2. The T-bar (paper example 2, `docs/model.md#scenarios`)\n"
+    )?;
     let path = Path::new("scenes/tbar.toml");
     let file = match load_scene(path) {
         Ok(f) => f,
