@@ -1136,7 +1136,7 @@ impl Simulation {
             .iter()
             .map(|b| (b.state.x - self.origin).amax())
             .fold(0.0, f64::max);
-        if !(far > RECENTRE_DISTANCE) || self.bodies.is_empty() {
+        if far <= RECENTRE_DISTANCE || self.bodies.is_empty() {
             return Ok(());
         }
         let centroid = self
