@@ -1,9 +1,9 @@
 //! Generates `docs/paper-reproduction.md` and its figures (`docs/reproduction/*.png`): the
 //! paper's two examples and its comparison of formulations, measured on this build.
 //!
-//! ``text
+//! ```text
 //! cargo run --release --example paper_reproduction
-//! ``
+//! ```
 //!
 //! Every number in the report is computed by this program in the same run; the run outputs
 //! (trajectories, summaries, plots) are kept in `out/reproduction/`. Times are solve times per

@@ -3,9 +3,9 @@
 //! steps converged to the default tolerance, largest natural residual, mean iterations, median
 //! solve time per step.
 //!
-//! ``text
+//! ```text
 //! cargo run --release --example path_scenarios
-//! ``
+//! ```
 
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, Simulation};

@@ -3,9 +3,9 @@
 //! `v` and `ω`, largest penetration of each model, the largest gap across which a point still
 //! carries load, the centre of pressure against the ECP, and the solve time per step.
 //!
-//! ``text
+//! ```text
 //! cargo run --release --example point_vs_ecp
-//! ``
+//! ```
 
 use ecp::formulations::Stepper;
 use ecp::formulations::point::{PointContacts, centre_of_pressure, penetration};

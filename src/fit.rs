@@ -536,7 +536,7 @@ struct Shared {
 /// coordinates `u` (module docs): `cost(u) = scale · L(θ(u))` and its gradient
 /// `scale · dL/du`, with `Param = Vec<f64>`.
 ///
-/// `no_run
+/// ```no_run
 /// use argmin::core::{Executor, State};
 /// use argmin::solver::linesearch::MoreThuenteLineSearch;
 /// use argmin::solver::quasinewton::LBFGS;
@@ -553,7 +553,7 @@ struct Shared {
 ///     .unwrap();
 /// let u = result.state.get_best_param().unwrap();
 /// println!("mu, e_r = {:?}", problem.values_at(u));
-/// `
+/// ```
 #[derive(Clone)]
 pub struct TrajectoryProblem {
     scene: Scene,

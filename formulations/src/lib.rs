@@ -2,7 +2,7 @@
 //! step problems built on them (`docs/model.md`).
 
 //!
-//! ``
+//! ```
 //! use ecp_formulations::{scenarios, stepper::Simulation};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
@@ -12,7 +12,7 @@
 //! let rec = sim.step(&mut solver).unwrap();
 //! assert!(rec.converged && rec.summary.residual <= 1e-10);
 //! assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() < 1e-9);
-//! ``
+//! ```
 
 #![warn(missing_docs)]
 

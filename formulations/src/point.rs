@@ -31,7 +31,7 @@
 //!   when ω is tilted from the normal (a spinning body landing) a vertex can end below the plane
 //!   ([`penetration`]).
 //!
-//! `
+//! ```
 //! use ecp_formulations::{point::PointContacts, scenarios};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
@@ -41,7 +41,7 @@
 //! let rec = pc.step(&mut solver).unwrap();
 //! assert!(rec.converged && rec.summary.residual <= 1e-10);
 //! assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() < 1e-9);
-//! `
+//! ```
 
 use std::sync::Arc;
 use std::time::Instant;

@@ -49,7 +49,7 @@
 //! between steps and every one-sided or singular step is reported in
 //! [`TrajectoryGradient::events`], never hidden.
 //!
-//! ``
+//! ```
 //! use ecp_formulations::{scenarios, sensitivity::*};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
@@ -64,7 +64,7 @@
 //! let x = g.records.last().unwrap().bodies[0].x.x;
 //! assert!((g.gradient[0] - 2.0 * x * (-9.8e-4 * 55.0)).abs() < 1e-9);
 //! assert!(g.events.is_empty());
-//! ``
+//! ```
 
 use std::fmt;
 use std::str::FromStr;

@@ -48,7 +48,7 @@ type JFn = dyn Fn(&[f64], &mut [f64]) + Send + Sync;
 /// An MCP given directly by a function `F`, its Jacobian and bounds, for problems that are
 /// not built from blocks.
 ///
-/// ``
+/// ```
 /// use ecp_model::{FnMcp, Mcp, natural_residual};
 /// // The LCP 0 ≤ z ⊥ z − 1 ≥ 0 (solution z = 1).
 /// let mcp = FnMcp::dense(
@@ -59,7 +59,7 @@ type JFn = dyn Fn(&[f64], &mut [f64]) + Send + Sync;
 /// let mut f = [0.0];
 /// mcp.evaluate(&[1.0], &mut f);
 /// assert_eq!(natural_residual(&[1.0], &f, mcp.lower(), mcp.upper()), 0.0);
-/// ``
+/// ```
 pub struct FnMcp {
     lower: Vec<f64>,
     upper: Vec<f64>,

@@ -13,7 +13,7 @@
 //! closed form, its solutions; every listed solution has a natural residual below `1e-12`
 //! (unit tests) and every analytic Jacobian agrees with central differences.
 //!
-//! `
+//! ```
 //! use ecp_model::mcp_library::{kojima_shindo, suite};
 //! use ecp_model::residual_of;
 //!
@@ -22,7 +22,7 @@
 //!     assert!(residual_of(&p.mcp, z) <= 1e-12);
 //! }
 //! assert!(suite().len() >= 10);
-//! `
+//! ```
 
 #![allow(clippy::needless_range_loop)] // dense numerical kernels read best with explicit indices
 

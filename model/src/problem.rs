@@ -24,7 +24,7 @@ struct PendingResidual {
 
 /// Builder of a block-structured MCP (`docs/model.md#mcp`–`docs/model.md#unknowns`).
 ///
-/// ``
+/// ```
 /// use ecp_model::{Problem, VarBlock, ResidualBlock, Params, JacobianBlocks, Mcp};
 ///
 /// /// r(x) = x − 1, paired with a free x: the equation x = 1.
@@ -44,7 +44,7 @@ struct PendingResidual {
 /// let mut f = [0.0];
 /// mcp.evaluate(&[3.0], &mut f);
 /// assert_eq!(f[0], 2.0);
-/// ``
+/// ```
 #[derive(Default)]
 pub struct Problem {
     vars: Vec<VarBlock>,

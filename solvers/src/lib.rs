@@ -13,7 +13,7 @@
 //!   along the piecewise-linear Newton path, a non-monotone watchdog, a crash phase and a
 //!   proximal perturbation (`docs/backends.md#path-like`).
 //!
-//! ``
+//! ```
 //! use ecp_model::{FnMcp, McpSolver, residual_of};
 //! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 //!
@@ -28,7 +28,7 @@
 //! let sol = solver.solve(&mcp, &[0.0, 0.0]).unwrap();
 //! assert!(residual_of(&mcp, &sol.z) <= 1e-10);
 //! assert!((sol.z[0] - 0.5).abs() < 1e-10 && sol.z[1].abs() < 1e-10);
-//! ``
+//! ```
 
 #![warn(missing_docs)]
 

@@ -1,9 +1,10 @@
-//! The random-scene stress suite: a seeded [`generate`]or of ordinary scene files of every kind a
-//! new user would try, a [`runner`] that runs each with a backend as `ecp run SCENE --solver S
-//! --formulation hull --keep-going` does and measures the run independently (convergence,
-//! failed steps, penetration from the poses and the real body's vertices, energy of unforced
-//! scenes, wall time), and the [`report`] tables. `docs/stress.md` describes the categories, the
-//! columns and the command of the full run (`cargo run --release --example stress`).
+//! The random-scene stress suite: a seeded generator ([`mod@generate`]) of ordinary scene files
+//! of every kind a new user would try, a [`runner`] that runs each with a backend as
+//! `ecp run SCENE --solver S --formulation hull --keep-going` does and measures the run
+//! independently (convergence, failed steps, penetration from the poses and the real body's
+//! vertices, energy of unforced scenes, wall time), and the [`report`] tables. `docs/stress.md`
+//! describes the categories, the columns and the command of the full run
+//! (`cargo run --release --example stress`).
 //!
 //! ```
 //! let scenes = ecp::stress::generate(7, 13);

@@ -9,7 +9,7 @@
 //! the QP (`docs/decisions.md#closest-points-qp-then-epigraph-form-near-contact`); agreement with
 //! parry's GJK is 1e-8 in the distance (`tests/conic_closest_point.rs`).
 //!
-//! ``
+//! ```
 //! use ecp_solvers::conic::closest_point::{ConvexSet, closest_points};
 //! use ecp_solvers::conic::default_clarabel_settings;
 //!
@@ -26,7 +26,7 @@
 //! .unwrap();
 //! assert!((r.distance - 0.5).abs() < 1e-9);
 //! assert!(r.on_second[2].abs() < 1e-9);
-//! ``
+//! ```
 
 use clarabel::solver::{DefaultSettings, SolverStatus};
 

@@ -7,11 +7,11 @@
 //! pressure is the ECP) and the friction wrench in the ellipsoidal second-order cone
 //! `‖(p_t/e_t, p_o/e_o, p_r/e_r)‖ ≤ μ Σ p_n`. In velocity form, per body `b` and contact `c`:
 //!
-//! ``text
+//! ```text
 //! min  Σ_b ½ (ν_b − ν_free,b)ᵀ M_b (ν_b − ν_free,b)
 //! s.t. g_j/h + W_{n,j}ᵀ(ν_b − ν_b^k) + s_c − μ a_c ≥ 0                 every patch vertex j  (dual λ_j)
 //!      (a_c, e_t W_tᵀν_b, e_o W_oᵀν_b, e_r W_rᵀν_b) ∈ SOC(4)                                 (dual (μ p_n, p_f/e))
-//! ``
+//! ```
 //!
 //! `W_{n,j} = [n; (v_j − x) × n]`, `W_t = [t; (a1 − x) × t]`, `W_o`, `W_r = [0; n]`
 //! (`docs/model.md#newton-euler`), `s_c` the De Saxcé shift. Its KKT conditions are the discrete

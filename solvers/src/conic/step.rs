@@ -4,11 +4,11 @@
 //!
 //! Primal (velocity) form, one block per body `b` and per contact `c` with a non-empty patch:
 //!
-//! ``text
+//! ```text
 //! min  Σ_b ½ (ν_b − ν_free,b)ᵀ M_b (ν_b − ν_free,b)
 //! s.t. g_j/h + W_{n,j}ᵀ(ν_b − ν_b^k) + s_c − μ a_c ≥ 0      every patch vertex j      (λ_j)
 //!      (a_c, e_t W_tᵀν_b, e_o W_oᵀν_b, e_r W_rᵀν_b) ∈ SOC(4)                         (μ p_n, p_f/e)
-//! ``
+//! ```
 //!
 //! with `W_{n,j} = [n; (v_j − x) × n]` at the patch vertices, `W_t = [t; (a1 − x) × t]`, `W_o = [o;
 //! (a1 − x) × o]`, `W_r = [0; n]` at the current ECP (`docs/model.md#newton-euler`), `g_j` the
