@@ -58,7 +58,7 @@ pub struct PatchVertex {
 }
 
 /// One contact (Conv(F) of a body against a fixed half-space G) evaluated at a trial
-/// end-of-step configuration (`docs/model.md#contact`–`docs/model.md#friction`).
+/// end-of-step configuration (`docs/model.md#contact`, `docs/model.md#friction`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ContactGeometry {
     /// Index of the body (in [`StepStructure::body`] numbering).
