@@ -1,4 +1,4 @@
-//! Benchmarks of the conic backend (solvers.md §3, issue #6): `cargo bench --bench conic`.
+//! Benchmarks of the conic backend (`docs/backends.md#conic`): `cargo bench --bench conic`.
 //!
 //! - one desk step (the 100th, warm-started from the 99th, like `benches/newton.rs`), exact mode
 //!   and the Anitescu relaxation;

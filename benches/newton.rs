@@ -1,4 +1,4 @@
-//! Benchmarks of the semismooth Newton backend (issues #2 and #3):
+//! Benchmarks of the semismooth Newton backend (`docs/backends.md#semismooth-newton`):
 //! `cargo bench --bench newton`.
 //!
 //! - Kojima–Josephy (n = 4) from its first MCPLIB start;

@@ -1,4 +1,4 @@
-//! Benchmarks of the pivotal and PATH-like backends (issue #5): `cargo bench --bench path`.
+//! Benchmarks of the pivotal and PATH-like backends : `cargo bench --bench path`.
 //!
 //! - Lemke's method on dense random P-matrix LCPs of size 10, 30, 100 and 300 (the matrices of
 //!   `mcp_library::random_p_matrix_lcp`, `M = BᵀB + I + (C − Cᵀ)`);

@@ -1,4 +1,4 @@
-//! Cost of the step sensitivities relative to the step solve (issue #8, item 6):
+//! Cost of the step sensitivities relative to the step solve :
 //! `cargo bench --bench sensitivity`.
 //!
 //! - `desk_step_solve`: the 100th desk step solved by the Newton backend from its warm start

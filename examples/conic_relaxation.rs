@@ -1,5 +1,5 @@
 //! How far Anitescu's single-shot convex relaxation is from the exact step model
-//! (solvers.md §3, issue #6), measured on the sliding box A1 (scenarios.md §A).
+//! (`docs/backends.md#conic`), measured on the sliding box A1 (`docs/model.md#scenarios`).
 //!
 //! `cargo run --release --example conic_relaxation`
 //!

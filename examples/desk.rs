@@ -1,4 +1,4 @@
-//! Runs the paper's desk example (scenarios.md §B) with the semismooth Newton backend and
+//! Runs the paper's desk example (`docs/model.md#scenarios`) with the semismooth Newton backend and
 //! prints a short summary: `cargo run --release --example desk`.
 
 use ecp::formulations::scenarios;

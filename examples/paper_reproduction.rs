@@ -285,7 +285,10 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         find(Formulation::Hull, SolverKind::Newton).ok_or("the hull/Newton desk run failed")?;
     let reference = hull.records();
 
-    writeln!(doc, "## 1. The desk (paper example 1, scenarios.md B)\n")?;
+    writeln!(
+        doc,
+        "## 1. The desk (paper example 1, `docs/model.md#scenarios`)\n"
+    )?;
     writeln!(
         doc,
         "A 15 kg desk on four 6 cm square feet, pushed and twisted by periodic loads at the CM for \
@@ -482,7 +485,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         doc,
         "*Pure translation* (the desk scene with the torque and the initial spin removed): every \
          foot slides in the same direction, so one ellipsoid per foot adds up to the hull's \
-         ellipsoid and formulation.md §7.1 predicts exact agreement.\n"
+         ellipsoid and `docs/model.md#union` predicts exact agreement.\n"
     )?;
     for l in &lines {
         writeln!(doc, "- {l}")?;
@@ -531,7 +534,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
          the centre) slide in different directions and their tangential friction forces resist \
          the spin with a lever arm of about 0.31 m, plus each foot's own torsion. The union model \
          therefore brakes the spin much harder, and ω_z departs from the hull model's at the \
-         first step; formulation.md §7.1 says as much (\"the two agree exactly only in pure \
+         first step; `docs/model.md#union` says as much (\"the two agree exactly only in pure \
          translation\"), and the pure-translation runs confirm the agreement there.\n\
          2. *Non-unique motion within the union model.* Four normal impulses are held by three \
          balance equations (vertical force, two tilting moments), so one direction of the load \
@@ -560,7 +563,10 @@ fn touching(file: &SceneFile, r: &StepRecord) -> Vec<usize> {
 }
 
 fn tbar_section(doc: &mut String) -> Result<(), Error> {
-    writeln!(doc, "## 2. The T-bar (paper example 2, scenarios.md C)\n")?;
+    writeln!(
+        doc,
+        "## 2. The T-bar (paper example 2, `docs/model.md#scenarios`)\n"
+    )?;
     let path = Path::new("scenes/tbar.toml");
     let file = match load_scene(path) {
         Ok(f) => f,
@@ -704,7 +710,7 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
 fn point_section(doc: &mut String) -> Result<(), Error> {
     writeln!(
         doc,
-        "## 3. Point contacts against the ECP model (formulation.md §7.3)\n"
+        "## 3. Point contacts against the ECP model (`docs/model.md#point-contacts`)\n"
     )?;
     let a1 = load_scene(Path::new("scenes/a1_sliding.toml"))?;
     eprintln!("A1 point vs hull …");
@@ -858,7 +864,7 @@ fn main() -> Result<(), Error> {
          `examples/paper_reproduction.rs`); do not edit by hand. Every number below was computed \
          by that command in one run; its run outputs are in `out/reproduction/`. The paper is \
          Xie & Chakraborty, *Rigid Body Motion Prediction with Planar Non-convex Contact Patch*; \
-         the specs are `formulation.md` §7 and `scenarios.md` B, C. Convergence of every step \
+         the models are described in `docs/model.md`. Convergence of every step \
          is decided by the model's natural-map residual (≤ 1e-10), whatever the backend.\n"
     )?;
     desk_section(&mut doc)?;

@@ -1,4 +1,4 @@
-//! Runs the analytic scenarios A1–A6 and the desk (scenarios.md §A, §B) with the PATH-like
+//! Runs the analytic scenarios A1–A6 and the desk (`docs/model.md#scenarios`) with the PATH-like
 //! backend and, for comparison, with semismooth Newton, and prints a Markdown table per backend:
 //! steps converged to the default tolerance, largest natural residual, mean iterations, median
 //! solve time per step.

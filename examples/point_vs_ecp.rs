@@ -1,5 +1,5 @@
-//! The point-contact baseline (formulation.md §7.3) beside the ECP model (the paper's hull
-//! formulation) on the same scenes, with the Newton and PATH backends: largest differences in
+//! The point-contact baseline (`docs/model.md#point-contacts`) beside the ECP model (the paper's
+//! hull formulation) on the same scenes, with the Newton and PATH backends: largest differences in
 //! `v` and `ω`, largest penetration of each model, the largest gap across which a point still
 //! carries load, the centre of pressure against the ECP, and the solve time per step.
 //!

@@ -1,4 +1,4 @@
-//! An MPC-flavoured use of the trajectory gradients (issue #8, item 5): find a piecewise-constant
+//! An MPC-flavoured use of the trajectory gradients (`docs/fitting.md`): find a piecewise-constant
 //! push force on the paper's desk so that its centre of mass reaches a target point at
 //! t = 1 s, with L-BFGS (argmin) on the adjoint gradients.
 //!

@@ -1,5 +1,5 @@
 //! Time per step of the reduced sliding model against the hull model on the paper's desk
-//! (scenarios.md B; the paper reports hull / reduced ≈ 2.4 in MATLAB), and their largest
+//! (`docs/model.md#scenarios`; the paper reports hull / reduced ≈ 2.4 in MATLAB), and their largest
 //! differences in v, ω and the ECP over the 400 steps:
 //! `cargo run --release --example reduced_vs_hull [-- --repeat R] [--tolerance T]`
 //! (default: 5 runs of each, the backends' default tolerance 1e-10 on the natural residual).

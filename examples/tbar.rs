@@ -1,6 +1,6 @@
-//! Runs the paper's T-bar example (scenarios.md §C, `scenes/tbar.toml`) and prints its contact
-//! story: every change of contact mode with the touching vertices (body frame), the ECP in the
-//! body frame, the yaw reached, the largest penetration and `|a1_z|` while in contact, and the
+//! Runs the paper's T-bar example (`docs/model.md#scenarios`, `scenes/tbar.toml`) and prints its
+//! contact story: every change of contact mode with the touching vertices (body frame), the ECP in
+//! the body frame, the yaw reached, the largest penetration and `|a1_z|` while in contact, and the
 //! time per step.
 //!
 //! `cargo run --release --example tbar -- [newton|path|conic] [SCENE.toml] [--verbose]`

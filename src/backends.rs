@@ -9,19 +9,20 @@ use ecp_solvers::registry::{BackendOptions, Registry};
 
 use crate::error::{InputError, InputErrorKind};
 
-/// A solver backend (solvers.md).
+/// A solver backend (`docs/backends.md`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SolverKind {
-    /// Semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
+    /// Semismooth Newton on the Fischer–Burmeister reformulation
+    /// (`docs/backends.md#semismooth-newton`).
     Newton,
-    /// PATH-like Josephy–Newton with pivoting and a path search (solvers.md §2).
+    /// PATH-like Josephy–Newton with pivoting and a path search (`docs/backends.md#path-like`).
     Path,
-    /// Convex subproblems with clarabel (solvers.md §3).
+    /// Convex subproblems with clarabel (`docs/backends.md#conic`).
     Conic,
 }
 
 impl SolverKind {
-    /// Every backend name, in the order of solvers.md.
+    /// Every backend name, in the order of `docs/backends.md`.
     pub const ALL: [SolverKind; 3] = [SolverKind::Newton, SolverKind::Path, SolverKind::Conic];
 
     /// The name used in files and on the command line.

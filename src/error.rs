@@ -1,10 +1,10 @@
 //! Errors in user input (scene files and command-line options): one paragraph that names the
-//! file, the key and the line, says what is wrong and how to fix it (interfaces.md).
+//! file, the key and the line, says what is wrong and how to fix it (`docs/outputs.md`).
 
 use std::fmt;
 use std::path::PathBuf;
 
-/// What class of bad input an [`InputError`] is (the classes of interfaces.md).
+/// What class of bad input an [`InputError`] is (the classes of `docs/outputs.md`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum InputErrorKind {
     /// The file does not exist or cannot be read.

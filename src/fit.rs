@@ -1,4 +1,4 @@
-//! Parameter fitting with argmin (issue #8, item 4): the trajectory loss of a scene against a
+//! Parameter fitting with argmin (`docs/fitting.md`): the trajectory loss of a scene against a
 //! reference `trajectory.csv`, exposed as an argmin problem ([`CostFunction`] and [`Gradient`])
 //! so that any argmin solver can drive it, and the driver behind `ecp fit` ([`fit`]).
 //!
@@ -185,11 +185,11 @@ impl ReferenceTrajectory {
         }
     }
 
-    /// Checks the reference against `scene`: at least one row, no more rows than the scene
-    /// has steps, row `k` at `t = k h`, and the first row reachable from the scene's initial
-    /// state (`x_1 − h v_1 = x_0` and `Q_1 ≈ Q_0 + h/2 E(Q_0) ω_1`, the kinematic map of
-    /// formulation.md §4.2, which holds whatever the parameters) — so a reference made from
-    /// another scene is refused before anything is fitted.
+    /// Checks the reference against `scene`: at least one row, no more rows than the scene has
+    /// steps, row `k` at `t = k h`, and the first row reachable from the scene's initial state
+    /// (`x_1 − h v_1 = x_0` and `Q_1 ≈ Q_0 + h/2 E(Q_0) ω_1`, the kinematic map of
+    /// `docs/model.md#kinematic-map`, which holds whatever the parameters) — so a reference made
+    /// from another scene is refused before anything is fitted.
     pub fn check_against(&self, scene: &Scene) -> Result<(), InputError> {
         let err = |message: String| InputError {
             file: Some(self.path.clone()),
@@ -274,7 +274,7 @@ impl ReferenceTrajectory {
     }
 }
 
-/// Reads the body states of a `trajectory.csv` (interfaces.md) written for a scene with
+/// Reads the body states of a `trajectory.csv` (`docs/outputs.md`) written for a scene with
 /// `bodies` bodies: columns `t`, then `x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz` of each body (plain
 /// names for one body, else suffixed `_b<i>`; plain names are also accepted with a `_b0` suffix
 /// for a single body). Other columns are ignored.
@@ -317,7 +317,7 @@ pub fn read_reference(path: &Path, bodies: usize) -> Result<ReferenceTrajectory,
             InputErrorKind::MissingKey,
             Some(1),
             format!(
-                "the header has no column \"t\"; a trajectory.csv (interfaces.md) starts with \
+                "the header has no column \"t\"; a trajectory.csv (docs/outputs.md) starts with \
                  t,x,y,z,qw,qx,qy,qz,vx,vy,vz,wx,wy,wz,... (found: {})",
                 header.join(",")
             ),

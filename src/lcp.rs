@@ -1,6 +1,6 @@
 //! `ecp lcp FILE.json`: an LCP `0 ≤ z ⊥ M z + q ≥ 0` given as `{"M": [[..], ..], "q": [..]}`,
-//! solved with the pivotal solver (Lemke's method, solvers.md §2), so that it can be compared
-//! with other LCP solvers on the same instances.
+//! solved with the pivotal solver (Lemke's method, `docs/backends.md#path-like`), so that it can be
+//! compared with other LCP solvers on the same instances.
 
 use std::path::Path;
 use std::time::Instant;

@@ -1,4 +1,4 @@
-//! The `ecp` command line (interfaces.md): `run`, `compare` and `check` on scene files.
+//! The `ecp` command line (`docs/outputs.md`): `run`, `compare` and `check` on scene files.
 //!
 //! Exit status: 0 when every step converged, 1 when some step failed (what was computed is still
 //! written), 2 for bad input.

@@ -1,4 +1,4 @@
-//! The output files of interfaces.md: `trajectory.csv` (written and flushed row by row, so a
+//! The output files of `docs/outputs.md`: `trajectory.csv` (written and flushed row by row, so a
 //! failed or interrupted run keeps what it computed), `summary.json` and `compare.json`.
 
 use std::fs::File;
@@ -194,7 +194,7 @@ impl FallbackCounts {
     }
 }
 
-/// `summary.json` (interfaces.md), plus a few extra fields.
+/// `summary.json` (`docs/outputs.md`), plus a few extra fields.
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct RunSummary {
     /// Scene name.

@@ -1,5 +1,5 @@
 //! Running a scene file: the time stepper with the chosen backend, writing `trajectory.csv`
-//! row by row, then `summary.json` and the plots (interfaces.md). The `ecp` binary is a thin
+//! row by row, then `summary.json` and the plots (`docs/outputs.md`). The `ecp` binary is a thin
 //! layer over [`run_scene`] and [`compare_scene`].
 
 use std::path::PathBuf;
@@ -57,7 +57,7 @@ impl Default for RunOptions {
 }
 
 impl RunOptions {
-    /// The default output directory of interfaces.md: `out/<scene name>`.
+    /// The default output directory (`docs/outputs.md`): `out/<scene name>`.
     pub fn default_out_dir(file: &SceneFile) -> PathBuf {
         PathBuf::from("out").join(&file.scene.name)
     }
@@ -268,7 +268,7 @@ pub fn compare_scene(
             };
             let outcome = match run_scene(file, &run_options, |_| {}) {
                 Ok(o) => o,
-                // A formulation that refuses the scene (formulation.md §7.2) is reported, and
+                // A formulation that refuses the scene (`docs/model.md#reduced`) is reported, and
                 // the other combinations still run.
                 Err(RunError::Input(e)) => {
                     skipped.push(skip(e.message.clone()));

@@ -1,4 +1,4 @@
-//! The `ecp` binary against interfaces.md: outputs and exit statuses of `run`, `check` and
+//! The `ecp` binary against `docs/outputs.md`: outputs and exit statuses of `run`, `check` and
 //! `compare` on every scene file, and one broken file per bad-input class (exit status 2, a
 //! one-paragraph error naming file, key and line, no panic).
 
@@ -613,9 +613,10 @@ fn lcp_command_solves_reports_rays_and_refuses_bad_files() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// Every formulation of formulation.md §3 and §7 is reachable from the command line; the conic
-/// backend refuses (status 2, naming the way out) the formulations that have no step structure;
-/// `compare` runs what can run and lists the rest as skipped in `compare.json`.
+/// Every formulation of `docs/model.md#unknowns`, `docs/model.md#other-formulations` is reachable
+/// from the command line; the conic backend refuses (status 2, naming the way out) the formulations
+/// that have no step structure; `compare` runs what can run and lists the rest as skipped in
+/// `compare.json`.
 #[test]
 fn formulations_from_the_command_line() {
     let dir = temp_dir("formulations");

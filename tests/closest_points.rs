@@ -1,4 +1,4 @@
-//! Cross-check of the equivalent contact points with parry3d-f64 (formulation.md §4.3).
+//! Cross-check of the equivalent contact points with parry3d-f64 (`docs/model.md#contact`).
 //!
 //! While a body is separated from the half-space G, conditions C1–C5 are the KKT conditions of
 //! the closest-point problem between Conv(F) at the END pose of the step and G: `a1` must be the
@@ -47,7 +47,7 @@ const TOL: f64 = 1e-9;
 const SEPARATED: f64 = 1e-6;
 /// Two hull vertices whose gaps differ by less than this make the closest feature an edge or a
 /// face: then `a1` is any point of that feature (the closest point of Conv(F) to G is not
-/// unique, formulation.md §6), so such poses are skipped.
+/// unique, `docs/model.md#degenerate-cases`), so such poses are skipped.
 const UNIQUE_MARGIN: f64 = 1e-6;
 
 fn to_p(v: &V3) -> PVec {
@@ -388,7 +388,7 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
         dl.norm(),
         torque_bound
     );
-    // The kinematic map (formulation.md §4.2), on the raw solution.
+    // The kinematic map (`docs/model.md#kinematic-map`), on the raw solution.
     let qo = q_offset(&sim);
     let q_raw = Vector4::new(z[qo + 3], z[qo + 4], z[qo + 5], z[qo + 6]);
     let q_pred = start.q + kinematic_map(&start.q) * end.w * (0.5 * H);

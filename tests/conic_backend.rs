@@ -1,9 +1,9 @@
-//! The conic backend (solvers.md §3, issue #6) on the reference scenarios A1–A6 and the desk
-//! (scenarios.md), loaded from `scenes/`: every step converges to a natural residual ≤ 1e-8
-//! (formulation.md §2, computed by the model on the mapped-back vector), and the velocities
+//! The conic backend (`docs/backends.md#conic`) on the reference scenarios A1–A6 and the desk
+//! (`docs/model.md#scenarios`), loaded from `scenes/`: every step converges to a natural residual ≤
+//! 1e-8 (`docs/model.md#mcp`, computed by the model on the mapped-back vector), and the velocities
 //! match the semismooth Newton backend's within 1e-6 at every step. The Anitescu relaxation is
-//! labelled in its summary and measurably not the exact model (it drifts off the surface on
-//! A1), and an MCP without the structural view is rejected.
+//! labelled in its summary and measurably not the exact model (it drifts off the surface on A1),
+//! and an MCP without the structural view is rejected.
 
 mod common;
 
@@ -14,9 +14,9 @@ use ecp::model::{FnMcp, McpSolver, SolveError, StepStructure, Termination};
 use ecp::solvers::conic::{ClarabelStatus, ConicMode, ConicSettings, ConicSolver, status_code};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
-/// Residual every conic step must reach (issue #6).
+/// Residual every conic step must reach.
 const RESIDUAL: f64 = 1e-8;
-/// Largest velocity difference to the Newton backend, per step (issue #6).
+/// Largest velocity difference to the Newton backend, per step.
 const DV: f64 = 1e-6;
 /// Largest difference between a step without contact impulses and the free-motion velocity at
 /// its end point (which depends on the end-of-step orientation and angular velocity,
@@ -199,7 +199,7 @@ fn desk() {
 }
 
 /// The desk as `ecp compare` runs it: two independent 400-step runs, velocities within 1e-6
-/// at every step (issue #6, "Done when").
+/// at every step (the backend's acceptance criterion).
 #[test]
 fn desk_separate_runs_agree() {
     let conic = run(

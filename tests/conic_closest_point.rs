@@ -1,4 +1,4 @@
-//! The closest-point QP of the conic backend (solvers.md §3, issue #6) against parry3d-f64.
+//! The closest-point QP of the conic backend (`docs/backends.md#conic`) against parry3d-f64.
 //!
 //! Conv(F) is a random point cloud or a random box at a random pose, given either by its
 //! vertices or by its H-representation (the merged faces of ecp's `ConvexHull`); G is the
@@ -25,7 +25,7 @@ use proptest::prelude::*;
 
 type V3 = Vector3<f64>;
 
-/// Agreement with parry (issue #6).
+/// Agreement with parry.
 const TOL: f64 = 1e-8;
 
 fn to_p(v: &V3) -> PVec {

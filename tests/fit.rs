@@ -1,4 +1,4 @@
-//! Parameter fitting (issue #8 item 4): `ecp::fit` recovers the desk's μ and e_r from a
+//! Parameter fitting (`docs/fitting.md`): `ecp::fit` recovers the desk's μ and e_r from a
 //! noise-free reference, and `ecp fit` refuses bad input with exit status 2.
 //!
 //! The recovery runs on the first 50 steps of the desk (0.5 s) to stay quick in debug mode;
@@ -62,7 +62,7 @@ fn problem(gradient: GradientMethod) -> TrajectoryProblem {
 }
 
 /// L-BFGS with the adjoint gradients recovers μ to 1e-6 and e_r to 1e-5 from a start 30 % off
-/// (issue #8 acceptance, on 50 steps).
+/// (on 50 steps).
 #[test]
 fn lbfgs_recovers_desk_mu_and_e_r() {
     let report = fit(problem(GradientMethod::Adjoint), &FitOptions::default()).unwrap();

@@ -1,6 +1,6 @@
 //! Property tests of the analytic Jacobians of every residual block of the step problem
-//! (formulation.md §4, `ecp::formulations::blocks`) against central differences, with the
-//! model's Jacobian checker (`check_residual_block`, `check_block_mcp`).
+//! (`docs/model.md#residual-blocks`, `ecp::formulations::blocks`) against central differences, with
+//! the model's Jacobian checker (`check_residual_block`, `check_block_mcp`).
 //!
 //! States are random: rotated bodies with NON-UNIT quaternions (norm in [0.5, 2]: the step
 //! solver treats Q as four free unknowns), ECPs that are free points, hull vertices, or points on

@@ -1,7 +1,7 @@
-//! The PATH-like backend and its pivotal solver (issue #5, solvers.md §2): the standard MCP test
-//! suite, Murty's LCP, a degenerate LCP, an infeasible LCP (ray termination), random P-matrix
-//! LCPs by proptest, and one test per safeguard that fails without it: ray-termination
-//! detection, the lexicographic anti-cycling rule and the path search.
+//! The PATH-like backend and its pivotal solver (`docs/backends.md#path-like`): the standard MCP
+//! test suite, Murty's LCP, a degenerate LCP, an infeasible LCP (ray termination), random P-matrix
+//! LCPs by proptest, and one test per safeguard that fails without it: ray-termination detection,
+//! the lexicographic anti-cycling rule and the path search.
 
 mod common;
 
@@ -14,7 +14,7 @@ use proptest::prelude::*;
 
 #[test]
 fn path_solves_95_percent_of_the_suite_to_known_solutions() {
-    // Issue #5: at least 95 % of the (problem, start) pairs to natural residual ≤ 1e-10; every
+    // The acceptance target: least 95 % of the (problem, start) pairs to natural residual ≤ 1e-10; every
     // returned solution is right; every failure carries a finite best iterate.
     let Verdict {
         pairs,

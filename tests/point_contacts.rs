@@ -1,5 +1,5 @@
-//! The point-contact baseline (formulation.md §7.3, `ecp::formulations::point`) against the ECP
-//! model (the paper's hull formulation) on the scenarios of scenarios.md:
+//! The point-contact baseline (`docs/model.md#point-contacts`, `ecp::formulations::point`) against
+//! the ECP model (the paper's hull formulation) on the scenarios of `docs/model.md#scenarios`:
 //!
 //! - every residual block of the point model is checked against central differences with the
 //!   model's Jacobian checker, on random states (proptest) and on the assembled step MCPs;
@@ -223,7 +223,7 @@ proptest! {
     }
 }
 
-/// The wrenches are those of formulation.md §4.1 at the point: `W_n = [n; r × n]`, and the
+/// The wrenches are those of `docs/model.md#newton-euler` at the point: `W_n = [n; r × n]`, and the
 /// three directions are orthonormal in their force parts.
 #[test]
 fn point_wrenches_are_the_contact_wrenches() {

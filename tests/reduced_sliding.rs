@@ -1,13 +1,13 @@
-//! The reduced sliding model (formulation.md §7.2, `docs/reduced-sliding.md`) against the hull
+//! The reduced sliding model (`docs/model.md#reduced`, `docs/reduced-sliding.md`) against the hull
 //! model and the analytic scenarios, its refusals, and the Jacobians of its residual blocks.
 //!
-//! - Desk (scenarios.md B): the reduced and the hull model (Newton) agree to 1e-8 in v, ω and the
-//!   ECP at every one of the 400 steps, with the Newton and the PATH backend; at sampled steps the
-//!   reduced solution, written in the hull model's unknowns, solves the hull step MCP (natural
-//!   residual ≤ 1e-9).
-//! - A1, A2, A3, A4 (10° sticks, 25° slides), A6 at 90 N: the discrete answers of scenarios.md to
-//!   1e-9 in velocities and 1e-8 in ECP offsets, with Newton and PATH, and the hull model's
-//!   trajectory to 1e-8.
+//! - Desk (`docs/model.md#scenarios`): the reduced and the hull model (Newton) agree to 1e-8 in v,
+//!   ω and the ECP at every one of the 400 steps, with the Newton and the PATH backend; at sampled
+//!   steps the reduced solution, written in the hull model's unknowns, solves the hull step MCP
+//!   (natural residual ≤ 1e-9).
+//! - A1, A2, A3, A4 (10° sticks, 25° slides), A6 at 90 N: the discrete answers of
+//!   `docs/model.md#scenarios` to 1e-9 in velocities and 1e-8 in ECP offsets, with Newton and PATH,
+//!   and the hull model's trajectory to 1e-8.
 //! - Refusals: A6 at 110 N stops at the step where the hull model starts to tip; A5 (dropped),
 //!   two bodies, two half-spaces, a normal or tilting initial velocity, an unloaded contact are
 //!   refused at construction; a load that lifts the body stops the run at the lift-off step.
@@ -149,12 +149,12 @@ fn assert_agrees_with_hull(name: &str, reduced: &[StepRecord], hull: &[StepRecor
 }
 
 // ---------------------------------------------------------------------------------------------
-// The desk (scenarios.md B)
+// The desk (`docs/model.md#scenarios`)
 // ---------------------------------------------------------------------------------------------
 
 /// The hull model's unknowns at the reduced model's solution of the step from `state_before`
-/// (formulation.md §3): ν, q (Q before renormalisation), a1 = a2 = ECP, multiplier 1 on the face
-/// of Conv(F) lying on the plane, l_g = 0, the impulses and σ.
+/// (`docs/model.md#unknowns`): ν, q (Q before renormalisation), a1 = a2 = ECP, multiplier 1 on the
+/// face of Conv(F) lying on the plane, l_g = 0, the impulses and σ.
 fn hull_point(sim: &Simulation, rec: &StepRecord, q_raw: nalgebra::Vector4<f64>) -> Vec<f64> {
     let mcp = sim.mcp();
     let mut z = sim.z().to_vec();
@@ -267,7 +267,7 @@ fn desk_step_mcp_jacobian_checks() {
 }
 
 // ---------------------------------------------------------------------------------------------
-// Analytic scenarios (scenarios.md A)
+// Analytic scenarios (`docs/model.md#scenarios`)
 // ---------------------------------------------------------------------------------------------
 
 fn a1_sliding(b: Backend) {
@@ -645,8 +645,8 @@ proptest! {
         check(&ReducedEllipsoid { data }, &[y.as_slice()])?;
     }
 
-    /// The eliminated quantities satisfy the Newton–Euler equations of formulation.md §4.1 with
-    /// `v = v_t t + v_o o`, `ω = ω_n n` and the ECP `r = −H n + ρ_t t + ρ_o o`.
+    /// The eliminated quantities satisfy the Newton–Euler equations of `docs/model.md#newton-euler`
+    /// with `v = v_t t + v_o o`, `ω = ω_n n` and the ECP `r = −H n + ρ_t t + ρ_o o`.
     #[test]
     fn eliminated_impulses_satisfy_newton_euler(data in step_data(), y in vec3(-3.0, 3.0)) {
         let p = data.point(y.as_slice());

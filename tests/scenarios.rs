@@ -1,8 +1,8 @@
-//! The analytic scenarios A1–A6 and the desk (scenarios.md §A, §B), loaded from the scene files
-//! in `scenes/` and run with every available backend, checked against the numbers of the spec.
-//! Tolerances: velocities 1e-9, ECP offsets 1e-8, no vertex below −1e-9 (issues #3, #4).
-//! The scene files are also compared with the Rust constructors of
-//! `ecp::formulations::scenarios`, so the two cannot drift.
+//! The analytic scenarios A1–A6 and the desk (`docs/model.md#scenarios`), loaded from the scene
+//! files in `scenes/` and run with every available backend, checked against the numbers of the
+//! reference. Tolerances: velocities 1e-9, ECP offsets 1e-8, no vertex below −1e-9. The
+//! scene files are also compared with the Rust constructors of `ecp::formulations::scenarios`, so
+//! the two cannot drift.
 
 mod common;
 

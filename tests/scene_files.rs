@@ -105,7 +105,8 @@ fn obj_and_stl_meshes_become_convex_pieces() {
 
 #[test]
 fn uniform_inertia_recentres_the_t_bar_on_its_centre_of_mass() {
-    // The T-bar of scenarios.md §C, given in a frame with the crossbar's outer edge at x = 0.
+    // The T-bar of `docs/model.md#scenarios`, given in a frame with the crossbar's outer edge at x
+    // = 0.
     let text = format!(
         "{HEAD}[[bodies]]\nname = \"tbar\"\nmass = 2\ninertia = \"uniform\"\nposition = [0, 0, 0.025]\n\
          [[bodies.pieces]]\nbox = [0.05, 0.20, 0.05]\ncenter = [0.025, 0, 0]\n\
@@ -120,7 +121,7 @@ fn uniform_inertia_recentres_the_t_bar_on_its_centre_of_mass() {
     for v in reference.vertices() {
         assert!(has_vertex(&body.shape, *v, 1e-14), "vertex {v}");
     }
-    // CM 0.0679 m from the crossbar's outer edge (scenarios.md §C).
+    // CM 0.0679 m from the crossbar's outer edge (`docs/model.md#scenarios`).
     let min_x = body
         .shape
         .vertices()

@@ -1,4 +1,4 @@
-//! Step and trajectory sensitivities (issue #8, `ecp::formulations::sensitivity`) against
+//! Step and trajectory sensitivities (`ecp::formulations::sensitivity`, `docs/fitting.md`) against
 //! central finite differences, on A1 (sliding), A3 (spin), A6 at 110 N (tipping) and the desk.
 //!
 //! **Relative error.** For one direction (a step input, or a rotation of the start orientation

@@ -1,16 +1,16 @@
-//! The paper's second example, the T-bar (scenarios.md §C), from `scenes/tbar.toml`: the
+//! The paper's second example, the T-bar (`docs/model.md#scenarios`), from `scenes/tbar.toml`: the
 //! wrench schedule designed there must drive surface contact → two-point contact → (flat) →
 //! a different two-point contact → surface contact → yaw rotation in surface contact, with the
 //! contact mode read from the state alone.
 //!
-//! What is checked, per backend: every step converges to a natural residual ≤ 1e-10; no vertex
-//! of the real body is below −1e-9; `|a1_z| ≤ 1e-12` whenever `p_n > 0` (scenarios.md §C);
-//! the phases, collapsing steps with the same mode and the same touching vertices (within 1e-7
-//! of the ground, computed here from the state), are exactly patch, line on the +y slanted hull
-//! edge, patch, line on the −y slanted hull edge, patch, each at least 20 steps long; in each
-//! line phase the ECP lies on the segment between the two touching vertices (to 1e-9) and
-//! outside the physical body (by ≥ 0.02 m); the bar never tilts more than 15°; in the last
-//! patch phase the yaw changes by at least 90°, and the bar ends at rest.
+//! What is checked, per backend: every step converges to a natural residual ≤ 1e-10; no vertex of
+//! the real body is below −1e-9; `|a1_z| ≤ 1e-12` whenever `p_n > 0` (`docs/model.md#scenarios`);
+//! the phases, collapsing steps with the same mode and the same touching vertices (within 1e-7 of
+//! the ground, computed here from the state), are exactly patch, line on the +y slanted hull edge,
+//! patch, line on the −y slanted hull edge, patch, each at least 20 steps long; in each line phase
+//! the ECP lies on the segment between the two touching vertices (to 1e-9) and outside the physical
+//! body (by ≥ 0.02 m); the bar never tilts more than 15°; in the last patch phase the yaw changes
+//! by at least 90°, and the bar ends at rest.
 //!
 //! Between the two two-point contacts the bar lies flat again: two different slanted edges of
 //! Conv(T-bar) share no vertex and lie on either side of the bottom face, so an inelastic
@@ -27,7 +27,7 @@ use ecp::formulations::stepper::{MODE_TOLERANCE, Simulation, StepRecord};
 use nalgebra::Vector3;
 
 /// Distance from the crossbar's outer face to the CM along body x (m): the crossbar
-/// (0.0005 m³ at x = 0.025) and the stem (0.000375 m³ at x = 0.125), scenarios.md §C.
+/// (0.0005 m³ at x = 0.025) and the stem (0.000375 m³ at x = 0.125), `docs/model.md#scenarios`.
 const X_CM: f64 = 0.059375 / 0.875;
 /// Half the thickness: the bottom face is at body z = −0.025 (m).
 const HALF_THICK: f64 = 0.025;

@@ -1,14 +1,14 @@
-//! The union-of-pieces formulation (formulation.md §7.1, issue #7): one ECP contact and one
-//! friction ellipsoid per convex piece that can touch the ground (the desk's four legs, the
-//! T-bar's two bars). Its impulses and per-piece ECPs are not unique, so the step Jacobian is
-//! singular on the whole solution set (formulation.md §6); every backend must still converge,
-//! judged by the model's natural residual (≤ 1e-10 on every step).
+//! The union-of-pieces formulation (`docs/model.md#union`): one ECP contact and one friction
+//! ellipsoid per convex piece that can touch the ground (the desk's four legs, the T-bar's two
+//! bars). Its impulses and per-piece ECPs are not unique, so the step Jacobian is singular on the
+//! whole solution set (`docs/model.md#degenerate-cases`); every backend must still converge, judged
+//! by the model's natural residual (≤ 1e-10 on every step).
 //!
 //! - Convergence: all 400 steps of the union desk (the spin reverses eight times) and 100 steps
 //!   of a sliding, spinning T-bar, with every backend (about 4 s in debug mode for the desk's
 //!   three runs).
 //! - Pure translation (the desk without torque and without initial spin; A1): union and hull
-//!   agree to 1e-8 in v and ω, as formulation.md §7.1 predicts (the per-leg friction forces are
+//!   agree to 1e-8 in v and ω, as `docs/model.md#union` predicts (the per-leg friction forces are
 //!   parallel, so only their sum, fixed by the global moment balance, enters the motion).
 //! - With spin the union model's motion is not unique (the friction torque depends on how the
 //!   load is split between the legs, which the model leaves open), so nothing is asserted about
@@ -96,8 +96,8 @@ fn desk_translating() -> Scene {
     scene
 }
 
-/// The T-bar of scenarios.md §C lying flat (2 kg, μ = 0.22, e_r = 0.1 m), sliding and spinning
-/// under a periodic push and twist at its CM, like the desk's loads scaled to its weight.
+/// The T-bar of `docs/model.md#scenarios` lying flat (2 kg, μ = 0.22, e_r = 0.1 m), sliding and
+/// spinning under a periodic push and twist at its CM, like the desk's loads scaled to its weight.
 fn t_bar_sliding() -> Scene {
     let mut scene = scenarios::desk();
     scene.name = "t_bar_sliding".into();
@@ -223,7 +223,7 @@ fn union_and_hull_agree_on_a1() {
 }
 
 /// With spin the union model's motion is not unique; measured, not asserted: the hull/union
-/// difference (the models differ, formulation.md §7.1) and the Newton/PATH difference on the
+/// difference (the models differ, `docs/model.md#union`) and the Newton/PATH difference on the
 /// union model (two solutions of the same step problems).
 #[test]
 fn union_with_spin_differences_are_measured() {

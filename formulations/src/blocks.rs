@@ -1,8 +1,8 @@
-//! Residual blocks of the step problem (formulation.md §4), named after the paper.
+//! Residual blocks of the step problem (`docs/model.md#residual-blocks`), named after the paper.
 //!
-//! Each block is paired with the variable block of the same length listed in formulation.md §3
-//! and carries its analytic Jacobian; every one is checked against central differences by the
-//! model's Jacobian checker (unit tests here and property tests in `tests/`).
+//! Each block is paired with the variable block of the same length listed in
+//! `docs/model.md#unknowns` and carries its analytic Jacobian; every one is checked against central
+//! differences by the model's Jacobian checker (unit tests here and property tests in `tests/`).
 //!
 //! Blocks whose residual depends on model parameters also declare them as **data θ**
 //! ([`ResidualBlock::num_data`]; not the variable blocks of `parameter_sizes`) and write
@@ -33,7 +33,7 @@ fn v4(s: &[f64], o: usize) -> Vector4<f64> {
     Vector4::new(s[o], s[o + 1], s[o + 2], s[o + 3])
 }
 
-/// Friction parameters of one contact (formulation.md §4.4): Coulomb coefficient μ and the
+/// Friction parameters of one contact (`docs/model.md#friction`): Coulomb coefficient μ and the
 /// semi-axes of the limit ellipsoid, `e_t`, `e_o` dimensionless and `e_r` a length (m).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FrictionParams {
@@ -119,7 +119,7 @@ pub fn inertia_direction(k: usize) -> Matrix3<f64> {
     e
 }
 
-/// What a body's Newton–Euler block is computed from (formulation.md §4.1): its mass
+/// What a body's Newton–Euler block is computed from (`docs/model.md#newton-euler`): its mass
 /// properties, its state at the start of the step and the applied load. These are the block's
 /// data θ ([`NEWTON_EULER_DATA`]); gravity and the step length are fixed.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -514,7 +514,8 @@ impl ResidualBlock for NewtonEuler {
     }
 }
 
-/// Kinematic map (formulation.md §4.2): `0 = −x + x^u + h v`, `0 = −Q + Q^u + (h/2) E(Q^u) ω`.
+/// Kinematic map (`docs/model.md#kinematic-map`): `0 = −x + x^u + h v`, `0 = −Q + Q^u + (h/2)
+/// E(Q^u) ω`.
 ///
 /// Reads `q` (7) and `ν` (6). Linear in the unknowns.
 #[derive(Clone, Debug)]
@@ -629,7 +630,7 @@ fn friction_data_name(k: usize) -> String {
         .map_or_else(|| format!("theta{k}"), |s| (*s).to_string())
 }
 
-/// Contact condition C1 (formulation.md §4.3): `0 = a1 − a2 − l_g ∇g(a2)`, normalised on the
+/// Contact condition C1 (`docs/model.md#contact`): `0 = a1 − a2 − l_g ∇g(a2)`, normalised on the
 /// half-space G (whose gradient is its constant normal `n_G`). Reads `a1`, `a2`, `l_g`.
 #[derive(Clone, Debug)]
 pub struct ClosestPointAlignment {
@@ -637,7 +638,7 @@ pub struct ClosestPointAlignment {
     pub normal: Vector3<f64>,
     /// Row scale `s > 0` (the rows are `s·r`): makes these length-valued rows commensurate
     /// with the impulse-valued ones, which the merit functions of the backends need. It does not
-    /// change the solution set (formulation.md §4.3, "Scaling").
+    /// change the solution set (`docs/model.md#contact`, "Scaling").
     pub scale: f64,
 }
 
@@ -666,7 +667,7 @@ impl ResidualBlock for ClosestPointAlignment {
     }
 }
 
-/// Contact condition C2 (formulation.md §4.3): `0 = ∇g(a2) + Σ_i l_i ∇f_i(a1)` with
+/// Contact condition C2 (`docs/model.md#contact`): `0 = ∇g(a2) + Σ_i l_i ∇f_i(a1)` with
 /// `∇f_i = R(Q) n̂_i` for the faces of Conv(F). Reads `l` (m) and `q` (7).
 #[derive(Clone, Debug)]
 pub struct NormalCone {
@@ -731,7 +732,7 @@ impl ResidualBlock for NormalCone {
     }
 }
 
-/// Contact condition C3 (formulation.md §4.3): `0 ≤ l_i ⊥ −f_i(a1) ≥ 0` for every face of
+/// Contact condition C3 (`docs/model.md#contact`): `0 ≤ l_i ⊥ −f_i(a1) ≥ 0` for every face of
 /// Conv(F), `f_i(p) = n̂_iᵀ R(Q)ᵀ (p − x) − d_i`. Reads `a1` (3) and `q` (7).
 #[derive(Clone, Debug)]
 pub struct HullFaces {
@@ -741,7 +742,7 @@ pub struct HullFaces {
     pub offsets: Vec<f64>,
     /// Row scale `s > 0` (the rows are `s·r`): makes these length-valued rows commensurate
     /// with the impulse-valued ones, which the merit functions of the backends need. It does not
-    /// change the solution set (formulation.md §4.3, "Scaling").
+    /// change the solution set (`docs/model.md#contact`, "Scaling").
     pub scale: f64,
 }
 
@@ -791,7 +792,7 @@ impl ResidualBlock for HullFaces {
     }
 }
 
-/// Contact condition C4 (formulation.md §4.3): `0 ≤ l_g ⊥ −g(a2) ≥ 0`,
+/// Contact condition C4 (`docs/model.md#contact`): `0 ≤ l_g ⊥ −g(a2) ≥ 0`,
 /// `g(p) = n_Gᵀ p − c`. Reads `a2`.
 #[derive(Clone, Debug)]
 pub struct HalfSpaceSide {
@@ -801,7 +802,7 @@ pub struct HalfSpaceSide {
     pub offset: f64,
     /// Row scale `s > 0` (the rows are `s·r`): makes these length-valued rows commensurate
     /// with the impulse-valued ones, which the merit functions of the backends need. It does not
-    /// change the solution set (formulation.md §4.3, "Scaling").
+    /// change the solution set (`docs/model.md#contact`, "Scaling").
     pub scale: f64,
 }
 
@@ -825,7 +826,7 @@ impl ResidualBlock for HalfSpaceSide {
     }
 }
 
-/// Contact condition C5 (formulation.md §4.3), non-penetration:
+/// Contact condition C5 (`docs/model.md#contact`), non-penetration:
 /// `0 ≤ p_n ⊥ g(a1) ≥ 0`. Reads `a1`.
 #[derive(Clone, Debug)]
 pub struct NonPenetration {
@@ -835,7 +836,7 @@ pub struct NonPenetration {
     pub offset: f64,
     /// Row scale `s > 0` (the rows are `s·r`): makes these length-valued rows commensurate
     /// with the impulse-valued ones, which the merit functions of the backends need. It does not
-    /// change the solution set (formulation.md §4.3, "Scaling").
+    /// change the solution set (`docs/model.md#contact`, "Scaling").
     pub scale: f64,
 }
 
@@ -859,7 +860,7 @@ impl ResidualBlock for NonPenetration {
     }
 }
 
-/// Maximum-power-dissipation friction law (formulation.md §4.4, paper eq. (friction)):
+/// Maximum-power-dissipation friction law (`docs/model.md#friction`, paper eq. (friction)):
 /// `0 = e_t² μ p_n W_tᵀν + p_t σ`, `0 = e_o² μ p_n W_oᵀν + p_o σ`, `0 = e_r² μ p_n W_rᵀν + p_r σ`.
 ///
 /// Reads `ν` (6), `q` (7, for `r = a1 − x`), `a1` (3), `p_n` (1), `p_f` (3), `σ` (1).
@@ -976,16 +977,13 @@ impl ResidualBlock for FrictionDissipation {
     }
 }
 
-/// Friction ellipsoid slack (formulation.md §4.4, paper eq. (friction_c)), in its cone form
+/// Friction cone (paper eq. (15), `friction_c`), in the cone form
 /// `0 ≤ μ p_n − ‖E⁻¹ p_f‖ ⊥ σ ≥ 0` with `E = diag(e_t, e_o, e_r)`. Reads `p_n` (1), `p_f` (3).
 ///
-/// The paper writes the squared row `μ² p_n² − p_t²/e_t² − p_o²/e_o² − p_r²/e_r²`. For `p_n ≥ 0`
-/// both rows have the same sign and the same zeros, so the MCP has the same solutions; but at
-/// `p_n = 0` (separated, or lifting off) the squared row only bounds the friction impulse by
-/// `|p_f| ≤ √r` for a natural residual `r`, so a step accepted at `r = 1e-10` could carry a
-/// spurious `p_f ≈ 1e-5` (measured: ω off by 9e-6 rad/s in the free fall of scenario A5 tilted
-/// with the Newton backend). The cone form bounds it by `r`. Its only kink is `p_f = 0`, where
-/// the Jacobian uses 0, an element of the generalised gradient.
+/// The paper writes the squared row `μ² p_n² − p_t²/e_t² − p_o²/e_o² − p_r²/e_r²`; for `p_n ≥ 0`
+/// both have the same solutions, but only the cone form bounds a spurious friction impulse at
+/// `p_n = 0` by the natural residual (`docs/decisions.md#friction-row-in-cone-form`). Its only
+/// kink is `p_f = 0`, where the Jacobian uses 0, an element of the generalised gradient.
 #[derive(Clone, Debug)]
 pub struct FrictionEllipsoid {
     /// Friction parameters.
@@ -1057,7 +1055,8 @@ fn scaled_norm(f: &FrictionParams, p: &[f64]) -> (f64, [f64; 3]) {
     (norm, [u[0] / e[0], u[1] / e[1], u[2] / e[2]])
 }
 
-/// Generalised mass matrix `diag(m I₃, R I_body Rᵀ)` at orientation `q` (formulation.md §4.1).
+/// Generalised mass matrix `diag(m I₃, R I_body Rᵀ)` at orientation `q`
+/// (`docs/model.md#newton-euler`).
 pub fn mass_matrix(mass: f64, inertia_body: &Matrix3<f64>, q: &Vector4<f64>) -> Matrix6<f64> {
     let r = rotation_matrix(q);
     let iw = r * inertia_body * r.transpose();

@@ -1,13 +1,15 @@
-//! The contact formulations (formulation.md §3 and §7) and the [`Stepper`] trait every one of
-//! them implements, so that the command line, the reports and the optimisation pipelines drive
-//! any formulation the same way.
+//! The contact formulations (`docs/model.md#unknowns`, `docs/model.md#other-formulations`) and the
+//! [`Stepper`] trait every one of them implements, so that the command line, the reports and the
+//! optimisation pipelines drive any formulation the same way.
 //!
 //! | formulation | module | step problem |
 //! |---|---|---|
 //! | [`Formulation::Hull`] | [`crate::stepper`] | one ECP contact between Conv(F) and each half-space (the paper) |
-//! | [`Formulation::Union`] | [`crate::stepper`] | one ECP contact per convex piece of F (§7.1) |
-//! | [`Formulation::Reduced`] | [`crate::reduced`] | planar sliding with the whole patch in contact (§7.2) |
-//! | [`Formulation::Point`] | [`crate::point`] | fixed points at the vertices, gap linearised at the step start (§7.3) |
+//! | [`Formulation::Union`] | [`crate::stepper`] | one ECP contact per convex piece of F
+//! (`docs/model.md#union`) | | [`Formulation::Reduced`] | [`crate::reduced`] | planar sliding with
+//! the whole patch in contact (`docs/model.md#reduced`) | | [`Formulation::Point`] |
+//! [`crate::point`] | fixed points at the vertices, gap linearised at the step start
+//! (`docs/model.md#point-contacts`) |
 
 use std::fmt;
 use std::str::FromStr;
@@ -17,22 +19,23 @@ use ecp_model::McpSolver;
 use crate::fallback::Fallbacks;
 use crate::stepper::{BodyState, Scene, SceneError, StepRecord};
 
-/// A contact formulation (formulation.md §3 and §7).
+/// A contact formulation (`docs/model.md#unknowns`, `docs/model.md#other-formulations`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Default)]
 pub enum Formulation {
     /// The paper's model: one contact between Conv(body) and each half-space (the ECP).
     #[default]
     Hull,
-    /// One contact per convex piece of the body (formulation.md §7.1).
+    /// One contact per convex piece of the body (`docs/model.md#union`).
     Union,
-    /// The reduced sliding model with the whole patch in contact (formulation.md §7.2).
+    /// The reduced sliding model with the whole patch in contact (`docs/model.md#reduced`).
     Reduced,
-    /// Point contacts at the vertices of the pieces, gap linearised (formulation.md §7.3).
+    /// Point contacts at the vertices of the pieces, gap linearised
+    /// (`docs/model.md#point-contacts`).
     Point,
 }
 
 impl Formulation {
-    /// Every formulation, in the order of formulation.md.
+    /// Every formulation, in the order of `docs/model.md`.
     pub const ALL: [Formulation; 4] = [
         Formulation::Hull,
         Formulation::Union,

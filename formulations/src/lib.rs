@@ -1,5 +1,5 @@
 //! Contact formulations of `ecp`: rigid-body geometry and kinematics, and the
-//! step problems built on them (spec `formulation.md`).
+//! step problems built on them (`docs/model.md`).
 
 //!
 //! ```

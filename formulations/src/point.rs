@@ -1,5 +1,5 @@
-//! Point contacts (formulation.md §7.3): the classic, geometrically explicit model the paper
-//! argues against, kept as a baseline.
+//! Point contacts (`docs/model.md#point-contacts`): the classic, geometrically explicit model the
+//! paper argues against, kept as a baseline.
 //!
 //! A fixed set of contact points — the vertices of the convex pieces of each body, coincident
 //! ones merged ([`Shape::vertices`](crate::geometry::Shape::vertices)) — each against each
@@ -10,12 +10,12 @@
 //!
 //! - Newton–Euler with every point's wrench, its mass matrix and gyroscopic impulse
 //!   at the end of the step as in the hull model (`docs/energy.md`; [`PointNewtonEuler`]);
-//! - the kinematic map (§4.2, [`KinematicMap`]);
+//! - the kinematic map (`docs/model.md#kinematic-map`, [`KinematicMap`]);
 //! - non-penetration of the linearised gap, in velocity units,
 //!   `0 ≤ p_n,i ⊥ g_i(q^u)/h + W_n,iᵀ ν ≥ 0` ([`PointNonPenetration`]);
-//! - the elliptic maximum-dissipation friction law of §4.4 restricted to the tangent plane (a
-//!   point has no torsion): `e_t² μ p_n W_tᵀν + p_t σ = 0`, `e_o² μ p_n W_oᵀν + p_o σ = 0`
-//!   ([`PointFrictionDissipation`]) and `0 ≤ μ p_n − ‖(p_t/e_t, p_o/e_o)‖ ⊥ σ ≥ 0`
+//! - the elliptic maximum-dissipation friction law of `docs/model.md#friction` restricted to the
+//!   tangent plane (a point has no torsion): `e_t² μ p_n W_tᵀν + p_t σ = 0`, `e_o² μ p_n W_oᵀν +
+//!   p_o σ = 0` ([`PointFrictionDissipation`]) and `0 ≤ μ p_n − ‖(p_t/e_t, p_o/e_o)‖ ⊥ σ ≥ 0`
 //!   ([`PointFrictionEllipsoid`]).
 //!
 //! The artefacts the paper points at show up here (measured in `tests/point_contacts.rs` and
@@ -84,8 +84,9 @@ fn dot6(w: &Vector6<f64>, nu: &[f64]) -> f64 {
 // Residual blocks
 // -------------------------------------------------------------------------------------------
 
-/// The wrenches of one contact point, frozen at the start of the step (formulation.md §7.3,
-/// the §4.1 wrenches with `r = r_i = R(Q^u) b_i` instead of the end-of-step ECP).
+/// The wrenches of one contact point, frozen at the start of the step
+/// (`docs/model.md#point-contacts`, the `docs/model.md#newton-euler` wrenches with `r = r_i =
+/// R(Q^u) b_i` instead of the end-of-step ECP).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointWrenches {
     /// `W_n = [n; r × n]`.
@@ -111,9 +112,9 @@ impl PointWrenches {
     }
 }
 
-/// Discrete Newton–Euler equations of a body on point contacts (formulation.md §4.1, §7.3):
-/// `0 = −M(ν − ν^u) + Σ_i (W_n,i p_n,i + W_t,i p_t,i + W_o,i p_o,i) + p_app + p_vp`,
-/// with the wrenches of the start of the step.
+/// Discrete Newton–Euler equations of a body on point contacts (`docs/model.md#newton-euler`,
+/// `docs/model.md#point-contacts`): `0 = −M(ν − ν^u) + Σ_i (W_n,i p_n,i + W_t,i p_t,i + W_o,i
+/// p_o,i) + p_app + p_vp`, with the wrenches of the start of the step.
 ///
 /// Two forms, by constructor: [`PointNewtonEuler::for_body`], the one the stepper uses, writes
 /// the inertial part as the hull model does — the mass matrix and the gyroscopic impulse at the
@@ -240,7 +241,7 @@ impl ResidualBlock for PointNewtonEuler {
 }
 
 /// Non-penetration of one point with its gap linearised at the start of the step
-/// (formulation.md §7.3), in velocity units: `0 ≤ p_n ⊥ g(q^u)/h + W_nᵀ ν ≥ 0`.
+/// (`docs/model.md#point-contacts`), in velocity units: `0 ≤ p_n ⊥ g(q^u)/h + W_nᵀ ν ≥ 0`.
 ///
 /// `g + h W_nᵀν` is the first-order prediction of the point's end-of-step gap; the true gap
 /// differs from it by `O(h² |ω|²)`, which is the baseline's penetration artefact.
@@ -275,8 +276,8 @@ impl ResidualBlock for PointNonPenetration {
     }
 }
 
-/// Maximum-dissipation friction at one point (formulation.md §4.4 without the torsion row,
-/// §7.3): `0 = e_t² μ p_n W_tᵀν + p_t σ`, `0 = e_o² μ p_n W_oᵀν + p_o σ`.
+/// Maximum-dissipation friction at one point (`docs/model.md#friction` without the torsion row,
+/// `docs/model.md#point-contacts`): `0 = e_t² μ p_n W_tᵀν + p_t σ`, `0 = e_o² μ p_n W_oᵀν + p_o σ`.
 ///
 /// Reads `ν` (6), `p_n` (1), `p_f = (p_t, p_o)` (2), `σ` (1).
 #[derive(Clone, Debug)]
@@ -383,8 +384,8 @@ fn ellipse_norm(f: &FrictionParams, p: &[f64]) -> (f64, [f64; 2]) {
 // Report helpers
 // -------------------------------------------------------------------------------------------
 
-/// Centre of pressure of point impulses, `Σ p_n,i a_i / Σ p_n,i` (formulation.md §7.3), for
-/// the contacts of one body against one half-space; `None` when no point carries load.
+/// Centre of pressure of point impulses, `Σ p_n,i a_i / Σ p_n,i` (`docs/model.md#point-contacts`),
+/// for the contacts of one body against one half-space; `None` when no point carries load.
 ///
 /// For a flat patch it is fixed by the total contact wrench (moment balance), so it is unique
 /// even though the split among the points is not; it is the point model's counterpart of the
@@ -451,8 +452,8 @@ struct PointResiduals {
     friction: ResId,
 }
 
-/// The point-contact time stepper (formulation.md §7.3): the step MCP is built once and its
-/// per-step data replaced with [`BlockMcp::replace_residual_block`]; each step warm-starts from
+/// The point-contact time stepper (`docs/model.md#point-contacts`): the step MCP is built once and
+/// its per-step data replaced with [`BlockMcp::replace_residual_block`]; each step warm-starts from
 /// the previous one. Records have one [`ContactRecord`] per (point, half-space), body-major and
 /// then half-space-major: `a1 = a2` the point at the step end, `lg` its gap, `p_r = 0`.
 pub struct PointContacts {
@@ -590,8 +591,9 @@ impl PointContacts {
             });
         }
 
-        // Residual blocks, paired as in formulation.md §3 (with the §7.3 unknowns); their data
-        // are placeholders until `prepare_step` fills in the start of each step.
+        // Residual blocks, paired as in `docs/model.md#unknowns` (with the
+        // `docs/model.md#point-contacts` unknowns); their data are placeholders until
+        // `prepare_step` fills in the start of each step.
         let frame0 = ContactFrame {
             n: Vector3::z(),
             t: Vector3::x(),
@@ -866,17 +868,16 @@ impl PointContacts {
                 ],
             );
         }
-        // Every point that carried no load in the previous step gets a fresh start. A closed
-        // one gets the active guess (p_n = 0 kills its friction rows, where Newton's merit has
-        // a spurious minimiser), and so do the other closed points of its body and half-space,
-        // so that the guessed loads add up to the weight (measured: 627 Newton iterations in
-        // the desk's first 30 steps, 980 when only the unloaded point restarts). An open one
-        // gets p = 0 and σ = OPEN_SIGMA. An unloaded point's
-        // friction rows `p_f σ = 0` and `−‖p_f‖ ⊥ σ` hold for every σ ≥ 0, and a σ well away
-        // from 0 keeps their Jacobian (σ I on p_f) regular; left at σ ≈ 0 they are doubly
-        // degenerate and Newton crawls (measured: 12–38 failed steps of 50 in A1 and A5 with
-        // σ = 0 or with the warm σ, none with σ = 1). Loaded points keep their warm values,
-        // even when the curvature of the step left them a hair above the plane (tipping).
+        // Every point that carried no load in the previous step gets a fresh start. A closed one
+        // gets the active guess (p_n = 0 kills its friction rows, where Newton's merit has a
+        // spurious minimiser), and so do the other closed points of its body and half-space, so
+        // that the guessed loads add up to the weight. An open one gets p = 0 and σ = OPEN_SIGMA.
+        // An unloaded point's friction rows `p_f σ = 0` and `−‖p_f‖ ⊥ σ` hold for every σ ≥ 0, and
+        // a σ well away from 0 keeps their Jacobian (σ I on p_f) regular; left at σ ≈ 0 they are
+        // doubly degenerate and Newton crawls
+        // (docs/decisions.md#point-contacts-restarting-unloaded-points). Loaded points keep their
+        // warm values, even when the curvature of the step left them a hair above the plane
+        // (tipping).
         let n = self.contacts.len();
         let closed: Vec<bool> = (0..n).map(|i| self.gap(i) <= CLOSED_GAP).collect();
         let unloaded: Vec<bool> = (0..n)

@@ -1,12 +1,12 @@
-//! The reduced sliding model (formulation.md §7.2; Xie & Chakraborty 2018b): a body sliding with
-//! a whole face of Conv(F) on one fixed half-space, in planar motion (in-plane translation and
+//! The reduced sliding model (`docs/model.md#reduced`; Xie & Chakraborty 2018b): a body sliding
+//! with a whole face of Conv(F) on one fixed half-space, in planar motion (in-plane translation and
 //! spin about the plane normal). The derivation is in `docs/reduced-sliding.md`; equation numbers
 //! (R1)–(R14) below refer to it.
 //!
 //! With planar motion (`v·n = 0`, `ω = ω_n n`) the normal balance fixes `p_n` (R4), the two
 //! tilting-moment balances fix the ECP's in-plane offset `ρ` (R6), Newton–Euler gives the
 //! friction impulses as functions of the velocities (R5, R7), and the step of the hull model
-//! (formulation.md §3–§4) reduces to four equations in `(v_t, v_o, ω_n, σ)`: the three
+//! (`docs/model.md`) reduces to four equations in `(v_t, v_o, ω_n, σ)`: the three
 //! maximum-dissipation rows (R10) and the friction ellipsoid in its cone form (R11) — the same
 //! form as [`crate::blocks::FrictionEllipsoid`], so the two models have the same solution set.
 //! The step MCP has four unknowns and two residual blocks, [`ReducedFriction`] and
@@ -47,7 +47,7 @@ pub const PATCH_TOLERANCE: f64 = 1e-9;
 
 /// How far (m) the ECP may lie outside the convex hull of the contact patch before the step is
 /// refused as tipping (R14). Round-off of the ECP is ~1e-15 m on the reference scenes; the hull
-/// model keeps a tipping body's ECP on the hull's edge to ~1e-9 (formulation.md §9).
+/// model keeps a tipping body's ECP on the hull's edge to ~1e-9 (`docs/model.md#scenarios`).
 pub const ECP_TOLERANCE: f64 = 1e-9;
 
 /// Relative tolerance on the initial velocity's normal component and the initial angular
@@ -190,9 +190,7 @@ impl SlidingStepData {
 ///
 /// The row scale `w_k = 1/(e_k² μ p_n)` ([`SlidingStepData::row_scales`]) does not change the
 /// solutions; it puts the rows in slip units, so that a natural residual r bounds the slip error
-/// of a sticking step by r. Unscaled, the torsion row of scenario A3 has the coefficient
-/// `e_r² μ p_n = 2.9e-3` N s m and a step accepted at r = 1e-10 may spin at 3e-8 rad/s
-/// (measured: ω_z drifted to 1.1e-9 rad/s while the box was at rest).
+/// of a sticking step by r (`docs/decisions.md#reduced-model-friction-rows-in-slip-units`).
 #[derive(Clone, Debug)]
 pub struct ReducedFriction {
     /// The step's data.
@@ -332,7 +330,7 @@ impl PatchPolygon {
     }
 }
 
-/// The reduced sliding model as a time stepper (formulation.md §7.2): one body with a face of
+/// The reduced sliding model as a time stepper (`docs/model.md#reduced`): one body with a face of
 /// Conv(F) on one half-space, sliding or sticking in planar motion. Its step MCP has the four
 /// unknowns `(v_t, v_o, ω_n, σ)`; its [`StepRecord`]s have the shape of the hull stepper's.
 pub struct ReducedSliding {
@@ -614,7 +612,7 @@ impl ReducedSliding {
     /// one Newton step on (R7), exact when J ∥ n). The hull stepper's warm start carries the
     /// previous impulses as unknowns; here they are functions of y, and starting from the
     /// previous *velocities* would start from the previous impulses minus the change of the
-    /// applied load (measured on the desk: 5.3 Newton iterations per step instead of 3).
+    /// applied load (`docs/decisions.md#reduced-model-warm-start-from-the-previous-impulses`).
     fn warm_start_from_impulses(&mut self, pf: [f64; 3]) {
         let d = &self.data;
         let ContactFrame { t, o, .. } = d.frame;
@@ -726,7 +724,7 @@ impl ReducedSliding {
         let v = t * y[0] + o * y[1];
         let w = n * y[2];
         let x = s0.x + v * h;
-        // (R9) kinematic map with ω = ω_n n, then renormalised (formulation.md §4.2).
+        // (R9) kinematic map with ω = ω_n n, then renormalised (`docs/model.md#kinematic-map`).
         let q_raw: Vector4<f64> = s0.q + kinematic_map(&s0.q) * w * (0.5 * h);
         let q = quat_normalize(&q_raw).unwrap_or(s0.q);
         let r = rotation_matrix(&q);

@@ -1,4 +1,4 @@
-//! Quaternion kinematics (spec `formulation.md` §1 and §4.2).
+//! Quaternion kinematics (`docs/model.md#conventions`, `docs/model.md#kinematic-map`).
 //!
 //! Quaternions are stored scalar-first, `Q = (w, x, y, z)`, as a
 //! [`Vector4<f64>`], and rotate body-frame vectors into the world frame.
@@ -13,13 +13,13 @@ use nalgebra::{Matrix3, Matrix4x3, Vector3, Vector4};
 /// The skew-symmetric cross-product matrix `[v]×`, with `[v]× u = v × u`.
 ///
 /// Used for `R(Q)`, the kinematic map `E(Q)` and the contact wrenches
-/// `r × n` (spec §4.1–§4.2).
+/// `r × n` (`docs/model.md#newton-euler`, `docs/model.md#kinematic-map`).
 pub fn skew(v: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -v.z, v.y, v.z, 0.0, -v.x, -v.y, v.x, 0.0)
 }
 
-/// Rotation matrix (body → world) of a possibly non-unit quaternion `Q = (w, x, y, z)`:
-/// `R(Q) = ((w² − |v|²) I + 2 v vᵀ + 2 w [v]×) / |Q|²`, `v = (x, y, z)` (spec §1).
+/// Rotation matrix (body → world) of a possibly non-unit quaternion `Q = (w, x, y, z)`: `R(Q) =
+/// ((w² − |v|²) I + 2 v vᵀ + 2 w [v]×) / |Q|²`, `v = (x, y, z)` (`docs/model.md#conventions`).
 ///
 /// `R(Q) = R(Q/|Q|)` for every `Q ≠ 0`, so the result is always orthonormal
 /// with determinant 1. For `Q = 0` the result is non-finite (NaN); callers
@@ -38,7 +38,7 @@ pub fn rotation_matrix(q: &Vector4<f64>) -> Matrix3<f64> {
 /// `k = w, x, y, z` (in that order), including the derivative of the
 /// `1/|Q|²` factor.
 ///
-/// Needed for the Jacobian of the non-penetration conditions (spec §4.3),
+/// Needed for the Jacobian of the non-penetration conditions (`docs/model.md#contact`),
 /// where `∇f_i = R(Q) n̂_i` depends on the unknown end-of-step quaternion.
 /// With `R = N(Q)/s`, `s = |Q|²`: `∂R/∂q_k = (∂N/∂q_k − 2 q_k R)/s`.
 pub fn rotation_matrix_derivatives(q: &Vector4<f64>) -> [Matrix3<f64>; 4] {
@@ -63,7 +63,7 @@ pub fn rotation_matrix_derivatives(q: &Vector4<f64>) -> [Matrix3<f64>; 4] {
 }
 
 /// Kinematic map `E(Q)` with `Q̇ = ½ E(Q) ω` for the WORLD-frame angular
-/// velocity ω (spec §4.2): `ẇ = −½ ω·v`, `v̇ = ½ (w ω + ω × v)`, hence
+/// velocity ω (`docs/model.md#kinematic-map`): `ẇ = −½ ω·v`, `v̇ = ½ (w ω + ω × v)`, hence
 /// `E = [−vᵀ; w I − [v]×]`. Equivalent to `Q̇ = ½ [0; ω] ⊗ Q`.
 pub fn kinematic_map(q: &Vector4<f64>) -> Matrix4x3<f64> {
     let w = q[0];
@@ -122,7 +122,7 @@ pub fn quat_from_rpy_deg(roll: f64, pitch: f64, yaw: f64) -> Vector4<f64> {
 /// `Q/|Q|`, or `None` when `Q` is zero or not finite.
 ///
 /// The time stepper renormalises the end-of-step quaternion with this
-/// (spec §4.2); a `None` means the step produced garbage and must be rejected.
+/// (`docs/model.md#kinematic-map`); a `None` means the step produced garbage and must be rejected.
 pub fn quat_normalize(q: &Vector4<f64>) -> Option<Vector4<f64>> {
     let n = q.norm();
     if n.is_finite() && n > 0.0 {

@@ -1,4 +1,5 @@
-//! The reference scenarios of scenarios.md as Rust constructors (A1–A6 and the desk, B).
+//! The reference scenarios of `docs/model.md#scenarios` as Rust constructors (A1–A6 and the desk,
+//! B).
 //!
 //! The scene files in `scenes/` describe the same scenes; the integration tests load both.
 
@@ -195,8 +196,8 @@ pub fn a6_tip(f: f64) -> Scene {
     )
 }
 
-/// B: the paper's desk (scenarios.md §B): 15 kg, four legs, pushed and twisted by periodic
-/// loads for 4 s.
+/// B: the paper's desk (`docs/model.md#scenarios`): 15 kg, four legs, pushed and twisted by
+/// periodic loads for 4 s.
 pub fn desk() -> Scene {
     let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
         let s = (2.0 * std::f64::consts::PI * t).sin();
@@ -245,13 +246,12 @@ fn window(t: f64, a: f64, b: f64, r: f64) -> f64 {
     ramp((t - a) / r) * ramp((b - t) / r)
 }
 
-/// C: the paper's T-bar (scenarios.md §C): 2 kg, uniform density, lying flat, μ = 0.22, 5 s.
-/// The gripper's wrench (world frame, at the CM) is the design of `scenes/tbar.toml`, where it
-/// is explained: a 1.7 N m torque pulse on [0.8, 1.2] s about the hull's slanted edge on the
-/// +y side, direction (−2, 1, 0)/√5, one on [1.8, 2.2] s about the −y slanted edge,
-/// (2, 1, 0)/√5, each with 0.1 s ramps (two-point contacts, then flat again), and on
-/// [3.0, 3.8] s (0.05 s ramps) a push `f_x = 5` N with a yaw torque `τ_z = 0.3` N m (it slides
-/// and turns in surface contact).
+/// C: the paper's T-bar (`docs/model.md#scenarios`): 2 kg, uniform density, lying flat, μ = 0.22, 5
+/// s. The gripper's wrench (world frame, at the CM) is the design of `scenes/tbar.toml`, where it
+/// is explained: a 1.7 N m torque pulse on [0.8, 1.2] s about the hull's slanted edge on the +y
+/// side, direction (−2, 1, 0)/√5, one on [1.8, 2.2] s about the −y slanted edge, (2, 1, 0)/√5, each
+/// with 0.1 s ramps (two-point contacts, then flat again), and on [3.0, 3.8] s (0.05 s ramps) a
+/// push `f_x = 5` N with a yaw torque `τ_z = 0.3` N m (it slides and turns in surface contact).
 pub fn t_bar() -> Scene {
     let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
         let a = 1.7 * window(t, 0.8, 1.2, 0.1);

@@ -1,4 +1,4 @@
-//! Step and trajectory sensitivities by implicit differentiation (issue #8).
+//! Step and trajectory sensitivities by implicit differentiation (`docs/fitting.md`).
 //!
 //! **Step sensitivities.** At a converged step of a [`Simulation`] of the hull formulation,
 //! [`step_sensitivity`] returns the derivatives of the step's solution `z*` — ν, q (before the
@@ -13,12 +13,12 @@
 //!
 //! - a contact with `p_n` at its bound 0 (separated, or touching without force) has its friction
 //!   impulses and σ **held** (`dz = 0`): the ellipsoid's cone forces `p_f = 0` and σ is
-//!   undetermined there, while the linearised friction rows vanish (formulation.md §6), so the
-//!   implicit function theorem says nothing about them. Its closest-point unknowns (a1, a2, l,
-//!   l_g) do not enter the motion rows then, and they need not be unique (a hull edge parallel
-//!   to the plane): they are solved in a second stage, with the motion fixed, so a singular or
-//!   inconsistent closest-point block cannot spoil the motion derivatives
-//!   ([`Degeneracy::SeparatedGeometry`]);
+//!   undetermined there, while the linearised friction rows vanish
+//!   (`docs/model.md#degenerate-cases`), so the implicit function theorem says nothing about them.
+//!   Its closest-point unknowns (a1, a2, l, l_g) do not enter the motion rows then, and they need
+//!   not be unique (a hull edge parallel to the plane): they are solved in a second stage, with the
+//!   motion fixed, so a singular or inconsistent closest-point block cannot spoil the motion
+//!   derivatives ([`Degeneracy::SeparatedGeometry`]);
 //! - weakly active components (`p_n = 0` touching, `σ = 0` on the stick/slip boundary, a face
 //!   multiplier 0 with the ECP on that face's edge) are held at their bound — the one-sided
 //!   derivative of the branch that keeps the active set — and reported as [`Degeneracy`]s with
@@ -27,11 +27,11 @@
 //! - a singular reduced Jacobian gets the minimum-norm solution ([`SolveKind::Regularised`]),
 //!   reported.
 //!
-//! **Only the hull formulation is supported.** The union formulation (formulation.md §7.1) runs
+//! **Only the hull formulation is supported.** The union formulation (`docs/model.md#union`) runs
 //! through the same code, but its impulses are shared between the pieces and not unique: its
-//! reduced Jacobian is singular, and inconsistent for the data columns (measured on the desk with
-//! the PATH backend: relative residual 0.08 of the minimum-norm solve; the Newton backend does not
-//! converge on that step), so its derivatives are least-squares guesses. They are reported as
+//! reduced Jacobian is singular, and inconsistent for the data columns
+//! (`docs/decisions.md#sensitivities-the-hull-formulation-only`), so its derivatives are
+//! least-squares guesses. They are reported as
 //! [`Degeneracy::Singular`] at every step, never passed off as exact. The reduced and point
 //! formulations have their own steppers and no sensitivities.
 //!
@@ -641,8 +641,8 @@ pub enum Degeneracy {
         /// Relative residual of the regularised solve (≈ 0: consistent).
         consistency: f64,
     },
-    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not
-    /// unique (a hull edge or face parallel to the plane, formulation.md §6): they got the
+    /// The closest-point unknowns (a1, a2, l, l_g) of the contacts with `p_n = 0` are not unique (a
+    /// hull edge or face parallel to the plane, `docs/model.md#degenerate-cases`): they got the
     /// minimum-norm derivative. The motion derivatives do not depend on them (they enter
     /// Newton–Euler and friction only through `p_n` and `p_f`, both 0), so a trajectory does not
     /// report this; `consistency` ≫ 0 means the ECP's derivative does not exist (it jumps).

@@ -1,4 +1,4 @@
-//! The time stepper (formulation.md §5): builds the step MCP once, updates its per-step data,
+//! The time stepper (`docs/model.md#stepper`): builds the step MCP once, updates its per-step data,
 //! warm-starts, solves with any backend, renormalises Q, and records every step.
 
 use std::sync::Arc;
@@ -21,13 +21,14 @@ use crate::geometry::{
 };
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
 
-/// Tolerance on a vertex's distance to the plane for the contact mode (scenarios.md §C).
+/// Tolerance on a vertex's distance to the plane for the contact mode (`docs/model.md#scenarios`).
 pub const MODE_TOLERANCE: f64 = 1e-7;
 
 /// Row scale of the length-valued contact rows (C1, C3–C5) is `GEOMETRY_SCALE / h`.
+/// See `docs/model.md#contact` and `docs/decisions.md#geometry-rows-scaled-by-1h`.
 pub const GEOMETRY_SCALE: f64 = 1.0;
 
-/// Position, orientation and velocities of a rigid body (world frame, formulation.md §1).
+/// Position, orientation and velocities of a rigid body (world frame, `docs/model.md#conventions`).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BodyState {
     /// Centre of mass.
@@ -162,8 +163,8 @@ pub enum SceneError {
         /// Penetration depth.
         depth: f64,
     },
-    /// The formulation does not apply to this scene or state (formulation.md §7: the reduced
-    /// sliding model needs the whole patch sliding, for instance).
+    /// The formulation does not apply to this scene or state (`docs/model.md#other-formulations`:
+    /// the reduced sliding model needs the whole patch sliding, for instance).
     #[error("the {formulation} formulation does not apply{at}: {reason}", at = step.map(|s| format!(" at step {s}")).unwrap_or_default())]
     NotApplicable {
         /// The formulation.
@@ -178,9 +179,9 @@ pub enum SceneError {
     Model(#[from] ecp_model::ModelError),
 }
 
-/// The state stored at the end of a step from the solution's ν and q blocks, with Q
-/// renormalised (formulation.md §4.2; `fallback` replaces a zero quaternion), and the q block
-/// with the renormalised Q for the warm start of the next step.
+/// The state stored at the end of a step from the solution's ν and q blocks, with Q renormalised
+/// (`docs/model.md#kinematic-map`; `fallback` replaces a zero quaternion), and the q block with the
+/// renormalised Q for the warm start of the next step.
 pub(crate) fn stored_state(
     nu: &[f64],
     q: &[f64],
@@ -199,7 +200,7 @@ pub(crate) fn stored_state(
     )
 }
 
-/// Kinetic plus gravitational potential energy of one body in `state` (formulation.md §8).
+/// Kinetic plus gravitational potential energy of one body in `state` (`docs/model.md#invariants`).
 pub(crate) fn body_energy(mass: &MassProperties, state: &BodyState, gravity: &Vector3<f64>) -> f64 {
     let r = rotation_matrix(&state.q);
     let iw = r * mass.inertia * r.transpose();
@@ -279,16 +280,14 @@ pub(crate) fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), Sc
 
 /// Fraction of a body's extent along a plane's normal within which a piece's lowest point must
 /// lie, above the body's lowest point, for the piece to get a contact in the union formulation.
+/// See `docs/decisions.md#union_reach`.
 pub const UNION_REACH: f64 = 0.25;
 
-/// The pieces of `spec` that get a contact in the union formulation (formulation.md §7.1: "one
-/// contact per convex piece that can touch G"): for some plane, the piece's lowest vertex at the
-/// initial state is within [`UNION_REACH`] of the body's extent along the normal above the
-/// body's lowest vertex. For the desk that is the four legs (the top slab is 0.85 m above the
-/// feet of a 0.9 m body), for the T-bar both bars. A piece far from every plane could touch one
-/// only after the body turns over, which the union model's fixed set of contacts does not
-/// follow; a contact for it would add a separated contact whose ECP is not unique (§6) to every
-/// step.
+/// The pieces of `spec` that get a contact in the union formulation (`docs/model.md#union`: one
+/// contact per convex piece that can touch a half-space): for some plane, the piece's lowest
+/// vertex at the initial state is within [`UNION_REACH`] of the body's extent along the normal
+/// above the body's lowest vertex. For the desk that is the four legs, for the T-bar both bars
+/// (`docs/decisions.md#union_reach`).
 pub fn union_pieces(spec: &BodySpec, state: &BodyState, planes: &[HalfSpace]) -> Vec<usize> {
     let r = rotation_matrix(&state.q);
     let pieces = spec.shape.pieces();
@@ -321,8 +320,8 @@ pub struct ContactVars {
     pub body: usize,
     /// Half-space index.
     pub plane: usize,
-    /// The convex piece of the body this contact belongs to (union formulation, §7.1);
-    /// `None` for the hull formulation, whose contact is Conv(F) itself.
+    /// The convex piece of the body this contact belongs to (union formulation,
+    /// `docs/model.md#union`); `None` for the hull formulation, whose contact is Conv(F) itself.
     pub piece: Option<usize>,
     /// ECP on Conv(F).
     pub a1: VarId,
@@ -374,11 +373,11 @@ pub struct ContactRecord {
     pub sigma: f64,
     /// Minimum gap over the vertices of the real body.
     pub min_gap: f64,
-    /// Contact mode from the state (scenarios.md §C).
+    /// Contact mode from the state (`docs/model.md#scenarios`).
     pub mode: ContactMode,
 }
 
-/// Everything recorded for one step (the rows of `trajectory.csv`, interfaces.md).
+/// Everything recorded for one step (the rows of `trajectory.csv`, `docs/outputs.md`).
 #[derive(Clone, Debug)]
 pub struct StepRecord {
     /// Step index, from 1.
@@ -402,7 +401,7 @@ pub struct StepRecord {
     pub method: StepMethod,
 }
 
-/// The `trajectory.csv` columns of one body and one contact (interfaces.md).
+/// The `trajectory.csv` columns of one body and one contact (`docs/outputs.md`).
 pub const TRAJECTORY_COLUMNS: [&str; 28] = [
     "t",
     "x",
@@ -436,7 +435,7 @@ pub const TRAJECTORY_COLUMNS: [&str; 28] = [
 
 impl StepRecord {
     /// The header row of `trajectory.csv` for `bodies` bodies with `contacts_per_body` contacts
-    /// each (interfaces.md): one body and one contact use the plain names; more append columns
+    /// each (`docs/outputs.md`): one body and one contact use the plain names; more append columns
     /// suffixed `_b<i>` (body fields) and `_b<i>_c<j>` (contact fields).
     pub fn csv_header(bodies: usize, contacts_per_body: usize) -> Vec<String> {
         let single = bodies == 1 && contacts_per_body == 1;
@@ -532,6 +531,7 @@ pub struct Simulation {
 /// origin to the bodies' centroid. Round-off in the position rows grows with the coordinates'
 /// size (about 2e-16·|x|, amplified by the 1/h row scale), so far from the origin a step could
 /// not reach the tolerance; within this distance the loss is below 1e-11.
+/// See `docs/decisions.md#recentred-origin-for-far-scenes`.
 pub const RECENTRE_DISTANCE: f64 = 100.0;
 
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
@@ -560,7 +560,7 @@ impl Simulation {
 
     /// Validates the scene and builds the step MCP of `formulation`, which must be
     /// [`Formulation::Hull`] (one contact between Conv(F) and each half-space) or
-    /// [`Formulation::Union`] (formulation.md §7.1: one contact, with its own ECP, multipliers,
+    /// [`Formulation::Union`] (`docs/model.md#union`: one contact, with its own ECP, multipliers,
     /// impulses and friction ellipsoid, between each convex piece of F and each half-space).
     /// The other formulations have their own steppers ([`crate::build_stepper`]).
     pub fn with_formulation(scene: Scene, formulation: Formulation) -> Result<Self, SceneError> {
@@ -680,7 +680,7 @@ impl Simulation {
             });
         }
 
-        // Residual blocks (formulation.md §4), paired as in §3.
+        // Residual blocks (`docs/model.md#residual-blocks`), paired as in `docs/model.md#unknowns`.
         let mut friction_blocks = Vec::new();
         let mut plane_blocks = Vec::new();
         for (b, body) in bodies.iter_mut().enumerate() {
@@ -713,9 +713,8 @@ impl Simulation {
                 &[body.q, body.nu],
             )?;
             // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
-            // like a velocity error Δv, which keeps the merit function away from the spurious
-            // "free fall with zero impulses" minimiser (measured: with unscaled rows most of the
-            // analytic scenarios stall there; with m/h the residual stalls near 1e-10).
+            // like a velocity error Δv (`docs/model.md#contact`,
+            // docs/decisions.md#geometry-rows-scaled-by-1h).
             let scale = GEOMETRY_SCALE / scene.h;
             for ((c, set), frame) in mine.iter().zip(&body.frames) {
                 let normals: Vec<Vector3<f64>> = set.faces().iter().map(|f| f.normal).collect();
@@ -800,9 +799,10 @@ impl Simulation {
         Ok(sim)
     }
 
-    /// First-step guess (formulation.md §5): for each contact, `a1` on Conv(F) nearest to G and
-    /// its projection `a2`, the gap as `l_g`, multiplier 1 on the face most anti-parallel to `n_G`.
-    /// Where the body already touches G, the impulses start active (see [`Self::contact_guess`]).
+    /// First-step guess (`docs/model.md#stepper`): for each contact, `a1` on Conv(F) nearest to G
+    /// and its projection `a2`, the gap as `l_g`, multiplier 1 on the face most anti-parallel to
+    /// `n_G`. Where the body already touches G, the impulses start active (see
+    /// [`Self::contact_guess`]).
     fn initial_guess(&mut self) {
         for b in 0..self.bodies.len() {
             let (nu, s) = (self.bodies[b].nu, self.bodies[b].state);
@@ -815,13 +815,13 @@ impl Simulation {
 
     /// Guess for one contact's unknowns from the current state.
     ///
-    /// `a1` is the centroid of the hull vertices nearest to G (a face centre, an edge midpoint or
-    /// a vertex), `a2` its projection, `l_g` the gap, multiplier 1 on the face most anti-parallel
-    /// to `n_G`. When the contact is closed (gap ≤ 1e-9) or `force_active` is set, the normal
-    /// impulse starts at the value that carries the weight and stops the approach velocity over
-    /// the step, and the friction impulse on the ellipsoid opposing the current slip with σ the
-    /// slip rate — a point of the sliding branch of §4.4. Otherwise impulses and σ start at 0.
-    /// Starting active matters: `p_n = 0` zeroes every friction row, and the merit function of a
+    /// `a1` is the centroid of the hull vertices nearest to G (a face centre, an edge midpoint or a
+    /// vertex), `a2` its projection, `l_g` the gap, multiplier 1 on the face most anti-parallel to
+    /// `n_G`. When the contact is closed (gap ≤ 1e-9) or `force_active` is set, the normal impulse
+    /// starts at the value that carries the weight and stops the approach velocity over the step,
+    /// and the friction impulse on the ellipsoid opposing the current slip with σ the slip rate — a
+    /// point of the sliding branch of `docs/model.md#friction`. Otherwise impulses and σ start at
+    /// 0. Starting active matters: `p_n = 0` zeroes every friction row, and the merit function of a
     /// Newton method has a spurious minimiser near "free fall with zero impulses".
     fn contact_guess(&mut self, i: usize, force_active: bool) {
         let s = self.bodies[self.contacts[i].body].state;
@@ -928,7 +928,7 @@ impl Simulation {
     pub fn mcp(&self) -> &BlockMcp {
         &self.mcp
     }
-    /// The step MCP together with its structural view (solvers.md §3): the problem every
+    /// The step MCP together with its structural view (`docs/backends.md#conic`): the problem every
     /// backend is given by [`Simulation::step`]; structure-exploiting backends (the conic one)
     /// need this rather than [`Simulation::mcp`].
     pub fn structured_mcp(&self) -> crate::structure::StepView<'_> {
@@ -1125,7 +1125,8 @@ impl Simulation {
 
     /// Solves the prepared span of length `h` with `solver` from the warm start in `z`, with one
     /// deterministic retry from the active-contact guess of every contact that is closed or
-    /// closing (a warm start from a separated step is a poor start for a landing step). On
+    /// closing (a warm start from a separated step is a poor start for a landing step;
+    /// `docs/decisions.md#retry-from-the-active-contact-guess`). On
     /// success `z` holds the solution; on failure it is left at the warm start.
     fn solve_prepared(
         &mut self,

@@ -1,4 +1,4 @@
-//! The structural view of the time-step MCP (solvers.md §3, issue #6): the
+//! The structural view of the time-step MCP (`docs/backends.md#conic`): the
 //! [`ecp_model::StepStructure`] of a [`Simulation`]'s step, for backends that exploit the
 //! structure of the contact step (the conic backend of ecp-solvers) without depending on this
 //! crate.
@@ -23,10 +23,10 @@ use crate::stepper::Simulation;
 /// convex combination of hull vertices, which lie on their faces to round-off.
 const FACE_ACTIVE: f64 = 1e-9;
 /// Vertices whose gap is within this (m) of the smallest one form the closest feature of a
-/// separated hull (a face, an edge or a vertex, formulation.md §6).
+/// separated hull (a face, an edge or a vertex, `docs/model.md#degenerate-cases`).
 const SUPPORT_TIE: f64 = 1e-12;
 
-/// The step MCP of a [`Simulation`] with its structural view (solvers.md §3).
+/// The step MCP of a [`Simulation`] with its structural view (`docs/backends.md#conic`).
 ///
 /// Built by [`Simulation::structured_mcp`]; valid for the step prepared last
 /// ([`Simulation::prepare_step`]).
@@ -41,8 +41,8 @@ impl<'a> StepView<'a> {
     }
 
     fn quat_or_start(&self, b: usize, q: Vector4<f64>) -> Vector4<f64> {
-        // The homogeneous R(Q) is a rotation for every Q ≠ 0 (formulation.md §1); a zero or
-        // non-finite quaternion can only come from a broken iterate: fall back on Q^u.
+        // The homogeneous R(Q) is a rotation for every Q ≠ 0 (`docs/model.md#conventions`); a zero
+        // or non-finite quaternion can only come from a broken iterate: fall back on Q^u.
         if q.norm_squared() > 1e-300 && q.iter().all(|v| v.is_finite()) {
             q
         } else {
@@ -284,7 +284,7 @@ impl StepStructure for StepView<'_> {
         for (b, body) in sim.bodies.iter().enumerate() {
             let nu = point.velocities.get(b).copied().unwrap_or([0.0; 6]);
             z[sim.mcp.range(body.nu)].copy_from_slice(&nu);
-            // Kinematic map (formulation.md §4.2), exactly as the KinematicMap block.
+            // Kinematic map (`docs/model.md#kinematic-map`), exactly as the KinematicMap block.
             let s = body.state;
             let v = Vector3::new(nu[0], nu[1], nu[2]);
             let w = Vector3::new(nu[3], nu[4], nu[5]);

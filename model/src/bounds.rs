@@ -1,11 +1,11 @@
-//! Variable blocks and their bounds (formulation.md §2: the PATH/GAMS box convention).
+//! Variable blocks and their bounds (`docs/model.md#mcp`: the PATH/GAMS box convention).
 
 use crate::ModelError;
 
 /// Bounds of one scalar unknown: `lower ≤ z ≤ upper`, entries may be ±∞.
 ///
 /// The kind of bound decides which complementarity condition the paired residual obeys
-/// (formulation.md §2): free ⇒ equation, lower only ⇒ `0 ≤ z − l ⊥ F ≥ 0`, and so on.
+/// (`docs/model.md#mcp`): free ⇒ equation, lower only ⇒ `0 ≤ z − l ⊥ F ≥ 0`, and so on.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Bounds {
     /// Lower bound, `-∞` for none.
@@ -96,7 +96,7 @@ pub fn classify(lower: f64, upper: f64) -> BoundKind {
 /// A named block of unknowns with per-component bounds, like a Ceres parameter block.
 ///
 /// Each variable block is paired with exactly one residual block of the same length
-/// (formulation.md §2, §3).
+/// (`docs/model.md#mcp`, `docs/model.md#unknowns`).
 #[derive(Clone, Debug)]
 pub struct VarBlock {
     name: String,

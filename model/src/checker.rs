@@ -512,6 +512,7 @@ pub fn check_mcp(mcp: &dyn Mcp, z: &[f64], opts: &CheckOptions) -> JacobianRepor
 /// extrapolation. `noise` bounds the round-off of the combination plus the truncation error
 /// estimated from the two steps: it is large only where the function bends sharply within the
 /// step (near a kink such as `‖p‖` at `p ≈ 0`), where a finite difference cannot be trusted.
+/// See `docs/decisions.md#jacobian-checker-richardson-extrapolation`.
 struct Differences {
     plus: Vec<f64>,
     minus: Vec<f64>,

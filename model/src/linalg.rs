@@ -338,7 +338,7 @@ impl SparseLu {
 }
 
 /// A linear solver for matrices in a given [`CscPattern`]: dense LU for small systems, sparse
-/// LU for large ones (solvers.md §1: "chosen by size").
+/// LU for large ones (`docs/backends.md#semismooth-newton`: "chosen by size").
 pub enum LinearSolver {
     /// Dense LU on the scattered matrix.
     Dense {

@@ -1,4 +1,4 @@
-//! The mixed complementarity problem every backend solves (formulation.md §2), and the
+//! The mixed complementarity problem every backend solves (`docs/model.md#mcp`), and the
 //! residuals that judge a candidate solution.
 
 use std::sync::Arc;
@@ -35,8 +35,8 @@ pub trait Mcp {
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")
     }
-    /// The structural view of a contact step (solvers.md §3), when this MCP is one: what the
-    /// conic backend needs besides `F`. `None` for a generic MCP.
+    /// The structural view of a contact step (`docs/backends.md#conic`), when this MCP is one: what
+    /// the conic backend needs besides `F`. `None` for a generic MCP.
     fn structure(&self) -> Option<&dyn StepStructure> {
         None
     }
@@ -171,7 +171,7 @@ pub fn natural_map_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
     z - mid(l, u, z - f)
 }
 
-/// The natural-map residual `‖z − mid(l, u, z − F(z))‖_∞` (formulation.md §2): the one number
+/// The natural-map residual `‖z − mid(l, u, z − F(z))‖_∞` (`docs/model.md#mcp`): the one number
 /// every backend is judged by. Non-finite input gives `+∞`, never a misleading small value.
 pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     let mut r: f64 = 0.0;
@@ -235,8 +235,9 @@ pub fn fischer_burmeister(a: f64, b: f64) -> f64 {
     }
 }
 
-/// Component `i` of the Fischer–Burmeister reformulation `Φ` (solvers.md §1):
-/// free `F`; lower `φ(z − l, F)`; upper `−φ(u − z, −F)`; box (Billups) `φ(z − l, φ(u − z, −F))`.
+/// Component `i` of the Fischer–Burmeister reformulation `Φ`
+/// (`docs/backends.md#semismooth-newton`): free `F`; lower `φ(z − l, F)`; upper `−φ(u − z, −F)`;
+/// box (Billups) `φ(z − l, φ(u − z, −F))`.
 #[inline]
 pub fn fb_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
     match classify(l, u) {

@@ -6,8 +6,8 @@
 //! Ferris, "A comparison of large scale mixed complementarity problem solvers", Comput. Optim.
 //! Appl. 7, 1997), classic LCPs (Murty's), random P-matrix LCPs (dense and sparse), problems
 //! designed here to exercise one difficulty each (box constraints with both bounds active,
-//! non-strictly-complementary solutions), and the one-contact friction NCP of formulation.md
-//! §4.4 in its three regimes (sticking, sliding, separated).
+//! non-strictly-complementary solutions), and the one-contact friction NCP of
+//! `docs/model.md#friction` in its three regimes (sticking, sliding, separated).
 //!
 //! Each [`TestProblem`] carries its standard starting points and, where they are known in
 //! closed form, its solutions; every listed solution has a natural residual below `1e-12`
@@ -752,7 +752,7 @@ pub fn degenerate() -> TestProblem {
 }
 
 // ---------------------------------------------------------------------------------------------
-// One-contact friction NCP (formulation.md §4.4)
+// One-contact friction NCP (`docs/model.md#friction`)
 // ---------------------------------------------------------------------------------------------
 
 /// Which contact regime [`one_contact_friction`] is set up to produce.
@@ -861,7 +861,7 @@ impl FrictionData {
     }
 }
 
-/// The one-contact friction NCP of formulation.md §4.4 with fixed data: a body of mass
+/// The one-contact friction NCP of `docs/model.md#friction` with fixed data: a body of mass
 /// `m = 2` kg and inertia `I_n = 0.08` kg m² about the contact normal, one contact with the
 /// ground, a velocity-level step `h = 0.01` s, `g = 9.8`, `μ = 0.5`, `e_t = e_o = 1`,
 /// `e_r = √(I_n/m) = 0.2` m.
@@ -903,19 +903,19 @@ pub fn one_contact_friction(regime: FrictionRegime) -> TestProblem {
     let (name, note) = match regime {
         FrictionRegime::Sticking => (
             "one_contact_friction_sticking",
-            "formulation.md 4.4 friction NCP, one contact, fixed data (m = 2, I_n = 0.08, \
+            "Friction NCP of docs/model.md, one contact, fixed data (m = 2, I_n = 0.08, \
              h = 0.01, mu = 0.5, e = (1, 1, 0.2)). Sticking: v = 0, p = -(D v0 + h f) strictly \
              inside the ellipsoid, sigma = 0, p_n = m g h. Unique, strictly complementary.",
         ),
         FrictionRegime::Sliding => (
             "one_contact_friction_sliding",
-            "formulation.md 4.4 friction NCP, one contact, fixed data. Sliding and spinning: \
+            "Friction NCP of docs/model.md, one contact, fixed data. Sliding and spinning: \
              sigma = s - c > 0, v = v_free (s - c)/s, impulse on the ellipsoid opposite to the \
              slip (closed form because e_r^2/I_n = e_t^2/m). Unique.",
         ),
         FrictionRegime::Separated => (
             "one_contact_friction_separated",
-            "formulation.md 4.4 friction NCP, one contact, fixed data. Separated (gap 0.05): \
+            "Friction NCP of docs/model.md, one contact, fixed data. Separated (gap 0.05): \
              p_n = 0, p = 0, free flight; sigma is undetermined (every sigma >= 0 solves it: the \
              solution set is a ray, not a point), the listed solution is the representative \
              sigma = 0; compare all components except sigma (index 7). Jacobian singular there.",

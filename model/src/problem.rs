@@ -22,7 +22,7 @@ struct PendingResidual {
     reads: Vec<VarId>,
 }
 
-/// Builder of a block-structured MCP (formulation.md §2–§3).
+/// Builder of a block-structured MCP (`docs/model.md#mcp`, `docs/model.md#unknowns`).
 ///
 /// ```
 /// use ecp_model::{Problem, VarBlock, ResidualBlock, Params, JacobianBlocks, Mcp};

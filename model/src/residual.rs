@@ -159,7 +159,7 @@ impl<'a> DataJacobian<'a> {
 ///
 /// The block declares the sizes of the variable blocks it reads; the problem builder binds
 /// them (`Problem::add_residual_block`) and pairs the block with a variable block of the same
-/// length (formulation.md §2). Implementations must be deterministic and free of side effects.
+/// length (`docs/model.md#mcp`). Implementations must be deterministic and free of side effects.
 pub trait ResidualBlock: Send + Sync {
     /// Short descriptive name, used in reports.
     fn name(&self) -> &str;

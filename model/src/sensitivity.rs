@@ -1,6 +1,6 @@
 //! Sensitivities of an MCP solution by implicit differentiation with the active set.
 //!
-//! At a solution `z*` of the MCP `(l, u, F(·; θ))` (formulation.md §2) each component is
+//! At a solution `z*` of the MCP `(l, u, F(·; θ))` (`docs/model.md#mcp`) each component is
 //!
 //! - **free** (`l_i < z_i < u_i`, so `F_i = 0`): its row of the implicit function theorem is
 //!   `J_i dz + ∂F_i/∂θ dθ = 0`;

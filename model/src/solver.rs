@@ -1,4 +1,4 @@
-//! Solver traits, reports and errors shared by every backend (solvers.md, preamble).
+//! Solver traits, reports and errors shared by every backend (`docs/backends.md`).
 
 use std::time::{Duration, Instant};
 
@@ -97,7 +97,7 @@ pub struct Summary {
     pub f_evals: usize,
     /// Evaluations of `J`.
     pub jac_evals: usize,
-    /// Natural-map residual of the returned point (computed by the model, formulation.md §2).
+    /// Natural-map residual of the returned point (computed by the model, `docs/model.md#mcp`).
     pub residual: f64,
     /// Fischer–Burmeister residual `‖Φ‖₂` of the returned point.
     pub fb_residual: f64,
@@ -216,7 +216,7 @@ pub struct SolveReport {
     pub counters: Vec<(&'static str, usize)>,
 }
 
-/// Judges a backend's final point `z` by the model's natural residual (formulation.md §2), the
+/// Judges a backend's final point `z` by the model's natural residual (`docs/model.md#mcp`), the
 /// one rule for every backend, and builds the [`Solution`] or the
 /// [`SolveError::NotConverged`] that carries it.
 ///

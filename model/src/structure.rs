@@ -1,20 +1,20 @@
-//! The structural view of a contact step (solvers.md §3): what a structure-exploiting backend
-//! needs from a time step of the contact model, without the solver crate knowing the
+//! The structural view of a contact step (`docs/backends.md#conic`): what a structure-exploiting
+//! backend needs from a time step of the contact model, without the solver crate knowing the
 //! formulation's types.
 //!
-//! A step problem of formulation.md §3–§4 is, besides an MCP, a set of bodies with a mass matrix
+//! A step problem of `docs/model.md` is, besides an MCP, a set of bodies with a mass matrix
 //! and a free-motion velocity, and a set of contacts between the convex hull Conv(F) of a body
 //! and a fixed half-space G. A backend such as the conic one (Anitescu 2006; Acary, Cadoux,
 //! Lemaréchal, Malick 2011) asks for the contact geometry at a trial end-of-step configuration
 //! (taken from a full MCP vector `z`), solves its own subproblem, and hands back velocities and
 //! impulses; [`StepStructure::assemble`] maps them to the full MCP vector (ν, q, a1, a2, l, l_g,
 //! p, σ) so that the result is judged by the same natural residual as every other backend
-//! (formulation.md §2).
+//! (`docs/model.md#mcp`).
 //!
 //! Vectors are plain arrays in the world frame (this crate has no linear-algebra dependency).
 //! The MCP of a step exposes its structure through [`crate::Mcp::structure`].
 
-/// Friction parameters of one contact (formulation.md §4.4): Coulomb coefficient `μ ≥ 0` and
+/// Friction parameters of one contact (`docs/model.md#friction`): Coulomb coefficient `μ ≥ 0` and
 /// the semi-axes of the limit ellipsoid, `e_t, e_o > 0` dimensionless and `e_r > 0` a length.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ContactFriction {
@@ -58,7 +58,7 @@ pub struct PatchVertex {
 }
 
 /// One contact (Conv(F) of a body against a fixed half-space G) evaluated at a trial
-/// end-of-step configuration (formulation.md §4.3–§4.4).
+/// end-of-step configuration (`docs/model.md#contact`, `docs/model.md#friction`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ContactGeometry {
     /// Index of the body (in [`StepStructure::body`] numbering).
@@ -90,7 +90,7 @@ pub struct ContactImpulses {
     pub vertex_impulses: Vec<(usize, f64)>,
     /// Friction wrench `(p_t, p_o, p_r)`, applied at the ECP.
     pub friction: [f64; 3],
-    /// Slip magnitude `σ ≥ 0` (formulation.md §4.4).
+    /// Slip magnitude `σ ≥ 0` (`docs/model.md#friction`).
     pub sigma: f64,
 }
 
@@ -103,7 +103,7 @@ pub struct ConicPoint {
     pub contacts: Vec<ContactImpulses>,
 }
 
-/// What a structure-exploiting backend needs from a contact step (solvers.md §3, issue #6).
+/// What a structure-exploiting backend needs from a contact step (`docs/backends.md#conic`).
 ///
 /// Implemented by the formulation crate for its time-step MCP; a backend reaches it through
 /// [`crate::Mcp::structure`].
@@ -127,10 +127,10 @@ pub trait StepStructure {
     /// touch G within the step.
     fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry;
     /// Maps a conic point back to the full MCP vector: `ν` as given; `q` by the kinematic map
-    /// (formulation.md §4.2); per contact, with `p_n = Σ λ_j > 0`, `a1 = Σ λ_j v_j / p_n` at the
-    /// new configuration, otherwise `a1` the point of Conv(F) nearest to G; `a2` the projection
-    /// of `a1` on G; `l_g = max(g(a1), 0)`; the face multipliers `l ≥ 0` of the faces active at
-    /// `a1` with `Σ l_i ∇f_i = −∇g` (non-negative least squares); `p_n`, `p_f`, `σ` as given.
-    /// Every entry of `z` is overwritten.
+    /// (`docs/model.md#kinematic-map`); per contact, with `p_n = Σ λ_j > 0`, `a1 = Σ λ_j v_j / p_n`
+    /// at the new configuration, otherwise `a1` the point of Conv(F) nearest to G; `a2` the
+    /// projection of `a1` on G; `l_g = max(g(a1), 0)`; the face multipliers `l ≥ 0` of the faces
+    /// active at `a1` with `Σ l_i ∇f_i = −∇g` (non-negative least squares); `p_n`, `p_f`, `σ` as
+    /// given. Every entry of `z` is overwritten.
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]);
 }

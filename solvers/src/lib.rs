@@ -3,13 +3,15 @@
 //! Every backend implements [`ecp_model::McpSolver`], returns the solution in the MCP's own
 //! layout with a [`ecp_model::Summary`], and is judged by the model's natural-map residual.
 //!
-//! - [`newton`]: semismooth Newton on the Fischer–Burmeister reformulation (solvers.md §1).
-//! - [`conic`]: convex subproblems with clarabel, using the contact step's structure (solvers.md §3).
+//! - [`newton`]: semismooth Newton on the Fischer–Burmeister reformulation
+//!   (`docs/backends.md#semismooth-newton`).
+//! - [`conic`]: convex subproblems with clarabel, using the contact step's structure
+//!   (`docs/backends.md#conic`).
 //! - [`pivot`]: Lemke's method generalised to bounded variables, for affine MCPs (LCP, mixed
-//!   and box-constrained LCP) (solvers.md §2).
+//!   and box-constrained LCP) (`docs/backends.md#path-like`).
 //! - [`path`]: the PATH-like solver: Josephy–Newton steps computed by pivoting, a path search
 //!   along the piecewise-linear Newton path, a non-monotone watchdog, a crash phase and a
-//!   proximal perturbation (solvers.md §2).
+//!   proximal perturbation (`docs/backends.md#path-like`).
 //!
 //! ```
 //! use ecp_model::{FnMcp, McpSolver, residual_of};

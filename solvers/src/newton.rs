@@ -1,4 +1,4 @@
-//! Semismooth Newton method on the Fischer–Burmeister reformulation (solvers.md §1).
+//! Semismooth Newton method on the Fischer–Burmeister reformulation (`docs/backends.md#semismooth-newton`).
 //!
 //! The MCP is rewritten as `Φ(z) = 0` with `φ(a, b) = √(a² + b²) − a − b`: free components
 //! `Φ_i = F_i`; lower bound only `φ(z_i − l_i, F_i)`; upper bound only `−φ(u_i − z_i, −F_i)`;
@@ -12,8 +12,8 @@
 //! step `−∇Ψ`. Linear systems use dense LU for small problems and a sparse LU (analysed once per
 //! pattern) for large ones.
 //!
-//! The minimum-norm step is for problems whose solutions are not isolated (formulation.md §6):
-//! in the union-of-pieces model (§7.1) the normal impulses and the ECPs of the pieces are not
+//! The minimum-norm step is for problems whose solutions are not isolated (`docs/model.md#union`):
+//! in the union-of-pieces model the normal impulses and the ECPs of the pieces are not
 //! unique, `H` is singular on the whole solution set, and Levenberg–Marquardt, whose damping
 //! cannot go below the round-off floor of `HᵀH`, converges linearly (measured on the union
 //! desk: 21–176 iterations per step, 12 of 400 steps at the 200-iteration limit). The
@@ -76,7 +76,7 @@ pub struct NewtonSettings {
     /// When the LU of `H` is singular or its step fails the descent test, try the
     /// minimum-norm least-squares step `d = −H⁺Φ` (complete orthogonal decomposition, dense
     /// problems only) before the Levenberg–Marquardt safeguard. At the solutions of the
-    /// union-of-pieces model `H` is singular on a whole solution set (formulation.md §6, §7.1);
+    /// union-of-pieces model `H` is singular on a whole solution set (`docs/model.md#union`);
     /// there this step converges quadratically where Levenberg–Marquardt crawls. Default
     /// `true`: it helps the hull model too (measured on the ordinary scenes of
     /// `examples/newton_robustness.rs`: 244 → 96 failed steps of 5368, most of the gain on a
@@ -312,7 +312,7 @@ fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
     }
 }
 
-/// Row scalings `D_a, D_b` of `H = D_a + D_b J` (solvers.md §1).
+/// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`).
 fn generalized_jacobian_rows(
     z: &[f64],
     f: &[f64],

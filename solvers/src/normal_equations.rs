@@ -1,5 +1,5 @@
 //! The normal-equations matrix `HᵀH + λI` in a sparse pattern computed once per pattern of `H`,
-//! for the Levenberg–Marquardt safeguard (solvers.md §1).
+//! for the Levenberg–Marquardt safeguard (`docs/backends.md#semismooth-newton`).
 
 use ecp_model::CscPattern;
 use ecp_model::linalg::{LinalgError, LinearSolver};

@@ -1,5 +1,5 @@
 //! The PATH-like solver: Josephy–Newton steps computed by pivoting, with a path search
-//! (solvers.md §2).
+//! (`docs/backends.md#path-like`).
 //!
 //! The MCP is written with Robinson's normal map `F_N(x) = F(π(x)) + x − π(x)`, `π` the
 //! projection onto `[l, u]`: `z = π(x)` solves the MCP iff `F_N(x) = 0`. At the iterate `x_k`

@@ -4,6 +4,7 @@
 //! Everything is drawn from a local SplitMix64 stream and computed with `+ − × ÷ √` only
 //! (sines and cosines by a fixed polynomial, [`det_sin_cos`]), so the scene text depends on
 //! the seed alone, on every platform and with every version of the standard library.
+//! See `docs/decisions.md#local-prng-of-the-stress-suite`.
 
 use std::fmt::Write as _;
 

@@ -1,4 +1,4 @@
-//! Convex hull of a body as an intersection of half-spaces (spec §4.3).
+//! Convex hull of a body as an intersection of half-spaces (`docs/model.md#contact`).
 
 use nalgebra::Vector3;
 use parry3d_f64::math::Vector as PVec;
@@ -14,7 +14,7 @@ use super::{
 const PLANE_DUP_TOL: f64 = 1e-9;
 
 /// One face of a [`ConvexHull`], in the body frame: the constraint
-/// `f(p) = normal·p − offset ≤ 0` of spec §4.3 (before the body pose is applied).
+/// `f(p) = normal·p − offset ≤ 0` of `docs/model.md#contact` (before the body pose is applied).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Face {
     /// Outward unit normal `n̂_i` (body frame).
@@ -37,7 +37,7 @@ impl Face {
 /// Conv(F) in the body frame: its extreme vertices and its faces, with
 /// coplanar triangles merged into one polygonal face each.
 ///
-/// Spec §4.3 requires merged faces: duplicate planes would make the face
+/// `docs/model.md#contact` requires merged faces: duplicate planes would make the face
 /// multipliers `l_i` non-unique for no reason. A box has 6 faces, the desk 6,
 /// the T-bar 8. Every stored vertex satisfies every face to rounding.
 #[derive(Debug, Clone, PartialEq)]
@@ -394,7 +394,8 @@ impl ConvexHull {
         &self.faces
     }
 
-    /// Number of faces `m`: the number of multipliers `l_i` in the step problem (spec §3).
+    /// Number of faces `m`: the number of multipliers `l_i` in the step problem
+    /// (`docs/model.md#unknowns`).
     pub fn num_faces(&self) -> usize {
         self.faces.len()
     }
@@ -405,7 +406,7 @@ impl ConvexHull {
     }
 
     /// A vertex maximising `dir·p` (body frame). Used for the first-step
-    /// warm start, `a1` = support point towards G (spec §5).
+    /// warm start, `a1` = support point towards G (`docs/model.md#stepper`).
     pub fn support_point(&self, dir: &Vector3<f64>) -> Vector3<f64> {
         let (i, _) = argmax(&self.vertices, |p| dir.dot(p));
         self.vertices[i]
@@ -413,7 +414,7 @@ impl ConvexHull {
 
     /// Index of the face whose outward normal is most aligned with `dir`
     /// (body frame). With `dir = −Rᵀ n_G` this is the face most anti-parallel
-    /// to the plane normal, which gets multiplier 1 in the warm start (spec §5).
+    /// to the plane normal, which gets multiplier 1 in the warm start (`docs/model.md#stepper`).
     pub fn most_aligned_face(&self, dir: &Vector3<f64>) -> usize {
         self.faces
             .iter()

@@ -1,4 +1,4 @@
-//! Mass and body-frame inertia (spec §4.1: `M = diag(m I₃, R I_body Rᵀ)`).
+//! Mass and body-frame inertia (`docs/model.md#newton-euler`: `M = diag(m I₃, R I_body Rᵀ)`).
 
 use nalgebra::{Matrix3, Vector3};
 

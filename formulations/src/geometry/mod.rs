@@ -1,5 +1,5 @@
-//! Body geometry for the contact formulations (spec `formulation.md` §4.3,
-//! `scenarios.md` A–C).
+//! Body geometry for the contact formulations (`docs/model.md#contact`,
+//! `docs/model.md#scenarios`).
 //!
 //! - [`ConvexHull`]: the H-representation (merged faces) of Conv(F), whose
 //!   faces give the constraints `f_i` of the closest-point problem;
@@ -41,6 +41,7 @@ pub const FLATNESS_TOL: f64 = 1e-9;
 /// (`docs/scene-format.md`, meshes). The hull of `k` points has up to `2k − 4` faces and each
 /// face is an unknown of every time step, so a finely tessellated round body is refused with a
 /// message asking for a simplified mesh rather than made into a huge step problem.
+/// See `docs/decisions.md#mesh-limits`.
 pub const MAX_HULL_POINTS: usize = 2000;
 
 /// Largest number of candidate extreme points (left after interior points and exact

@@ -1,5 +1,5 @@
-//! The fixed half-space G and state-only queries against it: gap, contact
-//! frame and contact mode (spec §4.1, §4.3, §8; scenario C).
+//! The fixed half-space G and state-only queries against it: gap, contact frame and contact mode
+//! (`docs/model.md#newton-euler`, `docs/model.md#contact`, `docs/model.md#invariants`; scenario C).
 
 use std::fmt;
 
@@ -7,7 +7,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use super::{GeometryError, VERTEX_MERGE_TOL, dedupe_points};
 
-/// A fixed obstacle G = { p : normal·p − offset ≤ 0 } (spec §4.3,
+/// A fixed obstacle G = { p : normal·p − offset ≤ 0 } (`docs/model.md#contact`,
 /// `g(p) = n_Gᵀ p − c`). The unit normal points out of G, into the body's side.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct HalfSpace {
@@ -35,7 +35,7 @@ impl HalfSpace {
         })
     }
 
-    /// The flat ground z ≤ 0: normal `e_z`, offset 0 (spec §4.3).
+    /// The flat ground z ≤ 0: normal `e_z`, offset 0 (`docs/model.md#contact`).
     pub fn ground() -> Self {
         HalfSpace {
             normal: Vector3::z(),
@@ -74,12 +74,12 @@ impl HalfSpace {
     }
 
     /// Orthogonal projection of `p` onto the plane `g = 0` (the warm start of
-    /// `a2`, spec §5).
+    /// `a2`, `docs/model.md#stepper`).
     pub fn project(&self, p: &Vector3<f64>) -> Vector3<f64> {
         p - self.normal * self.value(p)
     }
 
-    /// Right-handed contact frame `(n, t, o)` for the wrenches of spec §4.1:
+    /// Right-handed contact frame `(n, t, o)` for the wrenches of `docs/model.md#newton-euler`:
     /// `n` = the normal; `t` = `e_x` projected onto the plane and normalised
     /// (`e_y` if `|e_x·n| > 0.9`); `o = n × t`. Ground: `(e_z, e_x, e_y)`;
     /// incline θ: `t = (cos θ, 0, sin θ)` (up the slope), `o = e_y`.
@@ -176,7 +176,7 @@ pub fn world_vertices(
     body_vertices.iter().map(|v| x + r * v).collect()
 }
 
-/// Minimum gap `min_v g(x + R v)` over body-frame vertices (spec §8: it must
+/// Minimum gap `min_v g(x + R v)` over body-frame vertices (`docs/model.md#invariants`: it must
 /// stay ≥ −1e-9 at every step end). `+∞` for an empty vertex list.
 pub fn min_gap(
     shape_vertices_body: &[Vector3<f64>],

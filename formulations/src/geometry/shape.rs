@@ -1,4 +1,5 @@
-//! Body shapes as unions of convex pieces (spec §4.3, §7.1; scenarios A–C).
+//! Body shapes as unions of convex pieces (`docs/model.md#contact`, `docs/model.md#union`;
+//! scenarios A–C).
 
 use nalgebra::{Vector3, Vector4};
 
@@ -8,7 +9,7 @@ use crate::rotation::rotation_matrix;
 
 /// One convex piece of a body, in the body frame.
 ///
-/// The union-of-pieces model (spec §7.1) gives each piece its own contact;
+/// The union-of-pieces model (`docs/model.md#union`) gives each piece its own contact;
 /// the hull model uses only the union's vertices and hull.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ConvexPiece {
@@ -91,7 +92,7 @@ impl ConvexPiece {
         }
     }
 
-    /// Convex hull of this piece alone (for the union-of-pieces model, spec §7.1).
+    /// Convex hull of this piece alone (for the union-of-pieces model, `docs/model.md#union`).
     pub fn hull(&self) -> Result<ConvexHull, GeometryError> {
         self.validate()?;
         ConvexHull::from_points(&self.vertices())
@@ -102,9 +103,9 @@ impl ConvexPiece {
 /// union of convex pieces, possibly non-convex as a whole.
 ///
 /// Its [`vertices`](Shape::vertices) are those of the real body, used for the
-/// minimum gap and the contact mode (spec §8, scenario C); its
+/// minimum gap and the contact mode (`docs/model.md#invariants`, scenario C); its
 /// [`hull`](Shape::hull) is Conv(F), whose faces enter the step problem
-/// (spec §4.3, Proposition 1).
+/// (`docs/model.md#contact`, Proposition 1).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Shape {
     pieces: Vec<ConvexPiece>,
@@ -235,7 +236,7 @@ impl Shape {
         &self.vertices
     }
 
-    /// Conv(F) of the whole body (spec §4.3).
+    /// Conv(F) of the whole body (`docs/model.md#contact`).
     pub fn hull(&self) -> Result<ConvexHull, GeometryError> {
         ConvexHull::from_points(&self.vertices)
     }

@@ -3,9 +3,9 @@
 //!
 //! The plain De Saxcé / Acary–Cadoux iteration converges linearly; its slow modes are the shift
 //! `μ ‖E u_T‖` for large μ and the ECP, which sets the friction's lever arm and is moved by the
-//! friction's moment (measured: factors 0.5–0.9 per iteration on the tipping box A6 and the
-//! tilted drop A5). Anderson mixing of the last few iterates removes them; the solver falls
-//! back to the plain update when the mixing does not help.
+//! friction's moment (`docs/decisions.md#conic-backend-anderson-acceleration`). Anderson mixing
+//! of the last few iterates removes them; the solver falls back to the plain update when the
+//! mixing does not help.
 
 /// Memory and history of the accelerator.
 pub(crate) struct Anderson {

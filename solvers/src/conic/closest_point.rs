@@ -1,16 +1,13 @@
-//! The closest-point problem between two convex sets with clarabel (solvers.md §3,
-//! formulation.md §4.3): `min ‖p − q‖` over `p ∈ A`, `q ∈ B`.
+//! The closest-point problem between two convex sets with clarabel (`docs/backends.md#conic`,
+//! `docs/model.md#contact`): `min ‖p − q‖` over `p ∈ A`, `q ∈ B`.
 //!
-//! Two objectives with the same minimisers: the QP `½‖p − q‖²` ([`closest_points_qp`]) and
-//! the distance's epigraph `t` with `(t, p − q) ∈ SOC(4)`. Each is inaccurate where the other
-//! is not: the QP's optimal value `½d² ≈ 0` resolves a touching or overlapping pair only to
-//! about the square root of the tolerance (measured: d = 5e-7 for a box face resting on a
-//! plane), while the epigraph's objective is flat across `p − q`, so its points are only
-//! accurate to about `√(d · tolerance)` (measured: 1e-7 at d = 0.1). [`closest_points`] solves
-//! the QP and re-solves in epigraph form when the distance is below `1e-4` or clarabel did not
-//! fully solve the QP; near that switch both give points to about 1e-8 (the QP's points are
-//! accurate to about `tolerance / d`). (Their sum as one objective was tried and left clarabel at reduced
-//! accuracy.) Agreement with GJK: 1e-8 in the distance (tests/conic_closest_point.rs).
+//! Two objectives with the same minimisers: the QP `½‖p − q‖²` ([`closest_points_qp`]) and the
+//! distance's epigraph `t` with `(t, p − q) ∈ SOC(4)`. Each is inaccurate where the other is not:
+//! the QP resolves a touching or overlapping pair only to about the square root of the tolerance,
+//! the epigraph form's points only to about `√(d · tolerance)`. [`closest_points`] solves the QP
+//! and re-solves in epigraph form when the distance is below `1e-4` or clarabel did not fully solve
+//! the QP (`docs/decisions.md#closest-points-qp-then-epigraph-form-near-contact`); agreement with
+//! parry's GJK is 1e-8 in the distance (`tests/conic_closest_point.rs`).
 //!
 //! ```
 //! use ecp_solvers::conic::closest_point::{ConvexSet, closest_points};

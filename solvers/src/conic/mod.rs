@@ -1,5 +1,5 @@
-//! Convex subproblems with clarabel (solvers.md §3): a backend that uses the structure of the
-//! contact step instead of treating it as a generic MCP.
+//! Convex subproblems with clarabel (`docs/backends.md#conic`): a backend that uses the structure
+//! of the contact step instead of treating it as a generic MCP.
 //!
 //! Each outer iteration fixes the contact geometry at the current end-of-step iterate (gap,
 //! contact frame, the vertices of Conv(F) near G, the ECP) and solves one convex QP over a
@@ -14,17 +14,17 @@
 //! ```
 //!
 //! `W_{n,j} = [n; (v_j − x) × n]`, `W_t = [t; (a1 − x) × t]`, `W_o`, `W_r = [0; n]`
-//! (formulation.md §4.1), `s_c` the De Saxcé shift. Its KKT conditions are the discrete
+//! (`docs/model.md#newton-euler`), `s_c` the De Saxcé shift. Its KKT conditions are the discrete
 //! Newton–Euler equations with `p_n = Σ λ_j` at the centre of pressure, the ellipsoidal
 //! friction cone with maximum dissipation, and complementarity of each `λ_j` with the shifted,
-//! linearised gap of its vertex: at a fixed point, exactly formulation.md §4.
+//! linearised gap of its vertex: at a fixed point, exactly `docs/model.md#residual-blocks`.
 //!
 //! - [`ConicMode::Exact`] (default): the De Saxcé / Acary–Cadoux fixed point. The normal
 //!   velocity of every patch vertex is shifted by `μ ‖E u_T‖` of the previous iterate
 //!   (Acary, Cadoux, Lemaréchal, Malick, CMAME 2011), which makes a fixed point satisfy exact
 //!   Coulomb (maximum-dissipation) friction, and the geometry is re-evaluated at the new
 //!   end-of-step configuration (geometric implicitness). The iteration stops when the full step
-//!   MCP's natural residual (formulation.md §2, computed by the model on the mapped-back vector)
+//!   MCP's natural residual (`docs/model.md#mcp`, computed by the model on the mapped-back vector)
 //!   is below [`ConicSettings::tolerance`]. Two devices make it converge to 1e-10 in a few
 //!   iterations ([`ConicSettings::polish`], [`ConicSettings::anderson_memory`]): each QP's
 //!   solution is polished on its identified active set (loaded vertices' linearised gaps made
@@ -42,7 +42,7 @@
 //!   [`SolveError::NotConverged`] with [`Termination::MaxIterations`] (one QP) and the relaxed
 //!   point as its best iterate (a time stepper takes it and records the step as not converged).
 //!
-//! Bodies with several contacts (the union-of-pieces model, formulation.md §7.1, where each
+//! Bodies with several contacts (the union-of-pieces model, `docs/model.md#union`, where each
 //! convex piece of the desk or the T-bar has its own contact): the QP's velocities are unique but
 //! its impulses are not — how the load is shared between the pieces and where each piece's
 //! centre of pressure lies are left open, by the step model itself — and each piece's centre of
@@ -80,7 +80,7 @@ use ecp_model::{
 
 use crate::newton::{NewtonSettings, NewtonSolver};
 
-/// Which model the conic backend solves (solvers.md §3).
+/// Which model the conic backend solves (`docs/backends.md#conic`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum ConicMode {
     /// The exact step model: De Saxcé / Acary–Cadoux fixed point with geometry re-evaluated at
@@ -88,7 +88,7 @@ pub enum ConicMode {
     #[default]
     Exact,
     /// Anitescu's convex relaxation, solved once (single shot) at the warm start's geometry.
-    /// NOT the step model of formulation.md: sliding contacts drift off the surface.
+    /// NOT the step model of `docs/model.md`: sliding contacts drift off the surface.
     AnitescuRelaxation,
 }
 
@@ -96,13 +96,12 @@ pub enum ConicMode {
 #[derive(Clone, Debug)]
 pub struct ConicSettings {
     /// Stop when the natural residual of the mapped-back MCP vector is at most this.
-    /// Default `1e-10` (the Newton backend's default; issue #6 asks for ≤ 1e-8).
+    /// Default `1e-10`, the Newton backend's default.
     pub tolerance: f64,
     /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
     pub max_iterations: usize,
     /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
-    /// iterations. Default 20 (the union desk's last digits can take a dozen iterations when a
-    /// leg is nearly unloaded: with 8, 1 of its 400 steps stops at 1.2e-10).
+    /// iterations. Default 20 (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub stagnation_window: usize,
     /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
     /// twice the distance they may approach G within the step, enter the QP
@@ -115,8 +114,7 @@ pub struct ConicSettings {
     /// each contact's friction impulse is the exact solution of its local maximum-dissipation
     /// problem, in three Gauss–Seidel sweeps. This removes the interior-point method's stopping
     /// error (about 1e-9 in the velocities) from the fixed point; it is not a Newton step on the
-    /// MCP. With `false` the plain fixed point floors at 1e-9..1e-10 in the natural residual.
-    /// Default `true`.
+    /// MCP. Default `true` (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub polish: bool,
     /// Anderson acceleration of the outer fixed point: number of previous iterates mixed
     /// (Walker & Ni 2011); 0 gives the plain De Saxcé / Acary–Cadoux iteration. Default 4.
@@ -124,17 +122,15 @@ pub struct ConicSettings {
     /// Weight `ρ_m` of the centre-of-pressure anchor of the contacts of bodies with several
     /// contacts (exact mode; the proximal term described in the module doc), relative to the
     /// body's mean angular mobility `mean_i 1/M_{ωω,ii}`. The union-of-pieces model
-    /// (formulation.md §7.1) needs it: without it the per-piece centres of pressure and loads,
-    /// which the model does not determine, jump between outer iterations and the fixed point
-    /// cycles (residual stuck near 1e-3 on every union-desk step). The term vanishes at a fixed
-    /// point; larger values hold the centres of pressure more firmly. 0 disables both anchors.
-    /// Default 1000. Measured on the 400-step union desk (failed steps, `anchor_load` 0.1):
-    /// 30 → 16, 100 → 23, 300 → 0, 1000 → 0 (5.0 outer iterations per step), 3000 → 0.
+    /// (`docs/model.md#union`) needs it: without it the per-piece centres of
+    /// pressure and loads, which the model does not determine, jump between outer iterations and
+    /// the fixed point cycles. The term vanishes at a fixed point; larger values hold the centres
+    /// of pressure more firmly. 0 disables both anchors. Default 1000
+    /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_moment: f64,
     /// Weight `ρ_n` of the load anchor (the same proximal term on each such contact's normal
     /// impulse), relative to the contact's normal mobility `W_nᵀM⁻¹W_n`. Default `0.1`
-    /// (with `anchor_moment` 300: 0.03, 0.1 and 1 all give 0 failed union-desk steps; with 100,
-    /// 0.01 gives 28).
+    /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
     /// tolerance (exact mode only), reported in the counter `"newton_polish"`. Default 0: the
@@ -143,10 +139,9 @@ pub struct ConicSettings {
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
-    /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`,
-    /// `tol_feas`) at `1e-12` and `tol_ktratio` at `1e-10` (the step's complementarity is judged
-    /// at `1e-10` after the length rows are scaled by `1/h`), `max_iter = 100`, and
-    /// `max_step_fraction = 0.9` (with 0.99 clarabel stopped at `AlmostSolved` on the desk).
+    /// defaults with `verbose = false`, the tolerances (`tol_gap_abs`, `tol_gap_rel`, `tol_feas`)
+    /// at `1e-12` and `tol_ktratio` at `1e-10`, `max_iter = 100`, and `max_step_fraction = 0.9`
+    /// (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub clarabel: DefaultSettings<f64>,
 }
 
@@ -183,7 +178,7 @@ impl Default for ConicSettings {
     }
 }
 
-/// The conic backend (solvers.md §3). Implements [`McpSolver`] for MCPs that expose a
+/// The conic backend (`docs/backends.md#conic`). Implements [`McpSolver`] for MCPs that expose a
 /// [`ecp_model::StepStructure`] (the time-step MCP of ecp-formulations).
 ///
 /// Counters in the summary: `"clarabel_iterations"` (interior-point iterations, all QPs),
@@ -254,7 +249,7 @@ impl McpSolver for ConicSolver {
         let Some(structure) = mcp.structure() else {
             return Err(SolveError::InvalidProblem(
                 "the conic backend needs the structural view of a contact step \
-                 (Mcp::structure, solvers.md §3); this MCP has none: use the Newton or PATH \
+                 (Mcp::structure, docs/backends.md); this MCP has none: use the Newton or PATH \
                  backend, or pass Simulation::structured_mcp()"
                     .into(),
             ));

@@ -1,6 +1,6 @@
-//! The conic subproblem of one outer iteration (solvers.md §3): with the contact geometry fixed
-//! at the trial point, the end-of-step velocities and contact impulses solve one QP over a
-//! product of cones.
+//! The conic subproblem of one outer iteration (`docs/backends.md#conic`): with the contact
+//! geometry fixed at the trial point, the end-of-step velocities and contact impulses solve one QP
+//! over a product of cones.
 //!
 //! Primal (velocity) form, one block per body `b` and per contact `c` with a non-empty patch:
 //!
@@ -10,37 +10,36 @@
 //!      (a_c, e_t W_tᵀν_b, e_o W_oᵀν_b, e_r W_rᵀν_b) ∈ SOC(4)                         (μ p_n, p_f/e)
 //! ```
 //!
-//! with `W_{n,j} = [n; (v_j − x) × n]` at the patch vertices, `W_t = [t; (a1 − x) × t]`,
-//! `W_o = [o; (a1 − x) × o]`, `W_r = [0; n]` at the current ECP (formulation.md §4.1), `g_j`
-//! the vertex gaps at the trial configuration, and `s_c` the De Saxcé shift `μ ‖E u_T‖` of the
-//! trial velocities (Acary, Cadoux, Lemaréchal, Malick 2011), `E = diag(e_t, e_o, e_r)`; `s_c = 0`
-//! is Anitescu's relaxation (Anitescu 2006). Its KKT conditions are the discrete Newton–Euler
-//! equations `M(ν − ν_free) = Σ_j λ_j W_{n,j} + W_t p_t + W_o p_o + W_r p_r` with `λ_j ≥ 0`
-//! (centre of pressure = the ECP) and `‖(p_t/e_t, p_o/e_o, p_r/e_r)‖ ≤ μ Σ_j λ_j`, the friction
-//! impulse opposing the slip (maximum dissipation), and complementarity of each `λ_j` with its
-//! shifted, linearised gap. At a fixed point (`ν = ν^k`, geometry unchanged, `s_c` equal to the
-//! new slip) these are exactly the conditions of formulation.md §4.
+//! with `W_{n,j} = [n; (v_j − x) × n]` at the patch vertices, `W_t = [t; (a1 − x) × t]`, `W_o = [o;
+//! (a1 − x) × o]`, `W_r = [0; n]` at the current ECP (`docs/model.md#newton-euler`), `g_j` the
+//! vertex gaps at the trial configuration, and `s_c` the De Saxcé shift `μ ‖E u_T‖` of the trial
+//! velocities (Acary, Cadoux, Lemaréchal, Malick 2011), `E = diag(e_t, e_o, e_r)`; `s_c = 0` is
+//! Anitescu's relaxation (Anitescu 2006). Its KKT conditions are the discrete Newton–Euler
+//! equations `M(ν − ν_free) = Σ_j λ_j W_{n,j} + W_t p_t + W_o p_o + W_r p_r` with `λ_j ≥ 0` (centre
+//! of pressure = the ECP) and `‖(p_t/e_t, p_o/e_o, p_r/e_r)‖ ≤ μ Σ_j λ_j`, the friction impulse
+//! opposing the slip (maximum dissipation), and complementarity of each `λ_j` with its shifted,
+//! linearised gap. At a fixed point (`ν = ν^k`, geometry unchanged, `s_c` equal to the new slip)
+//! these are exactly the conditions of `docs/model.md#residual-blocks`.
 //!
-//! **Anchored contacts** (a body with several loaded contacts, such as the union-of-pieces model
-//! of formulation.md §7.1): the QP's velocities are unique but its impulses are not, and neither
-//! is the solution of the step model — how the load is shared between the desk's legs, and where
-//! in its foot each leg's centre of pressure lies, are left open (the Jacobian of the step MCP
-//! has a 9-dimensional null space on the union desk). The interior-point method returns a
-//! different member of that set at each outer iteration; the centre of pressure of each contact
-//! becomes its ECP for the next QP, where its friction acts, so the fixed point cycles
-//! (measured: period-2 cycles with `‖Δz‖ ≈ 0.8`, residual stuck at 1e-3). Anchored contacts get
-//! a proximal term in the dual, centred on the previous iterate: three free variables per
-//! contact, `ξ_c ∈ R²` and `ζ_c`, enter each of its vertex rows as `+ b_jᵀξ_c + ζ_c`, with
-//! `b_j` the tangential components of `v_j − e_c` (`e_c` the contact's current ECP), at cost
-//! `‖ξ_c‖²/(2ρ_m) + ζ_c²/(2ρ_n) + p_{n,c}^k ζ_c`. The KKT conditions give
-//! `ξ_c = ρ_m p_{n,c} (CoP_c − e_c)` and `ζ_c = ρ_n (p_{n,c} − p_{n,c}^k)`, i.e. the dual gains
-//! `−½ρ_m‖p_{n,c}(CoP_c − e_c)‖² − ½ρ_n (p_{n,c} − p_{n,c}^k)²`: of the impulses that solve the
-//! QP, the ones whose centre of pressure stays at the ECP and whose load stays near the previous
-//! one. Both terms vanish at a fixed point (the ECP update makes `CoP_c = e_c`, and the load no
-//! longer changes), so the fixed point is still exactly formulation.md §4; away from it they
-//! relax each row by at most what the contact moved in one iteration. This is the proximal point
-//! method on the dual (Rockafellar, SIAM J. Control Optim. 14, 1976), restricted to the
-//! contact's normal wrench.
+//! **Anchored contacts** (a body with several loaded contacts, such as the union-of-pieces model of
+//! `docs/model.md#union`): the QP's velocities are unique but its impulses are not, and neither is
+//! the solution of the step model — how the load is shared between the desk's legs, and where in
+//! its foot each leg's centre of pressure lies, are left open (the Jacobian of the step MCP has a
+//! 9-dimensional null space on the union desk). The interior-point method returns a different
+//! member of that set at each outer iteration; the centre of pressure of each contact becomes its
+//! ECP for the next QP, where its friction acts, so the fixed point cycles
+//! (`docs/decisions.md#conic-backend-anchor-weights`). Anchored contacts get a proximal term in the
+//! dual, centred on the previous iterate: three free variables per contact, `ξ_c ∈ R²` and `ζ_c`,
+//! enter each of its vertex rows as `+ b_jᵀξ_c + ζ_c`, with `b_j` the tangential components of `v_j
+//! − e_c` (`e_c` the contact's current ECP), at cost `‖ξ_c‖²/(2ρ_m) + ζ_c²/(2ρ_n) + p_{n,c}^k ζ_c`.
+//! The KKT conditions give `ξ_c = ρ_m p_{n,c} (CoP_c − e_c)` and `ζ_c = ρ_n (p_{n,c} − p_{n,c}^k)`,
+//! i.e. the dual gains `−½ρ_m‖p_{n,c}(CoP_c − e_c)‖² − ½ρ_n (p_{n,c} − p_{n,c}^k)²`: of the
+//! impulses that solve the QP, the ones whose centre of pressure stays at the ECP and whose load
+//! stays near the previous one. Both terms vanish at a fixed point (the ECP update makes `CoP_c =
+//! e_c`, and the load no longer changes), so the fixed point is still exactly
+//! `docs/model.md#residual-blocks`; away from it they relax each row by at most what the contact
+//! moved in one iteration. This is the proximal point method on the dual (Rockafellar, SIAM J.
+//! Control Optim. 14, 1976), restricted to the contact's normal wrench.
 
 use ecp_model::linalg;
 use ecp_model::{BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, StepStructure};
@@ -333,7 +332,7 @@ impl StepQp {
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
     ///   ([`local_friction`]), in three Gauss–Seidel sweeps over the contacts of a body, starting
     ///   from clarabel's dual; it sticks with `u_T = 0` exactly or slides with
-    ///   `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly (formulation.md §4.4); the friction of an
+    ///   `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly (`docs/model.md#friction`); the friction of an
     ///   anchored contact acts at the centre of pressure of its corrected normal impulses (the
     ///   ECP of the assembled point) rather than at the ECP the QP was built at;
     /// - the velocities are recomputed from the impulses by the Newton–Euler equations,
@@ -397,9 +396,9 @@ impl StepQp {
                 let b = rows.body;
                 let body = &bodies[b];
                 // Remove this contact's friction, then solve its local problem with the friction
-                // acting at the centre of pressure of the normal impulses (the ECP a1 of the
-                // point that is assembled, formulation.md §4.1, §4.4), which may differ from
-                // the ECP the QP was built at until the fixed point converges.
+                // acting at the centre of pressure of the normal impulses (the ECP a1 of the point
+                // that is assembled, `docs/model.md#newton-euler`, `docs/model.md#friction`), which
+                // may differ from the ECP the QP was built at until the fixed point converges.
                 for i in 0..3 {
                     for k in 0..6 {
                         wrench_sum[b][k] -= imp.friction[i] * current[c][i][k];

@@ -1,6 +1,6 @@
 //! Minimum-norm least-squares solutions of `H d = b` for a square, possibly singular dense `H`:
 //! the generalised Newton step of the semismooth Newton backend when `H` is rank-deficient
-//! (formulation.md §6: at the solutions of the union-of-pieces model the impulses and the
+//! (`docs/model.md#union`: at the solutions of the union-of-pieces model the impulses and the
 //! per-piece ECPs are not unique, so `H` is singular on the whole solution set).
 //!
 //! A complete orthogonal decomposition, as LAPACK's `xGELSY` computes it (Golub & Van Loan,

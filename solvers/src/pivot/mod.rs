@@ -1,5 +1,5 @@
 //! A pivotal solver for affine MCPs: Lemke's method generalised to bounded variables
-//! (solvers.md §2).
+//! (`docs/backends.md#path-like`).
 //!
 //! The affine MCP is: find `l ≤ z ≤ u` with `w = M z + q` and, for each `i`, `w_i ≥ 0` at
 //! `z_i = l_i`, `w_i ≤ 0` at `z_i = u_i`, `w_i = 0` strictly inside. This covers the LCP
