@@ -311,15 +311,34 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
         eprintln!("warning: the plots were not written: {e}");
     }
     if let (Some(f), None) = (&s.failure, &outcome.stepper_error) {
+        let by = if options.fallbacks {
+            "by its backend or any fallback"
+        } else {
+            "by its backend (fallbacks off)"
+        };
+        let hint = if options.keep_going {
+            format!(
+                "the run went on with the bodies' state held over each failed step ({} failed); \
+                 every step is in {}",
+                s.failed_steps,
+                options.out_dir.join("trajectory.csv").display()
+            )
+        } else {
+            format!(
+                "the steps before it are in {}; try a smaller h{} or --keep-going (which keeps \
+                 the bodies' state over a failed step)",
+                options.out_dir.join("trajectory.csv").display(),
+                if options.fallbacks {
+                    ""
+                } else {
+                    ", the fallbacks (drop --no-fallbacks)"
+                }
+            )
+        };
         eprintln!(
-            "error: step {} (t = {:.4} s) could not be solved, by its backend or any fallback: {} \
-             (best residual {:.3e}); the steps before it are in {}; try a smaller h or \
-             --keep-going (which keeps the bodies' state over a failed step)",
-            f.step,
-            f.t,
-            f.reason,
-            f.residual,
-            options.out_dir.join("trajectory.csv").display()
+            "error: step {} (t = {:.4} s) could not be solved {by}: {} (best residual {:.3e}); \
+             {hint}",
+            f.step, f.t, f.reason, f.residual,
         );
     }
     if let Some(e) = &outcome.stepper_error {
