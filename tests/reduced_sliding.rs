@@ -31,7 +31,7 @@ use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Load, Scene, SceneError, Simulation, StepRecord};
 use ecp::model::{
-    CheckOptions, McpSolver, ResidualBlock, check_block_mcp, check_residual_block, residual_of,
+    CheckOptions, McpSolver, ResidualBlock, check_problem, check_residual_block, residual_of,
 };
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
@@ -261,7 +261,7 @@ fn desk_step_mcp_jacobian_checks() {
         st.step(s.as_mut()).expect("step");
     }
     st.prepare_step().expect("step data");
-    for report in check_block_mcp(st.mcp(), st.z(), &CheckOptions::default()) {
+    for report in check_problem(st.mcp(), st.z(), &CheckOptions::default()) {
         assert!(report.ok(), "{report}");
     }
 }
@@ -637,12 +637,17 @@ proptest! {
         y in vec3(-3.0, 3.0),
         sigma in prop_oneof![Just(0.0), 0.0..5.0f64],
     ) {
-        check(&ReducedFriction { data }, &[y.as_slice(), &[sigma]])?;
+        let (friction, sliding) = (data.friction.values(), data.sliding_values());
+        check(
+            &ReducedFriction { frame: data.frame },
+            &[y.as_slice(), &[sigma], &friction, &sliding],
+        )?;
     }
 
     #[test]
     fn reduced_ellipsoid_jacobian(data in step_data(), y in vec3(-3.0, 3.0)) {
-        check(&ReducedEllipsoid { data }, &[y.as_slice()])?;
+        let (friction, sliding) = (data.friction.values(), data.sliding_values());
+        check(&ReducedEllipsoid { frame: data.frame }, &[y.as_slice(), &friction, &sliding])?;
     }
 
     /// The eliminated quantities satisfy the Newton–Euler equations of `docs/model.md#newton-euler`

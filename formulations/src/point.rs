@@ -634,7 +634,12 @@ impl PointContacts {
             problem.add_residual_block(
                 body.q,
                 KinematicMap,
-                &[body.q.into(), body.nu.into(), Input::from(d.start), h.into()],
+                &[
+                    body.q.into(),
+                    body.nu.into(),
+                    Input::from(d.start),
+                    h.into(),
+                ],
             )?;
         }
         for (c, g) in contacts.iter().zip(&geometry) {

@@ -333,7 +333,11 @@ impl ecp_model::ResidualBlock for ReducedFriction {
         let f = data.friction;
         let e = [f.e_t, f.e_o, f.e_r];
         for dir in 0..15 {
-            let (input, col) = if dir < 4 { (kf, dir) } else { (kf + 1, dir - 4) };
+            let (input, col) = if dir < 4 {
+                (kf, dir)
+            } else {
+                (kf + 1, dir - 4)
+            };
             if !jac.wants(input) {
                 continue;
             }
@@ -407,7 +411,11 @@ impl ecp_model::ResidualBlock for ReducedEllipsoid {
         let f = data.friction;
         let e = [f.e_t, f.e_o, f.e_r];
         for dir in 0..15 {
-            let (input, col) = if dir < 4 { (kf, dir) } else { (kf + 1, dir - 4) };
+            let (input, col) = if dir < 4 {
+                (kf, dir)
+            } else {
+                (kf + 1, dir - 4)
+            };
             if !jac.wants(input) {
                 continue;
             }

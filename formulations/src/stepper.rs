@@ -706,13 +706,23 @@ impl Simulation {
                 reads.extend([c.a1, c.pn, c.pf].map(Input::from));
             }
             let d = body.data;
-            reads.extend([d.mass, d.inertia, d.start, d.wrench, gravity, step_length].map(Input::from));
-            body.newton_euler =
-                problem.add_residual_block(body.nu, NewtonEuler::new(body.frames.clone()), reads)?;
+            reads.extend(
+                [d.mass, d.inertia, d.start, d.wrench, gravity, step_length].map(Input::from),
+            );
+            body.newton_euler = problem.add_residual_block(
+                body.nu,
+                NewtonEuler::new(body.frames.clone()),
+                reads,
+            )?;
             body.kinematic = problem.add_residual_block(
                 body.q,
                 KinematicMap,
-                &[body.q.into(), body.nu.into(), Input::from(d.start), step_length.into()],
+                &[
+                    body.q.into(),
+                    body.nu.into(),
+                    Input::from(d.start),
+                    step_length.into(),
+                ],
             )?;
             // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
             // like a velocity error Δv (`docs/model.md#contact`,

@@ -68,7 +68,12 @@ impl<'a> StepView<'a> {
         BodyStepData {
             mass: mcp.data(d.mass)[0],
             inertia: inertia_from_entries(mcp.data(d.inertia)),
-            q_start: Vector4::new(s[start::Q], s[start::Q + 1], s[start::Q + 2], s[start::Q + 3]),
+            q_start: Vector4::new(
+                s[start::Q],
+                s[start::Q + 1],
+                s[start::Q + 2],
+                s[start::Q + 3],
+            ),
             nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
             wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
             gravity: Vector3::from_column_slice(mcp.data(self.sim.scene_data.gravity)),
@@ -108,7 +113,12 @@ impl<'a> StepView<'a> {
         let s = self.sim.mcp.data(self.sim.bodies[b].data.start);
         (
             Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]),
-            Vector4::new(s[start::Q], s[start::Q + 1], s[start::Q + 2], s[start::Q + 3]),
+            Vector4::new(
+                s[start::Q],
+                s[start::Q + 1],
+                s[start::Q + 2],
+                s[start::Q + 3],
+            ),
         )
     }
 

@@ -278,7 +278,10 @@ mod tests {
 
     #[test]
     fn c1_c2_c3_at_a_known_point() {
-        let c1 = ClosestPointAlignment { normal: Vector3::z(), scale: 100.0 };
+        let c1 = ClosestPointAlignment {
+            normal: Vector3::z(),
+            scale: 100.0,
+        };
         let r = eval(&c1, &[&A1, &A2, &[0.1]]);
         assert!(r.iter().all(|v| v.abs() < 1e-12), "{r:?}");
         check(&c1, &[&A1, &A2, &[0.3]]);
@@ -290,7 +293,11 @@ mod tests {
         let r = eval(&c2, &[&l, &identity]);
         assert!(r.iter().all(|v| v.abs() < 1e-15), "{r:?}");
         check(&c2, &[&[0.2, 0.0, 0.1, 0.0, 0.3, 0.5], &Q]);
-        let c3 = HullFaces { face_normals: normals, offsets, scale: 2.0 };
+        let c3 = HullFaces {
+            face_normals: normals,
+            offsets,
+            scale: 2.0,
+        };
         // The cube's centre: −f_i = 0.5 for every face.
         let r = eval(&c3, &[&[0.0, 0.0, 0.7], &identity]);
         assert!(r.iter().all(|v| (v - 1.0).abs() < 1e-15), "{r:?}");
@@ -299,8 +306,14 @@ mod tests {
 
     #[test]
     fn c4_c5_read_the_offset() {
-        let c4 = HalfSpaceSide { normal: Vector3::z(), scale: 10.0 };
-        let c5 = NonPenetration { normal: Vector3::z(), scale: 10.0 };
+        let c4 = HalfSpaceSide {
+            normal: Vector3::z(),
+            scale: 10.0,
+        };
+        let c5 = NonPenetration {
+            normal: Vector3::z(),
+            scale: 10.0,
+        };
         assert_eq!(eval(&c4, &[&A2, &[0.1]]), vec![0.0]);
         assert!((eval(&c5, &[&A1, &[0.1]])[0] - 1.0).abs() < 1e-14);
         assert!((eval(&c5, &[&A1, &[0.3]])[0] + 1.0).abs() < 1e-14);

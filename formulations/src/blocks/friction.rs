@@ -256,5 +256,4 @@ mod tests {
             check_residual_block(&FrictionEllipsoid, &params, &CheckOptions::default()).unwrap();
         assert!(report.ok(), "{report}");
     }
-
 }

@@ -112,9 +112,12 @@ mod tests {
         let s = [
             0.1, 0.2, 0.3, 0.8, 0.1, 0.5, -0.3, 0.4, 0.5, 0.6, -1.0, 0.3, 0.2,
         ];
-        let report =
-            check_residual_block(&KinematicMap, &[&q, &nu, &s, &[0.01]], &CheckOptions::default())
-                .expect("sizes");
+        let report = check_residual_block(
+            &KinematicMap,
+            &[&q, &nu, &s, &[0.01]],
+            &CheckOptions::default(),
+        )
+        .expect("sizes");
         assert!(report.ok(), "{report}");
     }
 }

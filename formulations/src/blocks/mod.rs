@@ -29,9 +29,9 @@ pub use common::{
 };
 pub use contact::{ClosestPointAlignment, HalfSpaceSide, HullFaces, NonPenetration, NormalCone};
 pub use data::{
-    BodyDataIds, FRICTION_DATA, GRAVITY_DATA, INERTIA_DATA, MASS_DATA, PLANE_DATA,
-    START_DATA, STEP_LENGTH_DATA, SceneDataIds, WRENCH_DATA, add_body_data, add_plane_data,
-    add_scene_data, start_values,
+    BodyDataIds, FRICTION_DATA, GRAVITY_DATA, INERTIA_DATA, MASS_DATA, PLANE_DATA, START_DATA,
+    STEP_LENGTH_DATA, SceneDataIds, WRENCH_DATA, add_body_data, add_plane_data, add_scene_data,
+    start_values,
 };
 pub use friction::{FrictionDissipation, FrictionEllipsoid, FrictionParams};
 pub use kinematic_map::KinematicMap;

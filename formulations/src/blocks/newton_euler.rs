@@ -369,7 +369,11 @@ mod tests {
         let n = Vector3::new(0.1, -0.2, 1.0).normalize();
         let t = (Vector3::x() - n * n.x).normalize();
         vec![
-            ContactFrame { n, t, o: n.cross(&t) },
+            ContactFrame {
+                n,
+                t,
+                o: n.cross(&t),
+            },
             ContactFrame {
                 n: Vector3::z(),
                 t: Vector3::x(),
@@ -422,9 +426,15 @@ mod tests {
         let mut params: Vec<&[f64]> = vec![&nu, &q];
         params.extend([&contact[0][..], &contact[1][..1], &contact[2][..]]);
         params.extend([&contact[3][..], &contact[4][..1], &contact[5][..]]);
-        params.extend([&[2.5][..], &inertia[..], &s[..], &wrench[..], &g[..], &[0.01][..]]);
-        let report =
-            check_residual_block(&ne, &params, &CheckOptions::default()).expect("sizes");
+        params.extend([
+            &[2.5][..],
+            &inertia[..],
+            &s[..],
+            &wrench[..],
+            &g[..],
+            &[0.01][..],
+        ]);
+        let report = check_residual_block(&ne, &params, &CheckOptions::default()).expect("sizes");
         assert!(report.ok(), "{report}");
         assert_eq!(report.pairs.len(), 14);
         // Every data input has a non-zero derivative somewhere (none is silently ignored).
@@ -443,7 +453,10 @@ mod tests {
         );
         for k in ne.body_data_input()..sizes.len() {
             let block = &dense[block_start[k] * 6..block_start[k + 1] * 6];
-            assert!(block.iter().any(|v| *v != 0.0), "input {k} has a zero derivative");
+            assert!(
+                block.iter().any(|v| *v != 0.0),
+                "input {k} has a zero derivative"
+            );
         }
     }
 }
