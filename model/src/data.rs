@@ -51,7 +51,7 @@
 //! ```
 
 use crate::ModelError;
-use crate::problem::VarId;
+use crate::bounds::VarId;
 
 /// Handle of a data block inside a [`Problem`](crate::Problem) and the
 /// [`BlockMcp`](crate::BlockMcp) built from it.

@@ -5,14 +5,11 @@ use std::sync::Arc;
 
 use crate::ModelError;
 use crate::bounds::VarBlock;
+pub use crate::bounds::VarId;
 use crate::data::{DataBlock, DataId, Input, IntoInputs};
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
-
-/// Handle of a variable block inside a [`Problem`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct VarId(pub usize);
 
 /// Handle of a residual block (paired or a term) inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
