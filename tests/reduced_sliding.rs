@@ -621,9 +621,10 @@ prop_compose! {
 
 /// Checks every input of `block` (variables and the `friction` and `sliding` data).
 ///
-/// The rows subtract terms of size `size` (`μ p_n` and `‖E⁻¹ p_f‖`, up to 1e4 here), so the
-/// round-off of the central differences is about `ε size / step` (1e-5 at step 1e-6), beyond
-/// the plain absolute tolerance: it is scaled by `1 + size`. At `μ = 0` the row scale
+/// The rows combine terms of size `size` (`μ p_n` and `‖E⁻¹ p_f‖`, up to 1e4 here; times the
+/// row scale for the friction rows), so the round-off of the central differences is about
+/// `ε size / step` (1e-5 for 1e4 at step 1e-6), beyond the plain absolute tolerance: it is
+/// scaled by `1 + size`. At `μ = 0` the row scale
 /// `1/(e_k² μ p_n)` of the friction rows jumps to 1 (`docs/model.md#reduced`), so their μ
 /// column has no derivative there: `allow_mu` lets exactly that column fail.
 fn check(
@@ -655,7 +656,7 @@ fn check(
     Ok(())
 }
 
-/// The size of the terms of the reduced rows at `y` (see [`check`]).
+/// The size of the terms of the ellipsoid row at `y` (see [`check`]).
 fn row_size(data: &SlidingStepData, y: &[f64]) -> f64 {
     let p = data.point(y);
     let f = data.friction;
@@ -663,6 +664,24 @@ fn row_size(data: &SlidingStepData, y: &[f64]) -> f64 {
         .hypot(p.pf[1] / f.e_o)
         .hypot(p.pf[2] / f.e_r);
     (f.mu * p.pn).abs() + norm
+}
+
+/// The size of the terms of the friction rows `w_k (c_k p_n s_k + p_k σ)` at `y` (see
+/// [`check`]): the row scale `w_k = 1/(e_k² μ p_n)` reaches 1e8 for the smallest `e_r`, `μ` and
+/// `p_n` drawn.
+fn friction_size(data: &SlidingStepData, y: &[f64], sigma: f64) -> f64 {
+    let p = data.point(y);
+    let f = data.friction;
+    let w = data.row_scales();
+    let e = [f.e_t, f.e_o, f.e_r];
+    // p_r = n·L − ρ_t p_o + ρ_o p_t cancels: its terms, not its value, set the round-off.
+    let l = data.spin_inertia * y[2] - data.angular;
+    let pr_terms =
+        data.frame.n.dot(&l).abs() + (p.rho[0] * p.pf[1]).abs() + (p.rho[1] * p.pf[0]).abs();
+    let pf = [p.pf[0].abs(), p.pf[1].abs(), pr_terms];
+    (0..3)
+        .map(|k| w[k] * ((e[k] * e[k] * f.mu * p.pn * p.slip[k]).abs() + pf[k] * sigma))
+        .fold(row_size(data, y), f64::max)
 }
 
 proptest! {
@@ -679,7 +698,7 @@ proptest! {
         check(
             &ReducedFriction { frame: data.frame },
             &[y.as_slice(), &[sigma], &friction, &sliding],
-            row_size(&data, y.as_slice()),
+            friction_size(&data, y.as_slice(), sigma),
             allow_mu,
         )?;
     }
