@@ -910,6 +910,10 @@ fn input_columns(
     }
     let mut full = vec![0.0; n * p];
     mcp.data_jacobian(z, &wrt, &mut full)?;
+    // The step inputs are laid out as their data blocks ([`StepInput::all`]): no reordering.
+    if at.iter().copied().eq(0..p) {
+        return Ok(full);
+    }
     let mut rhs = vec![0.0; n * inputs.len()];
     for (c, &col) in at.iter().enumerate() {
         rhs[c * n..(c + 1) * n].copy_from_slice(&full[col * n..(col + 1) * n]);

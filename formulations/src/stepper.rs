@@ -1019,9 +1019,10 @@ impl Simulation {
     pub fn scene_data(&self) -> SceneDataIds {
         self.scene_data
     }
-    /// The offset data block of half-space `p` (in the step problem's coordinates).
-    pub fn plane_data(&self, p: usize) -> DataId {
-        self.plane_data[p]
+    /// The offset data block of half-space `p` (in the step problem's coordinates; `None` for a
+    /// half-space the scene does not have).
+    pub fn plane_data(&self, p: usize) -> Option<DataId> {
+        self.plane_data.get(p).copied()
     }
     /// Steps taken.
     pub fn steps_taken(&self) -> usize {

@@ -323,7 +323,9 @@ impl Problem {
                 }
                 block_start.push(col_pos.len());
             }
+            let discards = col_pos.contains(&JacobianBlocks::DISCARD);
             blocks.push(AssembledBlock {
+                discards,
                 block: res.block,
                 rows_of: res.rows_of,
                 row0: r0,
@@ -371,10 +373,24 @@ struct AssembledBlock {
     /// Positions in the sparse Jacobian of each input column; data columns are discarded.
     col_pos: Vec<usize>,
     block_start: Vec<usize>,
+    /// Whether the block has data inputs (whose columns `col_pos` discards).
+    discards: bool,
     term: bool,
 }
 
 impl AssembledBlock {
+    /// Write access to this block's entries of the sparse MCP Jacobian `values`.
+    #[inline]
+    fn sparse<'a>(&'a self, values: &'a mut [f64]) -> JacobianBlocks<'a> {
+        JacobianBlocks::with_discards(
+            values,
+            &self.col_pos,
+            &self.block_start,
+            self.rows,
+            self.discards,
+        )
+    }
+
     /// Number of variable columns (the width of a term's local Jacobian).
     fn var_cols(&self) -> usize {
         self.ranges
@@ -570,10 +586,21 @@ impl BlockMcp {
             )));
         }
         out.fill(0.0);
-        let mut local = Vec::new();
-        let mut local_pos = Vec::new();
-        let mut scatter = Vec::new();
+        let width = self
+            .blocks
+            .iter()
+            .map(|b| b.col_pos.len())
+            .max()
+            .unwrap_or(0);
+        let rows = self.blocks.iter().map(|b| b.rows).max().unwrap_or(0);
+        let mut local = Vec::with_capacity(width * rows);
+        let mut local_pos = Vec::with_capacity(width);
+        let mut scatter = Vec::with_capacity(width);
         for b in &self.blocks {
+            let wanted = |i: &Input| matches!(i, Input::Data(d) if column[d.0].is_some());
+            if !b.inputs.iter().any(wanted) {
+                continue;
+            }
             // Local dense rows × (wanted data columns); `scatter` maps them to columns of θ.
             local_pos.clear();
             scatter.clear();
@@ -591,9 +618,6 @@ impl BlockMcp {
                         None => local_pos.push(JacobianBlocks::DISCARD),
                     }
                 }
-            }
-            if scatter.is_empty() {
-                continue;
             }
             local.clear();
             local.resize(scatter.len() * b.rows, 0.0);
@@ -648,7 +672,7 @@ impl Mcp for BlockMcp {
     fn jacobian(&self, z: &[f64], values: &mut [f64]) {
         values.fill(0.0);
         for b in self.blocks.iter().filter(|b| !b.term) {
-            let mut jac = JacobianBlocks::new(values, &b.col_pos, &b.block_start, b.rows);
+            let mut jac = b.sparse(values);
             b.block
                 .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
         }
@@ -661,7 +685,7 @@ impl Mcp for BlockMcp {
     fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
         values.fill(0.0);
         for b in self.blocks.iter().filter(|b| !b.term) {
-            let mut jac = JacobianBlocks::new(values, &b.col_pos, &b.block_start, b.rows);
+            let mut jac = b.sparse(values);
             b.block.evaluate_with_jacobian(
                 Params::new(z, &self.data_values, &b.ranges),
                 &mut f[b.row0..b.row0 + b.rows],

@@ -49,9 +49,9 @@ impl InputRange {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum InputKind {
     /// A variable block (unknowns of the MCP).
-    Variable,
+    Variable = 0,
     /// A data block (model parameters).
-    Data,
+    Data = 1,
 }
 
 impl std::fmt::Display for InputKind {
@@ -69,25 +69,25 @@ impl std::fmt::Display for InputKind {
 /// ranges.
 #[derive(Clone, Copy, Debug)]
 pub struct Params<'a> {
-    z: &'a [f64],
-    data: &'a [f64],
+    /// `z` and the data, indexed by `InputKind as usize`.
+    sources: [&'a [f64]; 2],
     inputs: &'a [InputRange],
 }
 
 impl<'a> Params<'a> {
     /// A view of `z` (variable inputs) and `data` (data inputs) through `inputs`.
+    #[inline]
     pub fn new(z: &'a [f64], data: &'a [f64], inputs: &'a [InputRange]) -> Self {
-        Params { z, data, inputs }
+        Params {
+            sources: [z, data],
+            inputs,
+        }
     }
     /// Values of input `k`, whichever kind it is.
     #[inline]
     pub fn block(&self, k: usize) -> &'a [f64] {
         let r = self.inputs[k];
-        let source = match r.kind {
-            InputKind::Variable => self.z,
-            InputKind::Data => self.data,
-        };
-        &source[r.offset..r.offset + r.len]
+        &self.sources[r.kind as usize][r.offset..r.offset + r.len]
     }
     /// Number of inputs.
     pub fn len(&self) -> usize {
@@ -116,6 +116,9 @@ pub struct JacobianBlocks<'a> {
     col_pos: &'a [usize],
     block_start: &'a [usize],
     rows: usize,
+    /// Whether some column is [`JacobianBlocks::DISCARD`] (false: every write is stored, and the
+    /// hot loop of a block without data inputs skips the test).
+    discards: bool,
 }
 
 impl<'a> JacobianBlocks<'a> {
@@ -131,11 +134,25 @@ impl<'a> JacobianBlocks<'a> {
         block_start: &'a [usize],
         rows: usize,
     ) -> Self {
+        let discards = col_pos.contains(&Self::DISCARD);
+        Self::with_discards(values, col_pos, block_start, rows, discards)
+    }
+
+    /// [`JacobianBlocks::new`] with `discards` (whether `col_pos` holds a
+    /// [`JacobianBlocks::DISCARD`]) known beforehand.
+    pub(crate) fn with_discards(
+        values: &'a mut [f64],
+        col_pos: &'a [usize],
+        block_start: &'a [usize],
+        rows: usize,
+        discards: bool,
+    ) -> Self {
         JacobianBlocks {
             values,
             col_pos,
             block_start,
             rows,
+            discards,
         }
     }
     /// Number of residual rows.
@@ -151,13 +168,13 @@ impl<'a> JacobianBlocks<'a> {
     #[inline]
     pub fn wants(&self, k: usize) -> bool {
         let s = self.block_start[k];
-        s < self.block_start[k + 1] && self.col_pos[s] != Self::DISCARD
+        s < self.block_start[k + 1] && (!self.discards || self.col_pos[s] != Self::DISCARD)
     }
     #[inline]
     fn pos(&self, k: usize, i: usize, j: usize) -> Option<usize> {
         debug_assert!(i < self.rows && j < self.cols(k));
         let p = self.col_pos[self.block_start[k] + j];
-        if p == Self::DISCARD {
+        if self.discards && p == Self::DISCARD {
             None
         } else {
             Some(p + i)

@@ -41,6 +41,7 @@ pub fn inertia_direction(k: usize) -> Matrix3<f64> {
 }
 
 /// The symmetric body-frame inertia from its six data entries ([`INERTIA_ENTRIES`]).
+#[inline]
 pub fn inertia_from_entries(d: &[f64]) -> Matrix3<f64> {
     let mut m = Matrix3::zeros();
     for (k, &(i, j)) in INERTIA_ENTRIES.iter().enumerate() {

@@ -27,6 +27,7 @@ impl FrictionParams {
         [self.mu, self.e_t, self.e_o, self.e_r]
     }
     /// From the values of a `friction` data block.
+    #[inline]
     pub fn from_slice(d: &[f64]) -> Self {
         FrictionParams {
             mu: d[0],
@@ -102,6 +103,18 @@ impl ResidualBlock for FrictionDissipation {
         let pf = x.block(4);
         let sigma = x.block(5)[0];
         let f = FrictionParams::from_slice(x.block(Self::FRICTION));
+        if jac.wants(Self::FRICTION) {
+            // r_i = e_i² μ p_n slip_i + p_i σ.
+            let e = [f.e_t, f.e_o, f.e_r];
+            for i in 0..3 {
+                jac.set(Self::FRICTION, i, 0, e[i] * e[i] * pn * slip[i]);
+                jac.set(Self::FRICTION, i, 1 + i, 2.0 * e[i] * f.mu * pn * slip[i]);
+            }
+        }
+        // The unknowns' derivatives, unless only data are asked for (`∂F/∂θ`).
+        if !(0..Self::FRICTION).any(|k| jac.wants(k)) {
+            return;
+        }
         let s = f.scales();
         let w = v3(nu, 3);
         let r = a1 - pos;
@@ -125,14 +138,6 @@ impl ResidualBlock for FrictionDissipation {
             jac.set(3, i, 0, s[i] * slip[i]);
             jac.set(4, i, i, sigma);
             jac.set(5, i, 0, pf[i]);
-        }
-        if jac.wants(Self::FRICTION) {
-            // r_i = e_i² μ p_n slip_i + p_i σ.
-            let e = [f.e_t, f.e_o, f.e_r];
-            for i in 0..3 {
-                jac.set(Self::FRICTION, i, 0, e[i] * e[i] * pn * slip[i]);
-                jac.set(Self::FRICTION, i, 1 + i, 2.0 * e[i] * f.mu * pn * slip[i]);
-            }
         }
     }
 }

@@ -53,6 +53,7 @@ pub struct BodyStepData {
 
 impl BodyStepData {
     /// The body data read from the six inputs starting at `k0` ([`BODY_DATA_SIZES`]).
+    #[inline]
     pub fn from_inputs(x: Params<'_>, k0: usize) -> Self {
         let s = x.block(k0 + body_input::START);
         BodyStepData {
@@ -310,6 +311,11 @@ impl ResidualBlock for NewtonEuler {
         let b = self.body(x);
         let nu = Vector6::from_column_slice(x.block(0));
         let q = v4(x.block(1), 3);
+        b.data_jacobian(&nu, &q, self.body_data_input(), jac);
+        // The unknowns' derivatives, unless only data are asked for (`∂F/∂θ`).
+        if !(0..self.body_data_input()).any(|k| jac.wants(k)) {
+            return;
+        }
         b.variable_jacobian(&nu, &q, jac);
         let pos = v3(x.block(1), 0);
         for (c, fr) in self.frames.iter().enumerate() {
@@ -339,7 +345,6 @@ impl ResidualBlock for NewtonEuler {
                 }
             }
         }
-        b.data_jacobian(&nu, &q, self.body_data_input(), jac);
     }
 }
 
