@@ -5,9 +5,10 @@
 //! - the whole 400-step desk run;
 //! - the closest-point QP between the desk's hull and the ground.
 
+use ecp::formulations::Simulation;
+use ecp::formulations::ecp::EcpContacts;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::Simulation;
-use ecp::model::{McpSolver, SolveError};
+use ecp::model::SolveError;
 use ecp::solvers::conic::closest_point::{ConvexSet, closest_points};
 use ecp::solvers::conic::{ConicMode, ConicSettings, ConicSolver, default_clarabel_settings};
 
@@ -29,8 +30,7 @@ fn desk_at_step_100(mode: ConicMode) -> (Simulation, ConicSolver, Vec<f64>) {
 #[divan::bench]
 fn desk_step(bencher: divan::Bencher) {
     let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
-    let mcp = sim.structured_mcp();
-    bencher.bench_local(|| match solver.solve(&mcp, &z0) {
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
         Ok(sol) => sol.summary.iterations,
         Err(e) => panic!("desk step: {e}"),
     });
@@ -39,10 +39,9 @@ fn desk_step(bencher: divan::Bencher) {
 #[divan::bench]
 fn desk_step_anitescu(bencher: divan::Bencher) {
     let (sim, mut solver, z0) = desk_at_step_100(ConicMode::AnitescuRelaxation);
-    let mcp = sim.structured_mcp();
     // The relaxed point is not a solution of the exact step MCP, so it comes back as
     // NotConverged with the relaxed point as the best iterate: that is the result timed here.
-    bencher.bench_local(|| match solver.solve(&mcp, &z0) {
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
         Ok(sol) => sol.summary.iterations,
         Err(SolveError::NotConverged { best }) => best.summary.iterations,
         Err(e) => panic!("desk step (relaxation): {e}"),
@@ -63,7 +62,9 @@ fn closest_point_desk_hull_ground(bencher: divan::Bencher) {
     let sim = Simulation::new(scenarios::desk()).expect("desk scene");
     let s = sim.state(0);
     let verts: Vec<[f64; 3]> = sim
-        .hull(0)
+        .formulation_as::<EcpContacts>()
+        .expect("the hull formulation")
+        .hull_of(0)
         .vertices()
         .iter()
         .map(|v| {

@@ -5,8 +5,8 @@
 //! - random P-matrix LCPs of size 10 and 100 (dense) and 1000 (sparse);
 //! - one desk step (the 100th, warm-started) and the whole 400-step desk run.
 
+use ecp::formulations::Simulation;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::Simulation;
 use ecp::model::McpSolver;
 use ecp::model::mcp_library::{TestProblem, kojima_josephy, random_p_matrix_lcp};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};

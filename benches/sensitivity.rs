@@ -16,14 +16,12 @@
 //! one multi-right-hand-side call); 100 desk steps 3.2 ms alone, 5.3–9.5 ms with the adjoint
 //! gradient, 9.8–10 ms with the forward one.
 
-use ecp::formulations::Formulation;
 use ecp::formulations::scenarios;
 use ecp::formulations::sensitivity::{
     GradientMode, Param, ReferenceLoss, ReferenceWeights, SensitivityOptions, StepDifferentiator,
     trajectory_gradient, trajectory_loss,
 };
-use ecp::formulations::stepper::{Scene, Simulation};
-use ecp::model::McpSolver;
+use ecp::formulations::{Scene, Simulation};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 mod common;
@@ -36,7 +34,7 @@ fn main() {
 fn desk_step_solve(bencher: divan::Bencher) {
     let mut solver = NewtonSolver::new(NewtonSettings::default());
     let (sim, z0) = common::desk_at_step_100(&mut solver);
-    bencher.bench_local(|| match solver.solve(&sim.structured_mcp(), &z0) {
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
         Ok(sol) => sol.summary.iterations,
         Err(e) => panic!("desk step: {e}"),
     });
@@ -75,7 +73,7 @@ fn desk_100_steps_run(bencher: divan::Bencher) {
     let (scene, loss) = desk_100();
     bencher.bench_local(|| {
         let mut solver = NewtonSolver::new(NewtonSettings::default());
-        trajectory_loss(&scene, &loss, &mut solver, Formulation::Hull)
+        trajectory_loss(&scene, &loss, &mut solver)
             .expect("desk run")
             .0
     });
@@ -164,9 +162,9 @@ mod pieces {
         let z = sim.last_step().unwrap().z.clone();
         let mcp = sim.mcp();
         // The 30 step inputs: friction (4) and the desk's mass, inertia, start state and load.
-        let body = sim.body_data(0).unwrap();
+        let body = sim.handles().bodies[0].data.unwrap();
         let wrt = [
-            sim.scene_data().friction,
+            sim.handles().friction.unwrap(),
             body.mass,
             body.inertia,
             body.start,

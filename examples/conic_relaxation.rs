@@ -12,7 +12,7 @@
 //! residual of the relaxed point, then the maxima.
 
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{Simulation, StepRecord};
+use ecp::formulations::{Simulation, StepRecord};
 use ecp::solvers::conic::{ConicMode, ConicSettings, ConicSolver};
 
 fn run(mode: ConicMode) -> Result<Vec<StepRecord>, Box<dyn std::error::Error>> {

@@ -1,8 +1,8 @@
 //! Runs the paper's desk example (`docs/model.md#scenarios`) with the semismooth Newton backend and
 //! prints a short summary: `cargo run --release --example desk`.
 
+use ecp::formulations::Simulation;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::Simulation;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

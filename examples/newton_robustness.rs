@@ -18,7 +18,7 @@ use std::collections::BTreeMap;
 use ecp::formulations::blocks::FrictionParams;
 use ecp::formulations::geometry::{ConvexPiece, HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::{quat_from_axis_angle, rotation_matrix};
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation};
 use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};

@@ -14,10 +14,10 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ecp::backends::{Formulation, SolverKind};
+use ecp::backends::SolverKind;
 use ecp::formulations::geometry::world_vertices;
 use ecp::formulations::rotation::rotation_matrix;
-use ecp::formulations::stepper::{Load, MODE_TOLERANCE, StepRecord};
+use ecp::formulations::{Load, MODE_TOLERANCE, StepRecord};
 use ecp::plots::{TimePanel, write_time_series};
 use ecp::run::{RunOptions, RunOutcome, run_scene};
 use ecp::scene::{SceneFile, load_scene};
@@ -29,6 +29,26 @@ const OUT: &str = "out/reproduction";
 const REPEATS: usize = 3;
 
 type Error = Box<dyn std::error::Error>;
+
+/// The builtin formulations compared (names of `ecp::formulations::FormulationRegistry`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Formulation {
+    Hull,
+    Union,
+    Reduced,
+    Point,
+}
+
+impl std::fmt::Display for Formulation {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            Formulation::Hull => "hull",
+            Formulation::Union => "union",
+            Formulation::Reduced => "reduced",
+            Formulation::Point => "point",
+        })
+    }
+}
 
 /// One (formulation, solver) run of a scene, or why it could not run.
 struct Run {
@@ -69,7 +89,7 @@ fn run(
         let options = RunOptions {
             out_dir: PathBuf::from(OUT).join(format!("{tag}-{formulation}-{solver}")),
             solver: Some(solver),
-            formulation: Some(formulation),
+            formulation: Some(formulation.to_string()),
             plots: plots && k == 0,
             keep_going: true,
             // Each backend by itself: the report compares backends.

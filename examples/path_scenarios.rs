@@ -8,7 +8,7 @@
 //! ```
 
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{Scene, Simulation};
+use ecp::formulations::{Scene, Simulation};
 use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};

@@ -7,22 +7,22 @@
 //! cargo run --release --example point_vs_ecp
 //! ```
 
-use ecp::formulations::Stepper;
-use ecp::formulations::point::{PointContacts, centre_of_pressure, penetration};
+use ecp::formulations::point::{PointContacts, centre_of_pressure};
+use ecp::formulations::record::penetration;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
+use ecp::formulations::{Scene, Simulation, StepRecord};
 use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 use nalgebra::Vector3;
 
-/// Runs `stepper` to the end; returns the records.
+/// Runs `sim` to the end; returns the records.
 fn run(
-    stepper: &mut dyn Stepper,
+    sim: &mut Simulation,
     solver: &mut dyn McpSolver,
 ) -> Result<Vec<StepRecord>, Box<dyn std::error::Error>> {
     let mut records = Vec::new();
-    stepper.run(solver, &mut |rec| {
+    sim.run(solver, |rec| {
         records.push(rec.clone());
         true
     })?;
@@ -67,7 +67,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 "newton" => Box::new(NewtonSolver::new(NewtonSettings::default())),
                 _ => Box::new(PathSolver::new(PathSettings::default())),
             };
-            let mut point = PointContacts::new(scene.clone())?;
+            let mut point = Simulation::builder(scene.clone())
+                .formulation(Box::new(PointContacts::new()))
+                .build()?;
             let per_body = point.contacts_per_body();
             let p = run(&mut point, solver.as_mut())?;
             let mut hull = Simulation::new(scene.clone())?;

@@ -31,7 +31,7 @@ use argmin::solver::linesearch::MoreThuenteLineSearch;
 use argmin::solver::quasinewton::LBFGS;
 use ecp::formulations::scenarios;
 use ecp::formulations::sensitivity::{GradientMode, TerminalPositionLoss, trajectory_gradient};
-use ecp::formulations::stepper::{Load, Scene};
+use ecp::formulations::{Load, Scene};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use nalgebra::{Vector3, Vector6};
 

@@ -9,9 +9,9 @@
 
 use std::time::Instant;
 
-use ecp::formulations::formulation::{Formulation, build_stepper};
+use ecp::formulations::Simulation;
+use ecp::formulations::StepRecord;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::StepRecord;
 use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
@@ -57,7 +57,7 @@ fn median(v: &mut [f64]) -> f64 {
 }
 
 fn run(
-    formulation: Formulation,
+    formulation: &str,
     backend: Backend,
     tolerance: f64,
     repeat: usize,
@@ -70,7 +70,7 @@ fn run(
         records: Vec::new(),
     };
     for rep in 0..repeat {
-        let mut stepper = build_stepper(scenarios::desk(), formulation)?;
+        let mut stepper = Simulation::with_formulation(scenarios::desk(), formulation)?;
         let mut solver = backend.make(tolerance);
         while !stepper.finished() {
             let started = Instant::now();
@@ -121,13 +121,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut reference: Option<Vec<StepRecord>> = None;
     for backend in [Backend::Newton, Backend::Path] {
         let mut medians = Vec::new();
-        for f in [Formulation::Hull, Formulation::Reduced] {
+        for f in ["hull", "reduced"] {
             let mut t = run(f, backend, tolerance, repeat)?;
             let it = t.iterations.iter().sum::<usize>() as f64 / t.iterations.len().max(1) as f64;
             let (ms, mt) = (median(&mut t.solve_us), median(&mut t.step_us));
             println!(
                 "{:<8} {:<8} {ms:>10.1} {mt:>10.1} {it:>9.2} {:>10.2e}",
-                f.as_str(),
+                f,
                 backend.name(),
                 t.max_residual
             );

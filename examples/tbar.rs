@@ -10,7 +10,7 @@ use std::path::PathBuf;
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::rotation::rotation_matrix;
-use ecp::formulations::stepper::{MODE_TOLERANCE, Simulation};
+use ecp::formulations::{MODE_TOLERANCE, Simulation};
 use nalgebra::Vector3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -1,9 +1,11 @@
-//! Names of the solver backends and contact formulations, as written in scene files and on the
-//! command line, and the factory that builds a solver from its name and settings.
+//! Names of the solver backends, as written in scene files and on the command line, the factory
+//! that builds a solver from its name and settings, and the check that a backend can solve a
+//! formulation's step problems (asked of the formulation's capabilities).
 
 use std::fmt;
 use std::str::FromStr;
 
+use ecp_formulations::{Capabilities, FormulationRegistry};
 use ecp_model::McpSolver;
 use ecp_solvers::registry::{BackendOptions, Registry};
 
@@ -34,8 +36,6 @@ impl SolverKind {
         }
     }
 }
-
-pub use ecp_formulations::Formulation;
 
 /// `Display` as the name, and `FromStr` from the name with an error listing every name.
 macro_rules! named {
@@ -100,22 +100,29 @@ impl Default for SolverConfig {
 /// tolerance and iteration limit where given. (A `Result` so that backends with settings that
 /// can be invalid fit the same call.)
 pub fn make_solver(config: &SolverConfig) -> Result<Box<dyn McpSolver>, InputError> {
-    make_solver_for(config, Formulation::Hull)
+    build_solver(config, false)
 }
 
-/// [`make_solver`] for the step problems of `formulation`: the union formulation's solutions are
-/// not isolated, and the Newton backend takes minimum-norm least-squares steps
-/// ([`ecp_solvers::NewtonSettings::min_norm_step`], also its default). Every solver comes from
+/// [`make_solver`] for the step problems of a formulation with `capabilities`: when its solutions
+/// are not isolated (the union formulation), the Newton backend takes minimum-norm
+/// least-squares steps ([`ecp_solvers::NewtonSettings::min_norm_step`]). Every solver comes from
 /// [`ecp_solvers::Registry`], so the command line, the fallbacks and fitting build each backend
 /// the same way.
 pub fn make_solver_for(
     config: &SolverConfig,
-    formulation: Formulation,
+    capabilities: &Capabilities,
+) -> Result<Box<dyn McpSolver>, InputError> {
+    build_solver(config, capabilities.non_isolated_solutions)
+}
+
+fn build_solver(
+    config: &SolverConfig,
+    non_isolated_solutions: bool,
 ) -> Result<Box<dyn McpSolver>, InputError> {
     let options = BackendOptions {
         tolerance: config.tolerance,
         max_iterations: config.max_iterations,
-        non_isolated_solutions: formulation == Formulation::Union,
+        non_isolated_solutions,
     };
     Registry::builtin()
         .build(config.kind.as_str(), &options)
@@ -128,15 +135,19 @@ pub fn make_solver_for(
         })
 }
 
-/// Checks that `solver` can solve the step problems of `formulation`: the conic backend needs the
-/// structural view of an ECP step ([`ecp_model::StepStructure`]), which only the hull and union
-/// formulations build.
-pub fn check_combination(solver: SolverKind, formulation: Formulation) -> Result<(), InputError> {
-    if solver == SolverKind::Conic && !formulation.has_step_structure() {
-        let able: Vec<Formulation> = Formulation::ALL
-            .into_iter()
-            .filter(|f| f.has_step_structure())
-            .collect();
+/// Checks that `formulation` is in `formulations` and that `solver` can solve its step problems
+/// (the conic backend needs the structural view of an ECP step, [`ecp_model::StepStructure`],
+/// [`Capabilities::step_structure`]); returns the formulation's capabilities.
+pub fn check_combination(
+    solver: SolverKind,
+    formulation: &str,
+    formulations: &FormulationRegistry,
+) -> Result<Capabilities, InputError> {
+    let capabilities = formulations.capabilities(formulation).map_err(|e| {
+        InputError::option("--formulation", InputErrorKind::UnknownName, e.to_string())
+    })?;
+    if solver == SolverKind::Conic && !capabilities.step_structure {
+        let able = formulations.names_with(|c| c.step_structure);
         return Err(InputError::option(
             "--solver",
             InputErrorKind::UnknownName,
@@ -148,5 +159,13 @@ pub fn check_combination(solver: SolverKind, formulation: Formulation) -> Result
             ),
         ));
     }
-    Ok(())
+    Ok(capabilities)
+}
+
+/// Parses a formulation name of [`FormulationRegistry::builtin`] (the command line's
+/// `--formulation`), with an error that lists the names.
+pub fn parse_formulation(name: &str) -> Result<String, String> {
+    FormulationRegistry::builtin()
+        .resolve(name)
+        .map_err(|e| e.to_string())
 }

@@ -34,13 +34,16 @@ use argmin::solver::quasinewton::LBFGS;
 use ecp_formulations::rotation::{kinematic_map, quat_normalize};
 use ecp_formulations::sensitivity::{
     GradientMode, GradientOptions, ModeEvent, Param, ReferenceLoss, ReferenceWeights, STATE_SIZE,
-    TrajectoryLoss, trajectory_gradient_with,
+    TrajectoryLoss, trajectory_gradient_of,
 };
-use ecp_formulations::stepper::{BodyState, Scene, StepRecord};
+use ecp_formulations::step::SensitivitySupport;
+use ecp_formulations::{
+    BodyState, Capabilities, FormulationRegistry, Scene, Simulation, SimulationBuilder, StepRecord,
+};
 use nalgebra::{Vector3, Vector4};
 use serde::Serialize;
 
-use crate::backends::{Formulation, SolverConfig, make_solver_for};
+use crate::backends::{SolverConfig, make_solver_for};
 use crate::error::{InputError, InputErrorKind};
 
 /// Parses a comma-separated list of parameter names (`mu,e_r`, `mass[1]`; [`Param`]'s names)
@@ -457,7 +460,7 @@ pub fn parse_weights(text: &str) -> Result<ReferenceWeights, InputError> {
 #[serde(rename_all = "lowercase")]
 pub enum GradientMethod {
     /// The adjoint trajectory gradient (one backward sweep over the step sensitivities;
-    /// hull and union formulations).
+    /// formulations with step sensitivities: hull and union).
     #[default]
     Adjoint,
     /// The forward trajectory gradient (tangents carried along; same numbers as the adjoint).
@@ -536,6 +539,10 @@ struct Shared {
 /// coordinates `u` (module docs): `cost(u) = scale · L(θ(u))` and its gradient
 /// `scale · dL/du`, with `Param = Vec<f64>`.
 ///
+/// One simulation is built for the problem and reused by every evaluation: the parameters are
+/// set on it in place ([`Simulation::set_param`]) and it is reset to t = 0
+/// ([`Simulation::reset`]), so its step problem and the backends' analyses of it are kept.
+///
 /// ```no_run
 /// use argmin::core::{Executor, State};
 /// use argmin::solver::linesearch::MoreThuenteLineSearch;
@@ -557,7 +564,10 @@ struct Shared {
 #[derive(Clone)]
 pub struct TrajectoryProblem {
     scene: Scene,
-    formulation: Formulation,
+    formulation: String,
+    capabilities: Capabilities,
+    /// The simulation every evaluation reuses, built at the first one.
+    sim: Arc<Mutex<Option<Simulation>>>,
     solver: SolverConfig,
     params: Vec<Param>,
     coordinates: Vec<Coordinate>,
@@ -581,24 +591,29 @@ impl TrajectoryProblem {
     ) -> Result<Self, FitError> {
         Self::from_scene(
             file.scene.clone(),
-            file.formulation,
+            &file.formulation,
             file.solver.clone(),
             reference,
             params,
         )
     }
 
-    /// As [`TrajectoryProblem::new`], from a [`Scene`], a formulation and a solver.
+    /// As [`TrajectoryProblem::new`], from a [`Scene`], a formulation name (builtin) and a
+    /// solver.
     pub fn from_scene(
         mut scene: Scene,
-        formulation: Formulation,
+        formulation: &str,
         solver: SolverConfig,
         reference: ReferenceTrajectory,
         params: Vec<Param>,
     ) -> Result<Self, FitError> {
         reference.check_against(&scene)?;
-        crate::backends::check_combination(solver.kind, formulation)?;
-        make_solver_for(&solver, formulation)?;
+        let capabilities = crate::backends::check_combination(
+            solver.kind,
+            formulation,
+            &FormulationRegistry::builtin(),
+        )?;
+        make_solver_for(&solver, &capabilities)?;
         scene.duration = reference.steps() as f64 * scene.h;
         let mut start = Vec::with_capacity(params.len());
         let mut coordinates = Vec::with_capacity(params.len());
@@ -622,7 +637,9 @@ impl TrajectoryProblem {
         let loss = ReferenceLoss::new(reference.states.clone(), default_weights());
         Ok(TrajectoryProblem {
             scene,
-            formulation,
+            formulation: formulation.to_string(),
+            capabilities,
+            sim: Arc::new(Mutex::new(None)),
             solver,
             params,
             coordinates,
@@ -640,7 +657,7 @@ impl TrajectoryProblem {
     /// consecutive rows of a measured trajectory).
     pub fn for_step(
         mut scene: Scene,
-        formulation: Formulation,
+        formulation: &str,
         solver: SolverConfig,
         start: &[BodyState],
         target: &[BodyState],
@@ -674,16 +691,16 @@ impl TrajectoryProblem {
         self
     }
 
-    /// Uses this gradient method; the analytic ones need the hull or union formulation (the
-    /// step sensitivities differentiate the ECP step).
+    /// Uses this gradient method; the analytic ones need a formulation with step
+    /// sensitivities (hull, union).
     pub fn with_gradient(mut self, gradient: GradientMethod) -> Result<Self, FitError> {
-        if gradient != GradientMethod::Fd && !self.formulation.has_step_structure() {
+        if gradient != GradientMethod::Fd && !self.has_sensitivities() {
             return Err(InputError::option(
                 "--gradient",
                 InputErrorKind::UnknownName,
                 format!(
-                    "the {} gradient differentiates the ECP step, which the {} formulation does \
-                     not build; use --gradient fd, or --formulation hull or union",
+                    "the {} gradient differentiates the step, and the {} formulation has no step \
+                     sensitivities; use --gradient fd, or --formulation hull or union",
                     gradient.as_str(),
                     self.formulation
                 ),
@@ -701,6 +718,11 @@ impl TrajectoryProblem {
     pub fn with_cost_scale(mut self, scale: f64) -> Self {
         self.scale = scale;
         self
+    }
+
+    /// Whether the formulation has step sensitivities (the analytic gradients).
+    fn has_sensitivities(&self) -> bool {
+        self.capabilities.sensitivities != SensitivitySupport::None
     }
 
     /// The cost scale argmin sees.
@@ -789,35 +811,69 @@ impl TrajectoryProblem {
         Ok(scene)
     }
 
+    /// Runs `run` on the problem's simulation with the parameters at `theta` (set in place) and
+    /// reset to t = 0; the simulation is built at the first call.
+    fn with_simulation<T>(
+        &self,
+        theta: &[f64],
+        run: impl FnOnce(&mut Simulation) -> Result<T, FitError>,
+    ) -> Result<T, FitError> {
+        let fail = |reason: String| FitError::Simulation {
+            params: self.describe(theta),
+            reason,
+        };
+        // A poisoned lock only means another evaluation panicked; the simulation is reset below.
+        let mut guard = self.sim.lock().unwrap_or_else(|e| e.into_inner());
+        if guard.is_none() {
+            let formulation = FormulationRegistry::builtin()
+                .create(&self.formulation)
+                .map_err(|e| fail(e.to_string()))?;
+            let sim = SimulationBuilder::new(self.scene.clone(), formulation)
+                .build()
+                .map_err(|e| fail(format!("step 0 (t = 0.0000 s): {e}")))?;
+            *guard = Some(sim);
+        }
+        let Some(sim) = guard.as_mut() else {
+            return Err(fail("the simulation could not be built".into()));
+        };
+        for (p, v) in self.params.iter().zip(theta) {
+            sim.set_param(*p, *v).map_err(|e| fail(e.to_string()))?;
+        }
+        sim.reset()
+            .map_err(|e| fail(format!("step 0 (t = 0.0000 s): {e}")))?;
+        run(sim)
+    }
+
     /// Simulates the window at parameter values `theta` (any formulation).
     pub fn simulate(&self, theta: &[f64]) -> Result<Vec<StepRecord>, FitError> {
         self.shared().counts.simulations += 1;
-        let scene = self.scene_at(theta)?;
+        let h = self.scene.h;
         let fail = |step: usize, reason: String| FitError::Simulation {
             params: self.describe(theta),
-            reason: format!("step {step} (t = {:.4} s): {reason}", step as f64 * scene.h),
+            reason: format!("step {step} (t = {:.4} s): {reason}", step as f64 * h),
         };
-        let mut stepper = ecp_formulations::build_stepper(scene.clone(), self.formulation)
-            .map_err(|e| fail(0, e.to_string()))?;
-        let mut solver = make_solver_for(&self.solver, self.formulation)?;
+        let mut solver = make_solver_for(&self.solver, &self.capabilities)?;
         let n = self.reference.steps();
-        let mut records = Vec::with_capacity(n);
-        for k in 1..=n {
-            let rec = stepper
-                .step(solver.as_mut())
-                .map_err(|e| fail(k, e.to_string()))?;
-            if !rec.converged {
-                return Err(fail(
-                    k,
-                    format!(
-                        "the step solver did not converge (residual {:.3e} after {} iterations)",
-                        rec.summary.residual, rec.summary.iterations
-                    ),
-                ));
+        self.with_simulation(theta, |sim| {
+            let mut records = Vec::with_capacity(n);
+            for k in 1..=n {
+                let rec = sim
+                    .step(solver.as_mut())
+                    .map_err(|e| fail(k, e.to_string()))?;
+                if !rec.converged {
+                    return Err(fail(
+                        k,
+                        format!(
+                            "the step solver did not converge (residual {:.3e} after {} \
+                             iterations)",
+                            rec.summary.residual, rec.summary.iterations
+                        ),
+                    ));
+                }
+                records.push(rec);
             }
-            records.push(rec);
-        }
-        Ok(records)
+            Ok(records)
+        })
     }
 
     /// The loss of simulated `records`.
@@ -860,27 +916,21 @@ impl TrajectoryProblem {
             }
             GradientMethod::Adjoint | GradientMethod::Forward => {
                 self.shared().counts.simulations += 1;
-                let scene = self.scene_at(&theta)?;
-                let mut solver = make_solver_for(&self.solver, self.formulation)?;
+                let mut solver = make_solver_for(&self.solver, &self.capabilities)?;
                 let options = GradientOptions {
                     mode: if self.gradient == GradientMethod::Forward {
                         GradientMode::Forward
                     } else {
                         GradientMode::Adjoint
                     },
-                    formulation: self.formulation,
                     ..GradientOptions::default()
                 };
-                let g = trajectory_gradient_with(
-                    &scene,
-                    &self.params,
-                    &self.loss,
-                    solver.as_mut(),
-                    &options,
-                )
-                .map_err(|e| FitError::Simulation {
-                    params: self.describe(&theta),
-                    reason: e.to_string(),
+                let g = self.with_simulation(&theta, |sim| {
+                    trajectory_gradient_of(sim, &self.params, &self.loss, solver.as_mut(), &options)
+                        .map_err(|e| FitError::Simulation {
+                            params: self.describe(&theta),
+                            reason: e.to_string(),
+                        })
                 })?;
                 self.shared().events = g.events;
                 let grad = (0..u.len())
@@ -1145,7 +1195,7 @@ pub fn fit(problem: TrajectoryProblem, options: &FitOptions) -> Result<FitReport
     let counts = monitor.counts();
     // Diagnostics at the best point, outside the optimiser's counts: the loss, the gradient
     // (adjoint where the formulation has step sensitivities) and the mode events.
-    let diagnostics = if problem.formulation.has_step_structure() {
+    let diagnostics = if problem.has_sensitivities() {
         problem.clone().with_gradient(GradientMethod::Adjoint)?
     } else {
         problem.clone().with_gradient(GradientMethod::Fd)?

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use ecp::backends::{Formulation, SolverKind};
+use ecp::backends::{SolverKind, parse_formulation};
 use ecp::fit::{FitError, GradientMethod, Method};
 use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
 use ecp::scene::{SceneFile, load_scene};
@@ -33,8 +33,8 @@ enum Command {
         #[arg(long)]
         solver: Option<SolverKind>,
         /// Contact formulation, instead of the scene's: hull, union, reduced or point.
-        #[arg(long)]
-        formulation: Option<Formulation>,
+        #[arg(long, value_parser = parse_formulation)]
+        formulation: Option<String>,
         /// Output directory [default: out/<scene name>].
         #[arg(long)]
         out: Option<PathBuf>,
@@ -64,8 +64,8 @@ enum Command {
         #[arg(long, value_delimiter = ',')]
         solvers: Option<Vec<SolverKind>>,
         /// Comma-separated formulations [default: hull].
-        #[arg(long, value_delimiter = ',')]
-        formulations: Option<Vec<Formulation>>,
+        #[arg(long, value_delimiter = ',', value_parser = parse_formulation)]
+        formulations: Option<Vec<String>>,
         /// Output directory [default: out/<scene name>/compare].
         #[arg(long)]
         out: Option<PathBuf>,
@@ -104,8 +104,8 @@ enum Command {
         #[arg(long)]
         solver: Option<SolverKind>,
         /// Contact formulation, instead of the scene's.
-        #[arg(long)]
-        formulation: Option<Formulation>,
+        #[arg(long, value_parser = parse_formulation)]
+        formulation: Option<String>,
         /// Iteration limit of the optimiser [default: 100 for lbfgs, 400 for nelder-mead].
         #[arg(long, value_name = "N")]
         max_iters: Option<u64>,
@@ -171,7 +171,7 @@ fn main() -> ExitCode {
                 plots: !no_plots,
                 keep_going,
                 fallbacks: !no_fallbacks,
-                time_limit: None,
+                ..RunOptions::default()
             };
             run(&file, &options, quiet)
         }),
@@ -191,7 +191,7 @@ fn main() -> ExitCode {
             compare(
                 &file,
                 &solvers.unwrap_or_else(|| SolverKind::ALL.to_vec()),
-                &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
+                &formulations.unwrap_or_else(|| vec!["hull".to_string()]),
                 &options,
             )
         }),
@@ -354,7 +354,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
 fn compare(
     file: &SceneFile,
     solvers: &[SolverKind],
-    formulations: &[Formulation],
+    formulations: &[String],
     options: &RunOptions,
 ) -> Result<ExitCode, RunError> {
     let report = compare_scene(file, solvers, formulations, options, |label| {
@@ -413,7 +413,7 @@ struct FitRequest {
     method: Method,
     gradient: GradientMethod,
     solver: Option<SolverKind>,
-    formulation: Option<Formulation>,
+    formulation: Option<String>,
     max_iters: Option<u64>,
     steps: Option<usize>,
     weights: Option<String>,
@@ -464,7 +464,7 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
     if let Some(kind) = request.solver {
         config.kind = kind;
     }
-    let formulation = request.formulation.unwrap_or(file.formulation);
+    let formulation = request.formulation.as_ref().unwrap_or(&file.formulation);
     let problem = TrajectoryProblem::from_scene(scene, formulation, config, reference, params);
     let options = FitOptions {
         method: request.method,

@@ -5,8 +5,7 @@ use std::fs::File;
 use std::io::BufWriter;
 use std::path::{Path, PathBuf};
 
-use ecp_formulations::StepMethod;
-use ecp_formulations::stepper::{Scene, StepRecord};
+use ecp_formulations::{Scene, StepMethod, StepRecord};
 use serde::Serialize;
 
 /// An I/O failure on an output file.

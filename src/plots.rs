@@ -21,7 +21,7 @@ use plotters::style::text_anchor::{HPos, Pos, VPos};
 
 use ecp_formulations::geometry::{ContactMode, HalfSpace, convex_hull_2d, world_vertices};
 use ecp_formulations::rotation::rotation_matrix;
-use ecp_formulations::stepper::{BodyState, ContactRecord, MODE_TOLERANCE, Scene, StepRecord};
+use ecp_formulations::{BodyState, ContactRecord, MODE_TOLERANCE, Scene, StepRecord};
 
 /// Most bodies (or contacts) drawn as separate series in one plot; the rest are left out.
 const MAX_SERIES: usize = 3;
@@ -1284,8 +1284,8 @@ fn draw_footprint(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ecp_formulations::Simulation;
     use ecp_formulations::scenarios;
-    use ecp_formulations::stepper::Simulation;
     use ecp_solvers::{NewtonSettings, NewtonSolver};
 
     fn run(scene: Scene, steps: usize) -> Vec<StepRecord> {

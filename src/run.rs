@@ -5,12 +5,11 @@
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use ecp_formulations::stepper::StepRecord;
-use ecp_formulations::{Fallbacks, build_stepper};
-
-use crate::backends::{
-    Formulation, SolverConfig, SolverKind, check_combination, make_solver, make_solver_for,
+use ecp_formulations::{
+    Capabilities, Fallbacks, FormulationRegistry, SimulationBuilder, StepRecord,
 };
+
+use crate::backends::{SolverConfig, SolverKind, check_combination, make_solver, make_solver_for};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
     CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
@@ -25,8 +24,11 @@ pub struct RunOptions {
     pub out_dir: PathBuf,
     /// Backend instead of the scene's `[solver] name`.
     pub solver: Option<SolverKind>,
-    /// Formulation instead of the scene's.
-    pub formulation: Option<Formulation>,
+    /// Formulation instead of the scene's (a name in [`RunOptions::formulations`]).
+    pub formulation: Option<String>,
+    /// The formulations by name: the builtin ones, or a registry a caller extended with its own
+    /// (`examples/custom_formulation.rs`).
+    pub formulations: FormulationRegistry,
     /// Stop after this many steps (at most the scene's duration).
     pub steps: Option<usize>,
     /// Write PNG plots into `out_dir/plots`.
@@ -47,6 +49,7 @@ impl Default for RunOptions {
             out_dir: PathBuf::from("out"),
             solver: None,
             formulation: None,
+            formulations: FormulationRegistry::builtin(),
             steps: None,
             plots: true,
             keep_going: false,
@@ -98,33 +101,41 @@ pub enum RunError {
     Output(#[from] OutputError),
 }
 
-fn resolve(file: &SceneFile, options: &RunOptions) -> Result<SolverConfig, InputError> {
-    let formulation = options.formulation.unwrap_or(file.formulation);
+/// The run's backend settings, formulation name and the formulation's capabilities.
+fn resolve(
+    file: &SceneFile,
+    options: &RunOptions,
+) -> Result<(SolverConfig, String, Capabilities), InputError> {
+    let formulation = options
+        .formulation
+        .clone()
+        .unwrap_or_else(|| file.formulation.clone());
     let mut config = file.solver.clone();
     if let Some(kind) = options.solver {
         config.kind = kind;
     }
-    check_combination(config.kind, formulation)?;
-    Ok(config)
+    let capabilities = check_combination(config.kind, &formulation, &options.formulations)?;
+    Ok((config, formulation, capabilities))
 }
 
-/// The default fallbacks of a run with `config` on `formulation`: every other backend that can
-/// solve the formulation, most robust first (PATH, Newton, conic), with the same tolerance and
-/// iteration limit, then substeps down to `h/16`.
+/// The default fallbacks of a run with `config` on a formulation with `capabilities`: every other
+/// backend that can solve the formulation, most robust first (PATH, Newton, conic), with the
+/// same tolerance and iteration limit, then substeps down to `h/16`. The driver uses them as far
+/// as the formulation's capabilities allow.
 pub fn fallbacks_for(
     config: &SolverConfig,
-    formulation: Formulation,
+    capabilities: &Capabilities,
 ) -> Result<Fallbacks, InputError> {
     let mut backends = Vec::new();
     for kind in [SolverKind::Path, SolverKind::Newton, SolverKind::Conic] {
-        if kind == config.kind || check_combination(kind, formulation).is_err() {
+        if kind == config.kind || (kind == SolverKind::Conic && !capabilities.step_structure) {
             continue;
         }
         let other = SolverConfig {
             kind,
             ..config.clone()
         };
-        backends.push(make_solver_for(&other, formulation)?);
+        backends.push(make_solver_for(&other, capabilities)?);
     }
     Ok(Fallbacks::new(backends))
 }
@@ -137,21 +148,27 @@ pub fn run_scene(
     mut on_step: impl FnMut(&StepRecord),
 ) -> Result<RunOutcome, RunError> {
     let start = Instant::now();
-    let config = resolve(file, options)?;
-    let formulation = options.formulation.unwrap_or(file.formulation);
-    let mut solver = make_solver_for(&config, formulation)?;
+    let (config, formulation, capabilities) = resolve(file, options)?;
+    let mut solver = make_solver_for(&config, &capabilities)?;
     let mut fallbacks = if options.fallbacks {
-        fallbacks_for(&config, formulation)?
+        fallbacks_for(&config, &capabilities)?
     } else {
         Fallbacks::none()
     };
-    let mut sim = build_stepper(file.scene.clone(), formulation).map_err(|e| InputError {
+    let refused = |message: String| InputError {
         file: Some(file.path.clone()),
         key: None,
         line: None,
         kind: InputErrorKind::InvalidValue,
-        message: e.to_string(),
-    })?;
+        message,
+    };
+    let stepper = options
+        .formulations
+        .create(&formulation)
+        .map_err(|e| refused(e.to_string()))?;
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .map_err(|e| refused(e.to_string()))?;
     let planned = options
         .steps
         .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
@@ -189,7 +206,7 @@ pub fn run_scene(
     }
     let mut summary = RunSummary::from_records(
         &file.scene,
-        formulation.as_str(),
+        &formulation,
         config.kind.as_str(),
         &records,
         planned,
@@ -232,7 +249,7 @@ pub fn run_scene(
 pub fn compare_scene(
     file: &SceneFile,
     solvers: &[SolverKind],
-    formulations: &[Formulation],
+    formulations: &[String],
     options: &RunOptions,
     mut on_run: impl FnMut(&str),
 ) -> Result<CompareReport, RunError> {
@@ -254,7 +271,7 @@ pub fn compare_scene(
                 solver: s.to_string(),
                 reason,
             };
-            if let Err(e) = check_combination(*s, *f) {
+            if let Err(e) = check_combination(*s, f, &options.formulations) {
                 skipped.push(skip(e.message.clone()));
                 continue;
             }
@@ -262,7 +279,7 @@ pub fn compare_scene(
             let run_options = RunOptions {
                 out_dir: options.out_dir.join(&label),
                 solver: Some(*s),
-                formulation: Some(*f),
+                formulation: Some(f.clone()),
                 plots: false,
                 ..options.clone()
             };

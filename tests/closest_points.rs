@@ -27,12 +27,19 @@ use common::strategies::{unit_quat, unit3, vec3};
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::StepMethod;
 use ecp::formulations::blocks::FrictionParams;
+use ecp::formulations::ecp::EcpContacts;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
 use ecp::model::{Mcp, SolveError, VarId, natural_residual};
 use nalgebra::{Matrix3, Vector3, Vector4};
 use parry3d_f64::math::{Pose, Rot3, Vector as PVec};
+
+/// The ECP formulation of `sim`.
+fn ecp_of(sim: &Simulation) -> &EcpContacts {
+    sim.formulation_as::<EcpContacts>()
+        .expect("the hull formulation")
+}
 use parry3d_f64::query::{self, ClosestPoints};
 use parry3d_f64::shape::{ConvexPolyhedron, Cuboid, HalfSpace as PHalfSpace};
 use proptest::prelude::*;
@@ -174,7 +181,7 @@ fn solve_step(scene: Scene, kind: SolverKind) -> Result<Solved, TestCaseError> {
     let mcp = sim.mcp();
     let mut f = vec![0.0; mcp.dim()];
     mcp.evaluate(&z, &mut f);
-    let c = sim.contacts()[0];
+    let c = ecp_of(&sim).contacts()[0];
     let friction: Vec<usize> = mcp.range(c.pf).chain(mcp.range(c.sigma)).collect();
     let (mut core_residual, mut friction_residual) = (0.0f64, 0.0f64);
     for i in 0..z.len() {
@@ -256,7 +263,7 @@ fn check_step(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError> {
 
     let end = rec.bodies[0];
     let c = rec.contacts[0];
-    let hull: Vec<V3> = sim.hull(0).vertices().to_vec();
+    let hull: Vec<V3> = ecp_of(&sim).hull_of(0).vertices().to_vec();
 
     // Exact support-point formula at the end pose.
     let r: Matrix3<f64> = rotation_matrix(&end.q);
@@ -461,9 +468,8 @@ fn assert_converged(scene: Scene, kind: SolverKind) -> Result<(), TestCaseError>
     let s = solve_step(scene, kind)?;
     let end = s.rec.bodies[0];
     let r = rotation_matrix(&end.q);
-    let a1_error = s
-        .sim
-        .hull(0)
+    let a1_error = ecp_of(&s.sim)
+        .hull_of(0)
         .vertices()
         .iter()
         .map(|v| end.x + r * v)

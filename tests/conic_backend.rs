@@ -9,8 +9,8 @@ mod common;
 
 use common::scene;
 use ecp::formulations::StepMethod;
-use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
-use ecp::model::{FnMcp, McpSolver, SolveError, StepStructure, Termination};
+use ecp::formulations::{Scene, Simulation, StepRecord};
+use ecp::model::{FnMcp, Mcp, McpSolver, SolveError, Termination};
 use ecp::solvers::conic::{ClarabelStatus, ConicMode, ConicSettings, ConicSolver, status_code};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
@@ -53,7 +53,8 @@ fn check_against_newton(name: &str) {
         sim.prepare_step().expect("prepare");
         let z0 = sim.z().to_vec();
         let (newton_nu, free) = {
-            let view = sim.structured_mcp();
+            let view = sim.step_problem();
+            let st = view.structure().expect("the ECP step's structure");
             // Newton from the plain warm start can fail where the stepper's own retry (from an
             // active-contact guess) would rescue it: then there is no reference for this step.
             let sol = newton.solve(&view, &z0).ok();
@@ -64,10 +65,10 @@ fn check_against_newton(name: &str) {
                 .solve(&view, &z0)
                 .ok();
             let at = own.as_ref().map_or(z0.as_slice(), |s| s.z.as_slice());
-            let free: Vec<[f64; 6]> = (0..view.num_bodies())
-                .map(|b| view.body(b, at).free_velocity)
+            let free: Vec<[f64; 6]> = (0..st.num_bodies())
+                .map(|b| st.body(b, at).free_velocity)
                 .collect();
-            (sol.map(|s| view.velocities(&s.z)), free)
+            (sol.map(|s| st.velocities(&s.z)), free)
         };
         let c = sim.step(&mut conic).expect("step");
         assert!(
@@ -311,7 +312,7 @@ fn generic_mcp_is_rejected() {
         Err(SolveError::InvalidProblem(_))
     ));
     let sol = solver
-        .solve(&sim.structured_mcp(), sim.z())
+        .solve(&sim.step_problem(), sim.z())
         .expect("structured step solves");
     assert_eq!(sol.summary.termination, Termination::Converged);
 }
@@ -326,7 +327,7 @@ fn clarabel_status_passes_through() {
     let mut sim = Simulation::new(scene("a1_sliding")).expect("valid");
     sim.prepare_step().expect("prepare");
     let z0 = sim.z().to_vec();
-    match solver.solve(&sim.structured_mcp(), &z0) {
+    match solver.solve(&sim.step_problem(), &z0) {
         Err(SolveError::NotConverged { best }) => {
             assert_eq!(best.summary.termination, Termination::SubproblemFailed);
             assert_eq!(

@@ -15,8 +15,7 @@
 use ecp::formulations::blocks::FrictionParams;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::{kinematic_map, quat_normalize, rotation_matrix};
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
-use ecp::formulations::{Formulation, build_stepper};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
 use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
@@ -213,7 +212,7 @@ fn tumbling_box_in_free_flight_never_gains_energy() {
         );
     }
     // The point formulation writes the same inertial rows.
-    let mut point = build_stepper(scene("tumbling", s0, vec![], 0.0, 10.0), Formulation::Point)
+    let mut point = Simulation::with_formulation(scene("tumbling", s0, vec![], 0.0, 10.0), "point")
         .expect("valid scene");
     let mut path = PathSolver::new(PathSettings::default());
     let records: Vec<StepRecord> = (0..1000)

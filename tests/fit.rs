@@ -7,7 +7,7 @@
 use std::path::{Path, PathBuf};
 use std::process::{Command, Output};
 
-use ecp::backends::{Formulation, SolverConfig};
+use ecp::backends::SolverConfig;
 use ecp::fit::{
     Coordinate, FitOptions, GradientMethod, Method, ReferenceTrajectory, TrajectoryProblem, fit,
     parse_params, parse_weights, read_reference,
@@ -18,7 +18,7 @@ use ecp_formulations::sensitivity::Param;
 /// Steps of the desk used by the in-process fits.
 const STEPS: usize = 50;
 
-fn desk(steps: usize) -> ecp_formulations::stepper::Scene {
+fn desk(steps: usize) -> ecp_formulations::Scene {
     let mut scene = scenarios::desk();
     scene.duration = steps as f64 * scene.h;
     scene
@@ -27,7 +27,7 @@ fn desk(steps: usize) -> ecp_formulations::stepper::Scene {
 /// The reference made with the desk's true values (μ = 0.22, e_r = 0.1).
 fn desk_reference(steps: usize) -> ReferenceTrajectory {
     let scene = desk(steps);
-    let mut sim = ecp_formulations::stepper::Simulation::new(scene).unwrap();
+    let mut sim = ecp_formulations::Simulation::new(scene).unwrap();
     let mut solver =
         ecp::backends::make_solver(&SolverConfig::default()).expect("default solver builds");
     let records: Vec<_> = (0..steps)
@@ -41,7 +41,7 @@ fn desk_reference(steps: usize) -> ReferenceTrajectory {
 }
 
 /// The desk 30 % off: μ = 0.22·1.3, e_r = 0.1·0.7.
-fn desk_off(steps: usize) -> ecp_formulations::stepper::Scene {
+fn desk_off(steps: usize) -> ecp_formulations::Scene {
     let mut scene = desk(steps);
     scene.friction.mu = 0.22 * 1.3;
     scene.friction.e_r = 0.1 * 0.7;
@@ -51,7 +51,7 @@ fn desk_off(steps: usize) -> ecp_formulations::stepper::Scene {
 fn problem(gradient: GradientMethod) -> TrajectoryProblem {
     TrajectoryProblem::from_scene(
         desk_off(STEPS),
-        Formulation::Hull,
+        "hull",
         SolverConfig::default(),
         desk_reference(STEPS),
         vec![Param::Mu, Param::Er],
@@ -119,7 +119,7 @@ fn one_step_problem_recovers_mu_and_e_r() {
     let start = vec![scenarios::desk().bodies[0].initial];
     let p = TrajectoryProblem::for_step(
         desk_off(1),
-        Formulation::Hull,
+        "hull",
         SolverConfig::default(),
         &start,
         &reference.states[0],
@@ -408,7 +408,7 @@ fn reference_reads_back_the_writer_exactly() {
     let dir = temp_dir("read");
     let path = dir.join("trajectory.csv");
     let scene = desk(3);
-    let mut sim = ecp_formulations::stepper::Simulation::new(scene.clone()).unwrap();
+    let mut sim = ecp_formulations::Simulation::new(scene.clone()).unwrap();
     let mut solver = ecp::backends::make_solver(&SolverConfig::default()).unwrap();
     let mut writer = ecp::output::TrajectoryWriter::create(&path, &scene, 1).unwrap();
     let mut records = Vec::new();

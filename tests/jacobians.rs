@@ -31,7 +31,7 @@ use ecp::formulations::blocks::{
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation};
 use ecp::model::{
     CheckOptions, InputKind, InputRange, JacobianBlocks, JacobianReport, Mcp, Params,
     ResidualBlock, VarId, check_problem, check_residual_block,
@@ -859,7 +859,7 @@ fn check_mcp_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseE
         .count();
     prop_assert_eq!(
         data_pairs,
-        8 * sim.scene().bodies.len() + 4 * sim.contacts().len(),
+        8 * sim.scene().bodies.len() + 4 * sim.handles().contacts.len(),
         "{}: not every data input was checked",
         what
     );

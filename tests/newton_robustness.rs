@@ -5,7 +5,7 @@
 use ecp::formulations::blocks::FrictionParams;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::{quat_from_axis_angle, rotation_matrix};
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use nalgebra::{Vector3, Vector4};
 

@@ -24,12 +24,13 @@ use ecp::formulations::blocks::{
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::point::{
     POINT_GEOMETRY, PointContacts, PointFrictionDissipation, PointFrictionEllipsoid,
-    PointNewtonEuler, PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
+    PointNewtonEuler, PointNonPenetration, PointWrenches, centre_of_pressure,
 };
+use ecp::formulations::record::penetration;
 use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{Scene, SceneError, Simulation, StepRecord};
-use ecp::formulations::{Formulation, Stepper, build_stepper};
+use ecp::formulations::{Scene, SceneError, Simulation, StepRecord};
+use ecp::model::VarId;
 use ecp::model::{
     CheckOptions, McpSolver, ResidualBlock, check_problem, check_residual_block, residual_of,
 };
@@ -37,6 +38,32 @@ use nalgebra::{Matrix3, Vector3, Vector6};
 use proptest::prelude::*;
 
 type V3 = Vector3<f64>;
+
+/// `scene` stepped by the point formulation.
+fn point_sim(scene: Scene) -> Result<Simulation, SceneError> {
+    Simulation::builder(scene)
+        .formulation(Box::new(PointContacts::new()))
+        .build()
+}
+
+/// `scene` stepped by the point formulation with the contact points `points`.
+fn point_sim_with(scene: Scene, points: Vec<Vec<V3>>) -> Result<Simulation, SceneError> {
+    Simulation::builder(scene)
+        .formulation(Box::new(PointContacts::with_points(points)))
+        .build()
+}
+
+/// The point formulation of `sim`.
+fn point_of(sim: &Simulation) -> &PointContacts {
+    sim.formulation_as::<PointContacts>()
+        .expect("the point formulation")
+}
+
+/// Body `b`'s `ν` and `q` blocks.
+fn body_vars(sim: &Simulation, b: usize) -> (VarId, VarId) {
+    let h = &sim.handles().bodies[b];
+    (h.nu.expect("ν"), h.q.expect("q"))
+}
 
 const G: f64 = 9.8;
 const H: f64 = 0.01;
@@ -271,7 +298,7 @@ proptest! {
     ) {
         for scene in point_scenes() {
             let name = scene.name.clone();
-            let mut pc = PointContacts::new(scene).expect("valid scene");
+            let mut pc = point_sim(scene).expect("valid scene");
             pc.prepare_step().expect("step data");
             let mut z = pc.z().to_vec();
             prop_assert!(z.len() <= noise.len(), "{}: {} unknowns", name, z.len());
@@ -300,11 +327,11 @@ fn solver(kind: SolverKind) -> Box<dyn McpSolver> {
 }
 
 /// Runs `stepper` for at most `steps` steps; every step must converge to ≤ 1e-10.
-fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run(stepper: &mut Simulation, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
     let name = format!(
         "{} ({}, {kind})",
         stepper.scene().name,
-        stepper.formulation()
+        stepper.formulation_name()
     );
     let mut s = solver(kind);
     let mut records = Vec::new();
@@ -323,11 +350,7 @@ fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRec
 }
 
 fn run_point(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
-    run(
-        &mut PointContacts::new(scene).expect("valid scene"),
-        kind,
-        steps,
-    )
+    run(&mut point_sim(scene).expect("valid scene"), kind, steps)
 }
 
 fn run_hull(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
@@ -354,19 +377,19 @@ fn assert_close(what: &str, got: f64, want: f64, tol: f64) {
 // ---------------------------------------------------------------------------------------------
 
 /// One record per (point, plane), body-major; `a1 = a2` the point at the step end, `lg` its
-/// gap, no torsional impulse; `min_gap` the smallest point gap; built by `build_stepper`.
+/// gap, no torsional impulse; `min_gap` the smallest point gap; built by name.
 #[test]
 fn records_have_one_contact_per_point() {
     let mut stepper =
-        build_stepper(scenarios::a1_sliding(), Formulation::Point).expect("point stepper");
-    assert_eq!(stepper.formulation(), Formulation::Point);
+        Simulation::with_formulation(scenarios::a1_sliding(), "point").expect("point stepper");
+    assert_eq!(stepper.formulation_name(), "point");
     assert_eq!(stepper.contacts_per_body(), 8);
     let mut s = solver(SolverKind::Newton);
     let rec = stepper.step(s.as_mut()).expect("step");
     assert_eq!(rec.contacts.len(), 8);
     let state = stepper.state(0);
     let r = rotation_matrix(&state.q);
-    let pc = PointContacts::new(scenarios::a1_sliding()).expect("valid");
+    let pc = point_of(&stepper);
     let min_lg = rec
         .contacts
         .iter()
@@ -383,9 +406,9 @@ fn records_have_one_contact_per_point() {
     let header = StepRecord::csv_header(1, stepper.contacts_per_body());
     assert_eq!(header.len(), rec.csv_fields().len());
 
-    let desk = PointContacts::new(scenarios::desk()).expect("valid desk");
+    let desk = point_sim(scenarios::desk()).expect("valid desk");
     assert_eq!(desk.contacts_per_body(), 36, "the desk's 36 piece vertices");
-    let feet = desk
+    let feet = point_of(&desk)
         .points(0)
         .iter()
         .filter(|p| (p.z + 0.45).abs() < 1e-12)
@@ -418,7 +441,7 @@ fn centre_of_pressure_and_penetration_helpers() {
 fn bad_set_up_is_refused_with_a_reason() {
     let mut scene = scenarios::a1_sliding();
     scene.bodies[0].initial.x.z = 0.05;
-    match PointContacts::new(scene) {
+    match point_sim(scene) {
         Err(SceneError::InitialPenetration { depth, .. }) => {
             assert_close("depth", depth, 0.05, 1e-12)
         }
@@ -427,7 +450,7 @@ fn bad_set_up_is_refused_with_a_reason() {
             other.err()
         ),
     }
-    let err = PointContacts::with_points(scenarios::a1_sliding(), vec![])
+    let err = point_sim_with(scenarios::a1_sliding(), vec![])
         .err()
         .expect("no point set");
     assert!(
@@ -435,7 +458,7 @@ fn bad_set_up_is_refused_with_a_reason() {
             .contains("one list of contact points per body"),
         "{err}"
     );
-    let err = PointContacts::with_points(
+    let err = point_sim_with(
         scenarios::a1_sliding(),
         vec![vec![V3::new(f64::NAN, 0.0, 0.0)]],
     )
@@ -444,7 +467,7 @@ fn bad_set_up_is_refused_with_a_reason() {
     assert!(err.to_string().contains("finite"), "{err}");
     let mut scene = scenarios::a1_sliding();
     scene.friction.e_t = 0.0;
-    let err = PointContacts::new(scene).err().expect("e_t = 0");
+    let err = point_sim(scene).err().expect("e_t = 0");
     assert!(err.to_string().contains("e_t"), "{err}");
 }
 
@@ -455,8 +478,9 @@ fn bad_set_up_is_refused_with_a_reason() {
 /// Corners of the A1 box's bottom face: their contact indices, and the sign `s_i = sign(x_i y_i)`
 /// of the "diagonal" load mode, which changes no force and no moment
 /// (`Σ s_i = Σ s_i x_i = Σ s_i y_i = 0`).
-fn bottom_corners(pc: &PointContacts) -> Vec<(usize, f64)> {
-    pc.points(0)
+fn bottom_corners(pc: &Simulation) -> Vec<(usize, f64)> {
+    point_of(pc)
+        .points(0)
         .iter()
         .enumerate()
         .filter(|(_, b)| b.z < 0.0)
@@ -554,15 +578,15 @@ fn a1_against_hull(kind: SolverKind, hull: &[StepRecord]) {
 /// the shifted split, 0.1 N s; asserted > 0.05), with the same motion to 1e-9.
 #[test]
 fn a1_corner_split_is_not_unique() {
-    let mut pc = PointContacts::new(scenarios::a1_sliding()).expect("valid");
+    let mut pc = point_sim(scenarios::a1_sliding()).expect("valid");
     pc.prepare_step().expect("step data");
     let warm = pc.z().to_vec();
     let corners = bottom_corners(&pc);
     assert_eq!(corners.len(), 4);
     let mcp = pc.mcp();
-    let (nu, _) = pc.body_vars(0);
+    let (nu, _) = body_vars(&pc, 0);
     let nu_range = mcp.range(nu);
-    let pn_of = |z: &[f64], i: usize| z[mcp.range(pc.contacts()[i].pn)][0];
+    let pn_of = |z: &[f64], i: usize| z[mcp.range(point_of(&pc).contacts()[i].pn)][0];
 
     // Solved tighter than the default 1e-10: shifting the split scales a corner's friction rows
     // (and their residual) by up to (p_n + α)/p_n ≈ 1.5.
@@ -580,7 +604,7 @@ fn a1_corner_split_is_not_unique() {
     let shift = |z: &[f64]| -> Vec<f64> {
         let mut z = z.to_vec();
         for &(i, s) in &corners {
-            let c = pc.contacts()[i];
+            let c = point_of(&pc).contacts()[i];
             let pn = z[mcp.range(c.pn)][0];
             let k = (pn + alpha * s) / pn;
             z[mcp.range(c.pn)][0] = pn + alpha * s;
@@ -708,7 +732,7 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
         // The offending vertex, from the start state of its step and the solved ν.
         let start = point[worst - 1].bodies[0];
         let end = point[worst].bodies[0];
-        let pc = PointContacts::new(scene.clone()).expect("valid");
+        let pc = point_sim(scene.clone()).expect("valid");
         let c = point[worst]
             .contacts
             .iter()
@@ -716,7 +740,7 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
             .min_by(|a, b| a.1.lg.total_cmp(&b.1.lg))
             .map(|(i, _)| i)
             .expect("contacts");
-        let r = rotation_matrix(&start.q) * pc.points(0)[c];
+        let r = rotation_matrix(&start.q) * point_of(&pc).points(0)[c];
         let n = V3::z();
         let g0 = (start.x + r).z;
         let linearised = g0 + H * (n.dot(&end.v) + r.cross(&n).dot(&end.w));
@@ -794,10 +818,10 @@ fn a6_point_model_carries_load_across_a_gap() {
 /// friction law per patch, and its two backends agree to 1e-13 (example `point_vs_ecp`).
 #[test]
 fn desk_point_model_motion_depends_on_the_load_split() {
-    let mut pc = PointContacts::new(scenarios::desk()).expect("valid desk");
+    let mut pc = point_sim(scenarios::desk()).expect("valid desk");
     pc.prepare_step().expect("step data");
     let start = pc.z().to_vec();
-    let (nu, _) = pc.body_vars(0);
+    let (nu, _) = body_vars(&pc, 0);
     let mcp = pc.mcp();
     let a = solver(SolverKind::Newton)
         .solve(mcp, &start)
@@ -816,7 +840,8 @@ fn desk_point_model_motion_depends_on_the_load_split() {
         "the two backends found the same motion"
     );
     let split = |z: &[f64]| -> Vec<f64> {
-        pc.contacts()
+        point_of(&pc)
+            .contacts()
             .iter()
             .map(|c| z[mcp.range(c.pn)][0])
             .collect()

@@ -22,14 +22,14 @@ use std::sync::Arc;
 
 use common::strategies::{unit3, vec3};
 use ecp::formulations::blocks::{ContactFrame, FrictionParams};
-use ecp::formulations::formulation::{Formulation, Stepper, build_stepper};
+use ecp::formulations::ecp::EcpContacts;
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::reduced::{
     ReducedEllipsoid, ReducedFriction, ReducedSliding, SlidingStepData,
 };
 use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{Load, Scene, SceneError, Simulation, StepRecord};
+use ecp::formulations::{Load, Scene, SceneError, Simulation, StepRecord};
 use ecp::model::{
     CheckOptions, McpSolver, ResidualBlock, check_problem, check_residual_block, residual_of,
 };
@@ -87,9 +87,16 @@ fn run_hull(scene: Scene) -> Vec<StepRecord> {
     out
 }
 
+/// `scene` stepped by the reduced formulation.
+fn reduced_sim(scene: Scene) -> Result<Simulation, SceneError> {
+    Simulation::builder(scene)
+        .formulation(Box::new(ReducedSliding::new()))
+        .build()
+}
+
 /// Runs the reduced model to the end or to its first refusal.
 fn try_reduced(scene: Scene, b: Backend) -> (Vec<StepRecord>, Option<SceneError>) {
-    let mut st = ReducedSliding::new(scene).expect("the reduced model applies");
+    let mut st = reduced_sim(scene).expect("the reduced model applies");
     let mut s = solver(b);
     let mut out = Vec::new();
     while !st.finished() {
@@ -158,7 +165,10 @@ fn assert_agrees_with_hull(name: &str, reduced: &[StepRecord], hull: &[StepRecor
 fn hull_point(sim: &Simulation, rec: &StepRecord, q_raw: nalgebra::Vector4<f64>) -> Vec<f64> {
     let mcp = sim.mcp();
     let mut z = sim.z().to_vec();
-    let c = sim.contacts()[0];
+    let ecp = sim
+        .formulation_as::<EcpContacts>()
+        .expect("the hull formulation");
+    let c = ecp.contacts()[0];
     let s = &rec.bodies[0];
     let k = &rec.contacts[0];
     let put = |z: &mut Vec<f64>, v: ecp::model::VarId, vals: &[f64]| {
@@ -180,8 +190,8 @@ fn hull_point(sim: &Simulation, rec: &StepRecord, q_raw: nalgebra::Vector4<f64>)
     put(&mut z, c.a2, k.a2.as_slice());
     let n = sim.scene().planes[0].normal();
     let r = rotation_matrix(&q_raw);
-    let face = sim.hull(0).most_aligned_face(&(r.transpose() * (-n)));
-    let mut l = vec![0.0; sim.hull(0).num_faces()];
+    let face = ecp.hull_of(0).most_aligned_face(&(r.transpose() * (-n)));
+    let mut l = vec![0.0; ecp.hull_of(0).num_faces()];
     l[face] = 1.0;
     put(&mut z, c.l, &l);
     put(&mut z, c.lg, &[0.0]);
@@ -255,7 +265,7 @@ fn desk_reduced_agrees_with_hull_at_every_step() {
 
 #[test]
 fn desk_step_mcp_jacobian_checks() {
-    let mut st = ReducedSliding::new(scenarios::desk()).expect("applies");
+    let mut st = reduced_sim(scenarios::desk()).expect("applies");
     let mut s = solver(Backend::Newton);
     for _ in 0..50 {
         st.step(s.as_mut()).expect("step");
@@ -451,12 +461,12 @@ fn a6_below_tipping_threshold_stays_flat() {
 
 fn refused_at_construction(scene: Scene, words: &[&str]) {
     let name = scene.name.clone();
-    match ReducedSliding::new(scene) {
+    match reduced_sim(scene) {
         Err(SceneError::NotApplicable {
-            formulation: Formulation::Reduced,
+            formulation,
             step: None,
             reason,
-        }) => {
+        }) if formulation == "reduced" => {
             for w in words.iter().chain(&["hull formulation"]) {
                 assert!(reason.contains(w), "{name}: reason '{reason}' lacks '{w}'");
             }
@@ -471,13 +481,14 @@ fn a6_tipping_stops_where_the_hull_model_tips() {
     for b in [Backend::Newton, Backend::Path] {
         let (recs, err) = try_reduced(scenarios::a6_tip(110.0), b);
         let Some(SceneError::NotApplicable {
-            formulation: Formulation::Reduced,
+            formulation,
             step: Some(k),
             reason,
         }) = err
         else {
             panic!("A6 110 N ({b:?}): not refused: {err:?}");
         };
+        assert_eq!(formulation, "reduced");
         assert!(reason.contains("tipping") && reason.contains("hull formulation"));
         assert_eq!(
             recs.len(),
@@ -520,10 +531,10 @@ fn two_bodies_and_two_planes_are_refused() {
     refused_at_construction(scene.clone(), &["2 half-spaces"]);
     scene.planes.clear();
     refused_at_construction(scene, &["0 half-spaces"]);
-    match build_stepper(scenarios::a5_drop(), Formulation::Reduced) {
+    match Simulation::with_formulation(scenarios::a5_drop(), "reduced") {
         Err(SceneError::NotApplicable { step: None, .. }) => {}
-        Err(e) => panic!("build_stepper: wrong error {e}"),
-        Ok(_) => panic!("build_stepper: A5 not refused"),
+        Err(e) => panic!("by name: wrong error {e}"),
+        Ok(_) => panic!("by name: A5 not refused"),
     }
 }
 
@@ -552,8 +563,8 @@ fn non_planar_or_unloaded_starts_are_refused() {
     scene.bodies[0].initial.x.z = -low;
     refused_at_construction(scene, &["'line'"]);
     // Spin about the normal and sliding along an incline are fine.
-    assert!(ReducedSliding::new(scenarios::a3_spin()).is_ok());
-    assert!(ReducedSliding::new(scenarios::a4_incline(25.0)).is_ok());
+    assert!(reduced_sim(scenarios::a3_spin()).is_ok());
+    assert!(reduced_sim(scenarios::a4_incline(25.0)).is_ok());
 }
 
 #[test]

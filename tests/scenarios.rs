@@ -10,7 +10,7 @@ use common::scene;
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::ContactMode;
 use ecp::formulations::rotation::rotation_matrix;
-use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
+use ecp::formulations::{Scene, Simulation, StepRecord};
 
 const G: f64 = 9.8;
 const H: f64 = 0.01;

@@ -170,7 +170,7 @@ fn point_sets_orientations_and_several_bodies_and_planes() {
     ));
     assert!((s.planes[1].offset() + 2.0).abs() < 1e-15);
     // Two bodies against two planes: suffixed CSV columns.
-    let header = ecp::formulations::stepper::StepRecord::csv_header(2, 2);
+    let header = ecp::formulations::StepRecord::csv_header(2, 2);
     assert!(header.contains(&"pn_b1_c1".to_string()));
     // Duplicate names are refused.
     let dup = text.replace("name = \"box\"", "name = \"tetra\"");

@@ -40,18 +40,39 @@
 
 use std::sync::{Arc, LazyLock};
 
-use ecp::formulations::Formulation;
+use ecp::formulations::ecp::EcpContacts;
 use ecp::formulations::rotation::{quat_from_rpy_deg, quat_mul};
 use ecp::formulations::scenarios;
 use ecp::formulations::sensitivity::*;
-use ecp::formulations::stepper::{BodyState, Load, Scene, Simulation, StepRecord};
+use ecp::formulations::step::ParamError;
+use ecp::formulations::{BodyState, Load, Scene, Simulation, StepRecord};
 use ecp::model::sensitivity::{ActiveSetOptions, ComponentStatus, SolveKind, classify};
-use ecp::model::{Mcp, McpSolver, residual_of};
+use ecp::model::{Mcp, McpSolver, VarId, residual_of};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use nalgebra::{Vector3, Vector4, Vector6};
 use proptest::prelude::*;
 
 type V3 = Vector3<f64>;
+
+/// The ECP formulation of `sim` (its contacts' unknowns).
+fn ecp(sim: &Simulation) -> &EcpContacts {
+    sim.formulation_as::<EcpContacts>()
+        .expect("an ECP formulation")
+}
+
+/// Body `b`'s `ν` and `q` blocks.
+fn body_vars(sim: &Simulation, b: usize) -> (VarId, VarId) {
+    let h = &sim.handles().bodies[b];
+    (h.nu.expect("ν"), h.q.expect("q"))
+}
+
+/// Every stored-state derivative of `sens` with respect to `input`: per body the 13 components
+/// x, Q, v, ω.
+fn d_states(sens: &StepSensitivity, bodies: usize, input: StepInput) -> Vec<f64> {
+    (0..bodies)
+        .flat_map(|b| StateComponent::ALL.map(|c| sens.d_state(b, c, input).expect("input exists")))
+        .collect()
+}
 
 /// Newton with a natural-residual tolerance of 1e-13, for the steps that are differentiated.
 fn newton() -> NewtonSolver {
@@ -96,7 +117,7 @@ fn outputs(sim: &Simulation) -> Vec<f64> {
     let mcp = sim.mcp();
     let mut state = Vec::new();
     for b in 0..sim.scene().bodies.len() {
-        let (nu, q) = sim.body_vars(b);
+        let (nu, q) = body_vars(sim, b);
         let (nu, q) = (&z[mcp.range(nu)], &z[mcp.range(q)]);
         let quat = Vector4::new(q[3], q[4], q[5], q[6]).normalize();
         state.extend_from_slice(&q[..3]);
@@ -133,11 +154,11 @@ fn gather(sim: &Simulation, z: &[f64], state: &[f64]) -> Vec<f64> {
     let mcp = sim.mcp();
     let mut v = Vec::new();
     for b in 0..sim.scene().bodies.len() {
-        let (nu, q) = sim.body_vars(b);
+        let (nu, q) = body_vars(sim, b);
         v.extend_from_slice(&z[mcp.range(nu)]);
         v.extend_from_slice(&z[mcp.range(q)]);
     }
-    for c in sim.contacts() {
+    for c in ecp(sim).contacts() {
         for r in [mcp.range(c.a1), mcp.range(c.pn), mcp.range(c.pf)] {
             v.extend_from_slice(&z[r]);
         }
@@ -151,7 +172,7 @@ fn analytic(sim: &Simulation, sens: &StepSensitivity, dir: Dir) -> Vec<f64> {
     let column = |i: StepInput| {
         (
             sens.dz(i).expect("input exists").to_vec(),
-            sens.d_state(i).expect("input exists").to_vec(),
+            d_states(sens, sim.scene().bodies.len(), i),
         )
     };
     let (dz, ds) = match dir {
@@ -297,7 +318,7 @@ fn resolution(sim: &Simulation) -> Vec<f64> {
         e.extend([ev, ev, ev, ew, ew, ew, ex, ex, ex, eq, eq, eq, eq]);
     }
     let z = &sim.last_step().expect("a step").z;
-    for c in sim.contacts() {
+    for c in ecp(sim).contacts() {
         // The ECP of a closed contact is placed by a moment balance: torque / p_n.
         let pn = z[sim.mcp().offset(c.pn)];
         let ea = if pn > 0.0 { ex + ep * x / pn } else { ex };
@@ -624,13 +645,12 @@ fn check_trajectory(scene: &Scene, params: &[Param]) -> Result<(), TestCaseError
         prop_assert!((adj.loss - fwd.loss).abs() <= 1e-14 * adj.loss.abs());
         // Finite differences of the whole run.
         for (j, p) in params.iter().enumerate() {
-            let v0 = p.get(scene).map_err(fail)?;
+            let v0 = p.get(scene).map_err(|e| fail(e.into()))?;
             let h = 1e-3 * v0.abs().max(1.0);
             let n = richardson(h, |e| {
                 let mut s = scene.clone();
-                p.set(&mut s, v0 + e).map_err(fail)?;
-                let (l, _) =
-                    trajectory_loss(&s, loss, &mut newton(), Formulation::Hull).map_err(fail)?;
+                p.set(&mut s, v0 + e).map_err(|e| fail(e.into()))?;
+                let (l, _) = trajectory_loss(&s, loss, &mut newton()).map_err(fail)?;
                 Ok(vec![l])
             })?[0];
             let a = adj.gradient[j];
@@ -777,7 +797,7 @@ fn wrench_gradients_match_finite_differences() {
                 }
                 w
             }));
-            trajectory_loss(&s, &loss, &mut newton(), Formulation::Hull)
+            trajectory_loss(&s, &loss, &mut newton())
                 .expect("bumped run")
                 .0
         };
@@ -939,24 +959,28 @@ fn pushed_vx(fx: f64) -> f64 {
 #[test]
 fn sticking_inside_the_ellipsoid_is_regular() {
     let (sim, _, sens) = one_step(scenarios::a2_push(20.0));
-    let c = sim.contacts()[0];
+    let c = ecp(&sim).contacts()[0];
     let mcp = sim.mcp();
     assert_eq!(sens.status[mcp.offset(c.sigma)], ComponentStatus::Active);
     assert!(sens.is_regular(), "{:?}", sens.degeneracies);
     let d = sens
         .dz(StepInput::Force { body: 0, axis: 0 })
         .expect("input");
-    let ds = sens
-        .d_state(StepInput::Force { body: 0, axis: 0 })
+    let force = StepInput::Force { body: 0, axis: 0 };
+    let dvx = sens
+        .d_state(0, StateComponent::Velocity(0), force)
+        .expect("input");
+    let dx = sens
+        .d_state(0, StateComponent::Position(0), force)
         .expect("input");
     let (h, m, g, hh) = (0.01, scenarios::BOX_MASS, scenarios::G, scenarios::BOX_H);
-    assert!(ds[7].abs() < 1e-14, "dv_x/dF = {}", ds[7]);
+    assert!(dvx.abs() < 1e-14, "dv_x/dF = {dvx}");
     assert!(
         (d[mcp.offset(c.pf)] + h).abs() < 1e-14,
         "dp_t/dF = {}",
         d[mcp.offset(c.pf)]
     );
-    let offset = d[mcp.offset(c.a1)] - ds[0];
+    let offset = d[mcp.offset(c.a1)] - dx;
     assert!(
         (offset - hh / (m * g)).abs() < 1e-12,
         "d(ECP offset)/dF = {offset}"
@@ -975,8 +999,12 @@ fn stick_slip_threshold_is_one_sided_and_reported() {
     assert!(!two_sided && slope > 1e-3, "slope {slope}");
     assert!(!sens.is_regular());
     let dv = sens
-        .d_state(StepInput::Force { body: 0, axis: 0 })
-        .expect("input")[7];
+        .d_state(
+            0,
+            StateComponent::Velocity(0),
+            StepInput::Force { body: 0, axis: 0 },
+        )
+        .expect("input");
     let e = 1e-3;
     let below = (pushed_vx(f0) - pushed_vx(f0 - e)) / e;
     let above = (pushed_vx(f0 + e) - pushed_vx(f0)) / e;
@@ -1010,8 +1038,12 @@ fn touching_without_force_is_one_sided_and_reported() {
             .contains(&Degeneracy::FrictionHeld { contact: 0 })
     );
     let dz = sens
-        .d_state(StepInput::Force { body: 0, axis: 2 })
-        .expect("input")[2];
+        .d_state(
+            0,
+            StateComponent::Position(2),
+            StepInput::Force { body: 0, axis: 2 },
+        )
+        .expect("input");
     let z_of = |fz: f64| one_step(weightless(fz)).1.bodies[0].x.z;
     let e = 1e-2;
     let up = (z_of(mg + e) - z_of(mg)) / e;
@@ -1060,7 +1092,7 @@ fn separated_contact_gives_free_flight_derivatives() {
         ),
     ];
     for (input, nonzero) in cases {
-        let d = sens.d_state(input).expect("input");
+        let d = d_states(&sens, 1, input);
         for (i, v) in d.iter().enumerate() {
             let want = nonzero
                 .iter()
@@ -1099,7 +1131,7 @@ fn separated_vertex_contact_has_a_unique_ecp() {
         d,
         Degeneracy::SeparatedGeometry { .. } | Degeneracy::Singular { .. }
     )));
-    let a1 = sim.mcp().offset(sim.contacts()[0].a1);
+    let a1 = sim.mcp().offset(ecp(&sim).contacts()[0].a1);
     for axis in 0..3 {
         let dx = sens
             .dz(StepInput::Position { body: 0, axis })
@@ -1134,12 +1166,11 @@ fn closed_contact_gap_multiplier_is_two_sided() {
 }
 
 /// The union formulation's impulses are shared between the desk's four legs: its reduced
-/// Jacobian is singular and inconsistent, which is reported (the union formulation is not
-/// supported by the sensitivities: documented in `ecp::formulations::sensitivity`).
+/// Jacobian is singular and inconsistent, which is reported (its capabilities say
+/// `SensitivitySupport::NotUnique`, documented in `ecp::formulations::sensitivity`).
 #[test]
 fn union_formulation_reports_its_singular_system() {
-    let mut sim =
-        Simulation::with_formulation(scenarios::desk(), Formulation::Union).expect("union desk");
+    let mut sim = Simulation::with_formulation(scenarios::desk(), "union").expect("union desk");
     let mut path = ecp::solvers::path::PathSolver::new(ecp::solvers::path::PathSettings::default());
     let rec = sim.step(&mut path).expect("union step");
     assert!(rec.converged, "PATH solves the union desk step");
@@ -1189,7 +1220,7 @@ fn params_parse_print_get_and_set() {
     );
     assert_eq!(Param::Mass { body: 2 }.to_string(), "mass[2]");
     // Errors say what is wrong.
-    let err = |r: Result<(), SensitivityError>| r.expect_err("must fail").to_string();
+    let err = |r: Result<(), ParamError>| r.expect_err("must fail").to_string();
     assert!(
         "friction"
             .parse::<Param>()
@@ -1259,7 +1290,7 @@ fn sensitivities_need_a_converged_step_and_fitting_losses() {
         target: V3::zeros(),
         weight: 1.0,
     };
-    assert!(trajectory_loss(&scene, &missing, &mut newton(), Formulation::Hull).is_err());
+    assert!(trajectory_loss(&scene, &missing, &mut newton()).is_err());
 }
 
 /// The reference loss's state gradient (positions, orientation, yaw, velocities) against

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::time::Duration;
 
 use ecp::backends::SolverKind;
-use ecp::formulations::stepper::BodyState;
+use ecp::formulations::BodyState;
 use ecp::stress::runner::{ENERGY_LIMIT, PENETRATION_LIMIT, penetration, total_energy};
 use ecp::stress::{Category, DEFAULT_COUNT, DEFAULT_SEED, RunConfig, RunResult, generate};
 use nalgebra::{Vector3, Vector4};

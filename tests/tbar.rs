@@ -23,7 +23,7 @@ use common::scene;
 use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::rotation::rotation_matrix;
-use ecp::formulations::stepper::{MODE_TOLERANCE, Simulation, StepRecord};
+use ecp::formulations::{MODE_TOLERANCE, Simulation, StepRecord};
 use nalgebra::Vector3;
 
 /// Distance from the crossbar's outer face to the CM along body x (m): the crossbar

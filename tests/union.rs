@@ -20,22 +20,16 @@ use std::sync::Arc;
 use nalgebra::{Vector3, Vector4, Vector6};
 
 use ecp::backends::{SolverConfig, SolverKind, make_solver_for};
-use ecp::formulations::Formulation;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
+use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
 
 /// Natural-residual tolerance every step must meet.
 const TOL: f64 = 1e-10;
 
 /// Runs `steps` steps of `scene` (all of them for `None`) in `formulation` with backend `kind`;
 /// every step must converge to ≤ [`TOL`] without penetrating by more than 1e-9.
-fn run(
-    scene: Scene,
-    formulation: Formulation,
-    kind: SolverKind,
-    steps: Option<usize>,
-) -> Vec<StepRecord> {
+fn run(scene: Scene, formulation: &str, kind: SolverKind, steps: Option<usize>) -> Vec<StepRecord> {
     let name = format!("{} ({formulation}, {kind})", scene.name);
     let mut sim = Simulation::with_formulation(scene, formulation).expect("valid scene");
     let mut solver = make_solver_for(
@@ -43,7 +37,7 @@ fn run(
             kind,
             ..SolverConfig::default()
         },
-        formulation,
+        &sim.capabilities(),
     )
     .expect("backend available");
     let steps = steps.unwrap_or(usize::MAX);
@@ -124,12 +118,7 @@ fn t_bar_sliding() -> Scene {
 
 #[test]
 fn union_desk_converges_with_newton() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Newton,
-        None,
-    );
+    let recs = run(scenarios::desk(), "union", SolverKind::Newton, None);
     assert_eq!(recs.len(), 400);
     // Four contacts, one per leg, and the desk really spins both ways.
     assert_eq!(recs[0].contacts.len(), 4);
@@ -139,30 +128,20 @@ fn union_desk_converges_with_newton() {
 
 #[test]
 fn union_desk_converges_with_path() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Path,
-        None,
-    );
+    let recs = run(scenarios::desk(), "union", SolverKind::Path, None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_desk_converges_with_conic() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Conic,
-        None,
-    );
+    let recs = run(scenarios::desk(), "union", SolverKind::Conic, None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_t_bar_converges_with_every_backend() {
     for kind in SolverKind::ALL {
-        let recs = run(t_bar_sliding(), Formulation::Union, kind, None);
+        let recs = run(t_bar_sliding(), "union", kind, None);
         assert_eq!(recs.len(), 100, "{kind}");
         assert_eq!(recs[0].contacts.len(), 2, "{kind}");
         // Lying flat, the two bars carry the weight between them: Σ p_n = m g h. (How they
@@ -180,14 +159,9 @@ fn union_t_bar_converges_with_every_backend() {
 
 #[test]
 fn union_and_hull_agree_in_pure_translation_of_the_desk() {
-    let hull = run(
-        desk_translating(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        None,
-    );
+    let hull = run(desk_translating(), "hull", SolverKind::Newton, None);
     for kind in SolverKind::ALL {
-        let union = run(desk_translating(), Formulation::Union, kind, None);
+        let union = run(desk_translating(), "union", kind, None);
         let (dv, dw) = max_difference(&hull, &union);
         println!(
             "desk, pure translation, 400 steps, union ({kind}) vs hull: |Δv| ≤ {dv:.2e}, |Δω| ≤ {dw:.2e}"
@@ -205,18 +179,8 @@ fn union_and_hull_agree_in_pure_translation_of_the_desk() {
 #[test]
 fn union_and_hull_agree_on_a1() {
     // A single box is one convex piece: the union model has the hull model's one contact.
-    let hull = run(
-        scenarios::a1_sliding(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        None,
-    );
-    let union = run(
-        scenarios::a1_sliding(),
-        Formulation::Union,
-        SolverKind::Newton,
-        None,
-    );
+    let hull = run(scenarios::a1_sliding(), "hull", SolverKind::Newton, None);
+    let union = run(scenarios::a1_sliding(), "union", SolverKind::Newton, None);
     assert_eq!(hull.len(), union.len());
     let (dv, dw) = max_difference(&hull, &union);
     assert!(dv <= 1e-8 && dw <= 1e-8, "Δv {dv:.3e}, Δω {dw:.3e}");
@@ -228,24 +192,9 @@ fn union_and_hull_agree_on_a1() {
 #[test]
 fn union_with_spin_differences_are_measured() {
     let steps = Some(100);
-    let hull = run(
-        scenarios::desk(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        steps,
-    );
-    let newton = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Newton,
-        steps,
-    );
-    let path = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Path,
-        steps,
-    );
+    let hull = run(scenarios::desk(), "hull", SolverKind::Newton, steps);
+    let newton = run(scenarios::desk(), "union", SolverKind::Newton, steps);
+    let path = run(scenarios::desk(), "union", SolverKind::Path, steps);
     let (dv, dw) = max_difference(&hull, &newton);
     println!("desk with spin, 100 steps: union (newton) vs hull: |Δv| ≤ {dv:.3e}, |Δω| ≤ {dw:.3e}");
     let (dv, dw) = max_difference(&newton, &path);

@@ -1,7 +1,7 @@
 //! Set-up shared by the benchmarks.
 
+use ecp::formulations::Simulation;
 use ecp::formulations::scenarios;
-use ecp::formulations::stepper::Simulation;
 use ecp::model::McpSolver;
 
 /// The desk after 99 steps with `solver`, with the 100th step prepared: the simulation and the

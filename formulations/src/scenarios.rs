@@ -10,7 +10,7 @@ use nalgebra::{Vector3, Vector4, Vector6};
 use crate::blocks::FrictionParams;
 use crate::geometry::{HalfSpace, MassProperties, Shape};
 use crate::rotation::{quat_from_axis_angle, quat_mul, rotation_matrix};
-use crate::stepper::{BodySpec, BodyState, Load, Scene};
+use crate::scene::{BodySpec, BodyState, Load, Scene};
 
 /// Gravity used by every scenario, m/s².
 pub const G: f64 = 9.8;
@@ -199,7 +199,7 @@ pub fn a6_tip(f: f64) -> Scene {
 /// B: the paper's desk (`docs/model.md#scenarios`): 15 kg, four legs, pushed and twisted by
 /// periodic loads for 4 s.
 pub fn desk() -> Scene {
-    let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
+    let load: crate::scene::WrenchFn = Arc::new(|t: f64| {
         let s = (2.0 * std::f64::consts::PI * t).sin();
         let c = (2.0 * std::f64::consts::PI * t).cos();
         Vector6::new(22.5 * s + 22.5, 22.5 * c + 22.5, 0.0, 0.0, 0.0, 2.1 * c)
@@ -253,7 +253,7 @@ fn window(t: f64, a: f64, b: f64, r: f64) -> f64 {
 /// with 0.1 s ramps (two-point contacts, then flat again), and on [3.0, 3.8] s (0.05 s ramps) a
 /// push `f_x = 5` N with a yaw torque `τ_z = 0.3` N m (it slides and turns in surface contact).
 pub fn t_bar() -> Scene {
-    let load: crate::stepper::WrenchFn = Arc::new(|t: f64| {
+    let load: crate::scene::WrenchFn = Arc::new(|t: f64| {
         let a = 1.7 * window(t, 0.8, 1.2, 0.1);
         let b = 1.7 * window(t, 1.8, 2.2, 0.1);
         let yaw = window(t, 3.0, 3.8, 0.05);

@@ -68,391 +68,21 @@
 //! assert!(g.events.is_empty());
 //! ```
 
-use std::fmt;
-use std::str::FromStr;
-
-use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
+use nalgebra::{Vector3, Vector4, Vector6};
 
 use ecp_model::sensitivity::{
     ActiveSetOptions, ComponentStatus, ImplicitError, ReducedSystem, SolveKind, classify,
 };
 use ecp_model::{DataId, Mcp, McpSolver, ModelError};
 
-use crate::formulation::Formulation;
-use crate::geometry::MassProperties;
-use crate::stepper::{BodyState, Load, Scene, SceneError, Simulation, StepRecord};
-
-/// Size of one body's state passed between steps: x (3), Q normalised (4), v (3), ω (3).
-pub const STATE_SIZE: usize = 13;
+use crate::record::StepRecord;
+use crate::scene::{BodyState, Scene, SceneError};
+pub use crate::step::{InertiaEntry, Param, STATE_SIZE, StateComponent};
+use crate::step::{ParamError, SensitivitySupport, Simulation};
 /// Step inputs per body ([`StepInput`]): mass, inertia (6), x, Q, v, ω, force, torque.
 pub const BODY_INPUTS: usize = 26;
 /// Step inputs shared by all bodies: μ, e_t, e_o, e_r.
 pub const FRICTION_INPUTS: usize = 4;
-
-/// An entry of the symmetric body-frame inertia matrix, the inertia parametrisation of the
-/// sensitivities: an off-diagonal entry moves both `I_ij` and `I_ji`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum InertiaEntry {
-    /// `I_xx`.
-    Xx,
-    /// `I_yy`.
-    Yy,
-    /// `I_zz`.
-    Zz,
-    /// `I_xy = I_yx`.
-    Xy,
-    /// `I_xz = I_zx`.
-    Xz,
-    /// `I_yz = I_zy`.
-    Yz,
-}
-
-impl InertiaEntry {
-    /// The six entries, in the order of the data of the Newton–Euler block.
-    pub const ALL: [InertiaEntry; 6] = [
-        InertiaEntry::Xx,
-        InertiaEntry::Yy,
-        InertiaEntry::Zz,
-        InertiaEntry::Xy,
-        InertiaEntry::Xz,
-        InertiaEntry::Yz,
-    ];
-    /// Index 0..6 in [`InertiaEntry::ALL`].
-    pub fn index(&self) -> usize {
-        *self as usize
-    }
-    /// `(row, col)` of the entry (row ≤ col).
-    pub fn position(&self) -> (usize, usize) {
-        crate::blocks::INERTIA_ENTRIES[self.index()]
-    }
-    fn suffix(&self) -> &'static str {
-        ["xx", "yy", "zz", "xy", "xz", "yz"][self.index()]
-    }
-}
-
-/// A scalar model parameter θ of a [`Scene`], for trajectory gradients and fitting.
-///
-/// Names (for [`Param::from_str`] and `Display`): `mu`, `e_t`, `e_o`, `e_r`; per body `mass`,
-/// `i_xx`, `i_yy`, `i_zz`, `i_xy`, `i_xz`, `i_yz`, the initial state `x0`, `y0`, `z0`, `qw0`,
-/// `qx0`, `qy0`, `qz0`, `vx0`, `vy0`, `vz0`, `wx0`, `wy0`, `wz0`, and the components of a
-/// constant applied load `fx`, `fy`, `fz`, `tx`, `ty`, `tz`; a body other than 0 is written
-/// `mass[1]`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub enum Param {
-    /// Friction coefficient μ (all contacts).
-    Mu,
-    /// Tangential semi-axis e_t of the friction ellipsoid.
-    Et,
-    /// Tangential semi-axis e_o.
-    Eo,
-    /// Torsional semi-axis e_r (m).
-    Er,
-    /// Mass of a body.
-    Mass {
-        /// Body index.
-        body: usize,
-    },
-    /// An entry of a body's body-frame inertia.
-    Inertia {
-        /// Body index.
-        body: usize,
-        /// Which entry.
-        entry: InertiaEntry,
-    },
-    /// A coordinate of a body's initial CM position.
-    InitialPosition {
-        /// Body index.
-        body: usize,
-        /// 0, 1, 2 for x, y, z.
-        axis: usize,
-    },
-    /// A component of a body's initial quaternion (w, x, y, z) as given in the scene; the
-    /// simulation normalises it, and the derivative goes through that normalisation.
-    InitialOrientation {
-        /// Body index.
-        body: usize,
-        /// 0..4 for w, x, y, z.
-        component: usize,
-    },
-    /// A component of a body's initial linear velocity.
-    InitialVelocity {
-        /// Body index.
-        body: usize,
-        /// 0, 1, 2 for x, y, z.
-        axis: usize,
-    },
-    /// A component of a body's initial angular velocity (world frame).
-    InitialAngularVelocity {
-        /// Body index.
-        body: usize,
-        /// 0, 1, 2 for x, y, z.
-        axis: usize,
-    },
-    /// A component of a body's constant applied wrench (`Load::Constant`, or `Load::None` read
-    /// as zero): 0..3 force, 3..6 torque. Its gradient is the sum of the per-step wrench
-    /// gradients; a load given as a function of time has no such parameter.
-    Load {
-        /// Body index.
-        body: usize,
-        /// 0..6: fx, fy, fz, τx, τy, τz.
-        component: usize,
-    },
-}
-
-const STATE_NAMES: [&str; 13] = [
-    "x0", "y0", "z0", "qw0", "qx0", "qy0", "qz0", "vx0", "vy0", "vz0", "wx0", "wy0", "wz0",
-];
-const LOAD_NAMES: [&str; 6] = ["fx", "fy", "fz", "tx", "ty", "tz"];
-
-impl Param {
-    /// The body the parameter belongs to (`None` for the friction parameters).
-    pub fn body(&self) -> Option<usize> {
-        match *self {
-            Param::Mu | Param::Et | Param::Eo | Param::Er => None,
-            Param::Mass { body }
-            | Param::Inertia { body, .. }
-            | Param::InitialPosition { body, .. }
-            | Param::InitialOrientation { body, .. }
-            | Param::InitialVelocity { body, .. }
-            | Param::InitialAngularVelocity { body, .. }
-            | Param::Load { body, .. } => Some(body),
-        }
-    }
-
-    fn check_index(&self, scene: &Scene) -> Result<(), SensitivityError> {
-        let (index, limit) = match *self {
-            Param::InitialPosition { axis, .. }
-            | Param::InitialVelocity { axis, .. }
-            | Param::InitialAngularVelocity { axis, .. } => (axis, 3),
-            Param::InitialOrientation { component, .. } => (component, 4),
-            Param::Load { component, .. } => (component, 6),
-            _ => (0, 1),
-        };
-        if index >= limit {
-            return Err(SensitivityError::Param(format!(
-                "parameter {self:?}: component {index} out of range (0..{limit})"
-            )));
-        }
-        if let Some(b) = self.body()
-            && b >= scene.bodies.len()
-        {
-            return Err(SensitivityError::Param(format!(
-                "parameter {self} names body {b}, but scene '{}' has {} bod{}",
-                scene.name,
-                scene.bodies.len(),
-                if scene.bodies.len() == 1 { "y" } else { "ies" }
-            )));
-        }
-        Ok(())
-    }
-
-    /// The parameter's value in `scene`.
-    pub fn get(&self, scene: &Scene) -> Result<f64, SensitivityError> {
-        self.check_index(scene)?;
-        let f = &scene.friction;
-        Ok(match *self {
-            Param::Mu => f.mu,
-            Param::Et => f.e_t,
-            Param::Eo => f.e_o,
-            Param::Er => f.e_r,
-            Param::Mass { body } => scene.bodies[body].mass.mass,
-            Param::Inertia { body, entry } => {
-                let (i, j) = entry.position();
-                scene.bodies[body].mass.inertia[(i, j)]
-            }
-            Param::InitialPosition { body, axis } => scene.bodies[body].initial.x[axis],
-            Param::InitialOrientation { body, component } => {
-                scene.bodies[body].initial.q[component]
-            }
-            Param::InitialVelocity { body, axis } => scene.bodies[body].initial.v[axis],
-            Param::InitialAngularVelocity { body, axis } => scene.bodies[body].initial.w[axis],
-            Param::Load { body, component } => match &scene.bodies[body].load {
-                Load::None => 0.0,
-                Load::Constant(w) => w[component],
-                Load::Function(_) => return Err(self.function_load(scene, body)),
-            },
-        })
-    }
-
-    fn function_load(&self, scene: &Scene, body: usize) -> SensitivityError {
-        SensitivityError::Param(format!(
-            "parameter {self}: the load of body '{}' is a function of time, not a constant; \
-             use the per-step wrench gradient (TrajectoryGradient::wrench_gradient) and chain \
-             your load parametrisation through it",
-            scene.bodies[body].name
-        ))
-    }
-
-    /// Sets the parameter's value in `scene`, with the checks the simulation makes (μ ≥ 0,
-    /// e_t, e_o, e_r > 0, mass > 0, a symmetric positive definite inertia, finite values).
-    pub fn set(&self, scene: &mut Scene, value: f64) -> Result<(), SensitivityError> {
-        self.check_index(scene)?;
-        let invalid = |hint: &'static str| SensitivityError::Invalid {
-            param: self.to_string(),
-            value,
-            hint,
-        };
-        if !value.is_finite() {
-            return Err(invalid("parameter values must be finite"));
-        }
-        let f = &mut scene.friction;
-        match *self {
-            Param::Mu if value < 0.0 => return Err(invalid("μ must be ≥ 0")),
-            Param::Mu => f.mu = value,
-            Param::Et | Param::Eo | Param::Er if value <= 0.0 => {
-                return Err(invalid("the ellipsoid semi-axes e_t, e_o, e_r must be > 0"));
-            }
-            Param::Et => f.e_t = value,
-            Param::Eo => f.e_o = value,
-            Param::Er => f.e_r = value,
-            Param::Mass { body } => {
-                let mp = &scene.bodies[body].mass;
-                scene.bodies[body].mass = MassProperties::new(value, mp.inertia)
-                    .map_err(|_| invalid("the mass must be > 0"))?;
-            }
-            Param::Inertia { body, entry } => {
-                let mp = &scene.bodies[body].mass;
-                let (i, j) = entry.position();
-                let mut inertia: Matrix3<f64> = mp.inertia;
-                inertia[(i, j)] = value;
-                inertia[(j, i)] = value;
-                scene.bodies[body].mass = MassProperties::new(mp.mass, inertia)
-                    .map_err(|_| invalid("the inertia must stay symmetric positive definite"))?;
-            }
-            Param::InitialPosition { body, axis } => scene.bodies[body].initial.x[axis] = value,
-            Param::InitialOrientation { body, component } => {
-                scene.bodies[body].initial.q[component] = value;
-            }
-            Param::InitialVelocity { body, axis } => scene.bodies[body].initial.v[axis] = value,
-            Param::InitialAngularVelocity { body, axis } => {
-                scene.bodies[body].initial.w[axis] = value;
-            }
-            Param::Load { body, component } => {
-                let mut w = match &scene.bodies[body].load {
-                    Load::None => Vector6::zeros(),
-                    Load::Constant(w) => *w,
-                    Load::Function(_) => return Err(self.function_load(scene, body)),
-                };
-                w[component] = value;
-                scene.bodies[body].load = Load::Constant(w);
-            }
-        }
-        Ok(())
-    }
-
-    /// The step input this parameter is at every step, if it is one (the initial-state
-    /// parameters enter through the initial state instead).
-    fn step_input(&self) -> Option<StepInput> {
-        Some(match *self {
-            Param::Mu => StepInput::Mu,
-            Param::Et => StepInput::Et,
-            Param::Eo => StepInput::Eo,
-            Param::Er => StepInput::Er,
-            Param::Mass { body } => StepInput::Mass { body },
-            Param::Inertia { body, entry } => StepInput::Inertia { body, entry },
-            Param::Load { body, component } if component < 3 => StepInput::Force {
-                body,
-                axis: component,
-            },
-            Param::Load { body, component } => StepInput::Torque {
-                body,
-                axis: component - 3,
-            },
-            _ => return None,
-        })
-    }
-}
-
-impl fmt::Display for Param {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        let (name, body): (String, Option<usize>) = match *self {
-            Param::Mu => ("mu".into(), None),
-            Param::Et => ("e_t".into(), None),
-            Param::Eo => ("e_o".into(), None),
-            Param::Er => ("e_r".into(), None),
-            Param::Mass { body } => ("mass".into(), Some(body)),
-            Param::Inertia { body, entry } => (format!("i_{}", entry.suffix()), Some(body)),
-            Param::InitialPosition { body, axis } => (STATE_NAMES[axis % 3].into(), Some(body)),
-            Param::InitialOrientation { body, component } => {
-                (STATE_NAMES[3 + component % 4].into(), Some(body))
-            }
-            Param::InitialVelocity { body, axis } => (STATE_NAMES[7 + axis % 3].into(), Some(body)),
-            Param::InitialAngularVelocity { body, axis } => {
-                (STATE_NAMES[10 + axis % 3].into(), Some(body))
-            }
-            Param::Load { body, component } => (LOAD_NAMES[component % 6].into(), Some(body)),
-        };
-        match body {
-            Some(b) if b > 0 => write!(f, "{name}[{b}]"),
-            _ => f.write_str(&name),
-        }
-    }
-}
-
-impl FromStr for Param {
-    type Err = SensitivityError;
-    fn from_str(s: &str) -> Result<Self, SensitivityError> {
-        let s = s.trim();
-        let (name, body) = match s.split_once('[') {
-            Some((n, rest)) => {
-                let b = rest
-                    .strip_suffix(']')
-                    .and_then(|b| b.trim().parse::<usize>().ok())
-                    .ok_or_else(|| {
-                        SensitivityError::Param(format!(
-                            "parameter \"{s}\": a body index is written name[b] with b a number, e.g. mass[1]"
-                        ))
-                    })?;
-                (n.trim(), b)
-            }
-            None => (s, 0),
-        };
-        let global = match name {
-            "mu" => Some(Param::Mu),
-            "e_t" => Some(Param::Et),
-            "e_o" => Some(Param::Eo),
-            "e_r" => Some(Param::Er),
-            _ => None,
-        };
-        if let Some(p) = global {
-            if s.contains('[') {
-                return Err(SensitivityError::Param(format!(
-                    "parameter \"{s}\": {name} is shared by all contacts and takes no body index"
-                )));
-            }
-            return Ok(p);
-        }
-        if name == "mass" {
-            return Ok(Param::Mass { body });
-        }
-        if let Some(e) = InertiaEntry::ALL
-            .iter()
-            .find(|e| name == format!("i_{}", e.suffix()))
-        {
-            return Ok(Param::Inertia { body, entry: *e });
-        }
-        if let Some(k) = STATE_NAMES.iter().position(|n| *n == name) {
-            return Ok(match k {
-                0..3 => Param::InitialPosition { body, axis: k },
-                3..7 => Param::InitialOrientation {
-                    body,
-                    component: k - 3,
-                },
-                7..10 => Param::InitialVelocity { body, axis: k - 7 },
-                _ => Param::InitialAngularVelocity { body, axis: k - 10 },
-            });
-        }
-        if let Some(k) = LOAD_NAMES.iter().position(|n| *n == name) {
-            return Ok(Param::Load { body, component: k });
-        }
-        Err(SensitivityError::Param(format!(
-            "unknown parameter \"{s}\"; the parameters are mu, e_t, e_o, e_r, mass, \
-             i_xx, i_yy, i_zz, i_xy, i_xz, i_yz, {}, {} (a body other than 0 as mass[1])",
-            STATE_NAMES.join(", "),
-            LOAD_NAMES.join(", ")
-        )))
-    }
-}
 
 /// An input of one step: the columns of a [`StepSensitivity`].
 ///
@@ -526,6 +156,28 @@ pub enum StepInput {
     },
 }
 
+/// The step input parameter `p` is at every step, if it is one (the initial-state parameters
+/// enter through the initial state instead).
+fn step_input_of(p: &Param) -> Option<StepInput> {
+    Some(match *p {
+        Param::Mu => StepInput::Mu,
+        Param::Et => StepInput::Et,
+        Param::Eo => StepInput::Eo,
+        Param::Er => StepInput::Er,
+        Param::Mass { body } => StepInput::Mass { body },
+        Param::Inertia { body, entry } => StepInput::Inertia { body, entry },
+        Param::Load { body, component } if component < 3 => StepInput::Force {
+            body,
+            axis: component,
+        },
+        Param::Load { body, component } => StepInput::Torque {
+            body,
+            axis: component - 3,
+        },
+        _ => return None,
+    })
+}
+
 impl StepInput {
     /// Column of this input for a scene of `bodies` bodies (`None` when out of range).
     pub fn index(&self, bodies: usize) -> Option<usize> {
@@ -550,24 +202,23 @@ impl StepInput {
     /// (`docs/model.md#data-blocks`); `None` for a body the scene does not have.
     pub fn data(&self, sim: &Simulation) -> Option<(DataId, usize)> {
         use crate::blocks::data::start;
-        let scene = sim.scene_data();
+        let h = sim.handles();
+        let body_data = |b: usize| h.bodies.get(b).and_then(|b| b.data);
         Some(match *self {
-            StepInput::Mu => (scene.friction, 0),
-            StepInput::Et => (scene.friction, 1),
-            StepInput::Eo => (scene.friction, 2),
-            StepInput::Er => (scene.friction, 3),
-            StepInput::Mass { body } => (sim.body_data(body)?.mass, 0),
-            StepInput::Inertia { body, entry } => (sim.body_data(body)?.inertia, entry.index()),
-            StepInput::Position { body, axis } => (sim.body_data(body)?.start, start::X + axis),
+            StepInput::Mu => (h.friction?, 0),
+            StepInput::Et => (h.friction?, 1),
+            StepInput::Eo => (h.friction?, 2),
+            StepInput::Er => (h.friction?, 3),
+            StepInput::Mass { body } => (body_data(body)?.mass, 0),
+            StepInput::Inertia { body, entry } => (body_data(body)?.inertia, entry.index()),
+            StepInput::Position { body, axis } => (body_data(body)?.start, start::X + axis),
             StepInput::Orientation { body, component } => {
-                (sim.body_data(body)?.start, start::Q + component)
+                (body_data(body)?.start, start::Q + component)
             }
-            StepInput::Velocity { body, axis } => (sim.body_data(body)?.start, start::V + axis),
-            StepInput::AngularVelocity { body, axis } => {
-                (sim.body_data(body)?.start, start::W + axis)
-            }
-            StepInput::Force { body, axis } => (sim.body_data(body)?.wrench, axis),
-            StepInput::Torque { body, axis } => (sim.body_data(body)?.wrench, 3 + axis),
+            StepInput::Velocity { body, axis } => (body_data(body)?.start, start::V + axis),
+            StepInput::AngularVelocity { body, axis } => (body_data(body)?.start, start::W + axis),
+            StepInput::Force { body, axis } => (body_data(body)?.wrench, axis),
+            StepInput::Torque { body, axis } => (body_data(body)?.wrench, 3 + axis),
         })
     }
 
@@ -610,18 +261,21 @@ pub enum SensitivityError {
         /// Its natural residual.
         residual: f64,
     },
-    /// A parameter name or index is wrong.
+    /// A step input names a body the scene does not have.
     #[error("{0}")]
     Param(String),
-    /// A parameter value is out of range.
-    #[error("{param} = {value} is invalid: {hint}")]
-    Invalid {
-        /// The parameter.
-        param: String,
-        /// The value given.
-        value: f64,
-        /// How to fix it.
-        hint: &'static str,
+    /// A parameter name, index or value is wrong.
+    #[error(transparent)]
+    Parameter(#[from] ParamError),
+    /// The formulation has no step sensitivities.
+    #[error(
+        "the {formulation} formulation has no step sensitivities (its step problem does not hold \
+         each body's ν and q as unknowns, or its inputs are not all data blocks); use the hull \
+         formulation, or finite differences"
+    )]
+    Unsupported {
+        /// The formulation's name.
+        formulation: String,
     },
     /// The loss does not fit the scene (reference length, body index).
     #[error("loss: {0}")]
@@ -660,7 +314,7 @@ pub enum Degeneracy {
     },
     /// A contact with `p_n` at 0: its friction impulses and σ are held.
     FrictionHeld {
-        /// Contact index ([`Simulation::contacts`]).
+        /// Contact index (in [`crate::step::StepHandles::contacts`], the order of the records).
         contact: usize,
     },
     /// The reduced Jacobian is singular: minimum-norm derivative.
@@ -701,10 +355,12 @@ pub struct StepSensitivity {
     /// Number of unknowns `n` of the step problem.
     pub n: usize,
     /// `dz*/d(input)`, `n × inputs.len()`, column-major, in the layout of
-    /// [`Simulation::mcp`]: ν, q (Q before renormalisation), ECPs, multipliers, impulses.
+    /// [`Simulation::mcp`]: ν, q (Q before renormalisation), ECPs, multipliers, impulses (and
+    /// the unknowns of user terms).
     pub dz: Vec<f64>,
     /// Derivatives of the stored end-of-step state, `(13 · bodies) × inputs.len()`,
-    /// column-major: per body x, Q (renormalised), v, ω.
+    /// column-major: per body x, Q (renormalised), v, ω ([`StateComponent`] order; read one
+    /// with [`StepSensitivity::d_state`]).
     pub state: Vec<f64>,
     /// The active-set status of every component of `z`.
     pub status: Vec<ComponentStatus>,
@@ -724,11 +380,13 @@ impl StepSensitivity {
         let c = self.column(input)?;
         Some(&self.dz[c * self.n..(c + 1) * self.n])
     }
-    /// Derivative of the stored end-of-step state (13 per body) with respect to `input`.
-    pub fn d_state(&self, input: StepInput) -> Option<&[f64]> {
+    /// Derivative of `component` of body `body`'s stored end-of-step state with respect to
+    /// `input` (`None` for a body, component or input the step does not have).
+    pub fn d_state(&self, body: usize, component: StateComponent, input: StepInput) -> Option<f64> {
         let c = self.column(input)?;
         let m = self.state.len() / self.inputs.len().max(1);
-        Some(&self.state[c * m..(c + 1) * m])
+        let i = STATE_SIZE * body + component.index()?;
+        (i < m).then(|| self.state[c * m + i])
     }
     /// True when no reportable degeneracy was met ([`Degeneracy::is_reportable`]).
     pub fn is_regular(&self) -> bool {
@@ -755,6 +413,19 @@ impl StepDifferentiator {
 
     /// The step sensitivities of the last step `sim` took (module documentation).
     pub fn differentiate(&mut self, sim: &Simulation) -> Result<StepSensitivity, SensitivityError> {
+        let unsupported = || SensitivityError::Unsupported {
+            formulation: sim.formulation_name().to_string(),
+        };
+        if sim.capabilities().sensitivities == SensitivitySupport::None {
+            return Err(unsupported());
+        }
+        let bodies_vars: Vec<_> = sim
+            .handles()
+            .bodies
+            .iter()
+            .map(|b| b.nu.zip(b.q))
+            .collect::<Option<Vec<_>>>()
+            .ok_or_else(unsupported)?;
         let last = sim.last_step().ok_or(SensitivityError::NoStep)?;
         let mcp = sim.mcp();
         let n = mcp.dim();
@@ -774,15 +445,15 @@ impl StepDifferentiator {
         // do not enter the motion rows while p_n = p_f = 0, so they are solved in a second
         // stage (below) and cannot spoil the motion derivatives when they are not unique.
         let mut geometry = Vec::new();
-        for (i, c) in sim.contacts().iter().enumerate() {
-            let pn = mcp.offset(c.pn);
+        for (i, c) in sim.handles().contacts.iter().enumerate() {
+            let pn = mcp.offset(c.normal);
             if status[pn] != ComponentStatus::Free {
-                for k in mcp.range(c.pf).chain(mcp.range(c.sigma)) {
+                for k in c.friction.iter().flat_map(|v| mcp.range(*v)) {
                     status[k] = ComponentStatus::Held;
                 }
                 degeneracies.push(Degeneracy::FrictionHeld { contact: i });
-                for v in [c.a1, c.a2, c.l, c.lg] {
-                    geometry.extend(mcp.range(v));
+                for v in &c.geometry {
+                    geometry.extend(mcp.range(*v));
                 }
             }
         }
@@ -838,8 +509,7 @@ impl StepDifferentiator {
         // The stored state: x, Q/|Q|, v, ω.
         let m = STATE_SIZE * bodies;
         let mut state = vec![0.0; m * p];
-        for b in 0..bodies {
-            let (nu_id, q_id) = sim.body_vars(b);
+        for (b, &(nu_id, q_id)) in bodies_vars.iter().enumerate() {
             let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
             let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
             let norm = qraw.norm();
@@ -1148,13 +818,11 @@ pub enum GradientMode {
     Adjoint,
 }
 
-/// Options of [`trajectory_gradient_with`].
+/// Options of [`trajectory_gradient_with`] and [`trajectory_gradient_of`].
 #[derive(Clone, Copy, Debug, PartialEq, Default)]
 pub struct GradientOptions {
     /// Forward or adjoint accumulation.
     pub mode: GradientMode,
-    /// [`Formulation::Hull`] (default) or [`Formulation::Union`].
-    pub formulation: Formulation,
     /// Step-sensitivity options.
     pub sensitivity: SensitivityOptions,
 }
@@ -1206,18 +874,29 @@ pub struct TrajectoryGradient {
     pub mode: GradientMode,
 }
 
-/// The loss of a run of `scene` (no derivatives: for derivative-free optimisers), with the
-/// records. A step that does not converge is an error.
+/// The loss of a run of `scene` with the hull formulation (no derivatives: for derivative-free
+/// optimisers), with the records. A step that does not converge is an error.
 pub fn trajectory_loss(
     scene: &Scene,
     loss: &dyn TrajectoryLoss,
     solver: &mut dyn McpSolver,
-    formulation: Formulation,
 ) -> Result<(f64, Vec<StepRecord>), SensitivityError> {
-    let steps = scene.num_steps();
-    loss.check(scene, steps).map_err(SensitivityError::Loss)?;
-    let mut sim = Simulation::with_formulation(scene.clone(), formulation)?;
-    let mut grad = vec![0.0; STATE_SIZE * scene.bodies.len()];
+    let mut sim = Simulation::new(scene.clone())?;
+    trajectory_loss_of(&mut sim, loss, solver)
+}
+
+/// The loss of a run of `sim` from its start ([`Simulation::reset`]: the parameters set on it
+/// apply), with the records. A step that does not converge is an error.
+pub fn trajectory_loss_of(
+    sim: &mut Simulation,
+    loss: &dyn TrajectoryLoss,
+    solver: &mut dyn McpSolver,
+) -> Result<(f64, Vec<StepRecord>), SensitivityError> {
+    let steps = sim.scene().num_steps();
+    loss.check(sim.scene(), steps)
+        .map_err(SensitivityError::Loss)?;
+    sim.reset()?;
+    let mut grad = vec![0.0; STATE_SIZE * sim.scene().bodies.len()];
     let mut total = 0.0;
     let mut records = Vec::with_capacity(steps);
     while !sim.finished() {
@@ -1255,7 +934,7 @@ pub fn trajectory_gradient(
     )
 }
 
-/// [`trajectory_gradient`] with all options.
+/// [`trajectory_gradient`] with all options (hull formulation).
 pub fn trajectory_gradient_with(
     scene: &Scene,
     params: &[Param],
@@ -1263,18 +942,34 @@ pub fn trajectory_gradient_with(
     solver: &mut dyn McpSolver,
     options: &GradientOptions,
 ) -> Result<TrajectoryGradient, SensitivityError> {
+    let mut sim = Simulation::new(scene.clone())?;
+    trajectory_gradient_of(&mut sim, params, loss, solver, options)
+}
+
+/// The gradient of `loss` over a run of `sim` from its start ([`Simulation::reset`]: the
+/// parameters set on it apply) with respect to `params` and to the wrench of every step, with
+/// any formulation that has step sensitivities (module documentation).
+pub fn trajectory_gradient_of(
+    sim: &mut Simulation,
+    params: &[Param],
+    loss: &dyn TrajectoryLoss,
+    solver: &mut dyn McpSolver,
+    options: &GradientOptions,
+) -> Result<TrajectoryGradient, SensitivityError> {
     for p in params {
-        p.get(scene)?;
+        sim.param(*p)?;
     }
-    let steps = scene.num_steps();
-    loss.check(scene, steps).map_err(SensitivityError::Loss)?;
-    let mut sim = Simulation::with_formulation(scene.clone(), options.formulation)?;
+    let steps = sim.scene().num_steps();
+    loss.check(sim.scene(), steps)
+        .map_err(SensitivityError::Loss)?;
+    sim.reset()?;
+    let scene = sim.scene().clone();
     let nb = scene.bodies.len();
     let ns = STATE_SIZE * nb;
     let np = params.len();
 
     // Initial tangent ds₀/dθ (ns × np): the initial-state parameters, through the
-    // normalisation of Q that Simulation::new applies.
+    // normalisation of Q that the simulation applies.
     let mut s0 = vec![0.0; ns * np];
     for (j, p) in params.iter().enumerate() {
         let col = &mut s0[j * ns..(j + 1) * ns];
@@ -1299,7 +994,7 @@ pub fn trajectory_gradient_with(
     // The step-input column each parameter is at every step.
     let param_cols: Vec<Option<usize>> = params
         .iter()
-        .map(|p| p.step_input().and_then(|i| i.index(nb)))
+        .map(|p| step_input_of(p).and_then(|i| i.index(nb)))
         .collect();
     // State component i of body b is step input base(b) + 7 + i (x, Q, v, ω are contiguous).
     let state_col =
@@ -1321,7 +1016,7 @@ pub fn trajectory_gradient_with(
                 residual: rec.summary.residual,
             });
         }
-        let sens = differ.differentiate(&sim)?;
+        let sens = differ.differentiate(sim)?;
         if let Some(prev) = &previous {
             for (i, (a, b)) in prev.iter().zip(&sens.status).enumerate() {
                 if a != b {

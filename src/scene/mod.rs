@@ -44,13 +44,13 @@ use ecp_formulations::geometry::{
     ConvexHull, ConvexPiece, GeometryError, HalfSpace, MassProperties, Shape, min_gap,
 };
 use ecp_formulations::rotation::{quat_from_rpy_deg, quat_normalize, rotation_matrix};
-use ecp_formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
+use ecp_formulations::{BodySpec, BodyState, FormulationRegistry, Load, Scene, Simulation};
 use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 
 pub use expr::TimeExpression;
 pub use locate::line_of;
 
-use crate::backends::{Formulation, SolverConfig, SolverKind};
+use crate::backends::{SolverConfig, SolverKind};
 use crate::error::{InputError, InputErrorKind};
 use raw::{RawBody, RawHalfSpace, RawLoad, RawPiece, RawScene};
 
@@ -66,8 +66,9 @@ pub struct SceneFile {
     pub scene: Scene,
     /// `[solver]`: backend and settings.
     pub solver: SolverConfig,
-    /// `simulation.formulation` (default `hull`).
-    pub formulation: Formulation,
+    /// `simulation.formulation` (default `hull`): a name of
+    /// [`FormulationRegistry::builtin`].
+    pub formulation: String,
     /// The applied loads as written, per body: `(force, torque)` expressions.
     pub loads: Vec<Option<[TimeExpression; 6]>>,
 }
@@ -284,10 +285,14 @@ impl Context<'_> {
             sim.gravity.unwrap_or([0.0, 0.0, -9.8]),
         )?;
         let formulation = match &sim.formulation {
-            Some(f) => f
-                .parse::<Formulation>()
-                .map_err(|m| self.err(InputErrorKind::UnknownName, "simulation.formulation", m))?,
-            None => Formulation::Hull,
+            Some(f) => FormulationRegistry::builtin().resolve(f).map_err(|m| {
+                self.err(
+                    InputErrorKind::UnknownName,
+                    "simulation.formulation",
+                    m.to_string(),
+                )
+            })?,
+            None => "hull".to_string(),
         };
 
         let fr = &raw.friction;
@@ -845,7 +850,7 @@ pub fn describe(file: &SceneFile) -> String {
             let mode = ecp_formulations::geometry::contact_mode(
                 &world,
                 plane,
-                ecp_formulations::stepper::MODE_TOLERANCE,
+                ecp_formulations::MODE_TOLERANCE,
             );
             let _ = writeln!(
                 out,

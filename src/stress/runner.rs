@@ -6,8 +6,7 @@
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
-use ecp_formulations::Formulation;
-use ecp_formulations::stepper::{BodyState, Load, Scene, StepRecord};
+use ecp_formulations::{BodyState, Load, Scene, StepRecord};
 use nalgebra::Vector3;
 use serde::Serialize;
 
@@ -175,12 +174,13 @@ pub fn run_file(path: &Path, config: &RunConfig) -> RunResult {
     let options = RunOptions {
         out_dir: config.out_dir.clone(),
         solver: Some(config.solver),
-        formulation: Some(Formulation::Hull),
+        formulation: Some("hull".into()),
         steps: config.steps,
         plots: false,
         keep_going: true,
         fallbacks: config.fallbacks,
         time_limit: config.time_limit,
+        ..RunOptions::default()
     };
     let start = Instant::now();
     let outcome = run_scene(&file, &options, |_| {});

@@ -149,7 +149,7 @@ pub fn judge_suite(solver: &mut dyn McpSolver, name: &str, solution_tol: f64) ->
 }
 
 /// The scene of `scenes/<name>.toml` (the integration tests run the shipped files).
-pub fn scene(name: &str) -> ecp::formulations::stepper::Scene {
+pub fn scene(name: &str) -> ecp::formulations::Scene {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("scenes")
         .join(format!("{name}.toml"));

@@ -1,25 +1,21 @@
-//! The structural view of the time-step MCP (`docs/backends.md#conic`): the
-//! [`ecp_model::StepStructure`] of a [`Simulation`]'s step, for backends that exploit the
+//! The structural view of an ECP step problem (`docs/backends.md#conic`): the
+//! [`ecp_model::StepStructure`] of the span prepared last, for backends that exploit the
 //! structure of the contact step (the conic backend of ecp-solvers) without depending on this
-//! crate.
-//!
-//! [`StepView`] is an [`Mcp`] that delegates every MCP query to the simulation's
-//! [`BlockMcp`](ecp_model::BlockMcp) and answers [`Mcp::structure`] with itself; the stepper
-//! hands it to every backend, so generic backends see the same problem as before.
-
-use std::sync::Arc;
+//! crate. The driver hands it to every backend with the step's MCP, so generic backends see the
+//! same problem as without it.
 
 use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector4, Vector6};
 
 use ecp_model::{
-    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, CscPattern, Mcp, PatchVertex,
+    BlockMcp, BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, PatchVertex,
     StepStructure,
 };
 
+use super::layout::Layout;
 use crate::blocks::data::start;
 use crate::blocks::{BodyStepData, FrictionParams, inertia_from_entries};
 use crate::rotation::{kinematic_map, rotation_matrix};
-use crate::stepper::Simulation;
+use crate::scene::BodyState;
 
 /// A face of Conv(F) counts as active at the ECP when `f_i(a1) ≥ −FACE_ACTIVE` (m): the ECP is a
 /// convex combination of hull vertices, which lie on their faces to round-off.
@@ -28,18 +24,43 @@ const FACE_ACTIVE: f64 = 1e-9;
 /// separated hull (a face, an edge or a vertex, `docs/model.md#degenerate-cases`).
 const SUPPORT_TIE: f64 = 1e-12;
 
-/// The step MCP of a [`Simulation`] with its structural view (`docs/backends.md#conic`).
-///
-/// Built by [`Simulation::structured_mcp`]; valid for the step prepared last
-/// ([`Simulation::prepare_step`]).
-pub struct StepView<'a> {
-    sim: &'a Simulation,
-}
-
-impl<'a> StepView<'a> {
-    /// The view of `sim`'s current step.
-    pub fn new(sim: &'a Simulation) -> Self {
-        StepView { sim }
+impl Layout {
+    /// Caches the data of the span just prepared in `mcp` (the structural view reads them; they
+    /// do not change during the span's solves), with `start` the states at the span's start.
+    pub(crate) fn record_span(&mut self, mcp: &BlockMcp, start: &[BodyState]) {
+        self.record_ranges(mcp);
+        let Some(scene) = self.scene_data else {
+            return;
+        };
+        let h = mcp.data(scene.h)[0];
+        let gravity = Vector3::from_column_slice(mcp.data(scene.gravity));
+        self.span.bodies.clear();
+        self.span.start_x.clear();
+        for body in &self.bodies {
+            let d = body.data;
+            let s = mcp.data(d.start);
+            self.span.bodies.push(BodyStepData {
+                mass: mcp.data(d.mass)[0],
+                inertia: inertia_from_entries(mcp.data(d.inertia)),
+                q_start: Vector4::new(
+                    s[start::Q],
+                    s[start::Q + 1],
+                    s[start::Q + 2],
+                    s[start::Q + 3],
+                ),
+                nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
+                wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
+                gravity,
+                h,
+            });
+            self.span
+                .start_x
+                .push(Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]));
+        }
+        self.span.start.clear();
+        self.span.start.extend_from_slice(start);
+        self.span.friction.copy_from_slice(mcp.data(scene.friction));
+        self.span.h = h;
     }
 
     fn quat_or_start(&self, b: usize, q: Vector4<f64>) -> Vector4<f64> {
@@ -48,13 +69,13 @@ impl<'a> StepView<'a> {
         if q.norm_squared() > 1e-300 && q.iter().all(|v| v.is_finite()) {
             q
         } else {
-            self.sim.bodies[b].state.q
+            self.span.start[b].q
         }
     }
 
     /// Position `x` and rotation `R(Q)` of body `b` stored in `z`.
     fn pose(&self, b: usize, z: &[f64]) -> (Vector3<f64>, Matrix3<f64>) {
-        let q = &z[self.sim.mcp.range(self.sim.bodies[b].q)];
+        let q = &z[self.range(self.bodies[b].q)];
         let quat = self.quat_or_start(b, Vector4::new(q[3], q[4], q[5], q[6]));
         (Vector3::new(q[0], q[1], q[2]), rotation_matrix(&quat))
     }
@@ -62,23 +83,7 @@ impl<'a> StepView<'a> {
     /// The body data of body `b` as the step's Newton–Euler block reads them (its data blocks,
     /// `docs/model.md#data-blocks`).
     fn body_data(&self, b: usize) -> BodyStepData {
-        let mcp = &self.sim.mcp;
-        let d = self.sim.bodies[b].data;
-        let s = mcp.data(d.start);
-        BodyStepData {
-            mass: mcp.data(d.mass)[0],
-            inertia: inertia_from_entries(mcp.data(d.inertia)),
-            q_start: Vector4::new(
-                s[start::Q],
-                s[start::Q + 1],
-                s[start::Q + 2],
-                s[start::Q + 3],
-            ),
-            nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
-            wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
-            gravity: Vector3::from_column_slice(mcp.data(self.sim.scene_data.gravity)),
-            h: self.step_length(),
-        }
+        self.span.bodies[b]
     }
 
     /// The free-motion velocity of body `b` (the step's Newton–Euler rows without contact
@@ -110,27 +115,18 @@ impl<'a> StepView<'a> {
 
     /// Start position (step coordinates) and orientation of body `b`, from its `start` data.
     fn start_pose(&self, b: usize) -> (Vector3<f64>, Vector4<f64>) {
-        let s = self.sim.mcp.data(self.sim.bodies[b].data.start);
-        (
-            Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]),
-            Vector4::new(
-                s[start::Q],
-                s[start::Q + 1],
-                s[start::Q + 2],
-                s[start::Q + 3],
-            ),
-        )
+        (self.span.start_x[b], self.span.bodies[b].q_start)
     }
 
     /// The trial end-of-step rotation and angular velocity of body `b` stored in `z`.
     fn trial(&self, b: usize, z: &[f64]) -> (Matrix3<f64>, Vector3<f64>) {
         let (_, r1) = self.pose(b, z);
-        let nu = &z[self.sim.mcp.range(self.sim.bodies[b].nu)];
+        let nu = &z[self.range(self.bodies[b].nu)];
         let w = Vector3::new(nu[3], nu[4], nu[5]);
         let w = if w.iter().all(|v| v.is_finite()) {
             w
         } else {
-            self.sim.bodies[b].state.w
+            self.span.start[b].w
         };
         (r1, w)
     }
@@ -188,44 +184,14 @@ fn nnls(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
     x
 }
 
-impl Mcp for StepView<'_> {
-    fn dim(&self) -> usize {
-        self.sim.mcp.dim()
-    }
-    fn lower(&self) -> &[f64] {
-        self.sim.mcp.lower()
-    }
-    fn upper(&self) -> &[f64] {
-        self.sim.mcp.upper()
-    }
-    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
-        self.sim.mcp.evaluate(z, f)
-    }
-    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
-        self.sim.mcp.jacobian_pattern()
-    }
-    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
-        self.sim.mcp.jacobian(z, values)
-    }
-    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
-        self.sim.mcp.evaluate_with_jacobian(z, f, values)
-    }
-    fn component_name(&self, i: usize) -> String {
-        self.sim.mcp.component_name(i)
-    }
-    fn structure(&self) -> Option<&dyn StepStructure> {
-        Some(self)
-    }
-}
-
-impl StepStructure for StepView<'_> {
+impl StepStructure for Layout {
     fn step_length(&self) -> f64 {
         // The span prepared last (a step or a substep), as the step's blocks read it.
-        self.sim.mcp.data(self.sim.scene_data.h)[0]
+        self.span.h
     }
 
     fn num_bodies(&self) -> usize {
-        self.sim.bodies.len()
+        self.bodies.len()
     }
 
     fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
@@ -253,34 +219,33 @@ impl StepStructure for StepView<'_> {
     }
 
     fn num_contacts(&self) -> usize {
-        self.sim.contacts.len()
+        self.contacts.len()
     }
 
     fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
-        self.sim
-            .bodies
+        self.bodies
             .iter()
             .map(|body| {
-                let nu = &z[self.sim.mcp.range(body.nu)];
+                let nu = &z[self.range(body.nu)];
                 [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
             })
             .collect()
     }
 
     fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
-        let cv = &self.sim.contacts[c];
-        let body = &self.sim.bodies[cv.body];
-        let plane = &self.sim.step_planes[cv.plane];
+        let cv = &self.contacts[c];
+        let body = &self.bodies[cv.body];
+        let plane = &self.step_planes[cv.plane];
         let (n, t, o) = plane.contact_frame();
         let (x, r) = self.pose(cv.body, z);
         let h = self.step_length();
-        let nu = &z[self.sim.mcp.range(body.nu)];
+        let nu = &z[self.range(body.nu)];
         let trial = Vector6::from_column_slice(nu);
         let (r1, w_trial) = self.trial(cv.body, z);
         let free = self.free_velocity(cv.body, &r1, &w_trial);
         let mut gap = f64::INFINITY;
         let mut patch = Vec::new();
-        for (j, vb) in self.sim.contact_hulls[c].vertices().iter().enumerate() {
+        for (j, vb) in self.contact_hulls[c].vertices().iter().enumerate() {
             let p = x + r * vb;
             let g = plane.value(&p);
             gap = gap.min(g);
@@ -300,8 +265,8 @@ impl StepStructure for StepView<'_> {
                 });
             }
         }
-        let a1 = &z[self.sim.mcp.range(cv.a1)];
-        let f = FrictionParams::from_slice(self.sim.mcp.data(self.sim.scene_data.friction));
+        let a1 = &z[self.range(cv.a1)];
+        let f = FrictionParams::from_slice(&self.span.friction);
         ContactGeometry {
             body: cv.body,
             normal: arr(&n),
@@ -321,24 +286,23 @@ impl StepStructure for StepView<'_> {
     }
 
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]) {
-        let sim = self.sim;
         let h = self.step_length();
-        for (b, body) in sim.bodies.iter().enumerate() {
+        for (b, body) in self.bodies.iter().enumerate() {
             let nu = point.velocities.get(b).copied().unwrap_or([0.0; 6]);
-            z[sim.mcp.range(body.nu)].copy_from_slice(&nu);
+            z[self.range(body.nu)].copy_from_slice(&nu);
             // Kinematic map (`docs/model.md#kinematic-map`), exactly as the KinematicMap block.
             let (x0, q0) = self.start_pose(b);
             let v = Vector3::new(nu[0], nu[1], nu[2]);
             let w = Vector3::new(nu[3], nu[4], nu[5]);
             let x = x0 + v * h;
             let q = q0 + kinematic_map(&q0) * w * (0.5 * h);
-            z[sim.mcp.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
+            z[self.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
         }
-        for (c, cv) in sim.contacts.iter().enumerate() {
-            let plane = &sim.step_planes[cv.plane];
+        for (c, cv) in self.contacts.iter().enumerate() {
+            let plane = &self.step_planes[cv.plane];
             let ng = plane.normal();
             let (x, r) = self.pose(cv.body, z);
-            let set = &sim.contact_hulls[c];
+            let set = &self.contact_hulls[c];
             let world: Vec<Vector3<f64>> = set.vertices().iter().map(|vb| x + r * vb).collect();
             let empty = ecp_model::ContactImpulses::default();
             let imp = point.contacts.get(c).unwrap_or(&empty);
@@ -387,13 +351,13 @@ impl StepStructure for StepView<'_> {
                     l[i] = sol[k];
                 }
             }
-            z[sim.mcp.range(cv.a1)].copy_from_slice(a1.as_slice());
-            z[sim.mcp.range(cv.a2)].copy_from_slice(a2.as_slice());
-            z[sim.mcp.range(cv.l)].copy_from_slice(&l);
-            z[sim.mcp.range(cv.lg)][0] = lg;
-            z[sim.mcp.range(cv.pn)][0] = pn;
-            z[sim.mcp.range(cv.pf)].copy_from_slice(&imp.friction);
-            z[sim.mcp.range(cv.sigma)][0] = imp.sigma.max(0.0);
+            z[self.range(cv.a1)].copy_from_slice(a1.as_slice());
+            z[self.range(cv.a2)].copy_from_slice(a2.as_slice());
+            z[self.range(cv.l)].copy_from_slice(&l);
+            z[self.range(cv.lg)][0] = lg;
+            z[self.range(cv.pn)][0] = pn;
+            z[self.range(cv.pf)].copy_from_slice(&imp.friction);
+            z[self.range(cv.sigma)][0] = imp.sigma.max(0.0);
         }
     }
 }

@@ -1,0 +1,233 @@
+//! Starting points of an ECP contact's unknowns (`docs/model.md#stepper`): the closest points of
+//! Conv(F) to the half-space at a pose, with face multipliers that satisfy the closest-point
+//! condition there, and impulses that start active where the contact is closed.
+
+use nalgebra::{Matrix3, Vector3};
+
+use ecp_model::BlockMcp;
+
+use super::layout::Layout;
+use crate::geometry::{ConvexHull, HalfSpace};
+use crate::scene::{BodyState, Scene};
+
+/// The closest points of Conv(F) at pose `(x, r)` to the half-space: `a1` the centroid of the
+/// hull's vertices nearest to G (a face centre, an edge midpoint or a vertex), the gap there,
+/// and face multipliers `l ≥ 0` of the faces through `a1` with `Σ l_i n̂_i = −Rᵀ n_G` (the
+/// closest-point condition C2 of the paper's KKT system, paper (9)), found as the non-negative
+/// least-squares combination of at most three of those faces' normals. When no such
+/// combination fits (rounding at a nearly parallel face), multiplier 1 on the face most
+/// anti-parallel to `n_G`.
+///
+/// Only one face with multiplier 1 at a vertex or an edge leaves C2 unsatisfiable by the
+/// multipliers the Fischer–Burmeister Newton matrix treats as active, which makes that matrix
+/// singular at the warm start (measured on tossed boxes, `docs/newton.md`).
+pub fn closest_point_guess(
+    set: &ConvexHull,
+    plane: &HalfSpace,
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+) -> (Vector3<f64>, f64, Vec<f64>) {
+    let ng = plane.normal();
+    let dir_body = r.transpose() * (-ng);
+    let verts = set.vertices();
+    let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(x + r * v))).collect();
+    let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+    let mut a1_body = Vector3::zeros();
+    let mut count: f64 = 0.0;
+    for (v, g) in verts.iter().zip(&gaps) {
+        if *g <= gmin + 1e-6 {
+            a1_body += v;
+            count += 1.0;
+        }
+    }
+    a1_body /= f64::max(count, 1.0);
+    let a1 = x + r * a1_body;
+    let mut l = vec![0.0; set.num_faces()];
+    let size = verts
+        .iter()
+        .map(|v| v.norm())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let through: Vec<usize> = set
+        .faces()
+        .iter()
+        .enumerate()
+        .filter(|(_, f)| f.value(&a1_body).abs() <= 1e-9 * size)
+        .map(|(i, _)| i)
+        .collect();
+    match face_cone_multipliers(set, &through, &dir_body) {
+        Some(best) => {
+            for (i, li) in best {
+                l[i] = li;
+            }
+        }
+        None => l[set.most_aligned_face(&dir_body)] = 1.0,
+    }
+    (a1, gmin, l)
+}
+
+/// Non-negative `l` over at most three of the faces `through` with `Σ l_i n̂_i = dir` (to
+/// 1e-9), the one with the fewest faces; `None` when there is none (or too many faces to try).
+fn face_cone_multipliers(
+    set: &ConvexHull,
+    through: &[usize],
+    dir: &Vector3<f64>,
+) -> Option<Vec<(usize, f64)>> {
+    if through.is_empty() || through.len() > 16 {
+        return None;
+    }
+    let faces = set.faces();
+    let k = through.len();
+    let fits = |idx: &[usize]| -> Option<Vec<(usize, f64)>> {
+        let cols: Vec<Vector3<f64>> = idx.iter().map(|&i| faces[i].normal).collect();
+        let m = cols.len();
+        // Normal equations of the m ≤ 3 columns.
+        let mut a = nalgebra::DMatrix::<f64>::zeros(m, m);
+        let mut b = nalgebra::DVector::<f64>::zeros(m);
+        for p in 0..m {
+            b[p] = cols[p].dot(dir);
+            for q in 0..m {
+                a[(p, q)] = cols[p].dot(&cols[q]);
+            }
+        }
+        let sol = a.lu().solve(&b)?;
+        if sol.iter().any(|v| !v.is_finite() || *v < 0.0) {
+            return None;
+        }
+        let fit: Vector3<f64> = cols.iter().zip(sol.iter()).map(|(c, s)| c * *s).sum();
+        ((fit - dir).norm() <= 1e-9).then(|| idx.iter().copied().zip(sol.iter().copied()).collect())
+    };
+    for i in 0..k {
+        if let Some(s) = fits(&[through[i]]) {
+            return Some(s);
+        }
+    }
+    for i in 0..k {
+        for j in i + 1..k {
+            if let Some(s) = fits(&[through[i], through[j]]) {
+                return Some(s);
+            }
+        }
+    }
+    for i in 0..k {
+        for j in i + 1..k {
+            for m in j + 1..k {
+                if let Some(s) = fits(&[through[i], through[j], through[m]]) {
+                    return Some(s);
+                }
+            }
+        }
+    }
+    None
+}
+
+/// What the guesses of one step read: the layout, the scene, the states at the span's start
+/// and the step problem (for the ranges of the unknowns).
+pub(crate) struct Guess<'a> {
+    pub(crate) layout: &'a Layout,
+    pub(crate) scene: &'a Scene,
+    pub(crate) states: &'a [BodyState],
+    pub(crate) mcp: &'a BlockMcp,
+}
+
+impl Guess<'_> {
+    /// The slip rate σ of the warm start of an open contact `i` (`p_n = 0`): the slip speed of
+    /// the body at its ECP, `(e_t² v_t² + e_o² v_o² + e_r² ω_n²)^½`, and at least the speed
+    /// gravity gives in one step, `|g| h`.
+    ///
+    /// With `p_n = 0` every σ ≥ 0 solves the friction law, but σ = 0 together with `p_n = 0`
+    /// zeroes the whole linearisation of the friction rows `e² μ p_n W ν + p_f σ`: the friction
+    /// impulse is then free at first order, the Newton matrix is singular, and its safeguard
+    /// steps move `p_f` and `p_n` off zero into a spurious minimiser of the merit function
+    /// (`docs/newton.md`). With σ > 0 the rows pin `p_f` to 0.
+    pub(crate) fn open_contact_sigma(&self, i: usize, z: &[f64]) -> f64 {
+        let c = &self.layout.contacts[i];
+        let s = self.states[c.body];
+        let plane = &self.scene.planes[c.plane];
+        let (ng, t, o) = plane.contact_frame();
+        let a1 = &z[self.mcp.range(c.a1)];
+        let rr = Vector3::new(a1[0], a1[1], a1[2]) - s.x;
+        let f = self.scene.friction;
+        let vt = t.dot(&s.v) + rr.cross(&t).dot(&s.w);
+        let vo = o.dot(&s.v) + rr.cross(&o).dot(&s.w);
+        let wn = ng.dot(&s.w);
+        let slip = ((f.e_t * vt).powi(2) + (f.e_o * vo).powi(2) + (f.e_r * wn).powi(2)).sqrt();
+        let floor = self.scene.gravity.norm() * self.scene.h;
+        if slip.is_finite() && slip > floor {
+            slip
+        } else if floor > 0.0 {
+            floor
+        } else {
+            1.0
+        }
+    }
+
+    /// Guess for contact `i`'s unknowns from its body's state, with the closest points taken at
+    /// the pose `(x, r)`.
+    ///
+    /// `a1` is the centroid of the hull vertices nearest to G (a face centre, an edge midpoint
+    /// or a vertex), `a2` its projection, `l_g` the gap, face multipliers from
+    /// [`closest_point_guess`]. When the contact is closed (gap ≤ 1e-9) or `force_active` is
+    /// set, the normal impulse starts at the value that carries the weight and stops the
+    /// approach velocity over the step, and the friction impulse on the ellipsoid opposing the
+    /// current slip with σ the slip rate — a point of the sliding branch of
+    /// `docs/model.md#friction`. Otherwise impulses and σ start at 0 (σ at
+    /// [`Guess::open_contact_sigma`]). Starting active matters: `p_n = 0` zeroes every friction
+    /// row, and the merit function of a Newton method has a spurious minimiser near "free fall
+    /// with zero impulses".
+    pub(crate) fn contact_at(
+        &self,
+        i: usize,
+        force_active: bool,
+        (x, r): (&Vector3<f64>, &Matrix3<f64>),
+        z: &mut [f64],
+    ) {
+        let c = self.layout.contacts[i];
+        let set = &self.layout.contact_hulls[i];
+        let plane = &self.scene.planes[c.plane];
+        let s = self.states[c.body];
+        let ng = plane.normal();
+        let (a1, gmin, l) = closest_point_guess(set, plane, x, r);
+        let a2 = plane.project(&a1);
+        let gap = gmin.max(0.0);
+        let f = self.scene.friction;
+        let (mut pn, mut pf, mut sigma) = (0.0, [0.0; 3], self.open_contact_sigma(i, z));
+        if gap <= 1e-9 || force_active {
+            let m = self.scene.bodies[c.body].mass.mass;
+            let h = self.scene.h;
+            let v_pred = s.v + self.scene.gravity * h;
+            pn = (-m * self.scene.gravity.dot(&ng) * h).max(0.0) + (-m * v_pred.dot(&ng)).max(0.0);
+            let (_, t, o) = plane.contact_frame();
+            let rr = a1 - s.x;
+            let vt = t.dot(&s.v) + rr.cross(&t).dot(&s.w);
+            let vo = o.dot(&s.v) + rr.cross(&o).dot(&s.w);
+            let wn = ng.dot(&s.w);
+            let slip = ((f.e_t * vt).powi(2) + (f.e_o * vo).powi(2) + (f.e_r * wn).powi(2)).sqrt();
+            if slip > 1e-12 {
+                let k = -f.mu * pn / slip;
+                pf = [
+                    k * f.e_t * f.e_t * vt,
+                    k * f.e_o * f.e_o * vo,
+                    k * f.e_r * f.e_r * wn,
+                ];
+                sigma = slip;
+            }
+        }
+        let o = self.layout.origin;
+        let mcp = self.mcp;
+        z[mcp.range(c.a1)].copy_from_slice((a1 - o).as_slice());
+        z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
+        z[mcp.range(c.l)].copy_from_slice(&l);
+        z[mcp.range(c.lg)][0] = gap;
+        z[mcp.range(c.pn)][0] = pn;
+        z[mcp.range(c.pf)].copy_from_slice(&pf);
+        z[mcp.range(c.sigma)][0] = sigma;
+    }
+
+    /// [`Guess::contact_at`] at the body's state.
+    pub(crate) fn contact(&self, i: usize, force_active: bool, z: &mut [f64]) {
+        let s = self.states[self.layout.contacts[i].body];
+        let r = crate::rotation::rotation_matrix(&s.q);
+        self.contact_at(i, force_active, (&s.x, &r), z);
+    }
+}

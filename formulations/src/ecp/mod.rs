@@ -1,0 +1,600 @@
+//! The ECP formulations (`docs/model.md`): the paper's **hull** formulation, one contact between
+//! Conv(F) and each half-space, and the **union** formulation, one contact per convex piece of F
+//! that can touch a half-space (`docs/model.md#union`). Both are [`EcpContacts`]: the step
+//! problem of `docs/model.md#unknowns`, its warm start ([`guess`]), its structural view for the
+//! conic backend (`structure`), and the recentred origin of far scenes
+//! (`docs/model.md#far-scenes`).
+//!
+//! ```
+//! use ecp_formulations::{scenarios, Simulation};
+//! use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+//!
+//! // Scenario A1: a box sliding on the ground at 1 m/s decelerates by μ g h per step.
+//! let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap();
+//! let mut solver = NewtonSolver::new(NewtonSettings::default());
+//! let rec = sim.step(&mut solver).unwrap();
+//! assert!(rec.converged && rec.summary.residual <= 1e-10);
+//! assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() < 1e-9);
+//! ```
+
+pub mod guess;
+mod layout;
+mod structure;
+pub mod union;
+
+use nalgebra::Vector3;
+
+use ecp_model::{BlockMcp, DataId, Input, Problem, ResId, StepStructure, VarBlock};
+
+use crate::blocks::{
+    ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, HalfSpaceSide,
+    HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, SceneDataIds, add_body_data,
+    add_plane_data, add_scene_data,
+};
+use crate::geometry::{ConvexHull, HalfSpace, min_gap};
+use crate::record::{ContactRecord, gaps_and_modes};
+use crate::rotation::rotation_matrix;
+use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
+use crate::step::body::{predict_pose, set_body_data, store_state};
+use crate::step::{
+    BodyHandles, Capabilities, ContactHandles, Prepared, SensitivitySupport, StepContext,
+    StepFormulation, StepHandles,
+};
+use guess::{Guess, closest_point_guess};
+pub use layout::ContactVars;
+use layout::{EcpBody, Layout};
+use union::union_pieces;
+
+/// Row scale of the length-valued contact rows (C1, C3–C5) is `GEOMETRY_SCALE / h`.
+/// See `docs/model.md#contact` and `docs/decisions.md#geometry-rows-scaled-by-1h`.
+pub const GEOMETRY_SCALE: f64 = 1.0;
+
+/// Distance (m, any axis) from the step problem's origin beyond which the formulation moves the
+/// origin to the bodies' centroid. Round-off in the position rows grows with the coordinates'
+/// size (about 2e-16·|x|, amplified by the 1/h row scale), so far from the origin a step could
+/// not reach the tolerance; within this distance the loss is below 1e-11.
+/// See `docs/decisions.md#recentred-origin-for-far-scenes`.
+pub const RECENTRE_DISTANCE: f64 = 100.0;
+
+/// The hull and union formulations (module documentation).
+#[derive(Clone, Debug)]
+pub struct EcpContacts {
+    union: bool,
+    layout: Layout,
+}
+
+impl EcpContacts {
+    /// The paper's model: one contact between Conv(F) and each half-space.
+    pub fn hull() -> Self {
+        EcpContacts {
+            union: false,
+            layout: Layout::default(),
+        }
+    }
+
+    /// One contact, with its own ECP, multipliers, impulses and friction ellipsoid, between each
+    /// convex piece of F that can touch a half-space and that half-space
+    /// (`docs/model.md#union`, [`union_pieces`]).
+    pub fn union() -> Self {
+        EcpContacts {
+            union: true,
+            layout: Layout::default(),
+        }
+    }
+
+    /// Whether this is the union formulation.
+    pub fn is_union(&self) -> bool {
+        self.union
+    }
+    /// Contact handles.
+    pub fn contacts(&self) -> &[ContactVars] {
+        &self.layout.contacts
+    }
+    /// Convex hull of body `b`.
+    pub fn hull_of(&self, b: usize) -> &ConvexHull {
+        &self.layout.bodies[b].hull
+    }
+    /// The convex set of contact `i` ([`EcpContacts::contacts`]): Conv(F) of its body for the
+    /// hull formulation, its piece's hull for the union formulation.
+    pub fn contact_hull(&self, i: usize) -> &ConvexHull {
+        &self.layout.contact_hulls[i]
+    }
+    /// The residual blocks of body `b`: its Newton–Euler and kinematic-map blocks.
+    pub fn body_blocks(&self, b: usize) -> (ResId, ResId) {
+        let body = &self.layout.bodies[b];
+        (body.newton_euler, body.kinematic)
+    }
+    /// The offset data block of half-space `p` (in the step problem's coordinates; `None` for a
+    /// half-space the scene does not have).
+    pub fn plane_data(&self, p: usize) -> Option<DataId> {
+        self.layout.plane_data.get(p).copied()
+    }
+
+    /// Moves the step problem's origin to the bodies' centroid when a body at `states` is
+    /// farther than [`RECENTRE_DISTANCE`] from it: the positions in the warm start and the
+    /// half-spaces' offset data are shifted (the start positions follow with the span's data);
+    /// nothing else holds an absolute position.
+    fn recentre_if_far(
+        &mut self,
+        scene: &Scene,
+        states: &[BodyState],
+        mcp: &mut BlockMcp,
+        z: &mut [f64],
+    ) -> Result<(), SceneError> {
+        let l = &mut self.layout;
+        let far = states
+            .iter()
+            .map(|s| (s.x - l.origin).amax())
+            .fold(0.0, f64::max);
+        if far <= RECENTRE_DISTANCE || states.is_empty() {
+            return Ok(());
+        }
+        let centroid =
+            states.iter().fold(Vector3::zeros(), |acc, s| acc + s.x) / states.len() as f64;
+        if !centroid.iter().all(|c| c.is_finite()) {
+            return Ok(());
+        }
+        let shift = centroid - l.origin;
+        let positions = l.bodies.iter().map(|b| b.q);
+        let points = l.contacts.iter().flat_map(|c| [c.a1, c.a2]);
+        for v in positions.chain(points) {
+            let range = mcp.range(v);
+            for k in 0..3 {
+                z[range.start + k] -= shift[k];
+            }
+        }
+        l.origin = centroid;
+        for (p, plane) in scene.planes.iter().enumerate() {
+            let n = plane.normal();
+            l.step_planes[p] =
+                HalfSpace::new(n, plane.offset() - n.dot(&centroid)).map_err(|source| {
+                    SceneError::Geometry {
+                        body: format!("half-space #{p}"),
+                        source,
+                    }
+                })?;
+            mcp.set_data(l.plane_data[p], &[l.step_planes[p].offset()])?;
+        }
+        Ok(())
+    }
+}
+
+impl StepFormulation for EcpContacts {
+    fn name(&self) -> &str {
+        if self.union { "union" } else { "hull" }
+    }
+
+    fn capabilities(&self) -> Capabilities {
+        Capabilities {
+            step_structure: true,
+            fallback_backends: true,
+            substeps: true,
+            user_terms: true,
+            sensitivities: if self.union {
+                SensitivitySupport::NotUnique
+            } else {
+                SensitivitySupport::Exact
+            },
+            non_isolated_solutions: self.union,
+        }
+    }
+
+    fn build(
+        &mut self,
+        scene: &Scene,
+        states: &[BodyState],
+        problem: &mut Problem,
+    ) -> Result<StepHandles, SceneError> {
+        validate_parameters(scene, true)?;
+        let mut layout = Layout::default();
+        let scene_data = add_scene_data(problem, &scene.gravity, scene.h, &scene.friction);
+        layout.plane_data = (scene.planes.iter().enumerate())
+            .map(|(p, plane)| add_plane_data(problem, p, plane.offset()))
+            .collect();
+        for (b, (spec, state)) in scene.bodies.iter().zip(states).enumerate() {
+            let hull = spec.shape.hull().map_err(|source| SceneError::Geometry {
+                body: spec.name.clone(),
+                source,
+            })?;
+            check_body_penetration(spec, state, &scene.planes, 1e-9)?;
+            let nu = problem.add_variable_block(
+                VarBlock::free(format!("{}.nu", spec.name), 6)
+                    .with_component_names(["vx", "vy", "vz", "wx", "wy", "wz"]),
+            );
+            let q = problem.add_variable_block(
+                VarBlock::free(format!("{}.q", spec.name), 7)
+                    .with_component_names(["x", "y", "z", "qw", "qx", "qy", "qz"]),
+            );
+            // The convex sets that get a contact: Conv(F), or every piece that can touch (union).
+            let sets: Vec<(Option<usize>, ConvexHull)> = if self.union {
+                let mut sets = Vec::new();
+                for i in union_pieces(spec, state, &scene.planes) {
+                    let piece = &spec.shape.pieces()[i];
+                    let h = piece.hull().map_err(|source| SceneError::Geometry {
+                        body: format!("{} (piece {i})", spec.name),
+                        source,
+                    })?;
+                    sets.push((Some(i), h));
+                }
+                sets
+            } else {
+                vec![(None, hull.clone())]
+            };
+            let mut frames = Vec::new();
+            for (p, plane) in scene.planes.iter().enumerate() {
+                for (piece, set) in &sets {
+                    let m = set.num_faces();
+                    let mut tag = if scene.planes.len() > 1 || scene.bodies.len() > 1 {
+                        format!("{}.c{}", spec.name, p)
+                    } else {
+                        "contact".to_string()
+                    };
+                    if let Some(i) = piece {
+                        tag = format!("{tag}.piece{i}");
+                    }
+                    let cv = ContactVars {
+                        body: b,
+                        plane: p,
+                        piece: *piece,
+                        a1: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.a1"), 3)
+                                .with_component_names(["x", "y", "z"]),
+                        ),
+                        a2: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.a2"), 3)
+                                .with_component_names(["x", "y", "z"]),
+                        ),
+                        l: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.l"), m)),
+                        lg: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.lg"), 1)),
+                        pn: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.pn"), 1)),
+                        pf: problem.add_variable_block(
+                            VarBlock::free(format!("{tag}.pf"), 3)
+                                .with_component_names(["pt", "po", "pr"]),
+                        ),
+                        sigma: problem
+                            .add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
+                    };
+                    let (n, t, o) = plane.contact_frame();
+                    frames.push(ContactFrame { n, t, o });
+                    layout.contacts.push(cv);
+                    layout.contact_hulls.push(set.clone());
+                }
+            }
+            let data = add_body_data(problem, &spec.name, spec.mass.mass, &spec.mass.inertia);
+            layout.bodies.push(EcpBody {
+                hull,
+                nu,
+                q,
+                newton_euler: ResId(0),
+                kinematic: ResId(0),
+                frames,
+                data,
+            });
+        }
+
+        // Residual blocks (`docs/model.md#residual-blocks`), paired as in `docs/model.md#unknowns`,
+        // reading the data blocks of `docs/model.md#data-blocks`; `update_data` sets the
+        // per-span data.
+        let SceneDataIds {
+            gravity,
+            h: step_length,
+            friction,
+        } = scene_data;
+        for (b, body) in layout.bodies.iter_mut().enumerate() {
+            let mine: Vec<(&ContactVars, &ConvexHull)> = layout
+                .contacts
+                .iter()
+                .zip(&layout.contact_hulls)
+                .filter(|(c, _)| c.body == b)
+                .collect();
+            let mut reads: Vec<Input> = vec![body.nu.into(), body.q.into()];
+            for (c, _) in &mine {
+                reads.extend([c.a1, c.pn, c.pf].map(Input::from));
+            }
+            let d = body.data;
+            reads.extend(
+                [d.mass, d.inertia, d.start, d.wrench, gravity, step_length].map(Input::from),
+            );
+            body.newton_euler = problem.add_residual_block(
+                body.nu,
+                NewtonEuler::new(body.frames.clone()),
+                reads,
+            )?;
+            body.kinematic = problem.add_residual_block(
+                body.q,
+                KinematicMap,
+                &[
+                    body.q.into(),
+                    body.nu.into(),
+                    Input::from(d.start),
+                    step_length.into(),
+                ],
+            )?;
+            // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
+            // like a velocity error Δv (`docs/model.md#contact`,
+            // `docs/decisions.md#geometry-rows-scaled-by-1h`).
+            let scale = GEOMETRY_SCALE / scene.h;
+            for ((c, set), frame) in mine.iter().zip(&body.frames) {
+                let normals: Vec<Vector3<f64>> = set.faces().iter().map(|f| f.normal).collect();
+                let offsets: Vec<f64> = set.faces().iter().map(|f| f.offset).collect();
+                let ng = scene.planes[c.plane].normal();
+                problem.add_residual_block(
+                    c.a1,
+                    ClosestPointAlignment { normal: ng, scale },
+                    &[c.a1, c.a2, c.lg],
+                )?;
+                problem.add_residual_block(
+                    c.a2,
+                    NormalCone::new(ng, normals.clone()),
+                    &[c.l, body.q],
+                )?;
+                problem.add_residual_block(
+                    c.l,
+                    HullFaces {
+                        face_normals: normals,
+                        offsets,
+                        scale,
+                    },
+                    &[c.a1, body.q],
+                )?;
+                let offset = Input::from(layout.plane_data[c.plane]);
+                problem.add_residual_block(
+                    c.lg,
+                    HalfSpaceSide { normal: ng, scale },
+                    &[c.a2.into(), offset],
+                )?;
+                problem.add_residual_block(
+                    c.pn,
+                    NonPenetration { normal: ng, scale },
+                    &[c.a1.into(), offset],
+                )?;
+                let vars = [body.nu, body.q, c.a1, c.pn, c.pf, c.sigma];
+                let mut reads: Vec<Input> = vars.map(Input::from).to_vec();
+                reads.push(friction.into());
+                problem.add_residual_block(c.pf, FrictionDissipation { frame: *frame }, reads)?;
+                problem.add_residual_block(
+                    c.sigma,
+                    FrictionEllipsoid,
+                    &[c.pn.into(), c.pf.into(), Input::from(friction)],
+                )?;
+            }
+        }
+        layout.scene_data = Some(scene_data);
+        layout.step_planes = scene.planes.clone();
+        let handles = StepHandles {
+            bodies: layout
+                .bodies
+                .iter()
+                .map(|b| BodyHandles {
+                    nu: Some(b.nu),
+                    q: Some(b.q),
+                    newton_euler: Some(b.newton_euler),
+                    data: Some(b.data),
+                })
+                .collect(),
+            gravity: Some(gravity),
+            h: Some(step_length),
+            friction: Some(friction),
+            contacts: layout
+                .contacts
+                .iter()
+                .map(|c| ContactHandles {
+                    body: c.body,
+                    normal: c.pn,
+                    friction: vec![c.pf, c.sigma],
+                    geometry: vec![c.a1, c.a2, c.l, c.lg],
+                })
+                .collect(),
+        };
+        self.layout = layout;
+        Ok(handles)
+    }
+
+    fn contacts_per_body(&self) -> usize {
+        self.layout.contacts.len() / self.layout.bodies.len().max(1)
+    }
+
+    /// First-step guess (`docs/model.md#stepper`): `ν` from the state and, for each contact,
+    /// `a1` on Conv(F) nearest to G and its projection `a2`, the gap as `l_g`, face multipliers
+    /// of the closest-point condition; where the body already touches G, the impulses start
+    /// active ([`Guess::contact`]). The origin starts at zero.
+    fn initial_guess(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &mut BlockMcp,
+        z: &mut [f64],
+    ) -> Result<(), SceneError> {
+        let l = &mut self.layout;
+        l.origin = Vector3::zeros();
+        l.step_planes = ctx.scene.planes.clone();
+        for (p, plane) in ctx.scene.planes.iter().enumerate() {
+            mcp.set_data(l.plane_data[p], &[plane.offset()])?;
+        }
+        self.recentre_if_far(ctx.scene, ctx.states, mcp, z)?;
+        for (body, s) in self.layout.bodies.iter().zip(ctx.states) {
+            z[mcp.range(body.nu)].copy_from_slice(&[s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z]);
+        }
+        let guess = Guess {
+            layout: &self.layout,
+            scene: ctx.scene,
+            states: ctx.states,
+            mcp,
+        };
+        for i in 0..self.layout.contacts.len() {
+            guess.contact(i, false, z);
+        }
+        Ok(())
+    }
+
+    fn begin_step(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &mut BlockMcp,
+        z: &mut [f64],
+    ) -> Result<Prepared, SceneError> {
+        self.recentre_if_far(ctx.scene, ctx.states, mcp, z)?;
+        Ok(Prepared::Ready)
+    }
+
+    /// The span's data (`docs/model.md#data-blocks`): each body's start state and applied
+    /// wrench at `t0`, and the span length.
+    fn update_data(&mut self, ctx: &StepContext<'_>, mcp: &mut BlockMcp) -> Result<(), SceneError> {
+        let l = &mut self.layout;
+        if let Some(d) = l.scene_data {
+            mcp.set_data(d.h, &[ctx.h])?;
+        }
+        for ((body, spec), s) in l.bodies.iter().zip(&ctx.scene.bodies).zip(ctx.states) {
+            set_body_data(mcp, &body.data, spec, s, &l.origin, ctx.t0)?;
+        }
+        l.record_span(mcp, ctx.states);
+        Ok(())
+    }
+
+    /// Warm start from the previous solution: `q` predicted by the kinematic map; a contact that
+    /// ended the last step open (`p_n = 0`) starts at the closest points of the predicted pose
+    /// (`a1`, `a2`, `l_g`, face multipliers that satisfy C2 there, [`closest_point_guess`]) when
+    /// that pose is still separated, with σ kept > 0 ([`Guess::open_contact_sigma`]: the
+    /// solution leaves σ free, and σ = 0 makes the friction rows' linearisation vanish at the
+    /// warm start); when the predicted pose penetrates, the contact closes within the span and
+    /// starts active.
+    fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]) {
+        let l = &self.layout;
+        let o = l.origin;
+        let motion: Vec<_> = l
+            .bodies
+            .iter()
+            .zip(ctx.states)
+            .map(|(body, s)| predict_pose(mcp, z, (body.nu, body.q), s, &o, ctx.h))
+            .collect();
+        let guess = Guess {
+            layout: l,
+            scene: ctx.scene,
+            states: ctx.states,
+            mcp,
+        };
+        let scene = ctx.scene;
+        for i in 0..l.contacts.len() {
+            let c = l.contacts[i];
+            let m = scene.bodies[c.body].mass.mass;
+            let open_pn = 1e-12 * m * (scene.gravity.norm() * ctx.h).max(f64::MIN_POSITIVE);
+            if z[mcp.range(c.pn)][0] > open_pn {
+                continue;
+            }
+            let (x1, r1) = motion[c.body];
+            let plane = scene.planes[c.plane];
+            let (a1, gap, faces) = closest_point_guess(&l.contact_hulls[i], &plane, &x1, &r1);
+            if !a1.iter().all(|v| v.is_finite()) {
+                continue;
+            }
+            if gap > 0.0 {
+                let a2 = plane.project(&a1);
+                z[mcp.range(c.a1)].copy_from_slice((a1 - o).as_slice());
+                z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
+                z[mcp.range(c.lg)][0] = gap;
+                z[mcp.range(c.l)].copy_from_slice(&faces);
+                let sigma = guess.open_contact_sigma(i, z);
+                if z[mcp.range(c.sigma)][0] < sigma {
+                    z[mcp.range(c.sigma)][0] = sigma;
+                }
+            } else {
+                // The predicted pose penetrates: the contact closes within the span.
+                guess.contact_at(i, true, (&x1, &r1), z);
+            }
+        }
+    }
+
+    /// One retry from the active-contact guess of every contact that is closed or closing (a
+    /// warm start from a separated step is a poor start for a landing step,
+    /// `docs/decisions.md#retry-from-the-active-contact-guess`).
+    fn retry_start(
+        &mut self,
+        attempt: usize,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &mut [f64],
+    ) -> bool {
+        if attempt > 0 {
+            return false;
+        }
+        let l = &self.layout;
+        let guess = Guess {
+            layout: l,
+            scene: ctx.scene,
+            states: ctx.states,
+            mcp,
+        };
+        for i in 0..l.contacts.len() {
+            let c = l.contacts[i];
+            let s = ctx.states[c.body];
+            let plane = &ctx.scene.planes[c.plane];
+            let r = rotation_matrix(&s.q);
+            let gap = min_gap(l.contact_hulls[i].vertices(), &s.x, &r, plane);
+            let approach = -(s.v + ctx.scene.gravity * ctx.h).dot(&plane.normal());
+            if gap <= approach.max(0.0) * ctx.h + 1e-9 {
+                guess.contact(i, true, z);
+            }
+        }
+        true
+    }
+
+    /// The end-of-span states: `x`, `Q` renormalised (also in `z`, for the warm start), `v`, ω.
+    fn read_out(
+        &mut self,
+        _ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &mut [f64],
+        states: &mut [BodyState],
+    ) -> Result<(), SceneError> {
+        let l = &self.layout;
+        for (body, s) in l.bodies.iter().zip(states.iter_mut()) {
+            *s = store_state(mcp, z, (body.nu, body.q), &s.q, &l.origin);
+        }
+        Ok(())
+    }
+
+    fn contact_records(
+        &self,
+        scene: &Scene,
+        states: &[BodyState],
+        _solved: bool,
+        mcp: &BlockMcp,
+        z: &[f64],
+        out: &mut Vec<ContactRecord>,
+    ) {
+        let shapes: Vec<_> = scene
+            .bodies
+            .iter()
+            .zip(states)
+            .map(|(b, s)| (&b.shape, *s))
+            .collect();
+        let table = gaps_and_modes(&shapes, &scene.planes);
+        let o = self.layout.origin;
+        let get = |v| &z[mcp.range(v)];
+        for c in &self.layout.contacts {
+            let (gap, mode) = table[c.body][c.plane];
+            let (a1, a2, pf) = (get(c.a1), get(c.a2), get(c.pf));
+            out.push(ContactRecord {
+                a1: Vector3::new(a1[0], a1[1], a1[2]) + o,
+                a2: Vector3::new(a2[0], a2[1], a2[2]) + o,
+                lg: get(c.lg)[0],
+                pn: get(c.pn)[0],
+                pt: pf[0],
+                po: pf[1],
+                pr: pf[2],
+                sigma: get(c.sigma)[0],
+                min_gap: gap,
+                mode,
+            });
+        }
+    }
+
+    fn origin(&self) -> Vector3<f64> {
+        self.layout.origin
+    }
+
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        Some(&self.layout)
+    }
+}

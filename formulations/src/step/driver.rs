@@ -1,0 +1,819 @@
+//! The one step driver of every formulation (`docs/model.md#stepper`): [`Simulation`] owns the
+//! formulation, the step problem (built once, its data set per span), the iterate `z`, the
+//! states, time, the warm start, the deterministic retry, the fallbacks and substeps, the
+//! records, and the last step for the sensitivities. A formulation
+//! ([`StepFormulation`]) supplies only what is its own.
+
+use std::collections::HashMap;
+use std::sync::Arc;
+use std::time::Instant;
+
+use nalgebra::{Vector3, Vector6};
+
+use ecp_model::{
+    BlockMcp, CscPattern, DataId, Mcp, McpSolver, ModelError, Problem, Solution, SolveError,
+    StepStructure,
+};
+
+use super::fallback::{Fallbacks, Spans, rescue};
+use super::formulation::{Capabilities, Prepared, StepContext, StepFormulation};
+use super::handles::StepHandles;
+use super::params::{Param, ParamError};
+use super::terms::{Force, ForceHandles, Term, add_force};
+use crate::record::{ContactRecord, StepMethod, StepRecord, body_energy};
+use crate::scene::{BodyState, Scene, SceneError, initial_states};
+
+/// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
+/// stay in [`Simulation::mcp`] until the next step is prepared, which clears this.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LastStep {
+    /// The step's index, from 1.
+    pub step: usize,
+    /// Time at the start of the step, `t_u` (the loads were evaluated there).
+    pub t_start: f64,
+    /// Body states at the start of the step.
+    pub start: Vec<BodyState>,
+    /// Applied wrench of each body at `t_u`, `(force, torque)` at the CM, world frame.
+    pub wrenches: Vec<Vector6<f64>>,
+    /// The solution as the backend returned it (the end-of-step `Q` not yet renormalised).
+    pub z: Vec<f64>,
+    /// Whether the step converged.
+    pub converged: bool,
+}
+
+/// A simulation being built: the scene, the formulation, and the user's forces and terms
+/// ([`super::terms`]). [`Simulation::builder`] starts one with the hull formulation.
+pub struct SimulationBuilder {
+    scene: Scene,
+    formulation: Box<dyn StepFormulation>,
+    forces: Vec<(usize, Force)>,
+    terms: Vec<Box<dyn Term>>,
+}
+
+impl SimulationBuilder {
+    /// A builder for `scene` stepped by `formulation`.
+    pub fn new(scene: Scene, formulation: Box<dyn StepFormulation>) -> Self {
+        SimulationBuilder {
+            scene,
+            formulation,
+            forces: Vec::new(),
+            terms: Vec::new(),
+        }
+    }
+
+    /// Steps the scene with `formulation` instead.
+    pub fn formulation(mut self, formulation: Box<dyn StepFormulation>) -> Self {
+        self.formulation = formulation;
+        self
+    }
+
+    /// Adds `force` to body `body`'s Newton–Euler rows ([`Force`]: sign, units and inputs).
+    pub fn force(mut self, body: usize, force: Force) -> Self {
+        self.forces.push((body, force));
+        self
+    }
+
+    /// Adds an extra part of the step problem with its own unknowns ([`Term`]).
+    pub fn term(mut self, term: impl Term + 'static) -> Self {
+        self.terms.push(Box::new(term));
+        self
+    }
+
+    /// Validates the scene, builds the step problem and the first step's starting point.
+    pub fn build(self) -> Result<Simulation, SceneError> {
+        let states = initial_states(&self.scene)?;
+        let mut formulation = self.formulation;
+        let mut terms = self.terms;
+        let built = assemble(
+            &self.scene,
+            formulation.as_mut(),
+            &states,
+            &self.forces,
+            &mut terms,
+        )?;
+        let mut sim = Simulation {
+            z: vec![0.0; built.mcp.dim()],
+            scene: self.scene,
+            formulation,
+            forces: self.forces,
+            terms,
+            mcp: built.mcp,
+            handles: built.handles,
+            force_handles: built.forces,
+            states,
+            initial_changed: false,
+            step: 0,
+            t: 0.0,
+            last: None,
+        };
+        sim.start()?;
+        Ok(sim)
+    }
+}
+
+/// A running simulation of one scene with one formulation (module documentation).
+pub struct Simulation {
+    scene: Scene,
+    formulation: Box<dyn StepFormulation>,
+    forces: Vec<(usize, Force)>,
+    terms: Vec<Box<dyn Term>>,
+    mcp: BlockMcp,
+    handles: StepHandles,
+    force_handles: Vec<ForceHandles>,
+    z: Vec<f64>,
+    states: Vec<BodyState>,
+    /// An initial-state parameter changed since the step problem was built: [`Simulation::reset`]
+    /// builds it again (a formulation may derive its unknowns from the initial state).
+    initial_changed: bool,
+    step: usize,
+    t: f64,
+    /// The last step taken, while its step problem is still the one in `mcp`.
+    last: Option<LastStep>,
+}
+
+struct Built {
+    mcp: BlockMcp,
+    handles: StepHandles,
+    forces: Vec<ForceHandles>,
+}
+
+/// Builds the step problem of `formulation` for the bodies at `states`, with the user's forces
+/// and terms after the formulation's blocks.
+fn assemble(
+    scene: &Scene,
+    formulation: &mut dyn StepFormulation,
+    states: &[BodyState],
+    forces: &[(usize, Force)],
+    terms: &mut [Box<dyn Term>],
+) -> Result<Built, SceneError> {
+    let mut problem = Problem::new();
+    let handles = formulation.build(scene, states, &mut problem)?;
+    if (!forces.is_empty() || !terms.is_empty()) && !formulation.capabilities().user_terms {
+        return Err(SceneError::NotApplicable {
+            formulation: formulation.name().to_string(),
+            step: None,
+            reason: "its step problem has no ν and q unknowns per body, so user forces and terms \
+                     cannot join it; use the hull, union or point formulation"
+                .into(),
+        });
+    }
+    let name = formulation.name().to_string();
+    let forces = forces
+        .iter()
+        .map(|(b, f)| add_force(&mut problem, &handles, &name, *b, f))
+        .collect::<Result<Vec<_>, _>>()?;
+    for term in terms.iter_mut() {
+        term.build(&handles, &mut problem)?;
+    }
+    Ok(Built {
+        mcp: problem.build()?,
+        handles,
+        forces,
+    })
+}
+
+/// The step problem as the backends see it ([`Simulation::step_problem`]): the assembled MCP
+/// with the formulation's structural view, if it has one ([`StepFormulation::structure`]).
+pub struct StepProblem<'a> {
+    mcp: &'a BlockMcp,
+    structure: Option<&'a dyn StepStructure>,
+}
+
+impl Mcp for StepProblem<'_> {
+    fn dim(&self) -> usize {
+        self.mcp.dim()
+    }
+    fn lower(&self) -> &[f64] {
+        self.mcp.lower()
+    }
+    fn upper(&self) -> &[f64] {
+        self.mcp.upper()
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        self.mcp.evaluate(z, f)
+    }
+    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+        self.mcp.jacobian_pattern()
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        self.mcp.jacobian(z, values)
+    }
+    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        self.mcp.evaluate_with_jacobian(z, f, values)
+    }
+    fn component_name(&self, i: usize) -> String {
+        self.mcp.component_name(i)
+    }
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        self.structure
+    }
+}
+
+/// Keeps the better of two failed solves (the smaller natural residual, the first on a tie).
+fn better_failure(a: SolveError, b: SolveError) -> SolveError {
+    match (a, b) {
+        (SolveError::NotConverged { best: a }, SolveError::NotConverged { best: b }) => {
+            SolveError::NotConverged {
+                best: if a.summary.residual <= b.summary.residual {
+                    a
+                } else {
+                    b
+                },
+            }
+        }
+        (_, b) => b,
+    }
+}
+
+/// Copies the values of `old`'s data blocks into the blocks of `new` with the same name and size
+/// (user data survives a rebuild).
+fn carry_data(old: &BlockMcp, new: &mut BlockMcp) -> Result<(), ModelError> {
+    let names: HashMap<&str, usize> = old
+        .data_blocks()
+        .iter()
+        .enumerate()
+        .map(|(i, d)| (d.name(), i))
+        .collect();
+    let targets: Vec<(DataId, DataId)> = new
+        .data_blocks()
+        .iter()
+        .enumerate()
+        .filter_map(|(i, d)| {
+            let j = *names.get(d.name())?;
+            (old.data_blocks()[j].size() == d.size()).then_some((DataId(j), DataId(i)))
+        })
+        .collect();
+    for (from, to) in targets {
+        new.set_data(to, old.data(from))?;
+    }
+    Ok(())
+}
+
+impl Simulation {
+    /// A builder for `scene` stepped by `formulation`, for user forces and terms
+    /// ([`SimulationBuilder`]).
+    pub fn builder_with(scene: Scene, formulation: Box<dyn StepFormulation>) -> SimulationBuilder {
+        SimulationBuilder::new(scene, formulation)
+    }
+
+    /// The starting point of the first step for the current states.
+    fn start(&mut self) -> Result<(), SceneError> {
+        self.z.iter_mut().for_each(|v| *v = 0.0);
+        let ctx = StepContext {
+            scene: &self.scene,
+            states: &self.states,
+            t0: self.t,
+            h: self.scene.h,
+            step: self.step + 1,
+        };
+        self.formulation
+            .initial_guess(&ctx, &mut self.mcp, &mut self.z)?;
+        for term in &self.terms {
+            term.initial_guess(&self.mcp, &mut self.z);
+        }
+        Ok(())
+    }
+
+    /// Builds the step problem again for the current states (the formulation asked for it, or
+    /// the initial state changed); data carry over by name, and, when `carry_z`, the iterate
+    /// by variable-block name.
+    fn rebuild(&mut self, carry_z: bool) -> Result<(), SceneError> {
+        let built = assemble(
+            &self.scene,
+            self.formulation.as_mut(),
+            &self.states,
+            &self.forces,
+            &mut self.terms,
+        )?;
+        let mut mcp = built.mcp;
+        carry_data(&self.mcp, &mut mcp)?;
+        let mut z = vec![0.0; mcp.dim()];
+        if carry_z {
+            let old: HashMap<&str, usize> = self
+                .mcp
+                .variable_blocks()
+                .iter()
+                .enumerate()
+                .map(|(i, v)| (v.name(), i))
+                .collect();
+            for (i, v) in mcp.variable_blocks().iter().enumerate() {
+                if let Some(&j) = old.get(v.name()) {
+                    let (from, to) = (
+                        self.mcp.range(ecp_model::VarId(j)),
+                        mcp.range(ecp_model::VarId(i)),
+                    );
+                    if from.len() == to.len() {
+                        z[to].copy_from_slice(&self.z[from]);
+                    }
+                }
+            }
+        }
+        self.mcp = mcp;
+        self.z = z;
+        self.handles = built.handles;
+        self.force_handles = built.forces;
+        self.last = None;
+        Ok(())
+    }
+
+    /// The scene (with the parameters set last).
+    pub fn scene(&self) -> &Scene {
+        &self.scene
+    }
+    /// The formulation.
+    pub fn formulation(&self) -> &dyn StepFormulation {
+        self.formulation.as_ref()
+    }
+    /// The formulation as its own type, when it is a `T` (for the accessors only a formulation
+    /// has, e.g. the ECP formulation's contacts).
+    pub fn formulation_as<T: StepFormulation>(&self) -> Option<&T> {
+        let any: &dyn std::any::Any = self.formulation.as_ref();
+        any.downcast_ref::<T>()
+    }
+    /// The formulation's name.
+    pub fn formulation_name(&self) -> &str {
+        self.formulation.name()
+    }
+    /// What the formulation can do.
+    pub fn capabilities(&self) -> Capabilities {
+        self.formulation.capabilities()
+    }
+    /// The assembled step problem (its data are those of the span prepared last).
+    pub fn mcp(&self) -> &BlockMcp {
+        &self.mcp
+    }
+    /// The handles of the step problem: each body's unknowns and data, the scene's data, the
+    /// contacts.
+    pub fn handles(&self) -> &StepHandles {
+        &self.handles
+    }
+    /// The handles of the user forces, in the order they were added.
+    pub fn force_handles(&self) -> &[ForceHandles] {
+        &self.force_handles
+    }
+    /// The current unknown vector (last solution, or the warm start of the next step once
+    /// prepared). Its positions are relative to [`Simulation::origin`].
+    pub fn z(&self) -> &[f64] {
+        &self.z
+    }
+    /// The values of variable block `v` in [`Simulation::z`] (a user term's unknowns, a body's ν).
+    pub fn values(&self, v: ecp_model::VarId) -> &[f64] {
+        &self.z[self.mcp.range(v)]
+    }
+    /// Origin of the step problem's coordinates (world frame): zero unless the formulation moved
+    /// it for a scene far from the world origin (`docs/model.md#far-scenes`).
+    pub fn origin(&self) -> Vector3<f64> {
+        self.formulation.origin()
+    }
+    /// Current state of body `b`.
+    pub fn state(&self, b: usize) -> BodyState {
+        self.states[b]
+    }
+    /// Current states of every body.
+    pub fn states(&self) -> &[BodyState] {
+        &self.states
+    }
+    /// Current time.
+    pub fn time(&self) -> f64 {
+        self.t
+    }
+    /// Steps taken.
+    pub fn steps_taken(&self) -> usize {
+        self.step
+    }
+    /// True once the scene's duration is covered.
+    pub fn finished(&self) -> bool {
+        self.step >= self.scene.num_steps()
+    }
+    /// Contacts per body in every [`StepRecord`] (the columns of `trajectory.csv`).
+    pub fn contacts_per_body(&self) -> usize {
+        self.formulation.contacts_per_body()
+    }
+    /// Kinetic plus potential energy (gravity) of all bodies in the current state.
+    pub fn energy(&self) -> f64 {
+        self.scene
+            .bodies
+            .iter()
+            .zip(&self.states)
+            .map(|(b, s)| body_energy(&b.mass, s, &self.scene.gravity))
+            .sum()
+    }
+    /// The last step taken, while the step problem in [`Simulation::mcp`] is still its own
+    /// (`None` before the first step, after a step solved in substeps, and once the next step
+    /// is prepared).
+    pub fn last_step(&self) -> Option<&LastStep> {
+        self.last.as_ref()
+    }
+
+    /// Replaces the current state of body `b` (its quaternion is normalised), for example to
+    /// restart a step from a perturbed state (finite differences, model-predictive control).
+    /// Unlike building a simulation it accepts a state that penetrates a half-space: the next
+    /// step's contact conditions resolve it. The warm start of the next step keeps the previous
+    /// solution's impulses.
+    pub fn set_state(&mut self, b: usize, state: BodyState) -> Result<(), SceneError> {
+        let name = match self.scene.bodies.get(b) {
+            Some(body) => body.name.clone(),
+            None => {
+                return Err(SceneError::Parameter {
+                    what: format!("body index {b}"),
+                    value: b as f64,
+                    hint: "the body index must be less than the number of bodies",
+                });
+            }
+        };
+        let finite = state
+            .x
+            .iter()
+            .chain(&state.v)
+            .chain(&state.w)
+            .all(|v| v.is_finite());
+        match crate::rotation::quat_normalize(&state.q) {
+            Some(q) if finite => {
+                self.states[b] = BodyState { q, ..state };
+                Ok(())
+            }
+            _ => Err(SceneError::Parameter {
+                what: format!("{name}.state"),
+                value: f64::NAN,
+                hint: "the state must be finite with a non-zero quaternion",
+            }),
+        }
+    }
+
+    /// The value of parameter `p` in the scene being simulated.
+    pub fn param(&self, p: Param) -> Result<f64, ParamError> {
+        p.get(&self.scene)
+    }
+
+    /// Sets parameter `p` (checked as the scene's own values are) in the scene and in the step
+    /// problem's data block that holds it, in place: no rebuild, the backends' analyses stay
+    /// valid. μ, e_t, e_o, e_r, masses and inertias act from the next step; a constant load from
+    /// the next step (its `wrench` data are written per step); an initial-state parameter at the
+    /// next [`Simulation::reset`].
+    pub fn set_param(&mut self, p: Param, value: f64) -> Result<(), ParamError> {
+        p.set(&mut self.scene, value)?;
+        if let Some((d, values)) = p.data(&self.scene, &self.handles) {
+            // The handles come from this step problem, and the values have its block's size.
+            self.mcp
+                .set_data(d, &values)
+                .map_err(|e| ParamError::Name(format!("parameter {p}: {e}")))?;
+        }
+        if p.is_initial_state() {
+            self.initial_changed = true;
+        }
+        // The step problem no longer holds the last step's data.
+        self.last = None;
+        Ok(())
+    }
+
+    /// Sets the values of data block `d` of the step problem (a user force's or term's
+    /// parameters) between steps.
+    pub fn set_data(&mut self, d: DataId, values: &[f64]) -> Result<(), ModelError> {
+        self.mcp.set_data(d, values)?;
+        self.last = None;
+        Ok(())
+    }
+
+    /// Back to t = 0 and the scene's initial states, with the parameters set since: the first
+    /// step's starting point again, the step problem kept (built again only when an
+    /// initial-state parameter changed).
+    pub fn reset(&mut self) -> Result<(), SceneError> {
+        self.states = initial_states(&self.scene)?;
+        self.step = 0;
+        self.t = 0.0;
+        self.last = None;
+        if self.initial_changed {
+            self.rebuild(false)?;
+            self.initial_changed = false;
+        }
+        self.start()
+    }
+
+    /// Once per step, before its checkpoint: the formulation's [`StepFormulation::begin_step`],
+    /// with one rebuild when it asks for it.
+    fn begin_step(&mut self) -> Result<(), SceneError> {
+        for pass in 0..2 {
+            let ctx = StepContext {
+                scene: &self.scene,
+                states: &self.states,
+                t0: self.t,
+                h: self.scene.h,
+                step: self.step + 1,
+            };
+            match self
+                .formulation
+                .begin_step(&ctx, &mut self.mcp, &mut self.z)?
+            {
+                Prepared::Ready => return Ok(()),
+                Prepared::Rebuild if pass == 0 => self.rebuild(true)?,
+                Prepared::Rebuild => break,
+            }
+        }
+        Err(SceneError::NotApplicable {
+            formulation: self.formulation.name().to_string(),
+            step: Some(self.step + 1),
+            reason: "the formulation asked for a rebuild of the step problem it had just built"
+                .into(),
+        })
+    }
+
+    /// Sets the data of the span `[t0, t0 + h]` from `start` (the states at its start) and the
+    /// warm start in `z`.
+    fn prepare_span(&mut self, start: &[BodyState], t0: f64, h: f64) -> Result<(), SceneError> {
+        self.last = None;
+        let ctx = StepContext {
+            scene: &self.scene,
+            states: start,
+            t0,
+            h,
+            step: self.step + 1,
+        };
+        self.formulation.update_data(&ctx, &mut self.mcp)?;
+        self.formulation.warm_start(&ctx, &self.mcp, &mut self.z);
+        Ok(())
+    }
+
+    /// Prepares the next step: the formulation's per-step adjustments, the step's data
+    /// ([`BlockMcp::set_data`]: the problem and its pattern are unchanged) and the warm start.
+    /// After this, [`Simulation::mcp`] and [`Simulation::z`] are the step problem and its
+    /// starting point ([`Simulation::solve_step_problem`] solves it as a step would).
+    pub fn prepare_step(&mut self) -> Result<(), SceneError> {
+        self.begin_step()?;
+        let start = self.states.clone();
+        self.prepare_span(&start, self.t, self.scene.h)
+    }
+
+    /// Solves the prepared step problem from `z0` with `solver` as a step does (through the
+    /// formulation's structural view), without retries and without taking the result.
+    pub fn solve_step_problem(
+        &self,
+        solver: &mut dyn McpSolver,
+        z0: &[f64],
+    ) -> Result<Solution, SolveError> {
+        solver.solve(&self.step_problem(), z0)
+    }
+
+    /// The prepared step problem as every backend is given it: [`Simulation::mcp`] with the
+    /// formulation's structural view (structure-exploiting backends, the conic one, need it).
+    pub fn step_problem(&self) -> StepProblem<'_> {
+        StepProblem {
+            mcp: &self.mcp,
+            structure: self.formulation.structure(),
+        }
+    }
+
+    /// Solves the prepared span with `solver` from the warm start in `z`, then from each of the
+    /// formulation's deterministic second starts ([`StepFormulation::retry_start`],
+    /// `docs/decisions.md#retry-from-the-active-contact-guess`) until one solves it. On success
+    /// `z` holds the solution's start, and the summary counts the retries; on failure `z` is
+    /// left at the warm start and the error carries the best attempt.
+    fn solve_prepared(
+        &mut self,
+        start: &[BodyState],
+        t0: f64,
+        h: f64,
+        solver: &mut dyn McpSolver,
+    ) -> Result<Solution, SolveError> {
+        let first = self.solve_step_problem(solver, &self.z);
+        let mut failure = match first {
+            Ok(sol) => return Ok(sol),
+            Err(e) => e,
+        };
+        let warm = self.z.clone();
+        let mut attempt = 0;
+        loop {
+            let ctx = StepContext {
+                scene: &self.scene,
+                states: start,
+                t0,
+                h,
+                step: self.step + 1,
+            };
+            if !self
+                .formulation
+                .retry_start(attempt, &ctx, &self.mcp, &mut self.z)
+            {
+                break;
+            }
+            attempt += 1;
+            match self.solve_step_problem(solver, &self.z) {
+                Ok(mut sol) => {
+                    sol.summary.counters.push(("retries", attempt));
+                    return Ok(sol);
+                }
+                Err(e) => failure = better_failure(failure, e),
+            }
+        }
+        self.z.copy_from_slice(&warm);
+        Err(failure)
+    }
+
+    /// Takes the solution `z` of the span that started from `start`: the end-of-span states
+    /// become the current states. When the formulation refuses the solution, the caller restores
+    /// its checkpoint.
+    fn take(&mut self, start: &[BodyState], t0: f64, h: f64, z: &[f64]) -> Result<(), SceneError> {
+        let ctx = StepContext {
+            scene: &self.scene,
+            states: start,
+            t0,
+            h,
+            step: self.step + 1,
+        };
+        self.z.copy_from_slice(z);
+        self.formulation
+            .read_out(&ctx, &self.mcp, &mut self.z, &mut self.states)
+    }
+
+    /// Advances one step with `solver` and no fallback. A step that does not converge is
+    /// reported as failed and the bodies keep their state at its start (`docs/fallbacks.md`);
+    /// the caller decides whether to go on. An error means the step could not be set up or its
+    /// solution was refused (a formulation whose assumptions stopped holding).
+    pub fn step(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        self.step_with(solver, &mut Fallbacks::none())
+    }
+
+    /// Advances one step with `solver`; when it cannot solve the step, with the `fallbacks`, as
+    /// far as the formulation's [`Capabilities`] allow: each fallback backend on the same step
+    /// problem, then substeps (bisecting only the pieces that fail, down to
+    /// `h / 2^max_halvings`), each piece tried with `solver` and then each fallback backend.
+    /// Every accepted piece passed the backend's natural-residual test. When everything fails
+    /// the step is reported as failed ([`StepMethod::Failed`]) and the bodies keep their state
+    /// at its start.
+    pub fn step_with(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+    ) -> Result<StepRecord, SceneError> {
+        let (t0, h) = (self.t, self.scene.h);
+        let started = Instant::now();
+        // Before the checkpoint: what the formulation adjusts once per step stays put within the
+        // step and its fallbacks.
+        self.begin_step()?;
+        let start = self.checkpoint();
+        self.prepare_span(&start.0, t0, h)?;
+        let wrenches: Vec<Vector6<f64>> = self.scene.bodies.iter().map(|b| b.load.at(t0)).collect();
+        let (summary, method, solution) = match self.solve_prepared(&start.0, t0, h, solver) {
+            Ok(sol) => {
+                self.take_or_restore(&start, t0, h, &sol.z)?;
+                (sol.summary.clone(), StepMethod::Direct, Some(sol))
+            }
+            Err(SolveError::InvalidProblem(msg)) => {
+                self.restore(&start);
+                return Err(SceneError::Model(ModelError::Dimension(msg)));
+            }
+            Err(SolveError::NotConverged { best }) => {
+                let caps = self.formulation.capabilities();
+                let allowed = (caps.fallback_backends, caps.substeps);
+                let rescued = rescue(self, &start, solver, fallbacks, (t0, h), allowed)
+                    .inspect_err(|_| self.restore(&start))?;
+                match rescued {
+                    Some(rescued) => rescued,
+                    // Exhausted: never take an infeasible iterate; keep the last feasible state,
+                    // the one at the start of the step.
+                    None => (best.summary, StepMethod::Failed, None),
+                }
+            }
+        };
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        let converged = method.solved();
+        self.step += 1;
+        self.t = self.step as f64 * self.scene.h;
+        // The step problem in `mcp` is this step's own only when it was solved in one piece.
+        self.last = solution.map(|sol| LastStep {
+            step: self.step,
+            t_start: t0,
+            start: start.0,
+            wrenches,
+            z: sol.z,
+            converged,
+        });
+        Ok(self.record(summary, converged, solve_us, method))
+    }
+
+    /// [`Simulation::take`], restoring the step's checkpoint when the formulation refuses the
+    /// solution.
+    fn take_or_restore(
+        &mut self,
+        start: &(Vec<BodyState>, Vec<f64>),
+        t0: f64,
+        h: f64,
+        z: &[f64],
+    ) -> Result<(), SceneError> {
+        self.take(&start.0, t0, h, z)
+            .inspect_err(|_| self.restore(start))
+    }
+
+    /// Takes one step with `solver` and takes its point **whether or not it solves the step
+    /// problem**: for studying a relaxed model (the conic backend's Anitescu mode) whose points
+    /// are not solutions of this one. The record says so: `converged` is the backend's verdict
+    /// and a point that failed it is marked [`StepMethod::Unchecked`]. The run driver never
+    /// calls this.
+    pub fn step_unchecked(&mut self, solver: &mut dyn McpSolver) -> Result<StepRecord, SceneError> {
+        let (t0, h) = (self.t, self.scene.h);
+        let started = Instant::now();
+        self.begin_step()?;
+        let start = self.checkpoint();
+        self.prepare_span(&start.0, t0, h)?;
+        let (z, summary, method) = match self.solve_step_problem(solver, &self.z) {
+            Ok(sol) => (sol.z, sol.summary, StepMethod::Direct),
+            Err(SolveError::NotConverged { best }) => (best.z, best.summary, StepMethod::Unchecked),
+            Err(SolveError::InvalidProblem(msg)) => {
+                return Err(SceneError::Model(ModelError::Dimension(msg)));
+            }
+        };
+        self.take_or_restore(&start, t0, h, &z)?;
+        self.step += 1;
+        self.t = self.step as f64 * self.scene.h;
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
+        Ok(self.record(summary, method.solved(), solve_us, method))
+    }
+
+    /// Runs the remaining steps with `solver`, calling `on_step` after each (outputs can be
+    /// written as the run goes); stops early when `on_step` returns `false`. Returns the number
+    /// of steps that did not converge.
+    pub fn run(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        on_step: impl FnMut(&StepRecord) -> bool,
+    ) -> Result<usize, SceneError> {
+        self.run_with(solver, &mut Fallbacks::none(), on_step)
+    }
+
+    /// [`Simulation::run`] with fallbacks ([`Simulation::step_with`]).
+    pub fn run_with(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+        mut on_step: impl FnMut(&StepRecord) -> bool,
+    ) -> Result<usize, SceneError> {
+        let mut failed = 0;
+        while !self.finished() {
+            let rec = self.step_with(solver, fallbacks)?;
+            failed += usize::from(!rec.converged);
+            if !on_step(&rec) {
+                break;
+            }
+        }
+        Ok(failed)
+    }
+
+    /// The record of the step just taken, from the current states and `z`.
+    fn record(
+        &self,
+        summary: ecp_model::Summary,
+        converged: bool,
+        solve_us: f64,
+        method: StepMethod,
+    ) -> StepRecord {
+        let mut contacts: Vec<ContactRecord> = Vec::new();
+        self.formulation.contact_records(
+            &self.scene,
+            &self.states,
+            converged,
+            &self.mcp,
+            &self.z,
+            &mut contacts,
+        );
+        StepRecord {
+            step: self.step,
+            t: self.t,
+            bodies: self.states.clone(),
+            contacts,
+            energy: self.energy(),
+            summary,
+            converged,
+            solve_us,
+            method,
+        }
+    }
+}
+
+impl Spans for Simulation {
+    type Checkpoint = (Vec<BodyState>, Vec<f64>);
+
+    fn checkpoint(&self) -> Self::Checkpoint {
+        (self.states.clone(), self.z.clone())
+    }
+
+    fn restore(&mut self, checkpoint: &Self::Checkpoint) {
+        self.states.copy_from_slice(&checkpoint.0);
+        self.z.copy_from_slice(&checkpoint.1);
+    }
+
+    fn solve_span(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        t0: f64,
+        h: f64,
+    ) -> Result<Option<Solution>, SceneError> {
+        let start = self.states.clone();
+        self.prepare_span(&start, t0, h)?;
+        match self.solve_prepared(&start, t0, h, solver) {
+            Ok(sol) => {
+                self.take(&start, t0, h, &sol.z)?;
+                Ok(Some(sol))
+            }
+            Err(_) => Ok(None),
+        }
+    }
+}

@@ -1,0 +1,180 @@
+//! What a formulation supplies to the step driver ([`super::Simulation`]): its step problem
+//! (variables, data and residual blocks, built once), the data of each span, a warm start, optional
+//! deterministic second starts after a failed solve, the read-out of a solution, and its
+//! [`Capabilities`]. Everything else — the iterate, the states, time, retries, fallbacks,
+//! substeps, records, sensitivities — is the driver's, the same for every formulation.
+//!
+//! A span is a whole step or, when the driver falls back on substeps, a part of one: every method
+//! that sees a [`StepContext`] must use its `t0` and `h`, not the scene's step.
+
+use std::any::Any;
+
+use nalgebra::Vector3;
+
+use ecp_model::{BlockMcp, Problem, StepStructure};
+
+use super::handles::StepHandles;
+use crate::record::ContactRecord;
+use crate::scene::{BodyState, Scene, SceneError};
+
+/// How exact the step sensitivities of a formulation are (`docs/fitting.md`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum SensitivitySupport {
+    /// Exact derivatives of the step's solution (the hull formulation).
+    Exact,
+    /// The step's solution is not unique (shared impulses): the derivatives are minimum-norm
+    /// least-squares guesses, reported as singular at every step where they are.
+    NotUnique,
+    /// No step sensitivities: the step's unknowns do not hold each body's ν and q.
+    None,
+}
+
+/// What a formulation can do, asked by the command line, the registry and the driver instead of
+/// matching names.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct Capabilities {
+    /// The step problem comes with a structural view ([`StepFormulation::structure`]), which
+    /// structure-exploiting backends (the conic one) need.
+    pub step_structure: bool,
+    /// A step its backend cannot solve may be solved by other backends
+    /// ([`super::Fallbacks::backends`]).
+    pub fallback_backends: bool,
+    /// A step may be split into substeps `h/2, h/4, …` ([`super::Fallbacks::max_halvings`]).
+    pub substeps: bool,
+    /// Each body's ν and q blocks and Newton–Euler rows are in the step problem
+    /// ([`super::BodyHandles`]): user forces and terms can join it.
+    pub user_terms: bool,
+    /// How exact the step sensitivities are.
+    pub sensitivities: SensitivitySupport,
+    /// The step's solutions are not isolated (the impulses of several contacts of one body are
+    /// shared): Newton backends should take minimum-norm steps.
+    pub non_isolated_solutions: bool,
+}
+
+/// The span being stepped: the scene, the bodies' states at its start, its start time and
+/// length, and the step it belongs to.
+#[derive(Clone, Copy, Debug)]
+pub struct StepContext<'a> {
+    /// The scene (with the parameters set last, [`super::Simulation::set_param`]).
+    pub scene: &'a Scene,
+    /// Body states at the start of the span (world frame).
+    pub states: &'a [BodyState],
+    /// Start time of the span, `t_u` for a whole step (loads are evaluated there).
+    pub t0: f64,
+    /// Length of the span: the scene's `h`, or a substep's.
+    pub h: f64,
+    /// The step the span belongs to, from 1.
+    pub step: usize,
+}
+
+/// Whether the step problem built last still fits ([`StepFormulation::begin_step`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Prepared {
+    /// The step problem fits the states: go on.
+    Ready,
+    /// The formulation's unknowns changed (a contact appeared or vanished): the driver builds the
+    /// step problem again with [`StepFormulation::build`] and carries the iterate over by
+    /// variable-block name.
+    Rebuild,
+}
+
+/// A contact formulation: what makes the step problem of one model (`docs/model.md`). The driver
+/// ([`super::Simulation`]) owns the problem, the iterate `z` and the states and calls, per step:
+/// [`begin_step`](Self::begin_step) once, then for each span
+/// [`update_data`](Self::update_data), [`warm_start`](Self::warm_start), the solve (through
+/// [`structure`](Self::structure) when there is one), [`retry_start`](Self::retry_start) after
+/// a failed solve, and [`read_out`](Self::read_out) of a solution; then
+/// [`contact_records`](Self::contact_records).
+///
+/// A formulation keeps only what it derives from the scene (hulls, handles, frames); the scene
+/// and the states come with every call, so that parameters set on the driver reach it.
+pub trait StepFormulation: Any + Send {
+    /// The name in scene files, on the command line and in reports.
+    fn name(&self) -> &str;
+    /// What the formulation can do.
+    fn capabilities(&self) -> Capabilities;
+    /// Validates `scene` (refusing, with a [`SceneError`] that says why, a scene the formulation
+    /// does not apply to) and declares the step problem for the bodies at `states`: variable
+    /// blocks, data blocks and residual blocks. Returns the handles the driver, user terms and
+    /// sensitivities bind to. Called again (on the same object) when the driver rebuilds, so it
+    /// resets whatever it derived before.
+    fn build(
+        &mut self,
+        scene: &Scene,
+        states: &[BodyState],
+        problem: &mut Problem,
+    ) -> Result<StepHandles, SceneError>;
+    /// Contacts per body in every record (the columns of `trajectory.csv`).
+    fn contacts_per_body(&self) -> usize;
+    /// The starting point of the first step, written into `z` (zero on entry), with
+    /// `ctx.states` the initial states; also called by [`super::Simulation::reset`].
+    fn initial_guess(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &mut BlockMcp,
+        z: &mut [f64],
+    ) -> Result<(), SceneError>;
+    /// Once per step, before the driver's checkpoint: adjust what holds for the whole step (the
+    /// hull formulation moves its origin here) or ask for a rebuild.
+    fn begin_step(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &mut BlockMcp,
+        z: &mut [f64],
+    ) -> Result<Prepared, SceneError> {
+        let _ = (ctx, mcp, z);
+        Ok(Prepared::Ready)
+    }
+    /// Writes the span's data (start states, loads at `t0`, the span length, …) with
+    /// [`BlockMcp::set_data`]; refuses a state where the formulation stops applying.
+    fn update_data(&mut self, ctx: &StepContext<'_>, mcp: &mut BlockMcp) -> Result<(), SceneError>;
+    /// The warm start of the span, from the previous solution in `z`.
+    fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]);
+    /// A deterministic second start after a failed solve: modify `z` (as the previous attempt
+    /// left it) and return `true` to have the span solved again, `false` when there is no
+    /// further start. `attempt` counts from 0.
+    fn retry_start(
+        &mut self,
+        attempt: usize,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &mut [f64],
+    ) -> bool {
+        let _ = (attempt, ctx, mcp, z);
+        false
+    }
+    /// Takes the solution `z` of the span: writes the end-of-span states (world frame, `Q`
+    /// renormalised) and may adjust `z` (it is the next warm start). An error refuses the
+    /// solution (the formulation stopped applying); the driver then keeps the states at the
+    /// step's start.
+    fn read_out(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &mut [f64],
+        states: &mut [BodyState],
+    ) -> Result<(), SceneError>;
+    /// The records of every contact (body-major) for the bodies at `states`, from `z`;
+    /// `solved` is false for a step that failed (then `states` are the step's start states
+    /// and `z` the iterate at its start).
+    fn contact_records(
+        &self,
+        scene: &Scene,
+        states: &[BodyState],
+        solved: bool,
+        mcp: &BlockMcp,
+        z: &[f64],
+        out: &mut Vec<ContactRecord>,
+    );
+    /// Origin of the step problem's coordinates (world frame): positions in `z` and in the
+    /// position-valued data are relative to it. Zero unless the formulation moves it (the hull
+    /// formulation does for scenes far from the world origin, `docs/model.md#far-scenes`).
+    fn origin(&self) -> Vector3<f64> {
+        Vector3::zeros()
+    }
+    /// The structural view of the span's step problem, for structure-exploiting backends; it
+    /// must be valid after [`update_data`](Self::update_data) until the next span.
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        None
+    }
+}
