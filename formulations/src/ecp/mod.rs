@@ -598,3 +598,160 @@ impl StepFormulation for EcpContacts {
         Some(&self.layout)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use nalgebra::Vector4;
+
+    use super::*;
+    use crate::blocks::FrictionParams;
+    use crate::geometry::{MassProperties, Shape};
+    use crate::rotation::{quat_normalize, rotation_matrix};
+    use crate::scenarios;
+    use crate::scene::{BodySpec, Load};
+    use crate::step::Simulation;
+    use ecp_model::Mcp;
+
+    /// A 0.4 × 0.3 × 0.2 m box, 2 kg, tossed with spin, its lowest vertex 0.1 m above the
+    /// ground (no other vertex as low: the closest feature of Conv(F) is a vertex).
+    fn tossed_box() -> Scene {
+        let axis = Vector3::new(0.3, -0.8, 0.5);
+        let q = crate::rotation::quat_from_axis_angle(&axis, 0.9)
+            .unwrap_or_else(|| panic!("non-zero axis"));
+        let shape = Shape::cuboid(0.4, 0.3, 0.2).unwrap_or_else(|e| panic!("{e}"));
+        let r = rotation_matrix(&q);
+        let lowest = shape
+            .vertices()
+            .iter()
+            .map(|v| (r * v).z)
+            .fold(f64::INFINITY, f64::min);
+        Scene {
+            name: "toss".into(),
+            bodies: vec![BodySpec {
+                name: "box".into(),
+                mass: MassProperties::solid_cuboid(2.0, 0.4, 0.3, 0.2)
+                    .unwrap_or_else(|e| panic!("{e}")),
+                shape,
+                initial: BodyState {
+                    x: Vector3::new(0.0, 0.0, 0.1 - lowest),
+                    q,
+                    v: Vector3::new(0.5, -0.3, 1.0),
+                    w: Vector3::new(6.0, -4.0, 8.0),
+                },
+                load: Load::None,
+            }],
+            planes: vec![HalfSpace::ground()],
+            friction: FrictionParams {
+                mu: 0.5,
+                e_t: 1.0,
+                e_o: 1.0,
+                e_r: 0.02,
+            },
+            gravity: Vector3::new(0.0, 0.0, -9.8),
+            h: 0.007,
+            duration: 0.1,
+        }
+    }
+
+    fn ecp(sim: &Simulation) -> &EcpContacts {
+        sim.formulation_as::<EcpContacts>()
+            .unwrap_or_else(|| panic!("an ECP formulation"))
+    }
+
+    /// The warm start of an open contact: the closest-point conditions C1–C4 hold at the
+    /// predicted pose (C2 with the multipliers of the three faces through the lowest vertex),
+    /// the friction rows vanish, and σ > 0.
+    #[test]
+    fn open_contact_warm_start_meets_the_closest_point_conditions() {
+        let mut sim = Simulation::new(tossed_box()).unwrap_or_else(|e| panic!("{e}"));
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let z = sim.z().to_vec();
+        let mcp = sim.mcp();
+        let mut f = vec![0.0; mcp.dim()];
+        mcp.evaluate(&z, &mut f);
+        let c = ecp(&sim).contacts()[0];
+        let l = &z[mcp.range(c.l)];
+        assert_eq!(l.iter().filter(|v| **v > 0.0).count(), 3, "l = {l:?}");
+        // C2 rows are paired with a2, C1 rows with a1; C3 and C4 rows with l and l_g.
+        for (what, var) in [("C1", c.a1), ("C2", c.a2), ("friction", c.pf)] {
+            for i in mcp.range(var) {
+                assert!(
+                    f[i].abs() <= 1e-12,
+                    "{what}: {} = {:e}",
+                    mcp.component_name(i),
+                    f[i]
+                );
+            }
+        }
+        for i in mcp.range(c.l).chain(mcp.range(c.lg)) {
+            // Complementarity: multiplier 0 or row 0, both non-negative.
+            assert!(z[i] >= 0.0 && f[i] >= -1e-12 && (z[i] * f[i]).abs() <= 1e-12);
+        }
+        assert!(z[mcp.range(c.sigma)][0] > 0.0);
+        // The closest point is the lowest vertex at the predicted pose.
+        let qv = sim.handles().bodies[0]
+            .q
+            .unwrap_or_else(|| panic!("q block"));
+        let q = &z[mcp.range(qv)];
+        let x = Vector3::new(q[0], q[1], q[2]);
+        let rq = quat_normalize(&Vector4::new(q[3], q[4], q[5], q[6]))
+            .map(|q| rotation_matrix(&q))
+            .unwrap_or_else(|| panic!("non-zero quaternion"));
+        let lowest = ecp(&sim)
+            .hull_of(0)
+            .vertices()
+            .iter()
+            .map(|v| (x + rq * v).z)
+            .fold(f64::INFINITY, f64::min);
+        let a1 = &z[mcp.range(c.a1)];
+        assert!(
+            (a1[2] - lowest).abs() <= 1e-12,
+            "a1 {a1:?}, lowest {lowest}"
+        );
+    }
+
+    /// A resting box's first warm start carries its weight and stops the approach over the step
+    /// (`docs/model.md#stepper`): `p_n = m g h + m g h` at the face centre; the union desk has
+    /// one contact per leg.
+    #[test]
+    fn first_guess_of_a_resting_box_and_the_union_desk() {
+        let sim = Simulation::new(scenarios::a2_push(0.0)).unwrap_or_else(|e| panic!("{e}"));
+        let c = ecp(&sim).contacts()[0];
+        let z = sim.z();
+        let pn = z[sim.mcp().range(c.pn)][0];
+        assert!((pn - 2.0 * 10.0 * 9.8 * 0.01).abs() <= 1e-12, "p_n {pn}");
+        let a1 = &z[sim.mcp().range(c.a1)];
+        assert!(a1.iter().all(|v| v.abs() <= 1e-12), "a1 {a1:?}");
+        let union = Simulation::with_formulation(scenarios::desk(), "union")
+            .unwrap_or_else(|e| panic!("{e}"));
+        let pieces: Vec<Option<usize>> = ecp(&union).contacts().iter().map(|c| c.piece).collect();
+        assert_eq!(pieces, [Some(1), Some(2), Some(3), Some(4)]);
+        assert_eq!(union.contacts_per_body(), 4);
+        assert!(union.capabilities().non_isolated_solutions);
+    }
+
+    /// A scene a million metres from the world origin is stepped in coordinates relative to an
+    /// origin moved to the bodies (`docs/model.md#far-scenes`): the same motion as near the
+    /// origin, and the records in world coordinates.
+    #[test]
+    fn a_far_scene_moves_the_origin_and_keeps_its_motion() {
+        let near = scenarios::a1_sliding();
+        let mut far = near.clone();
+        let shift = Vector3::new(1e6, -2e6, 0.0);
+        far.bodies[0].initial.x += shift;
+        let mut a = Simulation::new(near).unwrap_or_else(|e| panic!("{e}"));
+        let mut b = Simulation::new(far).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(b.origin(), b.state(0).x);
+        let mut solver = ecp_solvers::newton::NewtonSolver::new(Default::default());
+        for _ in 0..5 {
+            let (ra, rb) = (
+                a.step(&mut solver).unwrap_or_else(|e| panic!("{e}")),
+                b.step(&mut solver).unwrap_or_else(|e| panic!("{e}")),
+            );
+            assert!(rb.converged);
+            assert!((ra.bodies[0].v - rb.bodies[0].v).amax() <= 1e-9);
+            assert!((ra.bodies[0].x + shift - rb.bodies[0].x).amax() <= 1e-8);
+            assert!((ra.contacts[0].a1 + shift - rb.contacts[0].a1).amax() <= 1e-8);
+        }
+    }
+}

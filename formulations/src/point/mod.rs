@@ -584,3 +584,75 @@ impl StepFormulation for PointContacts {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+
+    use super::*;
+    use crate::scenarios;
+    use crate::step::Simulation;
+
+    fn point_sim(scene: Scene) -> Simulation {
+        Simulation::builder(scene)
+            .formulation(Box::new(PointContacts::new()))
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    fn contacts(sim: &Simulation) -> &[PointVars] {
+        sim.formulation_as::<PointContacts>()
+            .map(|p| p.contacts())
+            .unwrap_or_else(|| panic!("the point formulation"))
+    }
+
+    /// The first warm start of A1: the four bottom corners start active with a quarter of the
+    /// weight each (plus the approach of one step), the four top corners open with
+    /// σ = `OPEN_SIGMA`.
+    #[test]
+    fn first_warm_start_shares_the_weight_among_the_closed_points() {
+        let mut sim = point_sim(scenarios::a1_sliding());
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let (mcp, z) = (sim.mcp(), sim.z());
+        let (mut closed, mut open) = (0, 0);
+        for c in contacts(&sim) {
+            let (pn, sigma) = (z[mcp.range(c.pn)][0], z[mcp.range(c.sigma)][0]);
+            let p = sim
+                .formulation_as::<PointContacts>()
+                .map(|f| f.points(0)[c.point])
+                .unwrap_or_else(|| panic!("points"));
+            if p.z < 0.0 {
+                closed += 1;
+                assert!(
+                    (pn - 2.0 * 10.0 * 9.8 * 0.01 / 4.0).abs() <= 1e-12,
+                    "p_n {pn}"
+                );
+                // Sliding at 1 m/s along x: on the ellipse against the slip.
+                let pf = &z[mcp.range(c.pf)];
+                assert!((pf[0] + 0.3 * pn).abs() <= 1e-12 && pf[1].abs() <= 1e-15);
+                assert!((sigma - 1.0).abs() <= 1e-12);
+            } else {
+                open += 1;
+                assert_eq!((pn, sigma), (0.0, OPEN_SIGMA));
+            }
+        }
+        assert_eq!((closed, open), (4, 4));
+    }
+
+    /// A1's first step: the point model's deceleration is the hull model's, `μ g h`, and the
+    /// records put each contact at its point with its gap.
+    #[test]
+    fn a1_first_step_decelerates_by_mu_g_h() {
+        let mut sim = point_sim(scenarios::a1_sliding());
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+        assert!(rec.converged);
+        assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() <= 1e-9);
+        let total: f64 = rec.contacts.iter().map(|c| c.pn).sum();
+        assert!((total - 10.0 * 9.8 * 0.01).abs() <= 1e-9, "total {total}");
+        for c in &rec.contacts {
+            assert_eq!(c.a1, c.a2);
+            assert!((c.lg - c.a1.z).abs() <= 1e-15 && c.pr == 0.0);
+        }
+    }
+}

@@ -592,3 +592,61 @@ mod tests {
         assert!((d - 0.05).abs() < 1e-15, "{d}");
     }
 }
+
+#[cfg(test)]
+mod formulation_tests {
+    use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+
+    use super::*;
+    use crate::scenarios;
+    use crate::step::Simulation;
+
+    fn reduced_sim(scene: Scene) -> Result<Simulation, SceneError> {
+        Simulation::builder(scene)
+            .formulation(Box::new(ReducedSliding::new()))
+            .build()
+    }
+
+    /// A1 in the reduced model: four unknowns, `v_x` down by `μ g h` per step, the ECP leading
+    /// the CM by `μ H` (`docs/model.md#scenarios`).
+    #[test]
+    fn a1_slides_as_the_hull_model() {
+        let mut sim = reduced_sim(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(ecp_model::Mcp::dim(sim.mcp()), 4);
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        for k in 1..=5 {
+            let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+            let v = 1.0 - 0.3 * 9.8 * 0.01 * k as f64;
+            assert!((rec.bodies[0].v.x - v).abs() <= 1e-9, "step {k}");
+            let c = rec.contacts[0];
+            assert!((c.a1.x - rec.bodies[0].x.x - 0.3 * 0.1).abs() <= 1e-9);
+            assert!((c.pn - 10.0 * 9.8 * 0.01).abs() <= 1e-9);
+        }
+    }
+
+    /// A load that lifts the box off makes the step refuse, naming the step.
+    #[test]
+    fn lift_off_is_refused_at_its_step() {
+        let mut scene = scenarios::a1_sliding();
+        scene.bodies[0].load = crate::scene::Load::Function(std::sync::Arc::new(|t: f64| {
+            let fz = if t > 0.025 { 200.0 } else { 0.0 };
+            nalgebra::Vector6::new(0.0, 0.0, fz, 0.0, 0.0, 0.0)
+        }));
+        let mut sim = reduced_sim(scene).unwrap_or_else(|e| panic!("{e}"));
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        let mut taken = 0;
+        let err = loop {
+            match sim.step(&mut solver) {
+                Ok(_) => taken += 1,
+                Err(e) => break e,
+            }
+        };
+        assert_eq!(taken, 3);
+        assert!(
+            matches!(&err, SceneError::NotApplicable { step: Some(4), reason, .. }
+                if reason.contains("lift-off")),
+            "{err}"
+        );
+        assert_eq!(sim.steps_taken(), 3);
+    }
+}

@@ -817,3 +817,434 @@ impl Spans for Simulation {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! The driver on real step problems: reset and parameters against fresh simulations, the
+    //! fallbacks with a backend that fails on purpose, and a rebuild asked by a formulation.
+
+    use ecp_model::{Mcp, McpSolver, Solution, SolveError, Summary, Termination};
+    use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+
+    use super::*;
+    use crate::ecp::EcpContacts;
+    use crate::point::PointContacts;
+    use crate::scenarios;
+    use crate::step::{InertiaEntry, StateComponent};
+
+    fn newton() -> Box<dyn McpSolver> {
+        Box::new(NewtonSolver::new(NewtonSettings::default()))
+    }
+
+    fn run(sim: &mut Simulation, steps: usize) -> Vec<StepRecord> {
+        let mut solver = newton();
+        (0..steps)
+            .map(|_| sim.step(solver.as_mut()).unwrap_or_else(|e| panic!("{e}")))
+            .collect()
+    }
+
+    /// Bit for bit: states, contacts and the solver's iterations.
+    fn assert_same(a: &[StepRecord], b: &[StepRecord]) {
+        assert_eq!(a.len(), b.len());
+        for (ra, rb) in a.iter().zip(b) {
+            assert_eq!(ra.bodies, rb.bodies, "step {}", ra.step);
+            assert_eq!(ra.contacts, rb.contacts, "step {}", ra.step);
+            assert_eq!(
+                ra.summary.iterations, rb.summary.iterations,
+                "step {}",
+                ra.step
+            );
+            assert!(ra.converged && rb.converged);
+        }
+    }
+
+    #[test]
+    fn reset_replays_the_run_bit_for_bit() {
+        let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+        let first = run(&mut sim, 15);
+        sim.reset().unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!((sim.steps_taken(), sim.time()), (0, 0.0));
+        assert!(sim.last_step().is_none());
+        assert_same(&first, &run(&mut sim, 15));
+    }
+
+    #[test]
+    fn parameters_set_in_place_give_the_run_of_a_fresh_simulation() {
+        let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        run(&mut sim, 3);
+        let pattern = Arc::clone(sim.mcp().jacobian_pattern());
+        let ixy = Param::Inertia {
+            body: 0,
+            entry: InertiaEntry::Xy,
+        };
+        let changes = [
+            (Param::Mu, 0.2),
+            (Param::Er, 0.05),
+            (Param::Mass { body: 0 }, 12.0),
+            (ixy, 0.01),
+            (
+                Param::Load {
+                    body: 0,
+                    component: 0,
+                },
+                5.0,
+            ),
+        ];
+        let mut scene = scenarios::a1_sliding();
+        for (p, v) in changes {
+            sim.set_param(p, v).unwrap_or_else(|e| panic!("{e}"));
+            p.set(&mut scene, v).unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(sim.param(p), Ok(v));
+        }
+        sim.reset().unwrap_or_else(|e| panic!("{e}"));
+        // The same step problem: no rebuild, the backends' analyses stay valid.
+        assert!(Arc::ptr_eq(&pattern, sim.mcp().jacobian_pattern()));
+        let mut fresh = Simulation::new(scene).unwrap_or_else(|e| panic!("{e}"));
+        assert_same(&run(&mut fresh, 10), &run(&mut sim, 10));
+        // A refused value changes nothing.
+        assert!(sim.set_param(Param::Mu, -1.0).is_err());
+        assert_eq!(sim.param(Param::Mu), Ok(0.2));
+    }
+
+    #[test]
+    fn an_initial_state_parameter_takes_effect_at_reset() {
+        let vx = Param::initial(0, StateComponent::Velocity(0));
+        for name in ["hull", "union", "point"] {
+            let f = |s| crate::registry::FormulationRegistry::builtin().create(s);
+            let builder =
+                |scene| SimulationBuilder::new(scene, f(name).unwrap_or_else(|e| panic!("{e}")));
+            let mut sim = builder(scenarios::a1_sliding())
+                .build()
+                .unwrap_or_else(|e| panic!("{e}"));
+            sim.set_param(vx, 0.5).unwrap_or_else(|e| panic!("{e}"));
+            // Not before the reset: the run in progress keeps its state.
+            assert_eq!(sim.state(0).v.x, 1.0);
+            sim.reset().unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(sim.state(0).v.x, 0.5);
+            let mut scene = scenarios::a1_sliding();
+            scene.bodies[0].initial.v.x = 0.5;
+            let mut fresh = builder(scene).build().unwrap_or_else(|e| panic!("{e}"));
+            assert_same(&run(&mut fresh, 5), &run(&mut sim, 5));
+        }
+    }
+
+    /// Newton, except that its first `fail` solves are reported as not converged (with Newton's
+    /// own point as the best iterate, so a driver that took it would move).
+    struct Flaky {
+        inner: NewtonSolver,
+        fail: usize,
+        calls: usize,
+    }
+
+    impl Flaky {
+        fn new(fail: usize) -> Self {
+            Flaky {
+                inner: NewtonSolver::new(NewtonSettings::default()),
+                fail,
+                calls: 0,
+            }
+        }
+    }
+
+    impl McpSolver for Flaky {
+        fn name(&self) -> &str {
+            "flaky"
+        }
+        fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+            self.calls += 1;
+            let result = self.inner.solve(mcp, z0);
+            if self.calls > self.fail {
+                return result;
+            }
+            let sol = result?;
+            Err(SolveError::NotConverged {
+                best: Box::new(Solution {
+                    z: sol.z,
+                    summary: Summary {
+                        termination: Termination::MaxIterations,
+                        ..sol.summary
+                    },
+                }),
+            })
+        }
+    }
+
+    #[test]
+    fn a_fallback_backend_solves_the_same_step() {
+        let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        let mut reference =
+            Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        let mut flaky = Flaky::new(usize::MAX);
+        let mut fallbacks = Fallbacks::new(vec![newton()]);
+        let rec = sim
+            .step_with(&mut flaky, &mut fallbacks)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let plain = reference
+            .step(newton().as_mut())
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(rec.converged);
+        assert_eq!(rec.method, StepMethod::Backend("newton".into()));
+        assert!((rec.bodies[0].v - plain.bodies[0].v).amax() <= 1e-12);
+        // The step problem in the simulation is the step's own: sensitivities can use it.
+        assert!(sim.last_step().is_some());
+    }
+
+    /// The first two solves (the step and its retry from the active-contact guess: A1 rests on
+    /// the ground) fail; the halves then solve — with the hull and the point formulation.
+    #[test]
+    fn substeps_reach_the_end_of_the_step_with_the_physics_of_a_shorter_step() {
+        let scene = scenarios::a1_sliding();
+        let h = scene.h;
+        for name in ["hull", "point"] {
+            let make = |scene: Scene| {
+                let f = crate::registry::FormulationRegistry::builtin()
+                    .create(name)
+                    .unwrap_or_else(|e| panic!("{e}"));
+                SimulationBuilder::new(scene, f)
+                    .build()
+                    .unwrap_or_else(|e| panic!("{e}"))
+            };
+            let mut sim = make(scene.clone());
+            let mut flaky = Flaky::new(2);
+            let mut fallbacks = Fallbacks {
+                backends: Vec::new(),
+                max_halvings: 3,
+            };
+            let rec = sim
+                .step_with(&mut flaky, &mut fallbacks)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert!(rec.converged);
+            assert_eq!(
+                rec.method,
+                StepMethod::Substeps {
+                    pieces: 2,
+                    finest: 2
+                },
+                "{name}"
+            );
+            assert!((rec.t - h).abs() < 1e-15);
+            // Two plain steps of h/2 from the same state: the same end state.
+            let mut half = make(Scene {
+                h: 0.5 * h,
+                ..scene.clone()
+            });
+            let mut solver = newton();
+            half.step(solver.as_mut()).unwrap_or_else(|e| panic!("{e}"));
+            let two = half.step(solver.as_mut()).unwrap_or_else(|e| panic!("{e}"));
+            let (a, b) = (rec.bodies[0], two.bodies[0]);
+            assert!(
+                (a.x - b.x).amax() <= 1e-12,
+                "{name}: {:?} vs {:?}",
+                a.x,
+                b.x
+            );
+            assert!(
+                (a.v - b.v).amax() <= 1e-10,
+                "{name}: {:?} vs {:?}",
+                a.v,
+                b.v
+            );
+            // A1 decelerates by μ g per unit time: v after h is 1 − μ g h.
+            assert!((a.v.x - (1.0 - 0.3 * 9.8 * h)).abs() <= 1e-9, "{name}");
+            // No single step problem holds this step: no sensitivities from it.
+            assert!(sim.last_step().is_none());
+        }
+    }
+
+    #[test]
+    fn an_exhausted_step_fails_and_keeps_the_state_at_its_start() {
+        let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        let start = sim.state(0);
+        let mut flaky = Flaky::new(usize::MAX);
+        let mut fallbacks = Fallbacks {
+            backends: Vec::new(),
+            max_halvings: 2,
+        };
+        let rec = sim
+            .step_with(&mut flaky, &mut fallbacks)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(!rec.converged);
+        assert_eq!(rec.method, StepMethod::Failed);
+        assert_eq!(rec.bodies[0], start, "a failed iterate must never be taken");
+        assert_eq!(sim.state(0), start);
+        assert_eq!(sim.steps_taken(), 1);
+        // The failed step's summary is the backend's best attempt, reported as not converged.
+        assert!(!rec.summary.converged());
+        // Solves tried: the step and its retry, then 2 halves, each halved again.
+        assert!(flaky.calls >= 3);
+        let next = sim
+            .step(newton().as_mut())
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(next.converged);
+    }
+
+    #[test]
+    fn a_plain_step_that_fails_keeps_the_state_too() {
+        let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        let start = sim.state(0);
+        let rec = sim
+            .step(&mut Flaky::new(usize::MAX))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(rec.method, StepMethod::Failed);
+        assert_eq!(rec.bodies[0], start);
+    }
+
+    #[test]
+    fn a_solved_retry_is_counted() {
+        let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+        // The first solve fails; the retry from the active-contact guess solves the step.
+        let rec = sim
+            .step(&mut Flaky::new(1))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(rec.method, StepMethod::Direct);
+        assert_eq!(rec.summary.counter("retries"), 1);
+        assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() <= 1e-9);
+    }
+
+    /// The hull formulation, asking for a rebuild of its step problem at step 3.
+    struct RebuildAtThree(EcpContacts);
+
+    impl StepFormulation for RebuildAtThree {
+        fn name(&self) -> &str {
+            "rebuild-at-three"
+        }
+        fn capabilities(&self) -> Capabilities {
+            self.0.capabilities()
+        }
+        fn build(
+            &mut self,
+            scene: &Scene,
+            states: &[BodyState],
+            problem: &mut Problem,
+        ) -> Result<StepHandles, SceneError> {
+            self.0.build(scene, states, problem)
+        }
+        fn contacts_per_body(&self) -> usize {
+            self.0.contacts_per_body()
+        }
+        fn initial_guess(
+            &mut self,
+            ctx: &StepContext<'_>,
+            mcp: &mut BlockMcp,
+            z: &mut [f64],
+        ) -> Result<(), SceneError> {
+            self.0.initial_guess(ctx, mcp, z)
+        }
+        fn begin_step(
+            &mut self,
+            ctx: &StepContext<'_>,
+            mcp: &mut BlockMcp,
+            z: &mut [f64],
+        ) -> Result<Prepared, SceneError> {
+            self.0.begin_step(ctx, mcp, z)?;
+            // Asked once: the driver calls begin_step again after the rebuild.
+            let asked = ctx.step == 3 && mcp.data_blocks().iter().all(|d| d.name() != "marker");
+            Ok(if asked {
+                Prepared::Rebuild
+            } else {
+                Prepared::Ready
+            })
+        }
+        fn update_data(
+            &mut self,
+            ctx: &StepContext<'_>,
+            mcp: &mut BlockMcp,
+        ) -> Result<(), SceneError> {
+            self.0.update_data(ctx, mcp)
+        }
+        fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]) {
+            self.0.warm_start(ctx, mcp, z)
+        }
+        fn retry_start(
+            &mut self,
+            attempt: usize,
+            ctx: &StepContext<'_>,
+            mcp: &BlockMcp,
+            z: &mut [f64],
+        ) -> bool {
+            self.0.retry_start(attempt, ctx, mcp, z)
+        }
+        fn read_out(
+            &mut self,
+            ctx: &StepContext<'_>,
+            mcp: &BlockMcp,
+            z: &mut [f64],
+            states: &mut [BodyState],
+        ) -> Result<(), SceneError> {
+            self.0.read_out(ctx, mcp, z, states)
+        }
+        fn contact_records(
+            &self,
+            scene: &Scene,
+            states: &[BodyState],
+            solved: bool,
+            mcp: &BlockMcp,
+            z: &[f64],
+            out: &mut Vec<ContactRecord>,
+        ) {
+            self.0.contact_records(scene, states, solved, mcp, z, out)
+        }
+        fn structure(&self) -> Option<&dyn StepStructure> {
+            self.0.structure()
+        }
+    }
+
+    /// A term that only declares a data block named `marker`, so the rebuilt problem can be
+    /// told from the first one.
+    struct Marker {
+        built: usize,
+    }
+
+    impl Term for Marker {
+        fn name(&self) -> &str {
+            "marker"
+        }
+        fn build(&mut self, _: &StepHandles, problem: &mut Problem) -> Result<(), SceneError> {
+            self.built += 1;
+            if self.built > 1 {
+                problem.add_data_block(ecp_model::DataBlock::new("marker", [1.0]));
+            }
+            Ok(())
+        }
+    }
+
+    /// A rebuild in the middle of a run carries the iterate over by name: the run is the run
+    /// without it, bit for bit.
+    #[test]
+    fn a_rebuild_carries_the_iterate_over() {
+        let scene = scenarios::desk();
+        let mut plain = Simulation::new(scene.clone()).unwrap_or_else(|e| panic!("{e}"));
+        let mut rebuilt =
+            SimulationBuilder::new(scene, Box::new(RebuildAtThree(EcpContacts::hull())))
+                .term(Marker { built: 0 })
+                .build()
+                .unwrap_or_else(|e| panic!("{e}"));
+        let before = Arc::clone(rebuilt.mcp().jacobian_pattern());
+        let records = run(&mut rebuilt, 6);
+        assert!(!Arc::ptr_eq(&before, rebuilt.mcp().jacobian_pattern()));
+        assert!(
+            rebuilt
+                .mcp()
+                .data_blocks()
+                .iter()
+                .any(|d| d.name() == "marker")
+        );
+        assert_same(&run(&mut plain, 6), &records);
+    }
+
+    #[test]
+    fn user_terms_need_the_bodies_unknowns() {
+        let scene = scenarios::a1_sliding();
+        let e = SimulationBuilder::new(scene, Box::new(crate::reduced::ReducedSliding::new()))
+            .term(Marker { built: 0 })
+            .build()
+            .err()
+            .map(|e| e.to_string());
+        assert!(e.is_some_and(|m| m.contains("user forces and terms")));
+        let points =
+            SimulationBuilder::new(scenarios::a1_sliding(), Box::new(PointContacts::new()))
+                .term(Marker { built: 0 })
+                .build();
+        assert!(points.is_ok());
+    }
+}

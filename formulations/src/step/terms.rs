@@ -136,3 +136,228 @@ pub trait Term: Send {
         let _ = (mcp, z);
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use ecp_model::{CheckOptions, JacobianBlocks, Params, VarBlock, VarId, check_problem};
+    use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+    use nalgebra::Vector3;
+
+    use super::*;
+    use crate::scenarios;
+    use crate::scene::Scene;
+    use crate::step::Simulation;
+
+    /// A linear spring from the CM to an anchor: the impulse `−h k (x − anchor)` on the
+    /// translational rows. Data: `k` (1), `anchor` (3).
+    struct Spring;
+
+    impl ResidualBlock for Spring {
+        fn name(&self) -> &str {
+            "spring"
+        }
+        fn num_residuals(&self) -> usize {
+            6
+        }
+        fn parameter_sizes(&self) -> &[usize] {
+            &[6, 7, 1, 1, 3]
+        }
+        fn evaluate(&self, p: Params<'_>, out: &mut [f64]) {
+            let (q, h, k, a) = (p.block(1), p.block(2)[0], p.block(3)[0], p.block(4));
+            out.fill(0.0);
+            for i in 0..3 {
+                out[i] = -h * k * (q[i] - a[i]);
+            }
+        }
+        fn jacobian(&self, p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+            let (q, h, k, a) = (p.block(1), p.block(2)[0], p.block(3)[0], p.block(4));
+            for i in 0..3 {
+                jac.set(Force::Q, i, i, -h * k);
+                jac.set(Force::H, i, 0, -k * (q[i] - a[i]));
+                jac.set(Force::DATA, i, 0, -h * (q[i] - a[i]));
+                jac.set(Force::DATA + 1, i, i, h * k);
+            }
+        }
+    }
+
+    /// The A1 box lifted 0.5 m and tossed sideways: free flight for the first steps.
+    fn flying() -> Scene {
+        let mut scene = scenarios::a1_sliding();
+        scene.bodies[0].initial.x.z += 0.5;
+        scene.bodies[0].initial.v = Vector3::new(1.0, 0.5, 0.0);
+        scene
+    }
+
+    /// One step of free flight with the spring: per axis `m (v⁺ − v) = h m g − h k (x + h v⁺ − a)`,
+    /// so `v⁺ = (m v + h m g − h k (x − a)) / (m + h² k)`.
+    #[test]
+    fn a_spring_force_joins_newton_euler() {
+        let scene = flying();
+        let (k, anchor) = (300.0, Vector3::new(0.2, -0.1, 0.3));
+        let spring = Force::new(Spring)
+            .with_data(DataBlock::new("spring.k", [k]))
+            .with_data(DataBlock::new("spring.anchor", anchor.as_slice()));
+        let mut sim = Simulation::builder(scene.clone())
+            .force(0, spring)
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        for report in check_problem(sim.mcp(), sim.z(), &CheckOptions::default()) {
+            assert!(report.ok(), "{report}");
+        }
+        let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+        let (m, h) = (scene.bodies[0].mass.mass, scene.h);
+        let s0 = scene.bodies[0].initial;
+        for i in 0..3 {
+            let want = (m * s0.v[i] + h * m * scene.gravity[i] - h * k * (s0.x[i] - anchor[i]))
+                / (m + h * h * k);
+            assert!(
+                (rec.bodies[0].v[i] - want).abs() <= 1e-12,
+                "axis {i}: {} vs {want}",
+                rec.bodies[0].v[i]
+            );
+        }
+        // Its data change between steps like any data block.
+        let data = sim.force_handles()[0].data.clone();
+        sim.set_data(data[0], &[0.0])
+            .unwrap_or_else(|e| panic!("{e}"));
+        let before = sim.state(0);
+        let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+        let free = before.v + scene.gravity * h;
+        assert!((rec.bodies[0].v - free).amax() <= 1e-12);
+    }
+
+    /// A term with its own unknown: a multiplier λ (an impulse along y, added to the y row of
+    /// Newton–Euler) paired with the row `v_y⁺ = 0`. In free flight it stops the y motion at
+    /// once: `λ = −m v_y`.
+    struct LockY {
+        lambda: Option<VarId>,
+    }
+
+    struct VelocityY;
+    impl ResidualBlock for VelocityY {
+        fn name(&self) -> &str {
+            "velocity_y"
+        }
+        fn num_residuals(&self) -> usize {
+            1
+        }
+        fn parameter_sizes(&self) -> &[usize] {
+            &[6]
+        }
+        fn evaluate(&self, p: Params<'_>, out: &mut [f64]) {
+            out[0] = p.block(0)[1];
+        }
+        fn jacobian(&self, _p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+            jac.set(0, 0, 1, 1.0);
+        }
+    }
+
+    struct ImpulseY;
+    impl ResidualBlock for ImpulseY {
+        fn name(&self) -> &str {
+            "impulse_y"
+        }
+        fn num_residuals(&self) -> usize {
+            6
+        }
+        fn parameter_sizes(&self) -> &[usize] {
+            &[1]
+        }
+        fn evaluate(&self, p: Params<'_>, out: &mut [f64]) {
+            out.fill(0.0);
+            out[1] = p.block(0)[0];
+        }
+        fn jacobian(&self, _p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+            jac.set(0, 1, 0, 1.0);
+        }
+    }
+
+    impl Term for LockY {
+        fn name(&self) -> &str {
+            "lock_y"
+        }
+        fn build(
+            &mut self,
+            handles: &StepHandles,
+            problem: &mut Problem,
+        ) -> Result<(), SceneError> {
+            let nu = handles.bodies[0]
+                .nu
+                .ok_or_else(|| SceneError::NotApplicable {
+                    formulation: "?".into(),
+                    step: None,
+                    reason: "no ν".into(),
+                })?;
+            let lambda = problem.add_variable_block(VarBlock::free("lock_y.lambda", 1));
+            problem.add_residual_block(lambda, VelocityY, &[nu])?;
+            problem.add_term(nu, ImpulseY, &[lambda])?;
+            self.lambda = Some(lambda);
+            Ok(())
+        }
+    }
+
+    #[test]
+    fn a_term_with_its_own_unknown_joins_the_step_problem() {
+        for formulation in ["hull", "point"] {
+            let scene = flying();
+            let f = crate::registry::FormulationRegistry::builtin()
+                .create(formulation)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut sim = Simulation::builder_with(scene.clone(), f)
+                .term(LockY { lambda: None })
+                .build()
+                .unwrap_or_else(|e| panic!("{e}"));
+            let lambda = VarId(sim.mcp().variable_blocks().len() - 1);
+            assert_eq!(
+                sim.mcp().variable_blocks()[lambda.0].name(),
+                "lock_y.lambda"
+            );
+            let mut solver = NewtonSolver::new(NewtonSettings::default());
+            let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+            let m = scene.bodies[0].mass.mass;
+            assert!(rec.bodies[0].v.y.abs() <= 1e-12, "{formulation}");
+            assert!(
+                (sim.values(lambda)[0] + m * 0.5).abs() <= 1e-10,
+                "{formulation}"
+            );
+            assert!((rec.bodies[0].v.x - 1.0).abs() <= 1e-12, "{formulation}");
+            // The next step starts from the previous λ and needs none.
+            let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+            assert!(rec.bodies[0].v.y.abs() <= 1e-12 && sim.values(lambda)[0].abs() <= 1e-10);
+        }
+    }
+
+    #[test]
+    fn a_force_with_the_wrong_inputs_is_refused_with_the_block_named() {
+        struct Short;
+        impl ResidualBlock for Short {
+            fn name(&self) -> &str {
+                "short"
+            }
+            fn num_residuals(&self) -> usize {
+                6
+            }
+            fn parameter_sizes(&self) -> &[usize] {
+                &[6, 7]
+            }
+            fn evaluate(&self, _p: Params<'_>, out: &mut [f64]) {
+                out.fill(0.0);
+            }
+            fn jacobian(&self, _p: Params<'_>, _jac: &mut JacobianBlocks<'_>) {}
+        }
+        let e = Simulation::builder(flying())
+            .force(0, Force::new(Short))
+            .build()
+            .err()
+            .map(|e| e.to_string());
+        assert!(e.is_some_and(|m| m.contains("short") && m.contains("inputs")));
+        let e = Simulation::builder(flying())
+            .force(3, Force::new(Spring))
+            .build()
+            .err()
+            .map(|e| e.to_string());
+        assert!(e.is_some_and(|m| m.contains("body 3")));
+    }
+}
