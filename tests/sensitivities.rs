@@ -220,6 +220,7 @@ fn take_step(case: &StepCase, dir: Option<(Dir, f64)>) -> Result<Simulation, Str
                 StepInput::Force { body, axis } => wrenches[body][axis] += e,
                 StepInput::Torque { body, axis } => wrenches[body][3 + axis] += e,
                 StepInput::Orientation { .. } => return Err("use Dir::Rotation".into()),
+                StepInput::Data(..) => return Err("a user data block: not a scene input".into()),
             },
             Dir::Rotation { body, axis } => {
                 let q = states[body].q;
@@ -278,6 +279,7 @@ fn input_scale(case: &StepCase, dir: Dir) -> f64 {
             StepInput::Velocity { .. } | StepInput::AngularVelocity { .. } => 1.0,
             StepInput::Force { .. } => weight,
             StepInput::Torque { .. } => 0.1 * weight,
+            StepInput::Data(..) => 1.0,
         },
     }
 }

@@ -154,6 +154,11 @@ pub enum StepInput {
         /// 0, 1, 2.
         axis: usize,
     },
+    /// Component `.1` of data block `.0` of the step problem, a user force's or term's
+    /// parameter ([`crate::step::Force::with_data`]): a column only
+    /// [`StepDifferentiator::differentiate_with`] adds, not a step input of trajectory
+    /// gradients.
+    Data(DataId, usize),
 }
 
 /// The step input parameter `p` is at every step, if it is one (the initial-state parameters
@@ -194,6 +199,7 @@ impl StepInput {
             StepInput::AngularVelocity { body, axis } => (body, 17, 3, axis),
             StepInput::Force { body, axis } => (body, 20, 3, axis),
             StepInput::Torque { body, axis } => (body, 23, 3, axis),
+            StepInput::Data(..) => return None,
         };
         (body < bodies && k < len).then_some(FRICTION_INPUTS + BODY_INPUTS * body + offset + k)
     }
@@ -219,6 +225,10 @@ impl StepInput {
             StepInput::AngularVelocity { body, axis } => (body_data(body)?.start, start::W + axis),
             StepInput::Force { body, axis } => (body_data(body)?.wrench, axis),
             StepInput::Torque { body, axis } => (body_data(body)?.wrench, 3 + axis),
+            StepInput::Data(block, component) => {
+                let size = sim.mcp().data_blocks().get(block.0)?.size();
+                (component < size).then_some((block, component))?
+            }
         })
     }
 
@@ -413,6 +423,17 @@ impl StepDifferentiator {
 
     /// The step sensitivities of the last step `sim` took (module documentation).
     pub fn differentiate(&mut self, sim: &Simulation) -> Result<StepSensitivity, SensitivityError> {
+        self.differentiate_with(sim, &[])
+    }
+
+    /// [`StepDifferentiator::differentiate`] with the columns of `extra` inputs after those of
+    /// [`StepInput::all`]: components of the data blocks of user forces and terms
+    /// ([`StepInput::Data`]).
+    pub fn differentiate_with(
+        &mut self,
+        sim: &Simulation,
+        extra: &[StepInput],
+    ) -> Result<StepSensitivity, SensitivityError> {
         let unsupported = || SensitivityError::Unsupported {
             formulation: sim.formulation_name().to_string(),
         };
@@ -458,7 +479,8 @@ impl StepDifferentiator {
             }
         }
         let bodies = sim.scene().bodies.len();
-        let inputs = StepInput::all(bodies);
+        let mut inputs = StepInput::all(bodies);
+        inputs.extend_from_slice(extra);
         let p = inputs.len();
         let rhs = input_columns(sim, z, &inputs)?;
         // Stage 1: everything but the held-contact geometry.
@@ -598,6 +620,16 @@ pub fn step_sensitivity(
     options: &SensitivityOptions,
 ) -> Result<StepSensitivity, SensitivityError> {
     StepDifferentiator::new(*options).differentiate(sim)
+}
+
+/// [`step_sensitivity`] with the columns of `extra` inputs (components of user data blocks,
+/// [`StepInput::Data`]) after those of [`StepInput::all`].
+pub fn step_sensitivity_with(
+    sim: &Simulation,
+    options: &SensitivityOptions,
+    extra: &[StepInput],
+) -> Result<StepSensitivity, SensitivityError> {
+    StepDifferentiator::new(*options).differentiate_with(sim, extra)
 }
 
 /// A scalar loss of a trajectory, a sum of per-step terms of the body states after each step.
@@ -1141,4 +1173,94 @@ pub fn trajectory_gradient_of(
         events,
         mode: options.mode,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
+
+    use super::*;
+    use crate::scenarios;
+    use crate::step::Force;
+
+    fn newton() -> NewtonSolver {
+        NewtonSolver::new(NewtonSettings {
+            tolerance: 1e-13,
+            ..NewtonSettings::default()
+        })
+    }
+
+    /// A spring force's stiffness is a column like any step input: in free flight
+    /// `v⁺ = (m v + h m g − h k (x − a)) / (m + h² k)` per axis, so
+    /// `dv⁺/dk = −h (x − a + h v⁺) / (m + h² k)`; and `dv⁺/dμ = 0` (no contact).
+    #[test]
+    fn a_user_force_parameter_is_differentiated() {
+        let mut scene = scenarios::a1_sliding();
+        scene.bodies[0].initial.x.z += 0.5;
+        let anchor = Vector3::new(0.3, 0.2, 0.9);
+        let k = 150.0;
+        let mut sim = Simulation::builder(scene.clone())
+            .force(0, Force::spring("tether", k, &anchor))
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let rec = sim.step(&mut newton()).unwrap_or_else(|e| panic!("{e}"));
+        let dk = StepInput::Data(sim.force_handles()[0].data[0], 0);
+        let sens = step_sensitivity_with(&sim, &SensitivityOptions::default(), &[dk])
+            .unwrap_or_else(|e| panic!("{e}"));
+        let (m, h) = (scene.bodies[0].mass.mass, scene.h);
+        let x0 = scene.bodies[0].initial.x;
+        for i in 0..3 {
+            let v = rec.bodies[0].v[i];
+            let want = -h * (x0[i] - anchor[i] + h * v) / (m + h * h * k);
+            let got = sens.d_state(0, StateComponent::Velocity(i), dk);
+            assert!(
+                got.is_some_and(|g| (g - want).abs() <= 1e-12),
+                "axis {i}: {got:?} vs {want}"
+            );
+            let dmu = sens.d_state(0, StateComponent::Velocity(i), StepInput::Mu);
+            assert!(dmu.is_some_and(|g| g.abs() <= 1e-15));
+        }
+        // A component the block does not have is refused.
+        let bad = StepInput::Data(sim.force_handles()[0].data[0], 1);
+        assert!(step_sensitivity_with(&sim, &SensitivityOptions::default(), &[bad]).is_err());
+    }
+
+    /// The formulations without step sensitivities say so.
+    #[test]
+    fn formulations_without_sensitivities_are_refused() {
+        let mut sim = Simulation::with_formulation(scenarios::a1_sliding(), "reduced")
+            .unwrap_or_else(|e| panic!("{e}"));
+        sim.step(&mut newton()).unwrap_or_else(|e| panic!("{e}"));
+        let e = step_sensitivity(&sim, &SensitivityOptions::default());
+        assert!(
+            matches!(e, Err(SensitivityError::Unsupported { ref formulation }) if formulation == "reduced")
+        );
+    }
+
+    /// The trajectory gradient of a simulation with parameters set in place is that of a
+    /// fresh one built with those values.
+    #[test]
+    fn gradient_of_a_simulation_uses_its_parameters() {
+        let mut scene = scenarios::a1_sliding();
+        scene.duration = 0.05;
+        let loss = TerminalPositionLoss {
+            body: 0,
+            target: Vector3::zeros(),
+            weight: 1.0,
+        };
+        let mut sim = Simulation::new(scene.clone()).unwrap_or_else(|e| panic!("{e}"));
+        sim.set_param(Param::Mu, 0.25)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let opts = GradientOptions::default();
+        let a = trajectory_gradient_of(&mut sim, &[Param::Mu], &loss, &mut newton(), &opts)
+            .unwrap_or_else(|e| panic!("{e}"));
+        scene.friction.mu = 0.25;
+        let b = trajectory_gradient_with(&scene, &[Param::Mu], &loss, &mut newton(), &opts)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(a.gradient, b.gradient);
+        assert_eq!(a.loss, b.loss);
+        // x_K = h Σ_k (1 − μ g h k), K = 5: dx_K/dμ = −g h² Σ k = −9.8e-4 · 15.
+        let x = a.records[4].bodies[0].x.x;
+        assert!((a.gradient[0] - 2.0 * x * (-9.8e-4 * 15.0)).abs() <= 1e-10);
+    }
 }

@@ -14,6 +14,7 @@
 //! | [`kinematic_map`] | [`KinematicMap`] | `start`, `h` |
 //! | [`contact`] | C1–C5: [`ClosestPointAlignment`], [`NormalCone`], [`HullFaces`], [`HalfSpaceSide`], [`NonPenetration`] | the half-space offset (C4, C5) |
 //! | [`friction`] | [`FrictionDissipation`], [`FrictionEllipsoid`] | `friction` |
+//! | [`spring`] | [`Spring`], a user force (a spring from the CM to an anchor) | its stiffness and anchor |
 //! | [`common`] | helpers: [`ContactFrame`], the inertia parametrisation, [`mass_matrix`] | |
 
 pub mod common;
@@ -22,6 +23,7 @@ pub mod data;
 pub mod friction;
 pub mod kinematic_map;
 pub mod newton_euler;
+pub mod spring;
 
 pub use common::{
     ContactFrame, INERTIA_ENTRIES, inertia_direction, inertia_entries, inertia_from_entries,
@@ -36,3 +38,4 @@ pub use data::{
 pub use friction::{FrictionDissipation, FrictionEllipsoid, FrictionParams};
 pub use kinematic_map::KinematicMap;
 pub use newton_euler::{BODY_DATA_SIZES, BodyStepData, NewtonEuler, body_input};
+pub use spring::Spring;

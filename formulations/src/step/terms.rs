@@ -6,6 +6,8 @@
 
 use std::sync::Arc;
 
+use nalgebra::Vector3;
+
 use ecp_model::{BlockMcp, DataBlock, DataId, Input, Problem, ResId, ResidualBlock};
 
 use super::handles::StepHandles;
@@ -51,6 +53,14 @@ impl Force {
             block: Arc::new(block),
             data: Vec::new(),
         }
+    }
+
+    /// A linear spring of stiffness `k` (N/m) from the body's CM to `anchor`
+    /// ([`crate::blocks::Spring`]), with its data blocks `<name>.k` and `<name>.anchor`.
+    pub fn spring(name: &str, k: f64, anchor: &Vector3<f64>) -> Self {
+        Force::new(crate::blocks::Spring)
+            .with_data(DataBlock::new(format!("{name}.k"), [k]))
+            .with_data(DataBlock::new(format!("{name}.anchor"), anchor.as_slice()))
     }
 
     /// Adds a data block the force reads after `h` (its parameters: a stiffness, an anchor…);
@@ -148,38 +158,6 @@ mod tests {
     use crate::scene::Scene;
     use crate::step::Simulation;
 
-    /// A linear spring from the CM to an anchor: the impulse `−h k (x − anchor)` on the
-    /// translational rows. Data: `k` (1), `anchor` (3).
-    struct Spring;
-
-    impl ResidualBlock for Spring {
-        fn name(&self) -> &str {
-            "spring"
-        }
-        fn num_residuals(&self) -> usize {
-            6
-        }
-        fn parameter_sizes(&self) -> &[usize] {
-            &[6, 7, 1, 1, 3]
-        }
-        fn evaluate(&self, p: Params<'_>, out: &mut [f64]) {
-            let (q, h, k, a) = (p.block(1), p.block(2)[0], p.block(3)[0], p.block(4));
-            out.fill(0.0);
-            for i in 0..3 {
-                out[i] = -h * k * (q[i] - a[i]);
-            }
-        }
-        fn jacobian(&self, p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-            let (q, h, k, a) = (p.block(1), p.block(2)[0], p.block(3)[0], p.block(4));
-            for i in 0..3 {
-                jac.set(Force::Q, i, i, -h * k);
-                jac.set(Force::H, i, 0, -k * (q[i] - a[i]));
-                jac.set(Force::DATA, i, 0, -h * (q[i] - a[i]));
-                jac.set(Force::DATA + 1, i, i, h * k);
-            }
-        }
-    }
-
     /// The A1 box lifted 0.5 m and tossed sideways: free flight for the first steps.
     fn flying() -> Scene {
         let mut scene = scenarios::a1_sliding();
@@ -194,9 +172,7 @@ mod tests {
     fn a_spring_force_joins_newton_euler() {
         let scene = flying();
         let (k, anchor) = (300.0, Vector3::new(0.2, -0.1, 0.3));
-        let spring = Force::new(Spring)
-            .with_data(DataBlock::new("spring.k", [k]))
-            .with_data(DataBlock::new("spring.anchor", anchor.as_slice()));
+        let spring = Force::spring("spring", k, &anchor);
         let mut sim = Simulation::builder(scene.clone())
             .force(0, spring)
             .build()
@@ -354,7 +330,7 @@ mod tests {
             .map(|e| e.to_string());
         assert!(e.is_some_and(|m| m.contains("short") && m.contains("inputs")));
         let e = Simulation::builder(flying())
-            .force(3, Force::new(Spring))
+            .force(3, Force::spring("far", 1.0, &Vector3::zeros()))
             .build()
             .err()
             .map(|e| e.to_string());
