@@ -38,7 +38,10 @@ fn custom_block_is_checked_and_solved() {
     assert_eq!(lambda, 0.0);
     let (y, lambda) = out[1];
     assert!(y.abs() <= 1e-12, "y = {y}");
-    assert!((lambda - (5.0 * g - k * l - c * l * l * l)).abs() <= 1e-10, "λ = {lambda}");
+    assert!(
+        (lambda - (5.0 * g - k * l - c * l * l * l)).abs() <= 1e-10,
+        "λ = {lambda}"
+    );
 }
 
 /// A formulation defined outside the crate runs through `ecp run`'s driver and outputs: the
