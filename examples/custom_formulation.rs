@@ -16,8 +16,8 @@ use ecp::formulations::blocks::{
     newton_euler::body_rows_jacobian,
 };
 use ecp::formulations::geometry::MassProperties;
-use ecp::formulations::record::gaps_and_modes;
-use ecp::formulations::step::body::{predict_pose, set_body_data, store_state};
+use ecp::formulations::record::scene_gaps_and_modes;
+use ecp::formulations::step::body::{predict_pose, set_body_data, store_states};
 use ecp::formulations::step::{
     BodyHandles, Capabilities, ContactHandles, SensitivitySupport, StepContext, StepFormulation,
     StepHandles,
@@ -277,9 +277,8 @@ impl StepFormulation for Spheres {
         z: &mut [f64],
         states: &mut [BodyState],
     ) -> Result<(), SceneError> {
-        for ((nu, q, _), s) in self.bodies.iter().zip(states.iter_mut()) {
-            *s = store_state(mcp, z, (*nu, *q), &s.q, &Vector3::zeros());
-        }
+        let vars = self.bodies.iter().map(|(nu, q, _)| (*nu, *q));
+        store_states(mcp, z, vars, states, &Vector3::zeros());
         Ok(())
     }
     fn contact_records(
@@ -291,13 +290,7 @@ impl StepFormulation for Spheres {
         z: &[f64],
         out: &mut Vec<ContactRecord>,
     ) {
-        let shapes: Vec<_> = scene
-            .bodies
-            .iter()
-            .zip(states)
-            .map(|(b, s)| (&b.shape, *s))
-            .collect();
-        let table = gaps_and_modes(&shapes, &scene.planes);
+        let table = scene_gaps_and_modes(scene, states);
         for (b, (s, pn)) in states.iter().zip(&self.impulses).enumerate() {
             for (p, (plane, v)) in scene.planes.iter().zip(pn).enumerate() {
                 let a = s.x - plane.normal() * self.radius;

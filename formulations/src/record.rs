@@ -10,7 +10,7 @@ use crate::geometry::{
     ContactMode, HalfSpace, MassProperties, Shape, contact_mode, min_gap, world_vertices,
 };
 use crate::rotation::rotation_matrix;
-use crate::scene::BodyState;
+use crate::scene::{BodyState, Scene};
 
 /// Tolerance on a vertex's distance to the plane for the contact mode (`docs/model.md#scenarios`).
 pub const MODE_TOLERANCE: f64 = 1e-7;
@@ -246,6 +246,17 @@ pub fn gaps_and_modes(
                 .collect()
         })
         .collect()
+}
+
+/// [`gaps_and_modes`] of the bodies of `scene` at `states`.
+pub fn scene_gaps_and_modes(scene: &Scene, states: &[BodyState]) -> Vec<Vec<(f64, ContactMode)>> {
+    let shapes: Vec<_> = scene
+        .bodies
+        .iter()
+        .zip(states)
+        .map(|(b, s)| (&b.shape, *s))
+        .collect();
+    gaps_and_modes(&shapes, &scene.planes)
 }
 
 /// Penetration at the end of a step: `max(0, −min_gap)` over the records' contacts, i.e. over

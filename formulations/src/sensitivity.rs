@@ -906,6 +906,21 @@ pub struct TrajectoryGradient {
     pub mode: GradientMode,
 }
 
+/// One step of `sim`; a step that does not converge is an error.
+fn converged_step(
+    sim: &mut Simulation,
+    solver: &mut dyn McpSolver,
+) -> Result<StepRecord, SensitivityError> {
+    let rec = sim.step(solver)?;
+    if !rec.converged {
+        return Err(SensitivityError::NotConverged {
+            step: rec.step,
+            residual: rec.summary.residual,
+        });
+    }
+    Ok(rec)
+}
+
 /// The loss of a run of `scene` with the hull formulation (no derivatives: for derivative-free
 /// optimisers), with the records. A step that does not converge is an error.
 pub fn trajectory_loss(
@@ -932,13 +947,7 @@ pub fn trajectory_loss_of(
     let mut total = 0.0;
     let mut records = Vec::with_capacity(steps);
     while !sim.finished() {
-        let rec = sim.step(solver)?;
-        if !rec.converged {
-            return Err(SensitivityError::NotConverged {
-                step: rec.step,
-                residual: rec.summary.residual,
-            });
-        }
+        let rec = converged_step(sim, solver)?;
         total += loss.step_term(&rec, steps, &mut grad);
         records.push(rec);
     }
@@ -1041,13 +1050,7 @@ pub fn trajectory_gradient_of(
     let mut total = 0.0;
     let mut previous: Option<Vec<ComponentStatus>> = None;
     while !sim.finished() {
-        let rec = sim.step(solver)?;
-        if !rec.converged {
-            return Err(SensitivityError::NotConverged {
-                step: rec.step,
-                residual: rec.summary.residual,
-            });
-        }
+        let rec = converged_step(sim, solver)?;
         let sens = differ.differentiate(sim)?;
         if let Some(prev) = &previous {
             for (i, (a, b)) in prev.iter().zip(&sens.status).enumerate() {

@@ -32,10 +32,10 @@ use crate::blocks::{
     add_plane_data, add_scene_data,
 };
 use crate::geometry::{ConvexHull, HalfSpace, min_gap};
-use crate::record::{ContactRecord, gaps_and_modes};
+use crate::record::{ContactRecord, scene_gaps_and_modes};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
-use crate::step::body::{predict_pose, set_body_data, store_state};
+use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
@@ -531,8 +531,8 @@ impl StepFormulation for EcpContacts {
             let plane = &ctx.scene.planes[c.plane];
             let r = rotation_matrix(&s.q);
             let gap = min_gap(l.contact_hulls[i].vertices(), &s.x, &r, plane);
-            let approach = -(s.v + ctx.scene.gravity * ctx.h).dot(&plane.normal());
-            if gap <= approach.max(0.0) * ctx.h + 1e-9 {
+            let n = plane.normal();
+            if is_closing(gap, &s, &ctx.scene.gravity, &n, ctx.h, 1e-9) {
                 guess.contact(i, true, z);
             }
         }
@@ -548,9 +548,13 @@ impl StepFormulation for EcpContacts {
         states: &mut [BodyState],
     ) -> Result<(), SceneError> {
         let l = &self.layout;
-        for (body, s) in l.bodies.iter().zip(states.iter_mut()) {
-            *s = store_state(mcp, z, (body.nu, body.q), &s.q, &l.origin);
-        }
+        store_states(
+            mcp,
+            z,
+            l.bodies.iter().map(|b| (b.nu, b.q)),
+            states,
+            &l.origin,
+        );
         Ok(())
     }
 
@@ -563,13 +567,7 @@ impl StepFormulation for EcpContacts {
         z: &[f64],
         out: &mut Vec<ContactRecord>,
     ) {
-        let shapes: Vec<_> = scene
-            .bodies
-            .iter()
-            .zip(states)
-            .map(|(b, s)| (&b.shape, *s))
-            .collect();
-        let table = gaps_and_modes(&shapes, &scene.planes);
+        let table = scene_gaps_and_modes(scene, states);
         let o = self.layout.origin;
         let get = |v| &z[mcp.range(v)];
         for c in &self.layout.contacts {

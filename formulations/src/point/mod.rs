@@ -53,10 +53,10 @@ use ecp_model::{BlockMcp, DataBlock, DataId, Input, Problem, VarBlock, VarId};
 use crate::blocks::{
     BodyDataIds, ContactFrame, KinematicMap, SceneDataIds, add_body_data, add_scene_data,
 };
-use crate::record::{ContactRecord, gaps_and_modes};
+use crate::record::{ContactRecord, scene_gaps_and_modes};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_penetration, validate_parameters};
-use crate::step::body::{predict_pose, set_body_data, store_state};
+use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, SensitivitySupport, StepContext, StepFormulation,
     StepHandles,
@@ -520,13 +520,13 @@ impl StepFormulation for PointContacts {
         if attempt > 0 {
             return false;
         }
-        let (h, g) = (ctx.h, ctx.scene.gravity);
         let closing: Vec<bool> = (0..self.contacts.len())
             .map(|i| {
                 let c = self.contacts[i];
-                let s = ctx.states[c.body];
-                let approach = -(s.v + g * h).dot(&ctx.scene.planes[c.plane].normal());
-                self.gap(ctx.scene, ctx.states, i) <= approach.max(0.0) * h + CLOSED_GAP
+                let n = ctx.scene.planes[c.plane].normal();
+                let gap = self.gap(ctx.scene, ctx.states, i);
+                let s = &ctx.states[c.body];
+                is_closing(gap, s, &ctx.scene.gravity, &n, ctx.h, CLOSED_GAP)
             })
             .collect();
         self.guess_active(ctx, mcp, z, &closing, &closing);
@@ -541,9 +541,7 @@ impl StepFormulation for PointContacts {
         states: &mut [BodyState],
     ) -> Result<(), SceneError> {
         let o = Vector3::zeros();
-        for (body, s) in self.bodies.iter().zip(states.iter_mut()) {
-            *s = store_state(mcp, z, (body.nu, body.q), &s.q, &o);
-        }
+        store_states(mcp, z, self.bodies.iter().map(|b| (b.nu, b.q)), states, &o);
         Ok(())
     }
 
@@ -556,13 +554,7 @@ impl StepFormulation for PointContacts {
         z: &[f64],
         out: &mut Vec<ContactRecord>,
     ) {
-        let shapes: Vec<_> = scene
-            .bodies
-            .iter()
-            .zip(states)
-            .map(|(b, s)| (&b.shape, *s))
-            .collect();
-        let table = gaps_and_modes(&shapes, &scene.planes);
+        let table = scene_gaps_and_modes(scene, states);
         for c in &self.contacts {
             let plane = &scene.planes[c.plane];
             let s = states[c.body];

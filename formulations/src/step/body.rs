@@ -49,6 +49,36 @@ pub fn predict_pose(
     (x_pred + origin, r_pred)
 }
 
+/// [`store_state`] for every body: `vars[b]` are body `b`'s `(ν, q)` blocks, `states` its state
+/// at the start of the span on entry and at its end on return.
+pub fn store_states(
+    mcp: &BlockMcp,
+    z: &mut [f64],
+    vars: impl IntoIterator<Item = (VarId, VarId)>,
+    states: &mut [BodyState],
+    origin: &Vector3<f64>,
+) {
+    for (v, s) in vars.into_iter().zip(states.iter_mut()) {
+        *s = store_state(mcp, z, v, &s.q, origin);
+    }
+}
+
+/// Whether a contact point `gap` (m) away from a half-space of normal `normal` is closed or
+/// closing within a span of length `h` from `state`: the gap is at most the approach of the span
+/// under gravity, plus `tolerance` (the test of the deterministic retries,
+/// `docs/decisions.md#retry-from-the-active-contact-guess`).
+pub fn is_closing(
+    gap: f64,
+    state: &BodyState,
+    gravity: &Vector3<f64>,
+    normal: &Vector3<f64>,
+    h: f64,
+    tolerance: f64,
+) -> bool {
+    let approach = -(state.v + gravity * h).dot(normal);
+    gap <= approach.max(0.0) * h + tolerance
+}
+
 /// The state stored at the end of a span from the solution's `ν` and `q` blocks in `z`, with Q
 /// renormalised (`docs/model.md#kinematic-map`; `previous` replaces a zero quaternion) and `x`
 /// in world coordinates (`origin` added); the renormalised Q is written back into `z` for the

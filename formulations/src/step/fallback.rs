@@ -116,12 +116,13 @@ pub(crate) fn rescue<S: Spans>(
         driver.restore(start);
         let mut pieces = Vec::new();
         let mut last = None;
-        let span = Halving {
+        let mut span = Halving {
             solver,
             fallbacks,
             backends,
         };
-        if let (true, Some(s)) = span.solve_halves(driver, t0, h, 1, &mut pieces, &mut last)? {
+        let covered = span.halves(driver, t0, h, 1, &mut pieces, &mut last)?;
+        if let (true, Some(s)) = (covered, last) {
             let finest = pieces.iter().copied().max().unwrap_or(1);
             let method = StepMethod::Substeps {
                 pieces: pieces.len(),
@@ -143,21 +144,8 @@ struct Halving<'a> {
 impl Halving<'_> {
     /// Solves `[t0, t0 + h]` from the current state as two halves, each with the solver then the
     /// fallback backends, bisecting a half again when all fail, down to `depth =
-    /// max_halvings`. Appends each accepted piece's denominator (2^depth) to `pieces`; returns
-    /// whether the whole span was covered.
-    fn solve_halves<S: Spans>(
-        mut self,
-        driver: &mut S,
-        t0: f64,
-        h: f64,
-        depth: u32,
-        pieces: &mut Vec<usize>,
-        last: &mut Option<ecp_model::Summary>,
-    ) -> Result<(bool, Option<ecp_model::Summary>), SceneError> {
-        let ok = self.halves(driver, t0, h, depth, pieces, last)?;
-        Ok((ok, last.take()))
-    }
-
+    /// max_halvings`. Appends each accepted piece's denominator (2^depth) to `pieces` and keeps
+    /// the last piece's summary in `last`; returns whether the whole span was covered.
     fn halves<S: Spans>(
         &mut self,
         driver: &mut S,
