@@ -1,6 +1,6 @@
 //! Variable blocks and their bounds (`docs/model.md#mcp`: the PATH/GAMS box convention).
 
-use crate::ModelError;
+use crate::error::ModelError;
 
 /// Bounds of one scalar unknown: `lower ≤ z ≤ upper`, entries may be ±∞.
 ///

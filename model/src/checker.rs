@@ -28,7 +28,7 @@
 
 use std::fmt;
 
-use crate::ModelError;
+use crate::error::ModelError;
 use crate::mcp::Mcp;
 use crate::problem::{BlockMcp, ResId};
 use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};

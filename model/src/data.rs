@@ -50,8 +50,8 @@
 //! assert!(check_problem(&mcp, &[2.0], &CheckOptions::default()).iter().all(|r| r.ok()));
 //! ```
 
-use crate::ModelError;
 use crate::bounds::VarId;
+use crate::error::ModelError;
 
 /// Handle of a data block inside a [`Problem`](crate::Problem) and the
 /// [`BlockMcp`](crate::BlockMcp) built from it.

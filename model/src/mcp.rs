@@ -3,8 +3,8 @@
 
 use std::sync::Arc;
 
-use crate::ModelError;
 use crate::bounds::{BoundKind, Bounds, classify};
+use crate::error::ModelError;
 use crate::pattern::CscPattern;
 use crate::structure::StepStructure;
 

@@ -29,7 +29,9 @@
 use std::fmt;
 use std::sync::Arc;
 
-use crate::{CscPattern, FnMcp, Mcp, ModelError};
+use crate::error::ModelError;
+use crate::mcp::{FnMcp, Mcp};
+use crate::pattern::CscPattern;
 
 const INF: f64 = f64::INFINITY;
 

@@ -4,7 +4,7 @@
 //! has the same pattern as `J` and the symbolic analysis of its LU factorisation is done
 //! once per pattern (DEVELOPERS.md: pattern analysis happens once and is reused).
 
-use crate::ModelError;
+use crate::error::ModelError;
 
 /// Sparsity pattern of a square `n × n` matrix in compressed sparse column form,
 /// row indices sorted within each column, diagonal always present.

@@ -3,10 +3,10 @@
 
 use std::sync::Arc;
 
-use crate::ModelError;
 use crate::bounds::VarBlock;
 pub use crate::bounds::VarId;
 use crate::data::{DataBlock, DataId, Input, IntoInputs};
+use crate::error::ModelError;
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};

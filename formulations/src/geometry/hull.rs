@@ -4,9 +4,9 @@ use nalgebra::Vector3;
 use parry3d_f64::math::Vector as PVec;
 use parry3d_f64::shape::ConvexPolyhedron;
 
-use super::{
-    FLATNESS_TOL, GeometryError, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL,
-    dedupe_points,
+use super::error::GeometryError;
+use super::points::{
+    FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL, dedupe_points,
 };
 
 /// Two faces whose unit normals satisfy `n1·n2 > 1 − PLANE_DUP_TOL` (and whose

@@ -2,7 +2,7 @@
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::GeometryError;
+use super::error::GeometryError;
 
 /// Relative tolerance of the inertia symmetry check.
 const SYMMETRY_TOL: f64 = 1e-9;
@@ -104,7 +104,7 @@ impl MassProperties {
     /// Mass properties of the T-bar of scenario C (uniform density, two
     /// boxes), about its CM in the body frame of [`Shape::t_bar`](super::Shape::t_bar).
     pub fn t_bar(mass: f64) -> Result<Self, GeometryError> {
-        Ok(Self::uniform_cuboids(mass, &super::shape::t_bar_boxes())?.0)
+        Ok(Self::uniform_cuboids(mass, &t_bar_boxes())?.0)
     }
 }
 
@@ -144,6 +144,31 @@ pub(super) fn check_half_extents(what: &str, h: &Vector3<f64>) -> Result<(), Geo
         check_length(&format!("the {axis} half extent of {what}"), *v)?;
     }
     Ok(())
+}
+
+/// T-bar of scenario C: crossbar length along body y (m).
+const TBAR_CROSS_LEN: f64 = 0.20;
+/// T-bar: stem length along +x (m).
+const TBAR_STEM_LEN: f64 = 0.15;
+/// T-bar: width of both bars, and thickness (m).
+const TBAR_WIDTH: f64 = 0.05;
+
+/// The T-bar's two boxes `(half_extents, center)` about its uniform-density CM.
+pub(super) fn t_bar_boxes() -> Vec<(Vector3<f64>, Vector3<f64>)> {
+    let w = TBAR_WIDTH;
+    // Frame with the crossbar's outer edge at x = 0, mid-thickness at z = 0.
+    let boxes = [
+        (
+            Vector3::new(w / 2.0, TBAR_CROSS_LEN / 2.0, w / 2.0),
+            Vector3::new(w / 2.0, 0.0, 0.0),
+        ),
+        (
+            Vector3::new(TBAR_STEM_LEN / 2.0, w / 2.0, w / 2.0),
+            Vector3::new(w + TBAR_STEM_LEN / 2.0, 0.0, 0.0),
+        ),
+    ];
+    let (cm, _) = volume_weighted_centroid(1.0, &boxes);
+    boxes.iter().map(|(h, c)| (*h, c - cm)).collect()
 }
 
 #[cfg(test)]

@@ -17,6 +17,7 @@ mod error;
 mod hull;
 mod mass;
 mod plane;
+mod points;
 mod polygon;
 mod shape;
 
@@ -24,38 +25,6 @@ pub use error::GeometryError;
 pub use hull::{ConvexHull, Face, prune_to_extreme_candidates};
 pub use mass::MassProperties;
 pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
+pub use points::{FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL};
 pub use polygon::convex_hull_2d;
 pub use shape::{ConvexPiece, Shape};
-
-/// Distance below which two vertices are treated as the same point (m).
-///
-/// Shapes built from touching pieces (the desk's legs under its top) share
-/// corners up to rounding; see [`Shape::vertices`].
-pub const VERTEX_MERGE_TOL: f64 = 1e-12;
-
-/// Relative thickness (thickness / diameter) below which a point set is
-/// rejected as flat by [`ConvexHull::from_points`].
-pub const FLATNESS_TOL: f64 = 1e-9;
-
-/// Largest number of vertices of a hull built by [`ConvexHull::from_points`]
-/// (`docs/scene-format.md`, meshes). The hull of `k` points has up to `2k − 4` faces and each
-/// face is an unknown of every time step, so a finely tessellated round body is refused with a
-/// message asking for a simplified mesh rather than made into a huge step problem.
-/// See `docs/decisions.md#mesh-limits`.
-pub const MAX_HULL_POINTS: usize = 2000;
-
-/// Largest number of candidate extreme points (left after interior points and exact
-/// duplicates are removed) that [`ConvexHull::from_points`] hands to the hull algorithm; more
-/// are refused at once, since their hull would almost surely exceed [`MAX_HULL_POINTS`].
-pub const MAX_HULL_CANDIDATES: usize = 20_000;
-
-/// Removes points closer than `tol` to an earlier point, keeping first occurrences.
-fn dedupe_points(points: &[nalgebra::Vector3<f64>], tol: f64) -> Vec<nalgebra::Vector3<f64>> {
-    let mut out: Vec<nalgebra::Vector3<f64>> = Vec::with_capacity(points.len());
-    for p in points {
-        if !out.iter().any(|q| (q - p).norm() <= tol) {
-            out.push(*p);
-        }
-    }
-    out
-}

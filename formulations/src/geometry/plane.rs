@@ -5,7 +5,8 @@ use std::fmt;
 
 use nalgebra::{Matrix3, Vector3};
 
-use super::{GeometryError, VERTEX_MERGE_TOL, dedupe_points};
+use super::error::GeometryError;
+use super::points::{VERTEX_MERGE_TOL, dedupe_points};
 
 /// A fixed obstacle G = { p : normal·p − offset ≤ 0 } (`docs/model.md#contact`,
 /// `g(p) = n_Gᵀ p − c`). The unit normal points out of G, into the body's side.

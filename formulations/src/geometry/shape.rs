@@ -3,8 +3,10 @@
 
 use nalgebra::{Vector3, Vector4};
 
-use super::mass::{check_half_extents, check_length, volume_weighted_centroid};
-use super::{ConvexHull, GeometryError, VERTEX_MERGE_TOL, dedupe_points};
+use super::error::GeometryError;
+use super::hull::ConvexHull;
+use super::mass::{check_half_extents, check_length, t_bar_boxes};
+use super::points::{VERTEX_MERGE_TOL, dedupe_points};
 use crate::rotation::rotation_matrix;
 
 /// One convex piece of a body, in the body frame.
@@ -120,31 +122,6 @@ const DESK_SLAB: f64 = 0.05;
 const DESK_LEG: f64 = 0.85;
 /// Desk: square leg cross-section side (m).
 const DESK_FOOT: f64 = 0.06;
-
-/// T-bar of scenario C: crossbar length along body y (m).
-const TBAR_CROSS_LEN: f64 = 0.20;
-/// T-bar: stem length along +x (m).
-const TBAR_STEM_LEN: f64 = 0.15;
-/// T-bar: width of both bars, and thickness (m).
-const TBAR_WIDTH: f64 = 0.05;
-
-/// The T-bar's two boxes `(half_extents, center)` about its uniform-density CM.
-pub(super) fn t_bar_boxes() -> Vec<(Vector3<f64>, Vector3<f64>)> {
-    let w = TBAR_WIDTH;
-    // Frame with the crossbar's outer edge at x = 0, mid-thickness at z = 0.
-    let boxes = [
-        (
-            Vector3::new(w / 2.0, TBAR_CROSS_LEN / 2.0, w / 2.0),
-            Vector3::new(w / 2.0, 0.0, 0.0),
-        ),
-        (
-            Vector3::new(TBAR_STEM_LEN / 2.0, w / 2.0, w / 2.0),
-            Vector3::new(w + TBAR_STEM_LEN / 2.0, 0.0, 0.0),
-        ),
-    ];
-    let (cm, _) = volume_weighted_centroid(1.0, &boxes);
-    boxes.iter().map(|(h, c)| (*h, c - cm)).collect()
-}
 
 impl Shape {
     /// Shape from convex pieces, validated. A `Points` piece is reduced to the
