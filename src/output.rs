@@ -33,7 +33,7 @@ pub struct TrajectoryWriter {
 
 impl TrajectoryWriter {
     /// Creates (truncates) `path` and writes the header for `scene`'s bodies with
-    /// `contacts_per_body` contacts each ([`ecp_formulations::Stepper::contacts_per_body`]).
+    /// `contacts_per_body` contacts each ([`ecp_formulations::Simulation::contacts_per_body`]).
     pub fn create(
         path: &Path,
         scene: &Scene,

@@ -29,13 +29,19 @@
 //! - a singular reduced Jacobian gets the minimum-norm solution ([`SolveKind::Regularised`]),
 //!   reported.
 //!
-//! **Only the hull formulation is supported.** The union formulation (`docs/model.md#union`) runs
-//! through the same code, but its impulses are shared between the pieces and not unique: its
-//! reduced Jacobian is singular, and inconsistent for the data columns
+//! **Exact for the hull formulation.** The code reads only the driver's handles (each body's ν
+//! and q, each contact's normal impulse, friction and geometry unknowns), so any formulation
+//! whose [`Capabilities`](crate::step::Capabilities) say it has sensitivities runs through it.
+//! The union formulation's (`docs/model.md#union`) impulses are shared between the pieces and
+//! not unique: its reduced Jacobian is singular, and inconsistent for the data columns
 //! (`docs/decisions.md#sensitivities-the-hull-formulation-only`), so its derivatives are
-//! least-squares guesses. They are reported as
-//! [`Degeneracy::Singular`] at every step, never passed off as exact. The reduced and point
-//! formulations have their own steppers and no sensitivities.
+//! least-squares guesses, reported as [`Degeneracy::Singular`] at every step, never passed off
+//! as exact ([`SensitivitySupport::NotUnique`]). The reduced and point formulations have none
+//! ([`SensitivitySupport::None`]: the reduced step holds no ν and q, and the point step's frozen
+//! geometry is data derived from the start state); they are refused
+//! ([`SensitivityError::Unsupported`]). User forces and terms take part: their unknowns are in
+//! `dz`, and their data are columns on request ([`StepInput::Data`],
+//! [`StepDifferentiator::differentiate_with`]).
 //!
 //! **Trajectory gradients.** [`trajectory_gradient`] runs a scene and chains the step
 //! sensitivities of the state passed between steps (x, Q normalised, v, ω per body) for a scalar

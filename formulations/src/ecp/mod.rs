@@ -399,7 +399,7 @@ impl StepFormulation for EcpContacts {
     /// First-step guess (`docs/model.md#stepper`): `ν` from the state and, for each contact,
     /// `a1` on Conv(F) nearest to G and its projection `a2`, the gap as `l_g`, face multipliers
     /// of the closest-point condition; where the body already touches G, the impulses start
-    /// active ([`Guess::contact`]). The origin starts at zero.
+    /// active (`guess::Guess::contact`). The origin starts at zero.
     fn initial_guess(
         &mut self,
         ctx: &StepContext<'_>,
@@ -455,7 +455,7 @@ impl StepFormulation for EcpContacts {
     /// Warm start from the previous solution: `q` predicted by the kinematic map; a contact that
     /// ended the last step open (`p_n = 0`) starts at the closest points of the predicted pose
     /// (`a1`, `a2`, `l_g`, face multipliers that satisfy C2 there, [`closest_point_guess`]) when
-    /// that pose is still separated, with σ kept > 0 ([`Guess::open_contact_sigma`]: the
+    /// that pose is still separated, with σ kept > 0 (`guess::Guess::open_contact_sigma`: the
     /// solution leaves σ free, and σ = 0 makes the friction rows' linearisation vanish at the
     /// warm start); when the predicted pose penetrates, the contact closes within the span and
     /// starts active.

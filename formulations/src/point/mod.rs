@@ -10,7 +10,7 @@
 //!
 //! - Newton–Euler with every point's wrench, its mass matrix and gyroscopic impulse
 //!   at the end of the step as in the hull model (`docs/energy.md`; [`PointNewtonEuler`]);
-//! - the kinematic map (`docs/model.md#kinematic-map`, [`KinematicMap`](crate::blocks::KinematicMap));
+//! - the kinematic map (`docs/model.md#kinematic-map`, [`KinematicMap`]);
 //! - non-penetration of the linearised gap, in velocity units,
 //!   `0 ≤ p_n,i ⊥ g_i(q^u)/h + W_n,iᵀ ν ≥ 0` ([`PointNonPenetration`]);
 //! - the elliptic maximum-dissipation friction law of `docs/model.md#friction` restricted to the
