@@ -11,6 +11,7 @@ use ecp::backends::{SolverConfig, SolverKind, make_solver};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::stepper::{MODE_TOLERANCE, Simulation};
+use ecp::model::Counter;
 use nalgebra::Vector3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
@@ -53,12 +54,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_tilt = max_tilt.max(tilt);
         times.push(rec.solve_us);
         failed += usize::from(!rec.converged);
-        if rec
-            .summary
-            .counters
-            .iter()
-            .any(|(name, n)| *name == "retries" && *n > 0)
-        {
+        if rec.summary.counter(Counter::Retries).unwrap_or(0) > 0 {
             println!(
                 "t={:.2} solved on the stepper's retry ({} iterations, {:.0} µs)",
                 rec.t, rec.summary.iterations, rec.solve_us

@@ -38,6 +38,7 @@
 
 pub mod bounds;
 pub mod checker;
+pub mod counters;
 pub mod linalg;
 pub mod mcp;
 /// Standard MCP test problems (MCPLIB, LCPs, friction NCPs) for judging backends: enabled by
@@ -57,6 +58,7 @@ pub use checker::{
     BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_block_mcp,
     check_block_mcp_data, check_data_jacobian, check_mcp, check_residual_block,
 };
+pub use counters::{Counter, Counters};
 pub use mcp::{
     FnMcp, Mcp, WorstComponent, diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister,
     mid, natural_residual, residual_of,

@@ -38,8 +38,8 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::{
-    CscPattern, Mcp, McpSolver, Solution, SolveError, SolveReport, Termination, finish_solve, mid,
-    natural_residual, validate_start,
+    Counter, Counters, CscPattern, Mcp, McpSolver, Solution, SolveError, SolveReport, Termination,
+    finish_solve, mid, natural_residual, validate_start,
 };
 
 use basis::BasisFactor;
@@ -1253,7 +1253,10 @@ impl McpSolver for Lemke {
                 jac_evals: 1,
                 started: start,
                 trace: Vec::new(),
-                counters: vec![("pivots", pivots), ("refactorizations", refactorizations)],
+                counters: Counters::from([
+                    (Counter::Pivots, pivots),
+                    (Counter::Refactorizations, refactorizations),
+                ]),
             },
         )
     }
