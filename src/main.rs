@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use ecp::backends::{Formulation, SolverKind};
+use ecp::backends::Formulation;
 use ecp::fit::{FitError, GradientMethod, Method};
 use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
 use ecp::scene::{SceneFile, load_scene};
@@ -31,7 +31,7 @@ enum Command {
         scene: PathBuf,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
         #[arg(long)]
-        solver: Option<SolverKind>,
+        solver: Option<String>,
         /// Contact formulation, instead of the scene's: hull, union, reduced or point.
         #[arg(long)]
         formulation: Option<Formulation>,
@@ -62,7 +62,7 @@ enum Command {
         scene: PathBuf,
         /// Comma-separated backends [default: newton,path,conic].
         #[arg(long, value_delimiter = ',')]
-        solvers: Option<Vec<SolverKind>>,
+        solvers: Option<Vec<String>>,
         /// Comma-separated formulations [default: hull].
         #[arg(long, value_delimiter = ',')]
         formulations: Option<Vec<Formulation>>,
@@ -102,7 +102,7 @@ enum Command {
         gradient: GradientMethod,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
         #[arg(long)]
-        solver: Option<SolverKind>,
+        solver: Option<String>,
         /// Contact formulation, instead of the scene's.
         #[arg(long)]
         formulation: Option<Formulation>,
@@ -171,7 +171,7 @@ fn main() -> ExitCode {
                 plots: !no_plots,
                 keep_going,
                 fallbacks: !no_fallbacks,
-                time_limit: None,
+                ..RunOptions::default()
             };
             run(&file, &options, quiet)
         }),
@@ -190,7 +190,14 @@ fn main() -> ExitCode {
             };
             compare(
                 &file,
-                &solvers.unwrap_or_else(|| SolverKind::ALL.to_vec()),
+                &solvers.unwrap_or_else(|| {
+                    options
+                        .registry
+                        .names()
+                        .into_iter()
+                        .map(str::to_string)
+                        .collect()
+                }),
                 &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
                 &options,
             )
@@ -353,7 +360,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
 
 fn compare(
     file: &SceneFile,
-    solvers: &[SolverKind],
+    solvers: &[String],
     formulations: &[Formulation],
     options: &RunOptions,
 ) -> Result<ExitCode, RunError> {
@@ -412,7 +419,7 @@ struct FitRequest {
     params: Vec<String>,
     method: Method,
     gradient: GradientMethod,
-    solver: Option<SolverKind>,
+    solver: Option<String>,
     formulation: Option<Formulation>,
     max_iters: Option<u64>,
     steps: Option<usize>,
@@ -461,8 +468,8 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
         reference = reference.truncated(n);
     }
     let mut config = file.solver.clone();
-    if let Some(kind) = request.solver {
-        config.kind = kind;
+    if let Some(name) = &request.solver {
+        config.name = name.trim().to_string();
     }
     let formulation = request.formulation.unwrap_or(file.formulation);
     let problem = TrajectoryProblem::from_scene(scene, formulation, config, reference, params);

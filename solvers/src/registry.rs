@@ -67,6 +67,9 @@ pub trait Backend: Send + Sync {
     fn build(&self, options: &BackendOptions) -> Result<Box<dyn McpSolver>, SettingsError>;
 }
 
+/// Names of the built-in backends, in the order of [`Registry::builtin`].
+pub const BUILTIN: [&str; 3] = ["newton", "path", "conic"];
+
 /// The backends by name, in registration order.
 pub struct Registry {
     backends: Vec<Box<dyn Backend>>,
@@ -129,6 +132,14 @@ impl Registry {
         options: &BackendOptions,
     ) -> Result<Box<dyn McpSolver>, RegistryError> {
         Ok(self.get(name)?.build(options)?)
+    }
+}
+
+/// The registered names, e.g. `Registry["newton", "path", "conic"]`.
+impl std::fmt::Debug for Registry {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Registry")?;
+        f.debug_list().entries(self.names()).finish()
     }
 }
 
@@ -211,7 +222,7 @@ mod tests {
     #[test]
     fn builtin_names_lookup_and_errors() {
         let mut r = Registry::builtin();
-        assert_eq!(r.names(), ["newton", "path", "conic"]);
+        assert_eq!(r.names(), BUILTIN);
         assert!(r.get("conic").unwrap().needs_structure());
         assert!(!r.get(" path ").unwrap().needs_structure());
         let e = r.build("lemke", &BackendOptions::default()).err().unwrap();
