@@ -129,6 +129,10 @@ enum Command {
     Lcp {
         /// The LCP file (JSON).
         file: PathBuf,
+        /// Then solve it N more times with the same solver (warm) and add "repeat", "best_us"
+        /// and "median_us" (the fastest and the median of those solves) to the JSON.
+        #[arg(long, value_name = "N", default_value_t = 0)]
+        repeat: usize,
     },
 }
 
@@ -235,28 +239,26 @@ fn main() -> ExitCode {
             say!("{}", ecp::scene::describe(&file));
             ExitCode::SUCCESS
         }),
-        Command::Lcp { file } => {
-            ecp::lcp::load_lcp(&file)
-                .map_err(RunError::from)
-                .and_then(|lcp| {
-                    let report = ecp::lcp::solve_lcp(&lcp);
-                    let json = serde_json::to_string(&report).map_err(|e| {
-                        RunError::Output(ecp::output::OutputError {
-                            path: PathBuf::from("<stdout>"),
-                            source: e.into(),
-                        })
-                    })?;
-                    sayln!("{json}");
-                    if let Some(e) = &report.error {
-                        eprintln!("error: {}: {e}", file.display());
-                    }
-                    Ok(if report.solved() {
-                        ExitCode::SUCCESS
-                    } else {
-                        ExitCode::from(1)
+        Command::Lcp { file, repeat } => ecp::lcp::load_lcp(&file)
+            .map_err(RunError::from)
+            .and_then(|lcp| {
+                let report = ecp::lcp::solve_lcp_repeated(&lcp, repeat);
+                let json = serde_json::to_string(&report).map_err(|e| {
+                    RunError::Output(ecp::output::OutputError {
+                        path: PathBuf::from("<stdout>"),
+                        source: e.into(),
                     })
+                })?;
+                sayln!("{json}");
+                if let Some(e) = &report.error {
+                    eprintln!("error: {}: {e}", file.display());
+                }
+                Ok(if report.solved() {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::from(1)
                 })
-        }
+            }),
     };
     result.unwrap_or_else(|e| {
         eprintln!("error: {e}");
