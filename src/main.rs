@@ -349,6 +349,9 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
              {hint}",
             f.step, f.t, f.reason, f.residual,
         );
+        if let Some(rec) = outcome.records.iter().find(|r| r.step == f.step) {
+            eprintln!("  the step's last solve: {}", rec.summary.brief_report());
+        }
     }
     if let Some(e) = &outcome.stepper_error {
         eprintln!("error: the run stopped early: {e}");
