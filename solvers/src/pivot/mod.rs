@@ -42,7 +42,7 @@ use ecp_model::{
     finish_solve, mid, natural_residual, validate_start,
 };
 
-use basis::BasisFactor;
+use basis::{BasisFactor, Column};
 
 /// How ties in Lemke's ratio test are broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -392,8 +392,6 @@ enum State {
 pub struct Lemke {
     settings: LemkeSettings,
     factor: BasisFactor,
-    cols: Vec<f64>,
-    order: Vec<usize>,
     basis: Vec<usize>,
     position: Vec<Option<usize>>,
     state: Vec<State>,
@@ -403,6 +401,7 @@ pub struct Lemke {
     alpha: Vec<f64>,
     delta: Vec<f64>,
     col: Vec<f64>,
+    entering_col: Vec<f64>,
     rhs: Vec<f64>,
     row: Vec<f64>,
     lex_best: Vec<f64>,
@@ -414,6 +413,13 @@ pub struct Lemke {
     /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
     /// per-solve budget of a caller such as the PATH-like solver); `None` for no limit.
     deadline: Option<std::time::Instant>,
+}
+
+/// The entering column's kind, kept over the ratio test (its values stay in `entering_col`).
+#[derive(Clone, Copy)]
+enum ColumnKind {
+    Unit(usize),
+    Dense,
 }
 
 /// Internal result of the ratio test.
@@ -430,8 +436,6 @@ impl Lemke {
         Lemke {
             settings,
             factor: BasisFactor::default(),
-            cols: Vec::new(),
-            order: Vec::new(),
             basis: Vec::new(),
             position: Vec::new(),
             state: Vec::new(),
@@ -441,6 +445,7 @@ impl Lemke {
             alpha: Vec::new(),
             delta: Vec::new(),
             col: Vec::new(),
+            entering_col: Vec::new(),
             rhs: Vec::new(),
             row: Vec::new(),
             lex_best: Vec::new(),
@@ -572,8 +577,6 @@ impl Lemke {
     }
 
     fn resize(&mut self, n: usize) {
-        self.cols.resize(n * n, 0.0);
-        self.order.resize(n, 0);
         self.basis.resize(n, 0);
         self.position.clear();
         self.position.resize(2 * n + 1, None);
@@ -586,6 +589,7 @@ impl Lemke {
             &mut self.alpha,
             &mut self.delta,
             &mut self.col,
+            &mut self.entering_col,
             &mut self.rhs,
             &mut self.row,
             &mut self.lex_best,
@@ -612,32 +616,39 @@ impl Lemke {
         }
     }
 
+    /// The column of variable `v`: `e_i` for `r_i`, else its dense values written into `buf`.
+    fn column_of<'b>(
+        &self,
+        problem: &AffineMcp<'_>,
+        v: usize,
+        buf: &'b mut [f64],
+    ) -> Column<'b> {
+        let n = problem.q.len();
+        if v >= n && v < 2 * n {
+            Column::Unit(v - n)
+        } else {
+            self.var_column(problem, v, buf);
+            Column::Dense(buf)
+        }
+    }
+
     /// Factorises the current basis (unit columns first, so that a dependent column is always a
     /// `z` column, or `s`).
     fn refactor(&mut self, problem: &AffineMcp<'_>, pivots: usize) -> Result<(), PivotError> {
         let n = problem.q.len();
-        let mut k = 0;
-        for pass in 0..2 {
-            for p in 0..n {
-                let is_unit = self.basis[p] >= n && self.basis[p] < 2 * n;
-                if is_unit == (pass == 0) {
-                    self.order[k] = p;
-                    k += 1;
-                }
+        self.factor.begin(n);
+        let mut col = std::mem::take(&mut self.col);
+        for p in 0..n {
+            match self.column_of(problem, self.basis[p], &mut col) {
+                Column::Unit(row) => self.factor.set_unit(p, row),
+                Column::Dense(values) => self.factor.set_dense(p, values),
             }
         }
-        let mut cols = std::mem::take(&mut self.cols);
-        let mut col = std::mem::take(&mut self.col);
-        for k in 0..n {
-            self.var_column(problem, self.basis[self.order[k]], &mut col);
-            cols[k * n..(k + 1) * n].copy_from_slice(&col);
-        }
-        let result = self.factor.factor(n, &cols, &self.order);
-        self.cols = cols;
         self.col = col;
+        let result = self.factor.finish();
         self.refactorizations += 1;
         result.map_err(|dep| {
-            let v = self.basis[self.order[dep.column]];
+            let v = self.basis[dep.position];
             PivotError::SingularBasis {
                 pivots,
                 detail: if v < n {
@@ -900,10 +911,12 @@ impl Lemke {
             }
             // alpha = B⁻¹ a_e; the basic variables move by delta = −dir·alpha per unit step.
             let mut alpha = std::mem::take(&mut self.alpha);
-            self.var_column(problem, entering, &mut alpha);
-            self.factor.solve(&mut alpha);
+            let mut col = std::mem::take(&mut self.entering_col);
+            let column = self.column_of(problem, entering, &mut col);
+            self.factor.solve_column(column, &mut alpha);
             if alpha.iter().any(|v| !v.is_finite()) {
                 self.alpha = alpha;
+                self.entering_col = col;
                 return Err(PivotError::SingularBasis {
                     pivots: *pivots,
                     detail: "a basis solve produced a non-finite value".into(),
@@ -913,6 +926,11 @@ impl Lemke {
                 self.delta[p] = -dir * alpha[p];
             }
             self.alpha = alpha;
+            let column = match column {
+                Column::Unit(row) => ColumnKind::Unit(row),
+                Column::Dense(_) => ColumnKind::Dense,
+            };
+            self.entering_col = col;
 
             // Entering variable's own range: z between its bounds, s down to 0.
             let own = if entering < n {
@@ -967,9 +985,11 @@ impl Lemke {
                     let leaving = self.basis[p];
                     let leaving_delta = self.delta[p];
                     // Basis change: position p now holds the entering variable.
-                    let alpha = std::mem::take(&mut self.alpha);
-                    self.factor.update(p, &alpha);
-                    self.alpha = alpha;
+                    let column = match column {
+                        ColumnKind::Unit(row) => Column::Unit(row),
+                        ColumnKind::Dense => Column::Dense(&self.entering_col),
+                    };
+                    self.factor.update(p, column, &self.alpha);
                     self.basis[p] = entering;
                     self.position[leaving] = None;
                     self.position[entering] = Some(p);
