@@ -93,23 +93,28 @@ impl BasisFactor {
         self.factored = false;
         self.inverse_ready = false;
         self.updates = 0;
+        // The maps read before they are written start at NONE; the rest only need their length.
         for v in [
-            &mut self.slot_position,
             &mut self.position_slot,
-            &mut self.slot_row,
             &mut self.row_slot,
             &mut self.unit_position,
         ] {
             v.clear();
             v.resize(n, NONE);
         }
+        for v in [&mut self.slot_position, &mut self.slot_row] {
+            if v.len() < n {
+                v.resize(n, NONE);
+            }
+        }
         if self.cols.len() < n * n {
             self.cols.resize(n * n, 0.0);
             self.inv.resize(n * n, 0.0);
         }
         for v in [&mut self.xc, &mut self.t, &mut self.g] {
-            v.clear();
-            v.resize(n, 0.0);
+            if v.len() < n {
+                v.resize(n, 0.0);
+            }
         }
     }
 
@@ -590,14 +595,22 @@ mod tests {
         f.solve(&mut x);
         for i in 0..n {
             let s: f64 = (0..n).map(|p| a[p * n + i] * x[p]).sum();
-            assert!((s - b[i]).abs() < 1e-12, "step {step}: row {i}: {s} vs {}", b[i]);
+            assert!(
+                (s - b[i]).abs() < 1e-12,
+                "step {step}: row {i}: {s} vs {}",
+                b[i]
+            );
         }
         let c: Vec<f64> = (0..n).map(|i| (i * i) as f64 * 0.1 - 0.7).collect();
         let mut y = c.clone();
         f.solve_transpose(&mut y);
         for p in 0..n {
             let s: f64 = (0..n).map(|i| a[p * n + i] * y[i]).sum();
-            assert!((s - c[p]).abs() < 1e-12, "transpose step {step}: {s} vs {}", c[p]);
+            assert!(
+                (s - c[p]).abs() < 1e-12,
+                "transpose step {step}: {s} vs {}",
+                c[p]
+            );
         }
     }
 

@@ -182,6 +182,11 @@ impl AffineMatrix<'_> {
 
     /// `out = (M + shift·I) z`.
     fn mul(&self, z: &[f64], shift: f64, out: &mut [f64]) {
+        if z.iter().all(|&v| v == 0.0) {
+            // Lemke's classical start of an LCP and its right-hand sides: z = 0.
+            out.fill(0.0);
+            return;
+        }
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
                 for i in 0..n {
@@ -409,6 +414,8 @@ pub struct Lemke {
     z: Vec<f64>,
     r: Vec<f64>,
     ties: Vec<usize>,
+    ratios: Vec<f64>,
+    lcp_bounds: (Vec<f64>, Vec<f64>),
     refactorizations: usize,
     /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
     /// per-solve budget of a caller such as the PATH-like solver); `None` for no limit.
@@ -453,6 +460,8 @@ impl Lemke {
             z: Vec::new(),
             r: Vec::new(),
             ties: Vec::new(),
+            ratios: Vec::new(),
+            lcp_bounds: (Vec::new(), Vec::new()),
             refactorizations: 0,
             deadline: None,
         }
@@ -482,8 +491,12 @@ impl Lemke {
         q: &[f64],
     ) -> Result<PivotSolution, PivotError> {
         let n = q.len();
-        let lower = vec![0.0; n];
-        let upper = vec![f64::INFINITY; n];
+        // The bounds of an LCP, kept between solves (no allocation once warm).
+        let (mut lower, mut upper) = std::mem::take(&mut self.lcp_bounds);
+        lower.clear();
+        lower.resize(n, 0.0);
+        upper.clear();
+        upper.resize(n, f64::INFINITY);
         let problem = AffineMcp {
             m: AffineMatrix::DenseRowMajor {
                 n,
@@ -494,7 +507,9 @@ impl Lemke {
             upper: &upper,
             diagonal_shift: 0.0,
         };
-        self.solve_affine(&problem, &AffineStart::Classical { free_values: None })
+        let result = self.solve_affine(&problem, &AffineStart::Classical { free_values: None });
+        self.lcp_bounds = (lower, upper);
+        result
     }
 
     /// Solves a box-constrained affine MCP (LCP, mixed LCP, box LCP) from `start`.
@@ -582,6 +597,7 @@ impl Lemke {
         self.position.resize(2 * n + 1, None);
         self.state.clear();
         self.state.resize(n, State::Lower);
+        // Every entry of these is written before it is read: only their length matters.
         for v in [
             &mut self.xb,
             &mut self.zbar,
@@ -596,9 +612,11 @@ impl Lemke {
             &mut self.x,
             &mut self.z,
             &mut self.r,
+            &mut self.ratios,
         ] {
-            v.clear();
-            v.resize(n, 0.0);
+            if v.len() != n {
+                v.resize(n, 0.0);
+            }
         }
         self.refactorizations = 0;
     }
@@ -617,12 +635,7 @@ impl Lemke {
     }
 
     /// The column of variable `v`: `e_i` for `r_i`, else its dense values written into `buf`.
-    fn column_of<'b>(
-        &self,
-        problem: &AffineMcp<'_>,
-        v: usize,
-        buf: &'b mut [f64],
-    ) -> Column<'b> {
+    fn column_of<'b>(&self, problem: &AffineMcp<'_>, v: usize, buf: &'b mut [f64]) -> Column<'b> {
         let n = problem.q.len();
         if v >= n && v < 2 * n {
             Column::Unit(v - n)
@@ -690,9 +703,13 @@ impl Lemke {
         res.copy_from_slice(&self.rhs);
         for p in 0..n {
             if x[p] != 0.0 {
-                self.var_column(problem, self.basis[p], &mut col);
-                for (r, c) in res.iter_mut().zip(&col) {
-                    *r -= c * x[p];
+                match self.column_of(problem, self.basis[p], &mut col) {
+                    Column::Unit(row) => res[row] -= x[p],
+                    Column::Dense(c) => {
+                        for (r, c) in res.iter_mut().zip(c) {
+                            *r -= c * x[p];
+                        }
+                    }
                 }
             }
         }
@@ -841,10 +858,9 @@ impl Lemke {
         if dnorm > 0.0 {
             self.refactor(problem, pivots)?;
             self.pivot_loop(problem, &mut pivots, path.as_deref_mut())?;
-            // Clean solution at s = 0 from a fresh factorisation of the final basis.
-            if self.factor.updates() > 0 {
-                self.refactor(problem, pivots)?;
-            }
+            // The solution at s = 0, from the right-hand side recomputed from the data and the
+            // basis inverse (refreshed at least every `refactorization_period` pivots), with a
+            // step of iterative refinement.
             self.compute_rhs(problem, 0.0);
             self.solve_refined(problem);
         }
@@ -1065,25 +1081,31 @@ impl Lemke {
         // that it never passes 0.
         let tol = self.settings.pivot_tolerance * dmax;
         let noise = NOISE * dmax;
-        let ratio = |me: &Self, p: usize| -> Option<f64> {
-            let dp = me.delta[p];
-            let v = me.basis[p];
-            let (lo, hi) = me.var_bounds(problem, v);
-            let cutoff = if v == s_var { 0.0 } else { noise };
-            if dp < -cutoff && lo.is_finite() {
-                Some((me.xb[p] - lo).max(0.0) / -dp)
-            } else if dp > cutoff && hi.is_finite() {
-                Some((hi - me.xb[p]).max(0.0) / dp)
-            } else {
-                None
-            }
-        };
+        // Each basic variable's ratio, once (infinite when it does not block).
         let mut theta_min = own;
         for p in 0..n {
-            if let Some(t) = ratio(self, p) {
-                theta_min = theta_min.min(t);
-            }
+            let dp = self.delta[p];
+            let v = self.basis[p];
+            let cutoff = if v == s_var { 0.0 } else { noise };
+            let t = if dp < -cutoff || dp > cutoff {
+                let (lo, hi) = self.var_bounds(problem, v);
+                if dp < 0.0 && lo.is_finite() {
+                    (self.xb[p] - lo).max(0.0) / -dp
+                } else if dp > 0.0 && hi.is_finite() {
+                    (hi - self.xb[p]).max(0.0) / dp
+                } else {
+                    f64::INFINITY
+                }
+            } else {
+                f64::INFINITY
+            };
+            self.ratios[p] = t;
+            theta_min = theta_min.min(t);
         }
+        let ratio = |me: &Self, p: usize| -> Option<f64> {
+            let t = me.ratios[p];
+            t.is_finite().then_some(t)
+        };
         if !theta_min.is_finite() {
             let artificial = match self.position[s_var] {
                 Some(p) => self.xb[p],
