@@ -552,8 +552,12 @@ impl Lemke {
                 problem.upper.len()
             ));
         }
-        if let Some(k) = problem.m.values().iter().position(|v| !v.is_finite()) {
-            return bad(format!("entry {k} of M is {}", problem.m.values()[k]));
+        // A branch-free scan first (it vectorises); the position only for the message.
+        let values = problem.m.values();
+        if values.iter().fold(false, |bad, v| bad | !v.is_finite())
+            && let Some(k) = values.iter().position(|v| !v.is_finite())
+        {
+            return bad(format!("entry {k} of M is {}", values[k]));
         }
         if let Some(i) = problem.q.iter().position(|v| !v.is_finite()) {
             return bad(format!("q[{i}] = {} is not finite", problem.q[i]));
@@ -691,32 +695,41 @@ impl Lemke {
         self.rhs = mz;
     }
 
-    /// `x_B = B⁻¹ rhs` with one step of iterative refinement (the residual `rhs − B x_B` is
-    /// solved for a correction), which recovers the digits an ill-conditioned basis loses.
-    fn solve_refined(&mut self, problem: &AffineMcp<'_>) {
+    /// Iterative refinement of the basic solution `x_B` (as the pivots updated it): the
+    /// residual `rhs − B x_B`, computed from the data, is solved for a correction, which removes
+    /// the round-off the updates accumulated; a second step when the first correction was not
+    /// negligible.
+    fn refine(&mut self, problem: &AffineMcp<'_>) {
         let n = problem.q.len();
         let mut x = std::mem::take(&mut self.xb);
-        x.copy_from_slice(&self.rhs);
-        self.factor.solve(&mut x);
         let mut res = std::mem::take(&mut self.row);
         let mut col = std::mem::take(&mut self.col);
-        res.copy_from_slice(&self.rhs);
-        for p in 0..n {
-            if x[p] != 0.0 {
-                match self.column_of(problem, self.basis[p], &mut col) {
-                    Column::Unit(row) => res[row] -= x[p],
-                    Column::Dense(c) => {
-                        for (r, c) in res.iter_mut().zip(c) {
-                            *r -= c * x[p];
+        for _ in 0..2 {
+            res.copy_from_slice(&self.rhs);
+            for p in 0..n {
+                if x[p] != 0.0 {
+                    match self.column_of(problem, self.basis[p], &mut col) {
+                        Column::Unit(row) => res[row] -= x[p],
+                        Column::Dense(c) => {
+                            for (r, c) in res.iter_mut().zip(c) {
+                                *r -= c * x[p];
+                            }
                         }
                     }
                 }
             }
-        }
-        self.factor.solve(&mut res);
-        if res.iter().all(|v| v.is_finite()) {
+            self.factor.solve(&mut res);
+            if !res.iter().all(|v| v.is_finite()) {
+                break;
+            }
+            let (mut dmax, mut xmax) = (0.0f64, 0.0f64);
             for (xi, d) in x.iter_mut().zip(&res) {
                 *xi += d;
+                dmax = dmax.max(d.abs());
+                xmax = xmax.max(xi.abs());
+            }
+            if dmax <= 1e-14 * xmax {
+                break;
             }
         }
         self.xb = x;
@@ -862,7 +875,7 @@ impl Lemke {
             // basis inverse (refreshed at least every `refactorization_period` pivots), with a
             // step of iterative refinement.
             self.compute_rhs(problem, 0.0);
-            self.solve_refined(problem);
+            self.refine(problem);
         }
         self.current_x(n);
         let mut z = vec![0.0; n];
