@@ -159,6 +159,7 @@ impl AffineMatrix<'_> {
     }
 
     /// Writes column `j` of `M + shift·I` into the dense vector `out`.
+    #[inline]
     fn column(&self, j: usize, shift: f64, out: &mut [f64]) {
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
@@ -415,6 +416,9 @@ pub struct Lemke {
     r: Vec<f64>,
     ties: Vec<usize>,
     ratios: Vec<f64>,
+    /// Bounds of the basic variable at each position.
+    lo_b: Vec<f64>,
+    hi_b: Vec<f64>,
     lcp_bounds: (Vec<f64>, Vec<f64>),
     refactorizations: usize,
     /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
@@ -461,6 +465,8 @@ impl Lemke {
             r: Vec::new(),
             ties: Vec::new(),
             ratios: Vec::new(),
+            lo_b: Vec::new(),
+            hi_b: Vec::new(),
             lcp_bounds: (Vec::new(), Vec::new()),
             refactorizations: 0,
             deadline: None,
@@ -554,7 +560,7 @@ impl Lemke {
         }
         // A branch-free scan first (it vectorises); the position only for the message.
         let values = problem.m.values();
-        if values.iter().fold(false, |bad, v| bad | !v.is_finite())
+        if !all_finite(values)
             && let Some(k) = values.iter().position(|v| !v.is_finite())
         {
             return bad(format!("entry {k} of M is {}", values[k]));
@@ -617,6 +623,8 @@ impl Lemke {
             &mut self.z,
             &mut self.r,
             &mut self.ratios,
+            &mut self.lo_b,
+            &mut self.hi_b,
         ] {
             if v.len() != n {
                 v.resize(n, 0.0);
@@ -626,6 +634,7 @@ impl Lemke {
     }
 
     /// Column of variable `v` (`z_i`, `r_i` or `s`) into `out`.
+    #[inline]
     fn var_column(&self, problem: &AffineMcp<'_>, v: usize, out: &mut [f64]) {
         let n = problem.q.len();
         if v < n {
@@ -639,6 +648,7 @@ impl Lemke {
     }
 
     /// The column of variable `v`: `e_i` for `r_i`, else its dense values written into `buf`.
+    #[inline]
     fn column_of<'b>(&self, problem: &AffineMcp<'_>, v: usize, buf: &'b mut [f64]) -> Column<'b> {
         let n = problem.q.len();
         if v >= n && v < 2 * n {
@@ -719,7 +729,7 @@ impl Lemke {
                 }
             }
             self.factor.solve(&mut res);
-            if !res.iter().all(|v| v.is_finite()) {
+            if !all_finite(&res) {
                 break;
             }
             let (mut dmax, mut xmax) = (0.0f64, 0.0f64);
@@ -738,6 +748,7 @@ impl Lemke {
     }
 
     /// Bounds `[lo, hi]` of the basic variable `v`.
+    #[inline]
     fn var_bounds(&self, problem: &AffineMcp<'_>, v: usize) -> (f64, f64) {
         let n = problem.q.len();
         if v < n {
@@ -864,6 +875,7 @@ impl Lemke {
             self.basis[i] = v;
             self.position[v] = Some(i);
             self.xb[i] = if v < n { self.z[i] } else { self.r[i] };
+            (self.lo_b[i], self.hi_b[i]) = self.var_bounds(problem, v);
         }
         let dnorm = self.d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let mut pivots = 0usize;
@@ -943,7 +955,7 @@ impl Lemke {
             let mut col = std::mem::take(&mut self.entering_col);
             let column = self.column_of(problem, entering, &mut col);
             self.factor.solve_column(column, &mut alpha);
-            if alpha.iter().any(|v| !v.is_finite()) {
+            if !all_finite(&alpha) {
                 self.alpha = alpha;
                 self.entering_col = col;
                 return Err(PivotError::SingularBasis {
@@ -1023,6 +1035,9 @@ impl Lemke {
                     self.position[leaving] = None;
                     self.position[entering] = Some(p);
                     self.xb[p] = entering_value;
+                    // A basic variable's bounds do not change while it is basic (an r_i's side
+                    // is fixed by its z_i's state before r_i enters).
+                    (self.lo_b[p], self.hi_b[p]) = self.var_bounds(problem, entering);
                     if entering < n {
                         self.state[entering] = State::Basic;
                     } else if entering == s_var {
@@ -1094,21 +1109,17 @@ impl Lemke {
         // that it never passes 0.
         let tol = self.settings.pivot_tolerance * dmax;
         let noise = NOISE * dmax;
-        // Each basic variable's ratio, once (infinite when it does not block).
+        // Each basic variable's ratio, once; infinite when it does not block (an infinite
+        // bound gives an infinite ratio by itself).
         let mut theta_min = own;
+        let s_position = self.position[s_var];
         for p in 0..n {
             let dp = self.delta[p];
-            let v = self.basis[p];
-            let cutoff = if v == s_var { 0.0 } else { noise };
-            let t = if dp < -cutoff || dp > cutoff {
-                let (lo, hi) = self.var_bounds(problem, v);
-                if dp < 0.0 && lo.is_finite() {
-                    (self.xb[p] - lo).max(0.0) / -dp
-                } else if dp > 0.0 && hi.is_finite() {
-                    (hi - self.xb[p]).max(0.0) / dp
-                } else {
-                    f64::INFINITY
-                }
+            let cutoff = if Some(p) == s_position { 0.0 } else { noise };
+            let t = if dp < -cutoff {
+                (self.xb[p] - self.lo_b[p]).max(0.0) / -dp
+            } else if dp > cutoff {
+                (self.hi_b[p] - self.xb[p]).max(0.0) / dp
             } else {
                 f64::INFINITY
             };
@@ -1212,6 +1223,15 @@ impl Lemke {
             None => Block::Own,
         }
     }
+}
+
+/// True when no entry is NaN or infinite: a branch-free scan of the exponent bits (all ones
+/// only for NaN and ±∞), which vectorises.
+fn all_finite(values: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7FF0_0000_0000_0000;
+    values.iter().fold(0u64, |acc, v| {
+        acc | u64::from(v.to_bits() & EXPONENT == EXPONENT)
+    }) == 0
 }
 
 /// Relative size of a rate of change below which it is round-off of zero.
