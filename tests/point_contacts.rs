@@ -18,18 +18,20 @@ mod common;
 use common::strategies::{unit_quat, unit3, vec3};
 
 use ecp::backends::{SolverConfig, make_solver};
-use ecp::formulations::blocks::{BodyStepData, ContactFrame, FrictionParams, mass_matrix};
+use ecp::formulations::blocks::{
+    BodyStepData, ContactFrame, FrictionParams, inertia_entries, start_values,
+};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::point::{
-    PointContacts, PointFrictionDissipation, PointFrictionEllipsoid, PointNewtonEuler,
-    PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
+    POINT_GEOMETRY, PointContacts, PointFrictionDissipation, PointFrictionEllipsoid,
+    PointNewtonEuler, PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
 };
 use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, SceneError, Simulation, StepRecord};
 use ecp::formulations::{Formulation, Stepper, build_stepper};
 use ecp::model::{
-    CheckOptions, McpSolver, ResidualBlock, check_block_mcp, check_residual_block, residual_of,
+    CheckOptions, McpSolver, ResidualBlock, check_problem, check_residual_block, residual_of,
 };
 use nalgebra::{Matrix3, Vector3, Vector6};
 use proptest::prelude::*;
@@ -174,23 +176,10 @@ proptest! {
             .iter()
             .map(|p| PointWrenches::new(&p.r, &frame_of(&p.plane)))
             .collect();
-        let ne = PointNewtonEuler::new(
-            mass_matrix(case.mass, &Matrix3::from_diagonal(&case.inertia), &case.q_start),
-            Vector6::from_row_slice(&case.nu_start),
-            Vector6::from_row_slice(&case.impulse),
-            wrenches.clone(),
-        );
         let pns: Vec<[f64; 1]> = case.points.iter().map(|p| [p.pn]).collect();
         let sigmas: Vec<[f64; 1]> = case.points.iter().map(|p| [p.sigma]).collect();
-        let mut params: Vec<&[f64]> = vec![&case.nu];
-        for (p, pn) in case.points.iter().zip(&pns) {
-            params.push(pn);
-            params.push(&p.pf);
-        }
-        check(&ne, &params)?;
-        // The form the stepper uses: mass matrix and gyroscopic impulse at the end of the step,
-        // reading the configuration q (7) as well; its end orientation is the start one turned
-        // by the kinematic map.
+        // Mass matrix and gyroscopic impulse at the end of the step: the block reads the
+        // configuration q (7); its end orientation is the start one turned by the kinematic map.
         let body = BodyStepData {
             mass: case.mass,
             inertia: Matrix3::from_diagonal(&case.inertia),
@@ -204,21 +193,30 @@ proptest! {
             + kinematic_map(&case.q_start) * Vector3::new(case.nu[3], case.nu[4], case.nu[5])
                 * (0.5 * case.h);
         let q = [0.1, -0.2, 0.3, q_end[0], q_end[1], q_end[2], q_end[3]];
-        let end = PointNewtonEuler::for_body(body, wrenches.clone());
-        let mut end_params: Vec<&[f64]> = vec![&case.nu, &q];
-        end_params.extend_from_slice(&params[1..]);
-        check(&end, &end_params)?;
-        for ((p, w), (pn, sigma)) in case.points.iter().zip(&wrenches).zip(pns.iter().zip(&sigmas)) {
-            let np = PointNonPenetration { gap: case.gap, h: case.h, normal_wrench: w.normal };
-            check(&np, &[&case.nu])?;
-            let fr = PointFrictionDissipation {
-                t_wrench: w.t,
-                o_wrench: w.o,
-                friction: case.friction,
-            };
-            check(&fr, &[&case.nu, pn, &p.pf, sigma])?;
-            let el = PointFrictionEllipsoid { friction: case.friction };
-            check(&el, &[pn, &p.pf])?;
+        let nu0 = &case.nu_start;
+        let start = start_values(
+            &V3::new(0.1, 0.2, 0.3),
+            &case.q_start,
+            &V3::new(nu0[0], nu0[1], nu0[2]),
+            &V3::new(nu0[3], nu0[4], nu0[5]),
+        );
+        let (mass, inertia, gravity, h) =
+            ([body.mass], inertia_entries(&body.inertia), [0.0, 0.0, -9.8], [case.h]);
+        let geometry: Vec<[f64; POINT_GEOMETRY]> =
+            wrenches.iter().map(|w| w.geometry_values(case.gap)).collect();
+        let mut params: Vec<&[f64]> =
+            vec![&case.nu, &q, &mass, &inertia, &start, &case.impulse, &gravity, &h];
+        for ((p, pn), g) in case.points.iter().zip(&pns).zip(&geometry) {
+            params.push(pn);
+            params.push(&p.pf);
+            params.push(g);
+        }
+        check(&PointNewtonEuler::new(case.points.len()), &params)?;
+        let friction = case.friction.values();
+        for ((p, g), (pn, sigma)) in case.points.iter().zip(&geometry).zip(pns.iter().zip(&sigmas)) {
+            check(&PointNonPenetration, &[&case.nu, g, &h])?;
+            check(&PointFrictionDissipation, &[&case.nu, pn, &p.pf, sigma, g, &friction])?;
+            check(&PointFrictionEllipsoid, &[pn, &p.pf, &friction])?;
         }
     }
 }
@@ -280,7 +278,7 @@ proptest! {
             for (zi, d) in z.iter_mut().zip(&noise) {
                 *zi += scale * d * (1.0 + zi.abs());
             }
-            let reports = check_block_mcp(pc.mcp(), &z, &CheckOptions::default());
+            let reports = check_problem(pc.mcp(), &z, &CheckOptions::default());
             prop_assert_eq!(reports.len(), pc.mcp().num_residual_blocks());
             for rep in &reports {
                 prop_assert!(rep.ok(), "{}:\n{}", name, rep);
