@@ -29,8 +29,9 @@
 //! **Numerics.** The ratio test has a pivot tolerance and treats candidates within a
 //! degeneracy tolerance as ties; ties are broken by the lexicographic rule (the minimum-ratio
 //! test on `[x_B, B⁻¹]`, which prevents cycling, Cottle, Pang & Stone §4.9), or, when that is
-//! switched off, by the largest pivot. The basis is factorised by a dense LU updated in product
-//! form and refactorised periodically (module `basis`).
+//! switched off, by the largest pivot. The basis is kept as its unit columns plus the explicit
+//! inverse of the block of the others, updated at every pivot and recomputed from an LU
+//! periodically (module `basis`, `docs/backends.md#lemke-speed`).
 
 pub(crate) mod basis;
 
@@ -67,7 +68,7 @@ pub struct LemkeSettings {
     pub degeneracy_tolerance: f64,
     /// Pivot limit; `0` means `max(1000, 50 n)`. Default `0`.
     pub max_pivots: usize,
-    /// Refactorise the basis after this many product-form updates. Default 50.
+    /// Recompute the basis inverse from a fresh LU after this many updates. Default 50.
     pub refactorization_period: usize,
     /// Tie-breaking rule of the ratio test. Default [`AntiCycling::Lexicographic`].
     pub anti_cycling: AntiCycling,
