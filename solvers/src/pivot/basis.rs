@@ -69,6 +69,12 @@ pub(crate) struct BasisFactor {
     factored: bool,
     /// `inv` holds `C_N⁻¹` (formed from the LU on the first solve that needs it).
     inverse_ready: bool,
+    /// Updates are kept as an eta file over this factorisation (product form) instead of being
+    /// applied to `C_N⁻¹`: cheaper for the few pivots of a short path when `m` is close to `n`.
+    eta_mode: bool,
+    /// Eta file: for update `j`, the position replaced and `B⁻¹ a` (length `n`).
+    eta_pos: Vec<usize>,
+    eta_val: Vec<f64>,
     /// Scratch: `m × m` LU, permutation, and vectors of length `n`.
     lu: Vec<f64>,
     perm: Vec<usize>,
@@ -84,14 +90,23 @@ impl BasisFactor {
         self.updates
     }
 
+    /// True while updates go to the eta file.
+    pub fn eta_mode(&self) -> bool {
+        self.eta_mode
+    }
+
     /// Starts a factorisation of an `n × n` basis; give every position's column with
     /// [`BasisFactor::set_unit`] or [`BasisFactor::set_dense`], then call
-    /// [`BasisFactor::finish`].
-    pub fn begin(&mut self, n: usize) {
+    /// [`BasisFactor::finish`]. Later updates go to an eta file when `eta_mode`, else to the
+    /// explicit inverse of `C_N`.
+    pub fn begin(&mut self, n: usize, eta_mode: bool) {
         self.n = n;
         self.m = 0;
         self.factored = false;
         self.inverse_ready = false;
+        self.eta_mode = eta_mode;
+        self.eta_pos.clear();
+        self.eta_val.clear();
         self.updates = 0;
         // The maps read before they are written start at NONE; the rest only need their length.
         for v in [
@@ -255,7 +270,7 @@ impl BasisFactor {
         columns: &[f64],
         order: &[usize],
     ) -> Result<(), DependentColumn> {
-        self.begin(n);
+        self.begin(n, true);
         for (k, &p) in order[..n].iter().enumerate() {
             self.set_dense(p, &columns[k * n..(k + 1) * n]);
         }
@@ -293,8 +308,53 @@ impl BasisFactor {
 
     /// `out = B⁻¹ a` (`out` indexed by basis position).
     pub fn solve_column(&mut self, a: Column<'_>, out: &mut [f64]) {
-        self.ensure_inverse();
-        self.solve_with(a, out, false);
+        let by_lu = self.eta_mode || !self.inverse_ready;
+        self.solve_with(a, out, by_lu);
+        self.apply_etas(out);
+    }
+
+    /// `x ← E_k⁻¹ ⋯ E_1⁻¹ x`, the eta file oldest first.
+    fn apply_etas(&self, x: &mut [f64]) {
+        let n = self.n;
+        for (j, &p) in self.eta_pos.iter().enumerate() {
+            let eta = &self.eta_val[j * n..(j + 1) * n];
+            let xp = x[p] / eta[p];
+            if xp != 0.0 {
+                for (xi, e) in x[..n].iter_mut().zip(eta) {
+                    *xi -= e * xp;
+                }
+            }
+            x[p] = xp;
+        }
+    }
+
+    /// `y_N = C_N⁻ᵀ s` by the LU (`s` in `xc` by column slot, `y_N` written into `t` at the rows
+    /// of `N`).
+    fn lu_solve_block_transpose(&mut self) {
+        let m = self.m;
+        let lu = &self.lu;
+        let v = &mut self.g[..m];
+        v.copy_from_slice(&self.xc[..m]);
+        // Uᵀ w = s (forward), then Lᵀ v = w (backward); y = Pᵀ v.
+        for c in 0..m {
+            let dot: f64 = lu[c * m..c * m + c]
+                .iter()
+                .zip(&v[..c])
+                .map(|(u, w)| u * w)
+                .sum();
+            v[c] = (v[c] - dot) / lu[c * m + c];
+        }
+        for c in (0..m).rev() {
+            let dot: f64 = lu[c * m + c + 1..(c + 1) * m]
+                .iter()
+                .zip(&v[c + 1..])
+                .map(|(l, t)| l * t)
+                .sum();
+            v[c] -= dot;
+        }
+        for (r, &k) in self.perm[..m].iter().enumerate() {
+            self.t[self.slot_row[k]] = v[r];
+        }
     }
 
     /// `out = B⁻¹ a`, with `C_N⁻¹` applied by the LU when `by_lu` (only right after a
@@ -305,12 +365,22 @@ impl BasisFactor {
         }
         let (n, m) = (self.n, self.m);
         if by_lu {
-            let b = match a {
-                Column::Dense(b) => b,
-                Column::Unit(_) => return,
-            };
-            for (x, &row) in self.xc[..m].iter_mut().zip(&self.slot_row[..m]) {
-                *x = b[row];
+            match a {
+                Column::Dense(b) => {
+                    for (x, &row) in self.xc[..m].iter_mut().zip(&self.slot_row[..m]) {
+                        *x = b[row];
+                    }
+                }
+                Column::Unit(row) => {
+                    let k = self.row_slot[row];
+                    if k == NONE {
+                        out[..n].fill(0.0);
+                        out[self.unit_position[row]] = 1.0;
+                        return;
+                    }
+                    self.xc[..m].fill(0.0);
+                    self.xc[k] = 1.0;
+                }
             }
             self.lu_solve_block();
         }
@@ -339,7 +409,27 @@ impl BasisFactor {
                 }
             }
         }
-        // x_U = a_U − C_U x_C, computed on every row (the N rows are not read).
+        // x_U = a_U − C_U x_C. When the unit rows are few (m close to n, the linearisations of
+        // the PATH-like solver) and the block fits in cache, only those rows.
+        if 2 * (n - m) < n && n <= 128 {
+            for (i, &p) in self.unit_position[..n].iter().enumerate() {
+                if p != NONE {
+                    let mut v = match a {
+                        Column::Unit(row) => f64::from(u8::from(row == i)),
+                        Column::Dense(b) => b[i],
+                    };
+                    for (j, &x) in xc.iter().enumerate() {
+                        v -= x * self.cols[j * n + i];
+                    }
+                    out[p] = v;
+                }
+            }
+            for (j, &x) in xc.iter().enumerate() {
+                out[self.slot_position[j]] = x;
+            }
+            return;
+        }
+        // Otherwise on every row (the N rows are not read).
         let t = &mut self.t[..n];
         match a {
             Column::Unit(row) => {
@@ -371,11 +461,9 @@ impl BasisFactor {
         let mut copy = std::mem::take(&mut self.copy);
         copy.clear();
         copy.extend_from_slice(&b[..self.n]);
-        let by_lu = !self.inverse_ready && self.updates == 0;
-        if !by_lu {
-            self.ensure_inverse();
-        }
+        let by_lu = self.eta_mode || !self.inverse_ready;
         self.solve_with(Column::Dense(&copy), b, by_lu);
+        self.apply_etas(b);
         self.copy = copy;
     }
 
@@ -384,8 +472,15 @@ impl BasisFactor {
         if !self.factored {
             return;
         }
-        self.ensure_inverse();
-        let (n, m) = (self.n, self.m);
+        let n = self.n;
+        // Bᵀ = E_kᵀ ⋯ E_1ᵀ B₀ᵀ: the eta file newest first, each changing only entry p.
+        for (j, &p) in self.eta_pos.iter().enumerate().rev() {
+            let eta = &self.eta_val[j * n..(j + 1) * n];
+            let dot: f64 = c[..n].iter().zip(eta).map(|(a, b)| a * b).sum();
+            c[p] = (c[p] - (dot - c[p] * eta[p])) / eta[p];
+        }
+        let by_lu = self.eta_mode || !self.inverse_ready;
+        let m = self.m;
         // y_U = c at the unit positions; s = c_C − C_Uᵀ y_U; y_N = C_N⁻ᵀ s.
         let y = &mut self.t[..n];
         for (i, &p) in self.unit_position[..n].iter().enumerate() {
@@ -400,20 +495,30 @@ impl BasisFactor {
                 .sum();
             *sj = c[self.slot_position[j]] - dot;
         }
-        for k in 0..m {
-            let yk: f64 = self.inv[k * n..k * n + m]
-                .iter()
-                .zip(s.iter())
-                .map(|(a, b)| a * b)
-                .sum();
-            y[self.slot_row[k]] = yk;
+        if by_lu {
+            self.lu_solve_block_transpose();
+        } else {
+            for k in 0..m {
+                let yk: f64 = self.inv[k * n..k * n + m]
+                    .iter()
+                    .zip(s.iter())
+                    .map(|(a, b)| a * b)
+                    .sum();
+                y[self.slot_row[k]] = yk;
+            }
         }
-        c[..n].copy_from_slice(y);
+        c[..n].copy_from_slice(&self.t[..n]);
     }
 
     /// Position `p` now holds `column`, with `alpha = B⁻¹ column` computed with the basis
     /// before the update (`alpha[p]` is the pivot, not 0).
     pub fn update(&mut self, p: usize, column: Column<'_>, alpha: &[f64]) {
+        if self.eta_mode {
+            self.eta_pos.push(p);
+            self.eta_val.extend_from_slice(&alpha[..self.n]);
+            self.updates += 1;
+            return;
+        }
         self.ensure_inverse();
         let n = self.n;
         let m = self.m;
@@ -616,6 +721,12 @@ mod tests {
 
     #[test]
     fn every_kind_of_update_keeps_the_solves_exact() {
+        for eta_mode in [false, true] {
+            updates_keep_the_solves_exact(eta_mode);
+        }
+    }
+
+    fn updates_keep_the_solves_exact(eta_mode: bool) {
         let n = 6;
         let dense_col = |seed: usize, dominant: usize| -> Vec<f64> {
             (0..n)
@@ -638,7 +749,7 @@ mod tests {
         units[4] = 4;
         units[5] = 5;
         let mut f = BasisFactor::default();
-        f.begin(n);
+        f.begin(n, eta_mode);
         for p in 0..n {
             match &columns[p] {
                 Some(c) => f.set_dense(p, c),
@@ -678,7 +789,7 @@ mod tests {
         let n = 3;
         // Columns e0, (1, 1, 0), (2, 2, 0): the third depends on the second and e0.
         let mut f = BasisFactor::default();
-        f.begin(n);
+        f.begin(n, false);
         f.set_unit(0, 0);
         f.set_dense(1, &[1.0, 1.0, 0.0]);
         f.set_dense(2, &[2.0, 2.0, 0.0]);

@@ -661,10 +661,16 @@ impl Lemke {
     }
 
     /// Factorises the current basis (unit columns first, so that a dependent column is always a
-    /// `z` column, or `s`).
-    fn refactor(&mut self, problem: &AffineMcp<'_>, pivots: usize) -> Result<(), PivotError> {
+    /// `z` column, or `s`); later updates go to an eta file when `eta_mode`, else to the
+    /// explicit inverse of the basis's Schur block.
+    fn refactor(
+        &mut self,
+        problem: &AffineMcp<'_>,
+        pivots: usize,
+        eta_mode: bool,
+    ) -> Result<(), PivotError> {
         let n = problem.q.len();
-        self.factor.begin(n);
+        self.factor.begin(n, eta_mode);
         let mut col = std::mem::take(&mut self.col);
         for p in 0..n {
             match self.column_of(problem, self.basis[p], &mut col) {
@@ -882,7 +888,9 @@ impl Lemke {
         let mut pivots = 0usize;
         // When d = 0 the start solves the problem already.
         if dnorm > 0.0 {
-            self.refactor(problem, pivots)?;
+            // A path starts with an eta file over the first factorisation: most paths (the
+            // linearisations of the PATH-like solver) end within a few pivots.
+            self.refactor(problem, pivots, true)?;
             self.pivot_loop(problem, &mut pivots, path.as_deref_mut())?;
             // The solution at s = 0, from the right-hand side recomputed from the data and the
             // basis inverse (refreshed at least every `refactorization_period` pivots), with a
@@ -1069,8 +1077,15 @@ impl Lemke {
                         };
                         entering = i;
                     }
-                    if !finished && self.factor.updates() >= self.settings.refactorization_period {
-                        self.refactor(problem, *pivots)?;
+                    // A longer path switches to the explicit inverse (updated in O(m²) per
+                    // pivot), refreshed every `refactorization_period` pivots.
+                    let period = if self.factor.eta_mode() {
+                        ETA_PIVOTS.min(self.settings.refactorization_period)
+                    } else {
+                        self.settings.refactorization_period
+                    };
+                    if !finished && self.factor.updates() >= period {
+                        self.refactor(problem, *pivots, false)?;
                         self.compute_rhs(problem, s_nonbasic);
                         let mut rhs = std::mem::take(&mut self.rhs);
                         self.factor.solve(&mut rhs);
@@ -1234,6 +1249,11 @@ fn all_finite(values: &[f64]) -> bool {
         acc | u64::from(v.to_bits() & EXPONENT == EXPONENT)
     }) == 0
 }
+
+/// Pivots kept in an eta file before a path switches to the explicit inverse of the Schur
+/// block: the eta file costs `O(k n)` per solve after `k` pivots, forming the inverse `O(m³)`
+/// once (`docs/decisions.md#pivoting-basis-as-the-inverse-of-its-schur-block`).
+const ETA_PIVOTS: usize = 8;
 
 /// Relative size of a rate of change below which it is round-off of zero.
 const NOISE: f64 = 1e-14;
