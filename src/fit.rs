@@ -38,12 +38,14 @@ use ecp_formulations::sensitivity::{
 };
 use ecp_formulations::step::SensitivitySupport;
 use ecp_formulations::{
-    BodyState, Capabilities, FormulationRegistry, Scene, Simulation, SimulationBuilder, StepRecord,
+    BodyState, FormulationRegistry, Scene, Simulation, SimulationBuilder, StepRecord,
 };
 use nalgebra::{Vector3, Vector4};
 use serde::Serialize;
 
-use crate::backends::{SolverConfig, make_solver_for};
+use ecp_solvers::Registry;
+
+use crate::backends::{SolverConfig, Target, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 
 /// Parses a comma-separated list of parameter names (`mu,e_r`, `mass[1]`; [`Param`]'s names)
@@ -564,11 +566,11 @@ struct Shared {
 #[derive(Clone)]
 pub struct TrajectoryProblem {
     scene: Scene,
-    formulation: String,
-    capabilities: Capabilities,
+    formulation: Target,
     /// The simulation every evaluation reuses, built at the first one.
     sim: Arc<Mutex<Option<Simulation>>>,
     solver: SolverConfig,
+    registry: Arc<Registry>,
     params: Vec<Param>,
     coordinates: Vec<Coordinate>,
     start: Vec<f64>,
@@ -608,12 +610,9 @@ impl TrajectoryProblem {
         params: Vec<Param>,
     ) -> Result<Self, FitError> {
         reference.check_against(&scene)?;
-        let capabilities = crate::backends::check_combination(
-            solver.kind,
-            formulation,
-            &FormulationRegistry::builtin(),
-        )?;
-        make_solver_for(&solver, &capabilities)?;
+        let formulation = Target::resolve(formulation, &FormulationRegistry::builtin())?;
+        let registry = Arc::new(Registry::builtin());
+        make_solver_in(&registry, &solver, &formulation)?;
         scene.duration = reference.steps() as f64 * scene.h;
         let mut start = Vec::with_capacity(params.len());
         let mut coordinates = Vec::with_capacity(params.len());
@@ -637,10 +636,10 @@ impl TrajectoryProblem {
         let loss = ReferenceLoss::new(reference.states.clone(), default_weights());
         Ok(TrajectoryProblem {
             scene,
-            formulation: formulation.to_string(),
-            capabilities,
+            formulation,
             sim: Arc::new(Mutex::new(None)),
             solver,
+            registry,
             params,
             coordinates,
             start,
@@ -684,6 +683,14 @@ impl TrajectoryProblem {
         Self::from_scene(scene, formulation, solver, reference, params)
     }
 
+    /// Takes the solver (the scene's `[solver] name`) from `registry`, which may hold a user's
+    /// own backends, instead of [`Registry::builtin`].
+    pub fn with_registry(mut self, registry: Arc<Registry>) -> Result<Self, FitError> {
+        make_solver_in(&registry, &self.solver, &self.formulation)?;
+        self.registry = registry;
+        Ok(self)
+    }
+
     /// Uses these loss weights.
     pub fn with_weights(mut self, weights: ReferenceWeights) -> Self {
         self.loss.weights = weights;
@@ -702,7 +709,7 @@ impl TrajectoryProblem {
                     "the {} gradient differentiates the step, and the {} formulation has no step \
                      sensitivities; use --gradient fd, or --formulation hull or union",
                     gradient.as_str(),
-                    self.formulation
+                    self.formulation.name
                 ),
             )
             .into());
@@ -722,7 +729,7 @@ impl TrajectoryProblem {
 
     /// Whether the formulation has step sensitivities (the analytic gradients).
     fn has_sensitivities(&self) -> bool {
-        self.capabilities.sensitivities != SensitivitySupport::None
+        self.formulation.capabilities.sensitivities != SensitivitySupport::None
     }
 
     /// The cost scale argmin sees.
@@ -826,7 +833,7 @@ impl TrajectoryProblem {
         let mut guard = self.sim.lock().unwrap_or_else(|e| e.into_inner());
         if guard.is_none() {
             let formulation = FormulationRegistry::builtin()
-                .create(&self.formulation)
+                .create(&self.formulation.name)
                 .map_err(|e| fail(e.to_string()))?;
             let sim = SimulationBuilder::new(self.scene.clone(), formulation)
                 .build()
@@ -852,7 +859,7 @@ impl TrajectoryProblem {
             params: self.describe(theta),
             reason: format!("step {step} (t = {:.4} s): {reason}", step as f64 * h),
         };
-        let mut solver = make_solver_for(&self.solver, &self.capabilities)?;
+        let mut solver = make_solver_in(&self.registry, &self.solver, &self.formulation)?;
         let n = self.reference.steps();
         self.with_simulation(theta, |sim| {
             let mut records = Vec::with_capacity(n);
@@ -916,7 +923,7 @@ impl TrajectoryProblem {
             }
             GradientMethod::Adjoint | GradientMethod::Forward => {
                 self.shared().counts.simulations += 1;
-                let mut solver = make_solver_for(&self.solver, &self.capabilities)?;
+                let mut solver = make_solver_in(&self.registry, &self.solver, &self.formulation)?;
                 let options = GradientOptions {
                     mode: if self.gradient == GradientMethod::Forward {
                         GradientMode::Forward

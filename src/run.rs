@@ -3,13 +3,13 @@
 //! layer over [`run_scene`] and [`compare_scene`].
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use ecp_formulations::{
-    Capabilities, Fallbacks, FormulationRegistry, SimulationBuilder, StepRecord,
-};
+use ecp_formulations::{Fallbacks, FormulationRegistry, SimulationBuilder, StepRecord};
+use ecp_solvers::Registry;
 
-use crate::backends::{SolverConfig, SolverKind, check_combination, make_solver, make_solver_for};
+use crate::backends::{SolverConfig, Target, check_combination, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
     CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
@@ -22,12 +22,17 @@ use crate::scene::SceneFile;
 pub struct RunOptions {
     /// Output directory (created if missing).
     pub out_dir: PathBuf,
-    /// Backend instead of the scene's `[solver] name`.
-    pub solver: Option<SolverKind>,
-    /// Formulation instead of the scene's (a name in [`RunOptions::formulations`]).
+    /// Backend instead of the scene's `[solver] name`, by its name in [`RunOptions::registry`].
+    pub solver: Option<String>,
+    /// Where backends are found by name: [`Registry::builtin`] by default; register a backend
+    /// of your own in it to run scenes with it and get the same outputs and plots
+    /// (`examples/custom_backend.rs`). The fallbacks come from it too.
+    pub registry: Arc<Registry>,
+    /// Formulation instead of the scene's, by its name in [`RunOptions::formulations`].
     pub formulation: Option<String>,
-    /// The formulations by name: the builtin ones, or a registry a caller extended with its own
-    /// (`examples/custom_formulation.rs`).
+    /// Where formulations are found by name: [`FormulationRegistry::builtin`] by default;
+    /// register a formulation of your own in it to run scenes with it and get the same outputs
+    /// and plots (`examples/custom_formulation.rs`).
     pub formulations: FormulationRegistry,
     /// Stop after this many steps (at most the scene's duration).
     pub steps: Option<usize>,
@@ -48,6 +53,7 @@ impl Default for RunOptions {
         RunOptions {
             out_dir: PathBuf::from("out"),
             solver: None,
+            registry: Arc::new(Registry::builtin()),
             formulation: None,
             formulations: FormulationRegistry::builtin(),
             steps: None,
@@ -101,41 +107,44 @@ pub enum RunError {
     Output(#[from] OutputError),
 }
 
-/// The run's backend settings, formulation name and the formulation's capabilities.
-fn resolve(
-    file: &SceneFile,
-    options: &RunOptions,
-) -> Result<(SolverConfig, String, Capabilities), InputError> {
-    let formulation = options
-        .formulation
-        .clone()
-        .unwrap_or_else(|| file.formulation.clone());
+/// The run's backend settings and its formulation.
+fn resolve(file: &SceneFile, options: &RunOptions) -> Result<(SolverConfig, Target), InputError> {
+    let name = options.formulation.as_ref().unwrap_or(&file.formulation);
+    let formulation = Target::resolve(name, &options.formulations)?;
     let mut config = file.solver.clone();
-    if let Some(kind) = options.solver {
-        config.kind = kind;
+    if let Some(name) = &options.solver {
+        config.name = name.trim().to_string();
     }
-    let capabilities = check_combination(config.kind, &formulation, &options.formulations)?;
-    Ok((config, formulation, capabilities))
+    check_combination(&options.registry, &config.name, &formulation)?;
+    Ok((config, formulation))
 }
 
-/// The default fallbacks of a run with `config` on a formulation with `capabilities`: every other
-/// backend that can solve the formulation, most robust first (PATH, Newton, conic), with the
-/// same tolerance and iteration limit, then substeps down to `h/16`. The driver uses them as far
-/// as the formulation's capabilities allow.
+/// The built-in backends a run falls back on, most robust first.
+pub const FALLBACK_ORDER: [&str; 3] = ["path", "newton", "conic"];
+
+/// The default fallbacks of a run with `config` on `formulation`: every other backend of
+/// [`FALLBACK_ORDER`] that `registry` has and that can solve the formulation, with the same
+/// tolerance and iteration limit, then substeps down to `h/16`. A user's backend is never a
+/// fallback by default (it is there to be measured). The driver uses them as far as the
+/// formulation's capabilities allow.
 pub fn fallbacks_for(
+    registry: &Registry,
     config: &SolverConfig,
-    capabilities: &Capabilities,
+    formulation: &Target,
 ) -> Result<Fallbacks, InputError> {
     let mut backends = Vec::new();
-    for kind in [SolverKind::Path, SolverKind::Newton, SolverKind::Conic] {
-        if kind == config.kind || (kind == SolverKind::Conic && !capabilities.step_structure) {
+    for name in FALLBACK_ORDER {
+        if name == config.name
+            || registry.get(name).is_err()
+            || check_combination(registry, name, formulation).is_err()
+        {
             continue;
         }
         let other = SolverConfig {
-            kind,
+            name: name.to_string(),
             ..config.clone()
         };
-        backends.push(make_solver_for(&other, capabilities)?);
+        backends.push(make_solver_in(registry, &other, formulation)?);
     }
     Ok(Fallbacks::new(backends))
 }
@@ -148,10 +157,10 @@ pub fn run_scene(
     mut on_step: impl FnMut(&StepRecord),
 ) -> Result<RunOutcome, RunError> {
     let start = Instant::now();
-    let (config, formulation, capabilities) = resolve(file, options)?;
-    let mut solver = make_solver_for(&config, &capabilities)?;
+    let (config, formulation) = resolve(file, options)?;
+    let mut solver = make_solver_in(&options.registry, &config, &formulation)?;
     let mut fallbacks = if options.fallbacks {
-        fallbacks_for(&config, &capabilities)?
+        fallbacks_for(&options.registry, &config, &formulation)?
     } else {
         Fallbacks::none()
     };
@@ -164,7 +173,7 @@ pub fn run_scene(
     };
     let stepper = options
         .formulations
-        .create(&formulation)
+        .create(&formulation.name)
         .map_err(|e| refused(e.to_string()))?;
     let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
         .build()
@@ -206,8 +215,8 @@ pub fn run_scene(
     }
     let mut summary = RunSummary::from_records(
         &file.scene,
-        &formulation,
-        config.kind.as_str(),
+        &formulation.name,
+        &config.name,
         &records,
         planned,
     );
@@ -248,16 +257,19 @@ pub fn run_scene(
 /// against the first run. `on_run` is told each run's label before it starts.
 pub fn compare_scene(
     file: &SceneFile,
-    solvers: &[SolverKind],
+    solvers: &[String],
     formulations: &[String],
     options: &RunOptions,
     mut on_run: impl FnMut(&str),
 ) -> Result<CompareReport, RunError> {
     for s in solvers {
-        make_solver(&SolverConfig {
-            kind: *s,
+        // Unknown names and invalid settings stop the comparison before any run.
+        let config = SolverConfig {
+            name: s.clone(),
             ..file.solver.clone()
-        })?;
+        };
+        // Every backend solves the hull formulation.
+        make_solver_in(&options.registry, &config, &Target::hull())?;
     }
     let mut runs: Vec<CompareRun> = Vec::new();
     let mut skipped: Vec<SkippedRun> = Vec::new();
@@ -271,14 +283,16 @@ pub fn compare_scene(
                 solver: s.to_string(),
                 reason,
             };
-            if let Err(e) = check_combination(*s, f, &options.formulations) {
+            let checked = Target::resolve(f, &options.formulations)
+                .and_then(|t| check_combination(&options.registry, s, &t));
+            if let Err(e) = checked {
                 skipped.push(skip(e.message.clone()));
                 continue;
             }
             on_run(&label);
             let run_options = RunOptions {
                 out_dir: options.out_dir.join(&label),
-                solver: Some(*s),
+                solver: Some(s.clone()),
                 formulation: Some(f.clone()),
                 plots: false,
                 ..options.clone()

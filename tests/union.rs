@@ -19,7 +19,8 @@ use std::sync::Arc;
 
 use nalgebra::{Vector3, Vector4, Vector6};
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver_for};
+use ecp::backends::{SolverConfig, Target, make_solver_in};
+use ecp::formulations::FormulationRegistry;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::scenarios;
 use ecp::formulations::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
@@ -29,15 +30,14 @@ const TOL: f64 = 1e-10;
 
 /// Runs `steps` steps of `scene` (all of them for `None`) in `formulation` with backend `kind`;
 /// every step must converge to ≤ [`TOL`] without penetrating by more than 1e-9.
-fn run(scene: Scene, formulation: &str, kind: SolverKind, steps: Option<usize>) -> Vec<StepRecord> {
+fn run(scene: Scene, formulation: &str, kind: &str, steps: Option<usize>) -> Vec<StepRecord> {
     let name = format!("{} ({formulation}, {kind})", scene.name);
     let mut sim = Simulation::with_formulation(scene, formulation).expect("valid scene");
-    let mut solver = make_solver_for(
-        &SolverConfig {
-            kind,
-            ..SolverConfig::default()
-        },
-        &sim.capabilities(),
+    let target = Target::resolve(formulation, &FormulationRegistry::builtin()).expect("builtin");
+    let mut solver = make_solver_in(
+        &ecp::solvers::Registry::builtin(),
+        &SolverConfig::named(kind),
+        &target,
     )
     .expect("backend available");
     let steps = steps.unwrap_or(usize::MAX);
@@ -118,7 +118,7 @@ fn t_bar_sliding() -> Scene {
 
 #[test]
 fn union_desk_converges_with_newton() {
-    let recs = run(scenarios::desk(), "union", SolverKind::Newton, None);
+    let recs = run(scenarios::desk(), "union", "newton", None);
     assert_eq!(recs.len(), 400);
     // Four contacts, one per leg, and the desk really spins both ways.
     assert_eq!(recs[0].contacts.len(), 4);
@@ -128,19 +128,19 @@ fn union_desk_converges_with_newton() {
 
 #[test]
 fn union_desk_converges_with_path() {
-    let recs = run(scenarios::desk(), "union", SolverKind::Path, None);
+    let recs = run(scenarios::desk(), "union", "path", None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_desk_converges_with_conic() {
-    let recs = run(scenarios::desk(), "union", SolverKind::Conic, None);
+    let recs = run(scenarios::desk(), "union", "conic", None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_t_bar_converges_with_every_backend() {
-    for kind in SolverKind::ALL {
+    for kind in ecp::solvers::registry::BUILTIN {
         let recs = run(t_bar_sliding(), "union", kind, None);
         assert_eq!(recs.len(), 100, "{kind}");
         assert_eq!(recs[0].contacts.len(), 2, "{kind}");
@@ -159,8 +159,8 @@ fn union_t_bar_converges_with_every_backend() {
 
 #[test]
 fn union_and_hull_agree_in_pure_translation_of_the_desk() {
-    let hull = run(desk_translating(), "hull", SolverKind::Newton, None);
-    for kind in SolverKind::ALL {
+    let hull = run(desk_translating(), "hull", "newton", None);
+    for kind in ecp::solvers::registry::BUILTIN {
         let union = run(desk_translating(), "union", kind, None);
         let (dv, dw) = max_difference(&hull, &union);
         println!(
@@ -179,8 +179,8 @@ fn union_and_hull_agree_in_pure_translation_of_the_desk() {
 #[test]
 fn union_and_hull_agree_on_a1() {
     // A single box is one convex piece: the union model has the hull model's one contact.
-    let hull = run(scenarios::a1_sliding(), "hull", SolverKind::Newton, None);
-    let union = run(scenarios::a1_sliding(), "union", SolverKind::Newton, None);
+    let hull = run(scenarios::a1_sliding(), "hull", "newton", None);
+    let union = run(scenarios::a1_sliding(), "union", "newton", None);
     assert_eq!(hull.len(), union.len());
     let (dv, dw) = max_difference(&hull, &union);
     assert!(dv <= 1e-8 && dw <= 1e-8, "Δv {dv:.3e}, Δω {dw:.3e}");
@@ -192,9 +192,9 @@ fn union_and_hull_agree_on_a1() {
 #[test]
 fn union_with_spin_differences_are_measured() {
     let steps = Some(100);
-    let hull = run(scenarios::desk(), "hull", SolverKind::Newton, steps);
-    let newton = run(scenarios::desk(), "union", SolverKind::Newton, steps);
-    let path = run(scenarios::desk(), "union", SolverKind::Path, steps);
+    let hull = run(scenarios::desk(), "hull", "newton", steps);
+    let newton = run(scenarios::desk(), "union", "newton", steps);
+    let path = run(scenarios::desk(), "union", "path", steps);
     let (dv, dw) = max_difference(&hull, &newton);
     println!("desk with spin, 100 steps: union (newton) vs hull: |Δv| ≤ {dv:.3e}, |Δω| ≤ {dw:.3e}");
     let (dv, dw) = max_difference(&newton, &path);

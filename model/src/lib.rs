@@ -40,6 +40,7 @@
 
 pub mod bounds;
 pub mod checker;
+pub mod counters;
 pub mod data;
 pub mod error;
 pub mod linalg;
@@ -61,6 +62,7 @@ pub use checker::{
     BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_mcp, check_problem,
     check_residual_block,
 };
+pub use counters::{Counter, Counters};
 pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use error::ModelError;
 pub use mcp::{

@@ -598,7 +598,9 @@ impl Simulation {
             attempt += 1;
             match self.solve_step_problem(solver, &self.z) {
                 Ok(mut sol) => {
-                    sol.summary.counters.push(("retries", attempt));
+                    sol.summary
+                        .counters
+                        .add(ecp_model::Counter::Retries, attempt);
                     return Ok(sol);
                 }
                 Err(e) => failure = better_failure(failure, e),
@@ -1097,7 +1099,7 @@ mod tests {
             .step(&mut Flaky::new(1))
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(rec.method, StepMethod::Direct);
-        assert_eq!(rec.summary.counter("retries"), 1);
+        assert_eq!(rec.summary.counter(ecp_model::Counter::Retries), Some(1));
         assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() <= 1e-9);
     }
 
