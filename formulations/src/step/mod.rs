@@ -4,8 +4,8 @@
 //! state components ([`Param`], [`StateComponent`]), the fallbacks ([`Fallbacks`]) and the one
 //! driver every formulation runs in ([`Simulation`]).
 //!
-//! Inside the layer, each file imports only those listed before it: `formulation`, `handles`,
-//! `params`, `terms`, `body`, `fallback`, then `driver`.
+//! Inside the layer, each file imports only those listed before it: `handles`, `formulation`,
+//! `params`, `terms`, `body`, `fallback`, then `driver` (`docs/architecture.md`).
 
 pub mod body;
 pub mod driver;
