@@ -11,12 +11,12 @@ use nalgebra::Vector3;
 
 use ecp_model::{BlockMcp, DataBlock, DataId, Input, ModelError, Problem, VarBlock, VarId};
 
+use super::FRICTION_DATA;
 use super::contact::HullFaces;
 use super::friction::{FrictionEllipsoid, FrictionParams};
 use super::pair_contact::{PairAlignment, PairNormalCone, PairNormalisation, PairSeparation};
 use super::pair_friction::PairFriction;
 use super::pair_wrench::{PairSide, PairWrench};
-use super::FRICTION_DATA;
 use crate::geometry::ConvexHull;
 
 /// Components of a pair contact's reference-axis data block (`<tag>.axis`).
@@ -209,7 +209,8 @@ pub fn add_pair_contact(
         ),
         sigma: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
     };
-    let normals = |h: &ConvexHull| -> Vec<Vector3<f64>> { h.faces().iter().map(|x| x.normal).collect() };
+    let normals =
+        |h: &ConvexHull| -> Vec<Vector3<f64>> { h.faces().iter().map(|x| x.normal).collect() };
     let offsets = |h: &ConvexHull| -> Vec<f64> { h.faces().iter().map(|x| x.offset).collect() };
     let (n_f, n_g) = (normals(f.hull), normals(g.hull));
     let v = |id: VarId| Input::Var(id);

@@ -66,7 +66,11 @@ impl ResidualBlock for PairAlignment {
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let (a1, a2, d) = (x.block(0), x.block(1), x.block(2)[0]);
-        let nu = SupportNormal::new(&self.g_normals, x.block(Self::MU), &v4(x.block(Self::Q_G), 3));
+        let nu = SupportNormal::new(
+            &self.g_normals,
+            x.block(Self::MU),
+            &v4(x.block(Self::Q_G), 3),
+        );
         for i in 0..3 {
             out[i] = self.scale * (a1[i] - a2[i] - d * nu.value[i]);
         }
@@ -74,7 +78,11 @@ impl ResidualBlock for PairAlignment {
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let s = self.scale;
         let d = x.block(2)[0];
-        let nu = SupportNormal::new(&self.g_normals, x.block(Self::MU), &v4(x.block(Self::Q_G), 3));
+        let nu = SupportNormal::new(
+            &self.g_normals,
+            x.block(Self::MU),
+            &v4(x.block(Self::Q_G), 3),
+        );
         jac.add_diagonal(0, 0, 0, 3, s);
         jac.add_diagonal(1, 0, 0, 3, -s);
         for i in 0..3 {
@@ -130,15 +138,31 @@ impl ResidualBlock for PairNormalCone {
         &self.sizes
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let nu = SupportNormal::new(&self.g_normals, x.block(Self::MU), &v4(x.block(Self::Q_G), 3));
-        let cone = SupportNormal::new(&self.f_normals, x.block(Self::L), &v4(x.block(Self::Q_F), 3));
+        let nu = SupportNormal::new(
+            &self.g_normals,
+            x.block(Self::MU),
+            &v4(x.block(Self::Q_G), 3),
+        );
+        let cone = SupportNormal::new(
+            &self.f_normals,
+            x.block(Self::L),
+            &v4(x.block(Self::Q_F), 3),
+        );
         out.copy_from_slice((nu.value + cone.value).as_slice());
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let rows = [0, 1, 2].map(|i| (i, Vector3::ith(i, 1.0)));
-        let nu = SupportNormal::new(&self.g_normals, x.block(Self::MU), &v4(x.block(Self::Q_G), 3));
+        let nu = SupportNormal::new(
+            &self.g_normals,
+            x.block(Self::MU),
+            &v4(x.block(Self::Q_G), 3),
+        );
         nu.add_chain(&self.g_normals, &rows, Self::MU, Self::Q_G, jac);
-        let cone = SupportNormal::new(&self.f_normals, x.block(Self::L), &v4(x.block(Self::Q_F), 3));
+        let cone = SupportNormal::new(
+            &self.f_normals,
+            x.block(Self::L),
+            &v4(x.block(Self::Q_F), 3),
+        );
         cone.add_chain(&self.f_normals, &rows, Self::L, Self::Q_F, jac);
     }
 }
@@ -200,5 +224,89 @@ impl ResidualBlock for PairSeparation {
     }
     fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         jac.set(0, 0, 0, self.scale);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ecp_model::{CheckOptions, check_residual_block};
+
+    use super::super::common::flat;
+    use super::*;
+
+    /// A unit cube's faces (body frame): +x, −x, +y, −y, +z, −z.
+    fn cube() -> Vec<Vector3<f64>> {
+        vec![
+            Vector3::x(),
+            -Vector3::x(),
+            Vector3::y(),
+            -Vector3::y(),
+            Vector3::z(),
+            -Vector3::z(),
+        ]
+    }
+
+    fn eval(b: &dyn ResidualBlock, params: &[&[f64]]) -> Vec<f64> {
+        let (z, ranges) = flat(params);
+        let mut out = vec![0.0; b.num_residuals()];
+        b.evaluate(Params::new(&z, &[], &ranges), &mut out);
+        out
+    }
+
+    fn check(b: &dyn ResidualBlock, params: &[&[f64]]) {
+        let report = check_residual_block(b, params, &CheckOptions::default()).expect("sizes");
+        assert!(report.ok(), "{report}");
+        let cols: usize = b.parameter_sizes().iter().sum();
+        assert_eq!(report.entries, cols * b.num_residuals());
+    }
+
+    #[test]
+    fn k_rows_vanish_at_the_closest_points_of_two_cubes() {
+        // G at the origin turned a quarter about z (its faces permute, its +z face stays up), F
+        // 0.5 above it: a1 on F's bottom face, a2 on G's top, d = 0.5.
+        let s = std::f64::consts::FRAC_1_SQRT_2;
+        let q_g = [0.0, 0.0, 0.0, s, 0.0, 0.0, s];
+        let q_f = [0.2, -0.1, 1.5, 1.0, 0.0, 0.0, 0.0];
+        let (a1, a2, d) = ([0.2, -0.1, 1.0], [0.2, -0.1, 0.5], [0.5]);
+        let mu = [0.0, 0.0, 0.0, 0.0, 1.0, 0.0];
+        let l = [0.0, 0.0, 0.0, 0.0, 0.0, 1.0];
+        let k1 = PairAlignment::new(cube(), 100.0);
+        let r = eval(&k1, &[&a1, &a2, &d, &mu, &q_g]);
+        assert!(r.iter().all(|v| v.abs() < 1e-13), "{r:?}");
+        let k2 = PairNormalCone::new(cube(), cube());
+        let r = eval(&k2, &[&mu, &q_g, &l, &q_f]);
+        assert!(r.iter().all(|v| v.abs() < 1e-15), "{r:?}");
+        assert_eq!(eval(&PairNormalisation::new(6), &[&mu]), vec![0.0]);
+        assert_eq!(eval(&PairSeparation { scale: 100.0 }, &[&d]), vec![50.0]);
+        // Off the solution: K1 measures a1 − a2 − d ν_G with ν_G = R_G Σ μ m̂.
+        let mu2 = [0.5, 0.0, 0.0, 0.0, 0.5, 0.0];
+        let r = eval(&k1, &[&a1, &a2, &d, &mu2, &q_g]);
+        // R_G e_x = e_y: ν_G = (0, 0.5, 0.5).
+        let want = [0.0, -25.0, 25.0];
+        for i in 0..3 {
+            assert!((r[i] - want[i]).abs() < 1e-12, "{r:?}");
+        }
+    }
+
+    #[test]
+    fn jacobians_at_a_generic_point() {
+        let q_g = [0.3, -0.2, 0.1, 0.9, 0.2, -0.3, 0.1];
+        let q_f = [0.1, 0.4, 1.2, 0.7, -0.1, 0.5, 0.3];
+        let mu = [0.1, 0.0, 0.4, 0.2, 0.7, 0.05];
+        let l = [0.3, 0.2, 0.0, 0.1, 0.6, 1.1];
+        let (a1, a2, d) = ([0.2, -0.3, 1.1], [0.1, 0.2, 0.4], [0.35]);
+        check(
+            &PairAlignment::new(cube(), 50.0),
+            &[&a1, &a2, &d, &mu, &q_g],
+        );
+        let mut tetra = cube();
+        tetra.truncate(3);
+        tetra.push(Vector3::new(-1.0, -1.0, -1.0).normalize());
+        check(
+            &PairNormalCone::new(tetra, cube()),
+            &[&mu, &q_g, &l[..4], &q_f],
+        );
+        check(&PairNormalisation::new(6), &[&mu]);
+        check(&PairSeparation { scale: 7.0 }, &[&d]);
     }
 }

@@ -226,7 +226,10 @@ mod tests {
             // t lies in the plane of n and r, on r's side.
             assert!(f.t.dot(&axis) > 0.0 && f.t.dot(&f.n.cross(&axis)).abs() < 1e-14);
             let fd = frame_fd(&nu, &axis);
-            let analytic = [[f.dn, f.dt, f.d_o], [Matrix3::zeros(), f.dt_axis, f.do_axis]];
+            let analytic = [
+                [f.dn, f.dt, f.d_o],
+                [Matrix3::zeros(), f.dt_axis, f.do_axis],
+            ];
             for w in 0..2 {
                 for k in 0..3 {
                     let err = (fd[w][k] - analytic[w][k]).abs().max();
@@ -244,10 +247,7 @@ mod tests {
         let f = PairFrame::new(&(n * 0.7), &axis);
         assert_eq!((f.n, f.t, f.o), (n, Vector3::x(), Vector3::y()));
         // Least aligned, ties to the lower index.
-        assert_eq!(
-            reference_axis(&Vector3::new(-0.42, 0.0, 0.9)),
-            Vector3::y()
-        );
+        assert_eq!(reference_axis(&Vector3::new(-0.42, 0.0, 0.9)), Vector3::y());
         assert_eq!(reference_axis(&Vector3::new(1.0, 0.3, 0.3)), Vector3::y());
         assert_eq!(reference_axis(&Vector3::new(0.5, 0.6, 0.1)), Vector3::z());
     }

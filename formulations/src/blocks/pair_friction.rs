@@ -31,7 +31,14 @@ pub struct RelativeVelocity {
 
 impl RelativeVelocity {
     /// From F's and G's `ν` and `q` and the ECPs `a1`, `a2` (slices as the blocks read them).
-    pub fn new(nu_f: &[f64], q_f: &[f64], nu_g: &[f64], q_g: &[f64], a1: &[f64], a2: &[f64]) -> Self {
+    pub fn new(
+        nu_f: &[f64],
+        q_f: &[f64],
+        nu_g: &[f64],
+        q_g: &[f64],
+        a1: &[f64],
+        a2: &[f64],
+    ) -> Self {
         let (w_f, w_g) = (v3(nu_f, 3), v3(nu_g, 3));
         let r_f = v3(a1, 0) - v3(q_f, 0);
         let r_g = v3(a2, 0) - v3(q_g, 0);
@@ -108,7 +115,11 @@ impl PairFriction {
     }
 
     fn frame(&self, x: Params<'_>) -> (SupportNormal, PairFrame) {
-        let nu = SupportNormal::new(&self.g_normals, x.block(Self::MU), &v4(x.block(Self::Q_G), 3));
+        let nu = SupportNormal::new(
+            &self.g_normals,
+            x.block(Self::MU),
+            &v4(x.block(Self::Q_G), 3),
+        );
         let frame = PairFrame::new(&nu.value, &v3(x.block(Self::AXIS), 0));
         (nu, frame)
     }
@@ -215,6 +226,106 @@ impl ResidualBlock for PairFriction {
                     jac.set(Self::AXIS, i, k, g[k]);
                 }
             }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use ecp_model::{CheckOptions, check_residual_block};
+
+    use super::super::common::{ContactFrame, flat};
+    use super::super::friction::FrictionDissipation;
+    use super::*;
+
+    const FRICTION: [f64; 4] = [0.4, 1.0, 0.8, 0.05];
+
+    fn eval(b: &dyn ResidualBlock, params: &[&[f64]]) -> Vec<f64> {
+        let (z, ranges) = flat(params);
+        let mut out = vec![0.0; b.num_residuals()];
+        b.evaluate(Params::new(&z, &[], &ranges), &mut out);
+        out
+    }
+
+    fn faces() -> Vec<Vector3<f64>> {
+        vec![Vector3::z(), -Vector3::z(), Vector3::x()]
+    }
+
+    #[test]
+    fn no_slip_when_f_moves_with_g() {
+        // G turns at ω about an axis through x_G and translates; F follows rigidly; a1 = a2.
+        let (x_g, x_f) = (Vector3::new(0.1, 0.2, 0.0), Vector3::new(0.3, -0.1, 0.5));
+        let (v_g, w) = (Vector3::new(0.5, -0.2, 0.1), Vector3::new(0.3, -1.0, 2.0));
+        let v_f = v_g + w.cross(&(x_f - x_g));
+        let nu_f = [v_f.x, v_f.y, v_f.z, w.x, w.y, w.z];
+        let nu_g = [v_g.x, v_g.y, v_g.z, w.x, w.y, w.z];
+        let q_f = [x_f.x, x_f.y, x_f.z, 0.9, 0.1, 0.2, -0.3];
+        let q_g = [x_g.x, x_g.y, x_g.z, 0.8, -0.3, 0.1, 0.2];
+        let a = [0.25, 0.0, 0.3];
+        let (mu, pn, pf, sigma) = ([0.6, 0.0, 0.4], [2.0], [0.3, -0.2, 0.01], [0.7]);
+        let b = PairFriction::new(faces());
+        let params: [&[f64]; 12] = [
+            &nu_f,
+            &q_f,
+            &nu_g,
+            &q_g,
+            &a,
+            &a,
+            &mu,
+            &pn,
+            &pf,
+            &sigma,
+            &FRICTION,
+            &[0.0, 1.0, 0.0],
+        ];
+        let r = eval(&b, &params);
+        for i in 0..3 {
+            assert!((r[i] - pf[i] * sigma[0]).abs() < 1e-14, "{r:?}");
+        }
+        let report = check_residual_block(&b, &params, &CheckOptions::default()).expect("sizes");
+        assert!(report.ok(), "{report}");
+        assert_eq!(
+            report.entries,
+            3 * (6 + 7 + 6 + 7 + 3 + 3 + 3 + 1 + 3 + 1 + 4 + 3)
+        );
+    }
+
+    #[test]
+    fn reduces_to_the_half_space_rows_on_a_fixed_one_face_body() {
+        // G: the ground as a one-face body at rest (ν_G = 0, identity pose), μ = 1: the rows of
+        // FrictionDissipation with the frame (e_z, e_x, e_y).
+        let nu_f = [1.0, -0.3, 0.2, 0.4, -0.5, 2.0];
+        let q_f = [0.0, 0.1, 0.5, 0.9, 0.1, 0.2, -0.3];
+        let (a1, pn, pf, sigma) = ([0.05, -0.1, 0.0], [2.0], [-0.3, 0.1, 0.02], [0.5]);
+        let q_g = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let pair = eval(
+            &PairFriction::new(vec![Vector3::z()]),
+            &[
+                &nu_f,
+                &q_f,
+                &[0.0; 6],
+                &q_g,
+                &a1,
+                &a1,
+                &[1.0],
+                &pn,
+                &pf,
+                &sigma,
+                &FRICTION,
+                &[1.0, 0.0, 0.0],
+            ],
+        );
+        let frame = ContactFrame {
+            n: Vector3::z(),
+            t: Vector3::x(),
+            o: Vector3::y(),
+        };
+        let half = eval(
+            &FrictionDissipation { frame },
+            &[&nu_f, &q_f, &a1, &pn, &pf, &sigma, &FRICTION],
+        );
+        for i in 0..3 {
+            assert!((pair[i] - half[i]).abs() < 1e-15, "{pair:?} {half:?}");
         }
     }
 }

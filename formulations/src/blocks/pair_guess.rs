@@ -75,7 +75,8 @@ pub fn pair_guess(
     }
     let m_f = f.mass.unwrap_or(0.0);
     let weight = h * (-m_f * gravity.dot(&n)).max(0.0)
-        + g.mass.map_or(0.0, |m_g| h * (m_g * gravity.dot(&n)).max(0.0));
+        + g.mass
+            .map_or(0.0, |m_g| h * (m_g * gravity.dot(&n)).max(0.0));
     let reduced = match g.mass {
         Some(m_g) if m_f + m_g > 0.0 => m_f * m_g / (m_f + m_g),
         _ => m_f,
@@ -131,7 +132,16 @@ mod tests {
             x: Vector3::new(0.0, 0.0, 0.1),
             ..top
         };
-        let v = pair_guess(&features(0.0), &top, &bottom, &Vector3::x(), &FRICTION, &g_vec, 0.01, false);
+        let v = pair_guess(
+            &features(0.0),
+            &top,
+            &bottom,
+            &Vector3::x(),
+            &FRICTION,
+            &g_vec,
+            0.01,
+            false,
+        );
         assert!((v.pn - 0.098).abs() < 1e-15, "{v:?}");
         assert_eq!(v.pf, [0.0; 3]);
         assert!((v.sigma - 0.098).abs() < 1e-15);
@@ -144,18 +154,45 @@ mod tests {
             mass: None,
             ..bottom
         };
-        let v = pair_guess(&features(0.0), &sliding, &fixed, &Vector3::x(), &FRICTION, &g_vec, 0.01, false);
+        let v = pair_guess(
+            &features(0.0),
+            &sliding,
+            &fixed,
+            &Vector3::x(),
+            &FRICTION,
+            &g_vec,
+            0.01,
+            false,
+        );
         assert!((v.pn - 0.098).abs() < 1e-15);
         assert!((v.pf[0] + 0.3 * 0.098).abs() < 1e-15 && v.pf[1] == 0.0 && v.sigma == 1.0);
         // Separated: no impulse, σ the slip rate.
-        let v = pair_guess(&features(0.01), &sliding, &fixed, &Vector3::x(), &FRICTION, &g_vec, 0.01, false);
+        let v = pair_guess(
+            &features(0.01),
+            &sliding,
+            &fixed,
+            &Vector3::x(),
+            &FRICTION,
+            &g_vec,
+            0.01,
+            false,
+        );
         assert_eq!((v.pn, v.pf, v.sigma), (0.0, [0.0; 3], 1.0));
         // Unless forced active; approaching at 0.5 m/s with reduced mass 2/3.
         let falling = PairMotion {
             v: Vector3::new(0.0, 0.0, -0.5),
             ..top
         };
-        let v = pair_guess(&features(0.01), &falling, &bottom, &Vector3::x(), &FRICTION, &g_vec, 0.01, true);
+        let v = pair_guess(
+            &features(0.01),
+            &falling,
+            &bottom,
+            &Vector3::x(),
+            &FRICTION,
+            &g_vec,
+            0.01,
+            true,
+        );
         assert!((v.pn - (0.098 + 0.5 * 2.0 / 3.0)).abs() < 1e-15, "{v:?}");
     }
 }

@@ -201,3 +201,109 @@ impl ResidualBlock for PairWrench {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use ecp_model::{CheckOptions, check_residual_block};
+
+    use super::super::common::{ContactFrame, flat};
+    use super::super::newton_euler::NewtonEuler;
+    use super::*;
+
+    fn eval(b: &dyn ResidualBlock, params: &[&[f64]]) -> Vec<f64> {
+        let (z, ranges) = flat(params);
+        let mut out = vec![0.0; b.num_residuals()];
+        b.evaluate(Params::new(&z, &[], &ranges), &mut out);
+        out
+    }
+
+    fn faces() -> Vec<Vector3<f64>> {
+        vec![Vector3::z(), Vector3::new(0.0, 0.6, 0.8), -Vector3::x()]
+    }
+
+    #[test]
+    fn equal_and_opposite_impulses() {
+        let q_f = [0.3, -0.1, 0.6, 0.9, 0.1, 0.2, -0.3];
+        let q_g = [0.1, 0.2, 0.0, 0.8, -0.3, 0.1, 0.2];
+        let a = [0.25, 0.05, 0.3];
+        let (mu, pn, pf, axis) = ([0.6, 0.4, 0.0], [2.0], [0.3, -0.2, 0.01], [1.0, 0.0, 0.0]);
+        let on_f = PairWrench::new(PairSide::F, faces());
+        let on_g = PairWrench::new(PairSide::G, faces());
+        let wf = eval(&on_f, &[&a, &q_f, &mu, &q_g, &pn, &pf, &axis]);
+        let wg = eval(&on_g, &[&a, &mu, &q_g, &pn, &pf, &axis]);
+        // Forces cancel exactly; the angular impulses about the world origin cancel too.
+        let (x_f, x_g) = (
+            Vector3::new(q_f[0], q_f[1], q_f[2]),
+            Vector3::new(q_g[0], q_g[1], q_g[2]),
+        );
+        let (ff, fg) = (
+            Vector3::new(wf[0], wf[1], wf[2]),
+            Vector3::new(wg[0], wg[1], wg[2]),
+        );
+        assert_eq!(ff, -fg);
+        let lf = Vector3::new(wf[3], wf[4], wf[5]) + x_f.cross(&ff);
+        let lg = Vector3::new(wg[3], wg[4], wg[5]) + x_g.cross(&fg);
+        assert!((lf + lg).norm() < 1e-14, "{lf} {lg}");
+        // The normal pushes F away from G along ν_G / |ν_G|, with p_n.
+        let frame = PairFrame::new(
+            &SupportNormal::new(
+                &faces(),
+                &mu,
+                &nalgebra::Vector4::new(q_g[3], q_g[4], q_g[5], q_g[6]),
+            )
+            .value,
+            &Vector3::x(),
+        );
+        assert!((ff.dot(&frame.n) - pn[0]).abs() < 1e-14);
+        for (b, params) in [
+            (&on_f, vec![&a[..], &q_f, &mu, &q_g, &pn, &pf, &axis]),
+            (&on_g, vec![&a[..], &mu, &q_g, &pn, &pf, &axis]),
+        ] {
+            let report = check_residual_block(b, &params, &CheckOptions::default()).expect("sizes");
+            assert!(report.ok(), "{report}");
+        }
+    }
+
+    #[test]
+    fn matches_the_newton_euler_contact_impulse_on_a_half_space() {
+        // G = the ground as a one-face body, μ = 1, axis e_x: the frame (e_z, e_x, e_y) of the
+        // half-space and the same impulse as NewtonEuler's contact part.
+        let nu = [0.3, -0.5, 0.2, 1.5, -0.7, 2.0];
+        let q = [0.1, 0.2, 0.6, 0.9, 0.2, -0.1, 0.3];
+        let (a1, pn, pf) = ([0.05, 0.1, 0.0], [1.2], [0.3, -0.2, 0.01]);
+        let q_g = [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0];
+        let term = eval(
+            &PairWrench::new(PairSide::F, vec![Vector3::z()]),
+            &[&a1, &q, &[1.0], &q_g, &pn, &pf, &[1.0, 0.0, 0.0]],
+        );
+        let frame = ContactFrame {
+            n: Vector3::z(),
+            t: Vector3::x(),
+            o: Vector3::y(),
+        };
+        let body: [&[f64]; 6] = [
+            &[2.0],
+            &[0.4, 0.5, 0.6, 0.0, 0.0, 0.0],
+            &[
+                0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0,
+            ],
+            &[0.0; 6],
+            &[0.0; 3],
+            &[0.01],
+        ];
+        let mut with: Vec<&[f64]> = vec![&nu, &q, &a1, &pn, &pf];
+        with.extend(body);
+        let mut without: Vec<&[f64]> = vec![&nu, &q];
+        without.extend(body);
+        let a = eval(&NewtonEuler::new(vec![frame]), &with);
+        let b = eval(&NewtonEuler::new(vec![]), &without);
+        for i in 0..6 {
+            assert!(
+                (a[i] - b[i] - term[i]).abs() < 1e-14,
+                "row {i}: {} vs {}",
+                a[i] - b[i],
+                term[i]
+            );
+        }
+    }
+}

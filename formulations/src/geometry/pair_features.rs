@@ -48,7 +48,11 @@ impl HullPose<'_> {
         self.hull.contains(&self.to_body(p), tol)
     }
     fn size(&self) -> f64 {
-        self.hull.vertices().iter().map(|v| v.norm()).fold(0.0, f64::max)
+        self.hull
+            .vertices()
+            .iter()
+            .map(|v| v.norm())
+            .fold(0.0, f64::max)
     }
     fn polyhedron(&self) -> Option<ConvexPolyhedron> {
         let pts: Vec<PVec> = (self.hull.vertices().iter())
@@ -194,7 +198,12 @@ pub fn predicted_pose(
 /// Non-negative multipliers on the faces active within `tol` (value ≥ −tol) whose gradients
 /// combine to the direction `dir` in the least-squares sense; when none is positive, 1 on the
 /// face whose gradient is most aligned with `dir`.
-fn cone_combination(grads: &[Vector3<f64>], values: &[f64], tol: f64, dir: &Vector3<f64>) -> Vec<f64> {
+fn cone_combination(
+    grads: &[Vector3<f64>],
+    values: &[f64],
+    tol: f64,
+    dir: &Vector3<f64>,
+) -> Vec<f64> {
     let active: Vec<usize> = (0..grads.len()).filter(|&i| values[i] >= -tol).collect();
     let cols: Vec<Vector3<f64>> = active.iter().map(|&i| grads[i]).collect();
     let x = nnls(&cols, dir);
@@ -295,7 +304,11 @@ mod tests {
         let nu: Vector3<f64> = grads_g.iter().zip(&p.mu).map(|(g, m)| g * *m).sum();
         let cone: Vector3<f64> = grads_f.iter().zip(&p.l).map(|(g, m)| g * *m).sum();
         assert!((p.a1 - p.a2 - nu * p.d).norm() < 1e-14, "K1 {p:?}");
-        assert!((nu + cone).norm() < tol, "K2 {:.3e} {p:?}", (nu + cone).norm());
+        assert!(
+            (nu + cone).norm() < tol,
+            "K2 {:.3e} {p:?}",
+            (nu + cone).norm()
+        );
         assert!((p.mu.iter().sum::<f64>() - 1.0).abs() < 1e-14, "K3 {p:?}");
         assert!(p.d >= 0.0 && p.mu.iter().chain(&p.l).all(|v| *v >= 0.0));
         for (m, v) in p.mu.iter().zip(&values_g) {
@@ -324,7 +337,10 @@ mod tests {
         let p = pair_features(&f, &g).unwrap_or_else(|e| panic!("{e}"));
         assert!(p.face_to_face, "{p:?}");
         assert!((p.a2 - Vector3::new(0.1, 0.05, 0.2)).norm() < 1e-9, "{p:?}");
-        assert!((p.a1 - Vector3::new(0.1, 0.05, 0.201)).norm() < 1e-9, "{p:?}");
+        assert!(
+            (p.a1 - Vector3::new(0.1, 0.05, 0.201)).norm() < 1e-9,
+            "{p:?}"
+        );
         assert!((p.d - 1e-3).abs() < 1e-9 && (p.distance - 1e-3).abs() < 1e-9);
         assert!((p.normal - Vector3::z()).norm() < 1e-12);
         assert_kkt(&f, &g, &p, 1e-9);
@@ -367,7 +383,10 @@ mod tests {
         assert!((p.distance - gap).abs() < 1e-9, "{p:?}");
         assert!((p.normal - Vector3::z()).norm() < 1e-9, "{p:?}");
         assert!((p.d - gap * 2f64.sqrt()).abs() < 1e-8, "{p:?}");
-        assert!((p.a2 - Vector3::new(0.0, 0.0, half_diag)).norm() < 1e-9, "{p:?}");
+        assert!(
+            (p.a2 - Vector3::new(0.0, 0.0, half_diag)).norm() < 1e-9,
+            "{p:?}"
+        );
         assert_eq!(p.mu.iter().filter(|m| **m > 0.0).count(), 2);
         assert_kkt(&f, &g, &p, 1e-9);
         // A cube tilted onto a vertex above a slab: one face of G, three of F.
@@ -376,7 +395,11 @@ mod tests {
         let q = quat_from_axis_angle(&Vector3::new(1.0, -1.0, 0.0), 0.9553166181245093)
             .unwrap_or_else(|| panic!("axis"));
         let r = rotation_matrix(&q);
-        let low = b.vertices().iter().map(|v| (r * v).z).fold(f64::INFINITY, f64::min);
+        let low = b
+            .vertices()
+            .iter()
+            .map(|v| (r * v).z)
+            .fold(f64::INFINITY, f64::min);
         let f = HullPose {
             hull: &b,
             x: Vector3::new(0.05, 0.0, 0.2 + 0.02 - low),
@@ -388,7 +411,10 @@ mod tests {
             rotation: Matrix3::identity(),
         };
         let p = pair_features(&f, &g).unwrap_or_else(|e| panic!("{e}"));
-        assert!((p.distance - 0.02).abs() < 1e-9 && (p.d - 0.02).abs() < 1e-9, "{p:?}");
+        assert!(
+            (p.distance - 0.02).abs() < 1e-9 && (p.d - 0.02).abs() < 1e-9,
+            "{p:?}"
+        );
         assert_eq!(p.l.iter().filter(|v| **v > 0.0).count(), 3, "{p:?}");
         assert_kkt(&f, &g, &p, 1e-9);
     }
