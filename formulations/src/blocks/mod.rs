@@ -56,8 +56,8 @@ pub use friction::{FrictionDissipation, FrictionEllipsoid, FrictionParams};
 pub use kinematic_map::KinematicMap;
 pub use newton_euler::{BODY_DATA_SIZES, BodyStepData, NewtonEuler, body_input};
 pub use pair_assembly::{
-    AXIS_DATA, PairBody, PairContactValues, PairContactVars, PairDataIds, add_pair_contact,
-    add_pair_data,
+    AXIS_DATA, FaceSet, PairBody, PairContactValues, PairContactVars, PairDataIds,
+    add_pair_contact, add_pair_data,
 };
 pub use pair_contact::{PairAlignment, PairNormalCone, PairNormalisation, PairSeparation};
 pub use pair_frame::{PairFrame, SupportNormal, reference_axis};

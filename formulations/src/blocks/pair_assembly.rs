@@ -22,6 +22,47 @@ use crate::geometry::ConvexHull;
 /// Components of a pair contact's reference-axis data block (`<tag>.axis`).
 pub const AXIS_DATA: [&str; 3] = ["x", "y", "z"];
 
+/// The faces of a convex body in its body frame, `f_i(p) = n̂_iᵀ p − d_i ≤ 0`: a hull's merged
+/// faces, or the single face of a half-space (the one-face body that reduces a pair contact to
+/// the half-space rows C1–C5, `docs/model.md#contact-between-two-bodies`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct FaceSet {
+    /// Outward unit normals `n̂_i`.
+    pub normals: Vec<Vector3<f64>>,
+    /// Offsets `d_i`.
+    pub offsets: Vec<f64>,
+}
+
+impl FaceSet {
+    /// The faces of a convex hull.
+    pub fn of_hull(hull: &ConvexHull) -> Self {
+        FaceSet {
+            normals: hull.faces().iter().map(|f| f.normal).collect(),
+            offsets: hull.faces().iter().map(|f| f.offset).collect(),
+        }
+    }
+
+    /// One face `n̂·p ≤ d` (body frame; `normal` of any non-zero length is normalised, and the
+    /// offset with it). `None` for a zero or non-finite normal.
+    pub fn half_space(normal: &Vector3<f64>, offset: f64) -> Option<Self> {
+        let len = normal.norm();
+        (len > 0.0 && len.is_finite() && offset.is_finite()).then(|| FaceSet {
+            normals: vec![normal / len],
+            offsets: vec![offset / len],
+        })
+    }
+
+    /// Number of faces.
+    pub fn len(&self) -> usize {
+        self.normals.len()
+    }
+
+    /// True when there is no face.
+    pub fn is_empty(&self) -> bool {
+        self.normals.is_empty()
+    }
+}
+
 /// One body of a pair contact, as the step problem sees it.
 #[derive(Clone, Copy, Debug)]
 pub struct PairBody<'a> {
@@ -31,8 +72,8 @@ pub struct PairBody<'a> {
     pub nu: Input,
     /// Its end-of-step pose `q = (x, Q)` (7): variable or data, as `nu`.
     pub q: Input,
-    /// Its convex hull, body frame (faces give the rows `f_i`, `g_j`).
-    pub hull: &'a ConvexHull,
+    /// Its faces, body frame (the rows `f_i` of F, `g_j` of G).
+    pub faces: &'a FaceSet,
 }
 
 impl PairBody<'_> {
@@ -189,7 +230,15 @@ pub fn add_pair_contact(
     data: PairDataIds,
     scale: f64,
 ) -> Result<PairContactVars, ModelError> {
-    let (m_f, m_g) = (f.hull.num_faces(), g.hull.num_faces());
+    let (m_f, m_g) = (f.faces.len(), g.faces.len());
+    if m_f == 0 || m_g == 0 {
+        return Err(ModelError::InvalidBlock {
+            block: tag.to_string(),
+            reason: "a body of a pair contact has no face; give each body its hull's faces \
+                     (FaceSet::of_hull) or a half-space's face (FaceSet::half_space)"
+                .into(),
+        });
+    }
     let point = |p: &mut Problem, name: &str| {
         p.add_variable_block(
             VarBlock::free(format!("{tag}.{name}"), 3).with_component_names(["x", "y", "z"]),
@@ -209,10 +258,7 @@ pub fn add_pair_contact(
         ),
         sigma: problem.add_variable_block(VarBlock::nonnegative(format!("{tag}.sigma"), 1)),
     };
-    let normals =
-        |h: &ConvexHull| -> Vec<Vector3<f64>> { h.faces().iter().map(|x| x.normal).collect() };
-    let offsets = |h: &ConvexHull| -> Vec<f64> { h.faces().iter().map(|x| x.offset).collect() };
-    let (n_f, n_g) = (normals(f.hull), normals(g.hull));
+    let (n_f, n_g) = (f.faces.normals.clone(), g.faces.normals.clone());
     let v = |id: VarId| Input::Var(id);
     let PairContactVars {
         a1,
@@ -239,7 +285,7 @@ pub fn add_pair_contact(
         l,
         HullFaces {
             face_normals: n_f,
-            offsets: offsets(f.hull),
+            offsets: f.faces.offsets.clone(),
             scale,
         },
         &[v(a1), f.q],
@@ -248,7 +294,7 @@ pub fn add_pair_contact(
         mu,
         HullFaces {
             face_normals: n_g.clone(),
-            offsets: offsets(g.hull),
+            offsets: g.faces.offsets.clone(),
             scale,
         },
         &[v(a2), g.q],
