@@ -26,7 +26,9 @@ use ecp::formulations::geometry::{
 use ecp::formulations::rotation::{quat_normalize, rotation_matrix};
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::Simulation;
-use ecp::model::{BlockMcp, DataBlock, Input, McpSolver, Problem, VarBlock, VarId, residual_of};
+use ecp::model::{
+    BlockMcp, DataBlock, DataId, Input, McpSolver, Problem, VarBlock, VarId, residual_of,
+};
 use ecp::solvers::{BackendOptions, Registry};
 use nalgebra::{Matrix3, Vector3, Vector4};
 
@@ -77,6 +79,8 @@ enum Partner {
     Body(usize),
     /// The ground z ≤ 0 as a fixed one-face body (pose and velocity are data).
     FixedGround,
+    /// A kinematic body of `WorldDef::kinematic` (pose and velocity are data, set per step).
+    Kinematic(usize),
 }
 
 /// What a world holds: dynamic bodies, the bodies with a half-space contact on the ground z ≤ 0
@@ -87,6 +91,9 @@ struct WorldDef {
     pairs: Vec<(usize, Partner, FrictionParams)>,
     ground_friction: FrictionParams,
     gravity: V3,
+    /// Kinematic bodies moving at a constant velocity `u` (their `x` is the pose at the start of
+    /// the step).
+    kinematic: Vec<(BodyDef, V3)>,
 }
 
 /// A half-space contact's unknowns.
@@ -137,6 +144,9 @@ struct World {
     pairs: Vec<PairState>,
     ground_faces: FaceSet,
     faces: Vec<FaceSet>,
+    kinematic_faces: Vec<FaceSet>,
+    /// The `ν` and end-of-step `q` data blocks of each kinematic body.
+    kinematic_data: Vec<(DataId, DataId)>,
 }
 
 fn ground_frame() -> ContactFrame {
@@ -184,6 +194,20 @@ impl World {
             "ground.q",
             [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
         ));
+        let kinematic_faces: Vec<FaceSet> = (def.kinematic.iter())
+            .map(|(b, _)| FaceSet::of_hull(&b.hull))
+            .collect();
+        let kinematic_data: Vec<(DataId, DataId)> = (def.kinematic.iter())
+            .map(|(b, u)| {
+                (
+                    p.add_data_block(DataBlock::new(
+                        format!("{}.nu", b.name),
+                        [u.x, u.y, u.z, 0.0, 0.0, 0.0],
+                    )),
+                    p.add_data_block(DataBlock::new(format!("{}.q", b.name), [0.0; 7])),
+                )
+            })
+            .collect();
         // Newton–Euler (with the half-space contacts) and the kinematic map of every body.
         for (b, body) in def.bodies.iter().enumerate() {
             let _ = body;
@@ -285,6 +309,11 @@ impl World {
                     q: fixed_q.into(),
                     faces: &ground_faces,
                 },
+                Partner::Kinematic(ki) => PairBody {
+                    nu: kinematic_data[ki].0.into(),
+                    q: kinematic_data[ki].1.into(),
+                    faces: &kinematic_faces[ki],
+                },
             };
             let vars = add_pair_contact(&mut p, &tag, &fb, &gb, data, scale).expect("pair contact");
             pairs.push(PairState {
@@ -309,6 +338,8 @@ impl World {
             pairs,
             ground_faces,
             faces,
+            kinematic_faces,
+            kinematic_data,
         };
         world.initial_guess();
         world
@@ -424,6 +455,24 @@ impl World {
                     .expect("features"),
                 self.motion(gi),
             ),
+            Partner::Kinematic(ki) => {
+                let (b, u) = &self.def.kinematic[ki];
+                let offset = if retry { u * H } else { V3::zeros() };
+                let pose = HullPose {
+                    hull: &b.hull,
+                    x: b.x + offset,
+                    rotation: rotation_matrix(&b.q),
+                };
+                (
+                    pair_features(&self.hull_pose(fi, retry), &pose).expect("features"),
+                    PairMotion {
+                        mass: None,
+                        x: b.x,
+                        v: *u,
+                        w: V3::zeros(),
+                    },
+                )
+            }
             Partner::FixedGround => {
                 // A one-face G: its closest feature is the plane; F's the lowest vertices.
                 let d = &self.def.bodies[fi];
@@ -480,6 +529,7 @@ impl World {
                 Vector4::from_column_slice(&self.get(self.q[gi])[3..7]),
             ),
             Partner::FixedGround => (&self.ground_faces, Vector4::new(1.0, 0.0, 0.0, 0.0)),
+            Partner::Kinematic(ki) => (&self.kinematic_faces[ki], self.def.kinematic[ki].0.q),
         };
         SupportNormal::new(&faces.normals, mu, &q).value.normalize()
     }
@@ -493,6 +543,13 @@ impl World {
             self.mcp
                 .set_data(self.body_data[b].start, &start)
                 .expect("start");
+        }
+        for (ki, (b, u)) in self.def.kinematic.iter().enumerate() {
+            let x = b.x + u * H;
+            let q = [x.x, x.y, x.z, b.q[0], b.q[1], b.q[2], b.q[3]];
+            self.mcp
+                .set_data(self.kinematic_data[ki].1, &q)
+                .expect("kinematic pose");
         }
         for k in 0..self.pairs.len() {
             let axis = reference_axis(&self.pairs[k].normal);
@@ -544,6 +601,9 @@ impl World {
             rec.q.push(d.q);
             rec.v.push(d.v);
             rec.w.push(d.w);
+        }
+        for (b, u) in &mut self.def.kinematic {
+            b.x += *u * H;
         }
         for c in &self.ground {
             let pf = self.get(c.pf);
@@ -603,6 +663,7 @@ fn a_one_face_fixed_body_reproduces_a1() {
         pairs: vec![(0, Partner::FixedGround, scene.friction)],
         ground_friction: scene.friction,
         gravity: scene.gravity,
+        kinematic: vec![],
     });
     let mut newton = solver("newton");
     let mut reference = solver("newton");
@@ -653,6 +714,7 @@ fn stack(b_xy: (f64, f64)) -> World {
         pairs: vec![(1, Partner::Body(0), friction(0.3))],
         ground_friction: friction(0.3),
         gravity: V3::new(0.0, 0.0, -G),
+        kinematic: vec![],
     })
 }
 
@@ -744,6 +806,7 @@ fn collision(backend: &str) {
         pairs: vec![(1, Partner::Body(0), friction(0.3))],
         ground_friction: friction(0.3),
         gravity: V3::zeros(),
+        kinematic: vec![],
     });
     let mut s = solver(backend);
     let (mut touched, mut retries, mut worst_residual) = (0, 0, 0.0f64);
@@ -786,4 +849,54 @@ fn collision_conserves_momentum_newton() {
 #[test]
 fn collision_conserves_momentum_path() {
     collision("path");
+}
+
+// ---------------------------------------------------------------------------------------------
+// A kinematic body: friction on the relative velocity
+// ---------------------------------------------------------------------------------------------
+
+/// D4, the conveyor (`bodies.md` §6): a kinematic plate of A's shape moving at u = (0.5, 0, 0)
+/// carries B (μ = 0.3), which starts at rest on it: `v_x^k = min(0.5, 0.3 g h k)`, sticking
+/// at step 18 and moving with the plate exactly after; the ECP 0.03 m BEHIND B's CM while B
+/// slips, under it after (at the sticking step, where the moment balance puts it). The plate's pose and velocity are data.
+fn conveyor(backend: &str) {
+    let plate = cuboid("plate", 2.0, [0.4, 0.4, 0.2], V3::new(0.0, 0.0, 0.1));
+    let b = cuboid("B", 1.0, [0.2; 3], V3::new(0.0, 0.0, 0.3));
+    let mut world = World::new(WorldDef {
+        bodies: vec![b],
+        ground: vec![],
+        pairs: vec![(0, Partner::Kinematic(0), friction(0.3))],
+        ground_friction: friction(0.3),
+        gravity: V3::new(0.0, 0.0, -G),
+        kinematic: vec![(plate, V3::new(0.5, 0.0, 0.0))],
+    });
+    let mut s = solver(backend);
+    for k in 1..=30 {
+        let r = world.step(s.as_mut());
+        let at = format!("{backend}, step {k}");
+        let vx = (0.3 * G * H * k as f64).min(0.5);
+        close(&format!("{at}: v_x"), r.v[0].x, vx, 1e-9);
+        close(&format!("{at}: v_y"), r.v[0].y, 0.0, 1e-9);
+        close(&format!("{at}: v_z"), r.v[0].z, 0.0, 1e-9);
+        assert!(r.w[0].norm() <= 1e-9, "{at}: ω {}", r.w[0]);
+        let p = &r.pairs[0];
+        close(&format!("{at}: p_n"), p.pn, G * H, 1e-9);
+        let lead = p.a1.x - r.x[0].x;
+        // Moment balance: the friction impulse m Δv at 0.1 m below the CM against p_n = m g h
+        // (−0.03 while slipping; at step 18 the partial impulse that reaches 0.5 m/s; then 0).
+        let dv = vx - (0.3 * G * H * (k - 1) as f64).min(0.5);
+        let want = -0.1 * dv / (G * H);
+        close(&format!("{at}: ECP behind the CM"), lead, want, 1e-8);
+        close(&format!("{at}: ECP height"), p.a1.z, 0.2, 1e-8);
+    }
+}
+
+#[test]
+fn d4_conveyor_newton() {
+    conveyor("newton");
+}
+
+#[test]
+fn d4_conveyor_path() {
+    conveyor("path");
 }
