@@ -131,6 +131,7 @@ struct Record {
     pairs: Vec<PairContactValues>,
     residual: f64,
     retried: bool,
+    iterations: usize,
 }
 
 struct World {
@@ -585,6 +586,7 @@ impl World {
             pairs: Vec::new(),
             residual,
             retried,
+            iterations: sol.summary.iterations,
         };
         for b in 0..self.def.bodies.len() {
             let nu = self.get(self.nu[b]).to_vec();
@@ -723,8 +725,11 @@ fn check_stack(backend: &str, b_xy: (f64, f64), steps: usize) {
     let mut s = solver(backend);
     let ground_ecp = V3::new(b_xy.0 / 3.0, b_xy.1 / 3.0, 0.0);
     let pair_ecp = V3::new(b_xy.0, b_xy.1, 0.2);
+    let mut iterations = Vec::new();
     for step in 1..=steps {
         let r = world.step(s.as_mut());
+        iterations.push(r.iterations);
+        assert!(!r.retried, "{backend}: step {step} needed the retry");
         let at = format!("{backend}, B at {b_xy:?}, step {step}");
         for b in 0..2 {
             assert!(
@@ -760,6 +765,17 @@ fn check_stack(backend: &str, b_xy: (f64, f64), steps: usize) {
             "{at}: normal"
         );
     }
+    report(&format!("stack {b_xy:?}, {backend}"), &iterations);
+}
+
+/// Prints the iterations per step (for `docs/decisions.md`; run with `--nocapture`).
+fn report(what: &str, iterations: &[usize]) {
+    let max = iterations.iter().max().copied().unwrap_or(0);
+    let mean = iterations.iter().sum::<usize>() as f64 / iterations.len().max(1) as f64;
+    eprintln!(
+        "{what}: {} steps, iterations mean {mean:.2} max {max}",
+        iterations.len()
+    );
 }
 
 /// D1 for 1 s with Newton.
@@ -810,8 +826,10 @@ fn collision(backend: &str) {
     });
     let mut s = solver(backend);
     let (mut touched, mut retries, mut worst_residual) = (0, 0, 0.0f64);
+    let mut iterations = Vec::new();
     for step in 1..=25 {
         let r = world.step(s.as_mut());
+        iterations.push(r.iterations);
         retries += usize::from(r.retried);
         worst_residual = worst_residual.max(r.residual);
         let momentum = r.v[0] * 1.0 + r.v[1] * 1.5;
@@ -825,6 +843,7 @@ fn collision(backend: &str) {
         }
     }
     assert!(touched > 0, "{backend}: the bodies never touched");
+    report(&format!("collision, {backend}"), &iterations);
     eprintln!(
         "{backend}: {touched} contact steps, {retries} retries, largest residual \
          {worst_residual:.1e}, B: v {:?} ω {:?}, C: v {:?} ω {:?}",
@@ -871,8 +890,11 @@ fn conveyor(backend: &str) {
         kinematic: vec![(plate, V3::new(0.5, 0.0, 0.0))],
     });
     let mut s = solver(backend);
+    let mut iterations = Vec::new();
     for k in 1..=30 {
         let r = world.step(s.as_mut());
+        iterations.push(r.iterations);
+        assert!(!r.retried, "{backend}: step {k} needed the retry");
         let at = format!("{backend}, step {k}");
         let vx = (0.3 * G * H * k as f64).min(0.5);
         close(&format!("{at}: v_x"), r.v[0].x, vx, 1e-9);
@@ -889,6 +911,7 @@ fn conveyor(backend: &str) {
         close(&format!("{at}: ECP behind the CM"), lead, want, 1e-8);
         close(&format!("{at}: ECP height"), p.a1.z, 0.2, 1e-8);
     }
+    report(&format!("conveyor, {backend}"), &iterations);
 }
 
 #[test]
