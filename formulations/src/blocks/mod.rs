@@ -27,7 +27,7 @@
 //! | [`pair_wrench`] | [`PairWrench`], terms on each dynamic body's Newton–Euler rows | `axis` |
 //! | [`pair_frame`] | helpers: [`PairFrame`] (the frame of the unknown normal), [`SupportNormal`], [`reference_axis`] | |
 //! | [`pair_assembly`] | [`add_pair_contact`]: every unknown and block of one pair; [`add_pair_data`] | |
-//! | [`pair_guess`] | [`pair_guess`]: a starting guess from the closest features | |
+//! | [`mod@pair_guess`] | [`pair_guess()`]: a starting guess from the closest features | |
 
 pub mod common;
 pub mod contact;

@@ -32,12 +32,12 @@ pub struct HullPose<'a> {
 }
 
 impl HullPose<'_> {
-    fn to_body(&self, p: &Vector3<f64>) -> Vector3<f64> {
+    fn body_point(&self, p: &Vector3<f64>) -> Vector3<f64> {
         self.rotation.transpose() * (p - self.x)
     }
     /// World gradients `R n̂_i` of the faces and the values `f_i(p)` at world point `p`.
     fn faces_at(&self, p: &Vector3<f64>) -> (Vec<Vector3<f64>>, Vec<f64>) {
-        let local = self.to_body(p);
+        let local = self.body_point(p);
         let faces = self.hull.faces();
         (
             faces.iter().map(|f| self.rotation * f.normal).collect(),
@@ -45,7 +45,7 @@ impl HullPose<'_> {
         )
     }
     fn contains(&self, p: &Vector3<f64>, tol: f64) -> bool {
-        self.hull.contains(&self.to_body(p), tol)
+        self.hull.contains(&self.body_point(p), tol)
     }
     fn size(&self) -> f64 {
         self.hull
