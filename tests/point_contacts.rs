@@ -17,7 +17,7 @@ mod common;
 
 use common::strategies::{unit_quat, unit3, vec3};
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver};
+use ecp::backends::{SolverConfig, make_solver};
 use ecp::formulations::blocks::{
     BodyStepData, ContactFrame, FrictionParams, inertia_entries, start_values,
 };
@@ -291,16 +291,16 @@ proptest! {
 // Runs
 // ---------------------------------------------------------------------------------------------
 
-fn solver(kind: SolverKind) -> Box<dyn McpSolver> {
+fn solver(kind: &str) -> Box<dyn McpSolver> {
     make_solver(&SolverConfig {
-        kind,
+        name: kind.into(),
         ..SolverConfig::default()
     })
     .expect("backend available")
 }
 
 /// Runs `stepper` for at most `steps` steps; every step must converge to ≤ 1e-10.
-fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run(stepper: &mut dyn Stepper, kind: &str, steps: usize) -> Vec<StepRecord> {
     let name = format!(
         "{} ({}, {kind})",
         stepper.scene().name,
@@ -322,7 +322,7 @@ fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRec
     records
 }
 
-fn run_point(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run_point(scene: Scene, kind: &str, steps: usize) -> Vec<StepRecord> {
     run(
         &mut PointContacts::new(scene).expect("valid scene"),
         kind,
@@ -330,7 +330,7 @@ fn run_point(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
     )
 }
 
-fn run_hull(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run_hull(scene: Scene, kind: &str, steps: usize) -> Vec<StepRecord> {
     run(
         &mut Simulation::new(scene).expect("valid scene"),
         kind,
@@ -361,7 +361,7 @@ fn records_have_one_contact_per_point() {
         build_stepper(scenarios::a1_sliding(), Formulation::Point).expect("point stepper");
     assert_eq!(stepper.formulation(), Formulation::Point);
     assert_eq!(stepper.contacts_per_body(), 8);
-    let mut s = solver(SolverKind::Newton);
+    let mut s = solver("newton");
     let rec = stepper.step(s.as_mut()).expect("step");
     assert_eq!(rec.contacts.len(), 8);
     let state = stepper.state(0);
@@ -397,7 +397,7 @@ fn records_have_one_contact_per_point() {
 /// the points (none without load), the penetration the deepest vertex (0 when all are above).
 #[test]
 fn centre_of_pressure_and_penetration_helpers() {
-    let mut rec = run_point(scenarios::a1_sliding(), SolverKind::Newton, 1).remove(0);
+    let mut rec = run_point(scenarios::a1_sliding(), "newton", 1).remove(0);
     for c in rec.contacts.iter_mut() {
         c.pn = 0.0;
         c.min_gap = 0.0;
@@ -471,13 +471,13 @@ fn bottom_corners(pc: &PointContacts) -> Vec<(usize, f64)> {
 /// (moment balance: `(front − rear) L/2 = N μ H`), left and right pairs `N/2` each, to 1e-9.
 #[test]
 fn a1_point_model_decelerates_like_the_ecp_model() {
-    let hull = run_hull(scenarios::a1_sliding(), SolverKind::Newton, usize::MAX);
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    let hull = run_hull(scenarios::a1_sliding(), "newton", usize::MAX);
+    for kind in ["newton", "path"] {
         a1_against_hull(kind, &hull);
     }
 }
 
-fn a1_against_hull(kind: SolverKind, hull: &[StepRecord]) {
+fn a1_against_hull(kind: &str, hull: &[StepRecord]) {
     let points = run_point(scenarios::a1_sliding(), kind, usize::MAX);
     assert_eq!(points.len(), 50);
     let n_total = 10.0 * G * H;
@@ -567,7 +567,7 @@ fn a1_corner_split_is_not_unique() {
     // Solved tighter than the default 1e-10: shifting the split scales a corner's friction rows
     // (and their residual) by up to (p_n + α)/p_n ≈ 1.5.
     let mut newton = make_solver(&SolverConfig {
-        kind: SolverKind::Newton,
+        name: "newton".into(),
         tolerance: Some(1e-13),
         ..SolverConfig::default()
     })
@@ -605,7 +605,7 @@ fn a1_corner_split_is_not_unique() {
 
     // Started from the shifted split, both backends stay near it: same ν, different split.
     let start = shift(&warm);
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         let sol = solver(kind)
             .solve(mcp, &start)
             .expect("converges from the shifted start");
@@ -638,7 +638,7 @@ fn a3_point_model_brakes_the_spin_by_corner_friction() {
     let decel = 0.3 * 10.0 * G * lever / izz;
     assert_close("A3 point-model deceleration", decel, 31.18, 5e-3);
     let mut stopped = false;
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         for r in run_point(scenarios::a3_spin(), kind, usize::MAX) {
             let analytic = 2.0 - decel * H * r.step as f64;
             stopped = analytic < 0.0;
@@ -686,10 +686,10 @@ fn spinning_tilted_drop(w_z: f64) -> Scene {
 #[test]
 fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
     let scene = spinning_tilted_drop(10.0);
-    let hull = run_hull(scene.clone(), SolverKind::Path, usize::MAX);
+    let hull = run_hull(scene.clone(), "path", usize::MAX);
     let hull_pen = max_penetration(&hull);
     assert!(hull_pen <= 1e-9, "hull model penetrates {hull_pen:.3e}");
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         let point = run_point(scene.clone(), kind, usize::MAX);
         let (worst, pen) = point
             .iter()
@@ -734,7 +734,7 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
         );
     }
     for scene in [scenarios::a5_drop_tilted(), scenarios::a6_tip(110.0)] {
-        let pen = max_penetration(&run_point(scene.clone(), SolverKind::Path, usize::MAX));
+        let pen = max_penetration(&run_point(scene.clone(), "path", usize::MAX));
         assert!(
             pen <= 1e-9,
             "{}: point model penetrates {pen:.3e}",
@@ -750,8 +750,8 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
 /// ≥ 4.5e-4 m), and the pivot's load is transmitted through the air.
 #[test]
 fn a6_point_model_carries_load_across_a_gap() {
-    let point = run_point(scenarios::a6_tip(110.0), SolverKind::Path, usize::MAX);
-    let hull = run_hull(scenarios::a6_tip(110.0), SolverKind::Path, usize::MAX);
+    let point = run_point(scenarios::a6_tip(110.0), "path", usize::MAX);
+    let hull = run_hull(scenarios::a6_tip(110.0), "path", usize::MAX);
     let mut gap_under_load: f64 = 0.0;
     for (p, e) in point.iter().zip(&hull) {
         for c in &p.contacts {
@@ -799,12 +799,10 @@ fn desk_point_model_motion_depends_on_the_load_split() {
     let start = pc.z().to_vec();
     let (nu, _) = pc.body_vars(0);
     let mcp = pc.mcp();
-    let a = solver(SolverKind::Newton)
+    let a = solver("newton")
         .solve(mcp, &start)
         .expect("Newton converges");
-    let b = solver(SolverKind::Path)
-        .solve(mcp, &start)
-        .expect("PATH converges");
+    let b = solver("path").solve(mcp, &start).expect("PATH converges");
     assert!(residual_of(mcp, &a.z) <= 1e-10 && residual_of(mcp, &b.z) <= 1e-10);
     let (wa, wb) = (a.z[mcp.range(nu)][5], b.z[mcp.range(nu)][5]);
     println!(
@@ -835,8 +833,8 @@ fn desk_point_model_motion_depends_on_the_load_split() {
 /// with Newton, 3.0e-2, 0.43 with PATH — the point model's motion is not unique, see above —
 /// mostly the corners' lever arm braking the spin harder than `e_r = 0.1` m, as in A3).
 fn desk_against_hull(steps: usize) {
-    let point = run_point(scenarios::desk(), SolverKind::Newton, steps);
-    let hull = run_hull(scenarios::desk(), SolverKind::Newton, steps);
+    let point = run_point(scenarios::desk(), "newton", steps);
+    let hull = run_hull(scenarios::desk(), "newton", steps);
     let (mut dv, mut dw): (f64, f64) = (0.0, 0.0);
     for (p, e) in point.iter().zip(&hull) {
         let b = &p.bodies[0];

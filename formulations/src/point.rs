@@ -889,7 +889,9 @@ impl PointContacts {
         let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let (z, summary, converged) = match result {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", usize::from(retried)));
+                sol.summary
+                    .counters
+                    .add(ecp_model::Counter::Retries, usize::from(retried));
                 (sol.z, sol.summary, true)
             }
             Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),

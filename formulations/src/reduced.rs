@@ -837,7 +837,9 @@ impl ReducedSliding {
         let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let (z, summary, converged) = match result {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", retries));
+                sol.summary
+                    .counters
+                    .add(ecp_model::Counter::Retries, retries);
                 (sol.z, sol.summary, true)
             }
             Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),

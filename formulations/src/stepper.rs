@@ -1136,7 +1136,7 @@ impl Simulation {
         }
         match solver.solve(&self.structured_mcp(), &self.z) {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", 1));
+                sol.summary.counters.add(ecp_model::Counter::Retries, 1);
                 Ok(sol)
             }
             Err(e) => {

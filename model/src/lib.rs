@@ -40,6 +40,7 @@
 
 pub mod bounds;
 pub mod checker;
+pub mod counters;
 pub mod data;
 pub mod linalg;
 pub mod mcp;
@@ -60,6 +61,7 @@ pub use checker::{
     BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_mcp, check_problem,
     check_residual_block,
 };
+pub use counters::{Counter, Counters};
 pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use mcp::{
     FnMcp, Mcp, WorstComponent, diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister,
