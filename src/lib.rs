@@ -27,6 +27,7 @@ pub use ecp_model as model;
 pub use ecp_solvers as solvers;
 
 pub mod backends;
+pub mod batch;
 pub mod error;
 pub mod fit;
 pub mod lcp;
@@ -35,3 +36,4 @@ pub mod plots;
 pub mod run;
 pub mod scene;
 pub mod stress;
+pub mod sweep;
