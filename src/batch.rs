@@ -555,9 +555,8 @@ pub fn table(results: &[JobResult]) -> Vec<(String, Column)> {
     let u = |f: &dyn Fn(&JobResult) -> usize| -> Column {
         Column::U64(results.iter().map(|r| f(r) as u64).collect())
     };
-    let x = |f: &dyn Fn(&JobResult) -> f64| -> Column {
-        Column::F64(results.iter().map(f).collect())
-    };
+    let x =
+        |f: &dyn Fn(&JobResult) -> f64| -> Column { Column::F64(results.iter().map(f).collect()) };
     let mut cols: Vec<(String, Column)> = vec![
         ("index".into(), u(&|r| r.index)),
         (
