@@ -113,20 +113,19 @@ impl Axis {
     }
 }
 
-/// `n` evenly spaced values from `a` to `b`, both included (`a` alone when `n = 1`).
+/// `n` evenly spaced values from `a` to `b`, both included (`a` alone when `n = 1`), computed as
+/// numpy's `linspace` computes them (`k · step + a`, the last value `b` exactly), so that a grid
+/// written `mu=0.1:0.5:9` holds the same numbers as `numpy.linspace(0.1, 0.5, 9)`.
 pub fn linspace(a: f64, b: f64, n: usize) -> Vec<f64> {
     match n {
         0 => Vec::new(),
         1 => vec![a],
-        _ => (0..n)
-            .map(|k| {
-                if k == n - 1 {
-                    b
-                } else {
-                    a + (b - a) * (k as f64) / ((n - 1) as f64)
-                }
-            })
-            .collect(),
+        _ => {
+            let step = (b - a) / (n - 1) as f64;
+            (0..n)
+                .map(|k| if k == n - 1 { b } else { k as f64 * step + a })
+                .collect()
+        }
     }
 }
 
@@ -301,7 +300,13 @@ impl Batch {
                 .par_iter()
                 .enumerate()
                 .with_max_len(1)
-                .map(|(index, job)| run_job(index, job, options))
+                .map(|(index, job)| {
+                    // A defect in one run is reported in its row, not as the loss of the batch.
+                    std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+                        run_job(index, job, options)
+                    }))
+                    .unwrap_or_else(|panic| panicked(index, job, panic.as_ref()))
+                })
                 .collect()
         }))
     }
@@ -507,6 +512,32 @@ fn run_job(index: usize, job: &Job, options: &BatchOptions) -> JobResult {
             wall_s: started.elapsed().as_secs_f64(),
             solve_s,
         },
+    }
+}
+
+/// The result of a run that panicked: no step, the panic's message as its error.
+fn panicked(index: usize, job: &Job, panic: &(dyn std::any::Any + Send)) -> JobResult {
+    let what = panic
+        .downcast_ref::<&str>()
+        .map(|s| s.to_string())
+        .or_else(|| panic.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "unknown panic".into());
+    JobResult {
+        index,
+        scene: job.file.scene.name.clone(),
+        params: job.params.clone(),
+        summary: JobSummary {
+            failed_steps: 1,
+            first_failed_step: Some(1),
+            final_bodies: job.file.scene.bodies.iter().map(|b| b.initial).collect(),
+            energy: f64::NAN,
+            ..JobSummary::default()
+        },
+        records: Vec::new(),
+        error: Some(format!(
+            "internal error in ecp: {what}; please report it with the scene"
+        )),
+        timing: JobTiming::default(),
     }
 }
 
