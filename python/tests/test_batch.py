@@ -103,12 +103,17 @@ def test_bad_batch_arguments(a1, desk):
 
 
 def test_the_interpreter_is_released_while_a_batch_runs(desk):
-    # A batch long enough that the main thread can run Python while it is inside it: with the
-    # interpreter held, the main thread could only go on once the batch had returned.
+    # A batch long enough (about a second, whatever the build's speed) that the main thread can
+    # run Python while it is inside it: with the interpreter held, the main thread could only
+    # go on once the batch had returned.
+    started = time.perf_counter()
+    ecp.batch(desk, steps=100, threads=1)
+    per_run = time.perf_counter() - started
+    runs = max(2, min(400, int(1.0 / max(per_run, 1e-4))))
     done = {}
 
     def work():
-        done["result"] = ecp.batch(desk, grid={"mu": np.linspace(0.2, 0.25, 24)}, threads=1)
+        done["result"] = ecp.batch(desk, grid={"mu": np.linspace(0.2, 0.25, runs)}, steps=100, threads=1)
 
     worker = threading.Thread(target=work)
     worker.start()
@@ -118,4 +123,4 @@ def test_the_interpreter_is_released_while_a_batch_runs(desk):
     worker.join()
     assert total == 199_990_000
     assert alive, "the main thread could not run while the batch ran"
-    assert len(done["result"]) == 24
+    assert len(done["result"]) == runs

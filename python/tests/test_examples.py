@@ -27,7 +27,7 @@ def test_desk_example_writes_its_plot(tmp_path):
 
 
 def test_fit_example_recovers_mu_and_e_r():
-    text = run("fit_friction.py", "--steps", "60")
+    text = run("fit_friction.py", "--steps", "30")
     fitted = next(line for line in text.splitlines() if line.startswith("fitted:"))
     mu = float(fitted.split("mu = ")[1].split(",")[0])
     e_r = float(fitted.split("e_r = ")[1].split()[0])
