@@ -12,7 +12,7 @@ use crate::convert::{array, fixed};
 /// unit quaternion ``orientation`` (w, x, y, z; body to world), ``velocity`` of the CM (3) and
 /// ``angular_velocity`` (3, world frame). Each is returned as a new numpy array.
 #[pyclass(module = "ecp", name = "State", frozen)]
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Debug)]
 pub struct State {
     pub(crate) inner: BodyState,
 }
