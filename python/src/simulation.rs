@@ -145,7 +145,8 @@ impl Simulation {
         (0..n).map(|b| self.engine.stepper().state(b)).collect()
     }
 
-    /// One step; the record with the absolute step index and time.
+    /// One step; the record with the absolute step index and time (the caller keeps the last
+    /// one in `last`).
     fn advance(&mut self) -> PyResult<StepRecord> {
         let result = self
             .engine
@@ -155,7 +156,7 @@ impl Simulation {
             result.map_err(|e| simulation(format!("step {}: {e}", self.steps_taken() + 1)))?;
         rec.step += self.step_offset;
         rec.t = rec.step as f64 * self.scene.file.scene.h;
-        self.last = Some(rec.clone());
+        self.last = None;
         Ok(rec)
     }
 
@@ -269,6 +270,7 @@ impl Simulation {
         guard(|| {
             let rec = self.advance()?;
             let summary = Summary::from(&rec);
+            self.last = Some(rec.clone());
             if !rec.converged {
                 return Err(failed_step(py, self.failure(&rec), summary, None));
             }
@@ -312,11 +314,11 @@ impl Simulation {
                         return Err(e);
                     }
                 };
-                let failed = !rec.converged;
-                let summary = Summary::from(&rec);
-                let message = failed.then(|| self.failure(&rec));
+                let failed = !rec.converged && !keep_going;
+                let message = failed.then(|| (self.failure(&rec), Summary::from(&rec)));
                 records.push(rec);
-                if let (Some(message), false) = (message, keep_going) {
+                if let Some((message, summary)) = message {
+                    self.last = records.last().cloned();
                     let trajectory = Trajectory::new(
                         records,
                         self.scene.file.scene.bodies.len(),
@@ -325,6 +327,7 @@ impl Simulation {
                     return Err(failed_step(py, message, summary, Some(trajectory)));
                 }
             }
+            self.last = records.last().cloned();
             Ok(Trajectory::new(
                 records,
                 self.scene.file.scene.bodies.len(),
