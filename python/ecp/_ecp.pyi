@@ -1,6 +1,7 @@
 """Type stubs of the extension module ``ecp._ecp`` (re-exported by ``ecp``)."""
 
 import os
+import pathlib
 from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -36,7 +37,7 @@ class Scene:
     @property
     def name(self) -> str: ...
     @property
-    def path(self) -> str: ...
+    def path(self) -> pathlib.Path: ...
     @property
     def h(self) -> float: ...
     @property

@@ -16,7 +16,7 @@ use ecp::lcp::{Lcp, solve_lcp};
 use ecp::run::{RunError, RunOptions, compare_scene};
 use ecp_formulations::Formulation;
 
-use crate::convert::{array, f64_array, type_name};
+use crate::convert::{array, f64_array};
 use crate::errors::{argument, guard, input, simulation};
 use crate::scene::{Scene, param};
 use crate::sensitivity::{reference_states, weights};
@@ -269,7 +269,6 @@ pub fn lcp<'py>(
     }
     let problem = Lcp { m, q };
     let report = guard(|| Ok(py.detach(|| solve_lcp(&problem))))?;
-    let _ = type_name;
     let out = PyDict::new(py);
     out.set_item("status", &report.status)?;
     out.set_item("z", array(py, &[report.z.len()], report.z.clone()))?;
