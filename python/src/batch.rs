@@ -28,6 +28,7 @@ pub struct BatchResult {
     results: Vec<JobResult>,
     contacts_per_body: Vec<usize>,
     threads: usize,
+    records: bool,
 }
 
 fn columns<'py>(py: Python<'py>, cols: Vec<(String, Column)>) -> PyResult<Bound<'py, PyDict>> {
@@ -63,13 +64,16 @@ impl BatchResult {
         columns(py, timing_table(&self.results))
     }
 
-    /// Every run's trajectory (empty unless the batch ran with ``records=True``).
+    /// Every run's trajectory, in the order of the table's rows (a run that failed before its
+    /// first step has an empty one); an empty list unless the batch ran with ``records=True``.
     #[getter]
     fn trajectories(&self) -> Vec<Trajectory> {
+        if !self.records {
+            return Vec::new();
+        }
         self.results
             .iter()
             .zip(&self.contacts_per_body)
-            .filter(|(r, _)| !r.records.is_empty())
             .map(|(r, &cpb)| {
                 let bodies = r.summary.final_bodies.len();
                 Trajectory::new(r.records.clone(), bodies, cpb)
@@ -288,5 +292,6 @@ pub fn batch(
             .unwrap_or_else(|| std::thread::available_parallelism().map_or(1, |n| n.get())),
         results,
         contacts_per_body,
+        records,
     })
 }

@@ -74,8 +74,9 @@ def test_the_cli_sweep_and_a_linspace_grid_give_the_same_table(a1, tmp_path):
 
 def test_a_list_of_scenes_with_a_failing_one(a1):
     drop = ecp.Scene.from_toml(scene_path("a5_drop"))
-    r = ecp.batch([a1, drop], steps=3, formulation="reduced")
+    r = ecp.batch([a1, drop], steps=3, formulation="reduced", records=True)
     assert r.table["scene"] == ["a1_sliding", "a5_drop"]
+    assert [len(t) for t in r.trajectories] == [3, 0], "one trajectory per row"
     assert r.errors[0] is None and "reduced" in r.errors[1]
     assert r.failed == 1
     np.testing.assert_array_equal(r.table["converged_steps"], [3, 0])
