@@ -13,7 +13,7 @@ use ecp::scene::{SceneFile, load_scene, parse_scene};
 use ecp_formulations::sensitivity::Param;
 
 use crate::convert::type_name;
-use crate::errors::{argument, input};
+use crate::errors::{argument, guard, input};
 
 /// A validated scene: bodies, half-spaces, friction, step, solver and formulation.
 ///
@@ -98,14 +98,15 @@ impl Scene {
     /// ``ecp check`` prints it.
     #[staticmethod]
     fn from_toml(py: Python<'_>, path: PathBuf) -> PyResult<Scene> {
-        let (file, text) = py
-            .detach(|| {
+        let (file, text) = guard(|| {
+            py.detach(|| {
                 let file = load_scene(&path)?;
                 // Kept for pickling; the file was just read.
                 let text = std::fs::read_to_string(&path).unwrap_or_default();
                 Ok::<_, ecp::error::InputError>((file, text))
             })
-            .map_err(input)?;
+            .map_err(input)
+        })?;
         Ok(Scene {
             file,
             text,
@@ -119,7 +120,7 @@ impl Scene {
     #[pyo3(signature = (text, path = None))]
     fn from_string(text: String, path: Option<PathBuf>) -> PyResult<Scene> {
         let path = path.unwrap_or_else(|| PathBuf::from("<string>"));
-        Scene::parse(text, &path, false)
+        guard(|| Scene::parse(text, &path, false))
     }
 
     /// A scene from a dict with the keys of a scene file: ``{"simulation": {"h": 0.01, ...},
@@ -147,7 +148,7 @@ impl Scene {
             )
         })?;
         let path = base_dir.unwrap_or_default().join("<dict>");
-        Scene::parse(text, &path, true)
+        guard(|| Scene::parse(text, &path, true))
     }
 
     /// The scene's name.
