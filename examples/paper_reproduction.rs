@@ -14,7 +14,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-use ecp::backends::{Formulation, SolverKind};
+use ecp::backends::Formulation;
 use ecp::formulations::geometry::world_vertices;
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::stepper::{Load, MODE_TOLERANCE, StepRecord};
@@ -33,7 +33,7 @@ type Error = Box<dyn std::error::Error>;
 /// One (formulation, solver) run of a scene, or why it could not run.
 struct Run {
     formulation: Formulation,
-    solver: SolverKind,
+    solver: &'static str,
     outcome: Result<RunOutcome, String>,
     /// Best mean and median solve time per step over the repeats (µs).
     mean_us: f64,
@@ -59,7 +59,7 @@ fn run(
     file: &SceneFile,
     tag: &str,
     formulation: Formulation,
-    solver: SolverKind,
+    solver: &'static str,
     repeats: usize,
     plots: bool,
 ) -> Run {
@@ -68,7 +68,7 @@ fn run(
     for k in 0..repeats.max(1) {
         let options = RunOptions {
             out_dir: PathBuf::from(OUT).join(format!("{tag}-{formulation}-{solver}")),
-            solver: Some(solver),
+            solver: Some(solver.into()),
             formulation: Some(formulation),
             plots: plots && k == 0,
             keep_going: true,
@@ -257,32 +257,31 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     let file = load_scene(Path::new("scenes/desk.toml"))?;
     eprintln!("desk: running the formulations …");
     let combos = [
-        (Formulation::Hull, SolverKind::Newton),
-        (Formulation::Hull, SolverKind::Path),
-        (Formulation::Hull, SolverKind::Conic),
-        (Formulation::Reduced, SolverKind::Newton),
-        (Formulation::Reduced, SolverKind::Path),
-        (Formulation::Union, SolverKind::Newton),
-        (Formulation::Union, SolverKind::Path),
-        (Formulation::Union, SolverKind::Conic),
-        (Formulation::Point, SolverKind::Newton),
-        (Formulation::Point, SolverKind::Path),
+        (Formulation::Hull, "newton"),
+        (Formulation::Hull, "path"),
+        (Formulation::Hull, "conic"),
+        (Formulation::Reduced, "newton"),
+        (Formulation::Reduced, "path"),
+        (Formulation::Union, "newton"),
+        (Formulation::Union, "path"),
+        (Formulation::Union, "conic"),
+        (Formulation::Point, "newton"),
+        (Formulation::Point, "path"),
     ];
     let runs: Vec<Run> = combos
         .iter()
         .map(|&(f, s)| {
             eprintln!("  {f}-{s}");
-            let plots = s == SolverKind::Newton || f == Formulation::Union;
+            let plots = s == "newton" || f == Formulation::Union;
             run(&file, "desk", f, s, REPEATS, plots)
         })
         .collect();
-    let find = |f: Formulation, s: SolverKind| {
+    let find = |f: Formulation, s: &str| {
         runs.iter()
             .find(|r| r.formulation == f && r.solver == s)
             .filter(|r| r.ok().is_some())
     };
-    let hull =
-        find(Formulation::Hull, SolverKind::Newton).ok_or("the hull/Newton desk run failed")?;
+    let hull = find(Formulation::Hull, "newton").ok_or("the hull/Newton desk run failed")?;
     let reference = hull.records();
 
     writeln!(
@@ -316,7 +315,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         "| backend | hull µs (mean / median) | union µs | reduced µs | union / hull (mean / median) | hull / reduced (mean / median) |"
     )?;
     writeln!(doc, "|---|---|---|---|---|---|")?;
-    for s in [SolverKind::Newton, SolverKind::Path, SolverKind::Conic] {
+    for s in ["newton", "path", "conic"] {
         let t = |f| find(f, s).map_or((f64::NAN, f64::NAN), |r| (r.mean_us, r.median_us));
         let (h, u, r) = (
             t(Formulation::Hull),
@@ -358,10 +357,10 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     // Figures: v_x and ω_z side by side, and their differences.
     std::fs::create_dir_all(FIGURES)?;
     let shown: Vec<&Run> = [
-        find(Formulation::Hull, SolverKind::Newton),
-        find(Formulation::Union, SolverKind::Path),
-        find(Formulation::Reduced, SolverKind::Newton),
-        find(Formulation::Point, SolverKind::Newton),
+        find(Formulation::Hull, "newton"),
+        find(Formulation::Union, "path"),
+        find(Formulation::Reduced, "newton"),
+        find(Formulation::Point, "newton"),
     ]
     .into_iter()
     .flatten()
@@ -420,7 +419,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
              a foot nor under the CM, as in the paper's figure.\n\n![desk footprint]({fig})\n"
         )?;
     }
-    if let Some(fig) = find(Formulation::Union, SolverKind::Path)
+    if let Some(fig) = find(Formulation::Union, "path")
         .and_then(|r| r.ok())
         .and_then(|o| plot_named(o, "footprint.png"))
         .and_then(|p| copy_figure(Some(p), "desk_footprint_union.png"))
@@ -442,7 +441,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         &still,
         "desk-translation",
         Formulation::Hull,
-        SolverKind::Newton,
+        "newton",
         1,
         false,
     );
@@ -450,7 +449,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         &still,
         "desk-translation",
         Formulation::Union,
-        SolverKind::Path,
+        "path",
         1,
         false,
     );
@@ -458,7 +457,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
         &still,
         "desk-translation",
         Formulation::Union,
-        SolverKind::Newton,
+        "newton",
         1,
         false,
     );
@@ -492,7 +491,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
     }
     let spin_union = |s| find(Formulation::Union, s);
     let mut spin_lines = Vec::new();
-    for s in [SolverKind::Newton, SolverKind::Path, SolverKind::Conic] {
+    for s in ["newton", "path", "conic"] {
         if let Some(r) = spin_union(s) {
             let (dv, dw) = velocity_diffs(r.records(), reference);
             spin_lines.push(format!(
@@ -502,7 +501,7 @@ fn desk_section(doc: &mut String) -> Result<(), Error> {
             ));
         }
     }
-    if let (Some(a), Some(b)) = (spin_union(SolverKind::Newton), spin_union(SolverKind::Path)) {
+    if let (Some(a), Some(b)) = (spin_union("newton"), spin_union("path")) {
         let (dv, dw) = velocity_diffs(a.records(), b.records());
         let first = a
             .records()
@@ -576,18 +575,9 @@ fn tbar_section(doc: &mut String) -> Result<(), Error> {
         }
     };
     eprintln!("T-bar …");
-    let runs: Vec<Run> = [SolverKind::Newton, SolverKind::Path, SolverKind::Conic]
+    let runs: Vec<Run> = ["newton", "path", "conic"]
         .into_iter()
-        .map(|s| {
-            run(
-                &file,
-                "tbar",
-                Formulation::Hull,
-                s,
-                1,
-                s == SolverKind::Newton,
-            )
-        })
+        .map(|s| run(&file, "tbar", Formulation::Hull, s, 1, s == "newton"))
         .collect();
     let Some(main) = runs[0].ok() else {
         writeln!(
@@ -714,9 +704,9 @@ fn point_section(doc: &mut String) -> Result<(), Error> {
     )?;
     let a1 = load_scene(Path::new("scenes/a1_sliding.toml"))?;
     eprintln!("A1 point vs hull …");
-    let hull = run(&a1, "a1", Formulation::Hull, SolverKind::Newton, 1, false);
-    let point_n = run(&a1, "a1", Formulation::Point, SolverKind::Newton, 1, false);
-    let point_p = run(&a1, "a1", Formulation::Point, SolverKind::Path, 1, false);
+    let hull = run(&a1, "a1", Formulation::Hull, "newton", 1, false);
+    let point_n = run(&a1, "a1", Formulation::Point, "newton", 1, false);
+    let point_p = run(&a1, "a1", Formulation::Point, "path", 1, false);
     writeln!(
         doc,
         "**A1** (`scenes/a1_sliding.toml`: a 0.4 × 0.4 × 0.2 m box sliding at 1 m/s, μ = 0.3). \
@@ -823,8 +813,8 @@ fn point_section(doc: &mut String) -> Result<(), Error> {
     );
     for (name, file) in &scenes {
         let tag = file.scene.name.clone();
-        let h = run(file, &tag, Formulation::Hull, SolverKind::Path, 1, false);
-        let p = run(file, &tag, Formulation::Point, SolverKind::Path, 1, false);
+        let h = run(file, &tag, Formulation::Hull, "path", 1, false);
+        let p = run(file, &tag, Formulation::Point, "path", 1, false);
         let pen = |r: &Run| {
             r.ok().map_or("did not run".to_string(), |o| {
                 sci(o.summary.max_penetration)

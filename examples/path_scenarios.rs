@@ -9,7 +9,7 @@
 
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, Simulation};
-use ecp::model::McpSolver;
+use ecp::model::{Counter, McpSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 
@@ -34,8 +34,8 @@ fn run(scene: Scene, solver: &mut dyn McpSolver) -> Result<Outcome, Box<dyn std:
         iterations += rec.summary.iterations;
         converged += usize::from(rec.converged && rec.summary.residual <= 1e-10);
         max_residual = max_residual.max(rec.summary.residual);
-        pivots += rec.summary.counter("pivots");
-        retries += rec.summary.counter("retries");
+        pivots += rec.summary.counter(Counter::Pivots).unwrap_or(0);
+        retries += rec.summary.counter(Counter::Retries).unwrap_or(0);
         true
     })?;
     times.sort_by(f64::total_cmp);

@@ -12,7 +12,7 @@
 use std::time::{Duration, Instant};
 
 use ecp_model::mcp_library::suite;
-use ecp_model::{McpSolver, Solution, SolveError, residual_of};
+use ecp_model::{Counter, McpSolver, Solution, SolveError, residual_of};
 use ecp_solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp_solvers::path::{PathSettings, PathSolver};
 
@@ -50,7 +50,7 @@ fn measure(
         iterations: sol.map_or(0, |s| s.summary.iterations),
         residual: sol.map_or(f64::INFINITY, |s| residual_of(&p.mcp, &s.z)),
         time: best,
-        pivots: sol.map_or(0, |s| s.summary.counter("pivots")),
+        pivots: sol.map_or(0, |s| s.summary.counter(Counter::Pivots).unwrap_or(0)),
     }
 }
 

@@ -20,12 +20,11 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 use std::time::Duration;
 
-use ecp::backends::SolverKind;
 use ecp::stress::report::{backend_table, category_table, criteria, failure_list, write_outputs};
 use ecp::stress::{DEFAULT_COUNT, DEFAULT_SEED, RunResult, SuiteOptions, generate};
 
 struct Args {
-    solvers: Vec<SolverKind>,
+    solvers: Vec<String>,
     seed: u64,
     count: usize,
     out: PathBuf,
@@ -40,7 +39,7 @@ struct Args {
 
 fn parse() -> Result<Args, String> {
     let mut a = Args {
-        solvers: SolverKind::ALL.to_vec(),
+        solvers: ecp::solvers::registry::BUILTIN.map(String::from).to_vec(),
         seed: DEFAULT_SEED,
         count: DEFAULT_COUNT,
         out: PathBuf::from("out/stress"),
@@ -64,7 +63,13 @@ fn parse() -> Result<Args, String> {
             "--solvers" => {
                 a.solvers = value()?
                     .split(',')
-                    .map(|s| s.parse::<SolverKind>())
+                    .map(|s| {
+                        let registry = ecp::solvers::Registry::builtin();
+                        registry
+                            .get(s)
+                            .map(|b| b.name().to_string())
+                            .map_err(|e| e.to_string())
+                    })
                     .collect::<Result<_, _>>()?;
             }
             "--seed" => {

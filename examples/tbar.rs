@@ -7,22 +7,23 @@
 
 use std::path::PathBuf;
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver};
+use ecp::backends::{SolverConfig, make_solver};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::stepper::{MODE_TOLERANCE, Simulation};
+use ecp::model::Counter;
 use nalgebra::Vector3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
     let args: Vec<String> = std::env::args().skip(1).collect();
     let verbose = args.iter().any(|a| a == "--verbose");
-    let mut kind = SolverKind::Newton;
+    let mut kind = "newton";
     let mut path = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("scenes/tbar.toml");
     for a in args.iter().filter(|a| !a.starts_with("--")) {
         match a.as_str() {
-            "newton" => kind = SolverKind::Newton,
-            "path" => kind = SolverKind::Path,
-            "conic" => kind = SolverKind::Conic,
+            "newton" => kind = "newton",
+            "path" => kind = "path",
+            "conic" => kind = "conic",
             other => path = PathBuf::from(other),
         }
     }
@@ -31,7 +32,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let ground = HalfSpace::ground();
     let mut sim = Simulation::new(file.scene)?;
     let mut solver = make_solver(&SolverConfig {
-        kind,
+        name: kind.into(),
         ..file.solver.clone()
     })?;
     let mut last: Option<(ContactMode, Vec<usize>)> = None;
@@ -53,12 +54,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         max_tilt = max_tilt.max(tilt);
         times.push(rec.solve_us);
         failed += usize::from(!rec.converged);
-        if rec
-            .summary
-            .counters
-            .iter()
-            .any(|(name, n)| *name == "retries" && *n > 0)
-        {
+        if rec.summary.counter(Counter::Retries).unwrap_or(0) > 0 {
             println!(
                 "t={:.2} solved on the stepper's retry ({} iterations, {:.0} µs)",
                 rec.t, rec.summary.iterations, rec.solve_us

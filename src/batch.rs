@@ -24,15 +24,17 @@
 //! ```
 
 use std::path::Path;
+use std::sync::Arc;
 use std::time::Instant;
 
 use ecp_formulations::Fallbacks;
 use ecp_formulations::build_stepper;
 use ecp_formulations::sensitivity::Param;
 use ecp_formulations::stepper::{BodyState, StepRecord};
+use ecp_solvers::Registry;
 use rayon::prelude::*;
 
-use crate::backends::{Formulation, SolverKind, check_combination, make_solver_for};
+use crate::backends::{Formulation, check_combination, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{OutputError, RunSummary};
 use crate::run::fallbacks_for;
@@ -274,8 +276,8 @@ impl Batch {
     pub fn run(&self, options: &BatchOptions) -> Result<Vec<JobResult>, InputError> {
         for job in &self.jobs {
             let formulation = options.formulation.unwrap_or(job.file.formulation);
-            let kind = options.solver.unwrap_or(job.file.solver.kind);
-            check_combination(kind, formulation)?;
+            let name = options.solver.as_deref().unwrap_or(&job.file.solver.name);
+            check_combination(&options.registry, name, formulation)?;
         }
         if options.threads == Some(0) {
             return Err(InputError::option(
@@ -313,14 +315,18 @@ impl Batch {
 }
 
 /// Settings shared by every run of a batch; `None` fields take each scene file's choice.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug)]
 pub struct BatchOptions {
     /// Threads of the pool (`None`: one per core).
     pub threads: Option<usize>,
     /// Stop each run after this many steps (at most its scene's duration).
     pub steps: Option<usize>,
-    /// Backend instead of each scene's `[solver] name`.
-    pub solver: Option<SolverKind>,
+    /// Backend instead of each scene's `[solver] name`, by its name in
+    /// [`BatchOptions::registry`].
+    pub solver: Option<String>,
+    /// The backends by name (the built-in ones unless the caller added its own); every run
+    /// builds its solvers from it in its own thread.
+    pub registry: Arc<Registry>,
     /// Formulation instead of each scene's.
     pub formulation: Option<Formulation>,
     /// Fall back on other backends and substeps as `ecp run` does (`docs/fallbacks.md`).
@@ -338,6 +344,7 @@ impl Default for BatchOptions {
             threads: None,
             steps: None,
             solver: None,
+            registry: Arc::new(Registry::builtin()),
             formulation: None,
             fallbacks: true,
             keep_going: false,
@@ -413,9 +420,10 @@ fn run_job(index: usize, job: &Job, options: &BatchOptions) -> JobResult {
     let file = &job.file;
     let formulation = options.formulation.unwrap_or(file.formulation);
     let mut config = file.solver.clone();
-    if let Some(kind) = options.solver {
-        config.kind = kind;
+    if let Some(name) = &options.solver {
+        config.name = name.trim().to_string();
     }
+    let registry = options.registry.as_ref();
     let planned = options
         .steps
         .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));
@@ -423,9 +431,9 @@ fn run_job(index: usize, job: &Job, options: &BatchOptions) -> JobResult {
     let mut error = None;
     let mut refused = false;
     let setup = (|| -> Result<_, String> {
-        let solver = make_solver_for(&config, formulation).map_err(|e| e.to_string())?;
+        let solver = make_solver_in(registry, &config, formulation).map_err(|e| e.to_string())?;
         let fallbacks = if options.fallbacks {
-            fallbacks_for(&config, formulation).map_err(|e| e.to_string())?
+            fallbacks_for(registry, &config, formulation).map_err(|e| e.to_string())?
         } else {
             Fallbacks::none()
         };
@@ -470,7 +478,7 @@ fn run_job(index: usize, job: &Job, options: &BatchOptions) -> JobResult {
     let run = RunSummary::from_records(
         &file.scene,
         formulation.as_str(),
-        config.kind.as_str(),
+        &config.name,
         &records,
         planned,
     );

@@ -40,7 +40,9 @@ use ecp_formulations::stepper::{BodyState, Scene, StepRecord};
 use nalgebra::{Vector3, Vector4};
 use serde::Serialize;
 
-use crate::backends::{Formulation, SolverConfig, make_solver_for};
+use ecp_solvers::Registry;
+
+use crate::backends::{Formulation, SolverConfig, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 
 /// Parses a comma-separated list of parameter names (`mu,e_r`, `mass[1]`; [`Param`]'s names)
@@ -559,6 +561,7 @@ pub struct TrajectoryProblem {
     scene: Scene,
     formulation: Formulation,
     solver: SolverConfig,
+    registry: Arc<Registry>,
     params: Vec<Param>,
     coordinates: Vec<Coordinate>,
     start: Vec<f64>,
@@ -597,8 +600,8 @@ impl TrajectoryProblem {
         params: Vec<Param>,
     ) -> Result<Self, FitError> {
         reference.check_against(&scene)?;
-        crate::backends::check_combination(solver.kind, formulation)?;
-        make_solver_for(&solver, formulation)?;
+        let registry = Arc::new(Registry::builtin());
+        make_solver_in(&registry, &solver, formulation)?;
         scene.duration = reference.steps() as f64 * scene.h;
         let mut start = Vec::with_capacity(params.len());
         let mut coordinates = Vec::with_capacity(params.len());
@@ -624,6 +627,7 @@ impl TrajectoryProblem {
             scene,
             formulation,
             solver,
+            registry,
             params,
             coordinates,
             start,
@@ -665,6 +669,14 @@ impl TrajectoryProblem {
             states: vec![target.to_vec()],
         };
         Self::from_scene(scene, formulation, solver, reference, params)
+    }
+
+    /// Takes the solver (the scene's `[solver] name`) from `registry`, which may hold a user's
+    /// own backends, instead of [`Registry::builtin`].
+    pub fn with_registry(mut self, registry: Arc<Registry>) -> Result<Self, FitError> {
+        make_solver_in(&registry, &self.solver, self.formulation)?;
+        self.registry = registry;
+        Ok(self)
     }
 
     /// Uses these loss weights.
@@ -799,7 +811,7 @@ impl TrajectoryProblem {
         };
         let mut stepper = ecp_formulations::build_stepper(scene.clone(), self.formulation)
             .map_err(|e| fail(0, e.to_string()))?;
-        let mut solver = make_solver_for(&self.solver, self.formulation)?;
+        let mut solver = make_solver_in(&self.registry, &self.solver, self.formulation)?;
         let n = self.reference.steps();
         let mut records = Vec::with_capacity(n);
         for k in 1..=n {
@@ -861,7 +873,7 @@ impl TrajectoryProblem {
             GradientMethod::Adjoint | GradientMethod::Forward => {
                 self.shared().counts.simulations += 1;
                 let scene = self.scene_at(&theta)?;
-                let mut solver = make_solver_for(&self.solver, self.formulation)?;
+                let mut solver = make_solver_in(&self.registry, &self.solver, self.formulation)?;
                 let options = GradientOptions {
                     mode: if self.gradient == GradientMethod::Forward {
                         GradientMode::Forward

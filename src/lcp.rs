@@ -1,6 +1,10 @@
 //! `ecp lcp FILE.json`: an LCP `0 ≤ z ⊥ M z + q ≥ 0` given as `{"M": [[..], ..], "q": [..]}`,
 //! solved with the pivotal solver (Lemke's method, `docs/backends.md#path-like`), so that it can be
-//! compared with other LCP solvers on the same instances.
+//! compared with other LCP solvers on the same instances. `--repeat N` solves it N more times
+//! with the same solver (its buffers warm) and reports the best and the median time, the number
+//! other solvers' warm timings are compared with (`docs/backends.md#lemke-speed`).
+//! [`random_lcp`] makes the benchmark instances (`examples/lcp_instances.rs`,
+//! `benches/lemke.rs`).
 
 use std::path::Path;
 use std::time::Instant;
@@ -39,8 +43,18 @@ pub struct LcpReport {
     pub w: Vec<f64>,
     /// Pivots taken.
     pub pivots: usize,
-    /// Wall time of the solve (µs), parsing excluded.
+    /// Wall time of the first solve (µs), with a new solver (its buffers allocated), parsing
+    /// excluded.
     pub solve_us: f64,
+    /// Warm solves timed after the first (`--repeat N`); absent when 0.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub repeat: Option<usize>,
+    /// Fastest of the warm solves (µs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub best_us: Option<f64>,
+    /// Median of the warm solves (µs).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub median_us: Option<f64>,
     /// Natural-map residual `‖min(z, w)‖∞` (infinite when not solved).
     #[serde(serialize_with = "finite_or_null")]
     pub residual: f64,
@@ -148,10 +162,36 @@ pub fn load_lcp(path: &Path) -> Result<Lcp, InputError> {
 
 /// Solves `lcp` with Lemke's method (default settings) and reports the result.
 pub fn solve_lcp(lcp: &Lcp) -> LcpReport {
+    solve_lcp_repeated(lcp, 0)
+}
+
+/// As [`solve_lcp`], then `repeat` more solves of the same LCP with the same solver (warm: no
+/// buffer is allocated again), whose best and median times are reported.
+pub fn solve_lcp_repeated(lcp: &Lcp, repeat: usize) -> LcpReport {
     let mut lemke = Lemke::new(LemkeSettings::default());
     let start = Instant::now();
     let result = lemke.solve_lcp(&lcp.m, &lcp.q);
     let solve_us = start.elapsed().as_secs_f64() * 1e6;
+    let (repeat, best_us, median_us) = if repeat > 0 {
+        let mut times: Vec<f64> = (0..repeat)
+            .map(|_| {
+                let start = Instant::now();
+                let r = lemke.solve_lcp(&lcp.m, &lcp.q);
+                let us = start.elapsed().as_secs_f64() * 1e6;
+                std::hint::black_box(r.ok());
+                us
+            })
+            .collect();
+        times.sort_by(f64::total_cmp);
+        let median = if repeat % 2 == 1 {
+            times[repeat / 2]
+        } else {
+            0.5 * (times[repeat / 2 - 1] + times[repeat / 2])
+        };
+        (Some(repeat), Some(times[0]), Some(median))
+    } else {
+        (None, None, None)
+    };
     match result {
         Ok(sol) => LcpReport {
             status: "solved".into(),
@@ -159,6 +199,9 @@ pub fn solve_lcp(lcp: &Lcp) -> LcpReport {
             w: sol.w,
             pivots: sol.pivots,
             solve_us,
+            repeat,
+            best_us,
+            median_us,
             residual: sol.residual,
             error: None,
         },
@@ -175,9 +218,82 @@ pub fn solve_lcp(lcp: &Lcp) -> LcpReport {
                 w: Vec::new(),
                 pivots,
                 solve_us,
+                repeat,
+                best_us,
+                median_us,
                 residual: f64::INFINITY,
                 error: Some(e.to_string()),
             }
         }
+    }
+}
+
+/// A random LCP with a symmetric positive definite (hence P-) matrix, the family of the
+/// pivoting benchmarks: `M = AᵀA / n + I` with `A_ij` uniform in `[−1, 1]`, `q_i` uniform in
+/// `[−1, 1]`, from a fixed generator (SplitMix64) seeded with `seed`, so every machine builds
+/// the same instance. A P-matrix LCP has exactly one solution and Lemke's method finds it.
+pub fn random_lcp(n: usize, seed: u64) -> Lcp {
+    let mut state = seed;
+    let mut uniform = move || {
+        // SplitMix64 (Steele, Lea & Flood 2014), mapped to [−1, 1).
+        state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut x = state;
+        x = (x ^ (x >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        x = (x ^ (x >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        x ^= x >> 31;
+        (x >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let a: Vec<f64> = (0..n * n).map(|_| uniform()).collect();
+    let q: Vec<f64> = (0..n).map(|_| uniform()).collect();
+    let mut m = vec![0.0; n * n];
+    for i in 0..n {
+        for j in 0..=i {
+            let s: f64 = (0..n).map(|k| a[k * n + i] * a[k * n + j]).sum::<f64>() / n as f64;
+            m[i * n + j] = s;
+            m[j * n + i] = s;
+        }
+        m[i * n + i] += 1.0;
+    }
+    Lcp { m, q }
+}
+
+impl Lcp {
+    /// The instance as the JSON `ecp lcp` reads: `{"M": [[..], ..], "q": [..]}`.
+    pub fn to_json(&self) -> String {
+        let n = self.q.len();
+        let rows: Vec<&[f64]> = (0..n).map(|i| &self.m[i * n..(i + 1) * n]).collect();
+        serde_json::json!({ "M": rows, "q": self.q }).to_string()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn random_lcps_are_reproducible_p_matrix_instances_lemke_solves() {
+        let a = random_lcp(30, 7);
+        assert_eq!(a, random_lcp(30, 7));
+        assert_ne!(a, random_lcp(30, 8));
+        // Symmetric with a dominant unit diagonal shift: M − I = AᵀA/n is positive semidefinite.
+        for i in 0..30 {
+            assert!(a.m[i * 30 + i] >= 1.0);
+            for j in 0..30 {
+                assert_eq!(a.m[i * 30 + j], a.m[j * 30 + i]);
+            }
+        }
+        let report = solve_lcp_repeated(&a, 3);
+        assert!(report.solved(), "{:?}", report.error);
+        assert!(report.residual <= 1e-12, "{}", report.residual);
+        assert_eq!(report.repeat, Some(3));
+        let (best, median) = (report.best_us.unwrap(), report.median_us.unwrap());
+        assert!(best > 0.0 && best <= median, "{best} {median}");
+        // The JSON round trip gives the same instance.
+        let dir = std::env::temp_dir().join(format!("ecp-lcp-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("a.json");
+        std::fs::write(&path, a.to_json()).unwrap();
+        assert_eq!(load_lcp(&path).unwrap(), a);
+        let _ = std::fs::remove_dir_all(dir);
     }
 }

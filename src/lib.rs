@@ -26,6 +26,18 @@ pub use ecp_formulations as formulations;
 pub use ecp_model as model;
 pub use ecp_solvers as solvers;
 
+/// The optimisation library behind [`fit`] (its problems implement argmin's traits), re-exported
+/// so that a user drives them with the same argmin version.
+pub use argmin;
+
+/// What a user of the library touches most: a solve's summary and counters, the solver trait,
+/// the registry of backends with its options and errors, and the active-set classification of a
+/// solution (`docs/backends.md`).
+pub use ecp_model::bounds::{BoundKind, classify as classify_bounds};
+pub use ecp_model::sensitivity::{ActiveSetOptions, ComponentStatus, classify};
+pub use ecp_model::{Counter, Counters, McpSolver, Solution, SolveError, Summary, Termination};
+pub use ecp_solvers::{Backend, BackendOptions, Registry, RegistryError, SettingsError};
+
 pub mod backends;
 pub mod batch;
 pub mod error;

@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
-use ecp::backends::{Formulation, SolverKind};
+use ecp::backends::Formulation;
 use ecp::fit::{FitError, GradientMethod, Method};
 use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
 use ecp::scene::{SceneFile, load_scene};
@@ -31,7 +31,7 @@ enum Command {
         scene: PathBuf,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
         #[arg(long)]
-        solver: Option<SolverKind>,
+        solver: Option<String>,
         /// Contact formulation, instead of the scene's: hull, union, reduced or point.
         #[arg(long)]
         formulation: Option<Formulation>,
@@ -62,7 +62,7 @@ enum Command {
         scene: PathBuf,
         /// Comma-separated backends [default: newton,path,conic].
         #[arg(long, value_delimiter = ',')]
-        solvers: Option<Vec<SolverKind>>,
+        solvers: Option<Vec<String>>,
         /// Comma-separated formulations [default: hull].
         #[arg(long, value_delimiter = ',')]
         formulations: Option<Vec<Formulation>>,
@@ -93,7 +93,7 @@ enum Command {
         steps: Option<usize>,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
         #[arg(long)]
-        solver: Option<SolverKind>,
+        solver: Option<String>,
         /// Contact formulation, instead of the scene's.
         #[arg(long)]
         formulation: Option<Formulation>,
@@ -130,7 +130,7 @@ enum Command {
         gradient: GradientMethod,
         /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
         #[arg(long)]
-        solver: Option<SolverKind>,
+        solver: Option<String>,
         /// Contact formulation, instead of the scene's.
         #[arg(long)]
         formulation: Option<Formulation>,
@@ -157,6 +157,10 @@ enum Command {
     Lcp {
         /// The LCP file (JSON).
         file: PathBuf,
+        /// Then solve it N more times with the same solver (warm) and add "repeat", "best_us"
+        /// and "median_us" (the fastest and the median of those solves) to the JSON.
+        #[arg(long, value_name = "N", default_value_t = 0)]
+        repeat: usize,
     },
 }
 
@@ -199,7 +203,7 @@ fn main() -> ExitCode {
                 plots: !no_plots,
                 keep_going,
                 fallbacks: !no_fallbacks,
-                time_limit: None,
+                ..RunOptions::default()
             };
             run(&file, &options, quiet)
         }),
@@ -218,7 +222,14 @@ fn main() -> ExitCode {
             };
             compare(
                 &file,
-                &solvers.unwrap_or_else(|| SolverKind::ALL.to_vec()),
+                &solvers.unwrap_or_else(|| {
+                    options
+                        .registry
+                        .names()
+                        .into_iter()
+                        .map(str::to_string)
+                        .collect()
+                }),
                 &formulations.unwrap_or_else(|| vec![Formulation::Hull]),
                 &options,
             )
@@ -277,28 +288,26 @@ fn main() -> ExitCode {
             say!("{}", ecp::scene::describe(&file));
             ExitCode::SUCCESS
         }),
-        Command::Lcp { file } => {
-            ecp::lcp::load_lcp(&file)
-                .map_err(RunError::from)
-                .and_then(|lcp| {
-                    let report = ecp::lcp::solve_lcp(&lcp);
-                    let json = serde_json::to_string(&report).map_err(|e| {
-                        RunError::Output(ecp::output::OutputError {
-                            path: PathBuf::from("<stdout>"),
-                            source: e.into(),
-                        })
-                    })?;
-                    sayln!("{json}");
-                    if let Some(e) = &report.error {
-                        eprintln!("error: {}: {e}", file.display());
-                    }
-                    Ok(if report.solved() {
-                        ExitCode::SUCCESS
-                    } else {
-                        ExitCode::from(1)
+        Command::Lcp { file, repeat } => ecp::lcp::load_lcp(&file)
+            .map_err(RunError::from)
+            .and_then(|lcp| {
+                let report = ecp::lcp::solve_lcp_repeated(&lcp, repeat);
+                let json = serde_json::to_string(&report).map_err(|e| {
+                    RunError::Output(ecp::output::OutputError {
+                        path: PathBuf::from("<stdout>"),
+                        source: e.into(),
                     })
+                })?;
+                sayln!("{json}");
+                if let Some(e) = &report.error {
+                    eprintln!("error: {}: {e}", file.display());
+                }
+                Ok(if report.solved() {
+                    ExitCode::SUCCESS
+                } else {
+                    ExitCode::from(1)
                 })
-        }
+            }),
     };
     result.unwrap_or_else(|e| {
         eprintln!("error: {e}");
@@ -389,6 +398,9 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
              {hint}",
             f.step, f.t, f.reason, f.residual,
         );
+        if let Some(rec) = outcome.records.iter().find(|r| r.step == f.step) {
+            eprintln!("  the step's last solve: {}", rec.summary.brief_report());
+        }
     }
     if let Some(e) = &outcome.stepper_error {
         eprintln!("error: the run stopped early: {e}");
@@ -402,7 +414,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
 
 fn compare(
     file: &SceneFile,
-    solvers: &[SolverKind],
+    solvers: &[String],
     formulations: &[Formulation],
     options: &RunOptions,
 ) -> Result<ExitCode, RunError> {
@@ -498,7 +510,7 @@ struct FitRequest {
     params: Vec<String>,
     method: Method,
     gradient: GradientMethod,
-    solver: Option<SolverKind>,
+    solver: Option<String>,
     formulation: Option<Formulation>,
     max_iters: Option<u64>,
     steps: Option<usize>,
@@ -547,8 +559,8 @@ fn fit(file: &SceneFile, request: &FitRequest) -> Result<ExitCode, RunError> {
         reference = reference.truncated(n);
     }
     let mut config = file.solver.clone();
-    if let Some(kind) = request.solver {
-        config.kind = kind;
+    if let Some(name) = &request.solver {
+        config.name = name.trim().to_string();
     }
     let formulation = request.formulation.unwrap_or(file.formulation);
     let problem = TrajectoryProblem::from_scene(scene, formulation, config, reference, params);

@@ -318,9 +318,7 @@ impl RunSummary {
             final_bodies,
             retries: records
                 .iter()
-                .flat_map(|r| r.summary.counters.iter())
-                .filter(|(name, _)| *name == "retries")
-                .map(|(_, n)| *n)
+                .filter_map(|r| r.summary.counter(ecp_model::Counter::Retries))
                 .sum(),
             fallbacks: FallbackCounts::of(records),
             failure: records.iter().find(|r| !r.converged).map(|r| Failure {

@@ -3,14 +3,14 @@
 //! layer over [`run_scene`] and [`compare_scene`].
 
 use std::path::PathBuf;
+use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use ecp_formulations::stepper::StepRecord;
 use ecp_formulations::{Fallbacks, build_stepper};
+use ecp_solvers::Registry;
 
-use crate::backends::{
-    Formulation, SolverConfig, SolverKind, check_combination, make_solver, make_solver_for,
-};
+use crate::backends::{Formulation, SolverConfig, check_combination, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
     CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
@@ -23,8 +23,12 @@ use crate::scene::SceneFile;
 pub struct RunOptions {
     /// Output directory (created if missing).
     pub out_dir: PathBuf,
-    /// Backend instead of the scene's `[solver] name`.
-    pub solver: Option<SolverKind>,
+    /// Backend instead of the scene's `[solver] name`, by its name in [`RunOptions::registry`].
+    pub solver: Option<String>,
+    /// Where backends are found by name: [`Registry::builtin`] by default; register a backend
+    /// of your own in it to run scenes with it and get the same outputs and plots
+    /// (`examples/custom_backend.rs`). The fallbacks come from it too.
+    pub registry: Arc<Registry>,
     /// Formulation instead of the scene's.
     pub formulation: Option<Formulation>,
     /// Stop after this many steps (at most the scene's duration).
@@ -46,6 +50,7 @@ impl Default for RunOptions {
         RunOptions {
             out_dir: PathBuf::from("out"),
             solver: None,
+            registry: Arc::new(Registry::builtin()),
             formulation: None,
             steps: None,
             plots: true,
@@ -101,30 +106,38 @@ pub enum RunError {
 fn resolve(file: &SceneFile, options: &RunOptions) -> Result<SolverConfig, InputError> {
     let formulation = options.formulation.unwrap_or(file.formulation);
     let mut config = file.solver.clone();
-    if let Some(kind) = options.solver {
-        config.kind = kind;
+    if let Some(name) = &options.solver {
+        config.name = name.trim().to_string();
     }
-    check_combination(config.kind, formulation)?;
+    check_combination(&options.registry, &config.name, formulation)?;
     Ok(config)
 }
 
-/// The default fallbacks of a run with `config` on `formulation`: every other backend that can
-/// solve the formulation, most robust first (PATH, Newton, conic), with the same tolerance and
-/// iteration limit, then substeps down to `h/16`.
+/// The built-in backends a run falls back on, most robust first.
+pub const FALLBACK_ORDER: [&str; 3] = ["path", "newton", "conic"];
+
+/// The default fallbacks of a run with `config` on `formulation`: every other backend of
+/// [`FALLBACK_ORDER`] that `registry` has and that can solve the formulation, with the same
+/// tolerance and iteration limit, then substeps down to `h/16`. A user's backend is never a
+/// fallback by default (it is there to be measured).
 pub fn fallbacks_for(
+    registry: &Registry,
     config: &SolverConfig,
     formulation: Formulation,
 ) -> Result<Fallbacks, InputError> {
     let mut backends = Vec::new();
-    for kind in [SolverKind::Path, SolverKind::Newton, SolverKind::Conic] {
-        if kind == config.kind || check_combination(kind, formulation).is_err() {
+    for name in FALLBACK_ORDER {
+        if name == config.name
+            || registry.get(name).is_err()
+            || check_combination(registry, name, formulation).is_err()
+        {
             continue;
         }
         let other = SolverConfig {
-            kind,
+            name: name.to_string(),
             ..config.clone()
         };
-        backends.push(make_solver_for(&other, formulation)?);
+        backends.push(make_solver_in(registry, &other, formulation)?);
     }
     Ok(Fallbacks::new(backends))
 }
@@ -139,9 +152,9 @@ pub fn run_scene(
     let start = Instant::now();
     let config = resolve(file, options)?;
     let formulation = options.formulation.unwrap_or(file.formulation);
-    let mut solver = make_solver_for(&config, formulation)?;
+    let mut solver = make_solver_in(&options.registry, &config, formulation)?;
     let mut fallbacks = if options.fallbacks {
-        fallbacks_for(&config, formulation)?
+        fallbacks_for(&options.registry, &config, formulation)?
     } else {
         Fallbacks::none()
     };
@@ -190,7 +203,7 @@ pub fn run_scene(
     let mut summary = RunSummary::from_records(
         &file.scene,
         formulation.as_str(),
-        config.kind.as_str(),
+        &config.name,
         &records,
         planned,
     );
@@ -231,16 +244,19 @@ pub fn run_scene(
 /// against the first run. `on_run` is told each run's label before it starts.
 pub fn compare_scene(
     file: &SceneFile,
-    solvers: &[SolverKind],
+    solvers: &[String],
     formulations: &[Formulation],
     options: &RunOptions,
     mut on_run: impl FnMut(&str),
 ) -> Result<CompareReport, RunError> {
     for s in solvers {
-        make_solver(&SolverConfig {
-            kind: *s,
+        // Unknown names and invalid settings stop the comparison before any run.
+        let config = SolverConfig {
+            name: s.clone(),
             ..file.solver.clone()
-        })?;
+        };
+        // Every backend solves the hull formulation.
+        make_solver_in(&options.registry, &config, Formulation::Hull)?;
     }
     let mut runs: Vec<CompareRun> = Vec::new();
     let mut skipped: Vec<SkippedRun> = Vec::new();
@@ -254,14 +270,14 @@ pub fn compare_scene(
                 solver: s.to_string(),
                 reason,
             };
-            if let Err(e) = check_combination(*s, *f) {
+            if let Err(e) = check_combination(&options.registry, s, *f) {
                 skipped.push(skip(e.message.clone()));
                 continue;
             }
             on_run(&label);
             let run_options = RunOptions {
                 out_dir: options.out_dir.join(&label),
-                solver: Some(*s),
+                solver: Some(s.clone()),
                 formulation: Some(*f),
                 plots: false,
                 ..options.clone()

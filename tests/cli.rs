@@ -583,6 +583,19 @@ fn lcp_command_solves_reports_rays_and_refuses_bad_files() {
     assert!(json["pivots"].as_u64().is_some_and(|p| p >= 1));
     assert!(json["solve_us"].is_number());
     assert!(json["residual"].as_f64().is_some_and(|r| r <= 1e-12));
+    assert!(json.get("best_us").is_none() && json.get("repeat").is_none());
+    // --repeat N: N warm solves after the first, their best and median time.
+    let o = ecp(&["lcp", &ok, "--repeat", "5"]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let json: serde_json::Value = serde_json::from_str(&stdout(&o)).expect("JSON on stdout");
+    assert_eq!(json["repeat"], 5);
+    let (best, median) = (json["best_us"].as_f64(), json["median_us"].as_f64());
+    assert!(
+        best.zip(median).is_some_and(|(b, m)| b > 0.0 && b <= m),
+        "{best:?} {median:?}"
+    );
+    let z2: Vec<f64> = serde_json::from_value(json["z"].clone()).expect("z");
+    assert_eq!(z, z2);
     // Infeasible: w = −z − 1 < 0 for every z ≥ 0. Lemke ends on a ray: status 1, a clear error.
     let ray = write("ray.json", r#"{"M": [[-1, 0], [0, -1]], "q": [-1, -1]}"#);
     let o = ecp(&["lcp", &ray]);

@@ -10,7 +10,7 @@ mod common;
 use common::scene;
 use ecp::formulations::StepMethod;
 use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
-use ecp::model::{FnMcp, McpSolver, SolveError, StepStructure, Termination};
+use ecp::model::{Counter, FnMcp, McpSolver, SolveError, StepStructure, Termination};
 use ecp::solvers::conic::{ClarabelStatus, ConicMode, ConicSettings, ConicSolver, status_code};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
@@ -80,7 +80,7 @@ fn check_against_newton(name: &str) {
         );
         assert_eq!(c.summary.solver, "conic");
         assert_eq!(
-            c.summary.counter("newton_polish"),
+            c.summary.counter(Counter::NewtonPolish).unwrap(),
             0,
             "{name}: step {} needed a Newton polish",
             c.step
@@ -263,7 +263,7 @@ fn anitescu_relaxation_is_labelled_and_drifts() {
     let (vz, dz, recs) = a1_drift(ConicMode::AnitescuRelaxation);
     for r in &recs {
         assert_eq!(r.summary.solver, "conic-anitescu");
-        assert_eq!(r.summary.counter("anitescu_relaxation"), 1);
+        assert_eq!(r.summary.counter(Counter::AnitescuRelaxation), Some(1));
         assert_eq!(r.summary.iterations, 1, "single shot");
     }
     // Sliding at 1 m/s with μ = 0.3, the relaxed cone lets the box leave the ground with
@@ -284,7 +284,7 @@ fn exact_mode_does_not_drift() {
     assert!(vz <= 1e-8, "exact mode v_z = {vz:.3e}");
     assert!(dz <= 1e-8, "exact mode CM height drift = {dz:.3e}");
     for r in &recs {
-        assert_eq!(r.summary.counter("anitescu_relaxation"), 0);
+        assert_eq!(r.summary.counter(Counter::AnitescuRelaxation), Some(0));
     }
     println!("A1 exact: max |v_z| {vz:.4e} m/s, max |z − 0.1| {dz:.4e} m");
 }
@@ -330,7 +330,7 @@ fn clarabel_status_passes_through() {
         Err(SolveError::NotConverged { best }) => {
             assert_eq!(best.summary.termination, Termination::SubproblemFailed);
             assert_eq!(
-                best.summary.counter("clarabel_status"),
+                best.summary.counter(Counter::ClarabelStatus).unwrap(),
                 status_code(ClarabelStatus::MaxIterations)
             );
             assert_eq!(best.z, z0, "the best point is the start");

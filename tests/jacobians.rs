@@ -1,6 +1,7 @@
 //! Property tests of the analytic Jacobians of every residual block of the step problem
 //! (`docs/model.md#residual-blocks`, `ecp::formulations::blocks`) against central differences, with
-//! the model's Jacobian checker (`check_residual_block`, `check_block_mcp`).
+//! the model's Jacobian checker (`check_residual_block` for a block, `check_problem` for an
+//! assembled step problem), with respect to every input: the unknowns and the data blocks.
 //!
 //! States are random: rotated bodies with NON-UNIT quaternions (norm in [0.5, 2]: the step
 //! solver treats Q as four free unknowns), ECPs that are free points, hull vertices, or points on
@@ -11,12 +12,11 @@
 //! One test plants a wrong Jacobian entry and checks that the checker finds exactly it, so a
 //! green run here means something.
 //!
-//! The blocks that depend on model parameters (data θ: the Newton–Euler block's mass, inertia,
-//! start state and load; the kinematic map's start state; the friction blocks' μ, e_t, e_o, e_r)
-//! have their data Jacobians `∂r/∂θ` checked the same way (`check_data_jacobian`,
-//! `check_block_mcp_data`), on the same random states plus random body data (full symmetric
-//! inertias, unit and non-unit start quaternions); a planted error in a data Jacobian is found
-//! too.
+//! The data inputs (the Newton–Euler block's mass, inertia, start state, load, gravity and step;
+//! the kinematic map's start state and step; the half-space offsets; the friction blocks' μ,
+//! e_t, e_o, e_r) are checked by the same calls, on the same random states plus random body
+//! data (full symmetric inertias, unit and non-unit start quaternions); a planted error in a data
+//! derivative is found too.
 
 mod common;
 
@@ -25,16 +25,16 @@ use std::sync::LazyLock;
 
 use ecp::formulations::blocks::{
     BodyStepData, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
-    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NEWTON_EULER_DATA, NewtonEuler,
-    NonPenetration, NormalCone, mass_matrix,
+    FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
+    NormalCone, inertia_entries, start_values,
 };
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation};
 use ecp::model::{
-    CheckOptions, DataJacobian, JacobianBlocks, JacobianReport, Mcp, Params, ResidualBlock, VarId,
-    check_block_mcp, check_block_mcp_data, check_data_jacobian, check_residual_block,
+    CheckOptions, InputKind, InputRange, JacobianBlocks, JacobianReport, Mcp, Params,
+    ResidualBlock, VarId, check_problem, check_residual_block,
 };
 use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 use proptest::prelude::*;
@@ -306,22 +306,77 @@ impl Case {
         }
     }
 
-    fn mass6(&self) -> nalgebra::Matrix6<f64> {
-        mass_matrix(
-            self.mass,
-            &Matrix3::from_diagonal(&self.inertia_diag),
-            &self.q_start,
-        )
+    /// The body data of the case (diagonal inertia, the case's start state, `impulse` as the
+    /// applied wrench, gravity along −z).
+    fn body(&self) -> BodyStepData {
+        BodyStepData {
+            mass: self.mass,
+            inertia: Matrix3::from_diagonal(&self.inertia_diag),
+            q_start: self.q_start,
+            nu_start: Vector6::from_row_slice(&self.nu_start),
+            wrench: Vector6::from_row_slice(&self.impulse),
+            gravity: V3::new(0.0, 0.0, -scenarios::G),
+            h: self.h,
+        }
+    }
+
+    fn start(&self) -> [f64; 13] {
+        start(&self.x_start, &self.body())
     }
 
     fn newton_euler(&self, s: &State, contacts: usize) -> NewtonEuler {
-        NewtonEuler::new(
-            self.mass6(),
-            Vector6::from_row_slice(&self.nu_start),
-            Vector6::from_row_slice(&self.impulse),
-            s.contacts[..contacts].iter().map(|c| c.frame).collect(),
-        )
+        NewtonEuler::new(s.contacts[..contacts].iter().map(|c| c.frame).collect())
     }
+}
+
+/// The `start` data values of body data `b` with start position `x`.
+fn start(x: &V3, b: &BodyStepData) -> [f64; 13] {
+    let (v, w) = (
+        V3::new(b.nu_start[0], b.nu_start[1], b.nu_start[2]),
+        V3::new(b.nu_start[3], b.nu_start[4], b.nu_start[5]),
+    );
+    start_values(x, &b.q_start, &v, &w)
+}
+
+/// The body data inputs of a Newton–Euler block (`mass`, `inertia`, `start`, `wrench`,
+/// `gravity`, `h`), owned.
+struct BodyInputs {
+    mass: [f64; 1],
+    inertia: [f64; 6],
+    start: [f64; 13],
+    wrench: [f64; 6],
+    gravity: [f64; 3],
+    h: [f64; 1],
+}
+
+impl BodyInputs {
+    fn new(x: &V3, b: &BodyStepData) -> Self {
+        BodyInputs {
+            mass: [b.mass],
+            inertia: inertia_entries(&b.inertia),
+            start: start(x, b),
+            wrench: [0, 1, 2, 3, 4, 5].map(|i| b.wrench[i]),
+            gravity: [b.gravity.x, b.gravity.y, b.gravity.z],
+            h: [b.h],
+        }
+    }
+    fn slices(&self) -> [&[f64]; 6] {
+        [
+            &self.mass,
+            &self.inertia,
+            &self.start,
+            &self.wrench,
+            &self.gravity,
+            &self.h,
+        ]
+    }
+}
+
+/// `vars` followed by the body data inputs.
+fn with_body<'a>(vars: &[&'a [f64]], body: &'a BodyInputs) -> Vec<&'a [f64]> {
+    let mut v = vars.to_vec();
+    v.extend(body.slices());
+    v
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -367,7 +422,8 @@ proptest! {
         let s = case.realise();
         let c = &s.contacts[0];
         let ne = case.newton_euler(&s, 1);
-        check(&ne, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf])?;
+        let body = BodyInputs::new(&case.x_start, &case.body());
+        check(&ne, &with_body(&[&s.nu, &s.q, &c.a1, &c.pn, &c.pf], &body))?;
     }
 
     #[test]
@@ -375,24 +431,26 @@ proptest! {
         let s = case.realise();
         let (c0, c1) = (&s.contacts[0], &s.contacts[1]);
         let ne = case.newton_euler(&s, 2);
-        check(&ne, &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf])?;
+        let body = BodyInputs::new(&case.x_start, &case.body());
+        check(&ne, &with_body(&[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf], &body))?;
     }
 
     #[test]
     fn newton_euler_without_contacts(case in case()) {
         let s = case.realise();
         let ne = case.newton_euler(&s, 0);
-        check(&ne, &[&s.nu, &s.q])?;
+        let body = BodyInputs::new(&case.x_start, &case.body());
+        check(&ne, &with_body(&[&s.nu, &s.q], &body))?;
     }
 
     #[test]
     fn kinematic_map(case in case()) {
         let s = case.realise();
-        let km = KinematicMap { x_start: case.x_start, q_start: case.q_start, h: case.h };
-        check(&km, &[&s.q, &s.nu])?;
+        check(&KinematicMap, &[&s.q, &s.nu, &case.start(), &[case.h]])?;
         // Also from a non-unit start quaternion (the block is linear either way).
-        let km = KinematicMap { x_start: case.x_start, q_start: case.q, h: case.h };
-        check(&km, &[&s.q, &s.nu])?;
+        let mut start = case.start();
+        start[3..7].copy_from_slice(case.q.as_slice());
+        check(&KinematicMap, &[&s.q, &s.nu, &start, &[case.h]])?;
     }
 
     #[test]
@@ -431,12 +489,8 @@ proptest! {
     fn half_space_side(case in case()) {
         let s = case.realise();
         for c in &s.contacts {
-            let b = HalfSpaceSide {
-                normal: c.plane.normal(),
-                offset: c.plane.offset(),
-                scale: case.scale,
-            };
-            check(&b, &[&c.a2])?;
+            let b = HalfSpaceSide { normal: c.plane.normal(), scale: case.scale };
+            check(&b, &[&c.a2, &[c.plane.offset()]])?;
         }
     }
 
@@ -444,12 +498,8 @@ proptest! {
     fn non_penetration(case in case()) {
         let s = case.realise();
         for c in &s.contacts {
-            let b = NonPenetration {
-                normal: c.plane.normal(),
-                offset: c.plane.offset(),
-                scale: case.scale,
-            };
-            check(&b, &[&c.a1])?;
+            let b = NonPenetration { normal: c.plane.normal(), scale: case.scale };
+            check(&b, &[&c.a1, &[c.plane.offset()]])?;
         }
     }
 
@@ -457,8 +507,8 @@ proptest! {
     fn friction_dissipation(case in case()) {
         let s = case.realise();
         for c in &s.contacts {
-            let b = FrictionDissipation { frame: c.frame, friction: case.friction };
-            check(&b, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf, &c.sigma])?;
+            let b = FrictionDissipation { frame: c.frame };
+            check(&b, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf, &c.sigma, &case.friction.values()])?;
         }
     }
 
@@ -466,8 +516,7 @@ proptest! {
     fn friction_ellipsoid(case in case()) {
         let s = case.realise();
         for c in &s.contacts {
-            let b = FrictionEllipsoid { friction: case.friction };
-            check(&b, &[&c.pn, &c.pf])?;
+            check(&FrictionEllipsoid, &[&c.pn, &c.pf, &case.friction.values()])?;
         }
     }
 }
@@ -502,56 +551,50 @@ fn body_data() -> impl Strategy<Value = BodyStepData> {
         )
 }
 
-/// Checks a block's data Jacobian with default options: within tolerance, and every entry
-/// compared.
-fn check_data(
-    block: &dyn ResidualBlock,
-    params: &[&[f64]],
-) -> Result<JacobianReport, TestCaseError> {
-    let report = check_data_jacobian(block, params, &CheckOptions::default())
-        .map_err(|e| TestCaseError::fail(format!("checker rejected {}: {e}", block.name())))?;
-    prop_assert_eq!(
-        report.entries,
-        block.num_residuals() * block.num_data(),
-        "not every data entry of {} was compared",
-        block.name()
-    );
-    prop_assert!(report.ok(), "{}", report);
-    Ok(report)
+/// The inputs as one flat vector of variables (as the checker lays them out), for evaluating a
+/// standalone block.
+fn flat(params: &[&[f64]]) -> (Vec<f64>, Vec<InputRange>) {
+    let mut z = Vec::new();
+    let mut ranges = Vec::new();
+    for p in params {
+        ranges.push(InputRange::var(z.len(), p.len()));
+        z.extend_from_slice(p);
+    }
+    (z, ranges)
+}
+
+fn eval(block: &dyn ResidualBlock, params: &[&[f64]]) -> Vec<f64> {
+    let (z, ranges) = flat(params);
+    let mut out = vec![0.0; block.num_residuals()];
+    block.evaluate(Params::new(&z, &[], &ranges), &mut out);
+    out
 }
 
 proptest! {
     #![proptest_config(ProptestConfig { cases: 512, ..ProptestConfig::default() })]
 
-    /// The body-data form (mass, inertia, start state, load: 23 data), with two contacts, and
-    /// the plain form (ν^u and the impulse: 12 data).
+    /// Full body data (symmetric inertia, unit or non-unit start quaternion, any gravity and
+    /// step), with two contacts: every input, variable and data, checked.
     #[test]
     fn newton_euler_data(case in case(), data in body_data()) {
         let s = case.realise();
         let (c0, c1) = (&s.contacts[0], &s.contacts[1]);
-        let ne = NewtonEuler::for_body(data, vec![c0.frame, c1.frame]);
-        prop_assert_eq!(ne.num_data(), NEWTON_EULER_DATA.len());
-        check_data(&ne, &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf])?;
-        // The body-data form reads Q^{u+1} (mass matrix and gyroscopic term at the end of the
-        // step): its variable Jacobian, q block included.
-        check(&ne, &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf])?;
-        // Its contact part is the plain form's: the difference of the two forms does not
-        // depend on the contact unknowns.
-        let plain = NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![c0.frame]);
-        let body = NewtonEuler::for_body(data, vec![c0.frame]);
-        let bare = NewtonEuler::for_body(data, vec![]);
-        let bare_plain =
-            NewtonEuler::new(data.mass_matrix(), data.nu_start, data.impulse(), vec![]);
-        let (mut a, mut b, mut c, mut d) = ([0.0; 6], [0.0; 6], [0.0; 6], [0.0; 6]);
-        let ranges = [(0, 6), (6, 7), (13, 3), (16, 1), (17, 3)];
-        let z: Vec<f64> = [&s.nu[..], &s.q, &c0.a1, &c0.pn, &c0.pf].concat();
-        plain.evaluate(Params::new(&z, &ranges), &mut a);
-        body.evaluate(Params::new(&z, &ranges), &mut b);
-        bare_plain.evaluate(Params::new(&z, &ranges[..2]), &mut c);
-        bare.evaluate(Params::new(&z, &ranges[..2]), &mut d);
-        for i in 0..6 {
-            let tol = 1e-12 * (1.0 + a[i].abs() + b[i].abs());
-            prop_assert!(((b[i] - d[i]) - (a[i] - c[i])).abs() <= tol, "row {}", i);
+        let body = BodyInputs::new(&case.x_start, &data);
+        let ne = NewtonEuler::new(vec![c0.frame, c1.frame]);
+        check(&ne, &with_body(&[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf, &c1.a1, &c1.pn, &c1.pf], &body))?;
+        // The contact part is the contact impulse Σ W p, whatever the body data: the rows with a
+        // contact minus the rows without it.
+        let one = eval(&NewtonEuler::new(vec![c0.frame]), &with_body(&[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf], &body));
+        let d = eval(&NewtonEuler::new(vec![]), &with_body(&[&s.nu, &s.q], &body));
+        let fr = c0.frame;
+        let force = fr.n * c0.pn[0] + fr.t * c0.pf[0] + fr.o * c0.pf[1];
+        let arm = V3::new(c0.a1[0] - s.q[0], c0.a1[1] - s.q[1], c0.a1[2] - s.q[2]);
+        let torque = arm.cross(&force) + fr.n * c0.pf[2];
+        for i in 0..3 {
+            for (row, expect) in [(i, force[i]), (3 + i, torque[i])] {
+                let tol = 1e-12 * (1.0 + one[row].abs() + d[row].abs());
+                prop_assert!((one[row] - d[row] - expect).abs() <= tol, "row {}", row);
+            }
         }
         // The gyroscopic term does no work on the end-of-step angular velocity: without
         // contacts, ω·(r_ang − h τ) = −Ω·I_b Ω + Ω·I_b Ω^u with Ω = R1ᵀω, Ω^u = R0ᵀω^u.
@@ -569,29 +612,11 @@ proptest! {
             (w1.dot(&r_ang) - expected).abs() <= 1e-12 * scale,
             "ω·r = {} expected {}", w1.dot(&r_ang), expected
         );
-        check_data(&case.newton_euler(&s, 1), &[&s.nu, &s.q, &c0.a1, &c0.pn, &c0.pf])?;
-    }
-
-    #[test]
-    fn kinematic_map_data(case in case()) {
-        let s = case.realise();
-        let km = KinematicMap { x_start: case.x_start, q_start: case.q_start, h: case.h };
-        check_data(&km, &[&s.q, &s.nu])?;
-    }
-
-    #[test]
-    fn friction_data(case in case()) {
-        let s = case.realise();
-        for c in &s.contacts {
-            let b = FrictionDissipation { frame: c.frame, friction: case.friction };
-            check_data(&b, &[&s.nu, &s.q, &c.a1, &c.pn, &c.pf, &c.sigma])?;
-            let b = FrictionEllipsoid { friction: case.friction };
-            check_data(&b, &[&c.pn, &c.pf])?;
-        }
     }
 }
 
-/// FrictionDissipation with one planted error in its data Jacobian: `∂r_1/∂e_o` is off by 0.25.
+/// FrictionDissipation with one planted error in a data derivative: `∂r_1/∂e_o` (input 6, the
+/// `friction` data, column 2) is off by 0.25.
 struct PlantedDataError(FrictionDissipation);
 
 impl ResidualBlock for PlantedDataError {
@@ -609,22 +634,7 @@ impl ResidualBlock for PlantedDataError {
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         self.0.jacobian(x, jac);
-    }
-    fn num_data(&self) -> usize {
-        self.0.num_data()
-    }
-    fn data(&self, theta: &mut [f64]) {
-        self.0.data(theta);
-    }
-    fn data_name(&self, k: usize) -> String {
-        self.0.data_name(k)
-    }
-    fn evaluate_with_data(&self, x: Params<'_>, theta: &[f64], out: &mut [f64]) {
-        self.0.evaluate_with_data(x, theta, out);
-    }
-    fn data_jacobian(&self, x: Params<'_>, jac: &mut DataJacobian<'_>) {
-        self.0.data_jacobian(x, jac);
-        jac.add(1, 2, 0.25);
+        jac.add(FrictionDissipation::FRICTION, 1, 2, 0.25);
     }
 }
 
@@ -633,36 +643,37 @@ fn checker_finds_a_planted_wrong_data_entry() {
     let g = HalfSpace::ground();
     let block = FrictionDissipation {
         frame: frame_of(&g),
-        friction: FrictionParams {
-            mu: 0.3,
-            e_t: 1.0,
-            e_o: 1.2,
-            e_r: 0.1,
-        },
     };
+    let friction = [0.3, 1.0, 1.2, 0.1];
     let (nu, q) = (
         [0.5, -0.2, 0.0, 0.0, 0.0, 1.0],
         [0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0],
     );
     let (a1, pn, pf, sigma) = ([0.01, 0.02, 0.0], [1.5], [-0.2, 0.1, 0.01], [0.4]);
-    let params: [&[f64]; 6] = [&nu, &q, &a1, &pn, &pf, &sigma];
-    let good = check_data_jacobian(&block, &params, &CheckOptions::default()).expect("sizes");
-    assert!(good.ok() && good.entries == 12, "{good}");
-    let bad = check_data_jacobian(&PlantedDataError(block), &params, &CheckOptions::default())
+    let params: [&[f64]; 7] = [&nu, &q, &a1, &pn, &pf, &sigma, &friction];
+    let good = check_residual_block(&block, &params, &CheckOptions::default()).expect("sizes");
+    assert!(good.ok() && good.entries == 3 * 25, "{good}");
+    let bad = check_residual_block(&PlantedDataError(block), &params, &CheckOptions::default())
         .expect("sizes");
     assert_eq!(bad.failures, 1, "{bad}");
     let worst = &bad.worst[0];
-    assert!(worst.failed && (worst.row, worst.col) == (1, 2), "{bad}");
+    assert!(
+        worst.failed && (worst.row, worst.block, worst.col) == (1, 6, 2),
+        "{bad}"
+    );
+    assert_eq!(bad.pairs[6].failures, 1, "{bad}");
     // ∂r_o/∂e_o = 2 e_o μ p_n (W_oᵀν) with W_oᵀν = o·v + ((a1 − x) × o)·ω.
-    let (_, t, o) = g.contact_frame();
-    let _ = t;
+    let (_, _, o) = g.contact_frame();
     let r = V3::new(a1[0] - q[0], a1[1] - q[1], a1[2] - q[2]);
     let slip =
         o.dot(&V3::new(nu[0], nu[1], nu[2])) + r.cross(&o).dot(&V3::new(nu[3], nu[4], nu[5]));
     let exact = 2.0 * 1.2 * 0.3 * 1.5 * slip;
     assert!((worst.numeric - exact).abs() < 1e-8, "{bad}");
     assert!((worst.analytic - exact - 0.25).abs() < 1e-12, "{bad}");
-    assert!(bad.to_string().contains("planted_data[1] / e_o"), "{bad}");
+    assert!(
+        bad.to_string().contains("planted_data[1] / input6[2]"),
+        "{bad}"
+    );
 }
 
 /// The contact frames used above are right-handed and orthonormal, so the blocks are tested
@@ -720,16 +731,16 @@ fn checker_finds_a_planted_wrong_entry() {
     let pf = [0.3, -0.2, 0.01];
     // The unmodified block passes at this point ...
     let good = check_residual_block(
-        &FrictionEllipsoid { friction },
-        &[&pn, &pf],
+        &FrictionEllipsoid,
+        &[&pn, &pf, &friction.values()],
         &CheckOptions::default(),
     )
     .expect("sizes match");
     assert!(good.ok(), "{good}");
     // ... the planted error is found, and it is the only and the worst entry.
     let bad = check_residual_block(
-        &PlantedError(FrictionEllipsoid { friction }),
-        &[&pn, &pf],
+        &PlantedError(FrictionEllipsoid),
+        &[&pn, &pf, &friction.values()],
         &CheckOptions::default(),
     )
     .expect("sizes match");
@@ -751,7 +762,7 @@ fn checker_finds_a_planted_wrong_entry() {
     assert!((bad.max_abs_error - 0.5).abs() < 1e-6, "{bad}");
     let text = bad.to_string();
     assert!(
-        text.contains("FAILED") && text.contains("planted[0] / param1[2]"),
+        text.contains("FAILED") && text.contains("planted[0] / input1[2]"),
         "{text}"
     );
 }
@@ -825,10 +836,11 @@ fn all_scenes() -> Vec<Scene> {
     ]
 }
 
-/// Checks every residual block of the prepared step MCP at `z`; `what` names the point.
+/// Checks every residual block of the prepared step MCP at `z` with respect to every input,
+/// variables and data blocks; `what` names the point.
 fn check_mcp_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseError> {
     let mcp = sim.mcp();
-    let reports = check_block_mcp(mcp, z, &CheckOptions::default());
+    let reports = check_problem(mcp, z, &CheckOptions::default());
     prop_assert_eq!(
         reports.len(),
         mcp.num_residual_blocks(),
@@ -838,22 +850,19 @@ fn check_mcp_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseE
     for rep in &reports {
         prop_assert!(rep.ok(), "{} ({}):\n{}", sim.scene().name, what, rep);
     }
-    Ok(())
-}
-
-/// Checks the data Jacobian of every residual block that has data: one Newton–Euler and one
-/// kinematic-map block per body, two friction blocks per contact.
-fn check_mcp_data_at(sim: &Simulation, z: &[f64], what: &str) -> Result<(), TestCaseError> {
-    let reports = check_block_mcp_data(sim.mcp(), z, &CheckOptions::default());
+    // The blocks that read data: Newton–Euler (6 data inputs) and the kinematic map (2) per body,
+    // C4, C5 (1 each) and the two friction blocks (1 each) per contact.
+    let data_pairs = reports
+        .iter()
+        .flat_map(|r| &r.pairs)
+        .filter(|p| p.kind == Some(InputKind::Data))
+        .count();
     prop_assert_eq!(
-        reports.len(),
-        2 * sim.scene().bodies.len() + 2 * sim.contacts().len(),
-        "{}: not every block with data was checked",
+        data_pairs,
+        8 * sim.scene().bodies.len() + 4 * sim.contacts().len(),
+        "{}: not every data input was checked",
         what
     );
-    for rep in &reports {
-        prop_assert!(rep.ok(), "{} ({}):\n{}", sim.scene().name, what, rep);
-    }
     Ok(())
 }
 
@@ -865,7 +874,6 @@ fn every_scenario_mcp_at_its_warm_start() {
         let z = sim.z().to_vec();
         assert_eq!(z.len(), sim.mcp().dim());
         check_mcp_at(&sim, &z, "warm start").expect("warm start");
-        check_mcp_data_at(&sim, &z, "warm start").expect("warm start (data)");
     }
 }
 
@@ -899,7 +907,6 @@ proptest! {
                 }
             }
             check_mcp_at(&sim, &z, "perturbed")?;
-            check_mcp_data_at(&sim, &z, "perturbed")?;
         }
     }
 }

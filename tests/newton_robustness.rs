@@ -6,6 +6,7 @@ use ecp::formulations::blocks::FrictionParams;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::rotation::{quat_from_axis_angle, rotation_matrix};
 use ecp::formulations::stepper::{BodySpec, BodyState, Load, Scene, Simulation, StepRecord};
+use ecp::model::Counter;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use nalgebra::{Vector3, Vector4};
 
@@ -79,7 +80,7 @@ fn assert_all_converged(name: &str, records: &[StepRecord]) {
             r.summary.worst
         );
         assert_eq!(
-            r.summary.counter("retries"),
+            r.summary.counter(Counter::Retries).unwrap_or(0),
             0,
             "{name}: step {} retried",
             r.step

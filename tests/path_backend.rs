@@ -7,7 +7,7 @@ mod common;
 
 use common::{Verdict, judge_suite};
 use ecp_model::mcp_library::{degenerate, lcp, murty, suite};
-use ecp_model::{FnMcp, McpSolver, SolveError, Termination, residual_of};
+use ecp_model::{Counter, FnMcp, McpSolver, SolveError, Termination, residual_of};
 use ecp_solvers::path::{PathSettings, PathSolver};
 use ecp_solvers::pivot::{AntiCycling, Lemke, LemkeSettings, PivotError};
 use proptest::prelude::*;
@@ -49,14 +49,14 @@ fn path_summary_reports_counters_and_trace() {
     assert!(s.converged() && s.residual <= 1e-10);
     assert_eq!(s.trace.len(), s.iterations);
     assert!(s.f_evals >= s.iterations && s.jac_evals >= 1);
-    for name in [
-        "pivots",
-        "crash_steps",
-        "watchdog_restores",
-        "proximal_perturbations",
-        "path_backtracks",
+    for counter in [
+        Counter::Pivots,
+        Counter::CrashSteps,
+        Counter::WatchdogRestores,
+        Counter::ProximalPerturbations,
+        Counter::PathBacktracks,
     ] {
-        assert!(s.counters.iter().any(|(n, _)| *n == name), "{name}");
+        assert!(s.counter(counter).is_some(), "{counter}");
     }
     assert!(s.fb_residual.is_finite());
 }
@@ -130,7 +130,7 @@ fn degenerate_lcp_is_solved() {
         let s = path.solve(&p.mcp, start).unwrap();
         let d = p.distance_to_solutions(&s.z, None).unwrap();
         assert!(d <= 1e-8, "degenerate from {label}: distance {d:e}");
-        assert!(s.summary.counter("pivots") > 0);
+        assert!(s.summary.counter(Counter::Pivots).unwrap() > 0);
     }
 }
 
@@ -170,7 +170,12 @@ fn infeasible_lcp_ends_in_ray_termination() {
     assert!(best.summary.residual >= 0.5 && best.z.iter().all(|v| v.is_finite()));
     assert!(!best.summary.converged());
     // Its linearisations are unsolvable (singular basis or ray) until perturbed.
-    assert!(best.summary.counter("proximal_perturbations") > 0);
+    assert!(
+        best.summary
+            .counter(Counter::ProximalPerturbations)
+            .unwrap()
+            > 0
+    );
 }
 
 #[test]
@@ -268,8 +273,8 @@ fn path_search_rescues_an_overshooting_newton_step() {
     let sol = PathSolver::new(base.clone()).solve(&mcp, &z0).unwrap();
     assert!(sol.summary.residual <= 1e-10);
     assert!(sol.z[0].abs() <= 1e-10 && sol.z[1] == 0.0, "{:?}", sol.z);
-    assert!(sol.summary.counter("path_backtracks") > 0);
-    assert_eq!(sol.summary.counter("watchdog_restores"), 0);
+    assert!(sol.summary.counter(Counter::PathBacktracks).unwrap() > 0);
+    assert_eq!(sol.summary.counter(Counter::WatchdogRestores).unwrap(), 0);
     // Without the path search the full step is the only candidate: it is rejected, and so is
     // every proximally perturbed variant of it, so the solver stops where it started.
     let err = PathSolver::new(PathSettings {
@@ -281,7 +286,7 @@ fn path_search_rescues_an_overshooting_newton_step() {
     let best = err.best().unwrap();
     assert!(best.summary.residual > 1e-3, "{}", best.summary.residual);
     assert!(best.z.iter().all(|v| v.is_finite()));
-    assert_eq!(best.summary.counter("path_backtracks"), 0);
+    assert_eq!(best.summary.counter(Counter::PathBacktracks).unwrap(), 0);
     // With the default settings (crash and watchdog on) it is solved as well.
     let sol = PathSolver::new(PathSettings::default())
         .solve(&mcp, &z0)
@@ -304,7 +309,7 @@ fn lemke_as_a_backend_solves_the_suite_lcps() {
                 "{} from {label}",
                 p.name
             );
-            assert!(sol.summary.counter("pivots") > 0);
+            assert!(sol.summary.counter(Counter::Pivots).unwrap() > 0);
         }
     }
 }

@@ -17,19 +17,21 @@ mod common;
 
 use common::strategies::{unit_quat, unit3, vec3};
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver};
-use ecp::formulations::blocks::{BodyStepData, ContactFrame, FrictionParams, mass_matrix};
+use ecp::backends::{SolverConfig, make_solver};
+use ecp::formulations::blocks::{
+    BodyStepData, ContactFrame, FrictionParams, inertia_entries, start_values,
+};
 use ecp::formulations::geometry::{ContactMode, HalfSpace};
 use ecp::formulations::point::{
-    PointContacts, PointFrictionDissipation, PointFrictionEllipsoid, PointNewtonEuler,
-    PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
+    POINT_GEOMETRY, PointContacts, PointFrictionDissipation, PointFrictionEllipsoid,
+    PointNewtonEuler, PointNonPenetration, PointWrenches, centre_of_pressure, penetration,
 };
 use ecp::formulations::rotation::{kinematic_map, rotation_matrix};
 use ecp::formulations::scenarios;
 use ecp::formulations::stepper::{Scene, SceneError, Simulation, StepRecord};
 use ecp::formulations::{Formulation, Stepper, build_stepper};
 use ecp::model::{
-    CheckOptions, McpSolver, ResidualBlock, check_block_mcp, check_residual_block, residual_of,
+    CheckOptions, McpSolver, ResidualBlock, check_problem, check_residual_block, residual_of,
 };
 use nalgebra::{Matrix3, Vector3, Vector6};
 use proptest::prelude::*;
@@ -174,23 +176,10 @@ proptest! {
             .iter()
             .map(|p| PointWrenches::new(&p.r, &frame_of(&p.plane)))
             .collect();
-        let ne = PointNewtonEuler::new(
-            mass_matrix(case.mass, &Matrix3::from_diagonal(&case.inertia), &case.q_start),
-            Vector6::from_row_slice(&case.nu_start),
-            Vector6::from_row_slice(&case.impulse),
-            wrenches.clone(),
-        );
         let pns: Vec<[f64; 1]> = case.points.iter().map(|p| [p.pn]).collect();
         let sigmas: Vec<[f64; 1]> = case.points.iter().map(|p| [p.sigma]).collect();
-        let mut params: Vec<&[f64]> = vec![&case.nu];
-        for (p, pn) in case.points.iter().zip(&pns) {
-            params.push(pn);
-            params.push(&p.pf);
-        }
-        check(&ne, &params)?;
-        // The form the stepper uses: mass matrix and gyroscopic impulse at the end of the step,
-        // reading the configuration q (7) as well; its end orientation is the start one turned
-        // by the kinematic map.
+        // Mass matrix and gyroscopic impulse at the end of the step: the block reads the
+        // configuration q (7); its end orientation is the start one turned by the kinematic map.
         let body = BodyStepData {
             mass: case.mass,
             inertia: Matrix3::from_diagonal(&case.inertia),
@@ -204,21 +193,30 @@ proptest! {
             + kinematic_map(&case.q_start) * Vector3::new(case.nu[3], case.nu[4], case.nu[5])
                 * (0.5 * case.h);
         let q = [0.1, -0.2, 0.3, q_end[0], q_end[1], q_end[2], q_end[3]];
-        let end = PointNewtonEuler::for_body(body, wrenches.clone());
-        let mut end_params: Vec<&[f64]> = vec![&case.nu, &q];
-        end_params.extend_from_slice(&params[1..]);
-        check(&end, &end_params)?;
-        for ((p, w), (pn, sigma)) in case.points.iter().zip(&wrenches).zip(pns.iter().zip(&sigmas)) {
-            let np = PointNonPenetration { gap: case.gap, h: case.h, normal_wrench: w.normal };
-            check(&np, &[&case.nu])?;
-            let fr = PointFrictionDissipation {
-                t_wrench: w.t,
-                o_wrench: w.o,
-                friction: case.friction,
-            };
-            check(&fr, &[&case.nu, pn, &p.pf, sigma])?;
-            let el = PointFrictionEllipsoid { friction: case.friction };
-            check(&el, &[pn, &p.pf])?;
+        let nu0 = &case.nu_start;
+        let start = start_values(
+            &V3::new(0.1, 0.2, 0.3),
+            &case.q_start,
+            &V3::new(nu0[0], nu0[1], nu0[2]),
+            &V3::new(nu0[3], nu0[4], nu0[5]),
+        );
+        let (mass, inertia, gravity, h) =
+            ([body.mass], inertia_entries(&body.inertia), [0.0, 0.0, -9.8], [case.h]);
+        let geometry: Vec<[f64; POINT_GEOMETRY]> =
+            wrenches.iter().map(|w| w.geometry_values(case.gap)).collect();
+        let mut params: Vec<&[f64]> =
+            vec![&case.nu, &q, &mass, &inertia, &start, &case.impulse, &gravity, &h];
+        for ((p, pn), g) in case.points.iter().zip(&pns).zip(&geometry) {
+            params.push(pn);
+            params.push(&p.pf);
+            params.push(g);
+        }
+        check(&PointNewtonEuler::new(case.points.len()), &params)?;
+        let friction = case.friction.values();
+        for ((p, g), (pn, sigma)) in case.points.iter().zip(&geometry).zip(pns.iter().zip(&sigmas)) {
+            check(&PointNonPenetration, &[&case.nu, g, &h])?;
+            check(&PointFrictionDissipation, &[&case.nu, pn, &p.pf, sigma, g, &friction])?;
+            check(&PointFrictionEllipsoid, &[pn, &p.pf, &friction])?;
         }
     }
 }
@@ -280,7 +278,7 @@ proptest! {
             for (zi, d) in z.iter_mut().zip(&noise) {
                 *zi += scale * d * (1.0 + zi.abs());
             }
-            let reports = check_block_mcp(pc.mcp(), &z, &CheckOptions::default());
+            let reports = check_problem(pc.mcp(), &z, &CheckOptions::default());
             prop_assert_eq!(reports.len(), pc.mcp().num_residual_blocks());
             for rep in &reports {
                 prop_assert!(rep.ok(), "{}:\n{}", name, rep);
@@ -293,16 +291,16 @@ proptest! {
 // Runs
 // ---------------------------------------------------------------------------------------------
 
-fn solver(kind: SolverKind) -> Box<dyn McpSolver> {
+fn solver(kind: &str) -> Box<dyn McpSolver> {
     make_solver(&SolverConfig {
-        kind,
+        name: kind.into(),
         ..SolverConfig::default()
     })
     .expect("backend available")
 }
 
 /// Runs `stepper` for at most `steps` steps; every step must converge to ≤ 1e-10.
-fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run(stepper: &mut dyn Stepper, kind: &str, steps: usize) -> Vec<StepRecord> {
     let name = format!(
         "{} ({}, {kind})",
         stepper.scene().name,
@@ -324,7 +322,7 @@ fn run(stepper: &mut dyn Stepper, kind: SolverKind, steps: usize) -> Vec<StepRec
     records
 }
 
-fn run_point(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run_point(scene: Scene, kind: &str, steps: usize) -> Vec<StepRecord> {
     run(
         &mut PointContacts::new(scene).expect("valid scene"),
         kind,
@@ -332,7 +330,7 @@ fn run_point(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
     )
 }
 
-fn run_hull(scene: Scene, kind: SolverKind, steps: usize) -> Vec<StepRecord> {
+fn run_hull(scene: Scene, kind: &str, steps: usize) -> Vec<StepRecord> {
     run(
         &mut Simulation::new(scene).expect("valid scene"),
         kind,
@@ -363,7 +361,7 @@ fn records_have_one_contact_per_point() {
         build_stepper(scenarios::a1_sliding(), Formulation::Point).expect("point stepper");
     assert_eq!(stepper.formulation(), Formulation::Point);
     assert_eq!(stepper.contacts_per_body(), 8);
-    let mut s = solver(SolverKind::Newton);
+    let mut s = solver("newton");
     let rec = stepper.step(s.as_mut()).expect("step");
     assert_eq!(rec.contacts.len(), 8);
     let state = stepper.state(0);
@@ -399,7 +397,7 @@ fn records_have_one_contact_per_point() {
 /// the points (none without load), the penetration the deepest vertex (0 when all are above).
 #[test]
 fn centre_of_pressure_and_penetration_helpers() {
-    let mut rec = run_point(scenarios::a1_sliding(), SolverKind::Newton, 1).remove(0);
+    let mut rec = run_point(scenarios::a1_sliding(), "newton", 1).remove(0);
     for c in rec.contacts.iter_mut() {
         c.pn = 0.0;
         c.min_gap = 0.0;
@@ -473,13 +471,13 @@ fn bottom_corners(pc: &PointContacts) -> Vec<(usize, f64)> {
 /// (moment balance: `(front − rear) L/2 = N μ H`), left and right pairs `N/2` each, to 1e-9.
 #[test]
 fn a1_point_model_decelerates_like_the_ecp_model() {
-    let hull = run_hull(scenarios::a1_sliding(), SolverKind::Newton, usize::MAX);
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    let hull = run_hull(scenarios::a1_sliding(), "newton", usize::MAX);
+    for kind in ["newton", "path"] {
         a1_against_hull(kind, &hull);
     }
 }
 
-fn a1_against_hull(kind: SolverKind, hull: &[StepRecord]) {
+fn a1_against_hull(kind: &str, hull: &[StepRecord]) {
     let points = run_point(scenarios::a1_sliding(), kind, usize::MAX);
     assert_eq!(points.len(), 50);
     let n_total = 10.0 * G * H;
@@ -569,7 +567,7 @@ fn a1_corner_split_is_not_unique() {
     // Solved tighter than the default 1e-10: shifting the split scales a corner's friction rows
     // (and their residual) by up to (p_n + α)/p_n ≈ 1.5.
     let mut newton = make_solver(&SolverConfig {
-        kind: SolverKind::Newton,
+        name: "newton".into(),
         tolerance: Some(1e-13),
         ..SolverConfig::default()
     })
@@ -607,7 +605,7 @@ fn a1_corner_split_is_not_unique() {
 
     // Started from the shifted split, both backends stay near it: same ν, different split.
     let start = shift(&warm);
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         let sol = solver(kind)
             .solve(mcp, &start)
             .expect("converges from the shifted start");
@@ -640,7 +638,7 @@ fn a3_point_model_brakes_the_spin_by_corner_friction() {
     let decel = 0.3 * 10.0 * G * lever / izz;
     assert_close("A3 point-model deceleration", decel, 31.18, 5e-3);
     let mut stopped = false;
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         for r in run_point(scenarios::a3_spin(), kind, usize::MAX) {
             let analytic = 2.0 - decel * H * r.step as f64;
             stopped = analytic < 0.0;
@@ -688,10 +686,10 @@ fn spinning_tilted_drop(w_z: f64) -> Scene {
 #[test]
 fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
     let scene = spinning_tilted_drop(10.0);
-    let hull = run_hull(scene.clone(), SolverKind::Path, usize::MAX);
+    let hull = run_hull(scene.clone(), "path", usize::MAX);
     let hull_pen = max_penetration(&hull);
     assert!(hull_pen <= 1e-9, "hull model penetrates {hull_pen:.3e}");
-    for kind in [SolverKind::Newton, SolverKind::Path] {
+    for kind in ["newton", "path"] {
         let point = run_point(scene.clone(), kind, usize::MAX);
         let (worst, pen) = point
             .iter()
@@ -736,7 +734,7 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
         );
     }
     for scene in [scenarios::a5_drop_tilted(), scenarios::a6_tip(110.0)] {
-        let pen = max_penetration(&run_point(scene.clone(), SolverKind::Path, usize::MAX));
+        let pen = max_penetration(&run_point(scene.clone(), "path", usize::MAX));
         assert!(
             pen <= 1e-9,
             "{}: point model penetrates {pen:.3e}",
@@ -752,8 +750,8 @@ fn linearised_gap_lets_a_spinning_vertex_go_below_the_plane() {
 /// ≥ 4.5e-4 m), and the pivot's load is transmitted through the air.
 #[test]
 fn a6_point_model_carries_load_across_a_gap() {
-    let point = run_point(scenarios::a6_tip(110.0), SolverKind::Path, usize::MAX);
-    let hull = run_hull(scenarios::a6_tip(110.0), SolverKind::Path, usize::MAX);
+    let point = run_point(scenarios::a6_tip(110.0), "path", usize::MAX);
+    let hull = run_hull(scenarios::a6_tip(110.0), "path", usize::MAX);
     let mut gap_under_load: f64 = 0.0;
     for (p, e) in point.iter().zip(&hull) {
         for c in &p.contacts {
@@ -801,12 +799,10 @@ fn desk_point_model_motion_depends_on_the_load_split() {
     let start = pc.z().to_vec();
     let (nu, _) = pc.body_vars(0);
     let mcp = pc.mcp();
-    let a = solver(SolverKind::Newton)
+    let a = solver("newton")
         .solve(mcp, &start)
         .expect("Newton converges");
-    let b = solver(SolverKind::Path)
-        .solve(mcp, &start)
-        .expect("PATH converges");
+    let b = solver("path").solve(mcp, &start).expect("PATH converges");
     assert!(residual_of(mcp, &a.z) <= 1e-10 && residual_of(mcp, &b.z) <= 1e-10);
     let (wa, wb) = (a.z[mcp.range(nu)][5], b.z[mcp.range(nu)][5]);
     println!(
@@ -837,8 +833,8 @@ fn desk_point_model_motion_depends_on_the_load_split() {
 /// with Newton, 3.0e-2, 0.43 with PATH — the point model's motion is not unique, see above —
 /// mostly the corners' lever arm braking the spin harder than `e_r = 0.1` m, as in A3).
 fn desk_against_hull(steps: usize) {
-    let point = run_point(scenarios::desk(), SolverKind::Newton, steps);
-    let hull = run_hull(scenarios::desk(), SolverKind::Newton, steps);
+    let point = run_point(scenarios::desk(), "newton", steps);
+    let hull = run_hull(scenarios::desk(), "newton", steps);
     let (mut dv, mut dw): (f64, f64) = (0.0, 0.0);
     for (p, e) in point.iter().zip(&hull) {
         let b = &p.bodies[0];

@@ -7,7 +7,7 @@
 mod common;
 
 use common::scene;
-use ecp::backends::{SolverConfig, SolverKind, make_solver};
+use ecp::backends::{SolverConfig, make_solver};
 use ecp::formulations::geometry::ContactMode;
 use ecp::formulations::rotation::rotation_matrix;
 use ecp::formulations::stepper::{Scene, Simulation, StepRecord};
@@ -17,11 +17,11 @@ const H: f64 = 0.01;
 
 /// Runs a scene to the end with backend `kind`; every step must converge to ≤ 1e-10 and keep
 /// every vertex of the real body above −1e-9.
-fn run(scene: Scene, kind: SolverKind) -> Vec<StepRecord> {
+fn run(scene: Scene, kind: &str) -> Vec<StepRecord> {
     let name = format!("{} ({kind})", scene.name);
     let mut sim = Simulation::new(scene).expect("valid scene");
     let mut solver = make_solver(&SolverConfig {
-        kind,
+        name: kind.into(),
         ..SolverConfig::default()
     })
     .expect("backend available");
@@ -77,7 +77,7 @@ fn initial_energy(scene: &Scene) -> f64 {
     Simulation::new(scene.clone()).expect("valid").energy()
 }
 
-fn a1_sliding_to_rest(kind: SolverKind) {
+fn a1_sliding_to_rest(kind: &str) {
     let scene = scene("a1_sliding");
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
@@ -124,7 +124,7 @@ fn a1_sliding_to_rest(kind: SolverKind) {
     assert_dissipative("A1", &recs, e0);
 }
 
-fn a2_push_sticks_at_20n(kind: SolverKind) {
+fn a2_push_sticks_at_20n(kind: &str) {
     let recs = run(scene("a2_push_stick"), kind);
     for r in &recs {
         let b = &r.bodies[0];
@@ -146,7 +146,7 @@ fn a2_push_sticks_at_20n(kind: SolverKind) {
     }
 }
 
-fn a2_push_slides_at_40n(kind: SolverKind) {
+fn a2_push_slides_at_40n(kind: &str) {
     let recs = run(scene("a2_push_slide"), kind);
     for r in &recs {
         let b = &r.bodies[0];
@@ -157,7 +157,7 @@ fn a2_push_slides_at_40n(kind: SolverKind) {
     }
 }
 
-fn a3_spin_in_place(kind: SolverKind) {
+fn a3_spin_in_place(kind: &str) {
     let scene = scene("a3_spin");
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
@@ -184,7 +184,7 @@ fn a3_spin_in_place(kind: SolverKind) {
     assert_dissipative("A3", &recs, e0);
 }
 
-fn a4_incline_10_holds(kind: SolverKind) {
+fn a4_incline_10_holds(kind: &str) {
     let scene = scene("a4_incline_10");
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
@@ -199,7 +199,7 @@ fn a4_incline_10_holds(kind: SolverKind) {
     assert_dissipative("A4 10°", &recs, e0);
 }
 
-fn a4_incline_25_slides(kind: SolverKind) {
+fn a4_incline_25_slides(kind: &str) {
     let theta = 25f64.to_radians();
     let a = G * (theta.sin() - 0.3 * theta.cos());
     assert_close("A4 acceleration", a, 1.4771, 1e-4);
@@ -219,7 +219,7 @@ fn a4_incline_25_slides(kind: SolverKind) {
     }
 }
 
-fn a5_drop_lands_without_bounce(kind: SolverKind) {
+fn a5_drop_lands_without_bounce(kind: &str) {
     let scene = scene("a5_drop");
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
@@ -259,7 +259,7 @@ fn a5_drop_lands_without_bounce(kind: SolverKind) {
     assert_dissipative("A5", &recs, e0);
 }
 
-fn a5_tilted_drop_comes_to_rest_flat(kind: SolverKind) {
+fn a5_tilted_drop_comes_to_rest_flat(kind: &str) {
     let scene = scene("a5_drop_tilted");
     let e0 = initial_energy(&scene);
     let recs = run(scene, kind);
@@ -307,7 +307,7 @@ fn a5_tilted_drop_comes_to_rest_flat(kind: SolverKind) {
     assert_close("A5 tilted CM height", b.x.z, 0.1, 1e-9);
 }
 
-fn a6_tip_90_stays_flat(kind: SolverKind) {
+fn a6_tip_90_stays_flat(kind: &str) {
     let recs = run(scene("a6_tip_90"), kind);
     for r in &recs {
         let b = &r.bodies[0];
@@ -328,7 +328,7 @@ fn a6_tip_90_stays_flat(kind: SolverKind) {
     }
 }
 
-fn a6_tip_110_tips_over_front_edge(kind: SolverKind) {
+fn a6_tip_110_tips_over_front_edge(kind: &str) {
     let recs = run(scene("a6_tip_110"), kind);
     let mut tipping = 0;
     for r in &recs {
@@ -363,7 +363,7 @@ fn a6_tip_110_tips_over_front_edge(kind: SolverKind) {
     );
 }
 
-fn desk_paper_example(kind: SolverKind) {
+fn desk_paper_example(kind: &str) {
     let recs = run(scene("desk"), kind);
     assert_eq!(recs.len(), 400);
     let mut rotating_steps = 0;
@@ -403,7 +403,7 @@ fn trajectory_rows_follow_the_interface_contract() {
     );
     let mut scene = scene("a1_sliding");
     scene.duration = 0.02;
-    let recs = run(scene, SolverKind::Newton);
+    let recs = run(scene, "newton");
     let row = recs[0].csv_fields();
     assert_eq!(row.len(), header.len());
     assert_eq!(row[23], "patch");
@@ -467,9 +467,9 @@ macro_rules! scenario_tests {
     };
 }
 
-scenario_tests!(newton, SolverKind::Newton);
-scenario_tests!(path, SolverKind::Path);
-scenario_tests!(conic, SolverKind::Conic);
+scenario_tests!(newton, "newton");
+scenario_tests!(path, "path");
+scenario_tests!(conic, "conic");
 
 /// Largest absolute difference between two 3-vectors.
 fn diff3(a: &nalgebra::Vector3<f64>, b: &nalgebra::Vector3<f64>) -> f64 {
@@ -585,7 +585,7 @@ fn far_scenes_behave_like_the_originals() {
             for b in &mut far.bodies {
                 b.initial.x += shift;
             }
-            for kind in SolverKind::ALL {
+            for kind in ecp::solvers::registry::BUILTIN {
                 let a = run(near.clone(), kind);
                 let b = run(far.clone(), kind);
                 assert_eq!(a.len(), b.len());

@@ -7,7 +7,6 @@
 use std::path::{Path, PathBuf};
 use std::time::Duration;
 
-use ecp::backends::SolverKind;
 use ecp::formulations::stepper::BodyState;
 use ecp::stress::runner::{ENERGY_LIMIT, PENETRATION_LIMIT, penetration, total_energy};
 use ecp::stress::{Category, DEFAULT_COUNT, DEFAULT_SEED, RunConfig, RunResult, generate};
@@ -110,7 +109,7 @@ fn independent_energy_matches_the_stepper() {
     let file = ecp::scene::load_scene(&path).expect("loads");
     let options = ecp::run::RunOptions {
         out_dir: dir.join("run"),
-        solver: Some(SolverKind::Path),
+        solver: Some("path".into()),
         steps: Some(20),
         plots: false,
         keep_going: true,
@@ -134,14 +133,14 @@ fn independent_energy_matches_the_stepper() {
 const FAST_STEPS: usize = 40;
 
 /// Runs the first scene of each category in `cats` with `solver` for [`FAST_STEPS`] steps.
-fn fast_subset(solver: SolverKind, cats: &[Category]) -> Vec<RunResult> {
+fn fast_subset(solver: &str, cats: &[Category]) -> Vec<RunResult> {
     let dir = temp_dir(&format!("fast-{solver}"));
     let scenes = generate(DEFAULT_SEED, Category::ALL.len());
     let mut out = Vec::new();
     for s in scenes.iter().filter(|s| cats.contains(&s.category)) {
         let path = s.write_to(&dir.join("scenes")).expect("writes");
         let config = RunConfig {
-            solver,
+            solver: solver.to_string(),
             steps: Some(FAST_STEPS),
             time_limit: Some(Duration::from_secs(600)),
             out_dir: dir.join("runs").join(&s.name),
@@ -189,7 +188,7 @@ fn assert_passed(results: &[RunResult]) {
 
 #[test]
 fn fast_subset_path() {
-    assert_passed(&fast_subset(SolverKind::Path, &Category::ALL));
+    assert_passed(&fast_subset("path", &Category::ALL));
 }
 
 /// The categories whose first scene the Newton backend fails today within [`FAST_STEPS`] steps
@@ -204,7 +203,7 @@ fn fast_subset_newton() {
         .into_iter()
         .filter(|c| !NEWTON_FAILS.contains(c))
         .collect();
-    assert_passed(&fast_subset(SolverKind::Newton, &cats));
+    assert_passed(&fast_subset("newton", &cats));
 }
 
 /// Fails today: Newton stops at the iteration limit on one landing step of the first drop scene
@@ -213,13 +212,13 @@ fn fast_subset_newton() {
 #[test]
 #[ignore]
 fn fast_subset_newton_failing() {
-    assert_passed(&fast_subset(SolverKind::Newton, &NEWTON_FAILS));
+    assert_passed(&fast_subset("newton", &NEWTON_FAILS));
 }
 
 /// The regression scenes of `tests/stress_regressions/` (every generated scene that ever
 /// failed with some backend), each run to its end with the backends `manifest.csv` lists for it
 /// (only the scenes whose name contains `$ECP_STRESS_ONLY`, when set).
-fn regressions(solver: SolverKind) {
+fn regressions(solver: &str) {
     let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions");
     let manifest = std::fs::read_to_string(dir.join("manifest.csv")).expect("manifest.csv");
     let out = temp_dir(&format!("regr-{solver}"));
@@ -231,11 +230,11 @@ fn regressions(solver: SolverKind) {
         let (Some(scene), Some(backend)) = (cols.next(), cols.next()) else {
             continue;
         };
-        if backend != solver.as_str() || only.as_deref().is_some_and(|o| !scene.contains(o)) {
+        if backend != solver || only.as_deref().is_some_and(|o| !scene.contains(o)) {
             continue;
         }
         let config = RunConfig {
-            solver,
+            solver: solver.to_string(),
             steps: None,
             time_limit: Some(ecp::stress::runner::TIME_LIMIT),
             out_dir: out.join(scene),
@@ -276,7 +275,7 @@ fn regressions(solver: SolverKind) {
 #[test]
 #[ignore]
 fn regressions_newton() {
-    regressions(SolverKind::Newton);
+    regressions("newton");
 }
 
 /// Fails today (docs/stress.md). Run with
@@ -284,7 +283,7 @@ fn regressions_newton() {
 #[test]
 #[ignore]
 fn regressions_path() {
-    regressions(SolverKind::Path);
+    regressions("path");
 }
 
 /// Fails today (docs/stress.md). Run with
@@ -292,7 +291,7 @@ fn regressions_path() {
 #[test]
 #[ignore]
 fn regressions_conic() {
-    regressions(SolverKind::Conic);
+    regressions("conic");
 }
 
 /// The regression scenes with the default settings of `ecp run` (Newton with the run driver's
@@ -329,7 +328,7 @@ fn regressions_with_default_settings(keep: impl Fn(&str, Option<usize>) -> bool)
     let mut bad = Vec::new();
     for (scene, step) in &scenes {
         let config = RunConfig {
-            solver: SolverKind::Newton,
+            solver: "newton".into(),
             steps: step.map(|s| s + 5),
             time_limit: Some(ecp::stress::runner::TIME_LIMIT),
             out_dir: out.join(scene),

@@ -19,7 +19,7 @@ use std::sync::Arc;
 
 use nalgebra::{Vector3, Vector4, Vector6};
 
-use ecp::backends::{SolverConfig, SolverKind, make_solver_for};
+use ecp::backends::{SolverConfig, make_solver_for};
 use ecp::formulations::Formulation;
 use ecp::formulations::geometry::{HalfSpace, MassProperties, Shape};
 use ecp::formulations::scenarios;
@@ -33,14 +33,14 @@ const TOL: f64 = 1e-10;
 fn run(
     scene: Scene,
     formulation: Formulation,
-    kind: SolverKind,
+    kind: &str,
     steps: Option<usize>,
 ) -> Vec<StepRecord> {
     let name = format!("{} ({formulation}, {kind})", scene.name);
     let mut sim = Simulation::with_formulation(scene, formulation).expect("valid scene");
     let mut solver = make_solver_for(
         &SolverConfig {
-            kind,
+            name: kind.into(),
             ..SolverConfig::default()
         },
         formulation,
@@ -124,12 +124,7 @@ fn t_bar_sliding() -> Scene {
 
 #[test]
 fn union_desk_converges_with_newton() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Newton,
-        None,
-    );
+    let recs = run(scenarios::desk(), Formulation::Union, "newton", None);
     assert_eq!(recs.len(), 400);
     // Four contacts, one per leg, and the desk really spins both ways.
     assert_eq!(recs[0].contacts.len(), 4);
@@ -139,29 +134,19 @@ fn union_desk_converges_with_newton() {
 
 #[test]
 fn union_desk_converges_with_path() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Path,
-        None,
-    );
+    let recs = run(scenarios::desk(), Formulation::Union, "path", None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_desk_converges_with_conic() {
-    let recs = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Conic,
-        None,
-    );
+    let recs = run(scenarios::desk(), Formulation::Union, "conic", None);
     assert_eq!(recs.len(), 400);
 }
 
 #[test]
 fn union_t_bar_converges_with_every_backend() {
-    for kind in SolverKind::ALL {
+    for kind in ecp::solvers::registry::BUILTIN {
         let recs = run(t_bar_sliding(), Formulation::Union, kind, None);
         assert_eq!(recs.len(), 100, "{kind}");
         assert_eq!(recs[0].contacts.len(), 2, "{kind}");
@@ -180,13 +165,8 @@ fn union_t_bar_converges_with_every_backend() {
 
 #[test]
 fn union_and_hull_agree_in_pure_translation_of_the_desk() {
-    let hull = run(
-        desk_translating(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        None,
-    );
-    for kind in SolverKind::ALL {
+    let hull = run(desk_translating(), Formulation::Hull, "newton", None);
+    for kind in ecp::solvers::registry::BUILTIN {
         let union = run(desk_translating(), Formulation::Union, kind, None);
         let (dv, dw) = max_difference(&hull, &union);
         println!(
@@ -205,18 +185,8 @@ fn union_and_hull_agree_in_pure_translation_of_the_desk() {
 #[test]
 fn union_and_hull_agree_on_a1() {
     // A single box is one convex piece: the union model has the hull model's one contact.
-    let hull = run(
-        scenarios::a1_sliding(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        None,
-    );
-    let union = run(
-        scenarios::a1_sliding(),
-        Formulation::Union,
-        SolverKind::Newton,
-        None,
-    );
+    let hull = run(scenarios::a1_sliding(), Formulation::Hull, "newton", None);
+    let union = run(scenarios::a1_sliding(), Formulation::Union, "newton", None);
     assert_eq!(hull.len(), union.len());
     let (dv, dw) = max_difference(&hull, &union);
     assert!(dv <= 1e-8 && dw <= 1e-8, "Δv {dv:.3e}, Δω {dw:.3e}");
@@ -228,24 +198,9 @@ fn union_and_hull_agree_on_a1() {
 #[test]
 fn union_with_spin_differences_are_measured() {
     let steps = Some(100);
-    let hull = run(
-        scenarios::desk(),
-        Formulation::Hull,
-        SolverKind::Newton,
-        steps,
-    );
-    let newton = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Newton,
-        steps,
-    );
-    let path = run(
-        scenarios::desk(),
-        Formulation::Union,
-        SolverKind::Path,
-        steps,
-    );
+    let hull = run(scenarios::desk(), Formulation::Hull, "newton", steps);
+    let newton = run(scenarios::desk(), Formulation::Union, "newton", steps);
+    let path = run(scenarios::desk(), Formulation::Union, "path", steps);
     let (dv, dw) = max_difference(&hull, &newton);
     println!("desk with spin, 100 steps: union (newton) vs hull: |Δv| ≤ {dv:.3e}, |Δω| ≤ {dw:.3e}");
     let (dv, dw) = max_difference(&newton, &path);

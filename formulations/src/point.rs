@@ -43,17 +43,20 @@
 //! assert!((rec.bodies[0].v.x - (1.0 - 0.3 * 9.8 * 0.01)).abs() < 1e-9);
 //! ```
 
-use std::sync::Arc;
 use std::time::Instant;
 
-use nalgebra::{Matrix6, Vector3, Vector4, Vector6};
+use nalgebra::{Vector3, Vector4, Vector6};
 
 use ecp_model::{
-    BlockMcp, JacobianBlocks, McpSolver, Params, Problem, ResId, ResidualBlock, SolveError,
-    Summary, VarBlock, VarId,
+    BlockMcp, DataBlock, DataId, Input, JacobianBlocks, McpSolver, Params, Problem, ResidualBlock,
+    SolveError, Summary, VarBlock, VarId,
 };
 
-use crate::blocks::{BodyStepData, ContactFrame, FrictionParams, KinematicMap};
+use crate::blocks::newton_euler::body_rows_jacobian;
+use crate::blocks::{
+    BODY_DATA_SIZES, BodyDataIds, BodyStepData, ContactFrame, FrictionParams, KinematicMap,
+    SceneDataIds, add_body_data, add_scene_data, start_values,
+};
 use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::min_gap;
@@ -112,67 +115,67 @@ impl PointWrenches {
     }
 }
 
+/// Size of a point's `geometry` data block: its gap and wrenches at the start of the step
+/// ([`PointWrenches::geometry_values`]).
+pub const POINT_GEOMETRY: usize = 19;
+
+impl PointWrenches {
+    /// The values of a point's `geometry` data block: `[g, W_n (6), W_t (6), W_o (6)]`, `g` the
+    /// gap at the start of the step.
+    pub fn geometry_values(&self, gap: f64) -> [f64; POINT_GEOMETRY] {
+        let mut v = [0.0; POINT_GEOMETRY];
+        v[0] = gap;
+        v[1..7].copy_from_slice(self.normal.as_slice());
+        v[7..13].copy_from_slice(self.t.as_slice());
+        v[13..19].copy_from_slice(self.o.as_slice());
+        v
+    }
+}
+
+/// Offsets within a point's `geometry` data block.
+const GAP: usize = 0;
+const WN: usize = 1;
+const WT: usize = 7;
+const WO: usize = 13;
+
+#[inline]
+fn w6(s: &[f64], o: usize) -> Vector6<f64> {
+    Vector6::from_column_slice(&s[o..o + 6])
+}
+
 /// Discrete Newton–Euler equations of a body on point contacts (`docs/model.md#newton-euler`,
 /// `docs/model.md#point-contacts`): `0 = −M(ν − ν^u) + Σ_i (W_n,i p_n,i + W_t,i p_t,i + W_o,i
-/// p_o,i) + p_app + p_vp`, with the wrenches of the start of the step.
+/// p_o,i) + p_app + p_vp`, with the wrenches of the start of the step and the inertial part as
+/// the hull model writes it — the mass matrix and the gyroscopic impulse at the end of the step
+/// ([`crate::blocks::NewtonEuler`], `docs/energy.md`), so a step without applied work cannot feed
+/// kinetic energy in.
 ///
-/// Two forms, by constructor: [`PointNewtonEuler::for_body`], the one the stepper uses, writes
-/// the inertial part as the hull model does — the mass matrix and the gyroscopic impulse at the
-/// end of the step ([`crate::blocks::NewtonEuler`], `docs/energy.md`), so a step without applied
-/// work cannot feed kinetic energy in; it reads `ν` (6), `q` (7) and, per point, `p_n` (1) and
-/// `p_f = (p_t, p_o)` (2). [`PointNewtonEuler::new`] takes a given mass matrix and applied
-/// impulse, linear in every unknown, and reads `ν` (6) and, per point, `p_n` and `p_f`.
+/// Reads `ν` (6), `q` (7), the body data ([`BODY_DATA_SIZES`]: `mass`, `inertia`, `start`,
+/// `wrench`, `gravity`, `h`) and, per point, `p_n` (1), `p_f = (p_t, p_o)` (2) and its
+/// `geometry` data ([`POINT_GEOMETRY`]).
 #[derive(Clone, Debug)]
 pub struct PointNewtonEuler {
-    /// Generalised mass matrix of the plain form (for [`PointNewtonEuler::for_body`], the one of
-    /// the start of the step, for reference).
-    pub mass: Matrix6<f64>,
-    /// Generalised velocity at the start of the step.
-    pub nu_start: Vector6<f64>,
-    /// Applied impulse over the step: for the plain form whatever was given; for
-    /// [`PointNewtonEuler::for_body`] `p_app` (the gyroscopic impulse is in the rows).
-    pub impulse: Vector6<f64>,
-    /// Wrenches of the points acting on this body, in the order of the blocks read.
-    pub wrenches: Vec<PointWrenches>,
-    /// What the rows are computed from, when built by [`PointNewtonEuler::for_body`].
-    pub body: Option<BodyStepData>,
+    points: usize,
     sizes: Vec<usize>,
 }
 
 impl PointNewtonEuler {
-    /// The block for a body with the given point wrenches, mass matrix and applied impulse.
-    pub fn new(
-        mass: Matrix6<f64>,
-        nu_start: Vector6<f64>,
-        impulse: Vector6<f64>,
-        wrenches: Vec<PointWrenches>,
-    ) -> Self {
-        let mut sizes = vec![6];
-        for _ in &wrenches {
-            sizes.extend([1, 2]);
+    /// Index of the first body data input.
+    pub const BODY_DATA: usize = 2;
+
+    /// The block for a body with `points` contact points.
+    pub fn new(points: usize) -> Self {
+        let mut sizes = vec![6, 7];
+        sizes.extend(BODY_DATA_SIZES);
+        for _ in 0..points {
+            sizes.extend([1, 2, POINT_GEOMETRY]);
         }
-        PointNewtonEuler {
-            mass,
-            nu_start,
-            impulse,
-            wrenches,
-            body: None,
-            sizes,
-        }
+        PointNewtonEuler { points, sizes }
     }
 
-    /// The block with the end-of-step mass matrix and gyroscopic impulse computed from the
-    /// body's data (see [`PointNewtonEuler`]).
-    pub fn for_body(body: BodyStepData, wrenches: Vec<PointWrenches>) -> Self {
-        let mut ne = Self::new(body.mass_matrix(), body.nu_start, body.impulse(), wrenches);
-        ne.sizes.insert(1, 7);
-        ne.body = Some(body);
-        ne
-    }
-
-    /// Index of the first point block among the blocks read.
-    fn first_point(&self) -> usize {
-        if self.body.is_some() { 2 } else { 1 }
+    /// Index of point `c`'s `p_n` input (then `p_f` and its geometry).
+    fn point_input(c: usize) -> usize {
+        Self::BODY_DATA + BODY_DATA_SIZES.len() + 3 * c
     }
 }
 
@@ -188,53 +191,39 @@ impl ResidualBlock for PointNewtonEuler {
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let nu = Vector6::from_column_slice(x.block(0));
-        let mut r = match &self.body {
-            Some(b) => {
-                let q = x.block(1);
-                b.inertial_rows(&nu, &Vector4::new(q[3], q[4], q[5], q[6])) + self.impulse
-            }
-            None => -self.mass * (nu - self.nu_start) + self.impulse,
-        };
-        let k0 = self.first_point();
-        for (c, w) in self.wrenches.iter().enumerate() {
-            let pn = x.block(k0 + 2 * c)[0];
-            let pf = x.block(k0 + 1 + 2 * c);
-            r += w.normal * pn + w.t * pf[0] + w.o * pf[1];
+        let q = x.block(1);
+        let b = BodyStepData::from_inputs(x, Self::BODY_DATA);
+        let mut r = b.inertial_rows(&nu, &Vector4::new(q[3], q[4], q[5], q[6])) + b.impulse();
+        for c in 0..self.points {
+            let k = Self::point_input(c);
+            let pn = x.block(k)[0];
+            let pf = x.block(k + 1);
+            let g = x.block(k + 2);
+            r += w6(g, WN) * pn + w6(g, WT) * pf[0] + w6(g, WO) * pf[1];
         }
         out.copy_from_slice(r.as_slice());
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        match &self.body {
-            Some(b) => {
-                let nu = Vector6::from_column_slice(x.block(0));
-                let q = x.block(1);
-                let (dw, dq) = b.inertial_jacobian(&nu, &Vector4::new(q[3], q[4], q[5], q[6]));
-                for i in 0..3 {
-                    jac.set(0, i, i, -b.mass);
-                    for j in 0..3 {
-                        jac.set(0, 3 + i, 3 + j, dw[(i, j)]);
-                    }
-                }
-                for (k, col) in dq.iter().enumerate() {
-                    for i in 0..3 {
-                        jac.set(1, 3 + i, 3 + k, col[i]);
-                    }
-                }
-            }
-            None => {
-                for j in 0..6 {
-                    for i in 0..6 {
-                        jac.set(0, i, j, -self.mass[(i, j)]);
-                    }
-                }
-            }
-        }
-        let k0 = self.first_point();
-        for (c, w) in self.wrenches.iter().enumerate() {
+        let nu = Vector6::from_column_slice(x.block(0));
+        let q = x.block(1);
+        let b = BodyStepData::from_inputs(x, Self::BODY_DATA);
+        let qv = Vector4::new(q[3], q[4], q[5], q[6]);
+        body_rows_jacobian(&b, &nu, &qv, Self::BODY_DATA, jac);
+        for c in 0..self.points {
+            let k = Self::point_input(c);
+            let g = x.block(k + 2);
             for i in 0..6 {
-                jac.set(k0 + 2 * c, i, 0, w.normal[i]);
-                jac.set(k0 + 1 + 2 * c, i, 0, w.t[i]);
-                jac.set(k0 + 1 + 2 * c, i, 1, w.o[i]);
+                jac.set(k, i, 0, g[WN + i]);
+                jac.set(k + 1, i, 0, g[WT + i]);
+                jac.set(k + 1, i, 1, g[WO + i]);
+            }
+            if jac.wants(k + 2) {
+                let (pn, pf) = (x.block(k)[0], x.block(k + 1));
+                for i in 0..6 {
+                    jac.set(k + 2, i, WN + i, pn);
+                    jac.set(k + 2, i, WT + i, pf[0]);
+                    jac.set(k + 2, i, WO + i, pf[1]);
+                }
             }
         }
     }
@@ -245,16 +234,10 @@ impl ResidualBlock for PointNewtonEuler {
 ///
 /// `g + h W_nᵀν` is the first-order prediction of the point's end-of-step gap; the true gap
 /// differs from it by `O(h² |ω|²)`, which is the baseline's penetration artefact.
-/// Reads `ν` (6).
-#[derive(Clone, Debug)]
-pub struct PointNonPenetration {
-    /// Gap `g_i(q^u)` of the point at the start of the step (m, negative when penetrating).
-    pub gap: f64,
-    /// Step length h (s).
-    pub h: f64,
-    /// `W_n = [n; r × n]` at the start of the step.
-    pub normal_wrench: Vector6<f64>,
-}
+/// Reads `ν` (6), the point's `geometry` data ([`POINT_GEOMETRY`]: the gap `g_i(q^u)` and
+/// `W_n`) and `h` (1).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PointNonPenetration;
 
 impl ResidualBlock for PointNonPenetration {
     fn name(&self) -> &str {
@@ -264,37 +247,41 @@ impl ResidualBlock for PointNonPenetration {
         1
     }
     fn parameter_sizes(&self) -> &[usize] {
-        &[6]
+        &[6, POINT_GEOMETRY, 1]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        out[0] = self.gap / self.h + dot6(&self.normal_wrench, x.block(0));
+        let (g, h) = (x.block(1), x.block(2)[0]);
+        out[0] = g[GAP] / h + dot6(&w6(g, WN), x.block(0));
     }
-    fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+    fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+        let (nu, g, h) = (x.block(0), x.block(1), x.block(2)[0]);
         for k in 0..6 {
-            jac.set(0, 0, k, self.normal_wrench[k]);
+            jac.set(0, 0, k, g[WN + k]);
         }
+        if jac.wants(1) {
+            jac.set(1, 0, GAP, 1.0 / h);
+            for k in 0..6 {
+                jac.set(1, 0, WN + k, nu[k]);
+            }
+        }
+        jac.set(2, 0, 0, -g[GAP] / (h * h));
     }
 }
 
 /// Maximum-dissipation friction at one point (`docs/model.md#friction` without the torsion row,
 /// `docs/model.md#point-contacts`): `0 = e_t² μ p_n W_tᵀν + p_t σ`, `0 = e_o² μ p_n W_oᵀν + p_o σ`.
 ///
-/// Reads `ν` (6), `p_n` (1), `p_f = (p_t, p_o)` (2), `σ` (1).
-#[derive(Clone, Debug)]
-pub struct PointFrictionDissipation {
-    /// `W_t = [t; r × t]` at the start of the step.
-    pub t_wrench: Vector6<f64>,
-    /// `W_o = [o; r × o]` at the start of the step.
-    pub o_wrench: Vector6<f64>,
-    /// Friction parameters (`e_r` is not used: a point has no torsional friction).
-    pub friction: FrictionParams,
-}
+/// Reads `ν` (6), `p_n` (1), `p_f = (p_t, p_o)` (2), `σ` (1), the point's `geometry` data
+/// ([`POINT_GEOMETRY`]: `W_t`, `W_o`) and the `friction` data (4; `e_r` is not used: a point has
+/// no torsional friction).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PointFrictionDissipation;
 
 impl PointFrictionDissipation {
-    fn scales(&self) -> [f64; 2] {
-        let f = &self.friction;
-        [f.e_t * f.e_t * f.mu, f.e_o * f.e_o * f.mu]
-    }
+    /// Index of the `geometry` data input.
+    pub const GEOMETRY: usize = 4;
+    /// Index of the `friction` data input.
+    pub const FRICTION: usize = 5;
 }
 
 impl ResidualBlock for PointFrictionDissipation {
@@ -305,15 +292,16 @@ impl ResidualBlock for PointFrictionDissipation {
         2
     }
     fn parameter_sizes(&self) -> &[usize] {
-        &[6, 1, 2, 1]
+        &[6, 1, 2, 1, POINT_GEOMETRY, 4]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let nu = x.block(0);
         let pn = x.block(1)[0];
         let pf = x.block(2);
         let sigma = x.block(3)[0];
-        let s = self.scales();
-        let slip = [dot6(&self.t_wrench, nu), dot6(&self.o_wrench, nu)];
+        let g = x.block(Self::GEOMETRY);
+        let s = point_scales(&FrictionParams::from_slice(x.block(Self::FRICTION)));
+        let slip = [dot6(&w6(g, WT), nu), dot6(&w6(g, WO), nu)];
         for i in 0..2 {
             out[i] = s[i] * pn * slip[i] + pf[i] * sigma;
         }
@@ -323,27 +311,40 @@ impl ResidualBlock for PointFrictionDissipation {
         let pn = x.block(1)[0];
         let pf = x.block(2);
         let sigma = x.block(3)[0];
-        let s = self.scales();
-        for (i, w) in [self.t_wrench, self.o_wrench].iter().enumerate() {
+        let g = x.block(Self::GEOMETRY);
+        let f = FrictionParams::from_slice(x.block(Self::FRICTION));
+        let s = point_scales(&f);
+        for (i, o) in [WT, WO].into_iter().enumerate() {
+            let w = w6(g, o);
             for k in 0..6 {
                 jac.set(0, i, k, s[i] * pn * w[k]);
+                jac.set(Self::GEOMETRY, i, o + k, s[i] * pn * nu[k]);
             }
-            jac.set(1, i, 0, s[i] * dot6(w, nu));
+            let slip = dot6(&w, nu);
+            jac.set(1, i, 0, s[i] * slip);
             jac.set(2, i, i, sigma);
             jac.set(3, i, 0, pf[i]);
+            if jac.wants(Self::FRICTION) {
+                let e = [f.e_t, f.e_o][i];
+                jac.set(Self::FRICTION, i, 0, e * e * pn * slip);
+                jac.set(Self::FRICTION, i, 1 + i, 2.0 * e * f.mu * pn * slip);
+            }
         }
     }
+}
+
+/// `(e_t² μ, e_o² μ)`.
+fn point_scales(f: &FrictionParams) -> [f64; 2] {
+    [f.e_t * f.e_t * f.mu, f.e_o * f.e_o * f.mu]
 }
 
 /// The friction ellipse of one point in the cone form of
 /// [`FrictionEllipsoid`](crate::blocks::FrictionEllipsoid) (same reason: at `p_n = 0` it bounds
 /// the friction impulse by the residual, not by its square root):
-/// `0 ≤ μ p_n − ‖(p_t/e_t, p_o/e_o)‖ ⊥ σ ≥ 0`. Reads `p_n` (1), `p_f` (2).
-#[derive(Clone, Debug)]
-pub struct PointFrictionEllipsoid {
-    /// Friction parameters (`e_r` is not used).
-    pub friction: FrictionParams,
-}
+/// `0 ≤ μ p_n − ‖(p_t/e_t, p_o/e_o)‖ ⊥ σ ≥ 0`. Reads `p_n` (1), `p_f` (2) and the `friction`
+/// data (4; `e_r` is not used).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct PointFrictionEllipsoid;
 
 impl ResidualBlock for PointFrictionEllipsoid {
     fn name(&self) -> &str {
@@ -353,20 +354,31 @@ impl ResidualBlock for PointFrictionEllipsoid {
         1
     }
     fn parameter_sizes(&self) -> &[usize] {
-        &[1, 2]
+        &[1, 2, 4]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let f = &self.friction;
-        out[0] = f.mu * x.block(0)[0] - ellipse_norm(f, x.block(1)).0;
+        let f = FrictionParams::from_slice(x.block(2));
+        out[0] = f.mu * x.block(0)[0] - ellipse_norm(&f, x.block(1)).0;
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let f = &self.friction;
-        let (norm, scaled) = ellipse_norm(f, x.block(1));
+        let f = FrictionParams::from_slice(x.block(2));
+        let p = x.block(1);
+        let (norm, scaled) = ellipse_norm(&f, p);
         jac.set(0, 0, 0, f.mu);
         // At p_f = 0 the norm has the unit ball as generalised gradient; 0 is an element.
         for k in 0..2 {
             let d = if norm > 0.0 { -scaled[k] / norm } else { 0.0 };
             jac.set(1, 0, k, d);
+        }
+        if jac.wants(2) {
+            // ∂‖u‖/∂e_k = −u_k²/(e_k ‖u‖), u_k = p_k/e_k; 0 at the kink p_f = 0.
+            jac.set(2, 0, 0, x.block(0)[0]);
+            if norm > 0.0 {
+                for (k, e) in [f.e_t, f.e_o].into_iter().enumerate() {
+                    let u = p[k] / e;
+                    jac.set(2, 0, 1 + k, u * u / (e * norm));
+                }
+            }
         }
     }
 }
@@ -440,30 +452,34 @@ struct PointBody {
     points: Vec<Vector3<f64>>,
     nu: VarId,
     q: VarId,
-    newton_euler: ResId,
-    kinematic: ResId,
+    data: BodyDataIds,
     state: BodyState,
 }
 
-/// Per-step residual blocks of one contact point.
-#[derive(Clone, Copy)]
-struct PointResiduals {
-    non_penetration: ResId,
-    friction: ResId,
-}
-
 /// The point-contact time stepper (`docs/model.md#point-contacts`): the step MCP is built once and
-/// its per-step data replaced with [`BlockMcp::replace_residual_block`]; each step warm-starts from
+/// its per-step data set with [`BlockMcp::set_data`] (the data blocks of
+/// `docs/model.md#data-blocks`, and each point's `geometry`); each step warm-starts from
 /// the previous one. Records have one [`ContactRecord`] per (point, half-space), body-major and
 /// then half-space-major: `a1 = a2` the point at the step end, `lg` its gap, `p_r = 0`.
 pub struct PointContacts {
     scene: Scene,
     bodies: Vec<PointBody>,
     contacts: Vec<PointVars>,
-    residuals: Vec<PointResiduals>,
+    /// The `geometry` data block of each point (parallel to `contacts`).
+    geometry: Vec<DataId>,
     mcp: BlockMcp,
     z: Vec<f64>,
     step: usize,
+}
+
+/// The name prefix of point `i` of a body against half-space `p` (just `point{i}` in a scene of
+/// one body and one half-space).
+fn point_tag(tagged: bool, body: &str, p: usize, i: usize) -> String {
+    if tagged {
+        format!("{body}.c{p}.point{i}")
+    } else {
+        format!("point{i}")
+    }
 }
 
 /// Checks the scene like the ECP stepper does and returns the normalised initial states.
@@ -545,6 +561,7 @@ impl PointContacts {
         }
         let states = validate(&scene)?;
         let mut problem = Problem::new();
+        let scene_data = add_scene_data(&mut problem, &scene.gravity, scene.h, &scene.friction);
         let mut bodies = Vec::with_capacity(scene.bodies.len());
         let mut contacts = Vec::new();
         let tagged = scene.bodies.len() > 1 || scene.planes.len() > 1;
@@ -560,11 +577,7 @@ impl PointContacts {
             );
             for p in 0..scene.planes.len() {
                 for i in 0..points.len() {
-                    let tag = if tagged {
-                        format!("{}.c{p}.point{i}", spec.name)
-                    } else {
-                        format!("point{i}")
-                    };
+                    let tag = point_tag(tagged, &spec.name, p, i);
                     contacts.push(PointVars {
                         body: b,
                         plane: p,
@@ -580,88 +593,72 @@ impl PointContacts {
                     });
                 }
             }
+            let data = add_body_data(&mut problem, &spec.name, spec.mass.mass, &spec.mass.inertia);
             bodies.push(PointBody {
                 spec: spec.clone(),
                 points,
                 nu,
                 q,
-                newton_euler: ResId(0),
-                kinematic: ResId(0),
+                data,
                 state,
             });
         }
 
         // Residual blocks, paired as in `docs/model.md#unknowns` (with the
-        // `docs/model.md#point-contacts` unknowns); their data are placeholders until
-        // `prepare_step` fills in the start of each step.
-        let frame0 = ContactFrame {
-            n: Vector3::z(),
-            t: Vector3::x(),
-            o: Vector3::y(),
-        };
-        let zero = PointWrenches::new(&Vector3::zeros(), &frame0);
-        for (b, body) in bodies.iter_mut().enumerate() {
-            let mine: Vec<&PointVars> = contacts.iter().filter(|c| c.body == b).collect();
-            let mut reads = vec![body.nu, body.q];
-            for c in &mine {
-                reads.extend([c.pn, c.pf]);
+        // `docs/model.md#point-contacts` unknowns); `prepare_step` sets their per-step data.
+        let SceneDataIds {
+            gravity,
+            h,
+            friction,
+        } = scene_data;
+        let geometry: Vec<DataId> = contacts
+            .iter()
+            .map(|c| {
+                let tag = point_tag(tagged, &bodies[c.body].spec.name, c.plane, c.point);
+                problem.add_data_block(DataBlock::new(
+                    format!("{tag}.geometry"),
+                    [0.0; POINT_GEOMETRY],
+                ))
+            })
+            .collect();
+        for (b, body) in bodies.iter().enumerate() {
+            let d = body.data;
+            let mut reads: Vec<Input> = vec![body.nu.into(), body.q.into()];
+            reads.extend([d.mass, d.inertia, d.start, d.wrench, gravity, h].map(Input::from));
+            let mut points = 0;
+            for (c, g) in contacts.iter().zip(&geometry).filter(|(c, _)| c.body == b) {
+                reads.extend([c.pn.into(), c.pf.into(), Input::from(*g)]);
+                points += 1;
             }
-            let placeholder = BodyStepData {
-                mass: body.spec.mass.mass,
-                inertia: body.spec.mass.inertia,
-                q_start: body.state.q,
-                nu_start: Vector6::zeros(),
-                wrench: Vector6::zeros(),
-                gravity: scene.gravity,
-                h: scene.h,
-            };
-            body.newton_euler = problem.add_residual_block(
-                body.nu,
-                PointNewtonEuler::for_body(placeholder, vec![zero; mine.len()]),
-                &reads,
-            )?;
-            body.kinematic = problem.add_residual_block(
+            problem.add_residual_block(body.nu, PointNewtonEuler::new(points), reads)?;
+            problem.add_residual_block(
                 body.q,
-                KinematicMap {
-                    x_start: body.state.x,
-                    q_start: body.state.q,
-                    h: scene.h,
-                },
-                &[body.q, body.nu],
+                KinematicMap,
+                &[
+                    body.q.into(),
+                    body.nu.into(),
+                    Input::from(d.start),
+                    h.into(),
+                ],
             )?;
         }
-        let mut residuals = Vec::with_capacity(contacts.len());
-        for c in &contacts {
+        for (c, g) in contacts.iter().zip(&geometry) {
             let nu = bodies[c.body].nu;
-            let non_penetration = problem.add_residual_block(
+            let g = Input::from(*g);
+            problem.add_residual_block(
                 c.pn,
-                PointNonPenetration {
-                    gap: 0.0,
-                    h: scene.h,
-                    normal_wrench: zero.normal,
-                },
-                &[nu],
+                PointNonPenetration,
+                &[nu.into(), g, Input::from(h)],
             )?;
-            let friction = problem.add_residual_block(
-                c.pf,
-                PointFrictionDissipation {
-                    t_wrench: zero.t,
-                    o_wrench: zero.o,
-                    friction: scene.friction,
-                },
-                &[nu, c.pn, c.pf, c.sigma],
-            )?;
+            let vars = [nu, c.pn, c.pf, c.sigma].map(Input::from);
+            let mut reads = vars.to_vec();
+            reads.extend([g, friction.into()]);
+            problem.add_residual_block(c.pf, PointFrictionDissipation, reads)?;
             problem.add_residual_block(
                 c.sigma,
-                PointFrictionEllipsoid {
-                    friction: scene.friction,
-                },
-                &[c.pn, c.pf],
+                PointFrictionEllipsoid,
+                &[c.pn.into(), c.pf.into(), Input::from(friction)],
             )?;
-            residuals.push(PointResiduals {
-                non_penetration,
-                friction,
-            });
         }
         let mcp = problem.build()?;
         let mut pc = PointContacts {
@@ -669,7 +666,7 @@ impl PointContacts {
             scene,
             bodies,
             contacts,
-            residuals,
+            geometry,
             mcp,
             step: 0,
         };
@@ -800,10 +797,8 @@ impl PointContacts {
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
-            let mp = &body.spec.mass;
             let rot = rotation_matrix(&s.q);
             let load = body.spec.load.at(t_u);
-            let mut wrenches = Vec::new();
             let mut updates = Vec::new();
             for (i, c) in self.contacts.iter().enumerate() {
                 if c.body != b {
@@ -813,47 +808,14 @@ impl PointContacts {
                 let (n, t, o) = plane.contact_frame();
                 let r = rot * body.points[c.point];
                 let w = PointWrenches::new(&r, &ContactFrame { n, t, o });
-                wrenches.push(w);
-                updates.push((
-                    self.residuals[i],
-                    PointNonPenetration {
-                        gap: plane.value(&(s.x + r)),
-                        h,
-                        normal_wrench: w.normal,
-                    },
-                    PointFrictionDissipation {
-                        t_wrench: w.t,
-                        o_wrench: w.o,
-                        friction: self.scene.friction,
-                    },
-                ));
+                updates.push((self.geometry[i], w.geometry_values(plane.value(&(s.x + r)))));
             }
-            let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
-            let ne = PointNewtonEuler::for_body(
-                BodyStepData {
-                    mass: mp.mass,
-                    inertia: mp.inertia,
-                    q_start: s.q,
-                    nu_start,
-                    wrench: load,
-                    gravity: self.scene.gravity,
-                    h,
-                },
-                wrenches,
-            );
-            let km = KinematicMap {
-                x_start: s.x,
-                q_start: s.q,
-                h,
-            };
-            let (ne_id, km_id, nu_id, q_id) = (body.newton_euler, body.kinematic, body.nu, body.q);
-            self.mcp.replace_residual_block(ne_id, Arc::new(ne))?;
-            self.mcp.replace_residual_block(km_id, Arc::new(km))?;
-            for (ids, np, fr) in updates {
-                self.mcp
-                    .replace_residual_block(ids.non_penetration, Arc::new(np))?;
-                self.mcp
-                    .replace_residual_block(ids.friction, Arc::new(fr))?;
+            let (data, nu_id, q_id) = (body.data, body.nu, body.q);
+            self.mcp
+                .set_data(data.start, &start_values(&s.x, &s.q, &s.v, &s.w))?;
+            self.mcp.set_data(data.wrench, load.as_slice())?;
+            for (g, values) in updates {
+                self.mcp.set_data(g, &values)?;
             }
             // Warm start: ν from the previous solution (= ν^u), q predicted by the kinematic map.
             let nu_prev = self.get(nu_id).to_vec();
@@ -927,7 +889,9 @@ impl PointContacts {
         let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let (z, summary, converged) = match result {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", usize::from(retried)));
+                sol.summary
+                    .counters
+                    .add(ecp_model::Counter::Retries, usize::from(retried));
                 (sol.z, sol.summary, true)
             }
             Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),

@@ -10,8 +10,9 @@
 //! maximum-dissipation rows (R10) and the friction ellipsoid in its cone form (R11) — the same
 //! form as [`crate::blocks::FrictionEllipsoid`], so the two models have the same solution set.
 //! The step MCP has four unknowns and two residual blocks, [`ReducedFriction`] and
-//! [`ReducedEllipsoid`], built once and updated per step with
-//! [`BlockMcp::replace_residual_block`].
+//! [`ReducedEllipsoid`], built once; they read the `friction` data block and the step's
+//! `sliding` data block ([`SLIDING_DATA`]: (R1)–(R3)), which is updated per step with
+//! [`BlockMcp::set_data`].
 //!
 //! The model applies while the body stays in that planar sliding (or sticking) motion:
 //! [`ReducedSliding::new`] refuses scenes it does not describe and [`ReducedSliding`]'s
@@ -20,17 +21,16 @@
 //! (tipping). Sticking (`σ = 0`) is a branch of the same complementarity problem and needs no
 //! special handling.
 
-use std::sync::Arc;
 use std::time::Instant;
 
 use nalgebra::{Vector3, Vector4};
 
 use ecp_model::{
-    BlockMcp, JacobianBlocks, McpSolver, Params, Problem, ResId, SolveError, Summary, VarBlock,
-    VarId,
+    BlockMcp, DataBlock, DataId, Input, JacobianBlocks, McpSolver, Params, Problem, SolveError,
+    Summary, VarBlock, VarId,
 };
 
-use crate::blocks::{ContactFrame, FrictionParams};
+use crate::blocks::{ContactFrame, FRICTION_DATA, FrictionParams};
 use crate::fallback::StepMethod;
 use crate::formulation::{Formulation, Stepper};
 use crate::geometry::{
@@ -79,6 +79,22 @@ pub struct SlidingStepData {
     pub angular: Vector3<f64>,
 }
 
+/// Components of the `sliding` data block of the reduced model: the fields of
+/// [`SlidingStepData`] besides the frame and friction.
+pub const SLIDING_DATA: [&str; 11] = [
+    "mass",
+    "height",
+    "momentum.x",
+    "momentum.y",
+    "momentum.z",
+    "spin_inertia.x",
+    "spin_inertia.y",
+    "spin_inertia.z",
+    "angular.x",
+    "angular.y",
+    "angular.z",
+];
+
 /// The impulses, ECP offset and slip of a candidate `y = (v_t, v_o, ω_n)` (R4)–(R9), with
 /// their derivatives with respect to `y` (entry `[k][j]` is `∂(·)_k/∂y_j`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -100,6 +116,75 @@ pub struct SlidingPoint {
 }
 
 impl SlidingStepData {
+    /// The step data with frame `frame` from the values of a `friction` data block and a
+    /// `sliding` one ([`SLIDING_DATA`]).
+    pub fn from_data(frame: ContactFrame, friction: &[f64], sliding: &[f64]) -> Self {
+        let v = |o: usize| Vector3::new(sliding[o], sliding[o + 1], sliding[o + 2]);
+        SlidingStepData {
+            frame,
+            friction: FrictionParams::from_slice(friction),
+            mass: sliding[0],
+            height: sliding[1],
+            momentum: v(2),
+            spin_inertia: v(5),
+            angular: v(8),
+        }
+    }
+
+    /// The values of the `sliding` data block ([`SLIDING_DATA`]).
+    pub fn sliding_values(&self) -> [f64; 11] {
+        let (p, j, c) = (self.momentum, self.spin_inertia, self.angular);
+        [
+            self.mass,
+            self.height,
+            p.x,
+            p.y,
+            p.z,
+            j.x,
+            j.y,
+            j.z,
+            c.x,
+            c.y,
+            c.z,
+        ]
+    }
+
+    /// The derivatives of `p_n`, `p_f` and the slip at `y` (the point `p`) along a change `d` of
+    /// the data (its frame is not used): the tangent of (R4)–(R8).
+    fn point_tangent(
+        &self,
+        y: &[f64],
+        p: &SlidingPoint,
+        d: &SlidingStepData,
+    ) -> (f64, [f64; 3], [f64; 3]) {
+        let ContactFrame { n, t, o } = self.frame;
+        let (vt, vo, wn) = (y[0], y[1], y[2]);
+        let (pt, po) = (p.pf[0], p.pf[1]);
+        let [rho_t, rho_o] = p.rho;
+        let hh = self.height;
+        let dpn = -n.dot(&d.momentum);
+        let dpt = d.mass * vt - t.dot(&d.momentum);
+        let dpo = d.mass * vo - o.dot(&d.momentum);
+        let dl = d.spin_inertia * wn - d.angular;
+        let drho_o = (t.dot(&dl) - d.height * po - hh * dpo - rho_o * dpn) / p.pn;
+        let drho_t = (-(o.dot(&dl) + d.height * pt + hh * dpt) - rho_t * dpn) / p.pn;
+        let dpr = n.dot(&dl) - drho_t * po - rho_t * dpo + drho_o * pt + rho_o * dpt;
+        (dpn, [dpt, dpo, dpr], [-wn * drho_o, wn * drho_t, 0.0])
+    }
+
+    /// Data direction `k` of the reduced blocks' data inputs as a unit change: the four friction
+    /// parameters, then the eleven components of [`SLIDING_DATA`].
+    fn unit_direction(&self, k: usize) -> SlidingStepData {
+        let mut friction = [0.0; 4];
+        let mut sliding = [0.0; 11];
+        if k < 4 {
+            friction[k] = 1.0;
+        } else {
+            sliding[k - 4] = 1.0;
+        }
+        SlidingStepData::from_data(self.frame, &friction, &sliding)
+    }
+
     /// The normal impulse fixed by the normal balance with `v·n = 0` (R4): `p_n = −n·P`.
     pub fn normal_impulse(&self) -> f64 {
         -self.frame.n.dot(&self.momentum)
@@ -186,15 +271,21 @@ impl SlidingStepData {
 
 /// Maximum-dissipation rows of the reduced model (R10), paired with `y = (v_t, v_o, ω_n)`:
 /// `0 = w_k (e_k² μ p_n s_k(y) + p_k(y) σ)` for `k = t, o, r`, with the impulses and the slip at
-/// the ECP eliminated through (R4)–(R8). Reads `y` (3) and `σ` (1).
+/// the ECP eliminated through (R4)–(R8). Reads `y` (3), `σ` (1) and the `friction` (4) and
+/// `sliding` ([`SLIDING_DATA`]) data.
 ///
 /// The row scale `w_k = 1/(e_k² μ p_n)` ([`SlidingStepData::row_scales`]) does not change the
 /// solutions; it puts the rows in slip units, so that a natural residual r bounds the slip error
 /// of a sticking step by r (`docs/decisions.md#reduced-model-friction-rows-in-slip-units`).
 #[derive(Clone, Debug)]
 pub struct ReducedFriction {
-    /// The step's data.
-    pub data: SlidingStepData,
+    /// Contact frame `(n, t, o)` of the half-space.
+    pub frame: ContactFrame,
+}
+
+impl ReducedFriction {
+    /// Index of the `friction` data input (the `sliding` one follows).
+    pub const FRICTION: usize = 2;
 }
 
 impl ecp_model::ResidualBlock for ReducedFriction {
@@ -205,22 +296,27 @@ impl ecp_model::ResidualBlock for ReducedFriction {
         3
     }
     fn parameter_sizes(&self) -> &[usize] {
-        &[3, 1]
+        &[3, 1, 4, 11]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let p = self.data.point(x.block(0));
+        let k = Self::FRICTION;
+        let data = SlidingStepData::from_data(self.frame, x.block(k), x.block(k + 1));
+        let p = data.point(x.block(0));
         let sigma = x.block(1)[0];
-        let s = self.data.friction_scales();
-        let w = self.data.row_scales();
+        let s = data.friction_scales();
+        let w = data.row_scales();
         for k in 0..3 {
             out[k] = w[k] * (s[k] * p.pn * p.slip[k] + p.pf[k] * sigma);
         }
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let p = self.data.point(x.block(0));
+        let kf = Self::FRICTION;
+        let data = SlidingStepData::from_data(self.frame, x.block(kf), x.block(kf + 1));
+        let y = x.block(0);
+        let p = data.point(y);
         let sigma = x.block(1)[0];
-        let s = self.data.friction_scales();
-        let w = self.data.row_scales();
+        let s = data.friction_scales();
+        let w = data.row_scales();
         for k in 0..3 {
             for j in 0..3 {
                 jac.set(
@@ -232,16 +328,54 @@ impl ecp_model::ResidualBlock for ReducedFriction {
             }
             jac.set(1, k, 0, w[k] * p.pf[k]);
         }
+        // Data: r_k = w_k (c_k p_n s_k + p_k σ), c_k = e_k² μ, w_k = 1/(c_k p_n) (the constant 1
+        // where that is not a positive number), along each unit change of the data.
+        let f = data.friction;
+        let e = [f.e_t, f.e_o, f.e_r];
+        for dir in 0..15 {
+            let (input, col) = if dir < 4 {
+                (kf, dir)
+            } else {
+                (kf + 1, dir - 4)
+            };
+            if !jac.wants(input) {
+                continue;
+            }
+            let d = data.unit_direction(dir);
+            let de = [d.friction.e_t, d.friction.e_o, d.friction.e_r];
+            let (dpn, dpf, dslip) = data.point_tangent(y, &p, &d);
+            for k in 0..3 {
+                let ds = 2.0 * e[k] * de[k] * f.mu + e[k] * e[k] * d.friction.mu;
+                let raw = 1.0 / (s[k] * p.pn);
+                let dw = if raw.is_finite() && raw > 0.0 {
+                    -w[k] * w[k] * (ds * p.pn + s[k] * dpn)
+                } else {
+                    0.0
+                };
+                let inner = s[k] * p.pn * p.slip[k] + p.pf[k] * sigma;
+                let d_inner = ds * p.pn * p.slip[k]
+                    + s[k] * dpn * p.slip[k]
+                    + s[k] * p.pn * dslip[k]
+                    + dpf[k] * sigma;
+                jac.set(input, k, col, dw * inner + w[k] * d_inner);
+            }
+        }
     }
 }
 
 /// Friction ellipsoid of the reduced model in its cone form (R11), paired with σ:
 /// `0 ≤ μ p_n − ‖E⁻¹ p_f(y)‖ ⊥ σ ≥ 0`, `E = diag(e_t, e_o, e_r)` — the row of
-/// [`crate::blocks::FrictionEllipsoid`] with the impulses eliminated. Reads `y` (3).
+/// [`crate::blocks::FrictionEllipsoid`] with the impulses eliminated. Reads `y` (3) and the
+/// `friction` (4) and `sliding` ([`SLIDING_DATA`]) data.
 #[derive(Clone, Debug)]
 pub struct ReducedEllipsoid {
-    /// The step's data.
-    pub data: SlidingStepData,
+    /// Contact frame `(n, t, o)` of the half-space.
+    pub frame: ContactFrame,
+}
+
+impl ReducedEllipsoid {
+    /// Index of the `friction` data input (the `sliding` one follows).
+    pub const FRICTION: usize = 1;
 }
 
 impl ecp_model::ResidualBlock for ReducedEllipsoid {
@@ -252,15 +386,20 @@ impl ecp_model::ResidualBlock for ReducedEllipsoid {
         1
     }
     fn parameter_sizes(&self) -> &[usize] {
-        &[3]
+        &[3, 4, 11]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let p = self.data.point(x.block(0));
-        out[0] = self.data.friction.mu * p.pn - scaled_norm(&self.data.friction, &p.pf).0;
+        let k = Self::FRICTION;
+        let data = SlidingStepData::from_data(self.frame, x.block(k), x.block(k + 1));
+        let p = data.point(x.block(0));
+        out[0] = data.friction.mu * p.pn - scaled_norm(&data.friction, &p.pf).0;
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let p = self.data.point(x.block(0));
-        let (norm, g) = scaled_norm(&self.data.friction, &p.pf);
+        let kf = Self::FRICTION;
+        let data = SlidingStepData::from_data(self.frame, x.block(kf), x.block(kf + 1));
+        let y = x.block(0);
+        let p = data.point(y);
+        let (norm, g) = scaled_norm(&data.friction, &p.pf);
         // At p_f = 0 the norm has the unit ball as generalised gradient; 0 is an element of it
         // (as in FrictionEllipsoid).
         if norm > 0.0 {
@@ -268,6 +407,34 @@ impl ecp_model::ResidualBlock for ReducedEllipsoid {
                 let d: f64 = (0..3).map(|k| g[k] * p.d_pf[k][j]).sum();
                 jac.set(0, 0, j, -d / norm);
             }
+        }
+        let f = data.friction;
+        let e = [f.e_t, f.e_o, f.e_r];
+        for dir in 0..15 {
+            let (input, col) = if dir < 4 {
+                (kf, dir)
+            } else {
+                (kf + 1, dir - 4)
+            };
+            if !jac.wants(input) {
+                continue;
+            }
+            let d = data.unit_direction(dir);
+            let (dpn, dpf, _) = data.point_tangent(y, &p, &d);
+            let de = [d.friction.e_t, d.friction.e_o, d.friction.e_r];
+            // ‖u‖ with u_k = p_k/e_k: d‖u‖ = Σ u_k du_k / ‖u‖ (0 at the kink p_f = 0).
+            let dnorm = if norm > 0.0 {
+                (0..3)
+                    .map(|k| {
+                        let u = p.pf[k] / e[k];
+                        u * (dpf[k] / e[k] - p.pf[k] * de[k] / (e[k] * e[k]))
+                    })
+                    .sum::<f64>()
+                    / norm
+            } else {
+                0.0
+            };
+            jac.set(input, 0, col, d.friction.mu * p.pn + f.mu * dpn - dnorm);
         }
     }
 }
@@ -342,8 +509,8 @@ pub struct ReducedSliding {
     mcp: BlockMcp,
     velocity: VarId,
     sigma: VarId,
-    friction_block: ResId,
-    ellipsoid_block: ResId,
+    /// The `sliding` data block ([`SLIDING_DATA`]), set per step.
+    sliding: DataId,
     data: SlidingStepData,
     z: Vec<f64>,
     /// Friction impulses `(p_t, p_o, p_r)` of the last step taken (the warm start's impulses).
@@ -475,10 +642,20 @@ impl ReducedSliding {
             spin_inertia: Vector3::zeros(),
             angular: Vector3::zeros(),
         };
-        let friction_block =
-            problem.add_residual_block(velocity, ReducedFriction { data }, &[velocity, sigma])?;
-        let ellipsoid_block =
-            problem.add_residual_block(sigma, ReducedEllipsoid { data }, &[velocity])?;
+        let friction = problem.add_data_block(
+            DataBlock::new("friction", scene.friction.values()).with_component_names(FRICTION_DATA),
+        );
+        let sliding = problem.add_data_block(
+            DataBlock::new(format!("{}.sliding", body.name), data.sliding_values())
+                .with_component_names(SLIDING_DATA),
+        );
+        let (f, sl) = (Input::from(friction), Input::from(sliding));
+        problem.add_residual_block(
+            velocity,
+            ReducedFriction { frame },
+            &[velocity.into(), sigma.into(), f, sl],
+        )?;
+        problem.add_residual_block(sigma, ReducedEllipsoid { frame }, &[velocity.into(), f, sl])?;
         let mcp = problem.build()?;
         let dim = ecp_model::Mcp::dim(&mcp);
         let mut stepper = ReducedSliding {
@@ -490,8 +667,7 @@ impl ReducedSliding {
             mcp,
             velocity,
             sigma,
-            friction_block,
-            ellipsoid_block,
+            sliding,
             data,
             z: vec![0.0; dim],
             impulses: None,
@@ -577,7 +753,7 @@ impl ReducedSliding {
         self.data.point(&z[self.mcp.range(self.velocity)])
     }
 
-    /// Updates the per-step data (R1)–(R3) at `t_u` and replaces the two residual blocks; the
+    /// Updates the per-step data (R1)–(R3) at `t_u` (the `sliding` data block); the
     /// warm start is the previous solution. Refuses the step (lift-off) when the normal impulse
     /// (R4) would be ≤ 0.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
@@ -597,10 +773,7 @@ impl ReducedSliding {
             });
         }
         self.data = data;
-        self.mcp
-            .replace_residual_block(self.friction_block, Arc::new(ReducedFriction { data }))?;
-        self.mcp
-            .replace_residual_block(self.ellipsoid_block, Arc::new(ReducedEllipsoid { data }))?;
+        self.mcp.set_data(self.sliding, &data.sliding_values())?;
         if let Some(pf) = self.impulses {
             self.warm_start_from_impulses(pf);
         }
@@ -664,7 +837,9 @@ impl ReducedSliding {
         let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let (z, summary, converged) = match result {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", retries));
+                sol.summary
+                    .counters
+                    .add(ecp_model::Counter::Retries, retries);
                 (sol.z, sol.summary, true)
             }
             Err(SolveError::NotConverged { best }) => (best.z, best.summary, false),

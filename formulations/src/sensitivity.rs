@@ -6,8 +6,10 @@
 //! state (x, Q renormalised, v, ω) with respect to every **step input** ([`StepInput`]): the friction parameters μ, e_t, e_o,
 //! e_r, each body's mass and body-frame inertia (six entries of the symmetric matrix,
 //! [`InertiaEntry`]), its start-of-step state `x^u, Q^u, v^u, ω^u`, and the applied wrench of the
-//! step (force and torque at the CM, world frame, evaluated at `t_u`). The residual blocks state
-//! their derivatives with respect to these data (`blocks.rs`), `ecp_model::sensitivity` does
+//! step (force and torque at the CM, world frame, evaluated at `t_u`). Each step input is a
+//! component of a data block of the step problem ([`StepInput::data`],
+//! `docs/model.md#data-blocks`), the residual blocks write their derivatives with respect to
+//! those in their Jacobians ([`crate::blocks`]), `ecp_model::sensitivity` does
 //! the implicit differentiation with the active set, and this module adds what only the
 //! formulation knows:
 //!
@@ -74,7 +76,7 @@ use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 use ecp_model::sensitivity::{
     ActiveSetOptions, ComponentStatus, ImplicitError, ReducedSystem, SolveKind, classify,
 };
-use ecp_model::{Mcp, McpSolver, ModelError, ResId};
+use ecp_model::{DataId, Mcp, McpSolver, ModelError};
 
 use crate::formulation::Formulation;
 use crate::geometry::MassProperties;
@@ -544,6 +546,31 @@ impl StepInput {
         (body < bodies && k < len).then_some(FRICTION_INPUTS + BODY_INPUTS * body + offset + k)
     }
 
+    /// The data block of `sim`'s step problem this input is a component of, and the component
+    /// (`docs/model.md#data-blocks`); `None` for a body the scene does not have.
+    pub fn data(&self, sim: &Simulation) -> Option<(DataId, usize)> {
+        use crate::blocks::data::start;
+        let scene = sim.scene_data();
+        Some(match *self {
+            StepInput::Mu => (scene.friction, 0),
+            StepInput::Et => (scene.friction, 1),
+            StepInput::Eo => (scene.friction, 2),
+            StepInput::Er => (scene.friction, 3),
+            StepInput::Mass { body } => (sim.body_data(body)?.mass, 0),
+            StepInput::Inertia { body, entry } => (sim.body_data(body)?.inertia, entry.index()),
+            StepInput::Position { body, axis } => (sim.body_data(body)?.start, start::X + axis),
+            StepInput::Orientation { body, component } => {
+                (sim.body_data(body)?.start, start::Q + component)
+            }
+            StepInput::Velocity { body, axis } => (sim.body_data(body)?.start, start::V + axis),
+            StepInput::AngularVelocity { body, axis } => {
+                (sim.body_data(body)?.start, start::W + axis)
+            }
+            StepInput::Force { body, axis } => (sim.body_data(body)?.wrench, axis),
+            StepInput::Torque { body, axis } => (sim.body_data(body)?.wrench, 3 + axis),
+        })
+    }
+
     /// Every step input of a scene with `bodies` bodies, in column order.
     pub fn all(bodies: usize) -> Vec<StepInput> {
         let mut v = vec![StepInput::Mu, StepInput::Et, StepInput::Eo, StepInput::Er];
@@ -709,28 +736,6 @@ impl StepSensitivity {
     }
 }
 
-/// Where a residual block's data go among the step inputs.
-#[derive(Clone, Copy)]
-enum DataMap {
-    None,
-    /// Newton–Euler of a body: data (NEWTON_EULER_DATA) → body inputs.
-    NewtonEuler(usize),
-    /// Kinematic map of a body: x^u, Q^u.
-    Kinematic(usize),
-    /// Friction blocks: μ, e_t, e_o, e_r.
-    Friction,
-}
-
-/// Offsets within a body's inputs of the Newton–Euler data (mass, inertia, Q^u, v^u, ω^u,
-/// force, torque).
-fn newton_euler_column(k: usize) -> usize {
-    match k {
-        0..7 => k,           // mass, inertia
-        7..11 => 10 + k - 7, // Q^u
-        _ => 14 + k - 11,    // v^u, ω^u, force, torque (contiguous)
-    }
-}
-
 /// Step-sensitivity workspace, reused from step to step (the reduced system keeps its
 /// symbolic analysis).
 #[derive(Debug, Default)]
@@ -784,31 +789,7 @@ impl StepDifferentiator {
         let bodies = sim.scene().bodies.len();
         let inputs = StepInput::all(bodies);
         let p = inputs.len();
-        let mut map = vec![DataMap::None; mcp.num_residual_blocks()];
-        for b in 0..bodies {
-            let (ne, km) = sim.body_blocks(b);
-            map[ne.0] = DataMap::NewtonEuler(b);
-            map[km.0] = DataMap::Kinematic(b);
-        }
-        for r in sim.friction_blocks() {
-            map[r.0] = DataMap::Friction;
-        }
-        let column = |r: ResId, k: usize| -> Option<usize> {
-            let base = |b: usize| FRICTION_INPUTS + BODY_INPUTS * b;
-            match map[r.0] {
-                DataMap::None => None,
-                DataMap::Friction => (k < FRICTION_INPUTS).then_some(k),
-                DataMap::NewtonEuler(b) => {
-                    let (block, _, _) = mcp.residual_block(r);
-                    // Only the body-data form has the layout of NEWTON_EULER_DATA.
-                    (block.num_data() == crate::blocks::NEWTON_EULER_DATA.len())
-                        .then(|| base(b) + newton_euler_column(k))
-                }
-                DataMap::Kinematic(b) => (k < 7).then_some(base(b) + 7 + k),
-            }
-        };
-        let mut rhs = vec![0.0; n * p];
-        mcp.data_jacobian(z, p, &column, &mut rhs)?;
+        let rhs = input_columns(sim, z, &inputs)?;
         // Stage 1: everything but the held-contact geometry.
         let mut first = status.clone();
         for &i in &geometry {
@@ -893,6 +874,51 @@ impl StepDifferentiator {
             solve,
         })
     }
+}
+
+/// `∂F/∂θ` at `z` for the step inputs `inputs` (one column each, `n × inputs.len()`,
+/// column-major): the data Jacobian of the data blocks they live in ([`StepInput::data`]).
+fn input_columns(
+    sim: &Simulation,
+    z: &[f64],
+    inputs: &[StepInput],
+) -> Result<Vec<f64>, SensitivityError> {
+    let mcp = sim.mcp();
+    let n = mcp.dim();
+    // The data blocks the inputs live in, each once, and the column of each block's first
+    // component in the data Jacobian.
+    let mut wrt: Vec<DataId> = Vec::new();
+    let mut first: Vec<usize> = Vec::new();
+    let mut at = Vec::with_capacity(inputs.len());
+    let mut p = 0;
+    for input in inputs {
+        let (d, k) = input.data(sim).ok_or_else(|| {
+            SensitivityError::Param(format!(
+                "step input {input:?} names a body the scene does not have"
+            ))
+        })?;
+        let slot = match wrt.iter().position(|w| *w == d) {
+            Some(slot) => slot,
+            None => {
+                wrt.push(d);
+                first.push(p);
+                p += mcp.data(d).len();
+                wrt.len() - 1
+            }
+        };
+        at.push(first[slot] + k);
+    }
+    let mut full = vec![0.0; n * p];
+    mcp.data_jacobian(z, &wrt, &mut full)?;
+    // The step inputs are laid out as their data blocks ([`StepInput::all`]): no reordering.
+    if at.iter().copied().eq(0..p) {
+        return Ok(full);
+    }
+    let mut rhs = vec![0.0; n * inputs.len()];
+    for (c, &col) in at.iter().enumerate() {
+        rhs[c * n..(c + 1) * n].copy_from_slice(&full[col * n..(col + 1) * n]);
+    }
+    Ok(rhs)
 }
 
 /// The step sensitivities of the last step `sim` took ([`StepDifferentiator::differentiate`]

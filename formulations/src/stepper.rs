@@ -6,12 +6,14 @@ use std::time::Instant;
 
 use nalgebra::{Vector3, Vector4, Vector6};
 
-use ecp_model::{BlockMcp, McpSolver, Problem, ResId, SolveError, Summary, VarBlock, VarId};
+use ecp_model::{
+    BlockMcp, DataId, Input, McpSolver, Problem, ResId, SolveError, Summary, VarBlock, VarId,
+};
 
 use crate::blocks::{
-    BodyStepData, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
+    BodyDataIds, ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid,
     FrictionParams, HalfSpaceSide, HullFaces, KinematicMap, NewtonEuler, NonPenetration,
-    NormalCone, mass_matrix,
+    NormalCone, SceneDataIds, add_body_data, add_plane_data, add_scene_data, start_values,
 };
 use crate::fallback::{Fallbacks, StepMethod};
 use crate::formulation::{Formulation, Stepper};
@@ -348,8 +350,8 @@ pub(crate) struct BodyData {
     kinematic: ResId,
     frames: Vec<ContactFrame>,
     pub(crate) state: BodyState,
-    /// `p_app` of the step being prepared (gravity and the load; read by the structural view).
-    pub(crate) impulse: Vector6<f64>,
+    /// The body's data blocks (`docs/model.md#data-blocks`).
+    pub(crate) data: BodyDataIds,
 }
 
 /// Per-contact values at the end of a step.
@@ -511,8 +513,8 @@ pub struct Simulation {
     z: Vec<f64>,
     step: usize,
     t: f64,
-    /// The residual blocks of the friction law (for the step sensitivities' data map).
-    pub(crate) friction_blocks: Vec<ResId>,
+    /// The scene-wide data blocks (`docs/model.md#data-blocks`).
+    pub(crate) scene_data: SceneDataIds,
     /// The last step taken, while its step problem is still the one in `mcp`.
     last: Option<LastStep>,
     /// Origin of the step problem's coordinates: positions in `z` and in the blocks are relative
@@ -520,9 +522,9 @@ pub struct Simulation {
     /// from it, so that a scene far from the world origin is solved as precisely as the same
     /// scene near it.
     origin: Vector3<f64>,
-    /// The half-space blocks of each contact (C4 `HalfSpaceSide`, C5 `NonPenetration`), the
-    /// only ones that hold an absolute position (the plane's offset).
-    plane_blocks: Vec<(ResId, ResId)>,
+    /// The offset data block of each half-space, the only data that hold an absolute position
+    /// besides the bodies' start positions.
+    plane_data: Vec<DataId>,
     /// The half-spaces in the step problem's coordinates (relative to `origin`).
     pub(crate) step_planes: Vec<HalfSpace>,
 }
@@ -576,6 +578,10 @@ impl Simulation {
         validate_parameters(&scene, true)?;
 
         let mut problem = Problem::new();
+        let scene_data = add_scene_data(&mut problem, &scene.gravity, scene.h, &scene.friction);
+        let plane_data: Vec<DataId> = (scene.planes.iter().enumerate())
+            .map(|(p, plane)| add_plane_data(&mut problem, p, plane.offset()))
+            .collect();
         let mut bodies = Vec::new();
         let mut contacts = Vec::new();
         let mut contact_hulls = Vec::new();
@@ -667,6 +673,7 @@ impl Simulation {
                     contact_hulls.push(set.clone());
                 }
             }
+            let data = add_body_data(&mut problem, &spec.name, spec.mass.mass, &spec.mass.inertia);
             bodies.push(BodyData {
                 spec: spec.clone(),
                 hull,
@@ -676,41 +683,46 @@ impl Simulation {
                 kinematic: ResId(0),
                 frames,
                 state,
-                impulse: Vector6::zeros(),
+                data,
             });
         }
 
-        // Residual blocks (`docs/model.md#residual-blocks`), paired as in `docs/model.md#unknowns`.
-        let mut friction_blocks = Vec::new();
-        let mut plane_blocks = Vec::new();
+        // Residual blocks (`docs/model.md#residual-blocks`), paired as in `docs/model.md#unknowns`,
+        // reading the data blocks of `docs/model.md#data-blocks`; `prepare_span` sets the
+        // per-step data.
+        let SceneDataIds {
+            gravity,
+            h: step_length,
+            friction,
+        } = scene_data;
         for (b, body) in bodies.iter_mut().enumerate() {
             let mine: Vec<(&ContactVars, &ConvexHull)> = contacts
                 .iter()
                 .zip(&contact_hulls)
                 .filter(|(c, _)| c.body == b)
                 .collect();
-            let mut reads = vec![body.nu, body.q];
+            let mut reads: Vec<Input> = vec![body.nu.into(), body.q.into()];
             for (c, _) in &mine {
-                reads.extend([c.a1, c.pn, c.pf]);
+                reads.extend([c.a1, c.pn, c.pf].map(Input::from));
             }
+            let d = body.data;
+            reads.extend(
+                [d.mass, d.inertia, d.start, d.wrench, gravity, step_length].map(Input::from),
+            );
             body.newton_euler = problem.add_residual_block(
                 body.nu,
-                NewtonEuler::new(
-                    mass_matrix(body.spec.mass.mass, &body.spec.mass.inertia, &body.state.q),
-                    Vector6::zeros(),
-                    Vector6::zeros(),
-                    body.frames.clone(),
-                ),
-                &reads,
+                NewtonEuler::new(body.frames.clone()),
+                reads,
             )?;
             body.kinematic = problem.add_residual_block(
                 body.q,
-                KinematicMap {
-                    x_start: body.state.x,
-                    q_start: body.state.q,
-                    h: scene.h,
-                },
-                &[body.q, body.nu],
+                KinematicMap,
+                &[
+                    body.q.into(),
+                    body.nu.into(),
+                    Input::from(d.start),
+                    step_length.into(),
+                ],
             )?;
             // Length-valued rows in velocity units (1/h): a penetration of h·Δv then weighs
             // like a velocity error Δv (`docs/model.md#contact`,
@@ -719,8 +731,7 @@ impl Simulation {
             for ((c, set), frame) in mine.iter().zip(&body.frames) {
                 let normals: Vec<Vector3<f64>> = set.faces().iter().map(|f| f.normal).collect();
                 let offsets: Vec<f64> = set.faces().iter().map(|f| f.offset).collect();
-                let plane = &scene.planes[c.plane];
-                let ng = plane.normal();
+                let ng = scene.planes[c.plane].normal();
                 problem.add_residual_block(
                     c.a1,
                     ClosestPointAlignment { normal: ng, scale },
@@ -740,40 +751,26 @@ impl Simulation {
                     },
                     &[c.a1, body.q],
                 )?;
-                let side = problem.add_residual_block(
+                let offset = Input::from(plane_data[c.plane]);
+                problem.add_residual_block(
                     c.lg,
-                    HalfSpaceSide {
-                        normal: ng,
-                        offset: plane.offset(),
-                        scale,
-                    },
-                    &[c.a2],
+                    HalfSpaceSide { normal: ng, scale },
+                    &[c.a2.into(), offset],
                 )?;
-                let pen = problem.add_residual_block(
+                problem.add_residual_block(
                     c.pn,
-                    NonPenetration {
-                        normal: ng,
-                        offset: plane.offset(),
-                        scale,
-                    },
-                    &[c.a1],
+                    NonPenetration { normal: ng, scale },
+                    &[c.a1.into(), offset],
                 )?;
-                plane_blocks.push((side, pen));
-                friction_blocks.push(problem.add_residual_block(
-                    c.pf,
-                    FrictionDissipation {
-                        frame: *frame,
-                        friction: scene.friction,
-                    },
-                    &[body.nu, body.q, c.a1, c.pn, c.pf, c.sigma],
-                )?);
-                friction_blocks.push(problem.add_residual_block(
+                let vars = [body.nu, body.q, c.a1, c.pn, c.pf, c.sigma];
+                let mut reads: Vec<Input> = vars.map(Input::from).to_vec();
+                reads.push(friction.into());
+                problem.add_residual_block(c.pf, FrictionDissipation { frame: *frame }, reads)?;
+                problem.add_residual_block(
                     c.sigma,
-                    FrictionEllipsoid {
-                        friction: scene.friction,
-                    },
-                    &[c.pn, c.pf],
-                )?);
+                    FrictionEllipsoid,
+                    &[c.pn.into(), c.pf.into(), Input::from(friction)],
+                )?;
             }
         }
         let mcp = problem.build()?;
@@ -787,10 +784,10 @@ impl Simulation {
             mcp,
             step: 0,
             t: 0.0,
-            friction_blocks,
+            scene_data,
             last: None,
             origin: Vector3::zeros(),
-            plane_blocks,
+            plane_data,
             step_planes: Vec::new(),
         };
         sim.step_planes = sim.scene.planes.clone();
@@ -1013,9 +1010,19 @@ impl Simulation {
     pub fn body_blocks(&self, b: usize) -> (ResId, ResId) {
         (self.bodies[b].newton_euler, self.bodies[b].kinematic)
     }
-    /// The residual blocks of the friction law (dissipation and ellipsoid of every contact).
-    pub fn friction_blocks(&self) -> &[ResId] {
-        &self.friction_blocks
+    /// The data blocks of body `b` (`docs/model.md#data-blocks`): mass, inertia, start state and
+    /// applied wrench of the step prepared last (`None` for a body the scene does not have).
+    pub fn body_data(&self, b: usize) -> Option<BodyDataIds> {
+        self.bodies.get(b).map(|body| body.data)
+    }
+    /// The scene-wide data blocks (`docs/model.md#data-blocks`): gravity, step length, friction.
+    pub fn scene_data(&self) -> SceneDataIds {
+        self.scene_data
+    }
+    /// The offset data block of half-space `p` (in the step problem's coordinates; `None` for a
+    /// half-space the scene does not have).
+    pub fn plane_data(&self, p: usize) -> Option<DataId> {
+        self.plane_data.get(p).copied()
     }
     /// Steps taken.
     pub fn steps_taken(&self) -> usize {
@@ -1026,11 +1033,10 @@ impl Simulation {
         self.step >= self.scene.num_steps()
     }
 
-    /// Updates the per-step data (the body data of the Newton–Euler rows — mass properties,
-    /// start state, applied impulse at t_u; their mass matrix and gyroscopic impulse are those
-    /// of the end of the step, `docs/energy.md` — and the kinematic map's start state) and the
-    /// warm start. After this, `mcp()` and `z()` are the step problem and
-    /// its starting point.
+    /// Updates the per-step data blocks (`docs/model.md#data-blocks`: each body's start state and
+    /// applied wrench at t_u, and the step length) with [`BlockMcp::set_data`] — the problem and
+    /// its pattern are unchanged — and the warm start. After this, `mcp()` and `z()` are the step
+    /// problem and its starting point.
     pub fn prepare_step(&mut self) -> Result<(), SceneError> {
         self.recentre_if_far()?;
         self.prepare_span(self.t, self.scene.h)
@@ -1043,36 +1049,15 @@ impl Simulation {
         let o = self.origin;
         // Per body: the predicted position (world frame) and rotation.
         let mut motion = Vec::with_capacity(self.bodies.len());
+        self.mcp.set_data(self.scene_data.h, &[h])?;
         for b in 0..self.bodies.len() {
             let body = &self.bodies[b];
             let s = body.state;
-            let mp = &body.spec.mass;
             let load = body.spec.load.at(t0);
-            let nu_start = Vector6::new(s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z);
-            // Built from the body's data so the step sensitivities reach m, I, the start state
-            // and the load (blocks.rs, NEWTON_EULER_DATA).
-            let ne = NewtonEuler::for_body(
-                BodyStepData {
-                    mass: mp.mass,
-                    inertia: mp.inertia,
-                    q_start: s.q,
-                    nu_start,
-                    wrench: load,
-                    gravity: self.scene.gravity,
-                    h,
-                },
-                body.frames.clone(),
-            );
-            let impulse = ne.impulse;
-            let km = KinematicMap {
-                x_start: s.x - o,
-                q_start: s.q,
-                h,
-            };
-            let (ne_id, km_id, nu_id, q_id) = (body.newton_euler, body.kinematic, body.nu, body.q);
-            self.bodies[b].impulse = impulse;
-            self.mcp.replace_residual_block(ne_id, Arc::new(ne))?;
-            self.mcp.replace_residual_block(km_id, Arc::new(km))?;
+            let (data, nu_id, q_id) = (body.data, body.nu, body.q);
+            self.mcp
+                .set_data(data.start, &start_values(&(s.x - o), &s.q, &s.v, &s.w))?;
+            self.mcp.set_data(data.wrench, load.as_slice())?;
             // Warm start: ν from the previous solution (= ν^u), q predicted by the kinematic map.
             let nu_prev: Vec<f64> = self.get(nu_id).to_vec();
             let w = Vector3::new(nu_prev[3], nu_prev[4], nu_prev[5]);
@@ -1151,7 +1136,7 @@ impl Simulation {
         }
         match solver.solve(&self.structured_mcp(), &self.z) {
             Ok(mut sol) => {
-                sol.summary.counters.push(("retries", 1));
+                sol.summary.counters.add(ecp_model::Counter::Retries, 1);
                 Ok(sol)
             }
             Err(e) => {
@@ -1195,7 +1180,8 @@ impl Simulation {
 
     /// Moves the step problem's origin to the bodies' centroid when a body is farther than
     /// [`RECENTRE_DISTANCE`] from it: the positions in the warm start and the half-spaces'
-    /// offsets are shifted; nothing else holds an absolute position.
+    /// offset data are shifted (the start positions follow in `prepare_span`); nothing else holds
+    /// an absolute position.
     fn recentre_if_far(&mut self) -> Result<(), SceneError> {
         let far = self
             .bodies
@@ -1230,7 +1216,6 @@ impl Simulation {
             }
         }
         self.origin = centroid;
-        let scale = GEOMETRY_SCALE / self.scene.h;
         for (p, plane) in self.scene.planes.iter().enumerate() {
             let n = plane.normal();
             self.step_planes[p] =
@@ -1240,26 +1225,8 @@ impl Simulation {
                         source,
                     }
                 })?;
-        }
-        for (i, c) in self.contacts.iter().enumerate() {
-            let plane = &self.step_planes[c.plane];
-            let (side, pen) = self.plane_blocks[i];
-            self.mcp.replace_residual_block(
-                side,
-                Arc::new(HalfSpaceSide {
-                    normal: plane.normal(),
-                    offset: plane.offset(),
-                    scale,
-                }),
-            )?;
-            self.mcp.replace_residual_block(
-                pen,
-                Arc::new(NonPenetration {
-                    normal: plane.normal(),
-                    offset: plane.offset(),
-                    scale,
-                }),
-            )?;
+            self.mcp
+                .set_data(self.plane_data[p], &[self.step_planes[p].offset()])?;
         }
         Ok(())
     }

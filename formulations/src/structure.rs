@@ -16,6 +16,8 @@ use ecp_model::{
     StepStructure,
 };
 
+use crate::blocks::data::start;
+use crate::blocks::{BodyStepData, FrictionParams, inertia_from_entries};
 use crate::rotation::{kinematic_map, rotation_matrix};
 use crate::stepper::Simulation;
 
@@ -57,28 +59,67 @@ impl<'a> StepView<'a> {
         (Vector3::new(q[0], q[1], q[2]), rotation_matrix(&quat))
     }
 
+    /// The body data of body `b` as the step's Newton–Euler block reads them (its data blocks,
+    /// `docs/model.md#data-blocks`).
+    fn body_data(&self, b: usize) -> BodyStepData {
+        let mcp = &self.sim.mcp;
+        let d = self.sim.bodies[b].data;
+        let s = mcp.data(d.start);
+        BodyStepData {
+            mass: mcp.data(d.mass)[0],
+            inertia: inertia_from_entries(mcp.data(d.inertia)),
+            q_start: Vector4::new(
+                s[start::Q],
+                s[start::Q + 1],
+                s[start::Q + 2],
+                s[start::Q + 3],
+            ),
+            nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
+            wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
+            gravity: Vector3::from_column_slice(mcp.data(self.sim.scene_data.gravity)),
+            h: self.step_length(),
+        }
+    }
+
     /// The free-motion velocity of body `b` (the step's Newton–Euler rows without contact
     /// impulses) with the end-of-step orientation `R1` and the gyroscopic impulse at the trial
     /// angular velocity `w_trial` held fixed: `v^u + p_lin/m` and
     /// `I_w1⁻¹ (R1 I_b R0ᵀ ω^u + p_ang − h ω̃ × (I_w1 ω̃))`, `I_w1 = R1 I_b R1ᵀ`
-    /// ([`crate::blocks::BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`). At
+    /// ([`BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`). At
     /// the step's solution (ω̃ its ω, R1 its orientation) it is the velocity the step reaches
     /// without contact impulses.
     fn free_velocity(&self, b: usize, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
-        let body = &self.sim.bodies[b];
-        let s = body.state;
-        let mp = &body.spec.mass;
-        let r0 = rotation_matrix(&s.q);
-        let iw1 = r1 * mp.inertia * r1.transpose();
-        let lin = s.v + body.impulse.fixed_rows::<3>(0) / mp.mass;
-        let rhs = r1 * (mp.inertia * (r0.transpose() * s.w)) + body.impulse.fixed_rows::<3>(3)
-            - w_trial.cross(&(iw1 * w_trial)) * self.sim.scene.h;
+        let d = self.body_data(b);
+        let impulse = d.impulse();
+        let (v0, w0) = (
+            d.nu_start.fixed_rows::<3>(0).into_owned(),
+            d.nu_start.fixed_rows::<3>(3).into_owned(),
+        );
+        let r0 = rotation_matrix(&d.q_start);
+        let iw1 = r1 * d.inertia * r1.transpose();
+        let lin = v0 + impulse.fixed_rows::<3>(0) / d.mass;
+        let rhs = r1 * (d.inertia * (r0.transpose() * w0)) + impulse.fixed_rows::<3>(3)
+            - w_trial.cross(&(iw1 * w_trial)) * d.h;
         // The inertia is validated symmetric positive definite when the scene is built.
         let ang = match iw1.cholesky() {
             Some(ch) => ch.solve(&rhs),
-            None => s.w,
+            None => w0,
         };
         Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// Start position (step coordinates) and orientation of body `b`, from its `start` data.
+    fn start_pose(&self, b: usize) -> (Vector3<f64>, Vector4<f64>) {
+        let s = self.sim.mcp.data(self.sim.bodies[b].data.start);
+        (
+            Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]),
+            Vector4::new(
+                s[start::Q],
+                s[start::Q + 1],
+                s[start::Q + 2],
+                s[start::Q + 3],
+            ),
+        )
     }
 
     /// The trial end-of-step rotation and angular velocity of body `b` stored in `z`.
@@ -179,7 +220,8 @@ impl Mcp for StepView<'_> {
 
 impl StepStructure for StepView<'_> {
     fn step_length(&self) -> f64 {
-        self.sim.scene.h
+        // The span prepared last (a step or a substep), as the step's blocks read it.
+        self.sim.mcp.data(self.sim.scene_data.h)[0]
     }
 
     fn num_bodies(&self) -> usize {
@@ -187,12 +229,12 @@ impl StepStructure for StepView<'_> {
     }
 
     fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
-        let body = &self.sim.bodies[b];
+        let d = self.body_data(b);
         let (r1, w_trial) = self.trial(b, z);
-        let iw1 = r1 * body.spec.mass.inertia * r1.transpose();
+        let iw1 = r1 * d.inertia * r1.transpose();
         let mut m = Matrix6::zeros();
         for i in 0..3 {
-            m[(i, i)] = body.spec.mass.mass;
+            m[(i, i)] = d.mass;
             for j in 0..3 {
                 m[(3 + i, 3 + j)] = iw1[(i, j)];
             }
@@ -231,7 +273,7 @@ impl StepStructure for StepView<'_> {
         let plane = &self.sim.step_planes[cv.plane];
         let (n, t, o) = plane.contact_frame();
         let (x, r) = self.pose(cv.body, z);
-        let h = self.sim.scene.h;
+        let h = self.step_length();
         let nu = &z[self.sim.mcp.range(body.nu)];
         let trial = Vector6::from_column_slice(nu);
         let (r1, w_trial) = self.trial(cv.body, z);
@@ -259,7 +301,7 @@ impl StepStructure for StepView<'_> {
             }
         }
         let a1 = &z[self.sim.mcp.range(cv.a1)];
-        let f = self.sim.scene.friction;
+        let f = FrictionParams::from_slice(self.sim.mcp.data(self.sim.scene_data.friction));
         ContactGeometry {
             body: cv.body,
             normal: arr(&n),
@@ -280,16 +322,16 @@ impl StepStructure for StepView<'_> {
 
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]) {
         let sim = self.sim;
-        let h = sim.scene.h;
+        let h = self.step_length();
         for (b, body) in sim.bodies.iter().enumerate() {
             let nu = point.velocities.get(b).copied().unwrap_or([0.0; 6]);
             z[sim.mcp.range(body.nu)].copy_from_slice(&nu);
             // Kinematic map (`docs/model.md#kinematic-map`), exactly as the KinematicMap block.
-            let s = body.state;
+            let (x0, q0) = self.start_pose(b);
             let v = Vector3::new(nu[0], nu[1], nu[2]);
             let w = Vector3::new(nu[3], nu[4], nu[5]);
-            let x = s.x - sim.origin() + v * h;
-            let q = s.q + kinematic_map(&s.q) * w * (0.5 * h);
+            let x = x0 + v * h;
+            let q = q0 + kinematic_map(&q0) * w * (0.5 * h);
             z[sim.mcp.range(body.q)].copy_from_slice(&[x.x, x.y, x.z, q[0], q[1], q[2], q[3]]);
         }
         for (c, cv) in sim.contacts.iter().enumerate() {

@@ -93,6 +93,10 @@ pub fn classify(lower: f64, upper: f64) -> BoundKind {
     }
 }
 
+/// Handle of a variable block inside a [`Problem`](crate::Problem).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct VarId(pub usize);
+
 /// A named block of unknowns with per-component bounds, like a Ceres parameter block.
 ///
 /// Each variable block is paired with exactly one residual block of the same length

@@ -1,6 +1,12 @@
 //! The Jacobian checker, in the spirit of Ceres' `GradientChecker`: compares analytic
 //! Jacobians with central finite differences, block by block, and names the worst entries.
 //!
+//! [`check_problem`] is the entry point for an assembled problem: it checks every residual block
+//! with respect to every input, variable or data (perturbing a data block through the block's
+//! inputs), so a wrong derivative with respect to a model parameter is caught like any other.
+//! [`check_residual_block`] checks a standalone block (every input it reads), and [`check_mcp`]
+//! the whole Jacobian of any [`Mcp`].
+//!
 //! ```
 //! use ecp_model::{check_residual_block, CheckOptions, JacobianBlocks, Params, ResidualBlock};
 //!
@@ -25,7 +31,7 @@ use std::fmt;
 use crate::ModelError;
 use crate::mcp::Mcp;
 use crate::problem::{BlockMcp, ResId};
-use crate::residual::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
+use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 
 /// Settings of the Jacobian checker.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -56,7 +62,7 @@ impl Default for CheckOptions {
 pub struct EntryCheck {
     /// Residual row (within the residual block, or the flat row for a whole MCP).
     pub row: usize,
-    /// Variable block index (0 for a whole MCP).
+    /// Input index among those the residual block reads (0 for a whole MCP).
     pub block: usize,
     /// Column within that block (or the flat column).
     pub col: usize,
@@ -74,11 +80,17 @@ pub struct EntryCheck {
     pub failed: bool,
 }
 
-/// Errors of one (residual block, variable block) pair.
+/// Errors of one (residual block, input) pair.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BlockPairCheck {
-    /// Index of the variable block among those the residual block reads.
+    /// Index of the input among those the residual block reads.
     pub block: usize,
+    /// Name of the input: its variable or data block's name ([`check_problem`]), or `input k`
+    /// for a standalone block.
+    pub input: String,
+    /// Whether the input is a variable or a data block (`None` for a standalone block, whose
+    /// inputs are just values).
+    pub kind: Option<InputKind>,
     /// Largest absolute error in this pair.
     pub max_abs_error: f64,
     /// Largest relative error in this pair.
@@ -92,7 +104,7 @@ pub struct BlockPairCheck {
 pub struct JacobianReport {
     /// What was checked.
     pub name: String,
-    /// Per variable block read.
+    /// Per input read.
     pub pairs: Vec<BlockPairCheck>,
     /// The worst entries, largest error first.
     pub worst: Vec<EntryCheck>,
@@ -181,6 +193,8 @@ impl Collector {
             let b = self.pairs.len();
             self.pairs.push(BlockPairCheck {
                 block: b,
+                input: format!("input {b}"),
+                kind: None,
                 max_abs_error: 0.0,
                 max_rel_error: 0.0,
                 failures: 0,
@@ -231,12 +245,12 @@ impl Collector {
     }
 }
 
-/// A flat copy of a block's variables, the `(offset, length)` range of each, and their sizes.
-type FlatParams = (Vec<f64>, Vec<(usize, usize)>, Vec<usize>);
+/// A flat copy of a block's inputs, the range of each, and their sizes.
+type FlatParams = (Vec<f64>, Vec<InputRange>, Vec<usize>);
 
-/// `params` (one slice per variable block `block` reads) as one flat vector with the
-/// `(offset, length)` ranges that [`Params`] views it through, and the block's declared sizes;
-/// an error when the slices do not have those sizes.
+/// `params` (one slice per input `block` reads) as one flat vector with the ranges that
+/// [`Params`] views it through, and the block's declared sizes; an error when the slices do not
+/// have those sizes.
 fn flat_params(block: &dyn ResidualBlock, params: &[&[f64]]) -> Result<FlatParams, ModelError> {
     let sizes = block.parameter_sizes().to_vec();
     if sizes.len() != params.len() || sizes.iter().zip(params).any(|(s, p)| *s != p.len()) {
@@ -253,14 +267,15 @@ fn flat_params(block: &dyn ResidualBlock, params: &[&[f64]]) -> Result<FlatParam
     let mut ranges = Vec::with_capacity(sizes.len());
     let mut o = 0;
     for &s in &sizes {
-        ranges.push((o, s));
+        ranges.push(InputRange::var(o, s));
         o += s;
     }
     Ok((z, ranges, sizes))
 }
 
-/// Checks one residual block's analytic Jacobian at `params` (one slice per variable block it
-/// reads) against central differences, block by block.
+/// Checks one residual block's analytic Jacobian at `params` (one slice per input it reads,
+/// variable or data: the checker differentiates them all) against central differences, input by
+/// input.
 pub fn check_residual_block(
     block: &dyn ResidualBlock,
     params: &[&[f64]],
@@ -280,7 +295,7 @@ pub fn check_residual_block(
     let mut analytic = vec![0.0; total_cols * m];
     {
         let mut jac = JacobianBlocks::new(&mut analytic, &col_pos, &block_start, m);
-        block.jacobian(Params::new(&z, &ranges), &mut jac);
+        block.jacobian(Params::new(&z, &[], &ranges), &mut jac);
     }
     let mut collector = Collector {
         opts: *opts,
@@ -288,14 +303,15 @@ pub fn check_residual_block(
         pairs: Vec::new(),
     };
     let mut diff = Differences::new(m);
-    for (k, &(off, size)) in ranges.iter().enumerate() {
+    for (k, r) in ranges.iter().enumerate() {
+        let (off, size) = (r.offset, r.len);
         for j in 0..size {
             let c = off + j;
             let x0 = z[c];
             let h = opts.relative_step * x0.abs().max(1.0);
             diff.compute(x0, h, |x, out| {
                 z[c] = x;
-                block.evaluate(Params::new(&z, &ranges), out);
+                block.evaluate(Params::new(&z, &[], &ranges), out);
             });
             z[c] = x0;
             for i in 0..m {
@@ -303,7 +319,7 @@ pub fn check_residual_block(
                     i,
                     k,
                     j,
-                    format!("{}[{}] / param{}[{}]", block.name(), i, k, j),
+                    format!("{}[{}] / input{}[{}]", block.name(), i, k, j),
                     analytic[c * m + i],
                     diff.numeric[i],
                     diff.noise[i],
@@ -314,153 +330,87 @@ pub fn check_residual_block(
     Ok(collector.finish(block.name().to_string()))
 }
 
-/// Checks one residual block's data Jacobian `∂r/∂θ` (its derivatives with respect to the model
-/// parameters θ it declares, [`ResidualBlock::num_data`]) at `params` against central
-/// differences of [`ResidualBlock::evaluate_with_data`] at perturbed θ, one datum at a time.
-///
-/// The report has one "block" (index 0) whose columns are the data, named by
-/// [`ResidualBlock::data_name`]. A block whose `evaluate_with_data` at its own θ disagrees with
-/// `evaluate` is malformed (the finite differences would check another function): that is an
-/// error, as are parameter sizes that do not match the block.
+/// Checks every residual block of an assembled problem at `z` with respect to every input,
+/// variable or data, against central differences (a data block is perturbed through the
+/// block's inputs; the problem itself is not changed). One report per residual block, named
+/// after the block and the variable block whose rows it provides; its `pairs` name each input
+/// and its kind, and its entries read `block[row] / input.component`.
 ///
 /// ```
-/// use ecp_model::{check_data_jacobian, CheckOptions, DataJacobian, JacobianBlocks, Params,
-///                 ResidualBlock};
+/// use ecp_model::*;
 ///
-/// /// r(x; c) = c·x², with data θ = (c).
-/// struct Scaled { c: f64 }
+/// /// r(x; c) = c·x², paired with x, with the data c.
+/// struct Scaled;
 /// impl ResidualBlock for Scaled {
 ///     fn name(&self) -> &str { "scaled" }
 ///     fn num_residuals(&self) -> usize { 1 }
-///     fn parameter_sizes(&self) -> &[usize] { &[1] }
-///     fn evaluate(&self, p: Params<'_>, out: &mut [f64]) { out[0] = self.c * p.block(0)[0].powi(2); }
+///     fn parameter_sizes(&self) -> &[usize] { &[1, 1] }
+///     fn evaluate(&self, p: Params<'_>, out: &mut [f64]) { out[0] = p.block(1)[0] * p.block(0)[0].powi(2); }
 ///     fn jacobian(&self, p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-///         jac.set(0, 0, 0, 2.0 * self.c * p.block(0)[0]);
-///     }
-///     fn num_data(&self) -> usize { 1 }
-///     fn data(&self, theta: &mut [f64]) { theta[0] = self.c; }
-///     fn data_name(&self, _k: usize) -> String { "c".into() }
-///     fn evaluate_with_data(&self, p: Params<'_>, theta: &[f64], out: &mut [f64]) {
-///         out[0] = theta[0] * p.block(0)[0].powi(2);
-///     }
-///     fn data_jacobian(&self, p: Params<'_>, jac: &mut DataJacobian<'_>) {
-///         jac.set(0, 0, p.block(0)[0].powi(2));
+///         let (x, c) = (p.block(0)[0], p.block(1)[0]);
+///         jac.set(0, 0, 0, 2.0 * c * x);
+///         jac.set(1, 0, 0, x * x);
 ///     }
 /// }
-/// let report = check_data_jacobian(&Scaled { c: 3.0 }, &[&[2.0]], &CheckOptions::default()).unwrap();
-/// assert!(report.ok() && report.entries == 1, "{report}");
+/// let mut p = Problem::new();
+/// let x = p.add_variable_block(VarBlock::free("x", 1));
+/// let c = p.add_data_block(DataBlock::new("c", [3.0]));
+/// p.add_residual_block(x, Scaled, &[Input::Var(x), Input::Data(c)]).unwrap();
+/// let mcp = p.build().unwrap();
+/// let reports = check_problem(&mcp, &[2.0], &CheckOptions::default());
+/// assert!(reports.iter().all(|r| r.ok()), "{}", reports[0]);
+/// assert_eq!(reports[0].pairs[1].kind, Some(InputKind::Data));
+/// assert_eq!(reports[0].entries, 2);
 /// ```
-pub fn check_data_jacobian(
-    block: &dyn ResidualBlock,
-    params: &[&[f64]],
-    opts: &CheckOptions,
-) -> Result<JacobianReport, ModelError> {
-    let (z, ranges, _) = flat_params(block, params)?;
-    let m = block.num_residuals();
-    let nd = block.num_data();
-    let x = Params::new(&z, &ranges);
-    let mut theta = vec![0.0; nd];
-    block.data(&mut theta);
-    // evaluate_with_data at the block's own θ must be evaluate: otherwise the differences
-    // below would differentiate another function than the one the solver sees.
-    let (mut plain, mut with) = (vec![0.0; m], vec![0.0; m]);
-    block.evaluate(x, &mut plain);
-    block.evaluate_with_data(x, &theta, &mut with);
-    for i in 0..m {
-        let scale = plain[i].abs().max(with[i].abs()).max(1.0);
-        let differ =
-            plain[i].is_nan() != with[i].is_nan() || (plain[i] - with[i]).abs() > 1e-12 * scale;
-        if differ {
-            return Err(ModelError::InvalidBlock {
-                block: block.name().to_string(),
-                reason: format!(
-                    "evaluate_with_data at the block's own data gives r[{i}] = {:e}, evaluate gives {:e}; \
-                     evaluate_with_data must use the data it is given exactly as evaluate uses the block's",
-                    with[i], plain[i]
-                ),
-            });
-        }
-    }
-    let mut analytic = vec![0.0; m * nd];
-    {
-        let mut jac = DataJacobian::new(&mut analytic, m, nd);
-        block.data_jacobian(x, &mut jac);
-    }
-    let mut collector = Collector {
-        opts: *opts,
-        all: Vec::new(),
-        pairs: Vec::new(),
-    };
-    let mut diff = Differences::new(m);
-    for k in 0..nd {
-        let t0 = theta[k];
-        let h = opts.relative_step * t0.abs().max(1.0);
-        diff.compute(t0, h, |t, out| {
-            theta[k] = t;
-            block.evaluate_with_data(x, &theta, out);
-        });
-        theta[k] = t0;
-        for i in 0..m {
-            collector.push(
-                i,
-                0,
-                k,
-                format!("{}[{}] / {}", block.name(), i, block.data_name(k)),
-                analytic[k * m + i],
-                diff.numeric[i],
-                diff.noise[i],
+pub fn check_problem(mcp: &BlockMcp, z: &[f64], opts: &CheckOptions) -> Vec<JacobianReport> {
+    (0..mcp.num_residual_blocks())
+        .map(|r| {
+            let id = ResId(r);
+            let (block, ranges, _) = mcp.residual_block(id);
+            let params = mcp.residual_block_params(id, z);
+            let slices: Vec<&[f64]> = (0..ranges.len()).map(|k| params.block(k)).collect();
+            let (rows_of, term) = mcp.residual_rows(id);
+            let rows = mcp.variable_blocks()[rows_of.0].name();
+            let name = format!(
+                "{} (#{r}, {} rows of {rows})",
+                block.name(),
+                if term { "a term adding to the" } else { "the" }
             );
-        }
-    }
-    Ok(collector.finish(format!("{} (data)", block.name())))
-}
-
-/// Checks the data Jacobian ([`check_data_jacobian`]) of every residual block of an assembled
-/// problem that declares data, at `z`.
-pub fn check_block_mcp_data(mcp: &BlockMcp, z: &[f64], opts: &CheckOptions) -> Vec<JacobianReport> {
-    (0..mcp.num_residual_blocks())
-        .filter_map(|r| {
-            let (block, ranges, _) = mcp.residual_block(ResId(r));
-            if block.num_data() == 0 {
-                return None;
-            }
-            let params: Vec<&[f64]> = ranges.iter().map(|&(o, l)| &z[o..o + l]).collect();
-            Some(
-                check_data_jacobian(block, &params, opts).unwrap_or_else(|e| {
-                    // A malformed block is a failed check, reported like one.
-                    JacobianReport {
-                        name: format!("{} (data): {e}", block.name()),
-                        pairs: Vec::new(),
-                        worst: Vec::new(),
-                        failures: 1,
-                        entries: 0,
-                        max_abs_error: f64::INFINITY,
-                        max_rel_error: f64::INFINITY,
+            match check_residual_block(block, &slices, opts) {
+                Ok(mut rep) => {
+                    rep.name = name;
+                    for p in rep.pairs.iter_mut() {
+                        p.input = mcp.input_name(id, p.block);
+                        p.kind = Some(ranges[p.block].kind);
                     }
-                }),
-            )
-        })
-        .collect()
-}
-
-/// Checks every residual block of an assembled problem at `z`, naming variable blocks.
-pub fn check_block_mcp(mcp: &BlockMcp, z: &[f64], opts: &CheckOptions) -> Vec<JacobianReport> {
-    (0..mcp.num_residual_blocks())
-        .filter_map(|r| {
-            let (block, ranges, _) = mcp.residual_block(ResId(r));
-            let params: Vec<&[f64]> = ranges.iter().map(|&(o, l)| &z[o..o + l]).collect();
-            let mut rep = check_residual_block(block, &params, opts).ok()?;
-            // Name the variable blocks instead of "param k".
-            for e in rep.worst.iter_mut() {
-                let (o, _) = ranges[e.block];
-                e.location = format!(
-                    "{}[{}] / {}",
-                    block.name(),
-                    e.row,
-                    mcp.component_name(o + e.col)
-                );
+                    for e in rep.worst.iter_mut() {
+                        let kind = ranges[e.block].kind;
+                        e.location = format!(
+                            "{}[{}] / {}{}",
+                            block.name(),
+                            e.row,
+                            mcp.input_component_name(id, e.block, e.col),
+                            if kind == InputKind::Data {
+                                " (data)"
+                            } else {
+                                ""
+                            }
+                        );
+                    }
+                    rep
+                }
+                // An assembled block always has matching sizes; report the impossible as a
+                // failed check rather than hide it.
+                Err(e) => JacobianReport {
+                    name: format!("{name}: {e}"),
+                    pairs: Vec::new(),
+                    worst: Vec::new(),
+                    failures: 1,
+                    entries: 0,
+                    max_abs_error: f64::INFINITY,
+                    max_rel_error: f64::INFINITY,
+                },
             }
-            Some(rep)
         })
         .collect()
 }

@@ -3,10 +3,12 @@
 //! The vocabulary every other crate of ecp speaks: a time step of a contact simulation is a
 //! mixed complementarity problem (MCP) declared as **variable blocks** ([`VarBlock`] with
 //! [`Bounds`]) paired with **residual blocks** ([`ResidualBlock`]) that carry analytic
-//! Jacobians, assembled by a [`Problem`] into one [`Mcp`] with a sparse Jacobian, and handed to
-//! any backend implementing [`McpSolver`]. Every backend is judged by the same number, the
-//! natural-map residual ([`natural_residual`]). The [`checker`] compares analytic Jacobians with
-//! central differences, like Ceres' gradient checker.
+//! Jacobians and read named **data blocks** ([`DataBlock`]: model parameters, changed between
+//! solves with [`BlockMcp::set_data`] without rebuilding), assembled by a [`Problem`] into one
+//! [`Mcp`] with a sparse Jacobian, and handed to any backend implementing [`McpSolver`]. Every
+//! backend is judged by the same number, the natural-map residual ([`natural_residual`]). The
+//! [`checker`] compares analytic Jacobians, with respect to variables and data, with central
+//! differences, like Ceres' gradient checker.
 //!
 //! ```
 //! use ecp_model::*;
@@ -28,7 +30,7 @@
 //! let mcp = problem.build().unwrap();
 //!
 //! // Check the analytic Jacobian, then judge a candidate point.
-//! for report in check_block_mcp(&mcp, &[0.5], &CheckOptions::default()) {
+//! for report in check_problem(&mcp, &[0.5], &CheckOptions::default()) {
 //!     assert!(report.ok(), "{report}");
 //! }
 //! assert_eq!(residual_of(&mcp, &[2.0]), 0.0);
@@ -38,6 +40,8 @@
 
 pub mod bounds;
 pub mod checker;
+pub mod counters;
+pub mod data;
 pub mod linalg;
 pub mod mcp;
 /// Standard MCP test problems (MCPLIB, LCPs, friction NCPs) for judging backends: enabled by
@@ -54,16 +58,18 @@ pub mod structure;
 
 pub use bounds::{BoundKind, Bounds, VarBlock};
 pub use checker::{
-    BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_block_mcp,
-    check_block_mcp_data, check_data_jacobian, check_mcp, check_residual_block,
+    BlockPairCheck, CheckOptions, EntryCheck, JacobianReport, check_mcp, check_problem,
+    check_residual_block,
 };
+pub use counters::{Counter, Counters};
+pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use mcp::{
     FnMcp, Mcp, WorstComponent, diagnose, fb_component, fb_residual, fb_vector, fischer_burmeister,
     mid, natural_residual, residual_of,
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
-pub use residual::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
+pub use residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
     Termination, finish_solve, validate_start,

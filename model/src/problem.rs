@@ -1,28 +1,31 @@
-//! The problem builder: variable blocks paired with residual blocks, assembled into one MCP.
+//! The problem builder: variable blocks paired with residual blocks, data blocks they read, and
+//! terms added to paired rows, assembled into one MCP.
 
 use std::sync::Arc;
 
 use crate::ModelError;
 use crate::bounds::VarBlock;
+pub use crate::bounds::VarId;
+use crate::data::{DataBlock, DataId, Input, IntoInputs};
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
-use crate::residual::{DataJacobian, JacobianBlocks, Params, ResidualBlock};
+use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 
-/// Handle of a variable block inside a [`Problem`].
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct VarId(pub usize);
-
-/// Handle of a residual block inside a [`Problem`].
+/// Handle of a residual block (paired or a term) inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ResId(pub usize);
 
 struct PendingResidual {
     block: Arc<dyn ResidualBlock>,
-    pairs_with: VarId,
-    reads: Vec<VarId>,
+    /// The variable block whose rows this block provides (paired) or adds to (term).
+    rows_of: VarId,
+    reads: Vec<Input>,
+    term: bool,
 }
 
-/// Builder of a block-structured MCP (`docs/model.md#mcp`, `docs/model.md#unknowns`).
+/// Builder of a block-structured MCP (`docs/model.md#mcp`, `docs/model.md#unknowns`): variable
+/// blocks, each paired with one residual block of the same length, the data blocks residual
+/// blocks read ([`crate::data`]), and terms adding rows to paired blocks ([`Problem::add_term`]).
 ///
 /// ```
 /// use ecp_model::{Problem, VarBlock, ResidualBlock, Params, JacobianBlocks, Mcp};
@@ -48,6 +51,7 @@ struct PendingResidual {
 #[derive(Default)]
 pub struct Problem {
     vars: Vec<VarBlock>,
+    data: Vec<DataBlock>,
     residuals: Vec<PendingResidual>,
 }
 
@@ -63,13 +67,22 @@ impl Problem {
         VarId(self.vars.len() - 1)
     }
 
+    /// Adds a data block (model parameters residual blocks read, [`crate::data`]); its values
+    /// are checked (finite) when the problem is built, and may change afterwards with
+    /// [`BlockMcp::set_data`].
+    pub fn add_data_block(&mut self, block: DataBlock) -> DataId {
+        self.data.push(block);
+        DataId(self.data.len() - 1)
+    }
+
     /// Adds a residual block paired with the variable block `pairs_with` (same length), reading
-    /// the variable blocks `reads` in the order of its `parameter_sizes`.
+    /// the inputs `reads` (variable blocks, or [`Input`]s mixing variable and data blocks) in the
+    /// order of its `parameter_sizes`.
     pub fn add_residual_block(
         &mut self,
         pairs_with: VarId,
         block: impl ResidualBlock + 'static,
-        reads: &[VarId],
+        reads: impl IntoInputs,
     ) -> Result<ResId, ModelError> {
         self.add_shared_residual_block(pairs_with, Arc::new(block), reads)
     }
@@ -79,15 +92,88 @@ impl Problem {
         &mut self,
         pairs_with: VarId,
         block: Arc<dyn ResidualBlock>,
-        reads: &[VarId],
+        reads: impl IntoInputs,
+    ) -> Result<ResId, ModelError> {
+        self.push(pairs_with, block, reads.into_inputs(), false)
+    }
+
+    /// Adds a **term**: a residual block whose rows are added to those of the residual block
+    /// paired with `adds_to` (same length). Any number of terms may add to a variable block's
+    /// rows; the pairing (one paired block per variable block) is unchanged. This is how a model
+    /// adds a force to a body's Newton–Euler rows.
+    ///
+    /// ```
+    /// use ecp_model::*;
+    ///
+    /// /// r(x) = x − 1.
+    /// struct Shift;
+    /// impl ResidualBlock for Shift {
+    ///     fn name(&self) -> &str { "shift" }
+    ///     fn num_residuals(&self) -> usize { 1 }
+    ///     fn parameter_sizes(&self) -> &[usize] { &[1] }
+    ///     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) { out[0] = x.block(0)[0] - 1.0; }
+    ///     fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) { jac.set(0, 0, 0, 1.0); }
+    /// }
+    /// /// A spring term −k x with stiffness k a data block.
+    /// struct Spring;
+    /// impl ResidualBlock for Spring {
+    ///     fn name(&self) -> &str { "spring" }
+    ///     fn num_residuals(&self) -> usize { 1 }
+    ///     fn parameter_sizes(&self) -> &[usize] { &[1, 1] }
+    ///     fn evaluate(&self, p: Params<'_>, out: &mut [f64]) { out[0] = -p.block(1)[0] * p.block(0)[0]; }
+    ///     fn jacobian(&self, p: Params<'_>, jac: &mut JacobianBlocks<'_>) {
+    ///         jac.set(0, 0, 0, -p.block(1)[0]);
+    ///         jac.set(1, 0, 0, -p.block(0)[0]);
+    ///     }
+    /// }
+    ///
+    /// let mut p = Problem::new();
+    /// let x = p.add_variable_block(VarBlock::free("x", 1));
+    /// let k = p.add_data_block(DataBlock::new("k", [3.0]));
+    /// p.add_residual_block(x, Shift, &[x]).unwrap();
+    /// p.add_term(x, Spring, &[Input::from(x), Input::from(k)]).unwrap();
+    /// let mcp = p.build().unwrap();
+    /// let mut f = [0.0];
+    /// mcp.evaluate(&[2.0], &mut f);
+    /// assert_eq!(f[0], (2.0 - 1.0) - 3.0 * 2.0);
+    /// ```
+    pub fn add_term(
+        &mut self,
+        adds_to: VarId,
+        block: impl ResidualBlock + 'static,
+        reads: impl IntoInputs,
+    ) -> Result<ResId, ModelError> {
+        self.add_shared_term(adds_to, Arc::new(block), reads)
+    }
+
+    /// Like [`Problem::add_term`] for a block that is already shared.
+    pub fn add_shared_term(
+        &mut self,
+        adds_to: VarId,
+        block: Arc<dyn ResidualBlock>,
+        reads: impl IntoInputs,
+    ) -> Result<ResId, ModelError> {
+        self.push(adds_to, block, reads.into_inputs(), true)
+    }
+
+    fn push(
+        &mut self,
+        rows_of: VarId,
+        block: Arc<dyn ResidualBlock>,
+        reads: Vec<Input>,
+        term: bool,
     ) -> Result<ResId, ModelError> {
         let name = block.name().to_string();
         let var = self
             .vars
-            .get(pairs_with.0)
+            .get(rows_of.0)
             .ok_or_else(|| ModelError::InvalidBlock {
                 block: name.clone(),
-                reason: format!("paired with unknown variable block #{}", pairs_with.0),
+                reason: format!(
+                    "{} unknown variable block #{}",
+                    if term { "adds to" } else { "paired with" },
+                    rows_of.0
+                ),
             })?;
         if var.size() != block.num_residuals() {
             return Err(ModelError::SizeMismatch {
@@ -102,47 +188,62 @@ impl Problem {
             return Err(ModelError::InvalidBlock {
                 block: name,
                 reason: format!(
-                    "declares {} parameter blocks but {} were bound",
+                    "declares {} inputs but {} were bound",
                     sizes.len(),
                     reads.len()
                 ),
             });
         }
-        for (k, (&s, r)) in sizes.iter().zip(reads).enumerate() {
-            let v = self.vars.get(r.0).ok_or_else(|| ModelError::InvalidBlock {
-                block: name.clone(),
-                reason: format!("parameter {k} bound to unknown variable block #{}", r.0),
-            })?;
-            if v.size() != s {
+        for (k, (&s, r)) in sizes.iter().zip(&reads).enumerate() {
+            let (what, input_name, size) = match *r {
+                Input::Var(v) => {
+                    let b = self.vars.get(v.0).ok_or_else(|| ModelError::InvalidBlock {
+                        block: name.clone(),
+                        reason: format!("input {k} bound to unknown variable block #{}", v.0),
+                    })?;
+                    ("variable", b.name(), b.size())
+                }
+                Input::Data(d) => {
+                    let b = self.data.get(d.0).ok_or_else(|| ModelError::InvalidBlock {
+                        block: name.clone(),
+                        reason: format!("input {k} bound to unknown data block #{}", d.0),
+                    })?;
+                    ("data", b.name(), b.size())
+                }
+            };
+            if size != s {
                 return Err(ModelError::InvalidBlock {
                     block: name.clone(),
                     reason: format!(
-                        "parameter {k} has size {s} but variable block '{}' has size {}",
-                        v.name(),
-                        v.size()
+                        "input {k} has size {s} but {what} block '{input_name}' has size {size}"
                     ),
                 });
             }
             if reads[..k].contains(r) {
                 return Err(ModelError::InvalidBlock {
                     block: name.clone(),
-                    reason: format!("variable block '{}' is bound twice", v.name()),
+                    reason: format!("{what} block '{input_name}' is bound twice"),
                 });
             }
         }
         self.residuals.push(PendingResidual {
             block,
-            pairs_with,
-            reads: reads.to_vec(),
+            rows_of,
+            reads,
+            term,
         });
         Ok(ResId(self.residuals.len() - 1))
     }
 
-    /// Checks the pairing (every variable block paired exactly once) and assembles the MCP:
-    /// flat layout, bounds, sparsity pattern and the Jacobian scatter map.
+    /// Checks the pairing (every variable block paired exactly once) and the data, and
+    /// assembles the MCP: flat layout, bounds, sparsity pattern (terms included) and the
+    /// Jacobian scatter map.
     pub fn build(self) -> Result<BlockMcp, ModelError> {
         for v in &self.vars {
             v.validate()?;
+        }
+        for d in &self.data {
+            d.validate()?;
         }
         let mut offsets = Vec::with_capacity(self.vars.len());
         let mut n = 0;
@@ -150,17 +251,24 @@ impl Problem {
             offsets.push(n);
             n += v.size();
         }
+        let mut data_offsets = Vec::with_capacity(self.data.len());
+        let mut data_values = Vec::new();
+        for d in &self.data {
+            data_offsets.push(data_values.len());
+            data_values.extend_from_slice(d.values());
+        }
         let mut paired: Vec<Option<usize>> = vec![None; self.vars.len()];
-        for (r, res) in self.residuals.iter().enumerate() {
-            if let Some(prev) = paired[res.pairs_with.0] {
+        for (r, res) in self.residuals.iter().enumerate().filter(|(_, r)| !r.term) {
+            if let Some(prev) = paired[res.rows_of.0] {
                 return Err(ModelError::Pairing(format!(
-                    "variable block '{}' is paired with both '{}' and '{}'",
-                    self.vars[res.pairs_with.0].name(),
+                    "variable block '{}' is paired with both '{}' and '{}'; add extra rows with \
+                     Problem::add_term",
+                    self.vars[res.rows_of.0].name(),
                     self.residuals[prev].block.name(),
                     res.block.name()
                 )));
             }
-            paired[res.pairs_with.0] = Some(r);
+            paired[res.rows_of.0] = Some(r);
         }
         if let Some(v) = paired.iter().position(Option::is_none) {
             return Err(ModelError::Pairing(format!(
@@ -169,16 +277,19 @@ impl Problem {
             )));
         }
 
-        // Rows of F are ordered like the variables: the residual paired with block V
-        // occupies V's range, so F_i pairs with z_i.
+        // Rows of F are ordered like the variables: the residual paired with block V (and every
+        // term adding to it) occupies V's range, so F_i pairs with z_i. Data inputs have no
+        // columns: they never change the pattern.
         let mut columns: Vec<Vec<usize>> = vec![Vec::new(); n];
         for res in &self.residuals {
-            let r0 = offsets[res.pairs_with.0];
+            let r0 = offsets[res.rows_of.0];
             let m = res.block.num_residuals();
-            for v in &res.reads {
-                let c0 = offsets[v.0];
-                for col in &mut columns[c0..c0 + self.vars[v.0].size()] {
-                    col.extend(r0..r0 + m);
+            for input in &res.reads {
+                if let Input::Var(v) = input {
+                    let c0 = offsets[v.0];
+                    for col in &mut columns[c0..c0 + self.vars[v.0].size()] {
+                        col.extend(r0..r0 + m);
+                    }
                 }
             }
         }
@@ -186,30 +297,44 @@ impl Problem {
 
         let mut blocks = Vec::with_capacity(self.residuals.len());
         for res in self.residuals {
-            let r0 = offsets[res.pairs_with.0];
+            let r0 = offsets[res.rows_of.0];
             let rows = res.block.num_residuals();
             let mut ranges = Vec::with_capacity(res.reads.len());
             let mut col_pos = Vec::new();
             let mut block_start = vec![0];
-            for v in &res.reads {
-                let c0 = offsets[v.0];
-                let size = self.vars[v.0].size();
-                ranges.push((c0, size));
-                for c in c0..c0 + size {
-                    let p = pattern.position(r0, c).ok_or_else(|| {
-                        ModelError::Pattern(format!("internal: entry ({r0}, {c}) missing"))
-                    })?;
-                    col_pos.push(p);
+            for input in &res.reads {
+                match *input {
+                    Input::Var(v) => {
+                        let c0 = offsets[v.0];
+                        let size = self.vars[v.0].size();
+                        ranges.push(InputRange::var(c0, size));
+                        for c in c0..c0 + size {
+                            let p = pattern.position(r0, c).ok_or_else(|| {
+                                ModelError::Pattern(format!("internal: entry ({r0}, {c}) missing"))
+                            })?;
+                            col_pos.push(p);
+                        }
+                    }
+                    Input::Data(d) => {
+                        let size = self.data[d.0].size();
+                        ranges.push(InputRange::data(data_offsets[d.0], size));
+                        col_pos.extend(std::iter::repeat_n(JacobianBlocks::DISCARD, size));
+                    }
                 }
                 block_start.push(col_pos.len());
             }
+            let discards = col_pos.contains(&JacobianBlocks::DISCARD);
             blocks.push(AssembledBlock {
+                discards,
                 block: res.block,
+                rows_of: res.rows_of,
                 row0: r0,
                 rows,
+                inputs: res.reads,
                 ranges,
                 col_pos,
                 block_start,
+                term: res.term,
             });
         }
 
@@ -221,13 +346,18 @@ impl Problem {
                 upper.push(b.upper);
             }
         }
+        let has_terms = blocks.iter().any(|b| b.term);
         Ok(BlockMcp {
             n,
             lower,
             upper,
             vars: self.vars,
             offsets,
+            data: self.data,
+            data_offsets,
+            data_values,
             blocks,
+            has_terms,
             pattern: Arc::new(pattern),
         })
     }
@@ -235,21 +365,90 @@ impl Problem {
 
 struct AssembledBlock {
     block: Arc<dyn ResidualBlock>,
+    rows_of: VarId,
     row0: usize,
     rows: usize,
-    ranges: Vec<(usize, usize)>,
+    inputs: Vec<Input>,
+    ranges: Vec<InputRange>,
+    /// Positions in the sparse Jacobian of each input column; data columns are discarded.
     col_pos: Vec<usize>,
     block_start: Vec<usize>,
+    /// Whether the block has data inputs (whose columns `col_pos` discards).
+    discards: bool,
+    term: bool,
 }
 
-/// An MCP assembled from blocks: one flat layout, bounds, `F` and a sparse `J`.
+impl AssembledBlock {
+    /// Write access to this block's entries of the sparse MCP Jacobian `values`.
+    #[inline]
+    fn sparse<'a>(&'a self, values: &'a mut [f64]) -> JacobianBlocks<'a> {
+        JacobianBlocks::with_discards(
+            values,
+            &self.col_pos,
+            &self.block_start,
+            self.rows,
+            self.discards,
+        )
+    }
+
+    /// Number of variable columns (the width of a term's local Jacobian).
+    fn var_cols(&self) -> usize {
+        self.ranges
+            .iter()
+            .filter(|r| r.kind == InputKind::Variable)
+            .map(|r| r.len)
+            .sum()
+    }
+
+    /// Evaluates a term and adds its rows to `f`.
+    fn add_term_rows(&self, params: Params<'_>, f: &mut [f64]) {
+        let mut local = vec![0.0; self.rows];
+        self.block.evaluate(params, &mut local);
+        for (d, v) in f[self.row0..self.row0 + self.rows].iter_mut().zip(&local) {
+            *d += v;
+        }
+    }
+
+    /// Computes a term's variable Jacobian in a local buffer and adds it into the sparse
+    /// `values`: the entries it shares with the paired block must add, not overwrite.
+    fn add_term_jacobian(&self, params: Params<'_>, values: &mut [f64]) {
+        let m = self.rows;
+        let mut local_pos = Vec::with_capacity(self.col_pos.len());
+        let mut scatter = Vec::new();
+        for &p in &self.col_pos {
+            if p == JacobianBlocks::DISCARD {
+                local_pos.push(JacobianBlocks::DISCARD);
+            } else {
+                local_pos.push(scatter.len() * m);
+                scatter.push(p);
+            }
+        }
+        let mut local = vec![0.0; self.var_cols() * m];
+        {
+            let mut jac = JacobianBlocks::new(&mut local, &local_pos, &self.block_start, m);
+            self.block.jacobian(params, &mut jac);
+        }
+        for (c, &p) in scatter.iter().enumerate() {
+            for (d, v) in values[p..p + m].iter_mut().zip(&local[c * m..(c + 1) * m]) {
+                *d += v;
+            }
+        }
+    }
+}
+
+/// An MCP assembled from blocks: one flat layout, bounds, `F` and a sparse `J`, and the data
+/// blocks its residual blocks read.
 pub struct BlockMcp {
     n: usize,
     lower: Vec<f64>,
     upper: Vec<f64>,
     vars: Vec<VarBlock>,
     offsets: Vec<usize>,
+    data: Vec<DataBlock>,
+    data_offsets: Vec<usize>,
+    data_values: Vec<f64>,
     blocks: Vec<AssembledBlock>,
+    has_terms: bool,
     pattern: Arc<CscPattern>,
 }
 
@@ -267,65 +466,115 @@ impl BlockMcp {
     pub fn variable_blocks(&self) -> &[VarBlock] {
         &self.vars
     }
-    /// Number of residual blocks.
-    pub fn num_residual_blocks(&self) -> usize {
-        self.blocks.len()
+    /// The data blocks with their current values, in layout order.
+    pub fn data_blocks(&self) -> &[DataBlock] {
+        &self.data
     }
-    /// Residual block `r`, the variable blocks it reads and its row range.
-    pub fn residual_block(&self, r: ResId) -> (&dyn ResidualBlock, &[(usize, usize)], usize) {
-        let b = &self.blocks[r.0];
-        (b.block.as_ref(), &b.ranges, b.row0)
+    /// Current values of data block `d` (empty for an unknown id).
+    pub fn data(&self, d: DataId) -> &[f64] {
+        self.data.get(d.0).map_or(&[], |b| b.values())
     }
-    /// Replaces residual block `r` by another with the same shape (rows and parameter sizes),
-    /// keeping the layout, the sparsity pattern and hence every solver's symbolic analysis.
-    ///
-    /// This is how a time stepper updates per-step data (start-of-step state, loads) without
-    /// rebuilding the problem.
-    pub fn replace_residual_block(
-        &mut self,
-        r: ResId,
-        block: Arc<dyn ResidualBlock>,
-    ) -> Result<(), ModelError> {
-        let old = self
-            .blocks
-            .get_mut(r.0)
+    /// Every data value, the blocks laid out one after the other ([`BlockMcp::data_offset`]).
+    pub fn data_values(&self) -> &[f64] {
+        &self.data_values
+    }
+    /// Offset of data block `d` in [`BlockMcp::data_values`].
+    pub fn data_offset(&self, d: DataId) -> usize {
+        self.data_offsets[d.0]
+    }
+    /// Total number of data scalars.
+    pub fn num_data(&self) -> usize {
+        self.data_values.len()
+    }
+
+    /// Replaces the values of data block `d`: the problem, its layout and its sparsity pattern
+    /// are unchanged, so every backend's symbolic analysis stays valid. An unknown id, a wrong
+    /// length or a value that is not finite is an error, and nothing changes.
+    pub fn set_data(&mut self, d: DataId, values: &[f64]) -> Result<(), ModelError> {
+        let block = self
+            .data
+            .get_mut(d.0)
             .ok_or_else(|| ModelError::InvalidBlock {
-                block: block.name().to_string(),
-                reason: format!("no residual block #{} to replace", r.0),
-            })?;
-        if old.block.num_residuals() != block.num_residuals()
-            || old.block.parameter_sizes() != block.parameter_sizes()
-        {
-            return Err(ModelError::InvalidBlock {
-                block: block.name().to_string(),
+                block: format!("data #{}", d.0),
                 reason: format!(
-                    "replacement has shape {}×{:?}, the original '{}' has {}×{:?}",
-                    block.num_residuals(),
-                    block.parameter_sizes(),
-                    old.block.name(),
-                    old.block.num_residuals(),
-                    old.block.parameter_sizes()
+                    "no such data block: this problem has {} data blocks",
+                    self.data_offsets.len()
                 ),
-            });
-        }
-        old.block = block;
+            })?;
+        block.check_values(values)?;
+        block.set_values(values);
+        let o = self.data_offsets[d.0];
+        self.data_values[o..o + values.len()].copy_from_slice(values);
         Ok(())
     }
 
-    /// Assembles `∂F/∂θ` at `z` for a vector θ of `p` model parameters (the data of the residual
-    /// blocks, [`ResidualBlock::num_data`]): `column(r, k)` names the entry of θ that datum `k`
-    /// of residual block `r` is, or `None` when that datum is not differentiated. Several data
-    /// may map to the same entry (a shared coefficient such as μ); their derivatives add up.
+    /// Number of residual blocks (paired blocks and terms).
+    pub fn num_residual_blocks(&self) -> usize {
+        self.blocks.len()
+    }
+    /// Residual block `r`, where its inputs live and its first row.
+    pub fn residual_block(&self, r: ResId) -> (&dyn ResidualBlock, &[InputRange], usize) {
+        let b = &self.blocks[r.0];
+        (b.block.as_ref(), &b.ranges, b.row0)
+    }
+    /// The inputs residual block `r` is bound to.
+    pub fn residual_inputs(&self, r: ResId) -> &[Input] {
+        &self.blocks[r.0].inputs
+    }
+    /// The variable block whose rows residual block `r` provides, and whether it is a term
+    /// (adding to those rows, [`Problem::add_term`]) rather than the paired block.
+    pub fn residual_rows(&self, r: ResId) -> (VarId, bool) {
+        let b = &self.blocks[r.0];
+        (b.rows_of, b.term)
+    }
+    /// Name of input `k` of residual block `r` (its variable or data block's name).
+    pub fn input_name(&self, r: ResId, k: usize) -> String {
+        match self.blocks[r.0].inputs[k] {
+            Input::Var(v) => self.vars[v.0].name().to_string(),
+            Input::Data(d) => self.data[d.0].name().to_string(),
+        }
+    }
+    /// Name of component `j` of input `k` of residual block `r`.
+    pub fn input_component_name(&self, r: ResId, k: usize, j: usize) -> String {
+        match self.blocks[r.0].inputs[k] {
+            Input::Var(v) => self.vars[v.0].component_name(j),
+            Input::Data(d) => self.data[d.0].component_name(j),
+        }
+    }
+
+    /// Assembles `∂F/∂θ` at `z` for the data blocks `wrt`: `out` is the dense `n × p` matrix,
+    /// column-major, `p` the total size of `wrt` (the columns of `wrt[0]` first), overwritten.
+    /// Each residual block reading one of them writes its derivatives through the same
+    /// [`ResidualBlock::jacobian`] as the MCP Jacobian, asked for those data inputs only.
     ///
-    /// `out` is the dense `n × p` matrix, column-major, overwritten. An entry of `column` out of
-    /// range is an error (nothing is written).
+    /// An unknown or repeated id, or an `out` or `z` of the wrong length, is an error (nothing
+    /// is written).
     pub fn data_jacobian(
         &self,
         z: &[f64],
-        p: usize,
-        column: &dyn Fn(ResId, usize) -> Option<usize>,
+        wrt: &[DataId],
         out: &mut [f64],
     ) -> Result<(), ModelError> {
+        // Column of the first entry of each data block, if wanted.
+        let mut column = vec![None; self.data.len()];
+        let mut p = 0;
+        for d in wrt {
+            let slot = column.get_mut(d.0).ok_or_else(|| {
+                ModelError::Dimension(format!(
+                    "data_jacobian: unknown data block #{} (this problem has {})",
+                    d.0,
+                    self.data.len()
+                ))
+            })?;
+            if slot.is_some() {
+                return Err(ModelError::Dimension(format!(
+                    "data_jacobian: data block '{}' is asked for twice",
+                    self.data[d.0].name()
+                )));
+            }
+            *slot = Some(p);
+            p += self.data[d.0].size();
+        }
         if z.len() != self.n || out.len() != self.n * p {
             return Err(ModelError::Dimension(format!(
                 "data_jacobian: z has {} entries (problem: {}), out has {} (needs {} × {})",
@@ -336,46 +585,60 @@ impl BlockMcp {
                 p
             )));
         }
-        // Validate the map first, so a bad map leaves `out` untouched.
-        for (r, b) in self.blocks.iter().enumerate() {
-            for k in 0..b.block.num_data() {
-                if let Some(c) = column(ResId(r), k)
-                    && c >= p
-                {
-                    return Err(ModelError::Dimension(format!(
-                        "data_jacobian: datum '{}' of block '{}' maps to column {c}, but θ has {p} entries",
-                        b.block.data_name(k),
-                        b.block.name()
-                    )));
-                }
-            }
-        }
         out.fill(0.0);
-        let mut local = Vec::new();
-        for (r, b) in self.blocks.iter().enumerate() {
-            let nd = b.block.num_data();
-            if nd == 0 {
+        let width = self
+            .blocks
+            .iter()
+            .map(|b| b.col_pos.len())
+            .max()
+            .unwrap_or(0);
+        let rows = self.blocks.iter().map(|b| b.rows).max().unwrap_or(0);
+        let mut local = Vec::with_capacity(width * rows);
+        let mut local_pos = Vec::with_capacity(width);
+        let mut scatter = Vec::with_capacity(width);
+        for b in &self.blocks {
+            let wanted = |i: &Input| matches!(i, Input::Data(d) if column[d.0].is_some());
+            if !b.inputs.iter().any(wanted) {
                 continue;
             }
-            local.clear();
-            local.resize(b.rows * nd, 0.0);
-            let mut jac = DataJacobian::new(&mut local, b.rows, nd);
-            b.block.data_jacobian(Params::new(z, &b.ranges), &mut jac);
-            for k in 0..nd {
-                if let Some(c) = column(ResId(r), k) {
-                    let dst = &mut out[c * self.n + b.row0..c * self.n + b.row0 + b.rows];
-                    for (d, v) in dst.iter_mut().zip(&local[k * b.rows..(k + 1) * b.rows]) {
-                        *d += v;
+            // Local dense rows × (wanted data columns); `scatter` maps them to columns of θ.
+            local_pos.clear();
+            scatter.clear();
+            for (input, range) in b.inputs.iter().zip(&b.ranges) {
+                let first = match input {
+                    Input::Data(d) => column[d.0],
+                    Input::Var(_) => None,
+                };
+                for j in 0..range.len {
+                    match first {
+                        Some(c) => {
+                            local_pos.push(scatter.len() * b.rows);
+                            scatter.push(c + j);
+                        }
+                        None => local_pos.push(JacobianBlocks::DISCARD),
                     }
+                }
+            }
+            local.clear();
+            local.resize(scatter.len() * b.rows, 0.0);
+            {
+                let mut jac = JacobianBlocks::new(&mut local, &local_pos, &b.block_start, b.rows);
+                b.block
+                    .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
+            }
+            for (lc, &c) in scatter.iter().enumerate() {
+                let dst = &mut out[c * self.n + b.row0..c * self.n + b.row0 + b.rows];
+                for (d, v) in dst.iter_mut().zip(&local[lc * b.rows..(lc + 1) * b.rows]) {
+                    *d += v;
                 }
             }
         }
         Ok(())
     }
 
-    /// Parameter slices of residual block `r` at `z`, for the Jacobian checker.
+    /// Input slices of residual block `r` at `z` (variables from `z`, data from the problem).
     pub fn residual_block_params<'a>(&'a self, r: ResId, z: &'a [f64]) -> Params<'a> {
-        Params::new(z, &self.blocks[r.0].ranges)
+        Params::new(z, &self.data_values, &self.blocks[r.0].ranges)
     }
 }
 
@@ -390,9 +653,17 @@ impl Mcp for BlockMcp {
         &self.upper
     }
     fn evaluate(&self, z: &[f64], f: &mut [f64]) {
-        for b in &self.blocks {
-            b.block
-                .evaluate(Params::new(z, &b.ranges), &mut f[b.row0..b.row0 + b.rows]);
+        // Paired blocks first (they own their rows), then the terms add to them.
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            b.block.evaluate(
+                Params::new(z, &self.data_values, &b.ranges),
+                &mut f[b.row0..b.row0 + b.rows],
+            );
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term) {
+                b.add_term_rows(Params::new(z, &self.data_values, &b.ranges), f);
+            }
         }
     }
     fn jacobian_pattern(&self) -> &Arc<CscPattern> {
@@ -400,20 +671,33 @@ impl Mcp for BlockMcp {
     }
     fn jacobian(&self, z: &[f64], values: &mut [f64]) {
         values.fill(0.0);
-        for b in &self.blocks {
-            let mut jac = JacobianBlocks::new(values, &b.col_pos, &b.block_start, b.rows);
-            b.block.jacobian(Params::new(z, &b.ranges), &mut jac);
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            let mut jac = b.sparse(values);
+            b.block
+                .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term) {
+                b.add_term_jacobian(Params::new(z, &self.data_values, &b.ranges), values);
+            }
         }
     }
     fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
         values.fill(0.0);
-        for b in &self.blocks {
-            let mut jac = JacobianBlocks::new(values, &b.col_pos, &b.block_start, b.rows);
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            let mut jac = b.sparse(values);
             b.block.evaluate_with_jacobian(
-                Params::new(z, &b.ranges),
+                Params::new(z, &self.data_values, &b.ranges),
                 &mut f[b.row0..b.row0 + b.rows],
                 &mut jac,
             );
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term) {
+                let params = Params::new(z, &self.data_values, &b.ranges);
+                b.add_term_rows(params, f);
+                b.add_term_jacobian(params, values);
+            }
         }
     }
     fn component_name(&self, i: usize) -> String {

@@ -1,74 +1,158 @@
 //! Residual blocks: the pieces of `F` a model is built from (Ceres' cost functions, for MCPs).
 //!
-//! Two kinds of inputs enter a residual block, and the names keep them apart:
+//! A residual block reads **inputs**, each bound by the problem builder to either
 //!
-//! - **variable blocks** (the unknowns `z` of the MCP), whose sizes a block declares in
-//!   [`ResidualBlock::parameter_sizes`] — "parameter blocks" in Ceres' words, kept for
-//!   familiarity — and whose Jacobian it writes in [`ResidualBlock::jacobian`];
-//! - **data θ** (model parameters: coefficients such as μ, the mass and inertia, the
-//!   start-of-step state, the applied loads), fixed during a solve, which a block declares with
-//!   [`ResidualBlock::num_data`] and differentiates in [`ResidualBlock::data_jacobian`]. Their
-//!   derivatives are what implicit differentiation of a solution needs (`dz/dθ = −J⁻¹ ∂F/∂θ` on
-//!   the free components, [`crate::sensitivity`]).
+//! - a **variable block** (unknowns `z` of the MCP), or
+//! - a **data block** ([`crate::DataBlock`]: model parameters such as μ, a mass, the start-of-step
+//!   state or an applied load, fixed during a solve and changed between solves with
+//!   [`crate::BlockMcp::set_data`]).
+//!
+//! The block declares the sizes of its inputs in [`ResidualBlock::parameter_sizes`] ("parameter
+//! blocks" in Ceres' words) and writes `∂r/∂x_k` for **every** input `k`, variable or data, in
+//! [`ResidualBlock::jacobian`]. The data derivatives are what the implicit differentiation of a
+//! solution needs (`dz/dθ = −J⁻¹ ∂F/∂θ` on the free components, [`crate::sensitivity`]); the
+//! assembled MCP Jacobian discards them, and [`JacobianBlocks::wants`] lets a block skip
+//! derivatives nobody asked for.
 
-/// Read-only view of the variable blocks a residual block reads, in the order it declared them.
+/// Where input `k` of a residual block lives: `len` values at `offset` of the unknowns `z`
+/// (a variable block) or of the data vector (a data block).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct InputRange {
+    /// Whether the input is a variable or a data block.
+    pub kind: InputKind,
+    /// Offset in `z` or in the data vector.
+    pub offset: usize,
+    /// Number of values.
+    pub len: usize,
+}
+
+impl InputRange {
+    /// A variable input at `offset` of `z`.
+    pub fn var(offset: usize, len: usize) -> Self {
+        InputRange {
+            kind: InputKind::Variable,
+            offset,
+            len,
+        }
+    }
+    /// A data input at `offset` of the data vector.
+    pub fn data(offset: usize, len: usize) -> Self {
+        InputRange {
+            kind: InputKind::Data,
+            offset,
+            len,
+        }
+    }
+}
+
+/// The kind of an input of a residual block.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum InputKind {
+    /// A variable block (unknowns of the MCP).
+    Variable = 0,
+    /// A data block (model parameters).
+    Data = 1,
+}
+
+impl std::fmt::Display for InputKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            InputKind::Variable => "variable",
+            InputKind::Data => "data",
+        })
+    }
+}
+
+/// Read-only view of the inputs of a residual block, in the order it declared them.
 ///
-/// Zero-copy: it indexes into the flat unknown vector `z` by precomputed ranges.
+/// Zero-copy: it indexes into the flat unknown vector `z` and the data vector by precomputed
+/// ranges.
 #[derive(Clone, Copy, Debug)]
 pub struct Params<'a> {
-    z: &'a [f64],
-    ranges: &'a [(usize, usize)],
+    /// `z` and the data, indexed by `InputKind as usize`.
+    sources: [&'a [f64]; 2],
+    inputs: &'a [InputRange],
 }
 
 impl<'a> Params<'a> {
-    /// A view of `z` through `(offset, length)` ranges, one per block.
-    pub fn new(z: &'a [f64], ranges: &'a [(usize, usize)]) -> Self {
-        Params { z, ranges }
+    /// A view of `z` (variable inputs) and `data` (data inputs) through `inputs`.
+    #[inline]
+    pub fn new(z: &'a [f64], data: &'a [f64], inputs: &'a [InputRange]) -> Self {
+        Params {
+            sources: [z, data],
+            inputs,
+        }
     }
-    /// Values of the `k`-th block read.
+    /// Values of input `k`, whichever kind it is.
     #[inline]
     pub fn block(&self, k: usize) -> &'a [f64] {
-        let (o, l) = self.ranges[k];
-        &self.z[o..o + l]
+        let r = self.inputs[k];
+        &self.sources[r.kind as usize][r.offset..r.offset + r.len]
     }
-    /// Number of blocks read.
+    /// Number of inputs.
     pub fn len(&self) -> usize {
-        self.ranges.len()
+        self.inputs.len()
     }
-    /// True when the residual block reads no variable block.
+    /// True when the residual block reads no input.
     pub fn is_empty(&self) -> bool {
-        self.ranges.is_empty()
+        self.inputs.is_empty()
     }
 }
 
-/// Write access to the small dense Jacobian blocks `∂r/∂x_k` of one residual block.
+/// Write access to the small dense Jacobian blocks `∂r/∂x_k` of one residual block, one per
+/// input `k` (variable or data).
 ///
-/// Entry `(i, j)` of block `k` is `∂r_i / ∂(x_k)_j`. The storage behind it is either the
-/// assembled sparse Jacobian or a local dense buffer (Jacobian checker); all entries start
-/// at zero, so a residual block writes only its structural non-zeros.
+/// Entry `(i, j)` of block `k` is `∂r_i / ∂(x_k)_j`. The storage behind it is the assembled
+/// sparse Jacobian, a dense `∂F/∂θ` or a local dense buffer (Jacobian checker); all entries start
+/// at zero, so a residual block writes only its structural non-zeros. Writes to an input nobody
+/// asked for (the data inputs while the MCP Jacobian is assembled, the variable inputs while
+/// `∂F/∂θ` is) are discarded; a block whose derivatives for an input are costly checks
+/// [`JacobianBlocks::wants`] first.
 #[derive(Debug)]
 pub struct JacobianBlocks<'a> {
     values: &'a mut [f64],
-    /// For block `k`, column `j`: position of row 0 in `values` is `col_pos[block_start[k] + j]`.
+    /// For block `k`, column `j`: position of row 0 in `values` is `col_pos[block_start[k] + j]`,
+    /// or [`JacobianBlocks::DISCARD`].
     col_pos: &'a [usize],
     block_start: &'a [usize],
     rows: usize,
+    /// Whether some column is [`JacobianBlocks::DISCARD`] (false: every write is stored, and the
+    /// hot loop of a block without data inputs skips the test).
+    discards: bool,
 }
 
 impl<'a> JacobianBlocks<'a> {
+    /// Marks a column whose writes are discarded (an input not asked for).
+    pub const DISCARD: usize = usize::MAX;
+
     /// Wraps a value array and its layout. `block_start` has one entry per block plus a final
-    /// sentinel; `col_pos[block_start[k] + j] + i` is where entry `(i, j)` of block `k` lives.
+    /// sentinel; `col_pos[block_start[k] + j] + i` is where entry `(i, j)` of block `k` lives,
+    /// and a column whose `col_pos` is [`JacobianBlocks::DISCARD`] is not stored.
     pub fn new(
         values: &'a mut [f64],
         col_pos: &'a [usize],
         block_start: &'a [usize],
         rows: usize,
     ) -> Self {
+        let discards = col_pos.contains(&Self::DISCARD);
+        Self::with_discards(values, col_pos, block_start, rows, discards)
+    }
+
+    /// [`JacobianBlocks::new`] with `discards` (whether `col_pos` holds a
+    /// [`JacobianBlocks::DISCARD`]) known beforehand.
+    pub(crate) fn with_discards(
+        values: &'a mut [f64],
+        col_pos: &'a [usize],
+        block_start: &'a [usize],
+        rows: usize,
+        discards: bool,
+    ) -> Self {
         JacobianBlocks {
             values,
             col_pos,
             block_start,
             rows,
+            discards,
         }
     }
     /// Number of residual rows.
@@ -79,22 +163,36 @@ impl<'a> JacobianBlocks<'a> {
     pub fn cols(&self, k: usize) -> usize {
         self.block_start[k + 1] - self.block_start[k]
     }
+    /// Whether the derivatives with respect to input `k` are stored (false: writes to block `k`
+    /// are discarded, and a block may skip computing them).
     #[inline]
-    fn pos(&self, k: usize, i: usize, j: usize) -> usize {
+    pub fn wants(&self, k: usize) -> bool {
+        let s = self.block_start[k];
+        s < self.block_start[k + 1] && (!self.discards || self.col_pos[s] != Self::DISCARD)
+    }
+    #[inline]
+    fn pos(&self, k: usize, i: usize, j: usize) -> Option<usize> {
         debug_assert!(i < self.rows && j < self.cols(k));
-        self.col_pos[self.block_start[k] + j] + i
+        let p = self.col_pos[self.block_start[k] + j];
+        if self.discards && p == Self::DISCARD {
+            None
+        } else {
+            Some(p + i)
+        }
     }
     /// Sets entry `(i, j)` of block `k`.
     #[inline]
     pub fn set(&mut self, k: usize, i: usize, j: usize, v: f64) {
-        let p = self.pos(k, i, j);
-        self.values[p] = v;
+        if let Some(p) = self.pos(k, i, j) {
+            self.values[p] = v;
+        }
     }
     /// Adds to entry `(i, j)` of block `k`.
     #[inline]
     pub fn add(&mut self, k: usize, i: usize, j: usize, v: f64) {
-        let p = self.pos(k, i, j);
-        self.values[p] += v;
+        if let Some(p) = self.pos(k, i, j) {
+            self.values[p] += v;
+        }
     }
     /// Adds a small row-major matrix `rows × cols` at offset `(i0, j0)` of block `k`.
     pub fn add_row_major(&mut self, k: usize, i0: usize, j0: usize, cols: usize, data: &[f64]) {
@@ -112,90 +210,27 @@ impl<'a> JacobianBlocks<'a> {
     }
 }
 
-/// Write access to the dense Jacobian `∂r/∂θ` of one residual block with respect to its data θ
-/// (see the module documentation), `rows × num_data`, column-major. It starts zeroed, so a
-/// block writes only its non-zeros.
-#[derive(Debug)]
-pub struct DataJacobian<'a> {
-    values: &'a mut [f64],
-    rows: usize,
-    cols: usize,
-}
-
-impl<'a> DataJacobian<'a> {
-    /// Wraps a column-major `rows × cols` buffer (`values.len() == rows * cols`).
-    pub fn new(values: &'a mut [f64], rows: usize, cols: usize) -> Self {
-        debug_assert_eq!(values.len(), rows * cols);
-        DataJacobian { values, rows, cols }
-    }
-    /// Number of residual rows.
-    pub fn rows(&self) -> usize {
-        self.rows
-    }
-    /// Number of data θ (columns).
-    pub fn cols(&self) -> usize {
-        self.cols
-    }
-    /// Sets entry `(i, k)`: `∂r_i/∂θ_k`.
-    #[inline]
-    pub fn set(&mut self, i: usize, k: usize, v: f64) {
-        debug_assert!(i < self.rows && k < self.cols);
-        self.values[k * self.rows + i] = v;
-    }
-    /// Adds to entry `(i, k)`.
-    #[inline]
-    pub fn add(&mut self, i: usize, k: usize, v: f64) {
-        debug_assert!(i < self.rows && k < self.cols);
-        self.values[k * self.rows + i] += v;
-    }
-    /// Entry `(i, k)`.
-    #[inline]
-    pub fn get(&self, i: usize, k: usize) -> f64 {
-        self.values[k * self.rows + i]
-    }
-}
-
 /// A block of residual equations `r(x_1, …, x_K)` with an analytic Jacobian.
 ///
-/// The block declares the sizes of the variable blocks it reads; the problem builder binds
-/// them (`Problem::add_residual_block`) and pairs the block with a variable block of the same
-/// length (`docs/model.md#mcp`). Implementations must be deterministic and free of side effects.
+/// The block declares the sizes of the inputs it reads; the problem builder binds each to a
+/// variable or a data block (`Problem::add_residual_block`) and pairs the block with a variable
+/// block of the same length (`docs/model.md#mcp`), or adds its rows to those of another block
+/// (`Problem::add_term`). Implementations must be deterministic and free of side effects.
 pub trait ResidualBlock: Send + Sync {
     /// Short descriptive name, used in reports.
     fn name(&self) -> &str;
     /// Number of residual rows.
     fn num_residuals(&self) -> usize;
-    /// Sizes of the variable blocks read, in order.
+    /// Sizes of the inputs read (variable or data blocks), in order.
     fn parameter_sizes(&self) -> &[usize];
     /// Evaluates the residual into `out` (length `num_residuals`).
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]);
-    /// Writes the analytic Jacobian, block by block. `jac` starts zeroed.
+    /// Writes the analytic Jacobian, block by block, for every input (variable or data) that
+    /// `jac` [wants](JacobianBlocks::wants). `jac` starts zeroed.
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>);
     /// Evaluates residual and Jacobian together; override when they share work.
     fn evaluate_with_jacobian(&self, x: Params<'_>, out: &mut [f64], jac: &mut JacobianBlocks<'_>) {
         self.evaluate(x, out);
         self.jacobian(x, jac);
     }
-
-    /// Number of scalar **data** θ the residual depends on (model parameters, not unknowns:
-    /// see the module documentation; not to be confused with the variable blocks of
-    /// [`ResidualBlock::parameter_sizes`]). Default 0: a block without declared data is treated
-    /// as independent of every model parameter.
-    fn num_data(&self) -> usize {
-        0
-    }
-    /// Writes the block's current data θ into `theta` (length [`ResidualBlock::num_data`]).
-    fn data(&self, _theta: &mut [f64]) {}
-    /// Name of datum `k`, for reports (e.g. `"mu"`, `"q_start.w"`).
-    fn data_name(&self, k: usize) -> String {
-        format!("theta{k}")
-    }
-    /// Evaluates the residual at `x` with the data replaced by `theta`. It must agree with
-    /// [`ResidualBlock::evaluate`] when `theta` is the block's own data; the Jacobian checker
-    /// ([`crate::check_data_jacobian`]) differentiates it by central differences.
-    fn evaluate_with_data(&self, x: Params<'_>, _theta: &[f64], out: &mut [f64]) {
-        self.evaluate(x, out);
-    }
-    /// Writes `∂r/∂θ` at `x` and the block's current data. `jac` starts zeroed.
-    fn data_jacobian(&self, _x: Params<'_>, _jac: &mut DataJacobian<'_>) {}
 }

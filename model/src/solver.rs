@@ -2,6 +2,7 @@
 
 use std::time::{Duration, Instant};
 
+use crate::counters::{Counter, Counters};
 use crate::mcp::{Mcp, WorstComponent, diagnose, fb_residual};
 
 /// Why a solve stopped.
@@ -107,8 +108,9 @@ pub struct Summary {
     pub time: Duration,
     /// Per-iteration trace (empty unless requested in the settings).
     pub trace: Vec<IterationRecord>,
-    /// Counters specific to the backend (for example `"lm_steps"`, `"pivots"`).
-    pub counters: Vec<(&'static str, usize)>,
+    /// Counters specific to the backend (for example [`Counter::Pivots`]), and the stepper's
+    /// [`Counter::Retries`].
+    pub counters: Counters,
 }
 
 impl Summary {
@@ -116,12 +118,72 @@ impl Summary {
     pub fn converged(&self) -> bool {
         self.termination == Termination::Converged
     }
-    /// Value of a backend counter, 0 if absent.
-    pub fn counter(&self, name: &str) -> usize {
-        self.counters
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map_or(0, |(_, v)| *v)
+
+    /// Value of a counter, `None` when this solve did not report it.
+    pub fn counter(&self, counter: Counter) -> Option<usize> {
+        self.counters.get(counter)
+    }
+
+    /// One line, as Ceres' `BriefReport`: solver, termination, iterations, natural residual and
+    /// time, e.g. `newton: converged after 3 iterations, natural residual 1.2e-12, 41.0 µs`.
+    pub fn brief_report(&self) -> String {
+        format!(
+            "{}: {} after {} iteration{}, natural residual {:.1e}, {}",
+            self.solver,
+            self.termination,
+            self.iterations,
+            if self.iterations == 1 { "" } else { "s" },
+            self.residual,
+            format_duration(self.time)
+        )
+    }
+
+    /// Every field, one per line, as Ceres' `FullReport`: the brief report's numbers, the
+    /// evaluations, both residuals, the worst component, every counter and the trace's length.
+    pub fn full_report(&self) -> String {
+        let mut lines = vec![
+            format!("solver              {}", self.solver),
+            format!("termination         {}", self.termination),
+            format!("iterations          {}", self.iterations),
+            format!("F evaluations       {}", self.f_evals),
+            format!("J evaluations       {}", self.jac_evals),
+            format!("natural residual    {:.3e}", self.residual),
+            format!("FB residual         {:.3e}", self.fb_residual),
+            match &self.worst {
+                Some(w) => format!(
+                    "worst component     {} (index {}, {:.3e})",
+                    w.name, w.index, w.value
+                ),
+                None => "worst component     none".to_string(),
+            },
+            format!("time                {}", format_duration(self.time)),
+            format!(
+                "trace               {} record{}",
+                self.trace.len(),
+                if self.trace.len() == 1 { "" } else { "s" }
+            ),
+        ];
+        if self.counters.is_empty() {
+            lines.push("counters            none".to_string());
+        } else {
+            lines.push("counters".to_string());
+            for (c, v) in self.counters.iter() {
+                lines.push(format!("  {:<18}{v}", c.as_str()));
+            }
+        }
+        lines.join("\n")
+    }
+}
+
+/// `12.3 µs`, `4.56 ms` or `7.89 s`.
+fn format_duration(d: Duration) -> String {
+    let s = d.as_secs_f64();
+    if s < 1e-3 {
+        format!("{:.1} µs", s * 1e6)
+    } else if s < 1.0 {
+        format!("{:.2} ms", s * 1e3)
+    } else {
+        format!("{s:.2} s")
     }
 }
 
@@ -213,7 +275,7 @@ pub struct SolveReport {
     /// Per-iteration trace.
     pub trace: Vec<IterationRecord>,
     /// Backend counters.
-    pub counters: Vec<(&'static str, usize)>,
+    pub counters: Counters,
 }
 
 /// Judges a backend's final point `z` by the model's natural residual (`docs/model.md#mcp`), the
@@ -258,5 +320,76 @@ pub fn finish_solve(
         Err(SolveError::NotConverged {
             best: Box::new(solution),
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn summary() -> Summary {
+        Summary {
+            solver: "path".into(),
+            termination: Termination::Converged,
+            iterations: 3,
+            f_evals: 7,
+            jac_evals: 3,
+            residual: 1.25e-12,
+            fb_residual: 2.5e-12,
+            worst: Some(WorstComponent {
+                index: 4,
+                value: 1.25e-12,
+                name: "contact.p_n[0]".into(),
+            }),
+            time: Duration::from_nanos(41_040),
+            trace: Vec::new(),
+            counters: Counters::from([(Counter::Pivots, 12), (Counter::Custom("hits"), 2)]),
+        }
+    }
+
+    #[test]
+    fn brief_report_is_one_line_with_the_key_numbers() {
+        let mut s = summary();
+        assert_eq!(
+            s.brief_report(),
+            "path: converged after 3 iterations, natural residual 1.2e-12, 41.0 µs"
+        );
+        s.termination = Termination::MaxIterations;
+        s.iterations = 1;
+        s.time = Duration::from_millis(1500);
+        assert_eq!(
+            s.brief_report(),
+            "path: max_iterations after 1 iteration, natural residual 1.2e-12, 1.50 s"
+        );
+    }
+
+    #[test]
+    fn full_report_lists_every_field_and_counter() {
+        let s = summary();
+        let text = s.full_report();
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 13, "{text}");
+        assert_eq!(lines[0], "solver              path");
+        assert_eq!(lines[3], "F evaluations       7");
+        assert_eq!(lines[4], "J evaluations       3");
+        assert_eq!(lines[6], "FB residual         2.500e-12");
+        assert_eq!(
+            lines[7],
+            "worst component     contact.p_n[0] (index 4, 1.250e-12)"
+        );
+        assert_eq!(lines[8], "time                41.0 µs");
+        assert_eq!(lines[9], "trace               0 records");
+        assert_eq!(lines[11], "  pivots            12");
+        assert_eq!(lines[12], "  hits              2");
+        let bare = Summary {
+            worst: None,
+            counters: Counters::new(),
+            time: Duration::from_micros(2500),
+            ..summary()
+        };
+        let text = bare.full_report();
+        assert!(text.contains("worst component     none"), "{text}");
+        assert!(text.contains("counters            none"), "{text}");
+        assert!(text.contains("time                2.50 ms"), "{text}");
     }
 }

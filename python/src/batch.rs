@@ -5,7 +5,6 @@ use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::{PyDict, PyList};
 
-use ecp::backends::SolverKind;
 use ecp::batch::{Axis, Batch, BatchOptions, Column, Grid, JobResult, table, timing_table};
 use ecp::error::InputErrorKind;
 use ecp_formulations::Formulation;
@@ -264,10 +263,7 @@ pub fn batch(
     let options = BatchOptions {
         threads,
         steps,
-        solver: solver
-            .map(|n| n.parse::<SolverKind>())
-            .transpose()
-            .map_err(|e| argument("solver", InputErrorKind::UnknownName, e))?,
+        solver: solver.map(str::to_string),
         formulation: formulation
             .map(|n| n.parse::<Formulation>())
             .transpose()
@@ -275,6 +271,7 @@ pub fn batch(
         fallbacks,
         keep_going,
         records,
+        ..BatchOptions::default()
     };
     let results = guard(|| py.detach(|| batch.run(&options)).map_err(input))?;
     let contacts_per_body = batch

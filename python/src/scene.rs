@@ -201,7 +201,7 @@ impl Scene {
     /// The scene's solver backend (``newton``, ``path`` or ``conic``).
     #[getter]
     fn solver(&self) -> String {
-        self.file.solver.kind.to_string()
+        self.file.solver.name.clone()
     }
 
     /// The text the scene was parsed from (TOML; generated for a dict). Parameters set with
@@ -249,7 +249,7 @@ impl Scene {
             s.h,
             s.duration,
             self.file.formulation.as_str(),
-            self.file.solver.kind.as_str()
+            self.file.solver.name
         )
     }
 

@@ -539,9 +539,7 @@ pub fn trajectory_gradient(
     }
     let mut config = scene.file.solver.clone();
     if let Some(name) = solver {
-        config.kind = name
-            .parse()
-            .map_err(|e: String| argument("solver", InputErrorKind::UnknownName, e))?;
+        config.name = name.trim().to_string();
     }
     let bodies = rust_scene.bodies.len();
     let h = rust_scene.h;

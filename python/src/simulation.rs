@@ -6,7 +6,7 @@ use std::sync::Arc;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use ecp::backends::{SolverConfig, SolverKind, check_combination, make_solver_for};
+use ecp::backends::{SolverConfig, check_combination, make_solver_in};
 use ecp::error::InputErrorKind;
 use ecp::run::fallbacks_for;
 use ecp_formulations::sensitivity::{Param, SensitivityOptions, StepDifferentiator};
@@ -15,6 +15,7 @@ use ecp_formulations::stepper::{
 };
 use ecp_formulations::{Fallbacks, Formulation, Stepper, build_stepper};
 use ecp_model::McpSolver;
+use ecp_solvers::Registry;
 use nalgebra::{Vector3, Vector4};
 
 use crate::convert::fixed;
@@ -217,9 +218,7 @@ impl Simulation {
         guard(|| {
             let mut config = scene.file.solver.clone();
             if let Some(name) = solver {
-                config.kind = name
-                    .parse::<SolverKind>()
-                    .map_err(|e| argument("solver", InputErrorKind::UnknownName, e))?;
+                config.name = name.trim().to_string();
             }
             if let Some(t) = tolerance {
                 if !(t.is_finite() && t > 0.0) {
@@ -240,10 +239,11 @@ impl Simulation {
                     .map_err(|e| argument("formulation", InputErrorKind::UnknownName, e))?,
                 None => scene.file.formulation,
             };
-            check_combination(config.kind, formulation).map_err(input)?;
-            let backend = make_solver_for(&config, formulation).map_err(input)?;
+            let registry = Registry::builtin();
+            check_combination(&registry, &config.name, formulation).map_err(input)?;
+            let backend = make_solver_in(&registry, &config, formulation).map_err(input)?;
             let fallback_set = if fallbacks {
-                fallbacks_for(&config, formulation).map_err(input)?
+                fallbacks_for(&registry, &config, formulation).map_err(input)?
             } else {
                 Fallbacks::none()
             };
@@ -489,7 +489,7 @@ impl Simulation {
     /// The backend's name.
     #[getter]
     fn solver(&self) -> String {
-        self.config.kind.to_string()
+        self.config.name.clone()
     }
 
     /// The formulation's name.
@@ -508,7 +508,7 @@ impl Simulation {
         format!(
             "Simulation(scene={:?}, solver={:?}, formulation={:?}, steps_taken={}, time={})",
             self.scene.file.scene.name,
-            self.config.kind.as_str(),
+            self.config.name,
             self.formulation.as_str(),
             self.steps_taken(),
             self.time()

@@ -7,7 +7,6 @@ use pyo3::exceptions::PyTypeError;
 use pyo3::prelude::*;
 use pyo3::types::PyDict;
 
-use ecp::backends::SolverKind;
 use ecp::error::{InputError as RustInputError, InputErrorKind};
 use ecp::fit::{
     FitError, FitOptions, GradientMethod, Method, ReferenceTrajectory, TrajectoryProblem,
@@ -15,6 +14,7 @@ use ecp::fit::{
 use ecp::lcp::{Lcp, solve_lcp};
 use ecp::run::{RunError, RunOptions, compare_scene};
 use ecp_formulations::Formulation;
+use ecp_solvers::Registry;
 
 use crate::convert::{array, f64_array};
 use crate::errors::{argument, guard, input, simulation};
@@ -27,21 +27,6 @@ fn to_python<'py>(py: Python<'py>, value: &impl serde::Serialize) -> PyResult<Bo
         crate::errors::InternalError::new_err(format!("cannot encode a report: {e}"))
     })?;
     py.import("json")?.call_method1("loads", (text,))
-}
-
-fn names<T: std::str::FromStr<Err = String>>(
-    list: Option<Vec<String>>,
-    what: &str,
-) -> PyResult<Option<Vec<T>>> {
-    list.map(|l| {
-        l.iter()
-            .map(|n| {
-                n.parse::<T>()
-                    .map_err(|e| argument(what, InputErrorKind::UnknownName, e))
-            })
-            .collect()
-    })
-    .transpose()
 }
 
 /// Runs every combination of ``solvers`` (default: newton, path, conic) and ``formulations``
@@ -58,10 +43,20 @@ pub fn compare<'py>(
     steps: Option<usize>,
     out: Option<PathBuf>,
 ) -> PyResult<Bound<'py, PyAny>> {
-    let solvers: Vec<SolverKind> =
-        names(solvers, "solvers")?.unwrap_or_else(|| SolverKind::ALL.to_vec());
-    let formulations: Vec<Formulation> =
-        names(formulations, "formulations")?.unwrap_or_else(|| vec![Formulation::Hull]);
+    let solvers: Vec<String> = solvers.unwrap_or_else(|| {
+        let registry = Registry::builtin();
+        registry.names().iter().map(|n| n.to_string()).collect()
+    });
+    let formulations: Vec<Formulation> = match formulations {
+        Some(list) => list
+            .iter()
+            .map(|n| {
+                n.parse::<Formulation>()
+                    .map_err(|e| argument("formulations", InputErrorKind::UnknownName, e))
+            })
+            .collect::<PyResult<_>>()?,
+        None => vec![Formulation::Hull],
+    };
     let temporary = out.is_none();
     let out_dir = out.unwrap_or_else(|| {
         std::env::temp_dir().join(format!(
@@ -190,9 +185,7 @@ pub fn fit<'py>(
     }
     let mut config = scene.file.solver.clone();
     if let Some(name) = solver {
-        config.kind = name
-            .parse()
-            .map_err(|e: String| argument("solver", InputErrorKind::UnknownName, e))?;
+        config.name = name.trim().to_string();
     }
     let formulation = match formulation {
         Some(name) => name

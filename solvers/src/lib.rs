@@ -38,6 +38,7 @@ mod normal_equations;
 pub mod path;
 pub mod pivot;
 pub mod registry;
+pub mod settings;
 
 pub use newton::{NewtonSettings, NewtonSolver};
 pub use path::{PathSettings, PathSolver};
@@ -45,4 +46,5 @@ pub use pivot::{
     AffineMatrix, AffineMcp, AffineStart, AntiCycling, Lemke, LemkeSettings, PivotError, PivotPath,
     PivotSolution,
 };
-pub use registry::{Backend, BackendOptions, Registry, RegistryError, SettingsError};
+pub use registry::{Backend, BackendOptions, Registry, RegistryError};
+pub use settings::SettingsError;

@@ -40,8 +40,8 @@ use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
-    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, SolveReport,
-    StepKind, Termination, finish_solve, natural_residual, validate_start,
+    Counter, Counters, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
+    SolveReport, StepKind, Termination, finish_solve, natural_residual, validate_start,
 };
 
 use crate::normal_equations::NormalEquations;
@@ -472,12 +472,8 @@ impl McpSolver for NewtonSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let first = self.solve_once(mcp, z0);
-        let used_min_norm = |summary: &ecp_model::Summary| {
-            summary
-                .counters
-                .iter()
-                .any(|(k, v)| *k == "min_norm_steps" && *v > 0)
-        };
+        let used_min_norm =
+            |summary: &ecp_model::Summary| summary.counter(Counter::MinNormSteps).unwrap_or(0) > 0;
         match first {
             // The minimum-norm steps are for non-isolated solution sets; on an isolated but
             // hard step (a light body in free flight near contact) their non-monotone watchdog
@@ -493,7 +489,7 @@ impl McpSolver for NewtonSolver {
                 match second {
                     Ok(mut sol) => {
                         sol.summary.iterations += best.summary.iterations;
-                        sol.summary.counters.push(("min_norm_restarts", 1));
+                        sol.summary.counters.add(Counter::MinNormRestarts, 1);
                         Ok(sol)
                     }
                     Err(SolveError::NotConverged { best: other })
@@ -907,14 +903,14 @@ impl NewtonSolver {
                 jac_evals,
                 started: start,
                 trace,
-                counters: vec![
-                    ("newton_steps", newton_steps),
-                    ("min_norm_steps", min_norm_steps),
-                    ("nonmonotone_steps", nonmonotone_steps),
-                    ("watchdog_restores", watchdog_restores),
-                    ("lm_steps", lm_steps),
-                    ("gradient_steps", gradient_steps),
-                ],
+                counters: Counters::from([
+                    (Counter::NewtonSteps, newton_steps),
+                    (Counter::MinNormSteps, min_norm_steps),
+                    (Counter::NonmonotoneSteps, nonmonotone_steps),
+                    (Counter::WatchdogRestores, watchdog_restores),
+                    (Counter::LevenbergMarquardtSteps, lm_steps),
+                    (Counter::GradientSteps, gradient_steps),
+                ]),
             },
         )
     }
@@ -963,9 +959,12 @@ mod tests {
         assert!((sol.z[0] - 2.0).abs() <= 1e-12, "x = {}", sol.z[0]);
         assert!(sol.z[1].abs() <= 1e-12, "p = {}", sol.z[1]);
         // One Newton step solves it.
-        assert_eq!(sol.summary.counter("lm_steps"), 0);
-        assert_eq!(sol.summary.counter("min_norm_steps"), 0);
-        assert_eq!(sol.summary.counter("newton_steps"), 1);
+        assert_eq!(
+            sol.summary.counter(Counter::LevenbergMarquardtSteps),
+            Some(0)
+        );
+        assert_eq!(sol.summary.counter(Counter::MinNormSteps), Some(0));
+        assert_eq!(sol.summary.counter(Counter::NewtonSteps), Some(1));
         assert_eq!(sol.summary.iterations, 1);
         let unpinned = NewtonSolver::new(NewtonSettings {
             pin_zero_columns: false,
@@ -979,7 +978,11 @@ mod tests {
         };
         // Without it the LU fails and a safeguard step is taken instead.
         assert!(
-            summary.counter("lm_steps") + summary.counter("min_norm_steps") > 0,
+            summary
+                .counter(Counter::LevenbergMarquardtSteps)
+                .unwrap_or(0)
+                + summary.counter(Counter::MinNormSteps).unwrap_or(0)
+                > 0,
             "{summary:?}"
         );
     }

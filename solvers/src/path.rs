@@ -41,8 +41,8 @@ use std::sync::Arc;
 use std::time::Instant;
 
 use ecp_model::{
-    CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError, SolveReport,
-    StepKind, Termination, finish_solve, mid, natural_residual, validate_start,
+    Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
+    SolveReport, StepKind, Termination, finish_solve, mid, natural_residual, validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -905,19 +905,22 @@ impl McpSolver for PathSolver {
                 jac_evals,
                 started,
                 trace,
-                counters: vec![
-                    ("pivots", counters.pivots),
-                    ("crash_steps", counters.crash_steps),
-                    ("path_steps", counters.path_steps),
-                    ("nonmonotone_steps", counters.nonmonotone_steps),
-                    ("watchdog_restores", counters.watchdog_restores),
-                    ("path_backtracks", counters.path_backtracks),
-                    ("proximal_perturbations", counters.proximal_perturbations),
-                    ("ray_terminations", counters.ray_terminations),
-                    ("restarts", counters.restarts),
-                    ("guarded_attempts", counters.guarded_attempts),
-                    ("time_limit_reached", counters.time_limit_reached),
-                ],
+                counters: ecp_model::Counters::from([
+                    (Counter::Pivots, counters.pivots),
+                    (Counter::CrashSteps, counters.crash_steps),
+                    (Counter::PathSteps, counters.path_steps),
+                    (Counter::NonmonotoneSteps, counters.nonmonotone_steps),
+                    (Counter::WatchdogRestores, counters.watchdog_restores),
+                    (Counter::PathBacktracks, counters.path_backtracks),
+                    (
+                        Counter::ProximalPerturbations,
+                        counters.proximal_perturbations,
+                    ),
+                    (Counter::RayTerminations, counters.ray_terminations),
+                    (Counter::Restarts, counters.restarts),
+                    (Counter::GuardedAttempts, counters.guarded_attempts),
+                    (Counter::TimeLimitReached, counters.time_limit_reached),
+                ]),
             },
         )
     }
@@ -971,7 +974,7 @@ mod tests {
             .solve(&cubic(), &[0.0])
             .unwrap();
         assert!((sol.z[0] - 1.0).abs() < 1e-10);
-        assert!(sol.summary.counter("proximal_perturbations") > 0);
+        assert!(sol.summary.counter(Counter::ProximalPerturbations).unwrap() > 0);
         // Without the perturbation (λ capped at 0) the first linearisation is unsolvable.
         let err = PathSolver::new(PathSettings {
             proximal_max: 0.0,
@@ -993,8 +996,8 @@ mod tests {
             .solve(&p.mcp, &p.starts[5].1)
             .unwrap();
         assert!(sol.summary.residual <= 1e-10);
-        assert!(sol.summary.counter("watchdog_restores") > 0);
-        assert!(sol.summary.counter("nonmonotone_steps") > 0);
+        assert!(sol.summary.counter(Counter::WatchdogRestores).unwrap() > 0);
+        assert!(sol.summary.counter(Counter::NonmonotoneSteps).unwrap() > 0);
     }
 
     #[test]
@@ -1003,7 +1006,10 @@ mod tests {
         let mut solver = PathSolver::new(PathSettings::default());
         for (label, z0) in &p.starts {
             let sol = solver.solve(&p.mcp, z0).unwrap();
-            assert!(sol.summary.counter("crash_steps") > 0, "{label}");
+            assert!(
+                sol.summary.counter(Counter::CrashSteps).unwrap() > 0,
+                "{label}"
+            );
             assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-10);
         }
     }
@@ -1101,7 +1107,7 @@ mod tests {
             .unwrap_err();
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::MaxIterations);
-        assert!(best.summary.counter("watchdog_restores") > 0);
+        assert!(best.summary.counter(Counter::WatchdogRestores).unwrap() > 0);
         let sol = PathSolver::new(PathSettings {
             guarded_watchdog: true,
             ..settings
@@ -1109,7 +1115,7 @@ mod tests {
         .solve(&p.mcp, z0)
         .unwrap();
         assert!(sol.summary.residual <= 1e-10);
-        assert_eq!(sol.summary.counter("guarded_attempts"), 1);
+        assert_eq!(sol.summary.counter(Counter::GuardedAttempts).unwrap(), 1);
         assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
     }
 
@@ -1127,8 +1133,8 @@ mod tests {
         .unwrap_err();
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::MaxIterations);
-        assert_eq!(best.summary.counter("time_limit_reached"), 1);
-        assert_eq!(best.summary.counter("restarts"), 0);
+        assert_eq!(best.summary.counter(Counter::TimeLimitReached).unwrap(), 1);
+        assert_eq!(best.summary.counter(Counter::Restarts).unwrap(), 0);
         assert_eq!(best.summary.iterations, 0);
         // The same solve without a budget converges and does not report one.
         let sol = PathSolver::new(PathSettings {
@@ -1138,7 +1144,7 @@ mod tests {
         .solve(&p.mcp, z0)
         .unwrap();
         assert!(sol.summary.residual <= 1e-10);
-        assert_eq!(sol.summary.counter("time_limit_reached"), 0);
+        assert_eq!(sol.summary.counter(Counter::TimeLimitReached).unwrap(), 0);
     }
 
     #[test]

@@ -50,7 +50,9 @@ use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 pub use expr::TimeExpression;
 pub use locate::line_of;
 
-use crate::backends::{Formulation, SolverConfig, SolverKind};
+use ecp_solvers::Registry;
+
+use crate::backends::{DEFAULT_SOLVER, Formulation, SolverConfig};
 use crate::error::{InputError, InputErrorKind};
 use raw::{RawBody, RawHalfSpace, RawLoad, RawPiece, RawScene};
 
@@ -72,8 +74,17 @@ pub struct SceneFile {
     pub loads: Vec<Option<[TimeExpression; 6]>>,
 }
 
-/// Reads and validates the scene file at `path`.
+/// Reads and validates the scene file at `path`; its `[solver] name` must be a built-in backend.
 pub fn load_scene(path: &Path) -> std::result::Result<SceneFile, InputError> {
+    load_scene_in(path, &Registry::builtin())
+}
+
+/// Reads and validates the scene file at `path`; its `[solver] name` must be a backend of
+/// `registry` (which may hold a user's own backends).
+pub fn load_scene_in(
+    path: &Path,
+    registry: &Registry,
+) -> std::result::Result<SceneFile, InputError> {
     let text = std::fs::read_to_string(path).map_err(|e| InputError {
         file: Some(path.to_path_buf()),
         key: None,
@@ -83,21 +94,35 @@ pub fn load_scene(path: &Path) -> std::result::Result<SceneFile, InputError> {
             "cannot read the scene file ({e}); check the path (scene files are in scenes/, e.g. scenes/desk.toml)"
         ),
     })?;
-    parse_scene(&text, path)
+    parse_scene_in(&text, path, registry)
 }
 
 /// Parses and validates scene text; `path` names the file in messages, and relative mesh paths
-/// are resolved against its directory.
+/// are resolved against its directory. The solver must be a built-in backend.
 pub fn parse_scene(text: &str, path: &Path) -> std::result::Result<SceneFile, InputError> {
-    let cx = Context { doc: text, path };
+    parse_scene_in(text, path, &Registry::builtin())
+}
+
+/// As [`parse_scene`], with the solver looked up in `registry`.
+pub fn parse_scene_in(
+    text: &str,
+    path: &Path,
+    registry: &Registry,
+) -> std::result::Result<SceneFile, InputError> {
+    let cx = Context {
+        doc: text,
+        path,
+        registry,
+    };
     let raw: RawScene = toml::from_str(text).map_err(|e| cx.serde_error(&e))?;
     cx.build(raw)
 }
 
-/// Error context: the document and its path.
+/// Error context: the document and its path, and the backends a `[solver] name` may name.
 struct Context<'a> {
     doc: &'a str,
     path: &'a Path,
+    registry: &'a Registry,
 }
 
 type Result<T> = std::result::Result<T, InputError>;
@@ -307,11 +332,15 @@ impl Context<'_> {
         };
 
         let solver = SolverConfig {
-            kind: match &raw.solver.name {
-                Some(n) => n
-                    .parse::<SolverKind>()
-                    .map_err(|m| self.err(InputErrorKind::UnknownName, "solver.name", m))?,
-                None => SolverKind::Newton,
+            name: match &raw.solver.name {
+                Some(n) => self
+                    .registry
+                    .get(n)
+                    .map(|b| b.name().to_string())
+                    .map_err(|e| {
+                        self.err(InputErrorKind::UnknownName, "solver.name", e.to_string())
+                    })?,
+                None => DEFAULT_SOLVER.to_string(),
             },
             tolerance: match raw.solver.tolerance {
                 Some(t) => Some(self.positive("solver.tolerance", t, "the tolerance")?),
@@ -744,7 +773,7 @@ pub fn describe(file: &SceneFile) -> String {
         out,
         "  formulation {}, solver {} (tolerance {}, max iterations {})",
         file.formulation,
-        file.solver.kind,
+        file.solver.name,
         file.solver
             .tolerance
             .map_or("default".to_string(), |t| format!("{t:e}")),

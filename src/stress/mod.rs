@@ -23,8 +23,6 @@ use std::time::Duration;
 pub use generate::{Category, StressScene, generate};
 pub use runner::{RunConfig, RunResult, run_file};
 
-use crate::backends::SolverKind;
-
 /// The seed of the documented full run.
 pub const DEFAULT_SEED: u64 = 20_260_525;
 
@@ -36,8 +34,8 @@ pub const DEFAULT_COUNT: usize = 156;
 pub struct SuiteOptions {
     /// Output directory: `scenes/` (the scene and mesh files), `runs/<solver>/<scene>/`.
     pub out_dir: PathBuf,
-    /// Backends, each run on every scene.
-    pub solvers: Vec<SolverKind>,
+    /// Backends by name (built-in), each run on every scene.
+    pub solvers: Vec<String>,
     /// Stop every run after this many steps.
     pub steps: Option<usize>,
     /// Time limit of one run.
@@ -70,10 +68,15 @@ pub fn run_paths(
     options: &SuiteOptions,
     on_result: impl Fn(&RunResult) + Sync,
 ) -> std::io::Result<Vec<RunResult>> {
-    let jobs: Vec<(usize, &Path, SolverKind)> = paths
+    let jobs: Vec<(usize, &Path, &str)> = paths
         .iter()
         .enumerate()
-        .flat_map(|(i, p)| options.solvers.iter().map(move |s| (i, p.as_path(), *s)))
+        .flat_map(|(i, p)| {
+            options
+                .solvers
+                .iter()
+                .map(move |s| (i, p.as_path(), s.as_str()))
+        })
         .collect();
     let next = AtomicUsize::new(0);
     let results: Mutex<Vec<(usize, usize, RunResult)>> = Mutex::new(Vec::new());
@@ -87,15 +90,11 @@ pub fn run_paths(
                     };
                     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
                     let config = RunConfig {
-                        solver,
+                        solver: solver.to_string(),
                         steps: options.steps,
                         time_limit: options.time_limit,
                         fallbacks: options.fallbacks,
-                        out_dir: options
-                            .out_dir
-                            .join("runs")
-                            .join(solver.as_str())
-                            .join(stem),
+                        out_dir: options.out_dir.join("runs").join(solver).join(stem),
                     };
                     let r = run_file(path, &config);
                     on_result(&r);

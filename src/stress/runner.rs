@@ -11,7 +11,6 @@ use ecp_formulations::stepper::{BodyState, Load, Scene, StepRecord};
 use nalgebra::Vector3;
 use serde::Serialize;
 
-use crate::backends::SolverKind;
 use crate::run::{RunOptions, run_scene};
 use crate::scene::load_scene;
 
@@ -36,8 +35,8 @@ pub const TIME_LIMIT: Duration = Duration::from_secs(60);
 /// How to run a scene.
 #[derive(Clone, Debug)]
 pub struct RunConfig {
-    /// The backend.
-    pub solver: SolverKind,
+    /// The backend's (built-in) name.
+    pub solver: String,
     /// Stop after this many steps (the scene's duration when `None`).
     pub steps: Option<usize>,
     /// Stop a run that takes longer than this (a timeout).
@@ -102,11 +101,11 @@ pub struct RunResult {
 }
 
 impl RunResult {
-    fn empty(scene: &str, category: &str, solver: SolverKind) -> Self {
+    fn empty(scene: &str, category: &str, solver: &str) -> Self {
         RunResult {
             scene: scene.to_string(),
             category: category.to_string(),
-            solver: solver.as_str().to_string(),
+            solver: solver.to_string(),
             planned_steps: 0,
             steps: 0,
             failed_steps: 0,
@@ -162,7 +161,7 @@ pub fn run_file(path: &Path, config: &RunConfig) -> RunResult {
         .and_then(|s| s.to_str())
         .unwrap_or("scene")
         .to_string();
-    let mut result = RunResult::empty(&stem, &category_of(&stem), config.solver);
+    let mut result = RunResult::empty(&stem, &category_of(&stem), &config.solver);
     let file = match load_scene(path) {
         Ok(f) => f,
         Err(e) => {
@@ -174,13 +173,14 @@ pub fn run_file(path: &Path, config: &RunConfig) -> RunResult {
     result.category = category_of(&file.scene.name);
     let options = RunOptions {
         out_dir: config.out_dir.clone(),
-        solver: Some(config.solver),
+        solver: Some(config.solver.clone()),
         formulation: Some(Formulation::Hull),
         steps: config.steps,
         plots: false,
         keep_going: true,
         fallbacks: config.fallbacks,
         time_limit: config.time_limit,
+        ..RunOptions::default()
     };
     let start = Instant::now();
     let outcome = run_scene(&file, &options, |_| {});

@@ -74,8 +74,8 @@ pub use clarabel::solver::SolverStatus as ClarabelStatus;
 pub use qp::status_code;
 
 use ecp_model::{
-    IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport, StepKind, Termination,
-    finish_solve, natural_residual, validate_start,
+    Counter, Counters, IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport,
+    StepKind, Termination, finish_solve, natural_residual, validate_start,
 };
 
 use crate::newton::{NewtonSettings, NewtonSolver};
@@ -527,16 +527,16 @@ impl McpSolver for ConicSolver {
                 jac_evals: 0,
                 started: run.started,
                 trace: run.trace,
-                counters: vec![
-                    ("clarabel_iterations", run.clarabel_iterations),
-                    ("clarabel_status", run.status.map_or(0, status_code)),
-                    ("patch_vertices", run.patch_vertices),
+                counters: Counters::from([
+                    (Counter::ClarabelIterations, run.clarabel_iterations),
+                    (Counter::ClarabelStatus, run.status.map_or(0, status_code)),
+                    (Counter::PatchVertices, run.patch_vertices),
                     (
-                        "anitescu_relaxation",
+                        Counter::AnitescuRelaxation,
                         usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
                     ),
-                    ("newton_polish", run.newton_polish),
-                ],
+                    (Counter::NewtonPolish, run.newton_polish),
+                ]),
             },
         )
     }

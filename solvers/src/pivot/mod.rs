@@ -29,8 +29,9 @@
 //! **Numerics.** The ratio test has a pivot tolerance and treats candidates within a
 //! degeneracy tolerance as ties; ties are broken by the lexicographic rule (the minimum-ratio
 //! test on `[x_B, B⁻¹]`, which prevents cycling, Cottle, Pang & Stone §4.9), or, when that is
-//! switched off, by the largest pivot. The basis is factorised by a dense LU updated in product
-//! form and refactorised periodically (module `basis`).
+//! switched off, by the largest pivot. The basis is kept as its unit columns plus the explicit
+//! inverse of the block of the others, updated at every pivot and recomputed from an LU
+//! periodically (module `basis`, `docs/backends.md#lemke-speed`).
 
 pub(crate) mod basis;
 
@@ -38,11 +39,11 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::{
-    CscPattern, Mcp, McpSolver, Solution, SolveError, SolveReport, Termination, finish_solve, mid,
-    natural_residual, validate_start,
+    Counter, Counters, CscPattern, Mcp, McpSolver, Solution, SolveError, SolveReport, Termination,
+    finish_solve, mid, natural_residual, validate_start,
 };
 
-use basis::BasisFactor;
+use basis::{BasisFactor, Column};
 
 /// How ties in Lemke's ratio test are broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -67,7 +68,7 @@ pub struct LemkeSettings {
     pub degeneracy_tolerance: f64,
     /// Pivot limit; `0` means `max(1000, 50 n)`. Default `0`.
     pub max_pivots: usize,
-    /// Refactorise the basis after this many product-form updates. Default 50.
+    /// Recompute the basis inverse from a fresh LU after this many updates. Default 50.
     pub refactorization_period: usize,
     /// Tie-breaking rule of the ratio test. Default [`AntiCycling::Lexicographic`].
     pub anti_cycling: AntiCycling,
@@ -159,6 +160,7 @@ impl AffineMatrix<'_> {
     }
 
     /// Writes column `j` of `M + shift·I` into the dense vector `out`.
+    #[inline]
     fn column(&self, j: usize, shift: f64, out: &mut [f64]) {
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
@@ -182,6 +184,11 @@ impl AffineMatrix<'_> {
 
     /// `out = (M + shift·I) z`.
     fn mul(&self, z: &[f64], shift: f64, out: &mut [f64]) {
+        if z.iter().all(|&v| v == 0.0) {
+            // Lemke's classical start of an LCP and its right-hand sides: z = 0.
+            out.fill(0.0);
+            return;
+        }
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
                 for i in 0..n {
@@ -392,8 +399,6 @@ enum State {
 pub struct Lemke {
     settings: LemkeSettings,
     factor: BasisFactor,
-    cols: Vec<f64>,
-    order: Vec<usize>,
     basis: Vec<usize>,
     position: Vec<Option<usize>>,
     state: Vec<State>,
@@ -403,6 +408,7 @@ pub struct Lemke {
     alpha: Vec<f64>,
     delta: Vec<f64>,
     col: Vec<f64>,
+    entering_col: Vec<f64>,
     rhs: Vec<f64>,
     row: Vec<f64>,
     lex_best: Vec<f64>,
@@ -410,10 +416,22 @@ pub struct Lemke {
     z: Vec<f64>,
     r: Vec<f64>,
     ties: Vec<usize>,
+    ratios: Vec<f64>,
+    /// Bounds of the basic variable at each position.
+    lo_b: Vec<f64>,
+    hi_b: Vec<f64>,
+    lcp_bounds: (Vec<f64>, Vec<f64>),
     refactorizations: usize,
     /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
     /// per-solve budget of a caller such as the PATH-like solver); `None` for no limit.
     deadline: Option<std::time::Instant>,
+}
+
+/// The entering column's kind, kept over the ratio test (its values stay in `entering_col`).
+#[derive(Clone, Copy)]
+enum ColumnKind {
+    Unit(usize),
+    Dense,
 }
 
 /// Internal result of the ratio test.
@@ -430,8 +448,6 @@ impl Lemke {
         Lemke {
             settings,
             factor: BasisFactor::default(),
-            cols: Vec::new(),
-            order: Vec::new(),
             basis: Vec::new(),
             position: Vec::new(),
             state: Vec::new(),
@@ -441,6 +457,7 @@ impl Lemke {
             alpha: Vec::new(),
             delta: Vec::new(),
             col: Vec::new(),
+            entering_col: Vec::new(),
             rhs: Vec::new(),
             row: Vec::new(),
             lex_best: Vec::new(),
@@ -448,6 +465,10 @@ impl Lemke {
             z: Vec::new(),
             r: Vec::new(),
             ties: Vec::new(),
+            ratios: Vec::new(),
+            lo_b: Vec::new(),
+            hi_b: Vec::new(),
+            lcp_bounds: (Vec::new(), Vec::new()),
             refactorizations: 0,
             deadline: None,
         }
@@ -477,8 +498,12 @@ impl Lemke {
         q: &[f64],
     ) -> Result<PivotSolution, PivotError> {
         let n = q.len();
-        let lower = vec![0.0; n];
-        let upper = vec![f64::INFINITY; n];
+        // The bounds of an LCP, kept between solves (no allocation once warm).
+        let (mut lower, mut upper) = std::mem::take(&mut self.lcp_bounds);
+        lower.clear();
+        lower.resize(n, 0.0);
+        upper.clear();
+        upper.resize(n, f64::INFINITY);
         let problem = AffineMcp {
             m: AffineMatrix::DenseRowMajor {
                 n,
@@ -489,7 +514,9 @@ impl Lemke {
             upper: &upper,
             diagonal_shift: 0.0,
         };
-        self.solve_affine(&problem, &AffineStart::Classical { free_values: None })
+        let result = self.solve_affine(&problem, &AffineStart::Classical { free_values: None });
+        self.lcp_bounds = (lower, upper);
+        result
     }
 
     /// Solves a box-constrained affine MCP (LCP, mixed LCP, box LCP) from `start`.
@@ -532,8 +559,12 @@ impl Lemke {
                 problem.upper.len()
             ));
         }
-        if let Some(k) = problem.m.values().iter().position(|v| !v.is_finite()) {
-            return bad(format!("entry {k} of M is {}", problem.m.values()[k]));
+        // A branch-free scan first (it vectorises); the position only for the message.
+        let values = problem.m.values();
+        if !all_finite(values)
+            && let Some(k) = values.iter().position(|v| !v.is_finite())
+        {
+            return bad(format!("entry {k} of M is {}", values[k]));
         }
         if let Some(i) = problem.q.iter().position(|v| !v.is_finite()) {
             return bad(format!("q[{i}] = {} is not finite", problem.q[i]));
@@ -572,13 +603,12 @@ impl Lemke {
     }
 
     fn resize(&mut self, n: usize) {
-        self.cols.resize(n * n, 0.0);
-        self.order.resize(n, 0);
         self.basis.resize(n, 0);
         self.position.clear();
         self.position.resize(2 * n + 1, None);
         self.state.clear();
         self.state.resize(n, State::Lower);
+        // Every entry of these is written before it is read: only their length matters.
         for v in [
             &mut self.xb,
             &mut self.zbar,
@@ -586,20 +616,26 @@ impl Lemke {
             &mut self.alpha,
             &mut self.delta,
             &mut self.col,
+            &mut self.entering_col,
             &mut self.rhs,
             &mut self.row,
             &mut self.lex_best,
             &mut self.x,
             &mut self.z,
             &mut self.r,
+            &mut self.ratios,
+            &mut self.lo_b,
+            &mut self.hi_b,
         ] {
-            v.clear();
-            v.resize(n, 0.0);
+            if v.len() != n {
+                v.resize(n, 0.0);
+            }
         }
         self.refactorizations = 0;
     }
 
     /// Column of variable `v` (`z_i`, `r_i` or `s`) into `out`.
+    #[inline]
     fn var_column(&self, problem: &AffineMcp<'_>, v: usize, out: &mut [f64]) {
         let n = problem.q.len();
         if v < n {
@@ -612,32 +648,41 @@ impl Lemke {
         }
     }
 
-    /// Factorises the current basis (unit columns first, so that a dependent column is always a
-    /// `z` column, or `s`).
-    fn refactor(&mut self, problem: &AffineMcp<'_>, pivots: usize) -> Result<(), PivotError> {
+    /// The column of variable `v`: `e_i` for `r_i`, else its dense values written into `buf`.
+    #[inline]
+    fn column_of<'b>(&self, problem: &AffineMcp<'_>, v: usize, buf: &'b mut [f64]) -> Column<'b> {
         let n = problem.q.len();
-        let mut k = 0;
-        for pass in 0..2 {
-            for p in 0..n {
-                let is_unit = self.basis[p] >= n && self.basis[p] < 2 * n;
-                if is_unit == (pass == 0) {
-                    self.order[k] = p;
-                    k += 1;
-                }
+        if v >= n && v < 2 * n {
+            Column::Unit(v - n)
+        } else {
+            self.var_column(problem, v, buf);
+            Column::Dense(buf)
+        }
+    }
+
+    /// Factorises the current basis (unit columns first, so that a dependent column is always a
+    /// `z` column, or `s`); later updates go to an eta file when `eta_mode`, else to the
+    /// explicit inverse of the basis's Schur block.
+    fn refactor(
+        &mut self,
+        problem: &AffineMcp<'_>,
+        pivots: usize,
+        eta_mode: bool,
+    ) -> Result<(), PivotError> {
+        let n = problem.q.len();
+        self.factor.begin(n, eta_mode);
+        let mut col = std::mem::take(&mut self.col);
+        for p in 0..n {
+            match self.column_of(problem, self.basis[p], &mut col) {
+                Column::Unit(row) => self.factor.set_unit(p, row),
+                Column::Dense(values) => self.factor.set_dense(p, values),
             }
         }
-        let mut cols = std::mem::take(&mut self.cols);
-        let mut col = std::mem::take(&mut self.col);
-        for k in 0..n {
-            self.var_column(problem, self.basis[self.order[k]], &mut col);
-            cols[k * n..(k + 1) * n].copy_from_slice(&col);
-        }
-        let result = self.factor.factor(n, &cols, &self.order);
-        self.cols = cols;
         self.col = col;
+        let result = self.factor.finish();
         self.refactorizations += 1;
         result.map_err(|dep| {
-            let v = self.basis[self.order[dep.column]];
+            let v = self.basis[dep.position];
             PivotError::SingularBasis {
                 pivots,
                 detail: if v < n {
@@ -667,28 +712,41 @@ impl Lemke {
         self.rhs = mz;
     }
 
-    /// `x_B = B⁻¹ rhs` with one step of iterative refinement (the residual `rhs − B x_B` is
-    /// solved for a correction), which recovers the digits an ill-conditioned basis loses.
-    fn solve_refined(&mut self, problem: &AffineMcp<'_>) {
+    /// Iterative refinement of the basic solution `x_B` (as the pivots updated it): the
+    /// residual `rhs − B x_B`, computed from the data, is solved for a correction, which removes
+    /// the round-off the updates accumulated; a second step when the first correction was not
+    /// negligible.
+    fn refine(&mut self, problem: &AffineMcp<'_>) {
         let n = problem.q.len();
         let mut x = std::mem::take(&mut self.xb);
-        x.copy_from_slice(&self.rhs);
-        self.factor.solve(&mut x);
         let mut res = std::mem::take(&mut self.row);
         let mut col = std::mem::take(&mut self.col);
-        res.copy_from_slice(&self.rhs);
-        for p in 0..n {
-            if x[p] != 0.0 {
-                self.var_column(problem, self.basis[p], &mut col);
-                for (r, c) in res.iter_mut().zip(&col) {
-                    *r -= c * x[p];
+        for _ in 0..2 {
+            res.copy_from_slice(&self.rhs);
+            for p in 0..n {
+                if x[p] != 0.0 {
+                    match self.column_of(problem, self.basis[p], &mut col) {
+                        Column::Unit(row) => res[row] -= x[p],
+                        Column::Dense(c) => {
+                            for (r, c) in res.iter_mut().zip(c) {
+                                *r -= c * x[p];
+                            }
+                        }
+                    }
                 }
             }
-        }
-        self.factor.solve(&mut res);
-        if res.iter().all(|v| v.is_finite()) {
+            self.factor.solve(&mut res);
+            if !all_finite(&res) {
+                break;
+            }
+            let (mut dmax, mut xmax) = (0.0f64, 0.0f64);
             for (xi, d) in x.iter_mut().zip(&res) {
                 *xi += d;
+                dmax = dmax.max(d.abs());
+                xmax = xmax.max(xi.abs());
+            }
+            if dmax <= 1e-14 * xmax {
+                break;
             }
         }
         self.xb = x;
@@ -697,6 +755,7 @@ impl Lemke {
     }
 
     /// Bounds `[lo, hi]` of the basic variable `v`.
+    #[inline]
     fn var_bounds(&self, problem: &AffineMcp<'_>, v: usize) -> (f64, f64) {
         let n = problem.q.len();
         if v < n {
@@ -823,19 +882,21 @@ impl Lemke {
             self.basis[i] = v;
             self.position[v] = Some(i);
             self.xb[i] = if v < n { self.z[i] } else { self.r[i] };
+            (self.lo_b[i], self.hi_b[i]) = self.var_bounds(problem, v);
         }
         let dnorm = self.d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let mut pivots = 0usize;
         // When d = 0 the start solves the problem already.
         if dnorm > 0.0 {
-            self.refactor(problem, pivots)?;
+            // A path starts with an eta file over the first factorisation: most paths (the
+            // linearisations of the PATH-like solver) end within a few pivots.
+            self.refactor(problem, pivots, true)?;
             self.pivot_loop(problem, &mut pivots, path.as_deref_mut())?;
-            // Clean solution at s = 0 from a fresh factorisation of the final basis.
-            if self.factor.updates() > 0 {
-                self.refactor(problem, pivots)?;
-            }
+            // The solution at s = 0, from the right-hand side recomputed from the data and the
+            // basis inverse (refreshed at least every `refactorization_period` pivots), with a
+            // step of iterative refinement.
             self.compute_rhs(problem, 0.0);
-            self.solve_refined(problem);
+            self.refine(problem);
         }
         self.current_x(n);
         let mut z = vec![0.0; n];
@@ -900,10 +961,12 @@ impl Lemke {
             }
             // alpha = B⁻¹ a_e; the basic variables move by delta = −dir·alpha per unit step.
             let mut alpha = std::mem::take(&mut self.alpha);
-            self.var_column(problem, entering, &mut alpha);
-            self.factor.solve(&mut alpha);
-            if alpha.iter().any(|v| !v.is_finite()) {
+            let mut col = std::mem::take(&mut self.entering_col);
+            let column = self.column_of(problem, entering, &mut col);
+            self.factor.solve_column(column, &mut alpha);
+            if !all_finite(&alpha) {
                 self.alpha = alpha;
+                self.entering_col = col;
                 return Err(PivotError::SingularBasis {
                     pivots: *pivots,
                     detail: "a basis solve produced a non-finite value".into(),
@@ -913,6 +976,11 @@ impl Lemke {
                 self.delta[p] = -dir * alpha[p];
             }
             self.alpha = alpha;
+            let column = match column {
+                Column::Unit(row) => ColumnKind::Unit(row),
+                Column::Dense(_) => ColumnKind::Dense,
+            };
+            self.entering_col = col;
 
             // Entering variable's own range: z between its bounds, s down to 0.
             let own = if entering < n {
@@ -967,13 +1035,18 @@ impl Lemke {
                     let leaving = self.basis[p];
                     let leaving_delta = self.delta[p];
                     // Basis change: position p now holds the entering variable.
-                    let alpha = std::mem::take(&mut self.alpha);
-                    self.factor.update(p, &alpha);
-                    self.alpha = alpha;
+                    let column = match column {
+                        ColumnKind::Unit(row) => Column::Unit(row),
+                        ColumnKind::Dense => Column::Dense(&self.entering_col),
+                    };
+                    self.factor.update(p, column, &self.alpha);
                     self.basis[p] = entering;
                     self.position[leaving] = None;
                     self.position[entering] = Some(p);
                     self.xb[p] = entering_value;
+                    // A basic variable's bounds do not change while it is basic (an r_i's side
+                    // is fixed by its z_i's state before r_i enters).
+                    (self.lo_b[p], self.hi_b[p]) = self.var_bounds(problem, entering);
                     if entering < n {
                         self.state[entering] = State::Basic;
                     } else if entering == s_var {
@@ -1004,8 +1077,15 @@ impl Lemke {
                         };
                         entering = i;
                     }
-                    if !finished && self.factor.updates() >= self.settings.refactorization_period {
-                        self.refactor(problem, *pivots)?;
+                    // A longer path switches to the explicit inverse (updated in O(m²) per
+                    // pivot), refreshed every `refactorization_period` pivots.
+                    let period = if self.factor.eta_mode() {
+                        ETA_PIVOTS.min(self.settings.refactorization_period)
+                    } else {
+                        self.settings.refactorization_period
+                    };
+                    if !finished && self.factor.updates() >= period {
+                        self.refactor(problem, *pivots, false)?;
                         self.compute_rhs(problem, s_nonbasic);
                         let mut rhs = std::mem::take(&mut self.rhs);
                         self.factor.solve(&mut rhs);
@@ -1045,25 +1125,27 @@ impl Lemke {
         // that it never passes 0.
         let tol = self.settings.pivot_tolerance * dmax;
         let noise = NOISE * dmax;
-        let ratio = |me: &Self, p: usize| -> Option<f64> {
-            let dp = me.delta[p];
-            let v = me.basis[p];
-            let (lo, hi) = me.var_bounds(problem, v);
-            let cutoff = if v == s_var { 0.0 } else { noise };
-            if dp < -cutoff && lo.is_finite() {
-                Some((me.xb[p] - lo).max(0.0) / -dp)
-            } else if dp > cutoff && hi.is_finite() {
-                Some((hi - me.xb[p]).max(0.0) / dp)
-            } else {
-                None
-            }
-        };
+        // Each basic variable's ratio, once; infinite when it does not block (an infinite
+        // bound gives an infinite ratio by itself).
         let mut theta_min = own;
+        let s_position = self.position[s_var];
         for p in 0..n {
-            if let Some(t) = ratio(self, p) {
-                theta_min = theta_min.min(t);
-            }
+            let dp = self.delta[p];
+            let cutoff = if Some(p) == s_position { 0.0 } else { noise };
+            let t = if dp < -cutoff {
+                (self.xb[p] - self.lo_b[p]).max(0.0) / -dp
+            } else if dp > cutoff {
+                (self.hi_b[p] - self.xb[p]).max(0.0) / dp
+            } else {
+                f64::INFINITY
+            };
+            self.ratios[p] = t;
+            theta_min = theta_min.min(t);
         }
+        let ratio = |me: &Self, p: usize| -> Option<f64> {
+            let t = me.ratios[p];
+            t.is_finite().then_some(t)
+        };
         if !theta_min.is_finite() {
             let artificial = match self.position[s_var] {
                 Some(p) => self.xb[p],
@@ -1159,6 +1241,20 @@ impl Lemke {
     }
 }
 
+/// True when no entry is NaN or infinite: a branch-free scan of the exponent bits (all ones
+/// only for NaN and ±∞), which vectorises.
+fn all_finite(values: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7FF0_0000_0000_0000;
+    values.iter().fold(0u64, |acc, v| {
+        acc | u64::from(v.to_bits() & EXPONENT == EXPONENT)
+    }) == 0
+}
+
+/// Pivots kept in an eta file before a path switches to the explicit inverse of the Schur
+/// block: the eta file costs `O(k n)` per solve after `k` pivots, forming the inverse `O(m³)`
+/// once (`docs/decisions.md#pivoting-basis-as-the-inverse-of-its-schur-block`).
+const ETA_PIVOTS: usize = 8;
+
 /// Relative size of a rate of change below which it is round-off of zero.
 const NOISE: f64 = 1e-14;
 
@@ -1253,7 +1349,10 @@ impl McpSolver for Lemke {
                 jac_evals: 1,
                 started: start,
                 trace: Vec::new(),
-                counters: vec![("pivots", pivots), ("refactorizations", refactorizations)],
+                counters: Counters::from([
+                    (Counter::Pivots, pivots),
+                    (Counter::Refactorizations, refactorizations),
+                ]),
             },
         )
     }

@@ -274,7 +274,7 @@ fn lemke_as_mcp_solver_on_an_affine_problem() {
     let sol = solver.solve(&mcp, &[3.0, 3.0]).unwrap();
     assert_eq!(sol.summary.solver, "lemke");
     assert!(sol.summary.residual <= 1e-12);
-    assert!(sol.summary.counter("pivots") >= 1);
+    assert!(sol.summary.counter(Counter::Pivots).unwrap() >= 1);
     assert!((sol.z[0] - 0.5).abs() < 1e-14);
 }
 
