@@ -39,6 +39,7 @@ pub use ecp_model::{Counter, Counters, McpSolver, Solution, SolveError, Summary,
 pub use ecp_solvers::{Backend, BackendOptions, Registry, RegistryError, SettingsError};
 
 pub mod backends;
+pub mod batch;
 pub mod error;
 pub mod fit;
 pub mod lcp;
@@ -47,3 +48,4 @@ pub mod plots;
 pub mod run;
 pub mod scene;
 pub mod stress;
+pub mod sweep;

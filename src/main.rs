@@ -1,4 +1,4 @@
-//! The `ecp` command line (`docs/outputs.md`): `run`, `compare` and `check` on scene files.
+//! The `ecp` command line (`docs/outputs.md`): `run`, `compare`, `sweep` and `check` on scene files.
 //!
 //! Exit status: 0 when every step converged, 1 when some step failed (what was computed is still
 //! written), 2 for bad input.
@@ -72,6 +72,34 @@ enum Command {
         /// Stop each run after N steps.
         #[arg(long, value_name = "N")]
         steps: Option<usize>,
+    },
+    /// Run one scene over a grid of parameter values on every core; write sweep.csv (one row
+    /// of results per grid point) and sweep_timing.csv (docs/outputs.md).
+    Sweep {
+        /// The scene file.
+        scene: PathBuf,
+        /// A grid axis NAME=START:STOP:COUNT or NAME=v1,v2,... (repeat for more axes; the last
+        /// varies fastest). Names as for fit: mu, e_r, mass, vx0, fx, mass[1], ...
+        #[arg(long = "param", value_name = "NAME=VALUES")]
+        params: Vec<String>,
+        /// Output directory [default: out/<scene name>/sweep].
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Threads [default: one per core]; the results do not depend on it.
+        #[arg(long, value_name = "N")]
+        threads: Option<usize>,
+        /// Stop each run after N steps.
+        #[arg(long, value_name = "N")]
+        steps: Option<usize>,
+        /// Solver backend, instead of the scene's [solver] name: newton, path or conic.
+        #[arg(long)]
+        solver: Option<String>,
+        /// Contact formulation, instead of the scene's.
+        #[arg(long, value_parser = parse_formulation)]
+        formulation: Option<String>,
+        /// Do not fall back on other backends and substeps (docs/fallbacks.md).
+        #[arg(long)]
+        no_fallbacks: bool,
     },
     /// Validate a scene and print what it builds, without simulating.
     Check {
@@ -234,6 +262,27 @@ fn main() -> ExitCode {
                 tolerance,
             };
             fit(&file, &request)
+        }),
+        Command::Sweep {
+            scene,
+            params,
+            out,
+            threads,
+            steps,
+            solver,
+            formulation,
+            no_fallbacks,
+        } => load(&scene).and_then(|file| {
+            let options = ecp::batch::BatchOptions {
+                threads,
+                steps,
+                solver,
+                formulation,
+                fallbacks: !no_fallbacks,
+                ..ecp::batch::BatchOptions::default()
+            };
+            let out = out.unwrap_or_else(|| RunOptions::default_out_dir(&file).join("sweep"));
+            sweep(&file, &params, &options, &out)
         }),
         Command::Check { scene } => load(&scene).map(|file| {
             say!("{}", ecp::scene::describe(&file));
@@ -412,6 +461,43 @@ fn compare(
     sayln!("written {}", options.out_dir.join("compare.json").display());
     let all_ok = report.runs.iter().all(|r| r.summary.failed_steps == 0);
     Ok(if all_ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::from(1)
+    })
+}
+
+fn sweep(
+    file: &SceneFile,
+    params: &[String],
+    options: &ecp::batch::BatchOptions,
+    out: &Path,
+) -> Result<ExitCode, RunError> {
+    let outcome = ecp::sweep::sweep_scene(file, params, options, out)?;
+    let failed = outcome.failed_runs();
+    sayln!(
+        "{}: {} runs on {} thread{} in {:.2} s, {failed} with a failed step; written {} and {}",
+        file.scene.name,
+        outcome.results.len(),
+        outcome.threads,
+        if outcome.threads == 1 { "" } else { "s" },
+        outcome.wall_s,
+        outcome.table.display(),
+        outcome.timing.display()
+    );
+    if let Some(r) = outcome.results.iter().find(|r| r.error.is_some()) {
+        eprintln!(
+            "error: run {} ({}): {}",
+            r.index,
+            r.params
+                .iter()
+                .map(|(p, v)| format!("{p} = {v}"))
+                .collect::<Vec<_>>()
+                .join(", "),
+            r.error.as_deref().unwrap_or_default()
+        );
+    }
+    Ok(if failed == 0 {
         ExitCode::SUCCESS
     } else {
         ExitCode::from(1)

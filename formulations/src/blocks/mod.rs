@@ -16,6 +16,19 @@
 //! | [`friction`] | [`FrictionDissipation`], [`FrictionEllipsoid`] | `friction` |
 //! | [`spring`] | [`Spring`], a user force (a spring from the CM to an anchor) | its stiffness and anchor |
 //! | [`common`] | helpers: [`ContactFrame`], the inertia parametrisation, [`mass_matrix`] | |
+//!
+//! A contact between two bodies (`docs/model.md#contact-between-two-bodies`), either of which
+//! may move, has its own blocks, reading each body's `ν` and `q` as variables (dynamic) or data
+//! (fixed, kinematic):
+//!
+//! | file | blocks | data read |
+//! |---|---|---|
+//! | [`pair_contact`] | (K1)–(K4): [`PairAlignment`], [`PairNormalCone`], [`PairNormalisation`], [`PairSeparation`]; the face rows are [`HullFaces`] on each body | |
+//! | [`pair_friction`] | [`PairFriction`] on the relative velocity; the cone row is [`FrictionEllipsoid`] | the pair's `friction`, `axis` |
+//! | [`pair_wrench`] | [`PairWrench`], terms on each dynamic body's Newton–Euler rows | `axis` |
+//! | [`pair_frame`] | helpers: [`PairFrame`] (the frame of the unknown normal), [`SupportNormal`], [`reference_axis`] | |
+//! | [`pair_assembly`] | [`add_pair_contact`]: every unknown and block of one pair; [`add_pair_data`] | |
+//! | [`mod@pair_guess`] | [`pair_guess()`]: a starting guess from the closest features | |
 
 pub mod common;
 pub mod contact;
@@ -23,6 +36,12 @@ pub mod data;
 pub mod friction;
 pub mod kinematic_map;
 pub mod newton_euler;
+pub mod pair_assembly;
+pub mod pair_contact;
+pub mod pair_frame;
+pub mod pair_friction;
+pub mod pair_guess;
+pub mod pair_wrench;
 pub mod spring;
 
 pub use common::{
@@ -38,4 +57,13 @@ pub use data::{
 pub use friction::{FrictionDissipation, FrictionEllipsoid, FrictionParams};
 pub use kinematic_map::KinematicMap;
 pub use newton_euler::{BODY_DATA_SIZES, BodyStepData, NewtonEuler, body_input};
+pub use pair_assembly::{
+    AXIS_DATA, FaceSet, PairBody, PairContactValues, PairContactVars, PairDataIds,
+    add_pair_contact, add_pair_data,
+};
+pub use pair_contact::{PairAlignment, PairNormalCone, PairNormalisation, PairSeparation};
+pub use pair_frame::{PairFrame, SupportNormal, reference_axis};
+pub use pair_friction::{PairFriction, RelativeVelocity};
+pub use pair_guess::{PairMotion, pair_guess};
+pub use pair_wrench::{PairSide, PairWrench, PairWrenchInputs};
 pub use spring::Spring;

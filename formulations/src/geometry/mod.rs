@@ -8,14 +8,17 @@
 //! - [`MassProperties`]: validated mass and body-frame inertia;
 //! - [`HalfSpace`], [`contact_mode`], [`min_gap`]: the fixed half-space G and
 //!   the state-only queries on it;
-//! - [`convex_hull_2d`]: the convex hull of a planar point set (a contact patch).
+//! - [`convex_hull_2d`]: the convex hull of a planar point set (a contact patch);
+//! - [`pair_features`]: the closest (or overlapping) features of two hulls at given poses, the
+//!   starting point of a contact between two bodies.
 //!
 //! All public types use nalgebra; parry3d-f64 (glam based) is used only
-//! inside [`ConvexHull::from_points`].
+//! inside [`ConvexHull::from_points`] and [`pair_features`].
 
 mod error;
 mod hull;
 mod mass;
+mod pair_features;
 mod plane;
 mod points;
 mod polygon;
@@ -24,6 +27,7 @@ mod shape;
 pub use error::GeometryError;
 pub use hull::{ConvexHull, Face, prune_to_extreme_candidates};
 pub use mass::MassProperties;
+pub use pair_features::{HullPose, PairFeatures, pair_features, predicted_pose};
 pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
 pub use points::{FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL};
 pub use polygon::convex_hull_2d;

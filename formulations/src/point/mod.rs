@@ -240,8 +240,9 @@ impl StepFormulation for PointContacts {
             fallback_backends: true,
             substeps: true,
             user_terms: true,
-            // More than three loaded points of a flat patch share the load in many ways.
-            sensitivities: SensitivitySupport::NotUnique,
+            // The step's gaps and contact frames are data computed from the start state, whose
+            // derivatives the step inputs would miss (`docs/decisions.md`).
+            sensitivities: SensitivitySupport::None,
             non_isolated_solutions: false,
         }
     }
