@@ -47,7 +47,9 @@ use ecp_model::{
 use crate::normal_equations::NormalEquations;
 
 mod min_norm;
+mod smoothing;
 use min_norm::MinNorm;
+use smoothing::Smoothed;
 
 /// Settings of the semismooth Newton backend, with documented defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -119,6 +121,22 @@ pub struct NewtonSettings {
     /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
     /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md). Default `1e-3`.
     pub polish_below: f64,
+    /// After a failed solve, solve again from the start by a smoothing continuation
+    /// (`docs/newton.md#smoothing-continuation`): Newton on the smoothed natural map `G_μ`, whose
+    /// zeros keep every complementarity pair strictly inside (`(z_i − l_i) F_i = μ²`), for
+    /// `μ = μ₀, θμ₀, θ²μ₀, …` down to the tolerance, each solve started from the last one's
+    /// point, then the plain iteration from there. It gets across the local minimisers of the
+    /// Fischer–Burmeister merit where a contact changes its active faces within a step.
+    /// Default `true`.
+    pub smoothing: bool,
+    /// `μ₀` relative to the natural residual at the start. Default `1`.
+    pub smoothing_start: f64,
+    /// The reduction θ of `μ` from one stage to the next. Default `0.2`.
+    pub smoothing_reduction: f64,
+    /// Iteration limit of each stage. Default 30.
+    pub smoothing_stage_iterations: usize,
+    /// A stage stops when `‖G_μ‖∞` is at most this times `μ`. Default `0.1`.
+    pub smoothing_stage_tolerance: f64,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -144,6 +162,11 @@ impl Default for NewtonSettings {
             newton_line_search: true,
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
+            smoothing: true,
+            smoothing_start: 1.0,
+            smoothing_reduction: 0.2,
+            smoothing_stage_iterations: 30,
+            smoothing_stage_tolerance: 0.1,
             trace: false,
         }
     }
@@ -471,6 +494,34 @@ impl McpSolver for NewtonSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let plain = self.solve_plain(mcp, z0);
+        match plain {
+            Err(SolveError::NotConverged { best }) if self.settings.smoothing => {
+                let smoothed = self.smoothing_continuation(mcp, z0);
+                match smoothed {
+                    Ok(mut sol) => {
+                        sol.summary.iterations += best.summary.iterations;
+                        Ok(sol)
+                    }
+                    Err(SolveError::NotConverged { best: other })
+                        if other.summary.residual < best.summary.residual =>
+                    {
+                        let mut other = other;
+                        other.summary.iterations += best.summary.iterations;
+                        Err(SolveError::NotConverged { best: other })
+                    }
+                    Err(_) => Err(SolveError::NotConverged { best }),
+                }
+            }
+            r => r,
+        }
+    }
+}
+
+impl NewtonSolver {
+    /// The plain iteration from `z0`, restarted once without minimum-norm steps when it failed
+    /// after taking some (see [`NewtonSettings::min_norm_step`]).
+    fn solve_plain(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let first = self.solve_once(mcp, z0);
         let used_min_norm =
             |summary: &ecp_model::Summary| summary.counter(Counter::MinNormSteps).unwrap_or(0) > 0;
@@ -501,6 +552,62 @@ impl McpSolver for NewtonSolver {
                 }
             }
             r => r,
+        }
+    }
+
+    /// The smoothing continuation from `z0` (see [`NewtonSettings::smoothing`]): the plain
+    /// iteration on `G_μ` for decreasing `μ`, then on the MCP itself.
+    fn smoothing_continuation(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+    ) -> Result<Solution, SolveError> {
+        let saved = self.settings.clone();
+        let mut f = vec![0.0; mcp.dim()];
+        mcp.evaluate(z0, &mut f);
+        let r0 = natural_residual(z0, &f, mcp.lower(), mcp.upper());
+        let mut mu = saved.smoothing_start * r0;
+        let mut z = z0.to_vec();
+        let (mut stages, mut iterations) = (0usize, 0usize);
+        self.settings.max_iterations = saved.smoothing_stage_iterations;
+        self.settings.polish_below = 1.0;
+        while mu.is_finite() && mu > saved.tolerance {
+            self.settings.tolerance = saved.smoothing_stage_tolerance * mu;
+            let stage = self.solve_plain(&Smoothed::new(mcp, mu), &z);
+            stages += 1;
+            match stage {
+                Ok(sol) => {
+                    iterations += sol.summary.iterations;
+                    z = sol.z;
+                }
+                Err(SolveError::NotConverged { best }) => {
+                    iterations += best.summary.iterations;
+                    z = best.z;
+                }
+                Err(e) => {
+                    self.settings = saved;
+                    return Err(e);
+                }
+            }
+            mu *= saved.smoothing_reduction;
+        }
+        self.settings = saved;
+        let last = self.solve_plain(mcp, &z);
+        let tally = |summary: &mut ecp_model::Summary| {
+            summary.iterations += iterations;
+            summary.counters.push(("smoothing_stages", stages));
+            summary.counters.push(("smoothing_iterations", iterations));
+        };
+        match last {
+            Ok(mut sol) => {
+                tally(&mut sol.summary);
+                Ok(sol)
+            }
+            Err(SolveError::NotConverged { mut best }) => {
+                tally(&mut best.summary);
+                Err(SolveError::NotConverged { best })
+            }
+            e => e,
         }
     }
 }

@@ -1,0 +1,172 @@
+//! The smoothed natural map of an MCP, for the smoothing continuation of the semismooth Newton
+//! backend (`docs/newton.md#smoothing-continuation`).
+//!
+//! The MCP's solutions are the zeros of the natural map `G(z) = z − mid(l, u, z − F(z))`. With
+//! `x = z − F(z)` and `mid(l, u, x) = x + (l − x)₊ − (x − u)₊`, replacing the plus function by
+//! the Chen–Harker–Kanzow–Smale smoothing `p_μ(t) = (t + √(t² + 4μ²)) / 2` gives
+//!
+//! ```text
+//! G_μ(z) = F(z) − p_μ(l − x) + p_μ(x − u),        G_0 = G,
+//! ∂G_μ/∂z = (1 − c) J + c I,   c_i = p_μ'(l_i − x_i) + p_μ'(x_i − u_i) ∈ (0, 1) for finite bounds,
+//! ```
+//!
+//! with the terms of an infinite bound left out (a free component is `G_i = F_i`). For a lower
+//! bound only, `G_μ,i = 0` means `z_i − l_i > 0`, `F_i > 0` and `(z_i − l_i) F_i = μ²`: every
+//! complementarity pair is strictly inside, as on an interior-point method's central path, and
+//! `G_μ` is smooth. Its zeros move continuously to a solution of the MCP as `μ → 0` (Chen &
+//! Mangasarian, Comput. Optim. Appl. 5, 1996; Kanzow, SIAM J. Matrix Anal. Appl. 17, 1996;
+//! Qi, Sun & Zhou, Math. Prog. 87, 2000).
+//!
+//! [`Smoothed`] is `G_μ` written as an MCP with every component free, so the backend's own
+//! iteration solves it (for free components its Fischer–Burmeister function is `F` itself).
+
+use std::cell::RefCell;
+use std::sync::Arc;
+
+use ecp_model::{CscPattern, Mcp};
+
+/// `p_μ(t)` and `p_μ'(t)`.
+#[inline]
+fn plus(t: f64, mu: f64) -> (f64, f64) {
+    let r = t.hypot(2.0 * mu);
+    if r > 0.0 {
+        (0.5 * (t + r), 0.5 * (1.0 + t / r))
+    } else {
+        (0.0, 0.5)
+    }
+}
+
+/// `G_μ` of `mcp` as an MCP with free components (see the module documentation).
+pub(crate) struct Smoothed<'a> {
+    mcp: &'a dyn Mcp,
+    mu: f64,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    /// `F` at the point of the last Jacobian (the Jacobian of `G_μ` needs it).
+    f: RefCell<Vec<f64>>,
+}
+
+impl<'a> Smoothed<'a> {
+    /// `G_μ` of `mcp`.
+    pub(crate) fn new(mcp: &'a dyn Mcp, mu: f64) -> Self {
+        let n = mcp.dim();
+        Smoothed {
+            mcp,
+            mu,
+            lower: vec![f64::NEG_INFINITY; n],
+            upper: vec![f64::INFINITY; n],
+            f: RefCell::new(vec![0.0; n]),
+        }
+    }
+
+    /// `G_μ,i` from `z_i` and `F_i`, and the weight `c_i` of its Jacobian row.
+    #[inline]
+    fn component(&self, i: usize, z: f64, f: f64) -> (f64, f64) {
+        let (l, u) = (self.mcp.lower()[i], self.mcp.upper()[i]);
+        let x = z - f;
+        let (mut g, mut c) = (f, 0.0);
+        if l.is_finite() {
+            let (p, dp) = plus(l - x, self.mu);
+            g -= p;
+            c += dp;
+        }
+        if u.is_finite() {
+            let (p, dp) = plus(x - u, self.mu);
+            g += p;
+            c += dp;
+        }
+        (g, c)
+    }
+}
+
+impl Mcp for Smoothed<'_> {
+    fn dim(&self) -> usize {
+        self.mcp.dim()
+    }
+    fn lower(&self) -> &[f64] {
+        &self.lower
+    }
+    fn upper(&self) -> &[f64] {
+        &self.upper
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        self.mcp.evaluate(z, f);
+        for i in 0..z.len() {
+            f[i] = self.component(i, z[i], f[i]).0;
+        }
+    }
+    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+        self.mcp.jacobian_pattern()
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        let mut f = self.f.borrow_mut();
+        self.mcp.evaluate_with_jacobian(z, &mut f, values);
+        self.scale_jacobian(z, &f, values);
+    }
+    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        self.mcp.evaluate_with_jacobian(z, f, values);
+        self.scale_jacobian(z, f, values);
+        for i in 0..z.len() {
+            f[i] = self.component(i, z[i], f[i]).0;
+        }
+    }
+    fn component_name(&self, i: usize) -> String {
+        self.mcp.component_name(i)
+    }
+}
+
+impl Smoothed<'_> {
+    /// Turns the values of `J` at `z` (with `F(z) = f`) into those of `∂G_μ/∂z`.
+    fn scale_jacobian(&self, z: &[f64], f: &[f64], values: &mut [f64]) {
+        let pattern = self.mcp.jacobian_pattern();
+        let rows = pattern.row_idx();
+        let c: Vec<f64> = (0..z.len())
+            .map(|i| self.component(i, z[i], f[i]).1)
+            .collect();
+        for (v, &r) in values.iter_mut().zip(rows) {
+            *v *= 1.0 - c[r];
+        }
+        for (j, &p) in pattern.diag_pos().iter().enumerate() {
+            values[p] += c[j];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::FnMcp;
+
+    /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0` smoothed: `G_μ = 0` at `z (z − 1) = μ²`, i.e.
+    /// `z = (1 + √(1 + 4μ²)) / 2`, and the Jacobian matches a central difference.
+    #[test]
+    fn smoothed_natural_map_of_a_one_dimensional_lcp() {
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] - 1.0,
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let mu = 0.3;
+        let s = Smoothed::new(&mcp, mu);
+        let root = 0.5 * (1.0 + (1.0 + 4.0 * mu * mu).sqrt());
+        let mut g = [0.0];
+        s.evaluate(&[root], &mut g);
+        assert!(g[0].abs() <= 1e-15, "{}", g[0]);
+        let (z, eps) = (0.4, 1e-6);
+        let (mut gp, mut gm, mut j) = ([0.0], [0.0], [0.0]);
+        s.evaluate(&[z + eps], &mut gp);
+        s.evaluate(&[z - eps], &mut gm);
+        s.jacobian(&[z], &mut j);
+        assert!(
+            (j[0] - (gp[0] - gm[0]) / (2.0 * eps)).abs() <= 1e-9,
+            "{}",
+            j[0]
+        );
+        // μ = 0: the natural map min(z, z − 1).
+        let s0 = Smoothed::new(&mcp, 0.0);
+        s0.evaluate(&[0.4], &mut g);
+        assert!((g[0] - (0.4f64).min(-0.6)).abs() <= 1e-15);
+    }
+}
