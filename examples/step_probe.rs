@@ -181,6 +181,7 @@ impl Mcp for Smoothed<'_> {
 
 /// Smoothing continuation: Newton on the CHKS system for μ = μ0, μ0·θ, … then the plain backend.
 struct Continuation {
+    path: bool,
     theta: f64,
     rel: f64,
     tol: f64,
@@ -201,11 +202,30 @@ impl McpSolver for Continuation {
         let scale = phi.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let mut mu = self.rel * scale;
         let mut z = z0.to_vec();
-        let mut inner = NewtonSolver::new(NewtonSettings {
-            max_iterations: self.maxit,
-            ..NewtonSettings::default()
-        });
+        let (path, maxit) = (self.path, self.maxit);
+        let make = |tol: f64| -> Box<dyn McpSolver> {
+            if path {
+                Box::new(PathSolver::new(PathSettings {
+                    tolerance: tol,
+                    max_iterations: maxit,
+                    fischer_restart: false,
+                    best_point_restart: false,
+                    guarded_watchdog: false,
+                    restarts: 0,
+                    smoothing: None,
+                    ..PathSettings::default()
+                }))
+            } else {
+                Box::new(NewtonSolver::new(NewtonSettings {
+                    tolerance: tol,
+                    max_iterations: maxit,
+                    smoothing: None,
+                    ..NewtonSettings::default()
+                }))
+            }
+        };
         let mut its = 0;
+        let mut tol;
         while mu > self.end * scale {
             let sm = Smoothed {
                 inner: mcp,
@@ -213,8 +233,8 @@ impl McpSolver for Continuation {
                 lo: vec![f64::NEG_INFINITY; n],
                 hi: vec![f64::INFINITY; n],
             };
-            inner.settings_mut().tolerance = self.tol * mu;
-            match inner.solve(&sm, &z) {
+            tol = self.tol * mu;
+            match make(tol).solve(&sm, &z) {
                 Ok(s) => {
                     its += s.summary.iterations;
                     z = s.z;
@@ -227,7 +247,11 @@ impl McpSolver for Continuation {
             }
             mu *= self.theta;
         }
-        let mut last = NewtonSolver::new(NewtonSettings::default());
+        let mut last: Box<dyn McpSolver> = if self.path {
+            Box::new(PathSolver::new(PathSettings::default()))
+        } else {
+            Box::new(NewtonSolver::new(NewtonSettings::default()))
+        };
         let r = last.solve(mcp, &z);
         match r {
             Ok(mut s) => {
@@ -394,7 +418,11 @@ fn variant(name: &str) -> Option<Box<dyn McpSolver>> {
         let maxit = it.next().flatten().unwrap_or(200.0) as usize;
         return Some(Box::new(SmoothingNewton { gamma, rel, maxit }));
     }
-    if let Some(rest) = name.strip_prefix("smooth:") {
+    if let Some(rest) = name
+        .strip_prefix("smooth:")
+        .or_else(|| name.strip_prefix("psmooth:"))
+    {
+        let path = name.starts_with("psmooth:");
         let mut it = rest.split(':').map(|v| v.parse::<f64>().ok());
         let theta = it.next().flatten()?;
         let rel = it.next().flatten()?;
@@ -402,6 +430,7 @@ fn variant(name: &str) -> Option<Box<dyn McpSolver>> {
         let maxit = it.next().flatten().unwrap_or(30.0) as usize;
         let end = it.next().flatten().unwrap_or(1e-9);
         return Some(Box::new(Continuation {
+            path,
             theta,
             rel,
             tol,
@@ -427,12 +456,26 @@ fn variant(name: &str) -> Option<Box<dyn McpSolver>> {
             crash_iterations: 0,
             ..PathSettings::default()
         }))),
+        "path-old" => Some(Box::new(PathSolver::new(PathSettings {
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
+            ..PathSettings::default()
+        }))),
+        "path-nofb" => Some(Box::new(PathSolver::new(PathSettings {
+            fischer_restart: false,
+            ..PathSettings::default()
+        }))),
+        "path-nobest" => Some(Box::new(PathSolver::new(PathSettings {
+            best_point_restart: false,
+            ..PathSettings::default()
+        }))),
         "newton-nomn" => newton(NewtonSettings {
             min_norm_step: false,
             ..d
         }),
         "newton-nosmooth" => newton(NewtonSettings {
-            smoothing: false,
+            smoothing: None,
             ..d
         }),
         "newton-400" => newton(NewtonSettings {
@@ -748,14 +791,28 @@ fn main() -> ExitCode {
         let mut run_failed = false;
         for k in 0..n {
             probe.step = k + 1;
+            // The reference backends, the probed one left out (it failed already).
+            let mut backends: Vec<Box<dyn McpSolver>> = Vec::new();
+            if solver != "path" {
+                backends.push(Box::new(PathSolver::new(PathSettings::default())));
+            }
+            if solver != "newton" {
+                backends.push(Box::new(NewtonSolver::new(NewtonSettings::default())));
+            }
             let mut fallback = Fallbacks {
-                backends: vec![Box::new(PathSolver::new(PathSettings::default()))],
+                backends,
                 max_halvings: 4,
             };
             match sim.step_with(&mut probe, &mut fallback) {
                 Ok(rec) => {
                     total_steps += 1;
                     if rec.method != StepMethod::Direct {
+                        println!(
+                            "STEP FAILED {} step {}: {}",
+                            probe.scene,
+                            k + 1,
+                            rec.method.column()
+                        );
                         failed_steps += 1;
                         run_failed = true;
                     }

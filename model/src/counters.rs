@@ -62,6 +62,16 @@ pub enum Counter {
     Restarts,
     /// PATH-like: attempts with the guarded watchdog (`"guarded_attempts"`).
     GuardedAttempts,
+    /// PATH-like: attempts on the Fischer–Burmeister merit (`"fischer_attempts"`).
+    FischerAttempts,
+    /// PATH-like: restarts from the best point of the earlier attempts (`"best_point_restarts"`).
+    BestPointRestarts,
+    /// Newton and PATH-like: stages of the smoothing continuation after a failed solve
+    /// (`"smoothing_stages"`).
+    SmoothingStages,
+    /// Newton and PATH-like: iterations of the smoothing continuation's stages
+    /// (`"smoothing_iterations"`).
+    SmoothingIterations,
     /// The per-solve time budget ran out: 1, else 0 (`"time_limit_reached"`).
     TimeLimitReached,
     /// Conic: interior-point iterations of clarabel, summed (`"clarabel_iterations"`).
@@ -82,7 +92,7 @@ pub enum Counter {
 
 impl Counter {
     /// Every built-in counter, in the order of the enum.
-    pub const BUILTIN: [Counter; 23] = [
+    pub const BUILTIN: [Counter; 27] = [
         Counter::NewtonSteps,
         Counter::LevenbergMarquardtSteps,
         Counter::GradientSteps,
@@ -99,6 +109,10 @@ impl Counter {
         Counter::RayTerminations,
         Counter::Restarts,
         Counter::GuardedAttempts,
+        Counter::FischerAttempts,
+        Counter::BestPointRestarts,
+        Counter::SmoothingStages,
+        Counter::SmoothingIterations,
         Counter::TimeLimitReached,
         Counter::ClarabelIterations,
         Counter::ClarabelStatus,
@@ -127,6 +141,10 @@ impl Counter {
             Counter::RayTerminations => "ray_terminations",
             Counter::Restarts => "restarts",
             Counter::GuardedAttempts => "guarded_attempts",
+            Counter::FischerAttempts => "fischer_attempts",
+            Counter::BestPointRestarts => "best_point_restarts",
+            Counter::SmoothingStages => "smoothing_stages",
+            Counter::SmoothingIterations => "smoothing_iterations",
             Counter::TimeLimitReached => "time_limit_reached",
             Counter::ClarabelIterations => "clarabel_iterations",
             Counter::ClarabelStatus => "clarabel_status",

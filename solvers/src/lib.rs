@@ -12,6 +12,8 @@
 //! - [`path`]: the PATH-like solver: Josephy–Newton steps computed by pivoting, a path search
 //!   along the piecewise-linear Newton path, a non-monotone watchdog, a crash phase and a
 //!   proximal perturbation (`docs/backends.md#path-like`).
+//! - [`smoothing`]: the smoothed natural map and the smoothing continuation, the last restart of
+//!   the Newton and PATH-like backends (`docs/newton.md#smoothing-continuation`).
 //!
 //! ```
 //! use ecp_model::{FnMcp, McpSolver, residual_of};
@@ -39,6 +41,7 @@ pub mod path;
 pub mod pivot;
 pub mod registry;
 pub mod settings;
+pub mod smoothing;
 
 pub use newton::{NewtonSettings, NewtonSolver};
 pub use path::{PathSettings, PathSolver};

@@ -47,9 +47,8 @@ use ecp_model::{
 use crate::normal_equations::NormalEquations;
 
 mod min_norm;
-mod smoothing;
+use crate::smoothing::{SmoothingSettings, continuation};
 use min_norm::MinNorm;
-use smoothing::Smoothed;
 
 /// Settings of the semismooth Newton backend, with documented defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -121,22 +120,14 @@ pub struct NewtonSettings {
     /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
     /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md). Default `1e-3`.
     pub polish_below: f64,
-    /// After a failed solve, solve again from the start by a smoothing continuation
-    /// (`docs/newton.md#smoothing-continuation`): Newton on the smoothed natural map `G_μ`, whose
-    /// zeros keep every complementarity pair strictly inside (`(z_i − l_i) F_i = μ²`), for
-    /// `μ = μ₀, θμ₀, θ²μ₀, …` down to the tolerance, each solve started from the last one's
-    /// point, then the plain iteration from there. It gets across the local minimisers of the
-    /// Fischer–Burmeister merit where a contact changes its active faces within a step.
-    /// Default `true`.
-    pub smoothing: bool,
-    /// `μ₀` relative to the natural residual at the start. Default `1`.
-    pub smoothing_start: f64,
-    /// The reduction θ of `μ` from one stage to the next. Default `0.2`.
-    pub smoothing_reduction: f64,
-    /// Iteration limit of each stage. Default 30.
-    pub smoothing_stage_iterations: usize,
-    /// A stage stops when `‖G_μ‖∞` is at most this times `μ`. Default `0.1`.
-    pub smoothing_stage_tolerance: f64,
+    /// After a failed solve, solve again from the start by the smoothing continuation
+    /// (`docs/newton.md#smoothing-continuation`, [`crate::smoothing`]): this iteration on the
+    /// smoothed natural map `G_μ`, whose zeros keep every complementarity pair strictly inside
+    /// (`(z_i − l_i) F_i = μ²`), for `μ = μ₀, θμ₀, θ²μ₀, …` down to the tolerance, each stage
+    /// from the last one's point, then on the MCP from there. It gets across the local
+    /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
+    /// within a step. `None` turns it off. Default `Some(SmoothingSettings::default())`.
+    pub smoothing: Option<SmoothingSettings>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -162,11 +153,7 @@ impl Default for NewtonSettings {
             newton_line_search: true,
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
-            smoothing: true,
-            smoothing_start: 1.0,
-            smoothing_reduction: 0.2,
-            smoothing_stage_iterations: 30,
-            smoothing_stage_tolerance: 0.1,
+            smoothing: Some(SmoothingSettings::default()),
             trace: false,
         }
     }
@@ -496,7 +483,7 @@ impl McpSolver for NewtonSolver {
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let plain = self.solve_plain(mcp, z0);
         match plain {
-            Err(SolveError::NotConverged { best }) if self.settings.smoothing => {
+            Err(SolveError::NotConverged { best }) if self.settings.smoothing.is_some() => {
                 let smoothed = self.smoothing_continuation(mcp, z0);
                 match smoothed {
                     Ok(mut sol) => {
@@ -563,40 +550,31 @@ impl NewtonSolver {
         z0: &[f64],
     ) -> Result<Solution, SolveError> {
         let saved = self.settings.clone();
-        let mut f = vec![0.0; mcp.dim()];
-        mcp.evaluate(z0, &mut f);
-        let r0 = natural_residual(z0, &f, mcp.lower(), mcp.upper());
-        let mut mu = saved.smoothing_start * r0;
-        let mut z = z0.to_vec();
-        let (mut stages, mut iterations) = (0usize, 0usize);
-        self.settings.max_iterations = saved.smoothing_stage_iterations;
+        let Some(smoothing) = saved.smoothing else {
+            return self.solve_plain(mcp, z0);
+        };
+        self.settings.max_iterations = smoothing.stage_iterations;
         self.settings.polish_below = 1.0;
-        while mu.is_finite() && mu > saved.tolerance {
-            self.settings.tolerance = saved.smoothing_stage_tolerance * mu;
-            let stage = self.solve_plain(&Smoothed::new(mcp, mu), &z);
-            stages += 1;
-            match stage {
-                Ok(sol) => {
-                    iterations += sol.summary.iterations;
-                    z = sol.z;
-                }
-                Err(SolveError::NotConverged { best }) => {
-                    iterations += best.summary.iterations;
-                    z = best.z;
-                }
-                Err(e) => {
-                    self.settings = saved;
-                    return Err(e);
-                }
-            }
-            mu *= saved.smoothing_reduction;
-        }
+        let end = continuation(
+            mcp,
+            z0,
+            &smoothing,
+            saved.tolerance,
+            |problem, z, tolerance| {
+                self.settings.tolerance = tolerance;
+                self.solve_plain(problem, z)
+            },
+            || false,
+        );
         self.settings = saved;
-        let last = self.solve_plain(mcp, &z);
+        let end = end?;
+        let last = self.solve_plain(mcp, &end.z);
         let tally = |summary: &mut ecp_model::Summary| {
-            summary.iterations += iterations;
-            summary.counters.push(("smoothing_stages", stages));
-            summary.counters.push(("smoothing_iterations", iterations));
+            summary.iterations += end.iterations;
+            summary.counters.add(Counter::SmoothingStages, end.stages);
+            summary
+                .counters
+                .add(Counter::SmoothingIterations, end.iterations);
         };
         match last {
             Ok(mut sol) => {
@@ -1092,6 +1070,29 @@ mod tests {
                 > 0,
             "{summary:?}"
         );
+    }
+
+    /// Kojima–Josephy from MCPLIB start 3: the plain iteration stops at a point that is not a
+    /// solution (the only pair of the MCP suite where it does); the smoothing continuation from
+    /// the same start reaches a listed solution.
+    #[test]
+    fn the_smoothing_continuation_solves_what_the_plain_iteration_does_not() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let (label, z0) = &p.starts[2];
+        assert_eq!(label, "mcplib3");
+        let plain = NewtonSolver::new(NewtonSettings {
+            smoothing: None,
+            ..NewtonSettings::default()
+        })
+        .solve(&p.mcp, z0);
+        assert!(matches!(plain, Err(SolveError::NotConverged { .. })));
+        let sol = NewtonSolver::new(NewtonSettings::default())
+            .solve(&p.mcp, z0)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(sol.summary.residual <= 1e-10, "{:e}", sol.summary.residual);
+        assert!(sol.summary.counter(Counter::SmoothingStages).unwrap() > 0);
+        let d = p.distance_to_solutions(&sol.z, None);
+        assert!(d.is_some_and(|d| d < 1e-8), "{d:?}");
     }
 
     #[test]

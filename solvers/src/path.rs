@@ -40,6 +40,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
     SolveReport, StepKind, Termination, finish_solve, mid, natural_residual, validate_start,
@@ -49,6 +50,7 @@ use crate::pivot::basis::BasisFactor;
 use crate::pivot::{
     AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath,
 };
+use crate::smoothing::{SmoothingSettings, continuation};
 
 /// Settings of the PATH-like solver, with documented defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -93,6 +95,22 @@ pub struct PathSettings {
     pub guarded_watchdog: bool,
     /// Relative proximal term of the first restart (×10 for each further one). Default `1e-2`.
     pub restart_proximal: f64,
+    /// After every other attempt failed, one more from the start point whose path search and
+    /// watchdog judge points by the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead of the normal
+    /// map's `‖F_N(x)‖₂` (PATH's `merit_function fischer`, Ferris, Kanzow & Munson, Math. Prog.
+    /// 86, 1999). The two merits have different stationary points: where the normal-map merit
+    /// stops a path search at a point that is not a solution, the other one usually does not
+    /// (docs/path.md). Default `true`.
+    pub fischer_restart: bool,
+    /// After every other attempt failed, one more from the best point found (the natural
+    /// residual's smallest), with the default settings. Default `true`.
+    pub best_point_restart: bool,
+    /// When every attempt failed, the smoothing continuation from the start point
+    /// ([`crate::smoothing`], `docs/path.md`): one attempt of at most
+    /// `stage_iterations` on each smoothed natural map `G_μ` for `μ = μ₀, θμ₀, …` down to the
+    /// tolerance, then every attempt again from its end point. `None` turns it off. Default
+    /// `Some(SmoothingSettings::default())`.
+    pub smoothing: Option<SmoothingSettings>,
     /// Settings of the inner pivotal solver (pivot tolerances, limit, refactorisation period,
     /// anti-cycling rule).
     pub lemke: LemkeSettings,
@@ -122,6 +140,9 @@ impl Default for PathSettings {
             restarts: 2,
             restart_proximal: 1e-2,
             guarded_watchdog: true,
+            fischer_restart: true,
+            best_point_restart: true,
+            smoothing: Some(SmoothingSettings::default()),
             lemke: LemkeSettings::default(),
             time_limit: 20.0,
             trace: false,
@@ -165,6 +186,8 @@ struct Counters {
     ray_terminations: usize,
     restarts: usize,
     guarded_attempts: usize,
+    fischer_attempts: usize,
+    best_point_restarts: usize,
     time_limit_reached: usize,
 }
 
@@ -217,6 +240,9 @@ pub struct PathSolver {
     observer: Option<Box<dyn Observer>>,
     /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
     deadline: Option<Instant>,
+    /// The current attempt judges points by the Fischer–Burmeister merit
+    /// ([`PathSettings::fischer_restart`]).
+    fischer: bool,
 }
 
 impl PathSolver {
@@ -263,6 +289,7 @@ impl PathSolver {
             factor: BasisFactor::default(),
             observer: None,
             deadline: None,
+            fischer: false,
         }
     }
     /// Whether the wall-clock budget of the current solve is spent.
@@ -329,8 +356,9 @@ fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
     };
 }
 
-/// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit.
-fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize) {
+/// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
+/// (the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead when `fischer`).
+fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool) {
     let (l, u) = (mcp.lower(), mcp.upper());
     for i in 0..p.x.len() {
         p.z[i] = mid(l[i], u[i], p.x[i]);
@@ -339,6 +367,16 @@ fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize) {
     *f_evals += 1;
     if p.f.iter().all(|v| v.is_finite()) {
         normal_point(p, l, u);
+        if fischer {
+            let s: f64 = (0..p.z.len())
+                .map(|i| fb_component(p.z[i], p.f[i], l[i], u[i]).powi(2))
+                .sum();
+            p.merit = if s.is_finite() {
+                s.sqrt()
+            } else {
+                f64::INFINITY
+            };
+        }
     } else {
         p.merit = f64::INFINITY;
     }
@@ -445,7 +483,7 @@ impl PathSolver {
             for i in 0..n {
                 self.trial.x[i] = self.current.z[i] + t * (self.step_x[i] - self.current.z[i]);
             }
-            evaluate_at(mcp, &mut self.trial, f_evals);
+            evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
             if self.trial.merit <= (1.0 - sigma * t) * self.current.merit
                 && self.trial_usable(mcp, tolerance, jac_evals)
             {
@@ -544,7 +582,7 @@ impl PathSolver {
 
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
-        evaluate_at(mcp, &mut self.current, f_evals);
+        evaluate_at(mcp, &mut self.current, f_evals, self.fischer);
         let mut residual = natural_residual(&self.current.z, &self.current.f, l, u);
         if residual < *best_residual {
             *best_residual = residual;
@@ -815,7 +853,7 @@ impl PathSolver {
     /// Evaluates the path point at `t` into `self.trial`.
     fn try_path_point(&mut self, mcp: &dyn Mcp, t: f64, f_evals: &mut usize) -> f64 {
         let used = self.path.point_at(t, &mut self.trial.x);
-        evaluate_at(mcp, &mut self.trial, f_evals);
+        evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
         used
     }
 }
@@ -829,18 +867,94 @@ impl McpSolver for PathSolver {
         let started = Instant::now();
         validate_start(mcp, z0)?;
         let s = self.settings.clone();
-        if *self.lemke.settings() != s.lemke {
-            *self.lemke.settings_mut() = s.lemke.clone();
-        }
-        let n = mcp.dim();
-        let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
-        self.resize(n, pattern.nnz());
         self.deadline = if s.time_limit.is_finite() {
             started.checked_add(std::time::Duration::from_secs_f64(s.time_limit))
         } else {
             None
         };
         self.lemke.set_deadline(self.deadline);
+        let first = self.solve_attempts(mcp, z0, &s, started);
+        let (Some(smoothing), Err(SolveError::NotConverged { best })) = (s.smoothing, &first)
+        else {
+            return first;
+        };
+        if self.out_of_time() {
+            return first;
+        }
+        // The smoothing continuation (see `PathSettings::smoothing`): each stage one attempt of
+        // at most `stage_iterations`, then every attempt from its end point.
+        let stage = PathSettings {
+            max_iterations: smoothing.stage_iterations,
+            guarded_watchdog: false,
+            restarts: 0,
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
+            ..s.clone()
+        };
+        let deadline = self.deadline;
+        let end = continuation(
+            mcp,
+            z0,
+            &smoothing,
+            s.tolerance,
+            |problem, z, tolerance| {
+                let st = PathSettings {
+                    tolerance,
+                    ..stage.clone()
+                };
+                self.solve_attempts(problem, z, &st, started)
+            },
+            || deadline.is_some_and(|d| Instant::now() >= d),
+        )?;
+        let last = self.solve_attempts(mcp, &end.z, &s, started);
+        let previous = best.summary.iterations;
+        let tally = |summary: &mut ecp_model::Summary| {
+            summary.iterations += end.iterations + previous;
+            summary.counters.add(Counter::SmoothingStages, end.stages);
+            summary
+                .counters
+                .add(Counter::SmoothingIterations, end.iterations);
+        };
+        match last {
+            Ok(mut sol) => {
+                tally(&mut sol.summary);
+                Ok(sol)
+            }
+            Err(SolveError::NotConverged { mut best }) => {
+                tally(&mut best.summary);
+                match first {
+                    Err(SolveError::NotConverged { best: old })
+                        if old.summary.residual <= best.summary.residual =>
+                    {
+                        Err(SolveError::NotConverged { best: old })
+                    }
+                    _ => Err(SolveError::NotConverged { best }),
+                }
+            }
+            e => e,
+        }
+    }
+}
+
+impl PathSolver {
+    /// Every attempt of one solve from `z0` with settings `s` (the first, the guarded one, the
+    /// restarts), within the deadline already set; `started` is the solve's start.
+    fn solve_attempts(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        s: &PathSettings,
+        started: Instant,
+    ) -> Result<Solution, SolveError> {
+        let s = s.clone();
+        if *self.lemke.settings() != s.lemke {
+            *self.lemke.settings_mut() = s.lemke.clone();
+        }
+        let n = mcp.dim();
+        let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
+        self.resize(n, pattern.nnz());
+        self.fischer = false;
         let mut run = Run {
             trace: Vec::new(),
             counters: Counters::default(),
@@ -885,6 +999,33 @@ impl McpSolver for PathSolver {
                 termination = Termination::Converged;
             }
         }
+        // The Fischer–Burmeister attempt, then the attempt from the best point.
+        if s.fischer_restart
+            && termination != Termination::Converged
+            && termination != Termination::NonFiniteFunction
+            && !self.out_of_time()
+        {
+            run.counters.fischer_attempts += 1;
+            self.fischer = true;
+            let t = self.attempt(mcp, &pattern, z0, &s, 0.0, true, &mut run);
+            self.fischer = false;
+            if t == Termination::Converged || run.best_residual <= s.tolerance {
+                termination = Termination::Converged;
+            }
+        }
+        if s.best_point_restart
+            && termination != Termination::Converged
+            && termination != Termination::NonFiniteFunction
+            && run.best_residual.is_finite()
+            && !self.out_of_time()
+        {
+            run.counters.best_point_restarts += 1;
+            let best = self.best_z.clone();
+            let t = self.attempt(mcp, &pattern, &best, &s, 0.0, true, &mut run);
+            if t == Termination::Converged || run.best_residual <= s.tolerance {
+                termination = Termination::Converged;
+            }
+        }
         let Run {
             trace,
             counters,
@@ -919,6 +1060,8 @@ impl McpSolver for PathSolver {
                     (Counter::RayTerminations, counters.ray_terminations),
                     (Counter::Restarts, counters.restarts),
                     (Counter::GuardedAttempts, counters.guarded_attempts),
+                    (Counter::FischerAttempts, counters.fischer_attempts),
+                    (Counter::BestPointRestarts, counters.best_point_restarts),
                     (Counter::TimeLimitReached, counters.time_limit_reached),
                 ]),
             },
@@ -1100,6 +1243,9 @@ mod tests {
             restarts: 0,
             max_iterations: 60,
             guarded_watchdog: false,
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
             ..PathSettings::default()
         };
         let err = PathSolver::new(settings.clone())
@@ -1117,6 +1263,33 @@ mod tests {
         assert!(sol.summary.residual <= 1e-10);
         assert_eq!(sol.summary.counter(Counter::GuardedAttempts).unwrap(), 1);
         assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
+    }
+
+    /// The configuration of the test above without the guard, which fails: the smoothing
+    /// continuation solves it by itself and lands on the problem's solution.
+    #[test]
+    fn path_smoothing_continuation_solves_what_the_plain_attempt_does_not() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let z0 = &p.starts[5].1;
+        let plain = PathSettings {
+            crash_iterations: 0,
+            restarts: 0,
+            max_iterations: 60,
+            guarded_watchdog: false,
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
+            ..PathSettings::default()
+        };
+        let smoothed = PathSolver::new(PathSettings {
+            smoothing: Some(SmoothingSettings::default()),
+            ..plain
+        })
+        .solve(&p.mcp, z0)
+        .unwrap();
+        assert!(smoothed.summary.residual <= 1e-10);
+        assert!(smoothed.summary.counter(Counter::SmoothingStages).unwrap() > 0);
+        assert!(p.distance_to_solutions(&smoothed.z, None).unwrap() < 1e-8);
     }
 
     #[test]

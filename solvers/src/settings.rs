@@ -22,6 +22,7 @@ use crate::conic::ConicSettings;
 use crate::newton::NewtonSettings;
 use crate::path::PathSettings;
 use crate::pivot::LemkeSettings;
+use crate::smoothing::SmoothingSettings;
 
 /// A setting out of its range: which backend, which field, its value and the allowed range.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -125,8 +126,21 @@ impl NewtonSettings {
             self.newton_shortest_step > 0.0 && self.newton_shortest_step <= 1.0,
             "must lie in (0, 1]",
         )?;
-        c.non_negative("polish_below", self.polish_below)
+        c.non_negative("polish_below", self.polish_below)?;
+        smoothing(&c, &self.smoothing)
     }
+}
+
+/// The checks of the smoothing continuation's settings (when it is on), the field names
+/// prefixed by `smoothing.`.
+fn smoothing(c: &Check, s: &Option<SmoothingSettings>) -> Result<(), SettingsError> {
+    let Some(s) = s else {
+        return Ok(());
+    };
+    c.positive("smoothing.start", s.start)?;
+    c.fraction("smoothing.reduction", s.reduction)?;
+    c.positive("smoothing.stage_tolerance", s.stage_tolerance)?;
+    c.iterations("smoothing.stage_iterations", s.stage_iterations)
 }
 
 impl LemkeSettings {
@@ -187,7 +201,8 @@ impl PathSettings {
             self.time_limit > 0.0 && !self.time_limit.is_nan(),
             "the time limit must be > 0 seconds (inf for none)",
         )?;
-        lemke(&c, &self.lemke, true)
+        lemke(&c, &self.lemke, true)?;
+        smoothing(&c, &self.smoothing)
     }
 }
 
@@ -387,6 +402,43 @@ mod tests {
             },
             v,
         );
+    }
+
+    #[test]
+    fn smoothing_settings_are_checked_when_on() {
+        let smoothing = |reduction: f64, stage_iterations: usize| {
+            Some(SmoothingSettings {
+                reduction,
+                stage_iterations,
+                ..Default::default()
+            })
+        };
+        for reduction in [0.0, 1.0, f64::NAN] {
+            let bad = NewtonSettings {
+                smoothing: smoothing(reduction, 30),
+                ..Default::default()
+            };
+            refused("smoothing.reduction", bad, NewtonSettings::validate);
+        }
+        let bad = PathSettings {
+            smoothing: smoothing(0.5, 0),
+            ..Default::default()
+        };
+        refused("smoothing.stage_iterations", bad, PathSettings::validate);
+        let bad = NewtonSettings {
+            smoothing: Some(SmoothingSettings {
+                start: -1.0,
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        refused("smoothing.start", bad, NewtonSettings::validate);
+        PathSettings {
+            smoothing: None,
+            ..Default::default()
+        }
+        .validate()
+        .unwrap();
     }
 
     #[test]

@@ -1,5 +1,5 @@
-//! The smoothed natural map of an MCP, for the smoothing continuation of the semismooth Newton
-//! backend (`docs/newton.md#smoothing-continuation`).
+//! The smoothed natural map of an MCP and the smoothing continuation built on it, the last
+//! restart of the semismooth Newton and PATH-like backends (`docs/newton.md#smoothing-continuation`).
 //!
 //! The MCP's solutions are the zeros of the natural map `G(z) = z − mid(l, u, z − F(z))`. With
 //! `x = z − F(z)` and `mid(l, u, x) = x + (l − x)₊ − (x − u)₊`, replacing the plus function by
@@ -17,13 +17,96 @@
 //! Mangasarian, Comput. Optim. Appl. 5, 1996; Kanzow, SIAM J. Matrix Anal. Appl. 17, 1996;
 //! Qi, Sun & Zhou, Math. Prog. 87, 2000).
 //!
-//! [`Smoothed`] is `G_μ` written as an MCP with every component free, so the backend's own
-//! iteration solves it (for free components its Fischer–Burmeister function is `F` itself).
+//! [`Smoothed`] is `G_μ` written as an MCP with every component free, so a backend's own
+//! iteration solves it (for free components the Fischer–Burmeister function of the Newton
+//! backend is `F` itself, and the PATH-like backend's pivoting reduces to a Newton step).
+//! [`continuation`] solves `G_μ = 0` for `μ = μ₀, θμ₀, θ²μ₀, …`, each stage from the last one's
+//! point, until `μ` reaches the backend's tolerance; the backend then solves the MCP itself from
+//! the end point. Where the backend alone stops at a point that is not a solution — a local
+//! minimiser of its merit function, typically where a contact changes its active faces within
+//! a step — the path of smoothed solutions leads past it: all the complementarity pairs are
+//! strictly inside along the path, and active sets change continuously rather than across a kink.
 
 use std::cell::RefCell;
 use std::sync::Arc;
 
-use ecp_model::{CscPattern, Mcp};
+use ecp_model::{CscPattern, Mcp, Solution, SolveError, natural_residual};
+
+/// Settings of the [`continuation`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SmoothingSettings {
+    /// `μ₀` relative to the natural residual at the start. Default `1`.
+    pub start: f64,
+    /// The reduction θ of `μ` from one stage to the next, in `(0, 1)`. Default `0.2`.
+    pub reduction: f64,
+    /// A stage stops when `‖G_μ‖∞` is at most this times `μ`. Default `0.1`.
+    pub stage_tolerance: f64,
+    /// Iteration limit of each stage. Default 30.
+    pub stage_iterations: usize,
+}
+
+impl Default for SmoothingSettings {
+    fn default() -> Self {
+        SmoothingSettings {
+            start: 1.0,
+            reduction: 0.2,
+            stage_tolerance: 0.1,
+            stage_iterations: 30,
+        }
+    }
+}
+
+/// Where the continuation ended: the point of its last stage, the number of stages and the
+/// iterations they took.
+pub struct ContinuationEnd {
+    /// The last stage's point.
+    pub z: Vec<f64>,
+    /// Stages solved (or attempted).
+    pub stages: usize,
+    /// Iterations of all stages.
+    pub iterations: usize,
+}
+
+/// Solves `G_μ = 0` for `μ = μ₀, θμ₀, …` down to `tolerance`, from `z0`, each stage by
+/// `stage(problem, start, stage_tolerance)` (the backend's own iteration limited to
+/// [`SmoothingSettings::stage_iterations`]); `out_of_time` ends it early. An invalid problem
+/// ends it with the error.
+pub fn continuation(
+    mcp: &dyn Mcp,
+    z0: &[f64],
+    settings: &SmoothingSettings,
+    tolerance: f64,
+    mut stage: impl FnMut(&dyn Mcp, &[f64], f64) -> Result<Solution, SolveError>,
+    out_of_time: impl Fn() -> bool,
+) -> Result<ContinuationEnd, SolveError> {
+    let mut f = vec![0.0; mcp.dim()];
+    mcp.evaluate(z0, &mut f);
+    let r0 = natural_residual(z0, &f, mcp.lower(), mcp.upper());
+    let mut mu = settings.start * r0;
+    let mut end = ContinuationEnd {
+        z: z0.to_vec(),
+        stages: 0,
+        iterations: 0,
+    };
+    while mu.is_finite() && mu > tolerance && !out_of_time() {
+        let problem = Smoothed::new(mcp, mu);
+        let result = stage(&problem, &end.z, settings.stage_tolerance * mu);
+        end.stages += 1;
+        match result {
+            Ok(sol) => {
+                end.iterations += sol.summary.iterations;
+                end.z = sol.z;
+            }
+            Err(SolveError::NotConverged { best }) => {
+                end.iterations += best.summary.iterations;
+                end.z = best.z;
+            }
+            Err(e) => return Err(e),
+        }
+        mu *= settings.reduction;
+    }
+    Ok(end)
+}
 
 /// `p_μ(t)` and `p_μ'(t)`.
 #[inline]
@@ -37,7 +120,7 @@ fn plus(t: f64, mu: f64) -> (f64, f64) {
 }
 
 /// `G_μ` of `mcp` as an MCP with free components (see the module documentation).
-pub(crate) struct Smoothed<'a> {
+pub struct Smoothed<'a> {
     mcp: &'a dyn Mcp,
     mu: f64,
     lower: Vec<f64>,
@@ -47,8 +130,8 @@ pub(crate) struct Smoothed<'a> {
 }
 
 impl<'a> Smoothed<'a> {
-    /// `G_μ` of `mcp`.
-    pub(crate) fn new(mcp: &'a dyn Mcp, mu: f64) -> Self {
+    /// `G_μ` of `mcp` (`μ = 0`: the natural map itself).
+    pub fn new(mcp: &'a dyn Mcp, mu: f64) -> Self {
         let n = mcp.dim();
         Smoothed {
             mcp,
