@@ -411,6 +411,22 @@ impl McpSolver for SmoothingNewton {
 }
 
 fn variant(name: &str) -> Option<Box<dyn McpSolver>> {
+    if let Some(rest) = name.strip_prefix("nt:") {
+        // nt:θ:μ0:stage_iterations:max_cuts — the Newton backend with these smoothing settings.
+        let v: Vec<f64> = rest.split(':').filter_map(|v| v.parse().ok()).collect();
+        let d = ecp_solvers::smoothing::SmoothingSettings::default();
+        let sm = ecp_solvers::smoothing::SmoothingSettings {
+            reduction: v.first().copied().unwrap_or(d.reduction),
+            start: v.get(1).copied().unwrap_or(d.start),
+            stage_iterations: v.get(2).map_or(d.stage_iterations, |x| *x as usize),
+            max_cuts: v.get(3).map_or(d.max_cuts, |x| *x as usize),
+            ..d
+        };
+        return Some(Box::new(NewtonSolver::new(NewtonSettings {
+            smoothing: Some(sm),
+            ..NewtonSettings::default()
+        })));
+    }
     if let Some(rest) = name.strip_prefix("sn:") {
         let mut it = rest.split(':').map(|v| v.parse::<f64>().ok());
         let gamma = it.next().flatten()?;
