@@ -10,6 +10,12 @@ use super::layout::Layout;
 use crate::geometry::{ConvexHull, HalfSpace};
 use crate::scene::{BodyState, Scene};
 
+/// A closed contact's warm start follows the closest feature of the predicted pose
+/// ([`Guess::follow_closest_feature`]) when its `a1`, carried with the body, ends up more than
+/// this above the lowest point of Conv(F) there (m; the band [`closest_point_guess`] averages
+/// the lowest vertices over).
+pub const FEATURE_SWITCH: f64 = 1e-6;
+
 /// The closest points of Conv(F) at pose `(x, r)` to the half-space: `a1` the centroid of the
 /// hull's vertices nearest to G (a face centre, an edge midpoint or a vertex), the gap there,
 /// and face multipliers `l ≥ 0` of the faces through `a1` with `Σ l_i n̂_i = −Rᵀ n_G` (the
@@ -222,6 +228,43 @@ impl Guess<'_> {
         z[mcp.range(c.pn)][0] = pn;
         z[mcp.range(c.pf)].copy_from_slice(&pf);
         z[mcp.range(c.sigma)][0] = sigma;
+    }
+
+    /// The warm start of a contact `i` that ended the last step closed (`p_n > 0`) when the
+    /// body's predicted pose `(x1, r1)` brings another feature of Conv(F) lowest: the
+    /// closest-point unknowns (`a1`, `a2`, `l_g`, the face multipliers) move to the closest
+    /// points of the predicted pose, the impulses stay. The test: the warm start's `a1`, carried
+    /// rigidly to the predicted pose, lies more than [`FEATURE_SWITCH`] above the predicted
+    /// pose's lowest point.
+    ///
+    /// Without it, a box rocking from one edge onto the opposite one, or landing flat on the face
+    /// next to the edge it stood on, starts every backend with the ECP on the old edge, up to
+    /// the width of the face from the solution's; Newton's merit function has a local minimiser
+    /// there (`docs/newton.md#smoothing-continuation`).
+    pub(crate) fn follow_closest_feature(
+        &self,
+        i: usize,
+        (x1, r1): (&Vector3<f64>, &Matrix3<f64>),
+        z: &mut [f64],
+    ) {
+        let c = self.layout.contacts[i];
+        let o = self.layout.origin;
+        let s = self.states[c.body];
+        let plane = &self.scene.planes[c.plane];
+        let (a1p, gap, l) = closest_point_guess(&self.layout.contact_hulls[i], plane, x1, r1);
+        let mcp = self.mcp;
+        let warm = &z[mcp.range(c.a1)];
+        let warm = Vector3::new(warm[0], warm[1], warm[2]) + o;
+        let r0 = crate::rotation::rotation_matrix(&s.q);
+        let carried = x1 + r1 * (r0.transpose() * (warm - s.x));
+        let finite = a1p.iter().all(|v| v.is_finite()) && gap.is_finite();
+        if finite && plane.value(&carried) > gap + FEATURE_SWITCH {
+            let a2 = plane.project(&a1p);
+            z[mcp.range(c.a1)].copy_from_slice((a1p - o).as_slice());
+            z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
+            z[mcp.range(c.lg)][0] = gap.max(0.0);
+            z[mcp.range(c.l)].copy_from_slice(&l);
+        }
     }
 
     /// [`Guess::contact_at`] at the body's state.

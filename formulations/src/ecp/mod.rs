@@ -22,7 +22,7 @@ mod layout;
 mod structure;
 pub mod union;
 
-use nalgebra::Vector3;
+use nalgebra::{Matrix3, Vector3};
 
 use ecp_model::{BlockMcp, DataId, Input, Problem, ResId, StepStructure, VarBlock};
 
@@ -61,6 +61,10 @@ pub const RECENTRE_DISTANCE: f64 = 100.0;
 pub struct EcpContacts {
     union: bool,
     layout: Layout,
+    /// Per body, the pose the last warm start predicted for the end of its span (world
+    /// position, rotation), for the retry's start of a contact that opens
+    /// ([`StepFormulation::retry_start`]).
+    predicted: Vec<(Vector3<f64>, Matrix3<f64>)>,
 }
 
 impl EcpContacts {
@@ -69,6 +73,7 @@ impl EcpContacts {
         EcpContacts {
             union: false,
             layout: Layout::default(),
+            predicted: Vec::new(),
         }
     }
 
@@ -79,6 +84,7 @@ impl EcpContacts {
         EcpContacts {
             union: true,
             layout: Layout::default(),
+            predicted: Vec::new(),
         }
     }
 
@@ -480,6 +486,10 @@ impl StepFormulation for EcpContacts {
             let m = scene.bodies[c.body].mass.mass;
             let open_pn = 1e-12 * m * (scene.gravity.norm() * ctx.h).max(f64::MIN_POSITIVE);
             if z[mcp.range(c.pn)][0] > open_pn {
+                // A closed contact keeps its unknowns unless the predicted pose brings another
+                // feature lowest.
+                let (x1, r1) = &motion[c.body];
+                guess.follow_closest_feature(i, (x1, r1), z);
                 continue;
             }
             let (x1, r1) = motion[c.body];
@@ -503,11 +513,14 @@ impl StepFormulation for EcpContacts {
                 guess.contact_at(i, true, (&x1, &r1), z);
             }
         }
+        self.predicted = motion;
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a
     /// warm start from a separated step is a poor start for a landing step,
-    /// `docs/decisions.md#retry-from-the-active-contact-guess`).
+    /// `docs/decisions.md#retry-from-the-active-contact-guess`), except a loaded contact whose
+    /// free motion leaves its half-space: it opens within the step, and starts open at the
+    /// predicted pose (`docs/newton.md#smoothing-continuation`).
     fn retry_start(
         &mut self,
         attempt: usize,
@@ -533,7 +546,14 @@ impl StepFormulation for EcpContacts {
             let gap = min_gap(l.contact_hulls[i].vertices(), &s.x, &r, plane);
             let n = plane.normal();
             if is_closing(gap, &s, &ctx.scene.gravity, &n, ctx.h, 1e-9) {
-                guess.contact(i, true, z);
+                let approach = -(s.v + ctx.scene.gravity * ctx.h).dot(&n);
+                let loaded = z[mcp.range(c.pn)][0] > 0.0;
+                match self.predicted.get(c.body) {
+                    Some((x1, r1)) if loaded && gap - approach * ctx.h > 1e-9 => {
+                        guess.contact_at(i, false, (x1, r1), z);
+                    }
+                    _ => guess.contact(i, true, z),
+                }
             }
         }
         true
