@@ -31,8 +31,8 @@
 //!   exactly zero by a minimum-norm correction of their impulses; each contact's friction from
 //!   its exact local maximum-dissipation problem), which removes the interior-point stopping
 //!   error, and the outer fixed point is Anderson-accelerated. Neither is a Newton step on the
-//!   MCP; a final semismooth-Newton polish exists but is off by default
-//!   ([`ConicSettings::newton_polish`]).
+//!   MCP. Where the fixed point stagnates, a semismooth-Newton polish from its best iterate
+//!   finishes the step ([`ConicSettings::newton_polish`]).
 //! - [`ConicMode::AnitescuRelaxation`]: one QP without the shift, at the warm start's geometry
 //!   (Anitescu, Math. Prog. 2006). Convex and cheap, but it is a different model: a sliding
 //!   contact separates with normal velocity `μ ‖E u_T‖`, so sliding bodies drift off the
@@ -133,7 +133,9 @@ pub struct ConicSettings {
     /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
-    /// tolerance (exact mode only), reported in the counter `"newton_polish"`. Default 0: the
+    /// tolerance (exact mode only), from the fixed point's best iterate, with the Newton
+    /// backend's default safeguards (its smoothing continuation included); reported in the
+    /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
     /// conic iteration alone must converge.
     pub newton_polish: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
@@ -171,7 +173,7 @@ impl Default for ConicSettings {
             polish: true,
             anchor_moment: 1000.0,
             anchor_load: 0.1,
-            newton_polish: 0,
+            newton_polish: 50,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
