@@ -22,7 +22,7 @@ mod layout;
 mod structure;
 pub mod union;
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::Vector3;
 
 use ecp_model::{BlockMcp, DataId, Input, Problem, ResId, StepStructure, VarBlock};
 
@@ -61,10 +61,6 @@ pub const RECENTRE_DISTANCE: f64 = 100.0;
 pub struct EcpContacts {
     union: bool,
     layout: Layout,
-    /// Per body, the pose the last warm start predicted for the end of its span (world
-    /// position, rotation), for the retry's start of a contact that opens
-    /// ([`StepFormulation::retry_start`]).
-    predicted: Vec<(Vector3<f64>, Matrix3<f64>)>,
 }
 
 impl EcpContacts {
@@ -73,7 +69,6 @@ impl EcpContacts {
         EcpContacts {
             union: false,
             layout: Layout::default(),
-            predicted: Vec::new(),
         }
     }
 
@@ -84,7 +79,6 @@ impl EcpContacts {
         EcpContacts {
             union: true,
             layout: Layout::default(),
-            predicted: Vec::new(),
         }
     }
 
@@ -513,14 +507,11 @@ impl StepFormulation for EcpContacts {
                 guess.contact_at(i, true, (&x1, &r1), z);
             }
         }
-        self.predicted = motion;
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a
     /// warm start from a separated step is a poor start for a landing step,
-    /// `docs/decisions.md#retry-from-the-active-contact-guess`), except a loaded contact whose
-    /// free motion leaves its half-space: it opens within the step, and starts open at the
-    /// predicted pose (`docs/newton.md#smoothing-continuation`).
+    /// `docs/decisions.md#retry-from-the-active-contact-guess`).
     fn retry_start(
         &mut self,
         attempt: usize,
@@ -546,14 +537,7 @@ impl StepFormulation for EcpContacts {
             let gap = min_gap(l.contact_hulls[i].vertices(), &s.x, &r, plane);
             let n = plane.normal();
             if is_closing(gap, &s, &ctx.scene.gravity, &n, ctx.h, 1e-9) {
-                let approach = -(s.v + ctx.scene.gravity * ctx.h).dot(&n);
-                let loaded = z[mcp.range(c.pn)][0] > 0.0;
-                match self.predicted.get(c.body) {
-                    Some((x1, r1)) if loaded && gap - approach * ctx.h > 1e-9 => {
-                        guess.contact_at(i, false, (x1, r1), z);
-                    }
-                    _ => guess.contact(i, true, z),
-                }
+                guess.contact(i, true, z);
             }
         }
         true
