@@ -38,8 +38,7 @@ pub struct SmoothingSettings {
     /// `μ₀` relative to the natural residual at the start. Default `1`.
     pub start: f64,
     /// The reduction θ of `μ` from one stage to the next, in `(0, 1)`. Default `0.5`
-    /// (measured on the stress suite's first 150 steps, docs/newton.md: 0.2 and 0.3 leave 7 and
-    /// 6 steps unsolved, 0.5 one).
+    /// (`docs/newton.md#smoothing-continuation`).
     pub reduction: f64,
     /// A stage stops when `‖G_μ‖∞` is at most this times `μ`. Default `0.1`.
     pub stage_tolerance: f64,
@@ -91,7 +90,7 @@ pub struct ContinuationEnd {
 /// smaller step along the path); after [`SmoothingSettings::max_cuts`] such cuts in a row, when
 /// the cut would make `θ` larger than 0.9, or when no stage has converged yet, it keeps the
 /// stage's point and goes on with `θ`. A stage that converges lets `θ` return towards its
-/// setting (`θ ← θ²`, not below it). At most 60 stages.
+/// setting (`θ ← θ²`, not below it). At most 100 stages.
 pub fn continuation(
     mcp: &dyn Mcp,
     z0: &[f64],
