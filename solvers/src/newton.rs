@@ -1093,6 +1093,24 @@ mod tests {
         assert!(sol.summary.counter(Counter::SmoothingStages).unwrap() > 0);
         let d = p.distance_to_solutions(&sol.z, None);
         assert!(d.is_some_and(|d| d < 1e-8), "{d:?}");
+        // With an iteration budget the continuation keeps to it: stages of at most 2 iterations
+        // stop once 4 are spent (at most 4 − 1 + 2).
+        let budget = NewtonSolver::new(NewtonSettings {
+            smoothing: Some(SmoothingSettings {
+                stage_iterations: 2,
+                max_iterations: Some(4),
+                ..SmoothingSettings::default()
+            }),
+            ..NewtonSettings::default()
+        })
+        .solve(&p.mcp, z0);
+        let summary = match budget {
+            Ok(sol) => sol.summary,
+            Err(SolveError::NotConverged { best }) => best.summary,
+            Err(e) => panic!("{e}"),
+        };
+        let spent = summary.counter(Counter::SmoothingIterations).unwrap();
+        assert!((1..=5).contains(&spent), "{spent}");
     }
 
     #[test]

@@ -19,6 +19,7 @@ use crate::conic::{ConicSettings, ConicSolver};
 use crate::newton::{NewtonSettings, NewtonSolver};
 use crate::path::{PathSettings, PathSolver};
 pub use crate::settings::SettingsError;
+use crate::smoothing::SmoothingSettings;
 
 /// Why the registry could not give a solver.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -153,6 +154,19 @@ struct NewtonBackend;
 struct PathBackend;
 struct ConicBackend;
 
+/// The smoothing continuation's settings under a user's iteration limit: its stages together
+/// iterate no more than the limit allows one attempt.
+fn capped_smoothing(
+    smoothing: Option<SmoothingSettings>,
+    max_iterations: Option<usize>,
+) -> Option<SmoothingSettings> {
+    smoothing.map(|s| SmoothingSettings {
+        stage_iterations: max_iterations.map_or(s.stage_iterations, |n| s.stage_iterations.min(n)),
+        max_iterations: max_iterations.or(s.max_iterations),
+        ..s
+    })
+}
+
 impl Backend for NewtonBackend {
     fn name(&self) -> &str {
         "newton"
@@ -167,6 +181,7 @@ impl Backend for NewtonBackend {
             max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
             // Minimum-norm steps converge where the solution set is not a point.
             min_norm_step: d.min_norm_step || o.non_isolated_solutions,
+            smoothing: capped_smoothing(d.smoothing, o.max_iterations),
             ..d
         };
         s.validate()?;
@@ -186,6 +201,7 @@ impl Backend for PathBackend {
         let s = PathSettings {
             tolerance: o.tolerance.unwrap_or(d.tolerance),
             max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
+            smoothing: capped_smoothing(d.smoothing, o.max_iterations),
             ..d
         };
         s.validate()?;
@@ -208,6 +224,9 @@ impl Backend for ConicBackend {
         let s = ConicSettings {
             tolerance: o.tolerance.unwrap_or(d.tolerance),
             max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
+            newton_polish: o
+                .max_iterations
+                .map_or(d.newton_polish, |n| d.newton_polish.min(n)),
             ..d
         };
         s.validate()?;

@@ -47,6 +47,10 @@ pub struct SmoothingSettings {
     /// Cuts of the reduction in a row (`θ ← √θ` after a stage that did not converge) before
     /// the continuation goes on from an unconverged stage. Default 4.
     pub max_cuts: usize,
+    /// Limit on the iterations of all stages together; `None` (default): only the stages'
+    /// own limits. The registry sets it to a user's `max_iterations`, so that a backend built
+    /// with an iteration limit keeps to it in the continuation too.
+    pub max_iterations: Option<usize>,
 }
 
 impl Default for SmoothingSettings {
@@ -57,6 +61,7 @@ impl Default for SmoothingSettings {
             stage_tolerance: 0.1,
             stage_iterations: 30,
             max_cuts: 4,
+            max_iterations: None,
         }
     }
 }
@@ -112,7 +117,13 @@ pub fn continuation(
     let mut good: Option<(f64, Vec<f64>)> = None;
     let mut theta = settings.reduction;
     let mut cuts = 0usize;
-    while mu.is_finite() && mu > tolerance && end.stages < MAX_STAGES && !out_of_time() {
+    let within_budget = |iterations: usize| settings.max_iterations.is_none_or(|m| iterations < m);
+    while mu.is_finite()
+        && mu > tolerance
+        && end.stages < MAX_STAGES
+        && within_budget(end.iterations)
+        && !out_of_time()
+    {
         let problem = Smoothed::new(mcp, mu);
         let start = good.as_ref().map_or(&end.z, |g| &g.1).clone();
         let result = stage(&problem, &start, settings.stage_tolerance * mu);
