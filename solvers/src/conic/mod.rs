@@ -132,8 +132,8 @@ pub struct ConicSettings {
     /// impulse), relative to the contact's normal mobility `W_nᵀM⁻¹W_n`. Default `0.1`
     /// (`docs/decisions.md#conic-backend-anchor-weights`).
     pub anchor_load: f64,
-    /// Semismooth-Newton iterations allowed after the fixed point when it has not reached the
-    /// tolerance (exact mode only), from the fixed point's best iterate, with the Newton
+    /// Semismooth-Newton iterations allowed after the fixed point when it stagnated or reached
+    /// its iteration limit (exact mode only), from the fixed point's best iterate, with the Newton
     /// backend's default safeguards (its smoothing continuation included); reported in the
     /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
     /// conic iteration alone must converge.
@@ -483,8 +483,12 @@ impl McpSolver for ConicSolver {
         if exact {
             // Return the best iterate; a later iterate may have been worse.
             z.copy_from_slice(&best_z);
-            if termination != Termination::Converged
-                && self.settings.newton_polish > 0
+            // Only a fixed point that stagnated or ran out of iterations is finished by Newton;
+            // a failed subproblem is reported as such.
+            if matches!(
+                termination,
+                Termination::Stagnated | Termination::MaxIterations
+            ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
                 let mut newton = NewtonSolver::new(NewtonSettings {
