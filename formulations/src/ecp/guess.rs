@@ -10,10 +10,10 @@ use super::layout::Layout;
 use crate::geometry::{ConvexHull, HalfSpace};
 use crate::scene::{BodyState, Scene};
 
-/// A closed contact's warm start follows the closest feature of the predicted pose
-/// ([`Guess::follow_closest_feature`]) when its `a1`, carried with the body, ends up more than
-/// this above the lowest point of Conv(F) there (m; the band [`closest_point_guess`] averages
-/// the lowest vertices over).
+/// In the hull and union formulations' warm start, a closed contact's closest-point unknowns
+/// follow the closest feature of the predicted pose when its `a1`, carried with the body, ends
+/// up more than this above the lowest point of Conv(F) there (m; the band
+/// [`closest_point_guess`] averages the lowest vertices over).
 pub const FEATURE_SWITCH: f64 = 1e-6;
 
 /// The closest points of Conv(F) at pose `(x, r)` to the half-space: `a1` the centroid of the
