@@ -22,6 +22,10 @@ use small_lu::SmallLu;
 /// blocked LU (`docs/latency.md`: below it the kernel is faster, above it faer is).
 pub const SMALL_DENSE_MAX: usize = 48;
 
+/// From this many right-hand sides on, [`DenseLu::solve_many_in_place`] uses faer's blocked
+/// triangular solves on the small kernel's factors too (`docs/latency.md`).
+const SMALL_MANY_RHS: usize = 4;
+
 /// Failure of a factorisation or a solve.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum LinalgError {
@@ -96,8 +100,8 @@ impl DenseLu {
                 n,
                 small: Some(SmallLu::new(n)),
                 lu: Mat::zeros(0, 0),
-                perm: Vec::new(),
-                perm_inv: Vec::new(),
+                perm: vec![0; n],
+                perm_inv: vec![0; n],
                 mem: MemBuffer::new(StackReq::EMPTY),
                 factored: false,
             };
@@ -193,25 +197,29 @@ impl DenseLu {
                 b.len()
             )));
         }
-        if let Some(small) = &self.small {
+        if let (Some(small), true) = (&self.small, k < SMALL_MANY_RHS) {
             for col in b.chunks_exact_mut(n.max(1)) {
                 small.solve(col);
             }
-            return if b.iter().all(|v| v.is_finite()) {
-                Ok(())
-            } else {
-                Err(LinalgError::NonFinite)
+        } else {
+            let mut mem = MemBuffer::new(pp_solve::solve_in_place_scratch::<usize, f64>(
+                n,
+                k,
+                Par::Seq,
+            ));
+            let rhs = MatMut::from_column_major_slice_mut(b, n, k);
+            // Many right-hand sides: faer's blocked triangular solves, also on the small
+            // kernel's factors (same storage, its row interchanges as a permutation).
+            let lu = match &self.small {
+                Some(small) => {
+                    small.row_permutation(&mut self.perm, &mut self.perm_inv);
+                    MatRef::from_column_major_slice(small.factors(), n, n)
+                }
+                None => self.lu.as_ref(),
             };
+            let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
+            pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, MemStack::new(&mut mem));
         }
-        let mut mem = MemBuffer::new(pp_solve::solve_in_place_scratch::<usize, f64>(
-            n,
-            k,
-            Par::Seq,
-        ));
-        let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
-        let rhs = MatMut::from_column_major_slice_mut(b, n, k);
-        let lu = self.lu.as_ref();
-        pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, MemStack::new(&mut mem));
         if b.iter().all(|v| v.is_finite()) {
             Ok(())
         } else {
@@ -560,12 +568,24 @@ mod tests {
                     );
                 }
             }
-            let mut many = [b.clone(), b.clone()].concat();
-            small.solve_many_in_place(&mut many, 2).expect("solved");
             let mut one = b.clone();
             small.solve_in_place(&mut one).expect("solved");
-            assert_eq!(&many[..n], &one[..]);
-            assert_eq!(&many[n..], &one[..]);
+            for k in [2, 7] {
+                let cols: Vec<f64> = (0..k)
+                    .flat_map(|c| b.iter().map(move |v| v * (c + 1) as f64))
+                    .collect();
+                let mut many = cols.clone();
+                small.solve_many_in_place(&mut many, k).expect("solved");
+                for (c, col) in many.chunks_exact(n).enumerate() {
+                    for (u, v) in col.iter().zip(&one) {
+                        let v = v * (c + 1) as f64;
+                        assert!(
+                            (u - v).abs() <= 1e-13 * v.abs().max(1.0),
+                            "k = {k}: {u} vs {v}"
+                        );
+                    }
+                }
+            }
         }
         let singular = [1.0, 2.0, 2.0, 4.0];
         assert!(matches!(

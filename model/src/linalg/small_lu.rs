@@ -70,6 +70,25 @@ impl SmallLu {
         }
     }
 
+    /// `L` and `U` in one column-major array (`L` below the diagonal, unit diagonal implied).
+    pub(crate) fn factors(&self) -> &[f64] {
+        &self.a
+    }
+
+    /// The row permutation of the factors as `perm[i]` = the row of `A` in row `i` of `P A`, and
+    /// its inverse.
+    pub(crate) fn row_permutation(&self, perm: &mut [usize], perm_inv: &mut [usize]) {
+        for (i, p) in perm.iter_mut().enumerate() {
+            *p = i;
+        }
+        for (k, &p) in self.piv.iter().enumerate() {
+            perm.swap(k, p);
+        }
+        for (i, &p) in perm.iter().enumerate() {
+            perm_inv[p] = i;
+        }
+    }
+
     /// The diagonal of `U`.
     pub(crate) fn pivots(&self) -> impl Iterator<Item = f64> + '_ {
         (0..self.n).map(|i| self.a[i * self.n + i])
