@@ -261,7 +261,7 @@ fn regressions(solver: &str) {
     );
 }
 
-/// Fails today (docs/stress.md). Run with
+/// Fails today on `088_room_corner` (docs/stress.md). Run with
 /// `cargo test --release --test stress regressions_newton -- --ignored`.
 #[test]
 #[ignore]
@@ -269,15 +269,15 @@ fn regressions_newton() {
     regressions("newton");
 }
 
-/// Fails today (docs/stress.md). Run with
-/// `cargo test --release --test stress regressions_path -- --ignored`.
+/// Passes since the robustness work of docs/stress.md (about a minute: heavy, so ignored). Run
+/// with `cargo test --release --test stress regressions_path -- --ignored`.
 #[test]
 #[ignore]
 fn regressions_path() {
     regressions("path");
 }
 
-/// Fails today (docs/stress.md). Run with
+/// Fails today on `088_room_corner` (docs/stress.md). Run with
 /// `cargo test --release --test stress regressions_conic -- --ignored`.
 #[test]
 #[ignore]
