@@ -421,6 +421,7 @@ impl Context<'_> {
             gravity,
             h,
             duration,
+            world: Default::default(),
         };
         // Anything the stepper still refuses is reported against the file.
         Simulation::new(scene.clone()).map_err(|e| InputError {
