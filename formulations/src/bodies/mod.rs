@@ -143,7 +143,7 @@ impl MultiBody {
             })
             .collect();
         let (bodies, obstacles) = place_all(scene, states, &hulls, &obstacle_hulls, t0, h);
-        select_pairs(scene.planes.len(), &bodies, &obstacles, h, &self.reach)
+        select_pairs(&scene.planes, &bodies, &obstacles, h, &self.reach)
     }
 
     /// G of a contact as the pair blocks see it.
@@ -432,6 +432,23 @@ fn pair_mode(
         return mf;
     };
     let mg = contact_mode(vg, &plane_g, MODE_TOLERANCE);
+    if mf == ContactMode::Line && mg == ContactMode::Line {
+        // Two lines on the plane meet at a point unless they are parallel.
+        let direction = |v: &[Vector3<f64>], plane: &HalfSpace| {
+            let on: Vec<&Vector3<f64>> =
+                v.iter().filter(|p| plane.value(p) <= MODE_TOLERANCE).collect();
+            let p0 = on.first().copied().copied().unwrap_or_default();
+            on.iter()
+                .map(|p| *p - p0)
+                .max_by(|a, b| a.norm().total_cmp(&b.norm()))
+                .map(|d| d.normalize())
+                .unwrap_or_default()
+        };
+        let (df, dg) = (direction(vf, &plane_f), direction(vg, &plane_g));
+        if df.cross(&dg).norm() > 1e-6 {
+            return ContactMode::Point;
+        }
+    }
     if rank(mg) < rank(mf) { mg } else { mf }
 }
 
@@ -815,11 +832,32 @@ impl StepFormulation for MultiBody {
                     f,
                     g: Partner::Plane(p),
                 };
+                let (gap, mode) = table[f][p];
                 let Some(c) = self.contacts.iter().find(|c| c.key == key) else {
+                    // No contact set this step: the lowest vertex and its projection, no
+                    // impulse.
+                    let s = &states[f];
+                    let plane = &scene.planes[p];
+                    let r = rotation_matrix(&s.q);
+                    let low = world_vertices(self.bodies[f].hull.vertices(), &s.x, &r)
+                        .into_iter()
+                        .min_by(|a, b| plane.value(a).total_cmp(&plane.value(b)))
+                        .unwrap_or(s.x);
+                    out.push(ContactRecord {
+                        a1: low,
+                        a2: plane.project(&low),
+                        lg: plane.value(&low),
+                        pn: 0.0,
+                        pt: 0.0,
+                        po: 0.0,
+                        pr: 0.0,
+                        sigma: 0.0,
+                        min_gap: gap,
+                        mode,
+                    });
                     continue;
                 };
                 let v = c.vars.read(mcp, z);
-                let (gap, mode) = table[f][p];
                 out.push(ContactRecord {
                     a1: v.a1,
                     a2: v.a2,
@@ -915,7 +953,8 @@ mod tests {
             for b in &rec.bodies {
                 assert!(b.v.norm() <= 1e-9 && b.w.norm() <= 1e-9, "{b:?}");
             }
-            assert_eq!(rec.pairs.len(), 3, "{:?}", rec.pairs);
+            // B is 0.2 m above the ground, beyond the reach: no contact set.
+            assert_eq!(rec.pairs.len(), 2, "{:?}", rec.pairs);
             for p in &rec.pairs {
                 let (pn, ecp) = match (p.body_a.as_str(), p.body_b.as_str()) {
                     ("A", "ground") => (0.294, Vector3::zeros()),

@@ -1,12 +1,12 @@
-//! Which pairs get a contact set for a step (`docs/model.md#which-pairs`): every dynamic body
-//! with every half-space, and a dynamic body with another body (dynamic, fixed or kinematic)
-//! when their hulls can touch by the end of the step — a broad phase on bounding boxes, then a
-//! narrow phase on the hulls' signed distance, both with parry3d-f64
-//! ([`crate::geometry::PlacedConvex`]).
+//! Which pairs get a contact set for a step (`docs/model.md#which-pairs`): a dynamic body with
+//! a half-space or another body (dynamic, fixed or kinematic) when they can touch by the end of
+//! the step — for a half-space, the lowest vertex of the hull within the reach; for two bodies,
+//! a broad phase on bounding boxes, then a narrow phase on the hulls' signed distance, both with
+//! parry3d-f64 ([`crate::geometry::PlacedConvex`]).
 
 use nalgebra::{Matrix3, Vector3};
 
-use crate::geometry::PlacedConvex;
+use crate::geometry::{HalfSpace, PlacedConvex, min_gap};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene};
 use crate::world::Obstacle;
@@ -65,6 +65,8 @@ pub struct Placed {
     pub w: Vector3<f64>,
     /// Radius of its hull about its CM.
     pub radius: f64,
+    /// Its hull's vertices (world frame).
+    pub vertices: Vec<Vector3<f64>>,
 }
 
 /// Places a hull (body-frame vertices) at `(x, R)` with the given motion.
@@ -80,6 +82,7 @@ pub fn place(
         v,
         w,
         radius: vertices.iter().map(|p| p.norm()).fold(0.0, f64::max),
+        vertices: vertices.iter().map(|p| x + r * p).collect(),
     }
 }
 
@@ -114,27 +117,33 @@ pub fn place_all(
     (bodies, obstacles)
 }
 
-/// The contact sets of a step, sorted: every dynamic body with every half-space; a dynamic body
-/// F with an earlier dynamic body or an obstacle G when their bounding boxes grown by the reach
-/// intersect and their hulls are at most the reach apart.
+/// The contact sets of a step, sorted: a dynamic body F with a half-space when its hull's lowest
+/// vertex is at most the reach above it, and with an earlier dynamic body or an obstacle G when
+/// their bounding boxes grown by the reach intersect and their hulls are at most the reach apart.
 pub fn select_pairs(
-    planes: usize,
+    planes: &[HalfSpace],
     bodies: &[Placed],
     obstacles: &[Placed],
     h: f64,
     reach: &Reach,
 ) -> Vec<PairKey> {
     let mut keys = Vec::new();
+    let reach_of = |closing: f64| reach.factor * h * closing + reach.margin;
     let within = |a: &Placed, b: &Placed| {
-        let closing = (a.v - b.v).norm() + a.w.norm() * a.radius + b.w.norm() * b.radius;
-        let r = reach.factor * h * closing + reach.margin;
+        let r = reach_of((a.v - b.v).norm() + a.w.norm() * a.radius + b.w.norm() * b.radius);
         a.hull.may_touch(&b.hull, r) && a.hull.signed_distance(&b.hull, r).is_some()
     };
+    let identity = nalgebra::Matrix3::identity();
     for (f, a) in bodies.iter().enumerate() {
-        keys.extend((0..planes).map(|p| PairKey {
-            f,
-            g: Partner::Plane(p),
-        }));
+        for (p, plane) in planes.iter().enumerate() {
+            let gap = min_gap(&a.vertices, &Vector3::zeros(), &identity, plane);
+            if gap <= reach_of(a.v.norm() + a.w.norm() * a.radius) {
+                keys.push(PairKey {
+                    f,
+                    g: Partner::Plane(p),
+                });
+            }
+        }
         for (g, b) in bodies[..f].iter().enumerate() {
             if within(a, b) {
                 keys.push(PairKey {
