@@ -660,4 +660,3 @@ fn run_writes_contacts_and_pairs() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
-

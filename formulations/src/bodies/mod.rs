@@ -435,8 +435,10 @@ fn pair_mode(
     if mf == ContactMode::Line && mg == ContactMode::Line {
         // Two lines on the plane meet at a point unless they are parallel.
         let direction = |v: &[Vector3<f64>], plane: &HalfSpace| {
-            let on: Vec<&Vector3<f64>> =
-                v.iter().filter(|p| plane.value(p) <= MODE_TOLERANCE).collect();
+            let on: Vec<&Vector3<f64>> = v
+                .iter()
+                .filter(|p| plane.value(p) <= MODE_TOLERANCE)
+                .collect();
             let p0 = on.first().copied().copied().unwrap_or_default();
             on.iter()
                 .map(|p| *p - p0)
