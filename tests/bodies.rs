@@ -1,6 +1,6 @@
 //! Bodies touching bodies (`docs/model.md#bodies-touching-bodies`): the scene files
 //! `scenes/d1_stack.toml` … `scenes/d8_edge_on_edge.toml` run by the multi-body formulation
-//! with Newton and PATH, against the exact answers of `docs/model.md#bodies-scenarios`
+//! with Newton and PATH, against the exact answers of `docs/model.md#scenarios`
 //! (velocities 1e-9, ECPs 1e-8, impulses 1e-9; every step must converge, and the overlap check
 //! between every two real bodies runs at every step end); a reach that leaves a pair out is
 //! caught; the scene-file errors of the multi-body format; `contacts.csv` and `summary.json`.
@@ -659,4 +659,51 @@ fn run_writes_contacts_and_pairs() {
         &header[..40.min(header.len())]
     );
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// The conic backend has no two-body structure yet: it refuses a multi-body scene with a
+/// message that names the backends that can run it.
+#[test]
+fn the_conic_backend_refuses_a_multibody_scene() {
+    let file = load_scene(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/d1_stack.toml"))
+        .unwrap_or_else(|e| panic!("{e}"));
+    let options = ecp::run::RunOptions {
+        out_dir: std::env::temp_dir().join(format!("ecp-bodies-conic-{}", std::process::id())),
+        solver: Some("conic".into()),
+        plots: false,
+        ..Default::default()
+    };
+    let e = ecp::run::run_scene(&file, &options, |_| {})
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(
+        e.contains("conic") && e.contains("bodies") && e.contains("--solver newton"),
+        "{e}"
+    );
+}
+
+/// `ecp check` lists the pairs the overlap check watches and those with a contact set at t = 0.
+#[test]
+fn check_prints_the_watched_pairs() {
+    let file =
+        load_scene(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/d3_block_on_block.toml"))
+            .unwrap_or_else(|e| panic!("{e}"));
+    let text = ecp::scene::describe(&file);
+    assert!(
+        text.contains("pairs watched for overlap at every step end: 3"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  A – ground: μ = 1, contact set at t = 0"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  B – ground: μ = 0.3, apart at t = 0"),
+        "{text}"
+    );
+    assert!(
+        text.contains("  B – A: μ = 0.3, contact set at t = 0"),
+        "{text}"
+    );
 }

@@ -297,7 +297,7 @@ pub fn t_bar() -> Scene {
     }
 }
 
-/// A uniform box body of the bodies scenarios (`docs/model.md#bodies-scenarios`).
+/// A uniform box body of the bodies scenarios (`docs/model.md#scenarios`).
 fn cuboid_body(name: &str, mass: f64, size: [f64; 3], x: Vector3<f64>) -> BodySpec {
     let [lx, ly, lz] = size;
     BodySpec {
@@ -315,7 +315,7 @@ fn cuboid_body(name: &str, mass: f64, size: [f64; 3], x: Vector3<f64>) -> BodySp
     }
 }
 
-/// D1 (`docs/model.md#bodies-scenarios`): A (0.4 × 0.4 × 0.2 m, 2 kg) flat on the ground
+/// D1 (`docs/model.md#scenarios`): A (0.4 × 0.4 × 0.2 m, 2 kg) flat on the ground
 /// `ground`, B (0.2 m cube, 1 kg) centred on it, μ = 0.3, 1 s; run by the multi-body formulation.
 pub fn d1_stack() -> Scene {
     Scene {
