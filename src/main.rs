@@ -233,7 +233,11 @@ fn main() -> ExitCode {
                 }),
                 &formulations.unwrap_or_else(|| {
                     // The hull formulation, or the multi-body one for a multi-body scene.
-                    let default = if file.formulation == "bodies" { "bodies" } else { "hull" };
+                    let default = if file.formulation == "bodies" {
+                        "bodies"
+                    } else {
+                        "hull"
+                    };
                     vec![default.to_string()]
                 }),
                 &options,

@@ -1303,8 +1303,9 @@ fn describe_pairs(s: &Scene, out: &mut String) {
     }
     let _ = writeln!(
         out,
-        "pairs watched for overlap at every step end: {} (a contact set when they can touch \
-         within the step)",
+        "contacts: {} contact sets at t = 0 (a pair gets one when it can touch within the \
+         step); pairs watched for overlap at every step end: {}",
+        active.len(),
         watched.len()
     );
     for (a, b) in &watched {
