@@ -707,3 +707,121 @@ fn check_prints_the_watched_pairs() {
         "{text}"
     );
 }
+
+// ---------------------------------------------------------------------------------------------
+// Step sensitivities through body–body and kinematic contacts
+// ---------------------------------------------------------------------------------------------
+
+use ecp::formulations::StateComponent;
+use ecp::formulations::sensitivity::{SensitivityOptions, StepInput, step_sensitivity_with};
+use ecp::formulations::world::Motion;
+
+/// The data block named `name` of `sim`'s step problem.
+fn data_block(sim: &Simulation, name: &str) -> ecp::model::DataId {
+    let i = sim
+        .mcp()
+        .data_blocks()
+        .iter()
+        .position(|d| d.name() == name)
+        .unwrap_or_else(|| panic!("no data block {name}"));
+    ecp::model::DataId(i)
+}
+
+/// `v_x` of body `b` after the first step of `scene`, with Newton at a tight tolerance.
+fn first_vx(scene: ecp::formulations::Scene, b: usize) -> f64 {
+    let mut sim = Simulation::with_formulation(scene, "bodies").unwrap_or_else(|e| panic!("{e}"));
+    let mut newton =
+        ecp::solvers::newton::NewtonSolver::new(ecp::solvers::newton::NewtonSettings {
+            tolerance: 1e-13,
+            ..Default::default()
+        });
+    let r = sim.step(&mut newton).unwrap_or_else(|e| panic!("{e}"));
+    assert!(r.converged);
+    r.bodies[b].v.x
+}
+
+/// The first step's `∂v_x(b)/∂input` and its central finite difference, `perturb` moving the
+/// scene's input by `e`.
+fn check_derivative(
+    scene: &ecp::formulations::Scene,
+    b: usize,
+    input: impl Fn(&Simulation) -> StepInput,
+    perturb: impl Fn(&mut ecp::formulations::Scene, f64),
+    want: f64,
+) {
+    let mut sim =
+        Simulation::with_formulation(scene.clone(), "bodies").unwrap_or_else(|e| panic!("{e}"));
+    let mut newton =
+        ecp::solvers::newton::NewtonSolver::new(ecp::solvers::newton::NewtonSettings {
+            tolerance: 1e-13,
+            ..Default::default()
+        });
+    sim.step(&mut newton).unwrap_or_else(|e| panic!("{e}"));
+    let inp = input(&sim);
+    let sens = step_sensitivity_with(&sim, &SensitivityOptions::default(), &[inp])
+        .unwrap_or_else(|e| panic!("{e}"));
+    let d = sens
+        .d_state(b, StateComponent::Velocity(0), inp)
+        .unwrap_or_else(|| panic!("no column"));
+    let e = 1e-6;
+    let (mut up, mut down) = (scene.clone(), scene.clone());
+    perturb(&mut up, e);
+    perturb(&mut down, -e);
+    let fd = (first_vx(up, b) - first_vx(down, b)) / (2.0 * e);
+    close(
+        &format!("{}: ∂v_x/∂{inp:?} against FD", scene.name),
+        d,
+        fd,
+        1e-6,
+    );
+    close(&format!("{}: ∂v_x/∂{inp:?}", scene.name), d, want, 1e-6);
+}
+
+/// D4's first step (B slips on the moving plate): `∂v_x/∂μ = g h`, nothing from B's mass or
+/// the plate's speed (it slips), 1 from B's initial velocity; each against central differences.
+#[test]
+fn sensitivities_through_a_kinematic_contact() {
+    let s = scene("d4_conveyor");
+    check_derivative(&s, 0, |_| StepInput::Mu, |s, e| s.friction.mu += e, G * H);
+    check_derivative(
+        &s,
+        0,
+        |_| StepInput::Mass { body: 0 },
+        |s, e| s.bodies[0].mass.mass += e,
+        0.0,
+    );
+    check_derivative(
+        &s,
+        0,
+        |sim| StepInput::Data(data_block(sim, "A.nu"), 0),
+        |s, e| {
+            if let Motion::Velocity { v, .. } = &mut s.world.obstacles[0].motion {
+                v.x += e;
+            }
+        },
+        0.0,
+    );
+}
+
+/// D3's first step (B slides on A, μ(B–A) = 0.3 of its own): `∂v_x(B)/∂μ(B–A) = −g h` through
+/// the pair's friction block, 0 from the scene's μ (no contact uses it), 1 from B's initial
+/// velocity; each against central differences.
+#[test]
+fn sensitivities_through_a_body_body_contact() {
+    let s = scene("d3_block_on_block");
+    check_derivative(
+        &s,
+        1,
+        |sim| StepInput::Data(data_block(sim, "B~A.friction"), 0),
+        |s, e| s.world.pair_friction[1].friction.mu += e,
+        -G * H,
+    );
+    check_derivative(&s, 1, |_| StepInput::Mu, |s, e| s.friction.mu += e, 0.0);
+    check_derivative(
+        &s,
+        1,
+        |_| StepInput::Velocity { body: 1, axis: 0 },
+        |s, e| s.bodies[1].initial.v.x += e,
+        1.0,
+    );
+}

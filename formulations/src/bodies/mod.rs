@@ -27,9 +27,9 @@ use nalgebra::{Vector3, Vector4};
 use ecp_model::{BlockMcp, DataBlock, DataId, Input, Problem, ResId, VarBlock, VarId};
 
 use crate::blocks::{
-    BodyDataIds, FaceSet, FrictionParams, KinematicMap, NewtonEuler, PairBody, PairContactVars,
-    PairDataIds, PairMotion, SceneDataIds, SupportNormal, add_body_data, add_pair_contact,
-    add_pair_data, add_scene_data, pair_guess, reference_axis,
+    AXIS_DATA, BodyDataIds, FaceSet, FrictionParams, KinematicMap, NewtonEuler, PairBody,
+    PairContactVars, PairDataIds, PairMotion, SceneDataIds, SupportNormal, add_body_data,
+    add_pair_contact, add_pair_data, add_scene_data, pair_guess, reference_axis,
 };
 use crate::geometry::{
     ContactMode, HalfSpace, HullPose, contact_mode, pair_features, predicted_pose, world_vertices,
@@ -199,6 +199,25 @@ impl MultiBody {
         } else {
             (c.normal, 0.0)
         }
+    }
+
+    /// Whether contact `key` has friction of its own (a `[[pair_friction]]` entry for its pair
+    /// or its materials) rather than the scene's.
+    fn has_own_friction(scene: &Scene, key: PairKey) -> bool {
+        let a = &scene.bodies[key.f].name;
+        let b = Self::partner_name(scene, key.g);
+        let mut marked = scene.friction;
+        marked.mu = f64::NAN;
+        !Self::friction_between_or(scene, a, &b, &marked).mu.is_nan()
+    }
+
+    fn friction_between_or(
+        scene: &Scene,
+        a: &str,
+        b: &str,
+        default: &FrictionParams,
+    ) -> FrictionParams {
+        scene.world.friction_between(a, b, default)
     }
 
     /// The friction of contact `key` (its pair's, its materials', or the scene's).
@@ -466,7 +485,7 @@ impl StepFormulation for MultiBody {
             fallback_backends: true,
             substeps: true,
             user_terms: true,
-            sensitivities: SensitivitySupport::None,
+            sensitivities: SensitivitySupport::Exact,
             non_isolated_solutions: false,
         }
     }
@@ -610,12 +629,25 @@ impl StepFormulation for MultiBody {
                 .find(|(k, _)| *k == key)
                 .map(|(_, n)| *n);
             let normal = previous.unwrap_or_else(Vector3::z);
-            let data = add_pair_data(
-                problem,
-                &tag,
-                &Self::friction_of(scene, key),
-                &reference_axis(&normal),
-            );
+            // A pair with the scene's friction reads the scene's `friction` block (so `set_param`
+            // and the step sensitivities of μ, e_t, e_o, e_r reach it); a pair with its own
+            // friction has its own `<tag>.friction` block.
+            let data = if Self::has_own_friction(scene, key) {
+                add_pair_data(
+                    problem,
+                    &tag,
+                    &Self::friction_of(scene, key),
+                    &reference_axis(&normal),
+                )
+            } else {
+                PairDataIds {
+                    friction: scene_data.friction,
+                    axis: problem.add_data_block(
+                        DataBlock::new(format!("{tag}.axis"), reference_axis(&normal).as_slice())
+                            .with_component_names(AXIS_DATA),
+                    ),
+                }
+            };
             let fb = &self.bodies[key.f];
             let f = PairBody {
                 nu: fb.nu.into(),
@@ -736,11 +768,14 @@ impl StepFormulation for MultiBody {
                 &[s.x1.x, s.x1.y, s.x1.z, s.q1[0], s.q1[1], s.q1[2], s.q1[3]],
             )?;
         }
+        let scene_friction = self.scene_data.map(|d| d.friction);
         for c in &self.contacts {
-            mcp.set_data(
-                c.data.friction,
-                &Self::friction_of(ctx.scene, c.key).values(),
-            )?;
+            if Some(c.data.friction) != scene_friction {
+                mcp.set_data(
+                    c.data.friction,
+                    &Self::friction_of(ctx.scene, c.key).values(),
+                )?;
+            }
             mcp.set_data(c.data.axis, reference_axis(&c.normal).as_slice())?;
         }
         Ok(())
