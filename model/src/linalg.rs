@@ -15,6 +15,17 @@ use faer::{Mat, Par};
 
 use crate::pattern::CscPattern;
 
+mod small_lu;
+use small_lu::SmallLu;
+
+/// Largest dimension [`DenseLu`] factorises with its own small-matrix kernel instead of faer's
+/// blocked LU (`docs/latency.md`: below it the kernel is faster, above it faer is).
+pub const SMALL_DENSE_MAX: usize = 48;
+
+/// From this many right-hand sides on, [`DenseLu::solve_many_in_place`] uses faer's blocked
+/// triangular solves on the small kernel's factors too (`docs/latency.md`).
+const SMALL_MANY_RHS: usize = 4;
+
 /// Failure of a factorisation or a solve.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum LinalgError {
@@ -69,9 +80,11 @@ pub fn symmetric_eigen(a: &[f64], n: usize) -> Result<(Vec<f64>, Vec<f64>), Lina
     Ok((eig, vecs))
 }
 
-/// Dense LU with partial pivoting, workspace kept between calls.
+/// Dense LU with partial pivoting, workspace kept between calls: a small-matrix kernel up to
+/// [`SMALL_DENSE_MAX`], faer's blocked LU above.
 pub struct DenseLu {
     n: usize,
+    small: Option<SmallLu>,
     lu: Mat<f64>,
     perm: Vec<usize>,
     perm_inv: Vec<usize>,
@@ -82,6 +95,23 @@ pub struct DenseLu {
 impl DenseLu {
     /// Workspace for `n × n` matrices.
     pub fn new(n: usize) -> Self {
+        if n <= SMALL_DENSE_MAX {
+            return DenseLu {
+                n,
+                small: Some(SmallLu::new(n)),
+                lu: Mat::zeros(0, 0),
+                perm: vec![0; n],
+                perm_inv: vec![0; n],
+                mem: MemBuffer::new(StackReq::EMPTY),
+                factored: false,
+            };
+        }
+        Self::blocked(n)
+    }
+
+    /// Workspace for faer's blocked LU, whatever the size (the benchmarks compare the kernels
+    /// with it; [`DenseLu::new`] chooses by size).
+    pub fn blocked(n: usize) -> Self {
         let req = StackReq::any_of(&[
             pp_factor::lu_in_place_scratch::<usize, f64>(n, n, Par::Seq, Default::default()),
             pp_solve::solve_in_place_scratch::<usize, f64>(n, 1, Par::Seq),
@@ -89,6 +119,7 @@ impl DenseLu {
         ]);
         DenseLu {
             n,
+            small: None,
             lu: Mat::zeros(n, n),
             perm: vec![0; n],
             perm_inv: vec![0; n],
@@ -109,22 +140,30 @@ impl DenseLu {
         if a.iter().any(|v| !v.is_finite()) {
             return Err(LinalgError::NonFinite);
         }
-        let src = MatRef::from_column_major_slice(a, n, n);
-        self.lu.copy_from(src);
-        let stack = MemStack::new(&mut self.mem);
-        pp_factor::lu_in_place(
-            self.lu.as_mut(),
-            &mut self.perm,
-            &mut self.perm_inv,
-            Par::Seq,
-            stack,
-            Default::default(),
-        );
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-        for i in 0..n {
-            let d = self.lu[(i, i)].abs();
-            lo = lo.min(d);
-            hi = hi.max(d);
+        if let Some(small) = &mut self.small {
+            small.factor(a);
+            for d in small.pivots() {
+                lo = lo.min(d.abs());
+                hi = hi.max(d.abs());
+            }
+        } else {
+            let src = MatRef::from_column_major_slice(a, n, n);
+            self.lu.copy_from(src);
+            let stack = MemStack::new(&mut self.mem);
+            pp_factor::lu_in_place(
+                self.lu.as_mut(),
+                &mut self.perm,
+                &mut self.perm_inv,
+                Par::Seq,
+                stack,
+                Default::default(),
+            );
+            for i in 0..n {
+                let d = self.lu[(i, i)].abs();
+                lo = lo.min(d);
+                hi = hi.max(d);
+            }
         }
         if n > 0 && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
             return Err(LinalgError::Singular {
@@ -158,15 +197,29 @@ impl DenseLu {
                 b.len()
             )));
         }
-        let mut mem = MemBuffer::new(pp_solve::solve_in_place_scratch::<usize, f64>(
-            n,
-            k,
-            Par::Seq,
-        ));
-        let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
-        let rhs = MatMut::from_column_major_slice_mut(b, n, k);
-        let lu = self.lu.as_ref();
-        pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, MemStack::new(&mut mem));
+        if let (Some(small), true) = (&self.small, k < SMALL_MANY_RHS) {
+            for col in b.chunks_exact_mut(n.max(1)) {
+                small.solve(col);
+            }
+        } else {
+            let mut mem = MemBuffer::new(pp_solve::solve_in_place_scratch::<usize, f64>(
+                n,
+                k,
+                Par::Seq,
+            ));
+            let rhs = MatMut::from_column_major_slice_mut(b, n, k);
+            // Many right-hand sides: faer's blocked triangular solves, also on the small
+            // kernel's factors (same storage, its row interchanges as a permutation).
+            let lu = match &self.small {
+                Some(small) => {
+                    small.row_permutation(&mut self.perm, &mut self.perm_inv);
+                    MatRef::from_column_major_slice(small.factors(), n, n)
+                }
+                None => self.lu.as_ref(),
+            };
+            let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
+            pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, MemStack::new(&mut mem));
+        }
         if b.iter().all(|v| v.is_finite()) {
             Ok(())
         } else {
@@ -179,14 +232,28 @@ impl DenseLu {
             return Err(LinalgError::NotFactored);
         }
         let n = self.n;
-        let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
-        let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
-        let stack = MemStack::new(&mut self.mem);
-        let lu = self.lu.as_ref();
-        if transpose {
-            pp_solve::solve_transpose_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+        if b.len() != n {
+            return Err(LinalgError::Factorization(format!(
+                "right-hand side has {} entries, expected {n}",
+                b.len()
+            )));
+        }
+        if let Some(small) = &self.small {
+            if transpose {
+                small.solve_transpose(b);
+            } else {
+                small.solve(b);
+            }
         } else {
-            pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+            let perm = faer::perm::PermRef::new_checked(&self.perm, &self.perm_inv, n);
+            let rhs = MatMut::from_column_major_slice_mut(b, n, 1);
+            let stack = MemStack::new(&mut self.mem);
+            let lu = self.lu.as_ref();
+            if transpose {
+                pp_solve::solve_transpose_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+            } else {
+                pp_solve::solve_in_place(lu, lu, perm, rhs, Par::Seq, stack);
+            }
         }
         if b.iter().all(|v| v.is_finite()) {
             Ok(())
@@ -465,5 +532,77 @@ mod tests {
         }
         assert_eq!(symmetric_eigen(&[f64::NAN], 1), Err(LinalgError::NonFinite));
         assert!(symmetric_eigen(&[1.0, 2.0], 2).is_err());
+    }
+
+    /// The small-matrix kernel and faer's blocked LU give the same solutions to round-off, the
+    /// same singularity verdicts, and the same errors.
+    #[test]
+    fn small_kernel_agrees_with_the_blocked_lu() {
+        for n in [1, 5, 31, SMALL_DENSE_MAX] {
+            let a: Vec<f64> = (0..n * n)
+                .map(|k| {
+                    let (i, j) = (k % n, k / n);
+                    let v = ((i * 7 + j * 13) % 11) as f64 - 5.0;
+                    let off = if (i + 2 * j) % 3 == 0 { 0.0 } else { v };
+                    off + if i == j { 20.0 } else { 0.0 }
+                })
+                .collect();
+            let (mut small, mut blocked) = (DenseLu::new(n), DenseLu::blocked(n));
+            assert!(small.small.is_some() && blocked.small.is_none());
+            small.factor(&a).expect("regular");
+            blocked.factor(&a).expect("regular");
+            let b: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
+            for transpose in [false, true] {
+                let (mut x, mut y) = (b.clone(), b.clone());
+                if transpose {
+                    small.solve_transpose_in_place(&mut x).expect("solved");
+                    blocked.solve_transpose_in_place(&mut y).expect("solved");
+                } else {
+                    small.solve_in_place(&mut x).expect("solved");
+                    blocked.solve_in_place(&mut y).expect("solved");
+                }
+                for (u, v) in x.iter().zip(&y) {
+                    assert!(
+                        (u - v).abs() <= 1e-13 * v.abs().max(1.0),
+                        "n = {n}: {u} vs {v}"
+                    );
+                }
+            }
+            let mut one = b.clone();
+            small.solve_in_place(&mut one).expect("solved");
+            for k in [2, 7] {
+                let cols: Vec<f64> = (0..k)
+                    .flat_map(|c| b.iter().map(move |v| v * (c + 1) as f64))
+                    .collect();
+                let mut many = cols.clone();
+                small.solve_many_in_place(&mut many, k).expect("solved");
+                for (c, col) in many.chunks_exact(n).enumerate() {
+                    for (u, v) in col.iter().zip(&one) {
+                        let v = v * (c + 1) as f64;
+                        assert!(
+                            (u - v).abs() <= 1e-13 * v.abs().max(1.0),
+                            "k = {k}: {u} vs {v}"
+                        );
+                    }
+                }
+            }
+        }
+        let singular = [1.0, 2.0, 2.0, 4.0];
+        assert!(matches!(
+            DenseLu::new(2).factor(&singular),
+            Err(LinalgError::Singular { .. })
+        ));
+        assert!(matches!(
+            DenseLu::blocked(2).factor(&singular),
+            Err(LinalgError::Singular { .. })
+        ));
+        assert_eq!(
+            DenseLu::new(2).factor(&[1.0, f64::NAN, 0.0, 1.0]),
+            Err(LinalgError::NonFinite)
+        );
+        assert_eq!(
+            DenseLu::new(2).solve_in_place(&mut [1.0, 2.0]),
+            Err(LinalgError::NotFactored)
+        );
     }
 }

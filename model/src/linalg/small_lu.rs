@@ -1,0 +1,222 @@
+//! Dense LU with partial pivoting for small matrices, on storage kept between calls.
+//!
+//! The step problems that dominate (one body, a few contacts: 20–70 unknowns) are solved several
+//! times per step; at that size a general blocked LU spends more time dispatching than computing
+//! (`docs/latency.md`). This kernel is the textbook right-looking elimination on a column-major
+//! matrix (LAPACK's `getf2`): the same pivot choice as a blocked LU (largest magnitude in the
+//! column, the first one on ties), so the factors agree to round-off. It skips the update of a
+//! column whose entry in the pivot row is zero, which pays on the step problems' Jacobians
+//! (a third full).
+
+/// The factors `P A = L U` of a square matrix: `L` (unit diagonal, below) and `U` (on and above
+/// the diagonal) in one column-major array, and the row interchanges.
+#[derive(Clone, Debug)]
+pub(crate) struct SmallLu {
+    n: usize,
+    a: Vec<f64>,
+    /// Row `k` was interchanged with row `piv[k] ≥ k` at elimination step `k`.
+    piv: Vec<usize>,
+}
+
+impl SmallLu {
+    pub(crate) fn new(n: usize) -> Self {
+        SmallLu {
+            n,
+            a: vec![0.0; n * n],
+            piv: vec![0; n],
+        }
+    }
+
+    /// Factorises the column-major `n × n` matrix `src` (finite: the caller checks). A zero
+    /// pivot column is left unreduced; the caller's pivot-ratio test reports the matrix singular.
+    pub(crate) fn factor(&mut self, src: &[f64]) {
+        let n = self.n;
+        self.a.copy_from_slice(src);
+        let a = &mut self.a;
+        for k in 0..n {
+            let mut p = k;
+            let mut best = a[k * n + k].abs();
+            for i in k + 1..n {
+                let v = a[k * n + i].abs();
+                if v > best {
+                    best = v;
+                    p = i;
+                }
+            }
+            self.piv[k] = p;
+            if p != k {
+                for j in 0..n {
+                    a.swap(j * n + k, j * n + p);
+                }
+            }
+            let pivot = a[k * n + k];
+            if pivot == 0.0 {
+                continue;
+            }
+            let (head, tail) = a.split_at_mut((k + 1) * n);
+            let lk = &mut head[k * n + k + 1..(k + 1) * n];
+            for l in lk.iter_mut() {
+                *l /= pivot;
+            }
+            for col in tail.chunks_exact_mut(n) {
+                let akj = col[k];
+                if akj == 0.0 {
+                    continue;
+                }
+                for (x, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
+                    *x -= l * akj;
+                }
+            }
+        }
+    }
+
+    /// `L` and `U` in one column-major array (`L` below the diagonal, unit diagonal implied).
+    pub(crate) fn factors(&self) -> &[f64] {
+        &self.a
+    }
+
+    /// The row permutation of the factors as `perm[i]` = the row of `A` in row `i` of `P A`, and
+    /// its inverse.
+    pub(crate) fn row_permutation(&self, perm: &mut [usize], perm_inv: &mut [usize]) {
+        for (i, p) in perm.iter_mut().enumerate() {
+            *p = i;
+        }
+        for (k, &p) in self.piv.iter().enumerate() {
+            perm.swap(k, p);
+        }
+        for (i, &p) in perm.iter().enumerate() {
+            perm_inv[p] = i;
+        }
+    }
+
+    /// The diagonal of `U`.
+    pub(crate) fn pivots(&self) -> impl Iterator<Item = f64> + '_ {
+        (0..self.n).map(|i| self.a[i * self.n + i])
+    }
+
+    /// Solves `A x = b` in place.
+    pub(crate) fn solve(&self, b: &mut [f64]) {
+        let n = self.n;
+        let a = &self.a;
+        for (k, &p) in self.piv.iter().enumerate() {
+            b.swap(k, p);
+        }
+        for k in 0..n {
+            let bk = b[k];
+            if bk != 0.0 {
+                for (x, l) in b[k + 1..].iter_mut().zip(&a[k * n + k + 1..(k + 1) * n]) {
+                    *x -= l * bk;
+                }
+            }
+        }
+        for k in (0..n).rev() {
+            b[k] /= a[k * n + k];
+            let bk = b[k];
+            if bk != 0.0 {
+                for (x, u) in b[..k].iter_mut().zip(&a[k * n..k * n + k]) {
+                    *x -= u * bk;
+                }
+            }
+        }
+    }
+
+    /// Solves `Aᵀ x = b` in place: `Uᵀ y = b`, `Lᵀ w = y`, `x = Pᵀ w`.
+    pub(crate) fn solve_transpose(&self, b: &mut [f64]) {
+        let n = self.n;
+        let a = &self.a;
+        for k in 0..n {
+            let col = &a[k * n..k * n + k];
+            let dot: f64 = col.iter().zip(&b[..k]).map(|(u, y)| u * y).sum();
+            b[k] = (b[k] - dot) / a[k * n + k];
+        }
+        for k in (0..n).rev() {
+            let col = &a[k * n + k + 1..(k + 1) * n];
+            let dot: f64 = col.iter().zip(&b[k + 1..]).map(|(l, w)| l * w).sum();
+            b[k] -= dot;
+        }
+        for (k, &p) in self.piv.iter().enumerate().rev() {
+            b.swap(k, p);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A deterministic dense matrix with entries in [-1, 1] and a third of them zero.
+    fn matrix(n: usize, seed: u64) -> Vec<f64> {
+        let mut s = seed;
+        (0..n * n)
+            .map(|_| {
+                s = s
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let u = (s >> 11) as f64 / (1u64 << 53) as f64;
+                if u < 0.33 { 0.0 } else { 2.0 * u - 1.0 }
+            })
+            .collect()
+    }
+
+    fn mul(a: &[f64], x: &[f64], n: usize, transpose: bool) -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                (0..n)
+                    .map(|j| {
+                        let aij = if transpose {
+                            a[i * n + j]
+                        } else {
+                            a[j * n + i]
+                        };
+                        aij * x[j]
+                    })
+                    .sum()
+            })
+            .collect()
+    }
+
+    #[test]
+    fn solves_and_transposed_solves_reproduce_the_right_hand_side() {
+        for (n, seed) in [(1, 1), (2, 2), (7, 3), (31, 4), (64, 5)] {
+            let a = matrix(n, seed);
+            let mut lu = SmallLu::new(n);
+            lu.factor(&a);
+            let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin() + 0.5).collect();
+            for transpose in [false, true] {
+                let mut b = mul(&a, &x, n, transpose);
+                if transpose {
+                    lu.solve_transpose(&mut b);
+                } else {
+                    lu.solve(&mut b);
+                }
+                let err = b
+                    .iter()
+                    .zip(&x)
+                    .map(|(u, v)| (u - v).abs())
+                    .fold(0.0, f64::max);
+                assert!(
+                    err < 1e-10,
+                    "n = {n}, transpose = {transpose}: error {err:.2e}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn pivoting_takes_the_largest_entry_of_the_column() {
+        // [[1, 2], [3, 4]] column-major: the first pivot is 3 (row 1).
+        let mut lu = SmallLu::new(2);
+        lu.factor(&[1.0, 3.0, 2.0, 4.0]);
+        assert_eq!(lu.piv, vec![1, 1]);
+        let d: Vec<f64> = lu.pivots().collect();
+        assert_eq!(d[0], 3.0);
+        assert!((d[1] - (2.0 - 4.0 / 3.0)).abs() < 1e-15);
+    }
+
+    #[test]
+    fn a_zero_column_leaves_a_zero_pivot() {
+        let mut lu = SmallLu::new(2);
+        lu.factor(&[0.0, 0.0, 1.0, 2.0]);
+        assert!(lu.pivots().any(|d| d == 0.0));
+    }
+}
