@@ -359,7 +359,8 @@ impl Trajectory {
         };
         out.set_item("body_a", names(|p| p.body_a.as_str()))?;
         out.set_item("body_b", names(|p| p.body_b.as_str()))?;
-        let fields: [(&str, fn(&ecp_formulations::PairRecord) -> f64); 15] = [
+        type Field = fn(&ecp_formulations::PairRecord) -> f64;
+        let fields: [(&str, Field); 15] = [
             ("a1_x", |p| p.a1.x),
             ("a1_y", |p| p.a1.y),
             ("a1_z", |p| p.a1.z),
