@@ -51,8 +51,9 @@ fn run(scene: ecp::formulations::Scene, backend: &str, steps: Option<usize>) -> 
         out.push(rec);
     }
     let iters: Vec<usize> = out.iter().map(|r| r.summary.iterations).collect();
+    let us: f64 = out.iter().map(|r| r.solve_us).sum::<f64>() / out.len().max(1) as f64;
     eprintln!(
-        "{name}, {backend}: {} steps, iterations mean {:.2} max {}",
+        "{name}, {backend}: {} steps, iterations mean {:.2} max {}, solve {us:.0} µs per step",
         out.len(),
         iters.iter().sum::<usize>() as f64 / iters.len().max(1) as f64,
         iters.iter().max().copied().unwrap_or(0)
