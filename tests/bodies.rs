@@ -826,3 +826,22 @@ fn sensitivities_through_a_body_body_contact() {
         1.0,
     );
 }
+
+/// One pair's μ changed between steps through its data block: D3's B, sliding on A, decelerates
+/// by 0.3 g h per step, then by 0.1 g h once `B~A.friction` says μ = 0.1.
+#[test]
+fn one_pairs_friction_set_between_steps() {
+    let mut sim = Simulation::with_formulation(scene("d3_block_on_block"), "bodies")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut newton = solver("newton");
+    let r = sim.step(newton.as_mut()).unwrap_or_else(|e| panic!("{e}"));
+    close("step 1", r.bodies[1].v.x, 1.0 - 0.3 * G * H, 1e-9);
+    let block = data_block(&sim, "B~A.friction");
+    sim.set_data(block, &[0.1, 1.0, 1.0, 0.1])
+        .unwrap_or_else(|e| panic!("{e}"));
+    for k in 2..=5 {
+        let r = sim.step(newton.as_mut()).unwrap_or_else(|e| panic!("{e}"));
+        let want = 1.0 - 0.3 * G * H - 0.1 * G * H * (k - 1) as f64;
+        close(&format!("step {k}"), r.bodies[1].v.x, want, 1e-9);
+    }
+}

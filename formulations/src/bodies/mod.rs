@@ -750,7 +750,7 @@ impl StepFormulation for MultiBody {
     }
 
     /// The span's data: each dynamic body's start state and load, each kinematic body's end
-    /// pose and velocity over the span, the pairs' friction and the frames' reference axes.
+    /// pose and velocity over the span, the scene's friction and the frames' reference axes.
     fn update_data(&mut self, ctx: &StepContext<'_>, mcp: &mut BlockMcp) -> Result<(), SceneError> {
         if let Some(d) = self.scene_data {
             mcp.set_data(d.h, &[ctx.h])?;
@@ -768,14 +768,10 @@ impl StepFormulation for MultiBody {
                 &[s.x1.x, s.x1.y, s.x1.z, s.q1[0], s.q1[1], s.q1[2], s.q1[3]],
             )?;
         }
-        let scene_friction = self.scene_data.map(|d| d.friction);
+        // A pair's own friction block is written when it is built (and carried over a rebuild
+        // by name), not here, so that `Simulation::set_data` on `<F>~<G>.friction` changes that
+        // pair's friction from the next step on.
         for c in &self.contacts {
-            if Some(c.data.friction) != scene_friction {
-                mcp.set_data(
-                    c.data.friction,
-                    &Self::friction_of(ctx.scene, c.key).values(),
-                )?;
-            }
             mcp.set_data(c.data.axis, reference_axis(&c.normal).as_slice())?;
         }
         Ok(())
