@@ -129,7 +129,7 @@ fn stack(name: &str, backend: &str, b_xy: (f64, f64)) {
             &Vector3::new(b_xy.0 / 3.0, b_xy.1 / 3.0, 0.0),
             1e-8,
         );
-        near(&format!("{at}: normal"), &top.normal, &Vector3::z(), 1e-12);
+        near(&format!("{at}: normal"), &top.normal, &Vector3::z(), 1e-9);
         friction_free(top, &at);
         friction_free(bottom, &at);
         assert_eq!(top.mode.as_str(), "patch", "{at}");

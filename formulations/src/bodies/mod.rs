@@ -315,6 +315,7 @@ impl MultiBody {
                 // The half-space: the lowest vertices of F's hull, as the half-space stepper's
                 // guess; p_n from the weight when they touch (or when forced).
                 let plane = &scene.planes[p];
+                self.contacts[i].normal = plane.normal();
                 plane_guess(
                     &f_pose, plane, &motion_f, &friction, scene, ctx.h, predicted,
                 )
@@ -336,7 +337,7 @@ impl MultiBody {
                     x: xg,
                     rotation: rg,
                 };
-                let Ok(features) = pair_features(&f_pose, &g_pose) else {
+                let Some(features) = touching_features(&f_pose, &g_pose) else {
                     return;
                 };
                 self.contacts[i].normal = features.normal;
@@ -360,6 +361,88 @@ impl MultiBody {
             self.contacts[i].fresh = false;
         }
     }
+}
+
+impl MultiBody {
+    /// Adds to each loaded contact's starting `p_n` the loads of the loaded contacts of the
+    /// bodies resting on F, along its normal (a stack's lower contacts carry the bodies above:
+    /// the weight of F alone is a poor start for the bottom of a tower). The friction impulses
+    /// are scaled with `p_n`.
+    fn carry_loads(&self, mcp: &BlockMcp, z: &mut [f64]) {
+        let pn: Vec<f64> = self
+            .contacts
+            .iter()
+            .map(|c| z[mcp.range(c.vars.pn)][0])
+            .collect();
+        let mut load = pn.clone();
+        for _ in 0..self.bodies.len() {
+            let previous = load.clone();
+            for (i, c) in self.contacts.iter().enumerate() {
+                if pn[i] <= 0.0 {
+                    continue;
+                }
+                let above: f64 = (self.contacts.iter().enumerate())
+                    .filter(|(j, d)| d.key.g == Partner::Body(c.key.f) && pn[*j] > 0.0)
+                    .map(|(j, d)| previous[j] * d.normal.dot(&c.normal).max(0.0))
+                    .sum();
+                load[i] = pn[i] + above;
+            }
+        }
+        for (i, c) in self.contacts.iter().enumerate() {
+            if pn[i] > 0.0 && load[i] != pn[i] {
+                let k = load[i] / pn[i];
+                z[mcp.range(c.vars.pn)][0] = load[i];
+                for v in &mut z[mcp.range(c.vars.pf)] {
+                    *v *= k;
+                }
+            }
+        }
+    }
+}
+
+/// [`pair_features`] of F and G, made robust for hulls that touch face to face: parry's EPA
+/// may return any normal along which two exactly touching polytopes overlap by round-off (the
+/// side of a cube stacked on an equal cube). When the hulls touch or overlap by less than
+/// 1e-9 m along one of their face normals (the direction of least overlap among the face
+/// normals of both), the features are taken from F lifted 1e-7 m beyond touching along it, where
+/// GJK's closest features are unambiguous, and then put back in touch (`d = 0`, `a1 = a2`).
+fn touching_features(f: &HullPose<'_>, g: &HullPose<'_>) -> Option<crate::geometry::PairFeatures> {
+    let features = pair_features(f, g).ok()?;
+    if features.distance > 1e-9 {
+        return Some(features);
+    }
+    let world = |p: &HullPose<'_>| world_vertices(p.hull.vertices(), &p.x, &p.rotation);
+    let (vf, vg) = (world(f), world(g));
+    let extent = |v: &[Vector3<f64>], m: &Vector3<f64>| {
+        v.iter()
+            .map(|p| m.dot(p))
+            .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), x| {
+                (lo.min(x), hi.max(x))
+            })
+    };
+    // Separation of F from G along m (from G towards F): min over F − max over G.
+    let separation = |m: &Vector3<f64>| extent(&vf, m).0 - extent(&vg, m).1;
+    let normals = (g.hull.faces().iter().map(|face| g.rotation * face.normal)).chain(
+        f.hull
+            .faces()
+            .iter()
+            .map(|face| -(f.rotation * face.normal)),
+    );
+    let (best, sep) = normals
+        .map(|m| (m, separation(&m)))
+        .max_by(|a, b| a.1.total_cmp(&b.1))?;
+    if sep < -1e-9 || (best - features.normal).norm() <= 1e-9 {
+        return Some(features);
+    }
+    let lifted = HullPose {
+        x: f.x + best * (1e-7 - sep),
+        ..*f
+    };
+    let mut apart = pair_features(&lifted, g).ok()?;
+    apart.a1 = apart.a2;
+    apart.d = 0.0;
+    apart.distance = sep;
+    Some(apart)
 }
 
 /// The guess of a contact with a half-space: `a1` the centroid of F's lowest hull vertices,
@@ -726,6 +809,7 @@ impl StepFormulation for MultiBody {
         for i in 0..self.contacts.len() {
             self.guess_contact(i, ctx, mcp, z, false);
         }
+        self.carry_loads(mcp, z);
         Ok(())
     }
 
