@@ -951,19 +951,20 @@ impl StepFormulation for MultiBody {
                 };
                 let (gap, mode) = table[f][p];
                 let Some(c) = self.contacts.iter().find(|c| c.key == key) else {
-                    // No contact set this step: the lowest vertex and its projection, no
-                    // impulse.
+                    // No contact set this step: no ECP (NaN), no impulse; `lg` the hull's
+                    // height above the half-space.
                     let s = &states[f];
                     let plane = &scene.planes[p];
                     let r = rotation_matrix(&s.q);
                     let low = world_vertices(self.bodies[f].hull.vertices(), &s.x, &r)
-                        .into_iter()
-                        .min_by(|a, b| plane.value(a).total_cmp(&plane.value(b)))
-                        .unwrap_or(s.x);
+                        .iter()
+                        .map(|v| plane.value(v))
+                        .fold(f64::INFINITY, f64::min);
+                    let none = Vector3::repeat(f64::NAN);
                     out.push(ContactRecord {
-                        a1: low,
-                        a2: plane.project(&low),
-                        lg: plane.value(&low),
+                        a1: none,
+                        a2: none,
+                        lg: low,
                         pn: 0.0,
                         pt: 0.0,
                         po: 0.0,
