@@ -299,6 +299,7 @@ fn make_scene(kind: &str, rng: &mut Rng) -> Result<Scene, String> {
         gravity: Vector3::new(0.0, 0.0, -9.8),
         h,
         duration,
+        world: Default::default(),
     })
 }
 

@@ -63,7 +63,8 @@ enum Command {
         /// Comma-separated backends [default: newton,path,conic].
         #[arg(long, value_delimiter = ',')]
         solvers: Option<Vec<String>>,
-        /// Comma-separated formulations [default: hull].
+        /// Comma-separated formulations [default: hull; bodies for a scene whose formulation is
+        /// bodies].
         #[arg(long, value_delimiter = ',', value_parser = parse_formulation)]
         formulations: Option<Vec<String>>,
         /// Output directory [default: out/<scene name>/compare].
@@ -230,7 +231,15 @@ fn main() -> ExitCode {
                         .map(str::to_string)
                         .collect()
                 }),
-                &formulations.unwrap_or_else(|| vec!["hull".to_string()]),
+                &formulations.unwrap_or_else(|| {
+                    // The hull formulation, or the multi-body one for a multi-body scene.
+                    let default = if file.formulation == "bodies" {
+                        "bodies"
+                    } else {
+                        "hull"
+                    };
+                    vec![default.to_string()]
+                }),
                 &options,
             )
         }),

@@ -75,6 +75,130 @@ impl TrajectoryWriter {
     }
 }
 
+/// The columns of `contacts.csv` (`docs/outputs.md#contactscsv`).
+pub const CONTACTS_COLUMNS: [&str; 20] = [
+    "step", "t", "body_a", "body_b", "a1_x", "a1_y", "a1_z", "a2_x", "a2_y", "a2_z", "n_x", "n_y",
+    "n_z", "pn", "pt", "po", "pr", "sigma", "gap", "mode",
+];
+
+/// Writes `contacts.csv`: one flushed row per step and active contact between named bodies
+/// ([`StepRecord::pairs`]), in long format (`docs/outputs.md#contactscsv`).
+pub struct ContactsWriter {
+    path: PathBuf,
+    out: csv::Writer<BufWriter<File>>,
+}
+
+impl ContactsWriter {
+    /// Creates (truncates) `path` and writes the header.
+    pub fn create(path: &Path) -> Result<Self, OutputError> {
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir).map_err(io_err(dir))?;
+        }
+        let file = File::create(path).map_err(io_err(path))?;
+        let mut w = ContactsWriter {
+            path: path.to_path_buf(),
+            out: csv::Writer::from_writer(BufWriter::new(file)),
+        };
+        w.row(CONTACTS_COLUMNS.iter().map(|c| c.to_string()).collect())?;
+        w.flush()?;
+        Ok(w)
+    }
+
+    fn row(&mut self, fields: Vec<String>) -> Result<(), OutputError> {
+        self.out.write_record(fields).map_err(|e| OutputError {
+            path: self.path.clone(),
+            source: e.into(),
+        })
+    }
+
+    /// Appends the rows of one step and flushes them to disk.
+    pub fn write(&mut self, record: &StepRecord) -> Result<(), OutputError> {
+        for p in &record.pairs {
+            let mut f = vec![
+                record.step.to_string(),
+                format!("{}", record.t),
+                p.body_a.clone(),
+                p.body_b.clone(),
+            ];
+            for v in [
+                p.a1.x, p.a1.y, p.a1.z, p.a2.x, p.a2.y, p.a2.z, p.normal.x, p.normal.y, p.normal.z,
+                p.pn, p.pt, p.po, p.pr, p.sigma, p.gap,
+            ] {
+                f.push(format!("{v:e}"));
+            }
+            f.push(p.mode.as_str().to_string());
+            self.row(f)?;
+        }
+        self.flush()
+    }
+
+    fn flush(&mut self) -> Result<(), OutputError> {
+        self.out.flush().map_err(io_err(&self.path))
+    }
+}
+
+/// One contact pair of `summary.json` (`docs/outputs.md#summaryjson`).
+#[derive(Clone, Debug, Default, Serialize, PartialEq)]
+pub struct PairSummary {
+    /// The dynamic body.
+    pub body_a: String,
+    /// The other body or half-space.
+    pub body_b: String,
+    /// Steps at which the pair had a contact set.
+    pub active_steps: usize,
+    /// Steps at which it carried a normal impulse.
+    pub loaded_steps: usize,
+    /// Largest normal impulse (N s).
+    pub max_pn: f64,
+    /// Its contact mode at each change (`none` while it has no contact set).
+    pub mode_sequence: Vec<ModeChange>,
+}
+
+impl PairSummary {
+    /// The pairs of `records`, in order of first appearance.
+    pub fn of(records: &[StepRecord]) -> Vec<PairSummary> {
+        let mut out: Vec<PairSummary> = Vec::new();
+        for r in records {
+            for p in &r.pairs {
+                if !out
+                    .iter()
+                    .any(|s| s.body_a == p.body_a && s.body_b == p.body_b)
+                {
+                    out.push(PairSummary {
+                        body_a: p.body_a.clone(),
+                        body_b: p.body_b.clone(),
+                        ..Default::default()
+                    });
+                }
+            }
+            for s in &mut out {
+                let found = r
+                    .pairs
+                    .iter()
+                    .find(|p| p.body_a == s.body_a && p.body_b == s.body_b);
+                let mode = match found {
+                    Some(p) => {
+                        s.active_steps += 1;
+                        if p.pn > 0.0 {
+                            s.loaded_steps += 1;
+                        }
+                        s.max_pn = s.max_pn.max(p.pn);
+                        p.mode.as_str()
+                    }
+                    None => "none",
+                };
+                if s.mode_sequence.last().is_none_or(|last| last.mode != mode) {
+                    s.mode_sequence.push(ModeChange {
+                        t: r.t,
+                        mode: mode.to_string(),
+                    });
+                }
+            }
+        }
+        out
+    }
+}
+
 /// Order statistics of the solve time per step (µs).
 #[derive(Clone, Debug, Default, Serialize, PartialEq)]
 pub struct TimeStats {
@@ -235,6 +359,9 @@ pub struct RunSummary {
     pub failure: Option<Failure>,
     /// Steps the scene asked for (the run may stop earlier on a failure or `--steps`).
     pub planned_steps: usize,
+    /// Every contact pair between named bodies (the multi-body formulation), with its mode
+    /// sequence.
+    pub pairs: Vec<PairSummary>,
 }
 
 impl RunSummary {
@@ -327,6 +454,7 @@ impl RunSummary {
                 residual: r.summary.residual,
             }),
             planned_steps,
+            pairs: PairSummary::of(records),
         }
     }
 }

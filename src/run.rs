@@ -12,8 +12,8 @@ use ecp_solvers::Registry;
 use crate::backends::{SolverConfig, Target, check_combination, make_solver_in};
 use crate::error::{InputError, InputErrorKind};
 use crate::output::{
-    CompareReport, CompareRun, OutputError, RunSummary, SkippedRun, TrajectoryWriter,
-    max_velocity_differences, write_json,
+    CompareReport, CompareRun, ContactsWriter, OutputError, RunSummary, SkippedRun,
+    TrajectoryWriter, max_velocity_differences, write_json,
 };
 use crate::scene::SceneFile;
 
@@ -186,6 +186,7 @@ pub fn run_scene(
         &file.scene,
         sim.contacts_per_body(),
     )?;
+    let mut contacts = ContactsWriter::create(&options.out_dir.join("contacts.csv"))?;
     let mut records = Vec::with_capacity(planned.min(1 << 16));
     let mut stepper_error = None;
     let mut timed_out = false;
@@ -200,6 +201,7 @@ pub fn run_scene(
         match sim.step_with(solver.as_mut(), &mut fallbacks) {
             Ok(rec) => {
                 csv.write(&rec)?;
+                contacts.write(&rec)?;
                 on_step(&rec);
                 let stop = !rec.converged && !options.keep_going;
                 records.push(rec);

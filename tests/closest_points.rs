@@ -141,6 +141,7 @@ fn scene(name: &str, shape: Shape, mass: MassProperties, f: &Float) -> Scene {
         gravity: V3::zeros(),
         h: H,
         duration: H,
+        world: Default::default(),
     }
 }
 

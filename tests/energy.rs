@@ -54,6 +54,7 @@ fn scene(name: &str, initial: BodyState, planes: Vec<HalfSpace>, g: f64, duratio
         gravity: Vector3::new(0.0, 0.0, -g),
         h: 0.01,
         duration,
+        world: Default::default(),
     }
 }
 

@@ -804,6 +804,7 @@ fn t_bar_scene() -> Scene {
         gravity: V3::new(0.0, 0.0, -scenarios::G),
         h: 0.01,
         duration: 0.1,
+        world: Default::default(),
     }
 }
 

@@ -53,6 +53,7 @@ fn box_scene(
         gravity: Vector3::new(0.0, 0.0, -9.8),
         h,
         duration,
+        world: Default::default(),
     }
 }
 

@@ -29,6 +29,7 @@
 #![warn(missing_docs)]
 
 pub mod blocks;
+pub mod bodies;
 pub mod ecp;
 pub mod geometry;
 pub mod point;
@@ -40,8 +41,9 @@ pub mod scenarios;
 pub mod scene;
 pub mod sensitivity;
 pub mod step;
+pub mod world;
 
-pub use record::{ContactRecord, MODE_TOLERANCE, StepMethod, StepRecord};
+pub use record::{ContactRecord, MODE_TOLERANCE, PairRecord, StepMethod, StepRecord};
 pub use registry::{FormulationRegistry, RegistryError};
 pub use scene::{BodySpec, BodyState, Load, Scene, SceneError};
 pub use step::{

@@ -40,6 +40,37 @@ pub struct ContactRecord {
     pub mode: ContactMode,
 }
 
+/// One active contact between a dynamic body and another body or a half-space at the end of
+/// a step (a row of `contacts.csv`, `docs/outputs.md#contactscsv`): the names the scene gives
+/// the two, the ECPs, the normal and the impulses.
+#[derive(Clone, Debug, PartialEq)]
+pub struct PairRecord {
+    /// The dynamic body of the pair (F).
+    pub body_a: String,
+    /// The other body (dynamic, fixed or kinematic) or half-space (G).
+    pub body_b: String,
+    /// ECP on Conv(F).
+    pub a1: Vector3<f64>,
+    /// ECP on Conv(G).
+    pub a2: Vector3<f64>,
+    /// Unit contact normal, from G into F.
+    pub normal: Vector3<f64>,
+    /// Normal impulse.
+    pub pn: f64,
+    /// Friction impulse along t.
+    pub pt: f64,
+    /// Friction impulse along o.
+    pub po: f64,
+    /// Torsional friction impulse.
+    pub pr: f64,
+    /// Slip rate σ.
+    pub sigma: f64,
+    /// Distance between the two hulls (`d |ν_G|`; 0 when they touch).
+    pub gap: f64,
+    /// Contact mode of the pair (the fewer touching features of the two sides).
+    pub mode: ContactMode,
+}
+
 /// How a step was solved.
 #[derive(Clone, Debug, PartialEq, Eq, Default)]
 pub enum StepMethod {
@@ -105,6 +136,9 @@ pub struct StepRecord {
     pub bodies: Vec<BodyState>,
     /// Contacts (body-major, then plane).
     pub contacts: Vec<ContactRecord>,
+    /// The active contacts between bodies (and, for the multi-body formulation, between each
+    /// dynamic body and each half-space), by name; empty for the single-body formulations.
+    pub pairs: Vec<PairRecord>,
     /// Kinetic plus potential energy of all bodies.
     pub energy: f64,
     /// Solver summary (of the best iterate when the step did not converge).

@@ -16,6 +16,7 @@
 
 use std::sync::Arc;
 
+use crate::bodies::MultiBody;
 use crate::ecp::EcpContacts;
 use crate::point::PointContacts;
 use crate::reduced::ReducedSliding;
@@ -67,14 +68,15 @@ impl FormulationRegistry {
     }
 
     /// The formulations of this crate, in the order of `docs/model.md`: hull, union, reduced,
-    /// point.
+    /// point, bodies.
     pub fn builtin() -> Self {
         let mut r = Self::new();
-        let builtins: [FormulationFactory; 4] = [
+        let builtins: [FormulationFactory; 5] = [
             Arc::new(|| Box::new(EcpContacts::hull())),
             Arc::new(|| Box::new(EcpContacts::union())),
             Arc::new(|| Box::new(ReducedSliding::new())),
             Arc::new(|| Box::new(PointContacts::new())),
+            Arc::new(|| Box::new(MultiBody::new())),
         ];
         for factory in builtins {
             let f = factory();
@@ -157,7 +159,8 @@ impl FormulationRegistry {
 }
 
 impl Simulation {
-    /// Validates `scene` and builds the step problem of the hull formulation (the paper's).
+    /// Validates `scene` and builds the step problem of the hull formulation (the paper's), or
+    /// of the multi-body formulation for a multi-body scene ([`Simulation::builder`]).
     pub fn new(scene: Scene) -> Result<Self, SceneError> {
         Self::builder(scene).build()
     }
@@ -176,11 +179,17 @@ impl Simulation {
         SimulationBuilder::new(scene, formulation).build()
     }
 
-    /// A builder for `scene` with the hull formulation; choose another with
+    /// A builder for `scene` with the hull formulation (the multi-body formulation for a scene
+    /// with fixed or kinematic bodies, pair friction or touching bodies,
+    /// [`crate::world::World::is_multibody`]); choose another with
     /// [`SimulationBuilder::formulation`], add forces and terms, then
     /// [`SimulationBuilder::build`].
     pub fn builder(scene: Scene) -> SimulationBuilder {
-        SimulationBuilder::new(scene, Box::new(EcpContacts::hull()))
+        if scene.world.is_multibody() {
+            SimulationBuilder::new(scene, Box::new(MultiBody::new()))
+        } else {
+            SimulationBuilder::new(scene, Box::new(EcpContacts::hull()))
+        }
     }
 }
 
@@ -191,7 +200,7 @@ mod tests {
     #[test]
     fn builtin_names_and_capabilities() {
         let r = FormulationRegistry::builtin();
-        assert_eq!(r.names(), ["hull", "union", "reduced", "point"]);
+        assert_eq!(r.names(), ["hull", "union", "reduced", "point", "bodies"]);
         assert_eq!(r.names_with(|c| c.step_structure), ["hull", "union"]);
         assert!(
             r.capabilities("union")
@@ -203,7 +212,7 @@ mod tests {
             e.as_deref(),
             Some(
                 "unknown formulation \"nope\"; the formulations are \"hull\", \"union\", \
-                 \"reduced\", \"point\""
+                 \"reduced\", \"point\", \"bodies\""
             )
         );
     }

@@ -52,6 +52,7 @@ fn box_scene(name: &str, mu: f64, duration: f64, body: BodySpec, plane: HalfSpac
         gravity: Vector3::new(0.0, 0.0, -G),
         h: 0.01,
         duration,
+        world: Default::default(),
     }
 }
 
@@ -232,6 +233,7 @@ pub fn desk() -> Scene {
         gravity: Vector3::new(0.0, 0.0, -G),
         h: 0.01,
         duration: 4.0,
+        world: Default::default(),
     }
 }
 
@@ -291,5 +293,51 @@ pub fn t_bar() -> Scene {
         gravity: Vector3::new(0.0, 0.0, -G),
         h: 0.01,
         duration: 5.0,
+        world: Default::default(),
+    }
+}
+
+/// A uniform box body of the bodies scenarios (`docs/model.md#scenarios`).
+fn cuboid_body(name: &str, mass: f64, size: [f64; 3], x: Vector3<f64>) -> BodySpec {
+    let [lx, ly, lz] = size;
+    BodySpec {
+        name: name.into(),
+        mass: match MassProperties::solid_cuboid(mass, lx, ly, lz) {
+            Ok(m) => m,
+            Err(e) => unreachable!("constant box is valid: {e}"),
+        },
+        shape: match Shape::cuboid(lx, ly, lz) {
+            Ok(s) => s,
+            Err(e) => unreachable!("constant box is valid: {e}"),
+        },
+        initial: BodyState::at_rest(x),
+        load: Load::None,
+    }
+}
+
+/// D1 (`docs/model.md#scenarios`): A (0.4 × 0.4 × 0.2 m, 2 kg) flat on the ground
+/// `ground`, B (0.2 m cube, 1 kg) centred on it, μ = 0.3, 1 s; run by the multi-body formulation.
+pub fn d1_stack() -> Scene {
+    Scene {
+        name: "d1_stack".into(),
+        bodies: vec![
+            cuboid_body("A", 2.0, [0.4, 0.4, 0.2], Vector3::new(0.0, 0.0, 0.1)),
+            cuboid_body("B", 1.0, [0.2, 0.2, 0.2], Vector3::new(0.0, 0.0, 0.3)),
+        ],
+        planes: vec![HalfSpace::ground()],
+        friction: FrictionParams {
+            mu: 0.3,
+            e_t: 1.0,
+            e_o: 1.0,
+            e_r: 0.1,
+        },
+        gravity: Vector3::new(0.0, 0.0, -G),
+        h: 0.01,
+        duration: 1.0,
+        world: crate::world::World {
+            plane_names: vec!["ground".into()],
+            bodies_touch: true,
+            ..Default::default()
+        },
     }
 }

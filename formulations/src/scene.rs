@@ -9,6 +9,7 @@ use nalgebra::{Vector3, Vector4, Vector6};
 use crate::blocks::FrictionParams;
 use crate::geometry::{GeometryError, HalfSpace, MassProperties, Shape, min_gap};
 use crate::rotation::{quat_normalize, rotation_matrix};
+use crate::world::World;
 
 /// Position, orientation and velocities of a rigid body (world frame, `docs/model.md#conventions`).
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -103,6 +104,10 @@ pub struct Scene {
     pub h: f64,
     /// Simulated duration.
     pub duration: f64,
+    /// Fixed and kinematic bodies, half-space names, friction per pair
+    /// (`docs/model.md#bodies-touching-bodies`); empty for a scene of dynamic bodies on
+    /// half-spaces.
+    pub world: World,
 }
 
 impl Scene {
@@ -156,14 +161,51 @@ pub enum SceneError {
         /// Why, and what to do instead.
         reason: String,
     },
+    /// Two real bodies overlap at the end of a step (or at the start of the simulation): a
+    /// contact the step problem should have had was left out, or the scene starts in an
+    /// overlap (`docs/model.md#which-pairs`).
+    #[error(
+        "bodies '{a}' and '{b}' overlap by {depth:.3e} m {at}; {hint}",
+        at = step.map(|s| format!("at the end of step {s}")).unwrap_or_else(|| "at the start".into())
+    )]
+    Overlap {
+        /// One body (dynamic).
+        a: String,
+        /// The other body or half-space.
+        b: String,
+        /// Penetration depth (m).
+        depth: f64,
+        /// The step (`None`: the initial state).
+        step: Option<usize>,
+        /// What to do.
+        hint: &'static str,
+    },
     /// The modelling layer rejected the problem.
     #[error("model: {0}")]
     Model(#[from] ecp_model::ModelError),
 }
 
 /// The scene checks every formulation shares: step, duration, friction (`e_r` only when the
-/// formulation has torsional friction) and gravity.
+/// formulation has torsional friction) and gravity; and a scene with fixed or kinematic bodies,
+/// pair friction or touching bodies is refused (only the multi-body formulation models them,
+/// [`validate_scene_parameters`]).
 pub fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneError> {
+    if scene.world.is_multibody() {
+        return Err(SceneError::NotApplicable {
+            formulation: "chosen".into(),
+            step: None,
+            reason: "the scene has fixed or kinematic bodies, friction per pair or bodies that \
+                     touch each other, which only the `bodies` formulation models; set \
+                     simulation.formulation = \"bodies\" (or --formulation bodies)"
+                .into(),
+        });
+    }
+    validate_scene_parameters(scene, torsion)
+}
+
+/// [`validate_parameters`] without the refusal of multi-body scenes, and with every pair
+/// friction checked.
+pub fn validate_scene_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneError> {
     if !(scene.h > 0.0 && scene.h.is_finite()) {
         return Err(SceneError::Parameter {
             what: "h".into(),
@@ -178,14 +220,17 @@ pub fn validate_parameters(scene: &Scene, torsion: bool) -> Result<(), SceneErro
             hint: "the duration must be a non-negative number of seconds",
         });
     }
-    let f = scene.friction;
-    let mut checks = vec![
-        ("mu", f.mu, false),
-        ("e_t", f.e_t, true),
-        ("e_o", f.e_o, true),
-    ];
-    if torsion {
-        checks.push(("e_r", f.e_r, true));
+    let pairs = scene.world.pair_friction.iter().map(|p| p.friction);
+    let mut checks = Vec::new();
+    for f in std::iter::once(scene.friction).chain(pairs) {
+        checks.extend([
+            ("mu", f.mu, false),
+            ("e_t", f.e_t, true),
+            ("e_o", f.e_o, true),
+        ]);
+        if torsion {
+            checks.push(("e_r", f.e_r, true));
+        }
     }
     for (what, v, positive) in checks {
         if !v.is_finite() || v < 0.0 || (positive && v == 0.0) {
@@ -281,6 +326,7 @@ mod tests {
             gravity: Vector3::new(0.0, 0.0, -9.8),
             h: 0.01,
             duration: 0.1,
+            world: World::default(),
         }
     }
 

@@ -335,6 +335,58 @@ impl Trajectory {
         self.records.iter().map(Summary::from).collect()
     }
 
+    /// The columns of ``contacts.csv`` (``docs/outputs.md#contactscsv``): one entry per step and
+    /// active contact between two named bodies (the ``bodies`` formulation; empty for the
+    /// others), as a dict of 1-D numpy arrays (lists of strings for ``body_a``, ``body_b`` and
+    /// ``mode``) that ``pandas.DataFrame`` takes as it is.
+    #[pyo3(name = "contacts")]
+    fn contacts_table<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        let rows: Vec<(&StepRecord, &ecp_formulations::PairRecord)> = self
+            .records
+            .iter()
+            .flat_map(|r| r.pairs.iter().map(move |p| (r, p)))
+            .collect();
+        let k = rows.len();
+        let out = PyDict::new(py);
+        let steps: Vec<i64> = rows.iter().map(|(r, _)| r.step as i64).collect();
+        out.set_item("step", int_array(py, steps))?;
+        out.set_item(
+            "t",
+            array(py, &[k], rows.iter().map(|(r, _)| r.t).collect()),
+        )?;
+        let names = |f: fn(&ecp_formulations::PairRecord) -> &str| -> Vec<String> {
+            rows.iter().map(|(_, p)| f(p).to_string()).collect()
+        };
+        out.set_item("body_a", names(|p| p.body_a.as_str()))?;
+        out.set_item("body_b", names(|p| p.body_b.as_str()))?;
+        type Field = fn(&ecp_formulations::PairRecord) -> f64;
+        let fields: [(&str, Field); 15] = [
+            ("a1_x", |p| p.a1.x),
+            ("a1_y", |p| p.a1.y),
+            ("a1_z", |p| p.a1.z),
+            ("a2_x", |p| p.a2.x),
+            ("a2_y", |p| p.a2.y),
+            ("a2_z", |p| p.a2.z),
+            ("n_x", |p| p.normal.x),
+            ("n_y", |p| p.normal.y),
+            ("n_z", |p| p.normal.z),
+            ("pn", |p| p.pn),
+            ("pt", |p| p.pt),
+            ("po", |p| p.po),
+            ("pr", |p| p.pr),
+            ("sigma", |p| p.sigma),
+            ("gap", |p| p.gap),
+        ];
+        for (name, f) in fields {
+            out.set_item(
+                name,
+                array(py, &[k], rows.iter().map(|(_, p)| f(p)).collect()),
+            )?;
+        }
+        out.set_item("mode", names(|p| p.mode.as_str()))?;
+        Ok(out)
+    }
+
     /// The columns of ``trajectory.csv`` (``docs/outputs.md``), names as in its header: a dict
     /// of 1-D numpy arrays (lists of strings for ``mode`` and ``fallback``) that
     /// ``pandas.DataFrame`` takes as it is.

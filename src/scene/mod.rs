@@ -40,10 +40,12 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use ecp_formulations::blocks::FrictionParams;
+use ecp_formulations::bodies::overlap::RealPieces;
 use ecp_formulations::geometry::{
     ConvexHull, ConvexPiece, GeometryError, HalfSpace, MassProperties, Shape, min_gap,
 };
 use ecp_formulations::rotation::{quat_from_rpy_deg, quat_normalize, rotation_matrix};
+use ecp_formulations::world::{Motion, Obstacle, PairFriction, PoseFn, World};
 use ecp_formulations::{BodySpec, BodyState, FormulationRegistry, Load, Scene, Simulation};
 use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 
@@ -54,7 +56,7 @@ use ecp_solvers::Registry;
 
 use crate::backends::{DEFAULT_SOLVER, SolverConfig};
 use crate::error::{InputError, InputErrorKind};
-use raw::{RawBody, RawHalfSpace, RawLoad, RawPiece, RawScene};
+use raw::{RawBody, RawHalfSpace, RawLoad, RawMotion, RawPiece, RawScene};
 
 /// The most steps a scene may ask for (`duration / h`).
 pub const MAX_STEPS: usize = 100_000_000;
@@ -317,6 +319,14 @@ impl Context<'_> {
                     m.to_string(),
                 )
             })?,
+            None if raw
+                .bodies
+                .iter()
+                .any(|b| b.kind.as_deref().is_some_and(|k| k != "dynamic"))
+                || !raw.pair_friction.is_empty() =>
+            {
+                "bodies".to_string()
+            }
             None => "hull".to_string(),
         };
 
@@ -379,30 +389,74 @@ impl Context<'_> {
         }
         let num_steps = (duration / h - 1e-9).ceil().max(0.0) as usize;
         let mut bodies = Vec::new();
+        let mut body_keys = Vec::new();
         let mut loads = Vec::new();
+        let mut obstacles = Vec::new();
+        let mut materials = Vec::new();
+        let mut names: Vec<(String, String)> = Vec::new();
         for (i, b) in raw.bodies.iter().enumerate() {
-            let (body, load) = self.body(i, b, h, num_steps)?;
-            bodies.push(body);
-            loads.push(load);
+            let key = format!("bodies[{i}]");
+            let kind = b.kind.as_deref().unwrap_or("dynamic");
+            let name = b.name.clone().unwrap_or_else(|| format!("body{i}"));
+            match kind {
+                "dynamic" => {
+                    let (body, load) = self.body(i, b, h, num_steps)?;
+                    if let Some(m) = &b.material {
+                        materials.push((body.name.clone(), m.clone()));
+                    }
+                    bodies.push(body);
+                    body_keys.push(i);
+                    loads.push(load);
+                }
+                "fixed" | "kinematic" => {
+                    obstacles.push(self.obstacle(i, b, kind == "kinematic", h, num_steps)?);
+                }
+                other => {
+                    return Err(self.err(
+                        InputErrorKind::InvalidValue,
+                        &format!("{key}.kind"),
+                        format!(
+                            "unknown body kind \"{other}\"; a body is \"dynamic\" (the default), \
+                             \"fixed\" or \"kinematic\""
+                        ),
+                    ));
+                }
+            }
+            names.push((name, format!("{key}.name")));
         }
-        for (i, b) in bodies.iter().enumerate() {
-            if bodies[..i].iter().any(|o| o.name == b.name) {
+        let mut plane_names = Vec::new();
+        for (p, hs) in raw.half_spaces.iter().enumerate() {
+            let name = hs.name.clone().unwrap_or_else(|| format!("half_space{p}"));
+            names.push((name.clone(), format!("half_spaces[{p}].name")));
+            plane_names.push(name);
+        }
+        for (i, (n, key)) in names.iter().enumerate() {
+            if names[..i].iter().any(|(o, _)| o == n) {
                 return Err(self.err(
                     InputErrorKind::InvalidValue,
-                    &format!("bodies[{i}].name"),
+                    key,
                     format!(
-                        "two bodies are named \"{}\"; give each body its own name",
-                        b.name
+                        "two bodies are named \"{n}\" (bodies and half-spaces share one namespace); give each its own name"
                     ),
                 ));
             }
+        }
+        if bodies.is_empty() {
+            return Err(self.err(
+                InputErrorKind::MissingKey,
+                "bodies",
+                "the scene has no dynamic body; add a [[bodies]] table without `kind` (or with \
+                 kind = \"dynamic\"), see docs/scene-format.md",
+            ));
+        }
+        for (i, b) in bodies.iter().enumerate() {
             let r = rotation_matrix(&b.initial.q);
             for (p, plane) in planes.iter().enumerate() {
                 let gap = min_gap(b.shape.vertices(), &b.initial.x, &r, plane);
                 if gap < -1e-9 {
                     return Err(self.err(
                         InputErrorKind::Geometry,
-                        &format!("bodies[{i}].position"),
+                        &format!("bodies[{}].position", body_keys[i]),
                         format!(
                             "body \"{}\" starts {:.3e} m inside half_spaces[{p}]; move it so that \
                              every vertex is on or above the plane",
@@ -411,6 +465,75 @@ impl Context<'_> {
                     ));
                 }
             }
+        }
+        let mut pair_friction = Vec::new();
+        for (i, pf) in raw.pair_friction.iter().enumerate() {
+            let key = format!("pair_friction[{i}]");
+            for n in &pf.between {
+                let known = names.iter().any(|(o, _)| o == n)
+                    || materials.iter().any(|(_, m)| m == n)
+                    || obstacles
+                        .iter()
+                        .any(|o: &Obstacle| o.material.as_deref() == Some(n));
+                if !known {
+                    let list: Vec<&str> = names.iter().map(|(o, _)| o.as_str()).collect();
+                    return Err(self.err(
+                        InputErrorKind::UnknownName,
+                        &format!("{key}.between"),
+                        format!(
+                            "\"{n}\" is not a body, half-space or material of the scene; the names \
+                             are {}",
+                            list.join(", ")
+                        ),
+                    ));
+                }
+            }
+            let mu = self.finite(&format!("{key}.mu"), pf.mu)?;
+            if mu < 0.0 {
+                return Err(self.err(
+                    InputErrorKind::InvalidValue,
+                    &format!("{key}.mu"),
+                    format!("the friction coefficient μ must be ≥ 0, got {mu}"),
+                ));
+            }
+            pair_friction.push(PairFriction {
+                names: pf.between.clone(),
+                friction: FrictionParams {
+                    mu,
+                    e_t: self.positive(
+                        &format!("{key}.e_t"),
+                        pf.e_t.unwrap_or(friction.e_t),
+                        "e_t",
+                    )?,
+                    e_o: self.positive(
+                        &format!("{key}.e_o"),
+                        pf.e_o.unwrap_or(friction.e_o),
+                        "e_o",
+                    )?,
+                    e_r: self.positive(
+                        &format!("{key}.e_r"),
+                        pf.e_r.unwrap_or(friction.e_r),
+                        "e_r (m)",
+                    )?,
+                },
+            });
+        }
+        let world = World {
+            obstacles,
+            plane_names,
+            materials,
+            pair_friction,
+            bodies_touch: formulation == "bodies",
+        };
+        if world.is_multibody() && formulation != "bodies" {
+            return Err(self.err(
+                InputErrorKind::InvalidValue,
+                "simulation.formulation",
+                format!(
+                    "the scene has fixed or kinematic bodies or friction per pair, which the \
+                     {formulation} formulation does not model; use formulation = \"bodies\""
+                ),
+            ));
         }
 
         let scene = Scene {
@@ -421,7 +544,23 @@ impl Context<'_> {
             gravity,
             h,
             duration,
+            world,
         };
+        if scene.world.is_multibody() {
+            let states: Vec<BodyState> = scene.bodies.iter().map(|b| b.initial).collect();
+            if let Some(o) = RealPieces::of(&scene).deepest_overlap(&scene, &states, 0.0, 1e-9) {
+                let i = scene.bodies.iter().position(|b| b.name == o.a).unwrap_or(0);
+                return Err(self.err(
+                    InputErrorKind::Geometry,
+                    &format!("bodies[{}].position", body_keys[i]),
+                    format!(
+                        "bodies \"{}\" and \"{}\" overlap by {:.3e} m at the start; move them \
+                         apart so that they at most touch",
+                        o.a, o.b, o.depth
+                    ),
+                ));
+            }
+        }
         // Anything the stepper still refuses is reported against the file.
         Simulation::new(scene.clone()).map_err(|e| InputError {
             file: Some(self.path.to_path_buf()),
@@ -472,6 +611,180 @@ impl Context<'_> {
         }
     }
 
+    /// A fixed or kinematic body (`kind = "fixed"` or `"kinematic"`): pieces, pose at t = 0
+    /// and, for a kinematic body, its schedule (`[bodies.motion]`).
+    fn obstacle(
+        &self,
+        i: usize,
+        b: &RawBody,
+        kinematic: bool,
+        h: f64,
+        num_steps: usize,
+    ) -> Result<Obstacle> {
+        let key = format!("bodies[{i}]");
+        let kind = if kinematic { "kinematic" } else { "fixed" };
+        let refuse = |field: &str, why: &str| {
+            Err(self.err(
+                InputErrorKind::InvalidValue,
+                &format!("{key}.{field}"),
+                format!("a {kind} body has no `{field}` ({why}); remove it"),
+            ))
+        };
+        if b.mass.is_some() {
+            return refuse("mass", "contact does not move it");
+        }
+        if b.inertia.is_some() {
+            return refuse("inertia", "contact does not move it");
+        }
+        if b.load.is_some() {
+            return refuse("load", "contact and loads do not move it");
+        }
+        if b.velocity.is_some() || b.angular_velocity.is_some() {
+            return refuse(
+                "velocity",
+                "a kinematic body's velocity is its [bodies.motion] schedule",
+            );
+        }
+        if b.pieces.is_empty() {
+            return Err(self.err(
+                InputErrorKind::MissingKey,
+                &format!("{key}.pieces"),
+                "a body needs at least one [[bodies.pieces]] (a box, a point set or a mesh)",
+            ));
+        }
+        let pieces = b
+            .pieces
+            .iter()
+            .enumerate()
+            .map(|(j, p)| self.piece(&format!("{key}.pieces[{j}]"), p))
+            .collect::<Result<Vec<_>>>()?;
+        let shape =
+            Shape::from_pieces(pieces).map_err(|e| self.geometry(&format!("{key}.pieces"), e))?;
+        shape
+            .hull()
+            .map_err(|e| self.geometry(&format!("{key}.pieces"), e))?;
+        let x = self.vec3(&format!("{key}.position"), b.position)?;
+        let q = self.orientation(&format!("{key}."), b.orientation, b.rpy_deg)?;
+        let motion = match (&b.motion, kinematic) {
+            (None, false) => Motion::Fixed { x, q },
+            (Some(_), false) => {
+                return refuse("motion", "it never moves; use kind = \"kinematic\"");
+            }
+            (None, true) => {
+                return Err(self.err(
+                    InputErrorKind::MissingKey,
+                    &format!("{key}.motion"),
+                    "a kinematic body needs a schedule: [bodies.motion] with `velocity` and/or \
+                     `angular_velocity` (constant, world frame), or `displacement` and/or \
+                     `rpy_deg` as expressions of t (docs/scene-format.md#kinematic-bodies)",
+                ));
+            }
+            (Some(m), true) => self.motion(&format!("{key}.motion"), m, x, q, h, num_steps)?,
+        };
+        Ok(Obstacle {
+            name: b.name.clone().unwrap_or_else(|| format!("body{i}")),
+            shape,
+            motion,
+            material: b.material.clone(),
+        })
+    }
+
+    /// A kinematic body's schedule: constant velocities, or a displacement and roll-pitch-yaw
+    /// angles as expressions of `t` (checked finite at every step time).
+    fn motion(
+        &self,
+        key: &str,
+        m: &RawMotion,
+        x0: Vector3<f64>,
+        q0: Vector4<f64>,
+        h: f64,
+        num_steps: usize,
+    ) -> Result<Motion> {
+        let velocities = m.velocity.is_some() || m.angular_velocity.is_some();
+        let expressions = m.displacement.is_some() || m.rpy_deg.is_some();
+        match (velocities, expressions) {
+            (true, true) => Err(self.err(
+                InputErrorKind::InvalidValue,
+                key,
+                "give either `velocity`/`angular_velocity` or `displacement`/`rpy_deg`, not both",
+            )),
+            (false, false) => Err(self.err(
+                InputErrorKind::MissingKey,
+                key,
+                "the schedule is empty; give `velocity`, `angular_velocity`, `displacement` or \
+                 `rpy_deg`",
+            )),
+            (true, false) => Ok(Motion::Velocity {
+                x0,
+                q0,
+                v: self.vec3(&format!("{key}.velocity"), m.velocity.unwrap_or([0.0; 3]))?,
+                w: self.vec3(
+                    &format!("{key}.angular_velocity"),
+                    m.angular_velocity.unwrap_or([0.0; 3]),
+                )?,
+            }),
+            (false, true) => {
+                let parse = |field: &str, values: &Option<Vec<toml::Value>>| {
+                    let k = format!("{key}.{field}");
+                    let Some(values) = values else {
+                        return Ok(std::array::from_fn(|_| TimeExpression::constant(0.0)));
+                    };
+                    if values.len() != 3 {
+                        return Err(self.err(
+                            InputErrorKind::WrongType,
+                            &k,
+                            format!("{field} needs 3 components, got {}", values.len()),
+                        ));
+                    }
+                    let mut out: [TimeExpression; 3] =
+                        std::array::from_fn(|_| TimeExpression::constant(0.0));
+                    for (c, v) in values.iter().enumerate() {
+                        let e = match v {
+                            toml::Value::Float(f) => TimeExpression::constant(self.finite(&k, *f)?),
+                            toml::Value::Integer(i) => TimeExpression::constant(*i as f64),
+                            toml::Value::String(s) => TimeExpression::parse(s)
+                                .map_err(|m| self.err(InputErrorKind::Expression, &k, m))?,
+                            other => {
+                                return Err(self.err(
+                                    InputErrorKind::WrongType,
+                                    &k,
+                                    format!(
+                                        "component {c} is a {}; give a number or a string such \
+                                         as \"0.01*sin(2*pi*20*t)\"",
+                                        other.type_str()
+                                    ),
+                                ));
+                            }
+                        };
+                        for step in 0..=num_steps {
+                            let t = step as f64 * h;
+                            if !e.eval(t).is_finite() {
+                                return Err(self.err(
+                                    InputErrorKind::Expression,
+                                    &k,
+                                    format!(
+                                        "component {c} = \"{}\" is not finite at t = {t} s",
+                                        e.source()
+                                    ),
+                                ));
+                            }
+                        }
+                        out[c] = e;
+                    }
+                    Ok(out)
+                };
+                let d = parse("displacement", &m.displacement)?;
+                let a = parse("rpy_deg", &m.rpy_deg)?;
+                let pose: PoseFn = Arc::new(move |t: f64| {
+                    let dx = Vector3::new(d[0].eval(t), d[1].eval(t), d[2].eval(t));
+                    let r = quat_from_rpy_deg(a[0].eval(t), a[1].eval(t), a[2].eval(t));
+                    (x0 + dx, ecp_formulations::rotation::quat_mul(&r, &q0))
+                });
+                Ok(Motion::Pose(pose))
+            }
+        }
+    }
+
     fn body(
         &self,
         i: usize,
@@ -481,7 +794,28 @@ impl Context<'_> {
     ) -> Result<(BodySpec, Option<[TimeExpression; 6]>)> {
         let key = format!("bodies[{i}]");
         let name = b.name.clone().unwrap_or_else(|| format!("body{i}"));
-        let mass = self.positive(&format!("{key}.mass"), b.mass, "the mass (kg)")?;
+        let mass = b.mass.ok_or_else(|| {
+            self.err(
+                InputErrorKind::MissingKey,
+                &key,
+                "missing field `mass`; a dynamic body needs `mass` (kg) and `inertia`",
+            )
+        })?;
+        let mass = self.positive(&format!("{key}.mass"), mass, "the mass (kg)")?;
+        let inertia = b.inertia.as_ref().ok_or_else(|| {
+            self.err(
+                InputErrorKind::MissingKey,
+                &key,
+                "missing field `inertia`; give \"uniform\", [Ixx, Iyy, Izz] or a 3×3 matrix",
+            )
+        })?;
+        if b.motion.is_some() {
+            return Err(self.err(
+                InputErrorKind::InvalidValue,
+                &format!("{key}.motion"),
+                "a dynamic body moves by the dynamics; `motion` is for kind = \"kinematic\"",
+            ));
+        }
         if b.pieces.is_empty() {
             return Err(self.err(
                 InputErrorKind::MissingKey,
@@ -496,7 +830,7 @@ impl Context<'_> {
             .map(|(j, p)| self.piece(&format!("{key}.pieces[{j}]"), p))
             .collect::<Result<Vec<_>>>()?;
         let inertia_key = format!("{key}.inertia");
-        let mass_props = match &b.inertia {
+        let mass_props = match inertia {
             toml::Value::String(s) if s == "uniform" => {
                 let boxes = pieces
                     .iter()
@@ -901,11 +1235,86 @@ pub fn describe(file: &SceneFile) -> String {
             }
         }
     }
-    let _ = writeln!(
-        out,
-        "contacts: {} (each body against each half-space)",
-        s.bodies.len() * s.planes.len()
-    );
+    if file.formulation == "bodies" {
+        describe_pairs(s, &mut out);
+    } else {
+        let _ = writeln!(
+            out,
+            "contacts: {} (each body against each half-space)",
+            s.bodies.len() * s.planes.len()
+        );
+    }
     let _ = writeln!(out, "ok: the scene is valid");
     out
+}
+
+/// The fixed and kinematic bodies, and the pairs the multi-body formulation watches: every
+/// dynamic body against every other body and half-space (the overlap check at every step end),
+/// with those that have a contact set at t = 0 and their friction.
+fn describe_pairs(s: &Scene, out: &mut String) {
+    use std::fmt::Write;
+    for o in &s.world.obstacles {
+        let (x, _) = o.pose_at(0.0);
+        let kind = if o.is_fixed() { "fixed" } else { "kinematic" };
+        let _ = writeln!(
+            out,
+            "  {kind} body \"{}\" at ({:.6}, {:.6}, {:.6}), {} pieces",
+            o.name,
+            x.x,
+            x.y,
+            x.z,
+            o.shape.pieces().len()
+        );
+    }
+    let active: Vec<(String, String)> = match Simulation::with_formulation(s.clone(), "bodies") {
+        Ok(sim) => sim
+            .formulation_as::<ecp_formulations::bodies::MultiBody>()
+            .map(|m| {
+                m.pairs()
+                    .iter()
+                    .map(|k| {
+                        let b = match k.g {
+                            ecp_formulations::bodies::pairs::Partner::Plane(p) => {
+                                s.world.plane_name(p)
+                            }
+                            ecp_formulations::bodies::pairs::Partner::Body(b) => {
+                                s.bodies[b].name.clone()
+                            }
+                            ecp_formulations::bodies::pairs::Partner::Obstacle(o) => {
+                                s.world.obstacles[o].name.clone()
+                            }
+                        };
+                        (s.bodies[k.f].name.clone(), b)
+                    })
+                    .collect()
+            })
+            .unwrap_or_default(),
+        Err(_) => Vec::new(),
+    };
+    let mut watched = Vec::new();
+    for (f, body) in s.bodies.iter().enumerate() {
+        let others = (0..s.planes.len())
+            .map(|p| s.world.plane_name(p))
+            .chain(s.bodies[..f].iter().map(|b| b.name.clone()))
+            .chain(s.world.obstacles.iter().map(|o| o.name.clone()));
+        for other in others {
+            watched.push((body.name.clone(), other));
+        }
+    }
+    let _ = writeln!(
+        out,
+        "contacts: {} contact sets at t = 0 (a pair gets one when it can touch within the \
+         step); pairs watched for overlap at every step end: {}",
+        active.len(),
+        watched.len()
+    );
+    for (a, b) in &watched {
+        let fr = s.world.friction_between(a, b, &s.friction);
+        let set = if active.contains(&(a.clone(), b.clone())) {
+            "contact set at t = 0"
+        } else {
+            "apart at t = 0"
+        };
+        let _ = writeln!(out, "  {a} – {b}: μ = {}, {set}", fr.mu);
+    }
 }

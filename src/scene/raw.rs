@@ -16,6 +16,29 @@ pub struct RawScene {
     pub half_spaces: Vec<RawHalfSpace>,
     #[serde(default)]
     pub bodies: Vec<RawBody>,
+    #[serde(default)]
+    pub pair_friction: Vec<RawPairFriction>,
+}
+
+/// `[[pair_friction]]`.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawPairFriction {
+    pub between: [String; 2],
+    pub mu: f64,
+    pub e_t: Option<f64>,
+    pub e_o: Option<f64>,
+    pub e_r: Option<f64>,
+}
+
+/// `[bodies.motion]` of a kinematic body.
+#[derive(Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RawMotion {
+    pub velocity: Option<[f64; 3]>,
+    pub angular_velocity: Option<[f64; 3]>,
+    pub displacement: Option<Vec<toml::Value>>,
+    pub rpy_deg: Option<Vec<toml::Value>>,
 }
 
 /// `[simulation]`.
@@ -51,6 +74,7 @@ pub struct RawSolver {
 #[derive(Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RawHalfSpace {
+    pub name: Option<String>,
     pub normal: Option<[f64; 3]>,
     pub offset: Option<f64>,
     pub incline_deg: Option<f64>,
@@ -61,14 +85,17 @@ pub struct RawHalfSpace {
 #[serde(deny_unknown_fields)]
 pub struct RawBody {
     pub name: Option<String>,
-    pub mass: f64,
-    pub inertia: toml::Value,
+    pub kind: Option<String>,
+    pub material: Option<String>,
+    pub mass: Option<f64>,
+    pub inertia: Option<toml::Value>,
     pub position: [f64; 3],
     pub orientation: Option<[f64; 4]>,
     pub rpy_deg: Option<[f64; 3]>,
     pub velocity: Option<[f64; 3]>,
     pub angular_velocity: Option<[f64; 3]>,
     pub load: Option<RawLoad>,
+    pub motion: Option<RawMotion>,
     #[serde(default)]
     pub pieces: Vec<RawPiece>,
 }

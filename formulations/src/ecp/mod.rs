@@ -652,6 +652,7 @@ mod tests {
             gravity: Vector3::new(0.0, 0.0, -9.8),
             h: 0.007,
             duration: 0.1,
+            world: Default::default(),
         }
     }
 

@@ -12,8 +12,11 @@
 //! - [`pair_features`]: the closest (or overlapping) features of two hulls at given poses, the
 //!   starting point of a contact between two bodies.
 //!
+//! - [`PlacedConvex`]: bounding boxes and signed distances of convex sets at given poses (the
+//!   broad and narrow phases of the multi-body formulation, and its overlap check).
+//!
 //! All public types use nalgebra; parry3d-f64 (glam based) is used only
-//! inside [`ConvexHull::from_points`] and [`pair_features`].
+//! inside [`ConvexHull::from_points`], [`pair_features`] and [`PlacedConvex`].
 
 mod error;
 mod hull;
@@ -22,6 +25,7 @@ mod pair_features;
 mod plane;
 mod points;
 mod polygon;
+mod proximity;
 mod shape;
 
 pub use error::GeometryError;
@@ -31,4 +35,5 @@ pub use pair_features::{HullPose, PairFeatures, pair_features, predicted_pose};
 pub use plane::{ContactMode, HalfSpace, contact_mode, min_gap, world_vertices};
 pub use points::{FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL};
 pub use polygon::convex_hull_2d;
+pub use proximity::PlacedConvex;
 pub use shape::{ConvexPiece, Shape};

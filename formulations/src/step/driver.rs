@@ -776,11 +776,15 @@ impl Simulation {
             &self.z,
             &mut contacts,
         );
+        let mut pairs = Vec::new();
+        self.formulation
+            .pair_records(&self.scene, converged, &self.mcp, &self.z, &mut pairs);
         StepRecord {
             step: self.step,
             t: self.t,
             bodies: self.states.clone(),
             contacts,
+            pairs,
             energy: self.energy(),
             summary,
             converged,

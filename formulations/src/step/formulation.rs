@@ -14,7 +14,7 @@ use nalgebra::Vector3;
 use ecp_model::{BlockMcp, Problem, StepStructure};
 
 use super::handles::StepHandles;
-use crate::record::ContactRecord;
+use crate::record::{ContactRecord, PairRecord};
 use crate::scene::{BodyState, Scene, SceneError};
 
 /// How exact the step sensitivities of a formulation are (`docs/fitting.md`).
@@ -166,6 +166,18 @@ pub trait StepFormulation: Any + Send {
         z: &[f64],
         out: &mut Vec<ContactRecord>,
     );
+    /// The records of the active contacts between named bodies (`contacts.csv`,
+    /// `docs/outputs.md#contactscsv`), from `z` at the end of a step; none by default.
+    fn pair_records(
+        &self,
+        scene: &Scene,
+        solved: bool,
+        mcp: &BlockMcp,
+        z: &[f64],
+        out: &mut Vec<PairRecord>,
+    ) {
+        let _ = (scene, solved, mcp, z, out);
+    }
     /// Origin of the step problem's coordinates (world frame): positions in `z` and in the
     /// position-valued data are relative to it. Zero unless the formulation moves it (the hull
     /// formulation does for scenes far from the world origin, `docs/model.md#far-scenes`).
