@@ -128,6 +128,16 @@ pub struct NewtonSettings {
     /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
     /// within a step. `None` turns it off. Default `Some(SmoothingSettings::default())`.
     pub smoothing: Option<SmoothingSettings>,
+    /// After the smoothing continuation has failed too, the whole solve (plain iteration, then
+    /// the continuation) once more from the start with this initial Levenberg–Marquardt
+    /// damping instead of [`NewtonSettings::lm_initial_damping`]; the better end point is
+    /// returned. Where the
+    /// first lightly damped steps from a poor warm start lead into the basin of a spurious
+    /// minimiser of the merit (a loaded contact's closest point pulled to another vertex),
+    /// heavily damped first steps stay in the solution's basin
+    /// (`docs/newton.md#damped-restart`). It runs only on steps that fail otherwise, so it
+    /// changes no step that converged without it. `None` turns it off. Default `Some(0.1)`.
+    pub damped_restart: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -154,6 +164,7 @@ impl Default for NewtonSettings {
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
             smoothing: Some(SmoothingSettings::default()),
+            damped_restart: Some(0.1),
             trace: false,
         }
     }
@@ -481,6 +492,37 @@ impl McpSolver for NewtonSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let first = self.solve_continued(mcp, z0);
+        match first {
+            Err(SolveError::NotConverged { best })
+                if self.settings.smoothing.is_some() && self.settings.damped_restart.is_some() =>
+            {
+                let saved = self.settings.lm_initial_damping;
+                self.settings.lm_initial_damping = self.settings.damped_restart.unwrap_or(saved);
+                let second = self.solve_continued(mcp, z0);
+                self.settings.lm_initial_damping = saved;
+                match second {
+                    Ok(mut sol) => {
+                        sol.summary.iterations += best.summary.iterations;
+                        Ok(sol)
+                    }
+                    Err(SolveError::NotConverged { best: mut other })
+                        if other.summary.residual < best.summary.residual =>
+                    {
+                        other.summary.iterations += best.summary.iterations;
+                        Err(SolveError::NotConverged { best: other })
+                    }
+                    Err(_) => Err(SolveError::NotConverged { best }),
+                }
+            }
+            r => r,
+        }
+    }
+}
+
+impl NewtonSolver {
+    /// The plain iteration from `z0`, then the smoothing continuation when it failed.
+    fn solve_continued(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let plain = self.solve_plain(mcp, z0);
         match plain {
             Err(SolveError::NotConverged { best }) if self.settings.smoothing.is_some() => {
@@ -1101,6 +1143,7 @@ mod tests {
                 max_iterations: Some(4),
                 ..SmoothingSettings::default()
             }),
+            damped_restart: None,
             ..NewtonSettings::default()
         })
         .solve(&p.mcp, z0);

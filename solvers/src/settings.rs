@@ -127,6 +127,9 @@ impl NewtonSettings {
             "must lie in (0, 1]",
         )?;
         c.non_negative("polish_below", self.polish_below)?;
+        if let Some(damping) = self.damped_restart {
+            c.positive("damped_restart", damping)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
