@@ -611,13 +611,7 @@ impl NewtonSolver {
         self.settings = saved;
         let end = end?;
         let last = self.solve_plain(mcp, &end.z);
-        let tally = |summary: &mut ecp_model::Summary| {
-            summary.iterations += end.iterations;
-            summary.counters.add(Counter::SmoothingStages, end.stages);
-            summary
-                .counters
-                .add(Counter::SmoothingIterations, end.iterations);
-        };
+        let tally = |summary: &mut ecp_model::Summary| end.tally(summary, 0);
         match last {
             Ok(mut sol) => {
                 tally(&mut sol.summary);

@@ -909,13 +909,7 @@ impl McpSolver for PathSolver {
         )?;
         let last = self.solve_attempts(mcp, &end.z, &s, started);
         let previous = best.summary.iterations;
-        let tally = |summary: &mut ecp_model::Summary| {
-            summary.iterations += end.iterations + previous;
-            summary.counters.add(Counter::SmoothingStages, end.stages);
-            summary
-                .counters
-                .add(Counter::SmoothingIterations, end.iterations);
-        };
+        let tally = |summary: &mut ecp_model::Summary| end.tally(summary, previous);
         match last {
             Ok(mut sol) => {
                 tally(&mut sol.summary);

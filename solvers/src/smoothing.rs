@@ -85,6 +85,20 @@ pub struct ContinuationEnd {
     pub iterations: usize,
 }
 
+impl ContinuationEnd {
+    /// Adds the continuation's iterations (and `earlier` ones of the attempts before it) and its
+    /// counters to the summary of the solve that finished from its point.
+    pub fn tally(&self, summary: &mut ecp_model::Summary, earlier: usize) {
+        summary.iterations += self.iterations + earlier;
+        summary
+            .counters
+            .add(ecp_model::Counter::SmoothingStages, self.stages);
+        summary
+            .counters
+            .add(ecp_model::Counter::SmoothingIterations, self.iterations);
+    }
+}
+
 /// Solves `G_μ = 0` for decreasing `μ` from `μ₀` down to `tolerance`, from `z0`, each stage by
 /// `stage(problem, start, stage_tolerance)` (the backend's own iteration limited to
 /// [`SmoothingSettings::stage_iterations`]); `out_of_time` ends it early. An invalid problem
