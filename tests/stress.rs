@@ -261,7 +261,7 @@ fn regressions(solver: &str) {
     );
 }
 
-/// Fails today on `088_room_corner` (docs/stress.md). Run with
+/// Passes since the damped restart of docs/newton.md (about 30 s: heavy, so ignored). Run with
 /// `cargo test --release --test stress regressions_newton -- --ignored`.
 #[test]
 #[ignore]
