@@ -12,15 +12,18 @@
 //! ```
 //! use ecp::batch::{Batch, BatchOptions, Grid};
 //!
-//! let file = ecp::scene::load_scene("scenes/a1_sliding.toml".as_ref()).unwrap();
-//! let grid = Grid::parse(&["mu=0.1:0.3:3".to_string()], &file.scene).unwrap();
-//! let batch = Batch::grid(&file, &grid).unwrap();
+//! # fn main() -> Result<(), ecp::error::InputError> {
+//! let file = ecp::scene::load_scene("scenes/a1_sliding.toml".as_ref())?;
+//! let grid = Grid::parse(&["mu=0.1:0.3:3".to_string()], &file.scene)?;
+//! let batch = Batch::grid(&file, &grid)?;
 //! let options = BatchOptions { threads: Some(2), steps: Some(5), ..BatchOptions::default() };
-//! let results = batch.run(&options).unwrap();
+//! let results = batch.run(&options)?;
 //! assert_eq!(results.len(), 3);
 //! // More friction, more deceleration: the final velocity falls with μ.
 //! let vx: Vec<f64> = results.iter().map(|r| r.summary.final_bodies[0].v.x).collect();
 //! assert!(vx[0] > vx[1] && vx[1] > vx[2]);
+//! # Ok(())
+//! # }
 //! ```
 
 use std::path::Path;
