@@ -27,7 +27,7 @@ use ecp_formulations::{BodyState, ContactRecord, MODE_TOLERANCE, Scene, StepReco
 const MAX_SERIES: usize = 3;
 
 /// Font family registered from the bundled font and used for every text.
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 /// Size of the time-series figures (pixels).
 const SIZE: (u32, u32) = (1100, 650);
 /// Size of the footprint figure (pixels).
@@ -169,14 +169,14 @@ pub fn write_time_series(path: &Path, title: &str, panels: &[TimePanel]) -> Resu
 }
 
 /// Registers the bundled font once per process; later calls return the first outcome.
-fn register_bundled_font() -> Result<(), PlotError> {
+pub(crate) fn register_bundled_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
     REGISTERED
         .get_or_init(|| {
             plotters::style::register_font(
                 FONT,
                 FontStyle::Normal,
-                include_bytes!("../assets/DejaVuSans.ttf"),
+                include_bytes!("../../assets/DejaVuSans.ttf"),
             )
             .map_err(|_| "not a valid TrueType font".to_string())
         })
