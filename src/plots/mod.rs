@@ -6,7 +6,11 @@
 //! lines break at them and axis ranges come from the finite values only.
 //!
 //! With several bodies or contacts, the time-series plots show up to three of them (legend
-//! suffix `[body]` or `[body/plane k]`), and the footprint shows them against plane 0.
+//! suffix `[body]` or `[body/plane k]`), and the footprint shows them against plane 0. A
+//! multi-body run (one with contact pairs) also gets a top view of all its bodies and loaded
+//! contacts and the impulses per pair (`plots/bodies.rs`).
+
+mod bodies;
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -109,6 +113,9 @@ pub fn write_plots(
             message: e.0,
         })?;
         written.push(path);
+    }
+    if bodies::is_multibody(records) {
+        written.extend(bodies::write(dir, scene, records)?);
     }
     Ok(written)
 }
@@ -596,6 +603,8 @@ enum Glyph {
     Fill,
     /// Small dot.
     Dot,
+    /// Filled triangle (an ECP between two bodies).
+    Triangle,
 }
 
 struct LegendEntry {
@@ -641,6 +650,9 @@ fn draw_legend(area: &Area<'_>, entries: &[LegendEntry]) -> Result<(), DrawError
                 ))?;
             }
             Glyph::Dot => area.draw(&Circle::new((23, y), 3, c.filled()))?,
+            Glyph::Triangle => {
+                area.draw(&TriangleMarker::new((23, y), 8, c.filled()))?;
+            }
         }
         area.draw_text(&e.label, &text, (48, y))?;
     }
