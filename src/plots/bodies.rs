@@ -120,8 +120,11 @@ fn impulse_panels(records: &[StepRecord]) -> Vec<TimePanel> {
     ]
 }
 
-/// A body's outline in the top view: the 2-D hull of each piece.
-fn outline(shape: &Shape, x: &Vector3<f64>, q: &nalgebra::Vector4<f64>) -> Vec<Vec<(f64, f64)>> {
+/// A body in the top view: the 2-D hull of each piece.
+type Outline = Vec<Vec<(f64, f64)>>;
+
+/// The body's [`Outline`] at pose `(x, Q)`.
+fn outline(shape: &Shape, x: &Vector3<f64>, q: &nalgebra::Vector4<f64>) -> Outline {
     let n = q.norm();
     if !(n > 0.0 && n.is_finite() && x.iter().all(|v| v.is_finite())) {
         return Vec::new();
@@ -142,7 +145,7 @@ struct Instant {
     t: f64,
     color: RGBColor,
     /// Dynamic bodies: (name, CM, piece outlines).
-    bodies: Vec<(String, (f64, f64), Vec<Vec<(f64, f64)>>)>,
+    bodies: Vec<(String, (f64, f64), Outline)>,
     /// Kinematic bodies' piece outlines.
     kinematic: Vec<Vec<(f64, f64)>>,
     /// Loaded ECPs: (point, against a half-space).
