@@ -2,7 +2,7 @@
 //!
 //! The run directory holds the states (`trajectory.csv`), the contacts (`contacts.csv`) and the
 //! scene file's path (`summary.json`); the scene gives the shapes and the poses of fixed and
-//! kinematic bodies. [`read_run`] gathers them, [`draw`] renders a frame.
+//! kinematic bodies. [`read_run`] gathers them, `animate/draw.rs` renders a frame.
 
 mod draw;
 mod read;
