@@ -38,6 +38,7 @@ pub use ecp_model::sensitivity::{ActiveSetOptions, ComponentStatus, classify};
 pub use ecp_model::{Counter, Counters, McpSolver, Solution, SolveError, Summary, Termination};
 pub use ecp_solvers::{Backend, BackendOptions, Registry, RegistryError, SettingsError};
 
+pub mod animate;
 pub mod backends;
 pub mod batch;
 pub mod error;

@@ -1,4 +1,5 @@
-//! The `ecp` command line (`docs/outputs.md`): `run`, `compare`, `sweep` and `check` on scene files.
+//! The `ecp` command line (`docs/outputs.md`): `run`, `compare`, `sweep` and `check` on scene files,
+//! `animate` on a run's outputs.
 //!
 //! Exit status: 0 when every step converged, 1 when some step failed (what was computed is still
 //! written), 2 for bad input.
@@ -55,6 +56,32 @@ enum Command {
         /// step (docs/fallbacks.md); such a step then fails at once.
         #[arg(long)]
         no_fallbacks: bool,
+        /// Also render the run in 3-D into animation.gif (as `ecp animate` with its defaults).
+        #[arg(long)]
+        animate: bool,
+    },
+    /// Render a run's motion in 3-D as an animated GIF, OUT_DIR/animation.gif: the bodies, the
+    /// half-spaces, the ECPs of the active contacts and their normal impulses
+    /// (docs/outputs.md#animationgif).
+    Animate {
+        /// The output directory of an `ecp run` (it holds trajectory.csv and summary.json).
+        out_dir: PathBuf,
+        /// Frames per second of playback (1 to 100; GIF rounds the delay to 1/100 s).
+        #[arg(long, default_value_t = 20)]
+        fps: u32,
+        /// Draw every N-th step [default: the fewest that keep the animation within 10 s and
+        /// 300 frames].
+        #[arg(long, value_name = "N")]
+        every: Option<usize>,
+        /// Image size in pixels, WIDTHxHEIGHT.
+        #[arg(long, default_value = "800x600", value_parser = parse_size)]
+        size: (u32, u32),
+        /// The scene file, instead of the one summary.json names (when it moved).
+        #[arg(long)]
+        scene: Option<PathBuf>,
+        /// Also write every frame as a PNG into this directory.
+        #[arg(long, value_name = "DIR")]
+        frames: Option<PathBuf>,
     },
     /// Run every combination of solvers and formulations on one scene and compare them.
     Compare {
@@ -195,6 +222,7 @@ fn main() -> ExitCode {
             quiet,
             keep_going,
             no_fallbacks,
+            animate,
         } => load(&scene).and_then(|file| {
             let options = RunOptions {
                 out_dir: out.unwrap_or_else(|| RunOptions::default_out_dir(&file)),
@@ -206,8 +234,33 @@ fn main() -> ExitCode {
                 fallbacks: !no_fallbacks,
                 ..RunOptions::default()
             };
-            run(&file, &options, quiet)
+            let code = run(&file, &options, quiet)?;
+            if animate {
+                animate_run(
+                    &options.out_dir,
+                    &ecp::animate::AnimateOptions::default(),
+                    quiet,
+                )?;
+            }
+            Ok(code)
         }),
+        Command::Animate {
+            out_dir,
+            fps,
+            every,
+            size,
+            scene,
+            frames,
+        } => {
+            let options = ecp::animate::AnimateOptions {
+                fps,
+                every,
+                size,
+                scene,
+                frames_dir: frames,
+            };
+            animate_run(&out_dir, &options, false).map(|()| ExitCode::SUCCESS)
+        }
         Command::Compare {
             scene,
             solvers,
@@ -322,6 +375,39 @@ fn main() -> ExitCode {
         eprintln!("error: {e}");
         ExitCode::from(2)
     })
+}
+
+/// `WIDTHxHEIGHT` in pixels.
+fn parse_size(text: &str) -> Result<(u32, u32), String> {
+    let bad = || format!("`{text}` is not WIDTHxHEIGHT in pixels, e.g. 800x600");
+    let (w, h) = text.split_once(['x', 'X']).ok_or_else(bad)?;
+    Ok((
+        w.trim().parse().map_err(|_| bad())?,
+        h.trim().parse().map_err(|_| bad())?,
+    ))
+}
+
+/// Renders the run in `out_dir` and says where it went.
+fn animate_run(
+    out_dir: &Path,
+    options: &ecp::animate::AnimateOptions,
+    quiet: bool,
+) -> Result<(), RunError> {
+    let a = ecp::animate::animate_dir(out_dir, options)?;
+    if !quiet {
+        sayln!(
+            "written {}: {} frames (every {} step{}) at {} fps, {:.3}× real time; longest \
+             impulse arrow {:.3e} N s",
+            a.path.display(),
+            a.frames,
+            a.every,
+            if a.every == 1 { "" } else { "s" },
+            a.fps,
+            a.speed,
+            a.max_pn
+        );
+    }
+    Ok(())
 }
 
 fn load(path: &Path) -> Result<SceneFile, RunError> {

@@ -362,6 +362,10 @@ pub struct RunSummary {
     /// Every contact pair between named bodies (the multi-body formulation), with its mode
     /// sequence.
     pub pairs: Vec<PairSummary>,
+    /// The scene file the run read, as an absolute path where it can be made one; `ecp animate`
+    /// reads the geometry from it (`docs/outputs.md#animationgif`). Empty when the summary was
+    /// not made by a run of a scene file.
+    pub scene_path: String,
 }
 
 impl RunSummary {
@@ -414,6 +418,7 @@ impl RunSummary {
                 .collect(),
         };
         RunSummary {
+            scene_path: String::new(),
             scene: scene.name.clone(),
             formulation: formulation.to_string(),
             solver: solver.to_string(),

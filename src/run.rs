@@ -242,6 +242,10 @@ pub fn run_scene(
     } else {
         (Vec::new(), None)
     };
+    summary.scene_path = std::path::absolute(&file.path)
+        .unwrap_or_else(|_| file.path.clone())
+        .display()
+        .to_string();
     summary.wall_s = start.elapsed().as_secs_f64();
     write_json(&options.out_dir.join("summary.json"), &summary)?;
     Ok(RunOutcome {

@@ -6,7 +6,11 @@
 //! lines break at them and axis ranges come from the finite values only.
 //!
 //! With several bodies or contacts, the time-series plots show up to three of them (legend
-//! suffix `[body]` or `[body/plane k]`), and the footprint shows them against plane 0.
+//! suffix `[body]` or `[body/plane k]`), and the footprint shows them against plane 0. A
+//! multi-body run (one with contact pairs) also gets a top view of all its bodies and loaded
+//! contacts and the impulses per pair (`plots/bodies.rs`).
+
+mod bodies;
 
 use std::ops::Range;
 use std::path::{Path, PathBuf};
@@ -27,7 +31,7 @@ use ecp_formulations::{BodyState, ContactRecord, MODE_TOLERANCE, Scene, StepReco
 const MAX_SERIES: usize = 3;
 
 /// Font family registered from the bundled font and used for every text.
-const FONT: &str = "sans-serif";
+pub(crate) const FONT: &str = "sans-serif";
 /// Size of the time-series figures (pixels).
 const SIZE: (u32, u32) = (1100, 650);
 /// Size of the footprint figure (pixels).
@@ -110,6 +114,9 @@ pub fn write_plots(
         })?;
         written.push(path);
     }
+    if bodies::is_multibody(records) {
+        written.extend(bodies::write(dir, scene, records)?);
+    }
     Ok(written)
 }
 
@@ -169,14 +176,14 @@ pub fn write_time_series(path: &Path, title: &str, panels: &[TimePanel]) -> Resu
 }
 
 /// Registers the bundled font once per process; later calls return the first outcome.
-fn register_bundled_font() -> Result<(), PlotError> {
+pub(crate) fn register_bundled_font() -> Result<(), PlotError> {
     static REGISTERED: OnceLock<Result<(), String>> = OnceLock::new();
     REGISTERED
         .get_or_init(|| {
             plotters::style::register_font(
                 FONT,
                 FontStyle::Normal,
-                include_bytes!("../assets/DejaVuSans.ttf"),
+                include_bytes!("../../assets/DejaVuSans.ttf"),
             )
             .map_err(|_| "not a valid TrueType font".to_string())
         })
@@ -596,6 +603,8 @@ enum Glyph {
     Fill,
     /// Small dot.
     Dot,
+    /// Filled triangle (an ECP between two bodies).
+    Triangle,
 }
 
 struct LegendEntry {
@@ -641,6 +650,9 @@ fn draw_legend(area: &Area<'_>, entries: &[LegendEntry]) -> Result<(), DrawError
                 ))?;
             }
             Glyph::Dot => area.draw(&Circle::new((23, y), 3, c.filled()))?,
+            Glyph::Triangle => {
+                area.draw(&TriangleMarker::new((23, y), 8, c.filled()))?;
+            }
         }
         area.draw_text(&e.label, &text, (48, y))?;
     }
