@@ -83,7 +83,11 @@ fn run_checked(name: &str, backend: &str) -> Checked {
             );
         }
         let ground = penetration(scene, &r.bodies);
-        assert!(ground <= PENETRATION, "{name}, step {}: {ground:e} m", r.step);
+        assert!(
+            ground <= PENETRATION,
+            "{name}, step {}: {ground:e} m",
+            r.step
+        );
     }
     let us: Vec<f64> = outcome.records.iter().map(|r| r.solve_us).collect();
     eprintln!(
@@ -128,7 +132,10 @@ fn bin(name: &str, backend: &str) {
         .iter()
         .map(|b| b.v.norm().max(b.w.norm() * 0.1))
         .fold(0.0, f64::max);
-    assert!(vmax < 1e-3, "{name}, {backend}: still moving at the end ({vmax} m/s)");
+    assert!(
+        vmax < 1e-3,
+        "{name}, {backend}: still moving at the end ({vmax} m/s)"
+    );
 }
 
 #[test]
@@ -140,11 +147,23 @@ fn tbar_gripper_newton() {
     let last = run.records.last().unwrap_or_else(|| panic!("no steps"));
     let s = &last.bodies[0];
     let r = std::f64::consts::FRAC_1_SQRT_2;
-    let want = nalgebra::Vector3::new(0.15 + 0.2 * r - 0.005 * r, 0.2 * (1.0 - r) - 0.005 * r, 0.025);
+    let want = nalgebra::Vector3::new(
+        0.15 + 0.2 * r - 0.005 * r,
+        0.2 * (1.0 - r) - 0.005 * r,
+        0.025,
+    );
     let yaw = 2.0 * s.q[3].atan2(s.q[0]);
-    eprintln!("tbar_gripper: final CM {:?}, yaw {:.4}°", s.x, yaw.to_degrees());
+    eprintln!(
+        "tbar_gripper: final CM {:?}, yaw {:.4}°",
+        s.x,
+        yaw.to_degrees()
+    );
     assert!((s.x - want).norm() < 1e-3, "{:?} vs {want:?}", s.x);
-    assert!((yaw.to_degrees() - 45.0).abs() < 0.1, "yaw {}°", yaw.to_degrees());
+    assert!(
+        (yaw.to_degrees() - 45.0).abs() < 0.1,
+        "yaw {}°",
+        yaw.to_degrees()
+    );
 }
 
 #[test]
@@ -167,7 +186,10 @@ fn parts_feeder_newton() {
     for ((a, b), dx) in first.bodies.iter().zip(&last.bodies).zip(&moved) {
         assert!((-0.03..-0.01).contains(dx), "{dx}");
         assert!((dx - moved[0]).abs() < 1e-6, "{dx} vs {}", moved[0]);
-        assert!((b.x.z - a.x.z).abs() < 1e-9 && (b.q - a.q).norm() < 1e-9, "{a:?} {b:?}");
+        assert!(
+            (b.x.z - a.x.z).abs() < 1e-9 && (b.q - a.q).norm() < 1e-9,
+            "{a:?} {b:?}"
+        );
     }
 }
 

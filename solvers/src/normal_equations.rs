@@ -103,9 +103,7 @@ impl NormalEquations {
         let (cp, ri) = (h.col_ptr(), h.row_idx());
         // Column k < n: the identity's (k, k) and Hᵀ's row k below, (n + j) for H(k, j) ≠ 0.
         // Column n + j: H's column j above, (k) for H(k, j) ≠ 0, and −λ at (n + j, n + j).
-        let mut columns: Vec<Vec<usize>> = (0..2 * n)
-            .map(|c| vec![c])
-            .collect();
+        let mut columns: Vec<Vec<usize>> = (0..2 * n).map(|c| vec![c]).collect();
         for j in 0..n {
             for &k in &ri[cp[j]..cp[j + 1]] {
                 columns[k].push(n + j);

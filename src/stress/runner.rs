@@ -319,12 +319,11 @@ fn opening_steps(scene: &Scene, records: &[StepRecord], gaps: &[Vec<Vec<f64>>]) 
             if c.pn <= floor {
                 continue;
             }
-            let opens = match (next.pairs.iter())
-                .find(|d| d.body_a == c.body_a && d.body_b == c.body_b)
-            {
-                None => true,
-                Some(d) => d.pn <= floor && d.gap > OPEN_GAP,
-            };
+            let opens =
+                match (next.pairs.iter()).find(|d| d.body_a == c.body_a && d.body_b == c.body_b) {
+                    None => true,
+                    Some(d) => d.pn <= floor && d.gap > OPEN_GAP,
+                };
             if opens {
                 marks[k] = true;
                 marks[k + 1] = true;
