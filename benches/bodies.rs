@@ -1,9 +1,8 @@
 //! Benchmarks of the multi-body formulation (`docs/latency.md#bins`): `cargo bench --bench bodies`.
 //!
 //! - `bin_step(n)`: one warm-started step of a bin of `n` parts, n = 1, 2, 5, 10, 20, 50 — the
-//!   first `n` parts of `scenes/bin50.toml` (the lowest layers first; 20 of them are
-//!   `scenes/bin20.toml`'s layout with bin50's sizes), at step 150 (t = 1.5 s: settled, every
-//!   part resting on the floor or on others), solved by Newton. The step's problem is prepared
+//!   first `n` parts of `scenes/bin50.toml` (the lowest layers first), at step 150 (t = 1.5 s:
+//!   settled, every part resting on the floor or on others), solved by Newton. The step's problem is prepared
 //!   (pairs chosen, problem built) outside the timed part, so this is the solve alone;
 //! - `bin_step_falling(n)`: the same at step 30 (t = 0.3 s: the lower layers landing, the upper
 //!   ones falling), n = 20, 50.
