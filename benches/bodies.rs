@@ -13,8 +13,6 @@ use ecp::formulations::Simulation;
 use ecp::scene::load_scene;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
-mod common;
-
 fn main() {
     divan::main();
 }
