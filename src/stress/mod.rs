@@ -21,7 +21,7 @@ use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 pub use generate::{Category, StressScene, generate};
-pub use runner::{RunConfig, RunResult, run_file};
+pub use runner::{RunConfig, RunResult, measure_records, run_file};
 
 /// The seed of the documented full run.
 pub const DEFAULT_SEED: u64 = 20_260_525;

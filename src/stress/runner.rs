@@ -206,6 +206,15 @@ pub fn run_file(path: &Path, config: &RunConfig) -> RunResult {
     result
 }
 
+/// The penetration into the half-spaces and the energy audit of a run's records (the fields
+/// of [`RunResult`] from `max_penetration` to `opening_max_gain`; the others are left empty),
+/// for runs made outside [`run_file`] (the `bodies` scenes' tests, `tests/user_scenes.rs`).
+pub fn measure_records(scene: &Scene, records: &[StepRecord]) -> RunResult {
+    let mut result = RunResult::empty(&scene.name, "file", "");
+    measure(scene, records, &mut result);
+    result
+}
+
 /// Penetration and energy of a run's records (fills the corresponding fields of `result`).
 fn measure(scene: &Scene, records: &[StepRecord], result: &mut RunResult) {
     let initial: Vec<BodyState> = scene.bodies.iter().map(|b| b.initial).collect();
@@ -271,7 +280,10 @@ fn measure(scene: &Scene, records: &[StepRecord], result: &mut RunResult) {
 }
 
 /// Which steps are opening steps: step `k` carried `p_n > 0` at a contact that is open at the end
-/// of step `k + 1` with `p_n = 0` there; both `k` and `k + 1` are marked.
+/// of step `k + 1` with `p_n = 0` there; both `k` and `k + 1` are marked. The contacts are the
+/// per-body, per-half-space records and, with the `bodies` formulation, the contact pairs
+/// (`StepRecord::pairs`, by the two names): a pair that has no contact set at step `k + 1` is
+/// beyond the reach of the step, so open.
 fn opening_steps(scene: &Scene, records: &[StepRecord], gaps: &[Vec<Vec<f64>>]) -> Vec<bool> {
     let planes = scene.planes.len();
     let bodies = scene.bodies.len();
@@ -294,6 +306,25 @@ fn opening_steps(scene: &Scene, records: &[StepRecord], gaps: &[Vec<Vec<f64>>]) 
                 d.min_gap
             };
             if c.pn > floor && d.pn <= floor && gap_next > OPEN_GAP {
+                marks[k] = true;
+                marks[k + 1] = true;
+            }
+        }
+        for c in &now.pairs {
+            let floor = scene
+                .bodies
+                .iter()
+                .position(|b| b.name == c.body_a)
+                .map_or(0.0, |b| floor[b]);
+            if c.pn <= floor {
+                continue;
+            }
+            let opens =
+                match (next.pairs.iter()).find(|d| d.body_a == c.body_a && d.body_b == c.body_b) {
+                    None => true,
+                    Some(d) => d.pn <= floor && d.gap > OPEN_GAP,
+                };
+            if opens {
                 marks[k] = true;
                 marks[k + 1] = true;
             }

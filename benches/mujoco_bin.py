@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""The bin of ecp beside MuJoCo's on the same bin, in one run (`docs/latency.md#bins`).
+
+    cargo build --release --bin ecp
+    python3 -m pip install mujoco      # MuJoCo 4 (Python >= 3.11, for tomllib)
+    python3 benches/mujoco_bin.py [--scenes bin20,bin50] [--ecp target/release/ecp] [--repeats 3]
+
+Both read `scenes/binN.toml`: the ground plane, the four fixed walls, each part's boxes (sizes
+and centres, the mass spread over the boxes by volume: the uniform density ecp's `inertia =
+"uniform"` assumes, so MuJoCo's body inertia is the same), the initial CM position and
+orientation (`rpy_deg`: R = Rz Ry Rx), h = 0.01 s, g = 9.8, the elliptic friction cone with condim 4
+(sliding and torsional friction), mu of `[friction]` and a torsional coefficient mu * e_r.
+
+ecp: `ecp run scenes/binN.toml --solver S`, the median of the `step_us` figures of `summary.json`
+(the solve time of each step, pair selection and overlap check not included) and the mean wall
+time per step of the whole run (`wall/step`: everything, fallbacks included), the best of
+`--repeats` runs.
+MuJoCo: the time of each `mj_step` (perf_counter_ns around the call), median over the steps that
+have contacts, and the mean over all steps, the best of `--repeats` runs.
+
+The two models are not the same physics (MuJoCo: soft point contacts with its default
+solref/solimp, several per touching pair of boxes; ecp: one hard contact per pair of hulls at the
+equivalent contact point), so the table compares the cost of a step of each on the same scene,
+not their trajectories.
+"""
+
+import argparse
+import json
+import math
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+import tomllib
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def quat_rpy(rpy_deg):
+    """(w, x, y, z) of R = Rz(yaw) Ry(pitch) Rx(roll)."""
+    r, p, y = (math.radians(a) / 2 for a in rpy_deg)
+    cr, sr, cp, sp, cy, sy = math.cos(r), math.sin(r), math.cos(p), math.sin(p), math.cos(y), math.sin(y)
+    return (
+        cy * cp * cr + sy * sp * sr,
+        cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr,
+        sy * cp * cr - cy * sp * sr,
+    )
+
+
+def fmt(v):
+    return " ".join(f"{x:.9g}" for x in v)
+
+
+def mjcf(scene):
+    """The MJCF model of a bin scene file (boxes only, unrotated pieces, as `make_bins.py` writes)."""
+    fr = scene["friction"]
+    mu, er = fr["mu"], fr["e_r"]
+    friction = f'friction="{mu} {mu * er:.9g} 0.0001" condim="4"'
+    h = scene["simulation"]["h"]
+    out = [
+        f'<mujoco model="{scene.get("name", "bin")}">',
+        f'  <option timestep="{h}" gravity="0 0 -9.8" cone="elliptic" integrator="Euler"/>',
+        "  <worldbody>",
+        f'    <geom name="ground" type="plane" size="0 0 1" {friction}/>',
+    ]
+    for b in scene["bodies"]:
+        kind = b.get("kind", "dynamic")
+        if kind == "fixed":
+            (piece,) = b["pieces"]
+            half = [x / 2 for x in piece["box"]]
+            out.append(
+                f'    <geom name="{b["name"]}" type="box" size="{fmt(half)}" '
+                f'pos="{fmt(b["position"])}" {friction}/>'
+            )
+            continue
+        if kind != "dynamic":
+            sys.exit(f"{b['name']}: only fixed and dynamic bodies are supported")
+        vols = [p["box"][0] * p["box"][1] * p["box"][2] for p in b["pieces"]]
+        centers = [p.get("center", [0, 0, 0]) for p in b["pieces"]]
+        total = sum(vols)
+        cm = [sum(v * c[i] for v, c in zip(vols, centers)) / total for i in range(3)]
+        quat = quat_rpy(b.get("rpy_deg", [0, 0, 0]))
+        out.append(f'    <body name="{b["name"]}" pos="{fmt(b["position"])}" quat="{fmt(quat)}">')
+        out.append("      <freejoint/>")
+        for p, v, c in zip(b["pieces"], vols, centers):
+            half = [x / 2 for x in p["box"]]
+            pos = [c[i] - cm[i] for i in range(3)]
+            mass = b["mass"] * v / total
+            out.append(
+                f'      <geom type="box" size="{fmt(half)}" pos="{fmt(pos)}" mass="{mass:.9g}" '
+                f"{friction}/>"
+            )
+        out.append("    </body>")
+    out += ["  </worldbody>", "</mujoco>"]
+    return "\n".join(out)
+
+
+def mujoco_run(mujoco, xml, steps):
+    model = mujoco.MjModel.from_xml_string(xml)
+    data = mujoco.MjData(model)
+    times, contact = [], []
+    for _ in range(steps):
+        t0 = time.perf_counter_ns()
+        mujoco.mj_step(model, data)
+        elapsed = (time.perf_counter_ns() - t0) * 1e-3
+        times.append(elapsed)
+        if data.ncon > 0:
+            contact.append(elapsed)
+    return statistics.median(contact), statistics.mean(times), len(contact), data.ncon
+
+
+def ecp_run(binary, path, solver):
+    with tempfile.TemporaryDirectory() as out:
+        start = time.perf_counter()
+        subprocess.run(
+            [binary, "run", path, "--solver", solver, "--out", out, "--no-plots", "--quiet"],
+            check=True,
+        )
+        wall = time.perf_counter() - start
+        with open(os.path.join(out, "summary.json")) as f:
+            summary = json.load(f)
+    steps = summary.get("steps") or summary.get("planned_steps")
+    return summary["step_us"]["median"], wall * 1e6 / steps
+
+
+def main():
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ecp", default=os.path.join(ROOT, "target", "release", "ecp"),
+                        help="the ecp binary (default: target/release/ecp)")
+    parser.add_argument("--scenes", default="bin20,bin50")
+    parser.add_argument("--repeats", type=int, default=3, help="runs of each; the best is kept")
+    parser.add_argument("--solvers", default="newton,path")
+    args = parser.parse_args()
+    if args.repeats < 1:
+        parser.error("--repeats must be at least 1")
+    if not os.path.exists(args.ecp):
+        sys.exit(f"no ecp binary at {args.ecp}: run `cargo build --release --bin ecp` first "
+                 "or give --ecp PATH")
+    try:
+        import mujoco
+    except ImportError:
+        sys.exit("MuJoCo is not installed: `python3 -m pip install mujoco`")
+
+    print("| scene | simulator | median step (µs) | mean step (µs) | × MuJoCo (median) | notes |")
+    print("|---|---|---|---|---|---|")
+    for name in args.scenes.split(","):
+        path = os.path.join(ROOT, "scenes", f"{name}.toml")
+        with open(path, "rb") as f:
+            scene = tomllib.load(f)
+        steps = math.ceil(scene["simulation"]["duration"] / scene["simulation"]["h"] - 1e-9)
+        xml = mjcf(scene)
+        runs = [mujoco_run(mujoco, xml, steps) for _ in range(args.repeats)]
+        mj = min(r[0] for r in runs)
+        mj_mean = min(r[1] for r in runs)
+        print(f"| {name} | MuJoCo {mujoco.__version__} (elliptic, condim 4) | {mj:.1f} | "
+              f"{mj_mean:.1f} | 1.00 | {runs[0][2]} of {steps} steps with contacts, "
+              f"{runs[0][3]} contacts at the end |")
+        for solver in args.solvers.split(","):
+            res = [ecp_run(args.ecp, path, solver) for _ in range(args.repeats)]
+            med = min(r[0] for r in res)
+            wall = min(r[1] for r in res)
+            print(f"| {name} | ecp {solver} | {med:.1f} | {wall:.1f} (wall/step) | "
+                  f"{med / mj:.2f} | |")
+
+
+if __name__ == "__main__":
+    main()
