@@ -148,6 +148,10 @@ pub struct NewtonSettings {
     /// The reduction the stall test asks for over [`NewtonSettings::stall_window`] iterations.
     /// Default `0.5`.
     pub stall_reduction: f64,
+    /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
+    /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
+    /// in the problem's own units (the conic backend's Newton finish). Default `true`.
+    pub scene_scales: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -177,6 +181,7 @@ impl Default for NewtonSettings {
             damped_restart: Some(0.1),
             stall_window: 30,
             stall_reduction: 0.5,
+            scene_scales: true,
             trace: false,
         }
     }
@@ -505,6 +510,9 @@ impl McpSolver for NewtonSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
+        if !self.settings.scene_scales {
+            return self.solve_restarted(mcp, z0);
+        }
         solve_in_scales(mcp, z0, |mcp, z0| self.solve_restarted(mcp, z0))
     }
 }
