@@ -181,6 +181,9 @@ impl Mcp for ScaledMcp<'_> {
     // No structural view: its data are in the unscaled units.
 }
 
+/// A backend's solve, as [`solve_in_scales`] calls it.
+type SolveFn<'f> = dyn FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError> + 'f;
+
 /// Scales within this many factors of two of 1 (`2^±10`, about 1e∓3) count as SI's own: a
 /// problem whose every scale is within it is solved as given first, so that the scenes the
 /// backends were tuned on (the reference scenes, ordinary SI scenes) take exactly the same
@@ -218,7 +221,7 @@ pub fn solve_in_scales(
     else {
         return solve(mcp, z0);
     };
-    let in_scales = |solve: &mut dyn FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError>| {
+    let in_scales = |solve: &mut SolveFn<'_>| {
         let unscale = |mut sol: Box<Solution>| {
             sol.z = scaled.to_unscaled(&sol.z);
             sol
