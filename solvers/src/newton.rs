@@ -129,15 +129,16 @@ pub struct NewtonSettings {
     /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
     /// within a step. `None` turns it off. Default `Some(SmoothingSettings::default())`.
     pub smoothing: Option<SmoothingSettings>,
-    /// After the smoothing continuation has failed too, the whole solve (plain iteration, then
-    /// the continuation) once more from the start with this initial Levenberg–Marquardt
-    /// damping instead of [`NewtonSettings::lm_initial_damping`]; the better end point is
-    /// returned. Where the
+    /// Initial Levenberg–Marquardt damping of the restarts (instead of
+    /// [`NewtonSettings::lm_initial_damping`]): after a failed plain iteration, the plain
+    /// iteration once more from the start with it, and after a failed smoothing continuation the
+    /// continuation once more with it (`docs/newton.md#wall-time` for the order); the best end
+    /// point is returned when all fail. Where the
     /// first lightly damped steps from a poor warm start lead into the basin of a spurious
     /// minimiser of the merit (a loaded contact's closest point pulled to another vertex),
     /// heavily damped first steps stay in the solution's basin
-    /// (`docs/newton.md#damped-restart`). It runs only on steps that fail otherwise, so it
-    /// changes no step that converged without it. `None` turns it off. Default `Some(0.1)`.
+    /// (`docs/newton.md#damped-restart`). It runs only after the plain iteration has
+    /// failed, so steps the plain iteration solves are unchanged. `None` turns it off. Default `Some(0.1)`.
     pub damped_restart: Option<f64>,
     /// Stall test of one iteration: it stops (`stagnated`) when its best natural residual has
     /// not fallen below [`NewtonSettings::stall_reduction`] times its value this many
