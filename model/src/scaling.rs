@@ -10,7 +10,7 @@
 
 use std::sync::Arc;
 
-use crate::mcp::Mcp;
+use crate::mcp::{Mcp, diagnose, fb_residual};
 use crate::pattern::CscPattern;
 use crate::solver::{Solution, SolveError};
 
@@ -184,11 +184,11 @@ impl Mcp for ScaledMcp<'_> {
 /// A backend's solve, as [`solve_in_scales`] calls it.
 type SolveFn<'f> = dyn FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError> + 'f;
 
-/// Scales within this many factors of two of 1 (`2^±10`, about 1e∓3) count as SI's own: a
+/// Scales within this many factors of two of 1 (`2^±20`, about 1e∓6) count as SI's own: a
 /// problem whose every scale is within it is solved as given first, so that the scenes the
 /// backends were tuned on (the reference scenes, ordinary SI scenes) take exactly the same
 /// iterations as without scales (`docs/decisions.md#scene-scaled-convergence`).
-pub const SI_BAND_LOG2: f64 = 10.0;
+pub const SI_BAND_LOG2: f64 = 20.0;
 
 /// Whether `scales` leave [`SI_BAND_LOG2`]'s band anywhere.
 pub fn far_from_si(scales: &McpScales) -> bool {
@@ -204,7 +204,7 @@ pub fn far_from_si(scales: &McpScales) -> bool {
 /// A problem whose scales leave the SI band ([`far_from_si`]: a scene in millimetres, at
 /// `h = 1e-5`, with `μ = 1e6`, …) is solved in its scales first: `solve` is given the
 /// [`ScaledMcp`] and `z0 / d_x`, its point (converged or best) is mapped back, and the summary's
-/// residual is the scaled problem's, the one the tolerance judged. A problem within the band is
+/// residuals are recomputed for it on `mcp` (the termination is the scaled tolerance's verdict). A problem within the band is
 /// solved as given first. Either way, when the first attempt fails, the other one is tried from
 /// the same start; the first that converges is returned (iterations of both counted), else the
 /// first attempt's failure. Without (valid) scales `solve` gets `mcp` and `z0` unchanged.
@@ -222,8 +222,18 @@ pub fn solve_in_scales(
         return solve(mcp, z0);
     };
     let in_scales = |solve: &mut SolveFn<'_>| {
+        // The point in the problem's unknowns, its residuals recomputed there: a summary's
+        // residual is always that of the returned point on the problem given; only the
+        // termination says what the scaled tolerance judged.
         let unscale = |mut sol: Box<Solution>| {
             sol.z = scaled.to_unscaled(&sol.z);
+            let (residual, worst) = diagnose(mcp, &sol.z);
+            let mut f = vec![0.0; sol.z.len()];
+            mcp.evaluate(&sol.z, &mut f);
+            sol.summary.residual = residual;
+            sol.summary.worst = worst;
+            sol.summary.fb_residual = fb_residual(&sol.z, &f, mcp.lower(), mcp.upper());
+            sol.summary.f_evals += 2;
             sol
         };
         match solve(&scaled, &scaled.to_scaled(z0)) {
