@@ -53,6 +53,7 @@ pub mod mcp_library;
 pub mod pattern;
 pub mod problem;
 pub mod residual;
+pub mod scaling;
 pub mod sensitivity;
 pub mod solver;
 pub mod structure;
@@ -72,6 +73,7 @@ pub use mcp::{
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
 pub use residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
+pub use scaling::{McpScales, ScaledMcp, far_from_si, solve_in_scales};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
     Termination, finish_solve, validate_start,

@@ -6,6 +6,7 @@ use std::sync::Arc;
 use crate::bounds::{BoundKind, Bounds, classify};
 use crate::error::ModelError;
 use crate::pattern::CscPattern;
+use crate::scaling::McpScales;
 use crate::structure::StepStructure;
 
 /// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
@@ -38,6 +39,12 @@ pub trait Mcp {
     /// The structural view of a contact step (`docs/backends.md#conic`), when this MCP is one: what
     /// the conic backend needs besides `F`. `None` for a generic MCP.
     fn structure(&self) -> Option<&dyn StepStructure> {
+        None
+    }
+    /// The problem's scene scales (`docs/decisions.md#scene-scaled-convergence`), when it has
+    /// them: a backend that honours them solves [`crate::ScaledMcp`] and judges its tolerance
+    /// in those units. `None` (the default): judged as given.
+    fn scales(&self) -> Option<&McpScales> {
         None
     }
 }

@@ -41,7 +41,8 @@ use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
     Counter, Counters, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, natural_residual, validate_start,
+    SolveReport, StepKind, Termination, finish_solve, natural_residual, solve_in_scales,
+    validate_start,
 };
 
 use crate::normal_equations::NormalEquations;
@@ -128,16 +129,30 @@ pub struct NewtonSettings {
     /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
     /// within a step. `None` turns it off. Default `Some(SmoothingSettings::default())`.
     pub smoothing: Option<SmoothingSettings>,
-    /// After the smoothing continuation has failed too, the whole solve (plain iteration, then
-    /// the continuation) once more from the start with this initial Levenberg–Marquardt
-    /// damping instead of [`NewtonSettings::lm_initial_damping`]; the better end point is
-    /// returned. Where the
+    /// Initial Levenberg–Marquardt damping of the restarts (instead of
+    /// [`NewtonSettings::lm_initial_damping`]): after a failed plain iteration, the plain
+    /// iteration once more from the start with it, and after a failed smoothing continuation the
+    /// continuation once more with it (`docs/newton.md#wall-time` for the order); the best end
+    /// point is returned when all fail. Where the
     /// first lightly damped steps from a poor warm start lead into the basin of a spurious
     /// minimiser of the merit (a loaded contact's closest point pulled to another vertex),
     /// heavily damped first steps stay in the solution's basin
-    /// (`docs/newton.md#damped-restart`). It runs only on steps that fail otherwise, so it
-    /// changes no step that converged without it. `None` turns it off. Default `Some(0.1)`.
+    /// (`docs/newton.md#damped-restart`). It runs only after the plain iteration has
+    /// failed, so steps the plain iteration solves are unchanged. `None` turns it off. Default `Some(0.1)`.
     pub damped_restart: Option<f64>,
+    /// Stall test of one iteration: it stops (`stagnated`) when its best natural residual has
+    /// not fallen below [`NewtonSettings::stall_reduction`] times its value this many
+    /// iterations earlier, so that a solve stuck far from a solution passes to its restarts
+    /// instead of running to [`NewtonSettings::max_iterations`] (`docs/newton.md#wall-time`).
+    /// 0 turns it off. Default 30.
+    pub stall_window: usize,
+    /// The reduction the stall test asks for over [`NewtonSettings::stall_window`] iterations.
+    /// Default `0.5`.
+    pub stall_reduction: f64,
+    /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
+    /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
+    /// in the problem's own units (the conic backend's Newton finish). Default `true`.
+    pub scene_scales: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -165,6 +180,9 @@ impl Default for NewtonSettings {
             polish_below: 1e-3,
             smoothing: Some(SmoothingSettings::default()),
             damped_restart: Some(0.1),
+            stall_window: 30,
+            stall_reduction: 0.5,
+            scene_scales: true,
             trace: false,
         }
     }
@@ -492,58 +510,62 @@ impl McpSolver for NewtonSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
-        let first = self.solve_continued(mcp, z0);
-        match first {
-            Err(SolveError::NotConverged { best })
-                if self.settings.smoothing.is_some() && self.settings.damped_restart.is_some() =>
-            {
-                let saved = self.settings.lm_initial_damping;
-                self.settings.lm_initial_damping = self.settings.damped_restart.unwrap_or(saved);
-                let second = self.solve_continued(mcp, z0);
-                self.settings.lm_initial_damping = saved;
-                match second {
-                    Ok(mut sol) => {
-                        sol.summary.iterations += best.summary.iterations;
-                        Ok(sol)
-                    }
-                    Err(SolveError::NotConverged { best: mut other })
-                        if other.summary.residual < best.summary.residual =>
-                    {
-                        other.summary.iterations += best.summary.iterations;
-                        Err(SolveError::NotConverged { best: other })
-                    }
-                    Err(_) => Err(SolveError::NotConverged { best }),
-                }
-            }
-            r => r,
+        // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
+        if !self.settings.scene_scales {
+            return self.solve_restarted(mcp, z0);
         }
+        solve_in_scales(mcp, z0, |mcp, z0| self.solve_restarted(mcp, z0))
     }
 }
 
 impl NewtonSolver {
-    /// The plain iteration from `z0`, then the smoothing continuation when it failed.
-    fn solve_continued(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
-        let plain = self.solve_plain(mcp, z0);
-        match plain {
-            Err(SolveError::NotConverged { best }) if self.settings.smoothing.is_some() => {
-                let smoothed = self.smoothing_continuation(mcp, z0);
-                match smoothed {
-                    Ok(mut sol) => {
-                        sol.summary.iterations += best.summary.iterations;
-                        Ok(sol)
-                    }
-                    Err(SolveError::NotConverged { best: other })
-                        if other.summary.residual < best.summary.residual =>
-                    {
-                        let mut other = other;
-                        other.summary.iterations += best.summary.iterations;
-                        Err(SolveError::NotConverged { best: other })
-                    }
-                    Err(_) => Err(SolveError::NotConverged { best }),
-                }
+    /// The attempts from `z0`, cheapest first (`docs/newton.md#wall-time`): the plain
+    /// iteration; the plain iteration with the damped restart's initial damping; the smoothing
+    /// continuation; the continuation with that damping. The first that converges is returned
+    /// (its iterations counting the failed attempts'), else the best end point.
+    fn solve_restarted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let damping = self.settings.damped_restart;
+        let smoothing = self.settings.smoothing.is_some();
+        let mut best = match self.solve_plain(mcp, z0) {
+            Err(SolveError::NotConverged { best }) => best,
+            r => return r,
+        };
+        let mut spent = best.summary.iterations;
+        let attempts = [
+            (damping.is_some(), false),
+            (smoothing, true),
+            (smoothing && damping.is_some(), true),
+        ];
+        for (i, (run, smoothed)) in attempts.into_iter().enumerate() {
+            if !run {
+                continue;
             }
-            r => r,
+            let saved = self.settings.lm_initial_damping;
+            if i != 1 {
+                self.settings.lm_initial_damping = damping.unwrap_or(saved);
+            }
+            let result = if smoothed {
+                self.smoothing_continuation(mcp, z0)
+            } else {
+                self.solve_plain(mcp, z0)
+            };
+            self.settings.lm_initial_damping = saved;
+            match result {
+                Ok(mut sol) => {
+                    sol.summary.iterations += spent;
+                    return Ok(sol);
+                }
+                Err(SolveError::NotConverged { best: other }) => {
+                    spent += other.summary.iterations;
+                    if other.summary.residual < best.summary.residual {
+                        best = other;
+                    }
+                }
+                Err(e) => return Err(e),
+            }
         }
+        best.summary.iterations = spent;
+        Err(SolveError::NotConverged { best })
     }
 }
 
@@ -661,6 +683,8 @@ impl NewtonSolver {
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
         let mut best_residual = residual;
+        // The best residual after each iteration (index 0: at the start), for the stall test.
+        let mut best_history = vec![best_residual];
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
         let mut lm_mu = s.lm_initial_damping;
@@ -987,6 +1011,14 @@ impl NewtonSolver {
             if residual < best_residual {
                 best_residual = residual;
                 ws.z_best.copy_from_slice(&ws.z);
+            }
+            best_history.push(best_residual);
+            if s.stall_window > 0
+                && iterations > s.stall_window
+                && best_residual > s.stall_reduction * best_history[iterations - s.stall_window]
+            {
+                termination = Termination::Stagnated;
+                break;
             }
             if let Some(psi_check) = checkpoint {
                 watchdog_count += 1;

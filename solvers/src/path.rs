@@ -43,7 +43,8 @@ use std::time::Instant;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, mid, natural_residual, validate_start,
+    SolveReport, StepKind, Termination, finish_solve, mid, natural_residual, solve_in_scales,
+    validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -864,6 +865,14 @@ impl McpSolver for PathSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
+        solve_in_scales(mcp, z0, |mcp, z0| self.solve_unscaled(mcp, z0))
+    }
+}
+
+impl PathSolver {
+    /// [`McpSolver::solve`] on `mcp` as given.
+    fn solve_unscaled(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let started = Instant::now();
         validate_start(mcp, z0)?;
         let s = self.settings.clone();

@@ -182,6 +182,14 @@ impl Backend for NewtonBackend {
             // Minimum-norm steps converge where the solution set is not a point.
             min_norm_step: d.min_norm_step || o.non_isolated_solutions,
             smoothing: capped_smoothing(d.smoothing, o.max_iterations),
+            // Where the solutions form a set (the union formulation) the iteration may converge
+            // linearly along it; the stall test would cut that progress (measured: the union
+            // T-bar of tests/union.rs, step 30, Σ p_n off by 1.3e-8 with it).
+            stall_window: if o.non_isolated_solutions {
+                0
+            } else {
+                d.stall_window
+            },
             ..d
         };
         s.validate()?;

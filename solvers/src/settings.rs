@@ -130,6 +130,7 @@ impl NewtonSettings {
         if let Some(damping) = self.damped_restart {
             c.positive("damped_restart", damping)?;
         }
+        c.fraction("stall_reduction", self.stall_reduction)?;
         smoothing(&c, &self.smoothing)
     }
 }

@@ -90,6 +90,8 @@ pub(crate) struct Layout {
     pub(crate) step_planes: Vec<HalfSpace>,
     /// The span prepared last.
     pub(crate) span: SpanData,
+    /// The scene scales of the span prepared last (`scales.rs`).
+    pub(crate) scales: Option<ecp_model::McpScales>,
 }
 
 impl Layout {

@@ -19,12 +19,13 @@
 
 pub mod guess;
 mod layout;
+mod scales;
 mod structure;
 pub mod union;
 
 use nalgebra::Vector3;
 
-use ecp_model::{BlockMcp, DataId, Input, Problem, ResId, StepStructure, VarBlock};
+use ecp_model::{BlockMcp, DataId, Input, McpScales, Problem, ResId, StepStructure, VarBlock};
 
 use crate::blocks::{
     ClosestPointAlignment, ContactFrame, FrictionDissipation, FrictionEllipsoid, HalfSpaceSide,
@@ -598,6 +599,10 @@ impl StepFormulation for EcpContacts {
 
     fn structure(&self) -> Option<&dyn StepStructure> {
         Some(&self.layout)
+    }
+
+    fn scales(&self) -> Option<&McpScales> {
+        self.layout.scales.as_ref()
     }
 }
 

@@ -61,6 +61,7 @@ impl Layout {
         self.span.start.extend_from_slice(start);
         self.span.friction.copy_from_slice(mcp.data(scene.friction));
         self.span.h = h;
+        self.scales = Some(self.scene_scales(mcp));
     }
 
     fn quat_or_start(&self, b: usize, q: Vector4<f64>) -> Vector4<f64> {

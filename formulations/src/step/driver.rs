@@ -177,6 +177,7 @@ fn assemble(
 pub struct StepProblem<'a> {
     mcp: &'a BlockMcp,
     structure: Option<&'a dyn StepStructure>,
+    scales: Option<&'a ecp_model::McpScales>,
 }
 
 impl Mcp for StepProblem<'_> {
@@ -206,6 +207,9 @@ impl Mcp for StepProblem<'_> {
     }
     fn structure(&self) -> Option<&dyn StepStructure> {
         self.structure
+    }
+    fn scales(&self) -> Option<&ecp_model::McpScales> {
+        self.scales
     }
 }
 
@@ -559,6 +563,7 @@ impl Simulation {
         StepProblem {
             mcp: &self.mcp,
             structure: self.formulation.structure(),
+            scales: self.formulation.scales(),
         }
     }
 

@@ -189,4 +189,10 @@ pub trait StepFormulation: Any + Send {
     fn structure(&self) -> Option<&dyn StepStructure> {
         None
     }
+    /// The scene scales of the span's step problem (`docs/decisions.md#scene-scaled-convergence`):
+    /// the units in which backends judge its natural residual. Valid after
+    /// [`update_data`](Self::update_data) until the next span; `None`: judged as given.
+    fn scales(&self) -> Option<&ecp_model::McpScales> {
+        None
+    }
 }

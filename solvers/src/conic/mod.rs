@@ -494,6 +494,8 @@ impl McpSolver for ConicSolver {
                 let mut newton = NewtonSolver::new(NewtonSettings {
                     tolerance: self.settings.tolerance,
                     max_iterations: self.settings.newton_polish,
+                    // Judged below in the problem's own units, so solved in them.
+                    scene_scales: false,
                     ..NewtonSettings::default()
                 });
                 let polished = match newton.solve(mcp, &z) {

@@ -1,0 +1,333 @@
+//! Scene scales of an MCP (`docs/decisions.md#scene-scaled-convergence`): per-variable and
+//! per-row units in which a backend judges the natural residual and its merit functions, so
+//! that a tolerance means the same in a scene given in millimetres, stepped at `h = 1e-5` or
+//! with `μ = 1e6` as in the original.
+//!
+//! A problem offers its scales through [`crate::Mcp::scales`]; a backend that honours them
+//! solves [`ScaledMcp`], the same MCP in the dimensionless unknowns `z̃ = z / d_x` with the rows
+//! `F̃(z̃) = F(d_x z̃) / d_f`. Positive diagonal scalings map solutions to solutions (each pair
+//! `l ≤ z ⊥ F` keeps its signs), so only the judging changes, not the answer.
+
+use std::sync::Arc;
+
+use crate::mcp::{Mcp, diagnose, fb_residual};
+use crate::pattern::CscPattern;
+use crate::solver::{Solution, SolveError};
+
+/// Per-variable and per-row scales (positive, finite) of an MCP of dimension `n`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct McpScales {
+    /// `d_x`: the unit of each unknown (`z_i = d_x,i z̃_i`).
+    pub variables: Vec<f64>,
+    /// `d_f`: the unit of each row (`F_i = d_f,i F̃_i`).
+    pub rows: Vec<f64>,
+}
+
+impl McpScales {
+    /// Scales of dimension `n`, all 1.
+    pub fn identity(n: usize) -> Self {
+        McpScales {
+            variables: vec![1.0; n],
+            rows: vec![1.0; n],
+        }
+    }
+
+    /// Rounds every scale to the nearest power of two (in the logarithm), so that scaling and
+    /// unscaling are exact in floating point; a scale that is not positive and finite becomes 1.
+    pub fn rounded_to_powers_of_two(mut self) -> Self {
+        for s in self.variables.iter_mut().chain(self.rows.iter_mut()) {
+            *s = power_of_two(*s);
+        }
+        self
+    }
+
+    /// Whether both vectors have length `n` and every scale is positive and finite.
+    pub fn is_valid(&self, n: usize) -> bool {
+        self.variables.len() == n
+            && self.rows.len() == n
+            && self
+                .variables
+                .iter()
+                .chain(&self.rows)
+                .all(|s| s.is_finite() && *s > 0.0)
+    }
+
+    /// Whether every scale is exactly 1 (nothing to do).
+    pub fn is_identity(&self) -> bool {
+        self.variables.iter().chain(&self.rows).all(|s| *s == 1.0)
+    }
+}
+
+/// The power of two nearest to `s` in the logarithm (1 for a scale that is not positive and
+/// finite, or whose power is outside the normal range).
+fn power_of_two(s: f64) -> f64 {
+    if !(s.is_finite() && s > 0.0) {
+        return 1.0;
+    }
+    let e = s.log2().round().clamp(-1000.0, 1000.0) as i32;
+    2f64.powi(e)
+}
+
+/// The MCP `inner` in the scaled unknowns `z̃ = z / d_x`, rows `F̃ = F / d_f` and Jacobian
+/// `J̃_ij = J_ij d_x,j / d_f,i` (same sparsity pattern), bounds `l / d_x`, `u / d_x`.
+pub struct ScaledMcp<'a> {
+    inner: &'a dyn Mcp,
+    scales: &'a McpScales,
+    lower: Vec<f64>,
+    upper: Vec<f64>,
+    /// Per stored Jacobian entry, `d_x,col / d_f,row`.
+    factors: Vec<f64>,
+    z: std::cell::RefCell<Vec<f64>>,
+}
+
+impl<'a> ScaledMcp<'a> {
+    /// The scaled view of `inner`; `None` when `scales` do not fit it (wrong length, a scale not
+    /// positive and finite), so the caller solves the unscaled problem.
+    pub fn new(inner: &'a dyn Mcp, scales: &'a McpScales) -> Option<Self> {
+        let n = inner.dim();
+        if !scales.is_valid(n) {
+            return None;
+        }
+        let dx = &scales.variables;
+        let lower = inner.lower().iter().zip(dx).map(|(l, d)| l / d).collect();
+        let upper = inner.upper().iter().zip(dx).map(|(u, d)| u / d).collect();
+        let pattern = inner.jacobian_pattern();
+        let mut factors = Vec::with_capacity(pattern.nnz());
+        let (ptr, rows) = (pattern.col_ptr(), pattern.row_idx());
+        for col in 0..n {
+            for &row in &rows[ptr[col]..ptr[col + 1]] {
+                factors.push(dx[col] / scales.rows[row]);
+            }
+        }
+        Some(ScaledMcp {
+            inner,
+            scales,
+            lower,
+            upper,
+            factors,
+            z: std::cell::RefCell::new(vec![0.0; n]),
+        })
+    }
+
+    /// `z̃ = z / d_x`.
+    pub fn to_scaled(&self, z: &[f64]) -> Vec<f64> {
+        z.iter()
+            .zip(&self.scales.variables)
+            .map(|(z, d)| z / d)
+            .collect()
+    }
+
+    /// `z = d_x z̃`.
+    pub fn to_unscaled(&self, z: &[f64]) -> Vec<f64> {
+        z.iter()
+            .zip(&self.scales.variables)
+            .map(|(z, d)| z * d)
+            .collect()
+    }
+
+    fn unscale_into(&self, zs: &[f64]) -> std::cell::RefMut<'_, Vec<f64>> {
+        let mut z = self.z.borrow_mut();
+        for ((zi, s), d) in z.iter_mut().zip(zs).zip(&self.scales.variables) {
+            *zi = s * d;
+        }
+        z
+    }
+
+    fn scale_rows(&self, f: &mut [f64]) {
+        for (fi, d) in f.iter_mut().zip(&self.scales.rows) {
+            *fi /= d;
+        }
+    }
+
+    fn scale_jacobian(&self, values: &mut [f64]) {
+        for (v, k) in values.iter_mut().zip(&self.factors) {
+            *v *= k;
+        }
+    }
+}
+
+impl Mcp for ScaledMcp<'_> {
+    fn dim(&self) -> usize {
+        self.inner.dim()
+    }
+    fn lower(&self) -> &[f64] {
+        &self.lower
+    }
+    fn upper(&self) -> &[f64] {
+        &self.upper
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        let zu = self.unscale_into(z);
+        self.inner.evaluate(&zu, f);
+        self.scale_rows(f);
+    }
+    fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+        self.inner.jacobian_pattern()
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        let zu = self.unscale_into(z);
+        self.inner.jacobian(&zu, values);
+        self.scale_jacobian(values);
+    }
+    fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        let zu = self.unscale_into(z);
+        self.inner.evaluate_with_jacobian(&zu, f, values);
+        self.scale_rows(f);
+        self.scale_jacobian(values);
+    }
+    fn component_name(&self, i: usize) -> String {
+        self.inner.component_name(i)
+    }
+    // No structural view: its data are in the unscaled units.
+}
+
+/// A backend's solve, as [`solve_in_scales`] calls it.
+type SolveFn<'f> = dyn FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError> + 'f;
+
+/// Scales within this many factors of two of 1 (`2^±20`, about 1e∓6) count as SI's own: a
+/// problem whose every scale is within it is solved as given first, so that the scenes the
+/// backends were tuned on (the reference scenes, ordinary SI scenes) take exactly the same
+/// iterations as without scales (`docs/decisions.md#scene-scaled-convergence`).
+pub const SI_BAND_LOG2: f64 = 20.0;
+
+/// Whether `scales` leave [`SI_BAND_LOG2`]'s band anywhere.
+pub fn far_from_si(scales: &McpScales) -> bool {
+    scales
+        .variables
+        .iter()
+        .chain(&scales.rows)
+        .any(|s| s.log2().abs() > SI_BAND_LOG2)
+}
+
+/// Solves `mcp` by `solve`, in its scene scales where it has valid ones ([`Mcp::scales`]).
+///
+/// A problem whose scales leave the SI band ([`far_from_si`]: a scene in millimetres, at
+/// `h = 1e-5`, with `μ = 1e6`, …) is solved in its scales first: `solve` is given the
+/// [`ScaledMcp`] and `z0 / d_x`, its point (converged or best) is mapped back, and the summary's
+/// residuals are recomputed for it on `mcp` (the termination is the scaled tolerance's verdict). A problem within the band is
+/// solved as given first. Either way, when the first attempt fails, the other one is tried from
+/// the same start; the first that converges is returned (iterations of both counted), else the
+/// first attempt's failure. Without (valid) scales `solve` gets `mcp` and `z0` unchanged.
+pub fn solve_in_scales(
+    mcp: &dyn Mcp,
+    z0: &[f64],
+    mut solve: impl FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError>,
+) -> Result<Solution, SolveError> {
+    let Some((scales, scaled)) = mcp
+        .scales()
+        .filter(|s| !s.is_identity())
+        .and_then(|s| ScaledMcp::new(mcp, s).map(|m| (s, m)))
+        .filter(|_| z0.len() == mcp.dim())
+    else {
+        return solve(mcp, z0);
+    };
+    let in_scales = |solve: &mut SolveFn<'_>| {
+        // The point in the problem's unknowns, its residuals recomputed there: a summary's
+        // residual is always that of the returned point on the problem given; only the
+        // termination says what the scaled tolerance judged.
+        let unscale = |mut sol: Box<Solution>| {
+            sol.z = scaled.to_unscaled(&sol.z);
+            let (residual, worst) = diagnose(mcp, &sol.z);
+            let mut f = vec![0.0; sol.z.len()];
+            mcp.evaluate(&sol.z, &mut f);
+            sol.summary.residual = residual;
+            sol.summary.worst = worst;
+            sol.summary.fb_residual = fb_residual(&sol.z, &f, mcp.lower(), mcp.upper());
+            sol.summary.f_evals += 2;
+            sol
+        };
+        match solve(&scaled, &scaled.to_scaled(z0)) {
+            Ok(sol) => Ok(*unscale(Box::new(sol))),
+            Err(SolveError::NotConverged { best }) => Err(SolveError::NotConverged {
+                best: unscale(best),
+            }),
+            Err(e) => Err(e),
+        }
+    };
+    let scaled_first = far_from_si(scales);
+    let first = if scaled_first {
+        in_scales(&mut solve)
+    } else {
+        solve(mcp, z0)
+    };
+    let Err(SolveError::NotConverged { mut best }) = first else {
+        return first;
+    };
+    let second = if scaled_first {
+        solve(mcp, z0)
+    } else {
+        in_scales(&mut solve)
+    };
+    match second {
+        Ok(mut sol) => {
+            sol.summary.iterations += best.summary.iterations;
+            Ok(sol)
+        }
+        Err(SolveError::NotConverged { best: other }) => {
+            best.summary.iterations += other.summary.iterations;
+            Err(SolveError::NotConverged { best })
+        }
+        Err(_) => Err(SolveError::NotConverged { best }),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mcp::{FnMcp, natural_residual};
+
+    /// The LCP 0 ≤ z ⊥ M z + q ≥ 0 with a badly scaled second row, scaled: the Jacobian is
+    /// `D_f⁻¹ J D_x` entry by entry and a solution maps to a solution.
+    #[test]
+    fn the_scaled_problem_has_the_scaled_rows_jacobian_and_solutions() {
+        let mcp = FnMcp::dense(
+            vec![0.0, f64::NEG_INFINITY],
+            vec![f64::INFINITY, f64::INFINITY],
+            |z, f| {
+                f[0] = 2.0 * z[0] + z[1] - 1.0;
+                f[1] = 1e6 * (z[0] - 3.0 * z[1]);
+            },
+            |_z, j| {
+                j[0] = 2.0;
+                j[1] = 1e6;
+                j[2] = 1.0;
+                j[3] = -3e6;
+            },
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let scales = McpScales {
+            variables: vec![4.0, 0.5],
+            rows: vec![1.0, 1e6],
+        }
+        .rounded_to_powers_of_two();
+        assert_eq!(scales.rows[1], 2f64.powi(20));
+        let scaled = ScaledMcp::new(&mcp, &scales).unwrap_or_else(|| panic!("valid scales"));
+        let zs = [0.25, 2.0];
+        let mut f = [0.0; 2];
+        let mut j = [0.0; 4];
+        scaled.evaluate_with_jacobian(&zs, &mut f, &mut j);
+        // z = (1, 1): F = (2, −2e6).
+        assert_eq!(f, [2.0, -2e6 / 2f64.powi(20)]);
+        assert_eq!(j, [8.0, 4e6 / 2f64.powi(20), 0.5, -1.5e6 / 2f64.powi(20)]);
+        // The solution z = (3/7, 1/7) (F = 0) stays a solution (to round-off).
+        let z = [3.0 / 7.0, 1.0 / 7.0];
+        let zt = scaled.to_scaled(&z);
+        scaled.evaluate(&zt, &mut f);
+        assert!(natural_residual(&zt, &f, scaled.lower(), scaled.upper()) < 1e-15);
+        assert_eq!(scaled.to_unscaled(&zt), z.to_vec());
+    }
+
+    #[test]
+    fn scales_that_do_not_fit_are_refused() {
+        let mcp = FnMcp::dense(vec![0.0], vec![1.0], |z, f| f[0] = z[0], |_z, j| j[0] = 1.0)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let bad = McpScales {
+            variables: vec![0.0],
+            rows: vec![1.0],
+        };
+        assert!(ScaledMcp::new(&mcp, &bad).is_none());
+        assert!(ScaledMcp::new(&mcp, &McpScales::identity(2)).is_none());
+        assert_eq!(power_of_two(3.0), 4.0);
+        assert_eq!(power_of_two(f64::NAN), 1.0);
+    }
+}
