@@ -138,6 +138,17 @@ pub struct ConicSettings {
     /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
     /// conic iteration alone must converge.
     pub newton_polish: usize,
+    /// Hand the fixed point's iterate to the semismooth-Newton finish once its natural residual
+    /// is at most this (exact mode, with [`ConicSettings::newton_polish`] > 0), with at most
+    /// [`ConicSettings::newton_handoff_iterations`] Newton iterations; when they do not reach the
+    /// tolerance the fixed point continues from where it was, and the handoff is not tried again
+    /// in that solve. The fixed point does the work (the contacts' active sets, loads, centres of
+    /// pressure and slip directions); the finish only removes the last digits, which the fixed
+    /// point would take several more QPs for (`docs/latency.md#conic`). Default `1e-4`; 0 turns
+    /// the handoff off (the pre-handoff behaviour).
+    pub newton_handoff: f64,
+    /// Newton iterations of one handoff attempt. Default 4.
+    pub newton_handoff_iterations: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
@@ -174,6 +185,8 @@ impl Default for ConicSettings {
             anchor_moment: 1000.0,
             anchor_load: 0.1,
             newton_polish: 50,
+            newton_handoff: 1e-4,
+            newton_handoff_iterations: 4,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
@@ -191,6 +204,8 @@ pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
     last_error: Option<String>,
+    /// clarabel's solver of the last QP, reused while the QPs keep its shape.
+    cache: Option<qp::ClarabelCache>,
 }
 
 impl ConicSolver {
@@ -200,14 +215,17 @@ impl ConicSolver {
             settings,
             last_status: None,
             last_error: None,
+            cache: None,
         }
     }
     /// The settings.
     pub fn settings(&self) -> &ConicSettings {
         &self.settings
     }
-    /// Mutable settings.
+    /// Mutable settings. Drops the clarabel solver kept between subproblems, which was set up
+    /// with the old settings.
     pub fn settings_mut(&mut self) -> &mut ConicSettings {
+        self.cache = None;
         &mut self.settings
     }
     /// clarabel's status of the last QP solved (passes through the reason of a failure).
@@ -225,6 +243,33 @@ impl ConicSolver {
             ConicMode::Exact => "conic",
             ConicMode::AnitescuRelaxation => "conic-anitescu",
         }
+    }
+}
+
+impl ConicSolver {
+    /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations and the
+    /// Newton backend's default safeguards: its solution or best point (`None` when Newton
+    /// refuses the problem); its iterations and evaluations are added to `run`.
+    fn newton_finish(
+        &self,
+        mcp: &dyn Mcp,
+        z: &[f64],
+        max_iterations: usize,
+        run: &mut Run,
+    ) -> Option<Solution> {
+        let mut newton = NewtonSolver::new(NewtonSettings {
+            tolerance: self.settings.tolerance,
+            max_iterations,
+            ..NewtonSettings::default()
+        });
+        let sol = match newton.solve(mcp, z) {
+            Ok(sol) => sol,
+            Err(SolveError::NotConverged { best }) => *best,
+            Err(SolveError::InvalidProblem(_)) => return None,
+        };
+        run.newton_polish += sol.summary.iterations;
+        run.f_evals += sol.summary.f_evals;
+        Some(sol)
     }
 }
 
@@ -318,6 +363,7 @@ impl McpSolver for ConicSolver {
             0
         });
         let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
+        let mut handoff_tried = false;
         for it in 0..max_outer {
             let mut geometry: Vec<_> = (0..nc)
                 .map(|c| structure.contact(c, &z_in, self.settings.patch_band))
@@ -363,7 +409,7 @@ impl McpSolver for ConicSolver {
             }
             let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
             run.patch_vertices = sub.patch_vertices;
-            let result = match sub.qp.solve(&self.settings.clarabel) {
+            let result = match sub.qp.solve(&self.settings.clarabel, &mut self.cache) {
                 Ok(r) => r,
                 Err(msg) => {
                     self.last_error = Some(msg);
@@ -419,6 +465,25 @@ impl McpSolver for ConicSolver {
             if residual <= self.settings.tolerance {
                 termination = Termination::Converged;
                 break;
+            }
+            if !handoff_tried
+                && self.settings.newton_polish > 0
+                && residual <= self.settings.newton_handoff
+            {
+                handoff_tried = true;
+                let budget = self
+                    .settings
+                    .newton_handoff_iterations
+                    .min(self.settings.newton_polish);
+                if let Some(sol) = self.newton_finish(mcp, &z, budget, &mut run)
+                    && sol.summary.residual <= self.settings.tolerance
+                {
+                    z.copy_from_slice(&sol.z);
+                    best_z.copy_from_slice(&sol.z);
+                    best_residual = sol.summary.residual;
+                    termination = Termination::Converged;
+                    break;
+                }
             }
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
@@ -491,19 +556,8 @@ impl McpSolver for ConicSolver {
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let mut newton = NewtonSolver::new(NewtonSettings {
-                    tolerance: self.settings.tolerance,
-                    max_iterations: self.settings.newton_polish,
-                    ..NewtonSettings::default()
-                });
-                let polished = match newton.solve(mcp, &z) {
-                    Ok(sol) => Some(sol),
-                    Err(SolveError::NotConverged { best }) => Some(*best),
-                    Err(SolveError::InvalidProblem(_)) => None,
-                };
+                let polished = self.newton_finish(mcp, &z, self.settings.newton_polish, &mut run);
                 if let Some(sol) = polished {
-                    run.newton_polish = sol.summary.iterations;
-                    run.f_evals += sol.summary.f_evals;
                     if sol.summary.residual < best_residual {
                         z.copy_from_slice(&sol.z);
                         best_residual = sol.summary.residual;
