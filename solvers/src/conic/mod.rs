@@ -142,10 +142,11 @@ pub struct ConicSettings {
     /// is at most this (exact mode, with [`ConicSettings::newton_polish`] > 0), with at most
     /// [`ConicSettings::newton_handoff_iterations`] Newton iterations; when they do not reach the
     /// tolerance the fixed point continues from where it was, and the handoff is not tried again
-    /// in that solve. The fixed point does the work (the contacts' active sets, loads, centres of
-    /// pressure and slip directions); the finish only removes the last digits, which the fixed
-    /// point would take several more QPs for (`docs/latency.md#conic`). Default `1e-4`; 0 turns
-    /// the handoff off (the pre-handoff behaviour).
+    /// in that solve. The fixed point identifies the contacts' active sets, loads and slip
+    /// directions; the finish removes the last digits, which take the fixed point one or two
+    /// more QPs. Default `0` (off): it saves a third of the desk's step time at `1e-4`, but on
+    /// the stress suite's corner and trough scenes it made the runs several times slower, for
+    /// reasons not yet understood (`docs/latency.md#conic-backend`).
     pub newton_handoff: f64,
     /// Newton iterations of one handoff attempt. Default 4.
     pub newton_handoff_iterations: usize,
@@ -185,7 +186,7 @@ impl Default for ConicSettings {
             anchor_moment: 1000.0,
             anchor_load: 0.1,
             newton_polish: 50,
-            newton_handoff: 1e-4,
+            newton_handoff: 0.0,
             newton_handoff_iterations: 4,
             trace: false,
             clarabel: default_clarabel_settings(),
@@ -199,7 +200,9 @@ impl Default for ConicSettings {
 /// Counters in the summary: `"clarabel_iterations"` (interior-point iterations, all QPs),
 /// `"clarabel_status"` (last status, [`status_code`]), `"patch_vertices"` (vertex rows of the
 /// last QP), `"anitescu_relaxation"` (1 in that mode), `"newton_polish"` (Newton iterations
-/// after the fixed point, 0 unless enabled and needed).
+/// after a fixed point that stagnated or hit its limit, 0 unless enabled and needed),
+/// `"newton_handoff"` (Newton iterations of the finish of a fixed point that got within
+/// [`ConicSettings::newton_handoff`]).
 pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
@@ -247,27 +250,45 @@ impl ConicSolver {
 }
 
 impl ConicSolver {
-    /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations and the
-    /// Newton backend's default safeguards: its solution or best point (`None` when Newton
-    /// refuses the problem); its iterations and evaluations are added to `run`.
+    /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations: with the
+    /// Newton backend's default safeguards after a stagnated fixed point, the plain iteration
+    /// alone for a handoff: its solution or best point (`None` when Newton
+    /// refuses the problem); its evaluations are added to `run`, its iterations to the handoff's
+    /// count (`handoff`) or the polish's.
     fn newton_finish(
         &self,
         mcp: &dyn Mcp,
         z: &[f64],
         max_iterations: usize,
+        handoff: bool,
         run: &mut Run,
     ) -> Option<Solution> {
+        let defaults = NewtonSettings::default();
         let mut newton = NewtonSolver::new(NewtonSettings {
             tolerance: self.settings.tolerance,
             max_iterations,
-            ..NewtonSettings::default()
+            // The handoff is a local finish: the plain iteration only. Its safeguards for hard
+            // steps (the smoothing continuation, the damped restart) would run on every step
+            // whose few local iterations fall short, at many times a QP's cost; the fixed point
+            // goes on instead.
+            smoothing: if handoff { None } else { defaults.smoothing },
+            damped_restart: if handoff {
+                None
+            } else {
+                defaults.damped_restart
+            },
+            ..defaults
         });
         let sol = match newton.solve(mcp, z) {
             Ok(sol) => sol,
             Err(SolveError::NotConverged { best }) => *best,
             Err(SolveError::InvalidProblem(_)) => return None,
         };
-        run.newton_polish += sol.summary.iterations;
+        if handoff {
+            run.newton_handoff += sol.summary.iterations;
+        } else {
+            run.newton_polish += sol.summary.iterations;
+        }
         run.f_evals += sol.summary.f_evals;
         Some(sol)
     }
@@ -281,6 +302,7 @@ struct Run {
     status: Option<ClarabelStatus>,
     patch_vertices: usize,
     newton_polish: usize,
+    newton_handoff: usize,
     trace: Vec<IterationRecord>,
 }
 
@@ -338,6 +360,7 @@ impl McpSolver for ConicSolver {
             status: None,
             patch_vertices: 0,
             newton_polish: 0,
+            newton_handoff: 0,
             trace: Vec::new(),
         };
         let mut f = vec![0.0; n];
@@ -475,7 +498,7 @@ impl McpSolver for ConicSolver {
                     .settings
                     .newton_handoff_iterations
                     .min(self.settings.newton_polish);
-                if let Some(sol) = self.newton_finish(mcp, &z, budget, &mut run)
+                if let Some(sol) = self.newton_finish(mcp, &z, budget, true, &mut run)
                     && sol.summary.residual <= self.settings.tolerance
                 {
                     z.copy_from_slice(&sol.z);
@@ -556,7 +579,8 @@ impl McpSolver for ConicSolver {
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let polished = self.newton_finish(mcp, &z, self.settings.newton_polish, &mut run);
+                let polished =
+                    self.newton_finish(mcp, &z, self.settings.newton_polish, false, &mut run);
                 if let Some(sol) = polished {
                     if sol.summary.residual < best_residual {
                         z.copy_from_slice(&sol.z);
@@ -596,6 +620,7 @@ impl McpSolver for ConicSolver {
                         usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
                     ),
                     (Counter::NewtonPolish, run.newton_polish),
+                    (Counter::NewtonHandoff, run.newton_handoff),
                 ]),
             },
         )
