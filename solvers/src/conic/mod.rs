@@ -313,6 +313,10 @@ impl McpSolver for ConicSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         validate_start(mcp, z0)?;
+        // clarabel's solver is kept between the QPs of this solve only: across steps its
+        // equilibration (computed for the first QP it saw) would be stale, and a5_drop_tilted
+        // then needs a Newton polish at step 25.
+        self.cache = None;
         self.last_status = None;
         self.last_error = None;
         let Some(structure) = mcp.structure() else {
