@@ -190,9 +190,7 @@ fn solve(
     let mut next = 7;
     add_set(&mut qp, a, 0, &mut next);
     add_set(&mut qp, b, 3, &mut next);
-    let r = qp
-        .solve(settings, &mut None)
-        .map_err(ClosestPointError::Failed)?;
+    let r = qp.solve(settings).map_err(ClosestPointError::Failed)?;
     if !usable(r.status) {
         return Err(ClosestPointError::NotSolved { status: r.status });
     }

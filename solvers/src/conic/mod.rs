@@ -207,8 +207,6 @@ pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
     last_error: Option<String>,
-    /// clarabel's solver of the last QP, reused while the QPs keep its shape.
-    cache: Option<qp::ClarabelCache>,
 }
 
 impl ConicSolver {
@@ -218,17 +216,14 @@ impl ConicSolver {
             settings,
             last_status: None,
             last_error: None,
-            cache: None,
         }
     }
     /// The settings.
     pub fn settings(&self) -> &ConicSettings {
         &self.settings
     }
-    /// Mutable settings. Drops the clarabel solver kept between subproblems, which was set up
-    /// with the old settings.
+    /// Mutable settings.
     pub fn settings_mut(&mut self) -> &mut ConicSettings {
-        self.cache = None;
         &mut self.settings
     }
     /// clarabel's status of the last QP solved (passes through the reason of a failure).
@@ -313,10 +308,6 @@ impl McpSolver for ConicSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         validate_start(mcp, z0)?;
-        // clarabel's solver is kept between the QPs of this solve only: across steps its
-        // equilibration (computed for the first QP it saw) would be stale, and a5_drop_tilted
-        // then needs a Newton polish at step 25.
-        self.cache = None;
         self.last_status = None;
         self.last_error = None;
         let Some(structure) = mcp.structure() else {
@@ -436,7 +427,7 @@ impl McpSolver for ConicSolver {
             }
             let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
             run.patch_vertices = sub.patch_vertices;
-            let result = match sub.qp.solve(&self.settings.clarabel, &mut self.cache) {
+            let result = match sub.qp.solve(&self.settings.clarabel) {
                 Ok(r) => r,
                 Err(msg) => {
                     self.last_error = Some(msg);

@@ -63,19 +63,20 @@ impl ConicQp {
         self.b.len()
     }
 
-    /// Adds `P[i][j] += v` (symmetric; stored in the upper triangle). Zeros are kept as
-    /// structural entries, so that the pattern depends on the problem's shape only and a cached
-    /// clarabel solver can take the next problem's values in place ([`ClarabelCache`]).
+    /// Adds `P[i][j] += v` (symmetric; stored in the upper triangle).
     pub fn add_p(&mut self, i: usize, j: usize, v: f64) {
-        self.p.push((i.min(j), i.max(j), v));
+        if v != 0.0 {
+            self.p.push((i.min(j), i.max(j), v));
+        }
     }
 
     /// Appends a row `Σ coeffs · x + s = rhs`; returns its index. The caller adds the cone.
     pub fn push_row(&mut self, coeffs: &[(usize, f64)], rhs: f64) -> usize {
         let r = self.b.len();
-        // Zeros kept as structural entries (see `add_p`).
         for &(j, v) in coeffs {
-            self.a.push((r, j, v));
+            if v != 0.0 {
+                self.a.push((r, j, v));
+            }
         }
         self.b.push(rhs);
         r
@@ -91,16 +92,7 @@ impl ConicQp {
 
     /// Solves with clarabel. `Err` carries a description when the data are not finite, the
     /// cones do not cover the rows, or clarabel rejects the problem or panics.
-    ///
-    /// With a `cache` holding a solver of a problem with the same shape (dimensions, cones and
-    /// sparsity patterns of P and A), that solver takes this problem's values in place
-    /// (clarabel's data updates): its symbolic factorisation, workspace and equilibration are
-    /// kept. Otherwise a new solver is set up and left in the cache.
-    pub fn solve(
-        &self,
-        settings: &DefaultSettings<f64>,
-        cache: &mut Option<ClarabelCache>,
-    ) -> Result<QpResult, String> {
+    pub fn solve(&self, settings: &DefaultSettings<f64>) -> Result<QpResult, String> {
         if !self.is_finite() {
             return Err("the conic subproblem has non-finite data".into());
         }
@@ -119,45 +111,21 @@ impl ConicQp {
         let p = CscMatrix::new_from_triplets(self.n, self.n, pi, pj, pv);
         let (ai, aj, av) = split(&self.a);
         let a = CscMatrix::new_from_triplets(m, self.n, ai, aj, av);
-        let reusable = cache
-            .as_ref()
-            .is_some_and(|c| c.fits(self.n, m, &self.cones, &p, &a));
-        if !reusable {
-            *cache = None;
-        }
+        let cones: Vec<SupportedConeT<f64>> = self
+            .cones
+            .iter()
+            .map(|c| match *c {
+                Cone::Zero(k) => SupportedConeT::ZeroConeT(k),
+                Cone::Nonnegative(k) => SupportedConeT::NonnegativeConeT(k),
+                Cone::SecondOrder(k) => SupportedConeT::SecondOrderConeT(k),
+            })
+            .collect();
+        let settings = settings.clone();
         let run = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
-            if let Some(c) = cache.as_mut() {
-                c.solver
-                    .update_data(&p.nzval, &self.q, &a.nzval, &self.b)
-                    .map_err(|e| format!("clarabel refused the data update: {e}"))?;
-            } else {
-                let cones: Vec<SupportedConeT<f64>> = self
-                    .cones
-                    .iter()
-                    .map(|c| match *c {
-                        Cone::Zero(k) => SupportedConeT::ZeroConeT(k),
-                        Cone::Nonnegative(k) => SupportedConeT::NonnegativeConeT(k),
-                        Cone::SecondOrder(k) => SupportedConeT::SecondOrderConeT(k),
-                    })
-                    .collect();
-                let solver = DefaultSolver::new(&p, &self.q, &a, &self.b, &cones, settings.clone())
-                    .map_err(|e| format!("clarabel rejected the subproblem: {e}"))?;
-                *cache = Some(ClarabelCache {
-                    n: self.n,
-                    m,
-                    cones: self.cones.clone(),
-                    p_colptr: p.colptr.clone(),
-                    p_rowval: p.rowval.clone(),
-                    a_colptr: a.colptr.clone(),
-                    a_rowval: a.rowval.clone(),
-                    solver,
-                });
-            }
-            let Some(c) = cache.as_mut() else {
-                return Err("clarabel solver missing".into());
-            };
-            c.solver.solve();
-            let sol = &c.solver.solution;
+            let mut solver = DefaultSolver::new(&p, &self.q, &a, &self.b, &cones, settings)
+                .map_err(|e| format!("clarabel rejected the subproblem: {e}"))?;
+            solver.solve();
+            let sol = &solver.solution;
             Ok::<QpResult, String>(QpResult {
                 x: sol.x.clone(),
                 z: sol.z.clone(),
@@ -166,53 +134,10 @@ impl ConicQp {
                 iterations: sol.iterations,
             })
         }));
-        let result = match run {
+        match run {
             Ok(r) => r,
             Err(_) => Err("clarabel panicked on the subproblem".into()),
-        };
-        // A solver that failed or cannot take updates is not kept: the next QP starts afresh.
-        if result.is_err()
-            || cache
-                .as_ref()
-                .is_some_and(|c| !c.solver.is_data_update_allowed())
-        {
-            *cache = None;
         }
-        result
-    }
-}
-
-/// A clarabel solver kept between subproblems of the same shape (`docs/latency.md#conic`):
-/// its symbolic factorisation, workspace and equilibration are reused, the data are replaced in
-/// place. Invalidated by [`crate::conic::ConicSolver::settings_mut`].
-pub(crate) struct ClarabelCache {
-    n: usize,
-    m: usize,
-    cones: Vec<Cone>,
-    p_colptr: Vec<usize>,
-    p_rowval: Vec<usize>,
-    a_colptr: Vec<usize>,
-    a_rowval: Vec<usize>,
-    solver: DefaultSolver<f64>,
-}
-
-impl ClarabelCache {
-    /// Whether a problem with these dimensions, cones and patterns can reuse the solver.
-    fn fits(
-        &self,
-        n: usize,
-        m: usize,
-        cones: &[Cone],
-        p: &CscMatrix<f64>,
-        a: &CscMatrix<f64>,
-    ) -> bool {
-        self.n == n
-            && self.m == m
-            && self.cones == cones
-            && self.p_colptr == p.colptr
-            && self.p_rowval == p.rowval
-            && self.a_colptr == a.colptr
-            && self.a_rowval == a.rowval
     }
 }
 
