@@ -230,6 +230,65 @@ fn desk_separate_runs_agree() {
     println!("desk, separate runs: max |dv| conic vs Newton {max_dv:.2e}");
 }
 
+/// The fixed point alone (the default, `newton_handoff = 0`; no rescue) converges on every desk
+/// step, and with the fixed point's iterate handed to a short Newton finish once its residual is
+/// ≤ 1e-4 (`docs/latency.md#conic-backend`) the run reaches the same steps: velocities within 1e-8
+/// at every step, at least one QP per step, the finish used on the steps in contact.
+#[test]
+fn desk_handoff_agrees_with_the_fixed_point_alone() {
+    let alone = run(
+        scene("desk"),
+        &mut ConicSolver::new(ConicSettings::default()),
+    );
+    let handoff = run(
+        scene("desk"),
+        &mut ConicSolver::new(ConicSettings {
+            newton_handoff: 1e-4,
+            ..ConicSettings::default()
+        }),
+    );
+    assert_eq!(alone.len(), 400);
+    assert_eq!(handoff.len(), 400);
+    let mut handed = 0;
+    for (a, h) in alone.iter().zip(&handoff) {
+        assert!(
+            a.converged && a.summary.residual <= RESIDUAL,
+            "step {}",
+            a.step
+        );
+        assert_eq!(
+            a.summary.counter(Counter::NewtonPolish),
+            Some(0),
+            "step {}",
+            a.step
+        );
+        assert_eq!(
+            a.summary.counter(Counter::NewtonHandoff),
+            Some(0),
+            "step {}",
+            a.step
+        );
+        assert!(
+            h.converged && h.summary.residual <= RESIDUAL,
+            "step {}",
+            h.step
+        );
+        assert_eq!(
+            h.summary.counter(Counter::NewtonPolish),
+            Some(0),
+            "step {}",
+            h.step
+        );
+        assert!(h.summary.iterations >= 1, "step {}: no QP", h.step);
+        handed += usize::from(h.summary.counter(Counter::NewtonHandoff).unwrap_or(0) > 0);
+        let dv = (a.bodies[0].v - h.bodies[0].v)
+            .amax()
+            .max((a.bodies[0].w - h.bodies[0].w).amax());
+        assert!(dv <= 1e-8, "desk step {}: |dv| = {dv:.3e}", a.step);
+    }
+    assert!(handed > 0, "the handoff was never used");
+}
+
 /// Normal drift of A1 over the run: the largest |v_z| and the largest deviation of the CM
 /// height from 0.1 m.
 fn a1_drift(mode: ConicMode) -> (f64, f64, Vec<StepRecord>) {

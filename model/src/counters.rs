@@ -84,6 +84,9 @@ pub enum Counter {
     AnitescuRelaxation,
     /// Conic: semismooth-Newton iterations after the fixed point (`"newton_polish"`).
     NewtonPolish,
+    /// Conic: semismooth-Newton iterations of the finish the fixed point hands its iterate to
+    /// once it is close (`"newton_handoff"`, `ConicSettings::newton_handoff`).
+    NewtonHandoff,
     /// Stepper: solves of the same step repeated from another warm start (`"retries"`).
     Retries,
     /// A counter of a user's backend, by its name (snake case, as the built-in ones).
@@ -92,7 +95,7 @@ pub enum Counter {
 
 impl Counter {
     /// Every built-in counter, in the order of the enum.
-    pub const BUILTIN: [Counter; 27] = [
+    pub const BUILTIN: [Counter; 28] = [
         Counter::NewtonSteps,
         Counter::LevenbergMarquardtSteps,
         Counter::GradientSteps,
@@ -119,6 +122,7 @@ impl Counter {
         Counter::PatchVertices,
         Counter::AnitescuRelaxation,
         Counter::NewtonPolish,
+        Counter::NewtonHandoff,
         Counter::Retries,
     ];
 
@@ -151,6 +155,7 @@ impl Counter {
             Counter::PatchVertices => "patch_vertices",
             Counter::AnitescuRelaxation => "anitescu_relaxation",
             Counter::NewtonPolish => "newton_polish",
+            Counter::NewtonHandoff => "newton_handoff",
             Counter::Retries => "retries",
             Counter::Custom(name) => name,
         }

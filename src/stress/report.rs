@@ -81,6 +81,23 @@ pub struct Totals {
     pub slow: usize,
     /// Total wall time (s).
     pub wall_s: f64,
+    /// Median µs per step of each run that took a step ([`RunResult::step_us_median`]).
+    pub step_us: Vec<f64>,
+}
+
+/// Median of `values` (0 for none).
+fn median(values: &[f64]) -> f64 {
+    let mut v: Vec<f64> = values.iter().copied().filter(|x| x.is_finite()).collect();
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let k = v.len();
+    if k % 2 == 1 {
+        v[k / 2]
+    } else {
+        0.5 * (v[k / 2 - 1] + v[k / 2])
+    }
 }
 
 /// Totals of the runs of `solver` among `results`.
@@ -114,6 +131,9 @@ pub fn totals(results: &[RunResult], solver: &str) -> Totals {
             t.slow += 1;
         }
         t.wall_s += r.wall_s;
+        if r.steps > 0 {
+            t.step_us.push(r.step_us_median);
+        }
     }
     t
 }
@@ -123,9 +143,9 @@ pub fn backend_table(results: &[RunResult]) -> String {
     let mut s = String::new();
     let _ = writeln!(
         s,
-        "| backend | runs with every step converged | failed steps | runs penetrating > {PENETRATION_LIMIT:e} m (worst) | timeouts | unforced converged runs gaining > {ENERGY_LIMIT:e} outside openings (worst) | opening steps (Σ ΔE, largest step gain, relative) | runs > {WALL_RATIO_LIMIT}× PATH wall time | wall time (s) |"
+        "| backend | runs with every step converged | failed steps | runs penetrating > {PENETRATION_LIMIT:e} m (worst) | timeouts | unforced converged runs gaining > {ENERGY_LIMIT:e} outside openings (worst) | opening steps (Σ ΔE, largest step gain, relative) | runs > {WALL_RATIO_LIMIT}× PATH wall time | wall time (s) | median µs/step (median, max over runs) |"
     );
-    s.push_str("|---|---|---|---|---|---|---|---|---|\n");
+    s.push_str("|---|---|---|---|---|---|---|---|---|---|\n");
     for solver in solvers_of(results) {
         let t = totals(results, &solver);
         let pct = if t.steps > 0 {
@@ -135,7 +155,7 @@ pub fn backend_table(results: &[RunResult]) -> String {
         };
         let _ = writeln!(
             s,
-            "| {solver} | {} / {} | {} of {} ({pct:.1} %) | {} ({}) | {} | {} / {} ({}) | {} ({}, {}) | {} | {:.1} |",
+            "| {solver} | {} / {} | {} of {} ({pct:.1} %) | {} ({}) | {} | {} / {} ({}) | {} ({}, {}) | {} | {:.1} | {:.1}, {:.1} |",
             t.converged,
             t.runs,
             t.failed_steps,
@@ -151,6 +171,8 @@ pub fn backend_table(results: &[RunResult]) -> String {
             sci(t.opening_max_gain),
             t.slow,
             t.wall_s,
+            median(&t.step_us),
+            t.step_us.iter().copied().fold(0.0, f64::max),
         );
     }
     s

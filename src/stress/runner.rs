@@ -97,6 +97,9 @@ pub struct RunResult {
     pub opening_max_gain: f64,
     /// Wall time of the run (s), outputs included.
     pub wall_s: f64,
+    /// Median solve time of one step (µs), the summary's `step_us.median`: the per-step cost of
+    /// the backend on this scene, without the outputs (0 when no step ran).
+    pub step_us_median: f64,
 }
 
 impl RunResult {
@@ -125,6 +128,7 @@ impl RunResult {
             opening_energy: 0.0,
             opening_max_gain: 0.0,
             wall_s: 0.0,
+            step_us_median: 0.0,
         }
     }
 
@@ -197,6 +201,9 @@ pub fn run_file(path: &Path, config: &RunConfig) -> RunResult {
     result.timed_out = outcome.timed_out;
     result.error = outcome.stepper_error.clone();
     result.completed = result.steps == result.planned_steps && result.error.is_none();
+    if result.steps > 0 && outcome.summary.step_us.median.is_finite() {
+        result.step_us_median = outcome.summary.step_us.median;
+    }
     result.all_converged = result.completed && result.failed_steps == 0 && !result.timed_out;
     if let Some(f) = &outcome.summary.failure {
         result.first_failed_step = Some(f.step);

@@ -138,6 +138,18 @@ pub struct ConicSettings {
     /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
     /// conic iteration alone must converge.
     pub newton_polish: usize,
+    /// Hand the fixed point's iterate to the semismooth-Newton finish once its natural residual
+    /// is at most this (exact mode, with [`ConicSettings::newton_polish`] > 0), with at most
+    /// [`ConicSettings::newton_handoff_iterations`] Newton iterations; when they do not reach the
+    /// tolerance the fixed point continues from where it was, and the handoff is not tried again
+    /// in that solve. The fixed point identifies the contacts' active sets, loads and slip
+    /// directions; the finish removes the last digits, which take the fixed point one or two
+    /// more QPs. Default `0` (off): it saves a third of the desk's step time at `1e-4`, but on
+    /// the stress suite's corner and trough scenes it made the runs several times slower, for
+    /// reasons not yet understood (`docs/latency.md#conic-backend`).
+    pub newton_handoff: f64,
+    /// Newton iterations of one handoff attempt. Default 4.
+    pub newton_handoff_iterations: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
@@ -174,6 +186,8 @@ impl Default for ConicSettings {
             anchor_moment: 1000.0,
             anchor_load: 0.1,
             newton_polish: 50,
+            newton_handoff: 0.0,
+            newton_handoff_iterations: 4,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
@@ -186,7 +200,9 @@ impl Default for ConicSettings {
 /// Counters in the summary: `"clarabel_iterations"` (interior-point iterations, all QPs),
 /// `"clarabel_status"` (last status, [`status_code`]), `"patch_vertices"` (vertex rows of the
 /// last QP), `"anitescu_relaxation"` (1 in that mode), `"newton_polish"` (Newton iterations
-/// after the fixed point, 0 unless enabled and needed).
+/// after a fixed point that stagnated or hit its limit, 0 unless enabled and needed),
+/// `"newton_handoff"` (Newton iterations of the finish of a fixed point that got within
+/// [`ConicSettings::newton_handoff`]).
 pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
@@ -228,6 +244,53 @@ impl ConicSolver {
     }
 }
 
+impl ConicSolver {
+    /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations: with the
+    /// Newton backend's default safeguards after a stagnated fixed point, the plain iteration
+    /// alone for a handoff: its solution or best point (`None` when Newton
+    /// refuses the problem); its evaluations are added to `run`, its iterations to the handoff's
+    /// count (`handoff`) or the polish's.
+    fn newton_finish(
+        &self,
+        mcp: &dyn Mcp,
+        z: &[f64],
+        max_iterations: usize,
+        handoff: bool,
+        run: &mut Run,
+    ) -> Option<Solution> {
+        let defaults = NewtonSettings::default();
+        let mut newton = NewtonSolver::new(NewtonSettings {
+            tolerance: self.settings.tolerance,
+            max_iterations,
+            // Judged by the caller in the problem's own units, so solved in them.
+            scene_scales: false,
+            // The handoff is a local finish: the plain iteration only. Its safeguards for hard
+            // steps (the smoothing continuation, the damped restart) would run on every step
+            // whose few local iterations fall short, at many times a QP's cost; the fixed point
+            // goes on instead.
+            smoothing: if handoff { None } else { defaults.smoothing },
+            damped_restart: if handoff {
+                None
+            } else {
+                defaults.damped_restart
+            },
+            ..defaults
+        });
+        let sol = match newton.solve(mcp, z) {
+            Ok(sol) => sol,
+            Err(SolveError::NotConverged { best }) => *best,
+            Err(SolveError::InvalidProblem(_)) => return None,
+        };
+        if handoff {
+            run.newton_handoff += sol.summary.iterations;
+        } else {
+            run.newton_polish += sol.summary.iterations;
+        }
+        run.f_evals += sol.summary.f_evals;
+        Some(sol)
+    }
+}
+
 /// Book-keeping of one solve.
 struct Run {
     started: Instant,
@@ -236,6 +299,7 @@ struct Run {
     status: Option<ClarabelStatus>,
     patch_vertices: usize,
     newton_polish: usize,
+    newton_handoff: usize,
     trace: Vec<IterationRecord>,
 }
 
@@ -293,6 +357,7 @@ impl McpSolver for ConicSolver {
             status: None,
             patch_vertices: 0,
             newton_polish: 0,
+            newton_handoff: 0,
             trace: Vec::new(),
         };
         let mut f = vec![0.0; n];
@@ -318,6 +383,7 @@ impl McpSolver for ConicSolver {
             0
         });
         let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
+        let mut handoff_tried = false;
         for it in 0..max_outer {
             let mut geometry: Vec<_> = (0..nc)
                 .map(|c| structure.contact(c, &z_in, self.settings.patch_band))
@@ -420,6 +486,25 @@ impl McpSolver for ConicSolver {
                 termination = Termination::Converged;
                 break;
             }
+            if !handoff_tried
+                && self.settings.newton_polish > 0
+                && residual <= self.settings.newton_handoff
+            {
+                handoff_tried = true;
+                let budget = self
+                    .settings
+                    .newton_handoff_iterations
+                    .min(self.settings.newton_polish);
+                if let Some(sol) = self.newton_finish(mcp, &z, budget, true, &mut run)
+                    && sol.summary.residual <= self.settings.tolerance
+                {
+                    z.copy_from_slice(&sol.z);
+                    best_z.copy_from_slice(&sol.z);
+                    best_residual = sol.summary.residual;
+                    termination = Termination::Converged;
+                    break;
+                }
+            }
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
                 since_improvement = 0;
@@ -491,21 +576,9 @@ impl McpSolver for ConicSolver {
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let mut newton = NewtonSolver::new(NewtonSettings {
-                    tolerance: self.settings.tolerance,
-                    max_iterations: self.settings.newton_polish,
-                    // Judged below in the problem's own units, so solved in them.
-                    scene_scales: false,
-                    ..NewtonSettings::default()
-                });
-                let polished = match newton.solve(mcp, &z) {
-                    Ok(sol) => Some(sol),
-                    Err(SolveError::NotConverged { best }) => Some(*best),
-                    Err(SolveError::InvalidProblem(_)) => None,
-                };
+                let polished =
+                    self.newton_finish(mcp, &z, self.settings.newton_polish, false, &mut run);
                 if let Some(sol) = polished {
-                    run.newton_polish = sol.summary.iterations;
-                    run.f_evals += sol.summary.f_evals;
                     if sol.summary.residual < best_residual {
                         z.copy_from_slice(&sol.z);
                         best_residual = sol.summary.residual;
@@ -544,6 +617,7 @@ impl McpSolver for ConicSolver {
                         usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
                     ),
                     (Counter::NewtonPolish, run.newton_polish),
+                    (Counter::NewtonHandoff, run.newton_handoff),
                 ]),
             },
         )
