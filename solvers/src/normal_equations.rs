@@ -221,7 +221,13 @@ mod tests {
         let columns: Vec<Vec<usize>> = (0..n)
             .map(|j| {
                 (0..n)
-                    .filter(|&i| (i != j || j % 7 != 3) && (i * 5 + j * 3) % 7 < 2 || i == j)
+                    .filter(|&i| {
+                        if i == j {
+                            j % 7 != 3
+                        } else {
+                            (i * 5 + j * 3) % 7 < 2
+                        }
+                    })
                     .collect()
             })
             .collect();
