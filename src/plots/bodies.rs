@@ -14,8 +14,8 @@ use ecp_formulations::{Scene, StepRecord};
 
 use super::{
     Area, DrawError, FOOTPRINT_SIZE, Glyph, LEGEND_WIDTH, LegendEntry, PALETTE, PlotError,
-    TimePanel, draw_legend, equal_aspect, font, footprint_instants, hull_2d, linear_range, render,
-    tick_label, time_decimals, write_time_series,
+    TimePanel, draw_legend, font, footprint_instants, hull_2d, plan_chart, render, time_decimals,
+    write_time_series,
 };
 
 /// Pairs drawn in the impulse plot: those with the largest normal impulse.
@@ -226,34 +226,8 @@ fn footprint_plot(root: &Area<'_>, scene: &Scene, records: &[StepRecord]) -> Res
         })
         .chain(fixed.iter().flatten().copied())
         .unzip();
-    let configure = |builder: &mut ChartBuilder<'_, '_, BitMapBackend<'_>>| {
-        builder
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70);
-    };
-    let mut probe = ChartBuilder::on(&chart_area);
-    configure(&mut probe);
-    let (pw, ph) = probe
-        .build_cartesian_2d(0.0..1.0, 0.0..1.0)?
-        .plotting_area()
-        .dim_in_pixel();
-    let (x_range, y_range) = equal_aspect(linear_range(xs), linear_range(ys), pw, ph);
-    let span = x_range.end - x_range.start;
-    let mut builder = ChartBuilder::on(&chart_area);
-    configure(&mut builder);
-    let mut chart = builder.build_cartesian_2d(x_range, y_range)?;
-    chart
-        .configure_mesh()
-        .x_desc("x [m]")
-        .y_desc("y [m]")
-        .axis_desc_style(font(17))
-        .label_style(font(15))
-        .x_label_formatter(&|x| tick_label(*x, span))
-        .y_label_formatter(&|y| tick_label(*y, span))
-        .light_line_style(RGBAColor(0, 0, 0, 0.04))
-        .bold_line_style(RGBAColor(0, 0, 0, 0.15))
-        .draw()?;
+    let mut chart = plan_chart(&chart_area, xs, ys, "x [m]", "y [m]")?;
+    let span = chart.x_range().end - chart.x_range().start;
     let closed = |hull: &[(f64, f64)]| {
         let mut path = hull.to_vec();
         path.extend(hull.first());

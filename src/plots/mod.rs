@@ -1113,35 +1113,7 @@ fn footprint_plot(root: &Area<'_>, scene: &Scene, records: &[StepRecord]) -> Res
             pieces.chain(&f.patch).chain(&f.ecp).chain([&f.cm]).copied()
         })
         .unzip();
-    let configure = |builder: &mut ChartBuilder<'_, '_, BitMapBackend<'_>>| {
-        builder
-            .margin(12)
-            .x_label_area_size(45)
-            .y_label_area_size(70);
-    };
-    // Equal aspect: measure the plotting area once, then widen the shorter data range to match.
-    let mut probe = ChartBuilder::on(&chart_area);
-    configure(&mut probe);
-    let (pw, ph) = probe
-        .build_cartesian_2d(0.0..1.0, 0.0..1.0)?
-        .plotting_area()
-        .dim_in_pixel();
-    let (x_range, y_range) = equal_aspect(linear_range(xs), linear_range(ys), pw, ph);
-    let span = x_range.end - x_range.start;
-    let mut builder = ChartBuilder::on(&chart_area);
-    configure(&mut builder);
-    let mut chart = builder.build_cartesian_2d(x_range, y_range)?;
-    chart
-        .configure_mesh()
-        .x_desc(x_desc)
-        .y_desc(y_desc)
-        .axis_desc_style(font(17))
-        .label_style(font(15))
-        .x_label_formatter(&|x| tick_label(*x, span))
-        .y_label_formatter(&|y| tick_label(*y, span))
-        .light_line_style(RGBAColor(0, 0, 0, 0.04))
-        .bold_line_style(RGBAColor(0, 0, 0, 0.15))
-        .draw()?;
+    let mut chart = plan_chart(&chart_area, xs, ys, x_desc, y_desc)?;
 
     // Layer by layer over all instants, so that no fill hides another instant's outline.
     for layer in [Layer::Fill, Layer::Outline, Layer::Markers] {
@@ -1230,6 +1202,49 @@ fn label_instants(
         }
     }
     Ok(())
+}
+/// The chart of a plan view (footprints, bodies from above): equal aspect over the points
+/// `xs`, `ys` (the shorter data range widened to the plotting area's shape), with its mesh drawn.
+fn plan_chart<'a, 'b>(
+    area: &'a Area<'b>,
+    xs: Vec<f64>,
+    ys: Vec<f64>,
+    x_desc: &str,
+    y_desc: &str,
+) -> Result<
+    ChartContext<'a, BitMapBackend<'b>, Cartesian2d<RangedCoordf64, RangedCoordf64>>,
+    DrawError,
+> {
+    let configure = |builder: &mut ChartBuilder<'_, '_, BitMapBackend<'_>>| {
+        builder
+            .margin(12)
+            .x_label_area_size(45)
+            .y_label_area_size(70);
+    };
+    // Equal aspect: measure the plotting area once, then widen the shorter data range to match.
+    let mut probe = ChartBuilder::on(area);
+    configure(&mut probe);
+    let (pw, ph) = probe
+        .build_cartesian_2d(0.0..1.0, 0.0..1.0)?
+        .plotting_area()
+        .dim_in_pixel();
+    let (x_range, y_range) = equal_aspect(linear_range(xs), linear_range(ys), pw, ph);
+    let span = x_range.end - x_range.start;
+    let mut builder = ChartBuilder::on(area);
+    configure(&mut builder);
+    let mut chart = builder.build_cartesian_2d(x_range, y_range)?;
+    chart
+        .configure_mesh()
+        .x_desc(x_desc)
+        .y_desc(y_desc)
+        .axis_desc_style(font(17))
+        .label_style(font(15))
+        .x_label_formatter(&|x| tick_label(*x, span))
+        .y_label_formatter(&|y| tick_label(*y, span))
+        .light_line_style(RGBAColor(0, 0, 0, 0.04))
+        .bold_line_style(RGBAColor(0, 0, 0, 0.15))
+        .draw()?;
+    Ok(chart)
 }
 
 /// Widens the range whose data-per-pixel is smaller so both axes share one scale.
