@@ -9,8 +9,11 @@ use std::path::Path;
 
 use ecp::formulations::bodies::MultiBody;
 use ecp::formulations::bodies::pairs::Reach;
-use ecp::formulations::{PairRecord, SceneError, Simulation, SimulationBuilder, StepRecord};
+use ecp::formulations::{
+    PairRecord, SceneError, Simulation, SimulationBuilder, StepMethod, StepRecord,
+};
 use ecp::model::McpSolver;
+use ecp::run::{RunOptions, run_scene};
 use ecp::scene::{load_scene, parse_scene};
 use ecp::solvers::{BackendOptions, Registry};
 use nalgebra::Vector3;
@@ -850,18 +853,40 @@ fn one_pairs_friction_set_between_steps() {
 // Issue 16: the 8-body pile (a wall, a pusher, six boxes, one stacked, an L)
 // ---------------------------------------------------------------------------------------------
 
-/// The pile of issue 16 (`tests/bodies_regressions/pile.toml`) to its end, every step converged
-/// and no two bodies overlapping (the step-end check): at step 53 parry's narrow phase called C
-/// resting on B "apart" and C sank into B. At the end, C still rests on B and E on D, all moving
-/// with the pusher. Slow (~2.5 min in release, the bulk in one step solved by substeps); run with
-/// `cargo test --release -p ecp --test bodies -- --ignored pile --nocapture`.
+/// The pile of issue 16 (`tests/bodies_regressions/pile.toml`) to its end as `ecp run` runs it
+/// (Newton with the driver's fallbacks: step 62 is solved only by the h/2 substeps), every step
+/// converged and no two bodies overlapping (the step-end check): at step 53 parry's narrow phase
+/// called C resting on B "apart" and C sank into B. At the end, C still rests on B and E on D,
+/// all moving with the pusher. Slow (~2.5 min in release, the bulk in the step solved by
+/// substeps); run with `cargo test --release -p ecp --test bodies -- --ignored pile --nocapture`.
 #[test]
 #[ignore]
 fn issue16_pile_runs_to_the_end() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/bodies_regressions/pile.toml");
     let file = load_scene(&path).unwrap_or_else(|e| panic!("pile: {e}"));
-    let recs = run(file.scene, "newton", None);
+    let dir = std::env::temp_dir().join(format!("ecp-pile-{}", std::process::id()));
+    let options = RunOptions {
+        out_dir: dir.clone(),
+        solver: Some("newton".to_string()),
+        plots: false,
+        ..RunOptions::default()
+    };
+    let outcome = run_scene(&file, &options, |_| {}).unwrap_or_else(|e| panic!("pile: {e}"));
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(
+        outcome.succeeded(),
+        "pile: {} failed steps, {:?}",
+        outcome.summary.failed_steps,
+        outcome.stepper_error
+    );
+    let recs = &outcome.records;
     assert_eq!(recs.len(), 120);
+    assert!(recs.iter().all(|r| r.converged));
+    let fallbacks = recs
+        .iter()
+        .filter(|r| r.method != StepMethod::Direct)
+        .count();
+    eprintln!("pile, newton: 120 steps converged, {fallbacks} by a fallback");
     let end = &recs.last().expect("steps").bodies;
     let (b, c, d, e) = (&end[1], &end[2], &end[3], &end[4]);
     close("C on B", c.x.z - b.x.z, 0.2, 1e-9);
