@@ -860,7 +860,7 @@ fn one_pairs_friction_set_between_steps() {
 /// all moving with the pusher. Slow (~2.5 min in release, the bulk in the step solved by
 /// substeps); run with `cargo test --release -p ecp --test bodies -- --ignored pile --nocapture`.
 #[test]
-#[ignore]
+#[ignore = "slow (about 70 s in release): cargo test --release -p ecp --test bodies -- --ignored pile"]
 fn issue16_pile_runs_to_the_end() {
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/bodies_regressions/pile.toml");
     let file = load_scene(&path).unwrap_or_else(|e| panic!("pile: {e}"));

@@ -28,17 +28,8 @@ const LOADED: f64 = 1e-9;
 /// Labels are drawn on the bodies when there are at most this many.
 const MAX_LABELS: usize = 12;
 
-/// Colours of dynamic bodies, in scene order (cycled).
-const BODY_COLORS: [RGBColor; 8] = [
-    RGBColor(66, 133, 244),
-    RGBColor(219, 68, 55),
-    RGBColor(15, 157, 88),
-    RGBColor(171, 71, 188),
-    RGBColor(0, 172, 193),
-    RGBColor(255, 112, 67),
-    RGBColor(124, 179, 66),
-    RGBColor(92, 107, 192),
-];
+/// Colours of dynamic bodies, in scene order (cycled): the plots' palette.
+const BODY_COLORS: [RGBColor; 10] = crate::plots::PALETTE;
 const FIXED_COLOR: RGBColor = RGBColor(150, 150, 150);
 const KINEMATIC_COLOR: RGBColor = RGBColor(230, 170, 40);
 const GROUND_COLOR: RGBColor = RGBColor(222, 214, 196);

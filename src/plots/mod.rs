@@ -42,7 +42,7 @@ const LEGEND_WIDTH: u32 = 210;
 const FOOTPRINT_INSTANTS: usize = 5;
 
 /// Matplotlib's "tab10" palette: distinct hues that stay apart when lightened.
-const PALETTE: [RGBColor; 10] = [
+pub(crate) const PALETTE: [RGBColor; 10] = [
     RGBColor(31, 119, 180),
     RGBColor(255, 127, 14),
     RGBColor(44, 160, 44),

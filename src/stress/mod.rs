@@ -54,6 +54,19 @@ pub struct SuiteOptions {
     pub fallbacks: bool,
 }
 
+impl SuiteOptions {
+    /// The run of one scene (file stem `stem`) with one backend under these options.
+    fn run_config(&self, solver: &str, stem: &str) -> RunConfig {
+        RunConfig {
+            solver: solver.to_string(),
+            steps: self.steps,
+            time_limit: self.time_limit,
+            fallbacks: self.fallbacks,
+            out_dir: self.out_dir.join("runs").join(solver).join(stem),
+        }
+    }
+}
+
 /// Writes `scenes` into `out_dir/scenes/` and runs each with every backend of `options`;
 /// `on_result` sees each result as it arrives. The results come back ordered by scene, then
 /// backend in the order given.
@@ -97,13 +110,7 @@ pub fn run_paths(
                         break;
                     };
                     let stem = path.file_stem().and_then(|s| s.to_str()).unwrap_or("scene");
-                    let config = RunConfig {
-                        solver: solver.to_string(),
-                        steps: options.steps,
-                        time_limit: options.time_limit,
-                        fallbacks: options.fallbacks,
-                        out_dir: options.out_dir.join("runs").join(solver).join(stem),
-                    };
+                    let config = options.run_config(solver, stem);
                     let r = run_file(path, &config);
                     on_result(&r);
                     let order = options.solvers.iter().position(|s| *s == solver);
@@ -153,13 +160,7 @@ fn retime(paths: &[PathBuf], options: &SuiteOptions, results: &mut [RunResult]) 
             .unwrap_or("scene");
         for o in std::iter::once(path_order).chain(slow) {
             let solver = &options.solvers[o];
-            let config = RunConfig {
-                solver: solver.clone(),
-                steps: options.steps,
-                time_limit: options.time_limit,
-                fallbacks: options.fallbacks,
-                out_dir: options.out_dir.join("runs").join(solver).join(stem),
-            };
+            let config = options.run_config(solver, stem);
             for _ in 0..RETIME_REPEATS {
                 let again = run_file(scene, &config);
                 let r = &mut results[base + o];
