@@ -6,6 +6,7 @@
     python3 benches/mujoco_bin.py [--scenes bin20,bin50] [--ecp target/release/ecp] [--repeats 3]
     python3 benches/mujoco_bin.py --scenes bin50 --ecp-runs bin50=out/bin50   # ecp's from a run
     python3 benches/mujoco_bin.py --scenes bin50 --parts 1,2,5,10,20,50 --solvers none
+    python3 benches/mujoco_bin.py --scenes bin50 --parts 1,2,5,10,20,50 --state settled
 
 Both read `scenes/binN.toml`: the ground plane, the four fixed walls, each part's boxes (sizes
 and centres, the mass spread over the boxes by volume: the uniform density ecp's `inertia =
@@ -23,6 +24,9 @@ MuJoCo: the time of each `mj_step` (perf_counter_ns around the call), median ove
 have contacts, the median over the settled steps 150-200 (the state `cargo bench --bench bodies`
 times), and the mean over all steps, the best of `--repeats` runs. `--parts N,...`: MuJoCo on the
 first N parts of each scene (the lowest layers first, as `bin_step(n)` of the benchmarks).
+`--state LABEL`: MuJoCo only, from a state of `benches/bin50_states.csv` (the states
+`cargo bench --bench bodies` starts from: `settled`, the parts at rest in a flat stack, or
+`falling`) instead of the scene's initial one, `STATE_STEPS` steps, the median over all of them.
 
 The two models are not the same physics (MuJoCo: soft point contacts with its default
 solref/solimp, several per touching pair of boxes; ecp: one hard contact per pair of hulls at the
@@ -31,6 +35,7 @@ not their trajectories.
 """
 
 import argparse
+import csv
 import json
 import math
 import os
@@ -42,7 +47,8 @@ import time
 import tomllib
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-SETTLED_FROM = 150  # the first settled step (from 1), as `bin_step(n)` of benches/bodies.rs
+SETTLED_FROM = 150  # the first settled step (from 1) of a run from the scene's initial state
+STATE_STEPS = 50  # steps from a stored state (`--state`)
 
 
 def quat_rpy(rpy_deg):
@@ -118,9 +124,28 @@ def mjcf(scene):
     return "\n".join(out)
 
 
-def mujoco_run(mujoco, xml, steps):
+def read_state(label, names):
+    """The poses (x, y, z, qw, qx, qy, qz) labelled `label` in benches/bin50_states.csv, by name."""
+    poses = {}
+    with open(os.path.join(ROOT, "benches", "bin50_states.csv")) as f:
+        rows = csv.DictReader(line for line in f if not line.startswith("#"))
+        for r in rows:
+            if r["state"] == label:
+                poses[r["body"]] = [float(r[c]) for c in ("x", "y", "z", "qw", "qx", "qy", "qz")]
+    missing = [n for n in names if n not in poses]
+    if missing:
+        sys.exit(f"benches/bin50_states.csv: no {label} state of {missing}")
+    return [poses[n] for n in names]
+
+
+def mujoco_run(mujoco, xml, steps, poses=None):
     model = mujoco.MjModel.from_xml_string(xml)
     data = mujoco.MjData(model)
+    if poses is not None:
+        # One free joint per part, in scene order: CM position, then the quaternion (w, x, y, z).
+        for i, pose in enumerate(poses):
+            data.qpos[7 * i : 7 * i + 7] = pose
+        mujoco.mj_forward(model, data)
     times, contact = [], []
     for _ in range(steps):
         t0 = time.perf_counter_ns()
@@ -129,7 +154,7 @@ def mujoco_run(mujoco, xml, steps):
         times.append(elapsed)
         if data.ncon > 0:
             contact.append(elapsed)
-    settled = statistics.median(times[SETTLED_FROM - 1:])
+    settled = statistics.median(times[SETTLED_FROM - 1:] if poses is None else times)
     return statistics.median(contact), statistics.mean(times), len(contact), data.ncon, settled
 
 
@@ -165,10 +190,11 @@ def main():
     parser.add_argument("--solvers", default="newton,path", help="ecp backends to run, or none")
     parser.add_argument("--ecp-runs", default="", help="NAME=DIR,...: ecp's figures from these runs")
     parser.add_argument("--parts", default="", help="N,...: MuJoCo on the first N parts of each scene")
+    parser.add_argument("--state", default="", help="settled|falling: MuJoCo from that stored state")
     args = parser.parse_args()
     if args.repeats < 1:
         parser.error("--repeats must be at least 1")
-    solvers = [] if args.solvers == "none" else args.solvers.split(",")
+    solvers = [] if args.solvers == "none" or args.state else args.solvers.split(",")
     runs_of = dict(item.split("=", 1) for item in args.ecp_runs.split(",") if item)
     if solvers and not os.path.exists(args.ecp):
         sys.exit(f"no ecp binary at {args.ecp}: run `cargo build --release --bin ecp` first "
@@ -189,13 +215,20 @@ def main():
         parts = [int(n) for n in args.parts.split(",")] if args.parts else [None]
         for n in parts:
             label = name if n is None else f"{name}, first {n}"
-            xml = mjcf(scene if n is None else first_parts(scene, n))
-            runs = [mujoco_run(mujoco, xml, steps) for _ in range(args.repeats)]
+            part_scene = scene if n is None else first_parts(scene, n)
+            xml = mjcf(part_scene)
+            poses = None
+            if args.state:
+                label += f", from {args.state}"
+                names = [b["name"] for b in part_scene["bodies"] if b.get("kind", "dynamic") == "dynamic"]
+                poses = read_state(args.state, names)
+            n_steps = STATE_STEPS if poses is not None else steps
+            runs = [mujoco_run(mujoco, xml, n_steps, poses) for _ in range(args.repeats)]
             mj = min(r[0] for r in runs)
             mj_mean = min(r[1] for r in runs)
             mj_settled = min(r[4] for r in runs)
             print(f"| {label} | MuJoCo {mujoco.__version__} (elliptic, condim 4) | {mj:.1f} | "
-                  f"{mj_settled:.1f} | {mj_mean:.1f} | 1.00 | {runs[0][2]} of {steps} steps with "
+                  f"{mj_settled:.1f} | {mj_mean:.1f} | 1.00 | {runs[0][2]} of {n_steps} steps with "
                   f"contacts, {runs[0][3]} contacts at the end |")
         if name in runs_of:
             solver, med, wall = ecp_summary(runs_of[name])
