@@ -35,8 +35,11 @@ const PENETRATION: f64 = 1e-8;
 /// Gains outside the openings allowed (of the energy scale), as `tests/user_scenes.rs`.
 const ENERGY_GAIN: f64 = 1e-9;
 
+/// The column indices of a CSV file by name.
+type Columns = HashMap<String, usize>;
+
 /// A CSV file as its header and rows (no quoting: the run's files have none).
-fn read_csv(path: &Path) -> Result<(HashMap<String, usize>, Vec<Vec<String>>), String> {
+fn read_csv(path: &Path) -> Result<(Columns, Vec<Vec<String>>), String> {
     let text = std::fs::read_to_string(path).map_err(|e| format!("{}: {e}", path.display()))?;
     let mut lines = text.lines();
     let header = lines
@@ -53,27 +56,19 @@ fn read_csv(path: &Path) -> Result<(HashMap<String, usize>, Vec<Vec<String>>), S
     Ok((cols, rows))
 }
 
-fn field<'a>(
-    cols: &HashMap<String, usize>,
-    row: &'a [String],
-    name: &str,
-) -> Result<&'a str, String> {
+fn field<'a>(cols: &Columns, row: &'a [String], name: &str) -> Result<&'a str, String> {
     cols.get(name)
         .and_then(|&i| row.get(i))
         .map(String::as_str)
         .ok_or_else(|| format!("no column {name}"))
 }
 
-fn num(cols: &HashMap<String, usize>, row: &[String], name: &str) -> Result<f64, String> {
+fn num(cols: &Columns, row: &[String], name: &str) -> Result<f64, String> {
     let s = field(cols, row, name)?;
     s.parse().map_err(|e| format!("{name} = {s:?}: {e}"))
 }
 
-fn vec3(
-    cols: &HashMap<String, usize>,
-    row: &[String],
-    names: [&str; 3],
-) -> Result<Vector3<f64>, String> {
+fn vec3(cols: &Columns, row: &[String], names: [&str; 3]) -> Result<Vector3<f64>, String> {
     Ok(Vector3::new(
         num(cols, row, names[0])?,
         num(cols, row, names[1])?,
