@@ -15,12 +15,17 @@
 
 use std::path::Path;
 
+use ecp::formulations::Simulation;
 use ecp::formulations::bodies::overlap::RealPieces;
 use ecp::formulations::{StepMethod, StepRecord};
 use ecp::run::{RunOptions, run_scene};
 use ecp::scene::load_scene;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::stress::measure_records;
 use ecp::stress::runner::penetration;
+
+#[path = "../benches/common/bin_state.rs"]
+mod bin_state;
 
 /// Penetration allowed between two real bodies and into a half-space (m).
 const PENETRATION: f64 = 1e-8;
@@ -209,4 +214,60 @@ fn bin20_newton() {
 #[ignore = "release: cargo test --release -p ecp --test user_scenes -- --include-ignored"]
 fn bin20_path() {
     bin("bin20", "path");
+}
+
+/// The bin states the bodies benchmarks start from (`benches/bin50_states.csv`) fit the scene:
+/// every part named as in `scenes/bin50.toml`, in order, with a unit quaternion, no two real
+/// bodies overlapping and nothing in the ground by more than 1e-8 m; the settled stack at rest,
+/// and a step from it converges and moves no part by more than 1 µm.
+#[test]
+fn bin50_states_fit_the_scene() {
+    let scene = bin_state::bin50();
+    let pieces = RealPieces::of(&scene);
+    for label in [bin_state::FALLING, bin_state::SETTLED] {
+        let states = bin_state::states_at(label).unwrap_or_else(|e| panic!("{e}"));
+        let names: Vec<&str> = states.iter().map(|(n, _)| n.as_str()).collect();
+        let want: Vec<&str> = scene.bodies.iter().map(|b| b.name.as_str()).collect();
+        assert_eq!(names, want, "{label}");
+        let states: Vec<_> = states.into_iter().map(|(_, s)| s).collect();
+        for (b, s) in scene.bodies.iter().zip(&states) {
+            assert!(
+                (s.q.norm() - 1.0).abs() < 1e-12,
+                "{label}: {} |q| = {}",
+                b.name,
+                s.q.norm()
+            );
+        }
+        // The walls are fixed: any time will do.
+        if let Some(o) = pieces.deepest_overlap(&scene, &states, 0.0, PENETRATION) {
+            panic!("{label}: {} and {} overlap by {:e} m", o.a, o.b, o.depth);
+        }
+        let ground = penetration(&scene, &states);
+        assert!(
+            ground <= PENETRATION,
+            "{label}: {ground:e} m into the ground"
+        );
+    }
+    let settled = bin_state::bin_from(50, bin_state::SETTLED).unwrap_or_else(|e| panic!("{e}"));
+    let vmax = settled
+        .bodies
+        .iter()
+        .map(|b| b.initial.v.norm() + b.initial.w.norm())
+        .fold(0.0, f64::max);
+    assert!(vmax == 0.0, "the settled bin moves ({vmax})");
+    let start: Vec<_> = settled.bodies.iter().map(|b| b.initial.x).collect();
+    let mut sim = Simulation::with_formulation(settled, "bodies").unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let r = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+    assert!(r.converged, "the step after the settled state");
+    let moved = r
+        .bodies
+        .iter()
+        .zip(&start)
+        .map(|(s, x)| (s.x - x).norm())
+        .fold(0.0, f64::max);
+    assert!(
+        moved < 1e-4,
+        "a part moved {moved} m in the step after the settled state"
+    );
 }
