@@ -51,6 +51,11 @@ pub struct SmoothingSettings {
     /// own limits. The registry sets it to a user's `max_iterations`, so that a backend built
     /// with an iteration limit keeps to it in the continuation too.
     pub max_iterations: Option<usize>,
+    /// Give up after this many stages in a row that did not converge and were kept (no cut of
+    /// the reduction left): the continuation has lost the path, and its remaining stages would
+    /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`).
+    /// `None` (default): go on to the last stage. The Newton backend sets it.
+    pub max_failed_stages: Option<usize>,
 }
 
 impl Default for SmoothingSettings {
@@ -62,6 +67,7 @@ impl Default for SmoothingSettings {
             stage_iterations: 30,
             max_cuts: 4,
             max_iterations: None,
+            max_failed_stages: None,
         }
     }
 }
@@ -131,6 +137,8 @@ pub fn continuation(
     let mut good: Option<(f64, Vec<f64>)> = None;
     let mut theta = settings.reduction;
     let mut cuts = 0usize;
+    // Unconverged stages kept in a row.
+    let mut failed_in_a_row = 0usize;
     let within_budget = |iterations: usize| settings.max_iterations.is_none_or(|m| iterations < m);
     while mu.is_finite()
         && mu > tolerance
@@ -167,13 +175,21 @@ pub fn continuation(
         }
         if converged {
             cuts = 0;
+            failed_in_a_row = 0;
             theta = (theta * theta).max(settings.reduction);
             good = Some((mu, z.clone()));
         } else {
             good = None;
+            failed_in_a_row += 1;
         }
         end.z = z;
         mu *= theta;
+        if settings
+            .max_failed_stages
+            .is_some_and(|m| failed_in_a_row >= m)
+        {
+            break;
+        }
     }
     Ok(end)
 }
