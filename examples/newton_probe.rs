@@ -2,7 +2,7 @@
 //!
 //! ```text
 //! cargo run --release --example newton_probe -- SCENE.toml [--formulation F] [--steps N]
-//!     [--min-ms X] [--set NAME=VALUE ..] [--verbose]
+//!     [--min-ms X] [--set NAME=VALUE ..] [--verbose] [--dump FILE]
 //! ```
 //!
 //! runs the scene with the Newton backend alone (no fallbacks, going on past failed steps, as
@@ -10,7 +10,8 @@
 //! with the solver's profile on ([`NewtonSolver::with_profile`]), and prints every step whose
 //! solve took at least `--min-ms` (default 5): iterations by attempt, LU and QR factorisations,
 //! damping trials, evaluations of `F` and the time per phase (with `--verbose` also the last
-//! attempt's counters); then the totals. `--set` changes
+//! attempt's counters); then the totals. `--dump` writes every step's body states (x, q, v, ω),
+//! one line a step, to compare the trajectories of two variants. `--set` changes
 //! a Newton setting from its default (see `set` below for the names), to compare variants.
 use std::process::ExitCode;
 
@@ -23,6 +24,7 @@ fn main() -> ExitCode {
     let (mut path, mut formulation, mut steps, mut min_ms) = (None, "hull".to_string(), None, 5.0);
     let mut sets = Vec::new();
     let mut verbose = false;
+    let mut dump = None;
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_default();
         match a.as_str() {
@@ -31,6 +33,7 @@ fn main() -> ExitCode {
             "--min-ms" => min_ms = value().parse().unwrap_or(min_ms),
             "--set" => sets.push(value()),
             "--verbose" => verbose = true,
+            "--dump" => dump = Some(value()),
             _ => path = Some(a),
         }
     }
@@ -84,6 +87,7 @@ fn main() -> ExitCode {
         names.join(" ")
     );
     let (mut total, mut failed, mut wall) = (NewtonProfile::default(), 0usize, 0.0f64);
+    let mut states = String::new();
     for step in 1..=planned {
         let rec = match sim.step(&mut solver) {
             Ok(r) => r,
@@ -120,6 +124,25 @@ fn main() -> ExitCode {
             }
         }
         total.add(&p);
+        if dump.is_some() {
+            for b in &rec.bodies {
+                for v in
+                    b.x.iter()
+                        .chain(b.q.iter())
+                        .chain(b.v.iter())
+                        .chain(b.w.iter())
+                {
+                    states.push_str(&format!("{v:e} "));
+                }
+            }
+            states.push('\n');
+        }
+    }
+    if let Some(file) = &dump
+        && let Err(e) = std::fs::write(file, &states)
+    {
+        eprintln!("{file}: {e}");
+        return ExitCode::FAILURE;
     }
     let phases: Vec<String> = total
         .ns
@@ -159,6 +182,7 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "stall_reduction" => s.stall_reduction = f()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,
+        "smoothing_first" => s.smoothing_first = b()?,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),
         "smoothing" => {
             if !b()? {

@@ -147,6 +147,11 @@ pub struct NewtonSettings {
     /// (`docs/newton.md#damped-restart`). It runs only after the plain iteration has
     /// failed, so steps the plain iteration solves are unchanged. `None` turns it off. Default `Some(0.1)`.
     pub damped_restart: Option<f64>,
+    /// Run the smoothing continuation before the damped plain iteration (instead of after it):
+    /// with [`SmoothingSettings::max_failed_stages`] a failing continuation is no longer the
+    /// most expensive attempt, and where the plain iteration stalls the continuation usually
+    /// solves the step in a few dozen iterations (`docs/newton.md#wall-time`). Default `true`.
+    pub smoothing_first: bool,
     /// Stall test of one iteration: it stops (`stagnated`) when its best natural residual has
     /// not fallen below [`NewtonSettings::stall_reduction`] times its value this many
     /// iterations earlier, so that a solve stuck far from a solution passes to its restarts
@@ -191,6 +196,7 @@ impl Default for NewtonSettings {
                 ..SmoothingSettings::default()
             }),
             damped_restart: Some(0.1),
+            smoothing_first: true,
             stall_window: 30,
             stall_reduction: 0.5,
             scene_scales: true,
@@ -553,10 +559,11 @@ impl McpSolver for NewtonSolver {
 }
 
 impl NewtonSolver {
-    /// The attempts from `z0`, cheapest first (`docs/newton.md#wall-time`): the plain
-    /// iteration; the plain iteration with the damped restart's initial damping; the smoothing
-    /// continuation; the continuation with that damping. The first that converges is returned
-    /// (its iterations counting the failed attempts'), else the best end point.
+    /// The attempts from `z0` (`docs/newton.md#wall-time`): the plain iteration; the smoothing
+    /// continuation; the plain iteration with the damped restart's initial damping (these two
+    /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
+    /// that damping. The first that converges is returned (its iterations counting the failed
+    /// attempts'), else the best end point.
     fn solve_restarted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let damping = self.settings.damped_restart;
         let smoothing = self.settings.smoothing.is_some();
@@ -566,18 +573,24 @@ impl NewtonSolver {
             r => return r,
         };
         let mut spent = best.summary.iterations;
-        let attempts = [
-            (damping.is_some(), false),
-            (smoothing, true),
-            (smoothing && damping.is_some(), true),
+        // (attempt index of the profile, runs, smoothed, damped)
+        let damped_plain = (1, damping.is_some(), false, true);
+        let smoothed = (2, smoothing, true, false);
+        let mut attempts = [
+            damped_plain,
+            smoothed,
+            (3, smoothing && damping.is_some(), true, true),
         ];
-        for (i, (run, smoothed)) in attempts.into_iter().enumerate() {
+        if self.settings.smoothing_first {
+            attempts[..2].swap(0, 1);
+        }
+        for (i, run, smoothed, damped) in attempts {
             if !run {
                 continue;
             }
-            self.attempt = i + 1;
+            self.attempt = i;
             let saved = self.settings.lm_initial_damping;
-            if i != 1 {
+            if damped {
                 self.settings.lm_initial_damping = damping.unwrap_or(saved);
             }
             let result = if smoothed {

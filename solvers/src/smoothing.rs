@@ -186,7 +186,7 @@ pub fn continuation(
         mu *= theta;
         if settings
             .max_failed_stages
-            .is_some_and(|m| failed_in_a_row >= m)
+            .is_some_and(|m| failed_in_a_row > 0 && failed_in_a_row >= m)
         {
             break;
         }
@@ -305,6 +305,55 @@ impl Smoothed<'_> {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
+
+    /// A continuation whose stages never converge runs to its last stage without
+    /// `max_failed_stages`, and stops after that many stages with it.
+    #[test]
+    fn a_continuation_that_lost_the_path_stops_after_max_failed_stages() {
+        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] - 1.0,
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        // A stage that takes 3 iterations and fails (its point: the start).
+        let failing = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
+            let report = SolveReport {
+                solver: "test",
+                termination: Termination::MaxIterations,
+                tolerance: 0.0,
+                iterations: 3,
+                f_evals: 0,
+                jac_evals: 0,
+                started: std::time::Instant::now(),
+                trace: Vec::new(),
+                counters: Counters::new(),
+            };
+            match finish_solve(problem, z.to_vec(), report) {
+                Ok(sol) => Err(SolveError::NotConverged {
+                    best: Box::new(sol),
+                }),
+                e => e,
+            }
+        };
+        let run = |max_failed_stages| {
+            let settings = SmoothingSettings {
+                max_failed_stages,
+                ..SmoothingSettings::default()
+            };
+            continuation(&mcp, &[5.0], &settings, 1e-10, failing, || false)
+                .unwrap_or_else(|e| panic!("{e}"))
+        };
+        // μ₀ = 4 (the natural residual at 5) halves each stage down to 1e-10: 36 stages.
+        let all = run(None);
+        assert_eq!(all.stages, 36);
+        assert_eq!(all.iterations, 3 * 36);
+        let cut = run(Some(4));
+        assert_eq!(cut.stages, 4);
+        assert_eq!(cut.iterations, 12);
+    }
 
     /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0` smoothed: `G_μ = 0` at `z (z − 1) = μ²`, i.e.
     /// `z = (1 + √(1 + 4μ²)) / 2`, and the Jacobian matches a central difference.
