@@ -34,6 +34,7 @@
 
 #![warn(missing_docs)]
 
+mod cholesky;
 pub mod conic;
 pub mod newton;
 mod normal_equations;

@@ -48,8 +48,11 @@ use ecp_model::{
 use crate::normal_equations::NormalEquations;
 
 mod min_norm;
+mod profile;
 use crate::smoothing::{SmoothingSettings, continuation};
 use min_norm::MinNorm;
+use profile::Clock;
+pub use profile::{NewtonProfile, Phase};
 
 /// Settings of the semismooth Newton backend, with documented defaults.
 #[derive(Clone, Debug, PartialEq)]
@@ -73,6 +76,10 @@ pub struct NewtonSettings {
     pub lm_initial_damping: f64,
     /// Damping trials per iteration before the backtracking fall-backs. Default 30.
     pub max_lm_trials: usize,
+    /// Factorise the Levenberg–Marquardt matrix `HᵀH + λI` of dense problems by Cholesky
+    /// instead of LU (half the arithmetic; `HᵀH` is formed once per iteration either way,
+    /// `docs/newton.md#wall-time`). Default `false`.
+    pub lm_cholesky: bool,
     /// Largest dimension solved with dense LU; larger problems use sparse LU. Default 120.
     pub dense_max: usize,
     /// When the LU of `H` is singular or its step fails the descent test, try the
@@ -127,7 +134,7 @@ pub struct NewtonSettings {
     /// (`(z_i − l_i) F_i = μ²`), for `μ = μ₀, θμ₀, θ²μ₀, …` down to the tolerance, each stage
     /// from the last one's point, then on the MCP from there. It gets across the local
     /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
-    /// within a step. `None` turns it off. Default `Some(SmoothingSettings::default())`.
+    /// within a step. `None` turns it off. Default: `SmoothingSettings::default()` with `max_failed_stages = Some(FAILED_STAGES)`.
     pub smoothing: Option<SmoothingSettings>,
     /// Initial Levenberg–Marquardt damping of the restarts (instead of
     /// [`NewtonSettings::lm_initial_damping`]): after a failed plain iteration, the plain
@@ -140,6 +147,14 @@ pub struct NewtonSettings {
     /// (`docs/newton.md#damped-restart`). It runs only after the plain iteration has
     /// failed, so steps the plain iteration solves are unchanged. `None` turns it off. Default `Some(0.1)`.
     pub damped_restart: Option<f64>,
+    /// Run the smoothing continuation before the damped plain iteration (instead of after it):
+    /// with [`SmoothingSettings::max_failed_stages`] a failing continuation is no longer the
+    /// most expensive attempt, and where the plain iteration stalls the continuation usually
+    /// solves the step in a few dozen iterations (`docs/newton.md#wall-time`). Dense problems
+    /// only (`n ≤ dense_max`): on bin20's 659 unknowns the damped plain iteration solved steps
+    /// 8, 9 and 15 where the continuation first took 1215, 520 and 151 iterations, each with a
+    /// sparse LU of the augmented Levenberg–Marquardt system. Default `true`.
+    pub smoothing_first: bool,
     /// Stall test of one iteration: it stops (`stagnated`) when its best natural residual has
     /// not fallen below [`NewtonSettings::stall_reduction`] times its value this many
     /// iterations earlier, so that a solve stuck far from a solution passes to its restarts
@@ -169,6 +184,7 @@ impl Default for NewtonSettings {
             descent_p: 2.1,
             lm_initial_damping: 1e-3,
             max_lm_trials: 30,
+            lm_cholesky: false,
             dense_max: 120,
             min_norm_step: true,
             rank_tolerance: 1e-10,
@@ -178,8 +194,12 @@ impl Default for NewtonSettings {
             newton_line_search: true,
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
-            smoothing: Some(SmoothingSettings::default()),
+            smoothing: Some(SmoothingSettings {
+                max_failed_stages: Some(FAILED_STAGES),
+                ..SmoothingSettings::default()
+            }),
             damped_restart: Some(0.1),
+            smoothing_first: true,
             stall_window: 30,
             stall_reduction: 0.5,
             scene_scales: true,
@@ -187,6 +207,10 @@ impl Default for NewtonSettings {
         }
     }
 }
+
+/// The Newton backend's [`SmoothingSettings::max_failed_stages`]: a continuation that has kept
+/// this many unconverged stages in a row stops (`docs/newton.md#wall-time`).
+pub const FAILED_STAGES: usize = 4;
 
 /// Buffers reused across iterations and solves (no allocation per iteration).
 #[derive(Default)]
@@ -272,6 +296,10 @@ pub struct NewtonSolver {
     min_norm: MinNorm,
     pattern: Option<Arc<CscPattern>>,
     observer: Option<Box<dyn Observer>>,
+    /// Counts and phase times, when profiling is on.
+    profile: Option<NewtonProfile>,
+    /// The attempt running (index into [`NewtonProfile::attempt_iterations`]).
+    attempt: usize,
 }
 
 impl NewtonSolver {
@@ -285,7 +313,22 @@ impl NewtonSolver {
             min_norm: MinNorm::default(),
             pattern: None,
             observer: None,
+            profile: None,
+            attempt: 0,
         }
+    }
+    /// Turns on the profile of factorisations, damping trials and time per phase
+    /// ([`NewtonProfile`]; it reads the clock several times per iteration).
+    pub fn with_profile(mut self) -> Self {
+        self.profile = Some(NewtonProfile::default());
+        self
+    }
+    /// The profile summed since the last call (zero when profiling is off), and a fresh one.
+    pub fn take_profile(&mut self) -> NewtonProfile {
+        self.profile
+            .as_mut()
+            .map(std::mem::take)
+            .unwrap_or_default()
     }
     /// Attaches an observer that sees every iteration.
     pub fn with_observer(mut self, observer: Box<dyn Observer>) -> Self {
@@ -519,29 +562,38 @@ impl McpSolver for NewtonSolver {
 }
 
 impl NewtonSolver {
-    /// The attempts from `z0`, cheapest first (`docs/newton.md#wall-time`): the plain
-    /// iteration; the plain iteration with the damped restart's initial damping; the smoothing
-    /// continuation; the continuation with that damping. The first that converges is returned
-    /// (its iterations counting the failed attempts'), else the best end point.
+    /// The attempts from `z0` (`docs/newton.md#wall-time`): the plain iteration; the smoothing
+    /// continuation; the plain iteration with the damped restart's initial damping (these two
+    /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
+    /// that damping. The first that converges is returned (its iterations counting the failed
+    /// attempts'), else the best end point.
     fn solve_restarted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let damping = self.settings.damped_restart;
         let smoothing = self.settings.smoothing.is_some();
+        self.attempt = 0;
         let mut best = match self.solve_plain(mcp, z0) {
             Err(SolveError::NotConverged { best }) => best,
             r => return r,
         };
         let mut spent = best.summary.iterations;
-        let attempts = [
-            (damping.is_some(), false),
-            (smoothing, true),
-            (smoothing && damping.is_some(), true),
+        // (attempt index of the profile, runs, smoothed, damped)
+        let damped_plain = (1, damping.is_some(), false, true);
+        let smoothed = (2, smoothing, true, false);
+        let mut attempts = [
+            damped_plain,
+            smoothed,
+            (3, smoothing && damping.is_some(), true, true),
         ];
-        for (i, (run, smoothed)) in attempts.into_iter().enumerate() {
+        if self.settings.smoothing_first && mcp.dim() <= self.settings.dense_max {
+            attempts[..2].swap(0, 1);
+        }
+        for (i, run, smoothed, damped) in attempts {
             if !run {
                 continue;
             }
+            self.attempt = i;
             let saved = self.settings.lm_initial_damping;
-            if i != 1 {
+            if damped {
                 self.settings.lm_initial_damping = damping.unwrap_or(saved);
             }
             let result = if smoothed {
@@ -671,6 +723,8 @@ impl NewtonSolver {
         let mut watchdog_ceiling = f64::INFINITY;
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
+        let mut prof = NewtonProfile::default();
+        let mut clock = Clock::new(self.profile.is_some());
 
         ws.z.copy_from_slice(z0);
         mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
@@ -692,6 +746,7 @@ impl NewtonSolver {
         if !psi.is_finite() {
             termination = Termination::NonFiniteFunction;
         }
+        clock.lap(&mut prof, Phase::Jacobian);
 
         while termination == Termination::MaxIterations {
             if residual <= s.tolerance {
@@ -734,6 +789,7 @@ impl NewtonSolver {
             }
             // ∇Ψ = HᵀΦ.
             pattern.mul_transpose_vec(&ws.h, &ws.phi, &mut ws.grad);
+            clock.lap(&mut prof, Phase::Jacobian);
 
             // Newton direction, with the DFK descent test.
             let linear = self
@@ -763,6 +819,8 @@ impl NewtonSolver {
                 gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
             };
             newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
+            prof.lu_factorizations += 1;
+            clock.lap(&mut prof, Phase::NewtonDirection);
             let mut kind = StepKind::Newton;
             let mut accepted = None;
             if polishing {
@@ -812,6 +870,7 @@ impl NewtonSolver {
                     t *= s.backtrack;
                 }
             }
+            clock.lap(&mut prof, Phase::NewtonSearch);
             // Near a solution (natural residual ≤ min_norm_radius, or Ψ down by 1e6 from the
             // start) the minimum-norm step is taken as below. Farther out it is taken only when
             // it decreases Ψ fast (by half at least), without the watchdog or backtracking:
@@ -823,6 +882,7 @@ impl NewtonSolver {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
                 pattern.to_dense(&ws.h, &mut ws.dense);
+                prof.min_norm_factorizations += 1;
                 if self
                     .min_norm
                     .factor(n, &ws.dense, s.rank_tolerance)
@@ -874,20 +934,25 @@ impl NewtonSolver {
                     }
                 }
             }
+            clock.lap(&mut prof, Phase::MinNorm);
             if accepted.is_none() {
+                prof.lm_iterations += 1;
                 // Levenberg–Marquardt with an adaptive damping (Moré's update): solve
                 // (HᵀH + λI) d = −∇Ψ, accept when the actual decrease of Ψ is a fair share of the
                 // decrease predicted by the linear model ½‖Φ + H d‖².
-                if self.normal.as_ref().is_none_or(|ne| !ne.serves(&pattern)) {
-                    self.normal = NormalEquations::new(&pattern, s.dense_max).ok();
+                if self
+                    .normal
+                    .as_ref()
+                    .is_none_or(|ne| !ne.serves(&pattern, s.lm_cholesky))
+                {
+                    self.normal = NormalEquations::new(&pattern, s.dense_max, s.lm_cholesky).ok();
                 }
                 if let Some(ne) = self.normal.as_mut() {
+                    // HᵀH once per iteration; each damping trial only adds its λ and factorises.
+                    let max_diag = ne.form(&ws.h).max(1e-300);
                     for _ in 0..s.max_lm_trials {
-                        let mu = lm_mu;
-                        if ne
-                            .factor(&ws.h, |max_diag| mu * max_diag.max(1e-300))
-                            .is_err()
-                        {
+                        prof.lm_trials += 1;
+                        if ne.factor_damped(lm_mu * max_diag).is_err() {
                             lm_mu *= lm_growth;
                             lm_growth *= 2.0;
                             continue;
@@ -902,7 +967,9 @@ impl NewtonSolver {
                         }
                         pattern.mul_vec(&ws.h, &ws.d, &mut ws.hd);
                         let predicted = -(dot(&ws.grad, &ws.d) + 0.5 * dot(&ws.hd, &ws.hd));
+                        clock.lap(&mut prof, Phase::LmFactor);
                         let trial = try_step(mcp, ws, 1.0, l, u, &mut f_evals);
+                        clock.lap(&mut prof, Phase::LmTrial);
                         match trial {
                             Some(p) if predicted > 0.0 && psi - p >= 1e-4 * predicted => {
                                 let rho = (psi - p) / predicted;
@@ -925,6 +992,7 @@ impl NewtonSolver {
                     }
                 }
             }
+            clock.lap(&mut prof, Phase::LmFactor);
             if let Some((t, p)) = newton_search
                 && accepted.is_none_or(|(_, q)| p < q)
             {
@@ -1040,6 +1108,14 @@ impl NewtonSolver {
             if residual > s.tolerance && moved <= 4.0 * f64::EPSILON {
                 termination = Termination::Stagnated;
             }
+            clock.lap(&mut prof, Phase::Other);
+        }
+        if let Some(total) = self.profile.as_mut() {
+            prof.runs = 1;
+            prof.iterations = iterations;
+            prof.attempt_iterations[self.attempt.min(3)] = iterations;
+            prof.f_evals = f_evals;
+            total.add(&prof);
         }
         if termination == Termination::Converged || residual <= best_residual {
             ws.z_best.copy_from_slice(&ws.z);

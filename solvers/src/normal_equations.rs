@@ -17,12 +17,20 @@
 use ecp_model::CscPattern;
 use ecp_model::linalg::{LinalgError, LinearSolver};
 
+use crate::cholesky::Cholesky;
+
 /// `HᵀH + λI` for matrices `H` in a fixed pattern, with its own linear solver.
 pub(crate) struct NormalEquations {
     source: CscPattern,
     form: Form,
+    /// The system's values without the damping (`HᵀH`, or the augmented matrix with a zero
+    /// block), formed once per `H` by [`NormalEquations::form`].
+    base: Vec<f64>,
     values: Vec<f64>,
     solver: LinearSolver,
+    /// The dense Cholesky factorisation of the product and its dense matrix, when chosen
+    /// instead of the LU (`NewtonSettings::lm_cholesky`).
+    cholesky: Option<(Cholesky, Vec<f64>)>,
 }
 
 enum Form {
@@ -31,6 +39,8 @@ enum Form {
         /// Triples (position of H(k,i), position of H(k,j), position of (i,j) in the product).
         triples: Vec<(usize, usize, usize)>,
         diag: Vec<usize>,
+        /// The product's pattern.
+        pattern: CscPattern,
     },
     /// The augmented `2n × 2n` system of the module documentation.
     Augmented {
@@ -49,11 +59,22 @@ enum Form {
 }
 
 impl NormalEquations {
-    pub(crate) fn new(h: &CscPattern, dense_max: usize) -> Result<Self, LinalgError> {
+    /// The system for `H`'s pattern: the formed product when `n ≤ dense_max` (factorised by
+    /// dense Cholesky when `cholesky`, else by LU), else the augmented system.
+    pub(crate) fn new(
+        h: &CscPattern,
+        dense_max: usize,
+        cholesky: bool,
+    ) -> Result<Self, LinalgError> {
         if h.dim() > dense_max {
             Self::augmented(h)
         } else {
-            Self::product(h, dense_max)
+            let mut ne = Self::product(h, dense_max)?;
+            if cholesky {
+                let n = h.dim();
+                ne.cholesky = Some((Cholesky::default(), vec![0.0; n * n]));
+            }
+            Ok(ne)
         }
     }
 
@@ -92,9 +113,12 @@ impl NormalEquations {
             form: Form::Product {
                 triples,
                 diag: pattern.diag_pos().to_vec(),
+                pattern: pattern.clone(),
             },
+            base: vec![0.0; pattern.nnz()],
             values: vec![0.0; pattern.nnz()],
             solver,
+            cholesky: None,
         })
     }
 
@@ -133,68 +157,106 @@ impl NormalEquations {
                 col_ptr: cp.to_vec(),
                 rhs: vec![0.0; 2 * n],
             },
+            base: vec![0.0; pattern.nnz()],
             values: vec![0.0; pattern.nnz()],
             solver,
+            cholesky: None,
         })
     }
 
-    pub(crate) fn serves(&self, h: &CscPattern) -> bool {
+    /// Whether this system is for `h`'s pattern, factorised as asked.
+    pub(crate) fn serves(&self, h: &CscPattern, cholesky: bool) -> bool {
         &self.source == h
+            && (self.cholesky.is_some() == cholesky || matches!(self.form, Form::Augmented { .. }))
     }
 
     /// Factorises `HᵀH + λI` (or its augmented system) and returns the largest diagonal of
-    /// `HᵀH` (for scaling λ).
+    /// `HᵀH` (for scaling λ). The same as [`NormalEquations::form`] then
+    /// [`NormalEquations::factor_damped`].
+    #[cfg(test)]
     pub(crate) fn factor(
         &mut self,
         h: &[f64],
         lambda: impl Fn(f64) -> f64,
     ) -> Result<f64, LinalgError> {
-        self.values.fill(0.0);
+        let max_diag = self.form(h);
+        self.factor_damped(lambda(max_diag))?;
+        Ok(max_diag)
+    }
+
+    /// Forms the undamped system of `h` (`HᵀH`, or the augmented matrix with a zero damping
+    /// block) and returns the largest diagonal of `HᵀH`. Each damping trial of one iteration
+    /// then only adds its `λ` and factorises ([`NormalEquations::factor_damped`]).
+    pub(crate) fn form(&mut self, h: &[f64]) -> f64 {
+        self.base.fill(0.0);
         let max_diag = match &self.form {
-            Form::Product { triples, diag } => {
+            Form::Product { triples, diag, .. } => {
                 for &(pi, pj, pos) in triples {
-                    self.values[pos] += h[pi] * h[pj];
+                    self.base[pos] += h[pi] * h[pj];
                 }
-                let max_diag = diag.iter().map(|&p| self.values[p]).fold(0.0, f64::max);
-                let l = lambda(max_diag);
-                for &p in diag {
-                    self.values[p] += l;
-                }
-                max_diag
+                diag.iter().map(|&p| self.base[p]).fold(0.0, f64::max)
             }
             Form::Augmented {
                 places,
                 identity,
-                damping,
                 col_ptr,
                 ..
             } => {
                 for (&(top, bottom), &v) in places.iter().zip(h) {
-                    self.values[top] = v;
-                    self.values[bottom] = v;
+                    self.base[top] = v;
+                    self.base[bottom] = v;
                 }
-                let max_diag = col_ptr
+                for &p in identity {
+                    self.base[p] = 1.0;
+                }
+                col_ptr
                     .windows(2)
                     .map(|w| h[w[0]..w[1]].iter().map(|v| v * v).sum::<f64>())
-                    .fold(0.0, f64::max);
-                let l = lambda(max_diag);
-                for &p in identity {
-                    self.values[p] = 1.0;
+                    .fold(0.0, f64::max)
+            }
+        };
+        max_diag
+    }
+
+    /// Factorises the last formed system with damping `λ` (absolute).
+    pub(crate) fn factor_damped(&mut self, l: f64) -> Result<(), LinalgError> {
+        self.values.copy_from_slice(&self.base);
+        match &self.form {
+            Form::Product { diag, pattern, .. } => {
+                for &p in diag {
+                    self.values[p] += l;
                 }
+                if let Some((cholesky, dense)) = &mut self.cholesky {
+                    pattern.to_dense(&self.values, dense);
+                    return if cholesky.factor(pattern.dim(), dense) {
+                        Ok(())
+                    } else {
+                        Err(LinalgError::Singular { ratio: 0.0 })
+                    };
+                }
+            }
+            Form::Augmented { damping, .. } => {
                 for &p in damping {
                     self.values[p] = -l;
                 }
-                max_diag
             }
-        };
-        self.solver.factor(&self.values)?;
-        Ok(max_diag)
+        }
+        self.solver.factor(&self.values)
     }
 
     /// Solves `(HᵀH + λI) x = b` in place with the last factorisation.
     pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         match &mut self.form {
-            Form::Product { .. } => self.solver.solve_in_place(b),
+            Form::Product { .. } => match &self.cholesky {
+                Some((cholesky, _)) => {
+                    if cholesky.solve_in_place(b) {
+                        Ok(())
+                    } else {
+                        Err(LinalgError::NonFinite)
+                    }
+                }
+                None => self.solver.solve_in_place(b),
+            },
             Form::Augmented { n, rhs, .. } => {
                 let n = *n;
                 rhs[..n].fill(0.0);
@@ -237,9 +299,9 @@ mod tests {
             .collect();
         let b: Vec<f64> = (0..n).map(|i| (i as f64).sin()).collect();
         for lambda in [1e-6, 1e-2, 1.0] {
-            let solve = |dense_max: usize| {
-                let mut ne =
-                    NormalEquations::new(&pattern, dense_max).unwrap_or_else(|e| panic!("{e}"));
+            let solve = |dense_max: usize, cholesky: bool| {
+                let mut ne = NormalEquations::new(&pattern, dense_max, cholesky)
+                    .unwrap_or_else(|e| panic!("{e}"));
                 let d = ne
                     .factor(&h, |m| lambda * m)
                     .unwrap_or_else(|e| panic!("{e}"));
@@ -247,12 +309,15 @@ mod tests {
                 ne.solve_in_place(&mut x).unwrap_or_else(|e| panic!("{e}"));
                 (d, x)
             };
-            let (d1, x1) = solve(n); // the product, dense
-            let (d2, x2) = solve(0); // the augmented system, sparse
+            let (d1, x1) = solve(n, false); // the product, dense LU
+            let (d2, x2) = solve(0, false); // the augmented system, sparse
+            let (d3, x3) = solve(n, true); // the product, dense Cholesky
             assert!((d1 - d2).abs() <= 1e-12 * d1, "{d1} {d2}");
+            assert_eq!(d1, d3);
             let scale = x1.iter().fold(0.0_f64, |m, v| m.max(v.abs()));
-            for (a, c) in x1.iter().zip(&x2) {
+            for ((a, c), e) in x1.iter().zip(&x2).zip(&x3) {
                 assert!((a - c).abs() <= 1e-10 * scale, "λ = {lambda}: {a} vs {c}");
+                assert!((a - e).abs() <= 1e-10 * scale, "λ = {lambda}: {a} vs {e}");
             }
         }
     }

@@ -51,6 +51,11 @@ pub struct SmoothingSettings {
     /// own limits. The registry sets it to a user's `max_iterations`, so that a backend built
     /// with an iteration limit keeps to it in the continuation too.
     pub max_iterations: Option<usize>,
+    /// Give up after this many stages in a row that did not converge and were kept (no cut of
+    /// the reduction left): the continuation has lost the path, and its remaining stages would
+    /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`).
+    /// `None` (default): go on to the last stage. The Newton backend sets it.
+    pub max_failed_stages: Option<usize>,
 }
 
 impl Default for SmoothingSettings {
@@ -62,6 +67,7 @@ impl Default for SmoothingSettings {
             stage_iterations: 30,
             max_cuts: 4,
             max_iterations: None,
+            max_failed_stages: None,
         }
     }
 }
@@ -131,6 +137,8 @@ pub fn continuation(
     let mut good: Option<(f64, Vec<f64>)> = None;
     let mut theta = settings.reduction;
     let mut cuts = 0usize;
+    // Unconverged stages kept in a row.
+    let mut failed_in_a_row = 0usize;
     let within_budget = |iterations: usize| settings.max_iterations.is_none_or(|m| iterations < m);
     while mu.is_finite()
         && mu > tolerance
@@ -167,13 +175,21 @@ pub fn continuation(
         }
         if converged {
             cuts = 0;
+            failed_in_a_row = 0;
             theta = (theta * theta).max(settings.reduction);
             good = Some((mu, z.clone()));
         } else {
             good = None;
+            failed_in_a_row += 1;
         }
         end.z = z;
         mu *= theta;
+        if settings
+            .max_failed_stages
+            .is_some_and(|m| failed_in_a_row > 0 && failed_in_a_row >= m)
+        {
+            break;
+        }
     }
     Ok(end)
 }
@@ -289,6 +305,55 @@ impl Smoothed<'_> {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
+
+    /// A continuation whose stages never converge runs to its last stage without
+    /// `max_failed_stages`, and stops after that many stages with it.
+    #[test]
+    fn a_continuation_that_lost_the_path_stops_after_max_failed_stages() {
+        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] - 1.0,
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        // A stage that takes 3 iterations and fails (its point: the start).
+        let failing = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
+            let report = SolveReport {
+                solver: "test",
+                termination: Termination::MaxIterations,
+                tolerance: 0.0,
+                iterations: 3,
+                f_evals: 0,
+                jac_evals: 0,
+                started: std::time::Instant::now(),
+                trace: Vec::new(),
+                counters: Counters::new(),
+            };
+            match finish_solve(problem, z.to_vec(), report) {
+                Ok(sol) => Err(SolveError::NotConverged {
+                    best: Box::new(sol),
+                }),
+                e => e,
+            }
+        };
+        let run = |max_failed_stages| {
+            let settings = SmoothingSettings {
+                max_failed_stages,
+                ..SmoothingSettings::default()
+            };
+            continuation(&mcp, &[5.0], &settings, 1e-10, failing, || false)
+                .unwrap_or_else(|e| panic!("{e}"))
+        };
+        // μ₀ = 4 (the natural residual at 5) halves each stage down to 1e-10: 36 stages.
+        let all = run(None);
+        assert_eq!(all.stages, 36);
+        assert_eq!(all.iterations, 3 * 36);
+        let cut = run(Some(4));
+        assert_eq!(cut.stages, 4);
+        assert_eq!(cut.iterations, 12);
+    }
 
     /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0` smoothed: `G_μ = 0` at `z (z − 1) = μ²`, i.e.
     /// `z = (1 + √(1 + 4μ²)) / 2`, and the Jacobian matches a central difference.

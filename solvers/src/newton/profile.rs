@@ -1,0 +1,127 @@
+//! Where the Newton backend's time goes on a hard step: factorisations, damping trials and wall
+//! time per phase, summed over every iteration of every attempt (`docs/newton.md#wall-time`).
+//! Off by default; [`crate::NewtonSolver::with_profile`] turns it on (the clock is read only
+//! then), for probes such as `examples/newton_probe.rs`.
+
+use std::time::Instant;
+
+/// The phases of one iteration that the profile times.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Phase {
+    /// `J` (and `F` at the start), the generalised Jacobian `H` and `∇Ψ`.
+    Jacobian,
+    /// The LU of `H` and the Newton direction.
+    NewtonDirection,
+    /// The evaluations of the full Newton step and its Armijo search.
+    NewtonSearch,
+    /// The minimum-norm step: its QR and its trial points.
+    MinNorm,
+    /// Levenberg–Marquardt: forming and factorising `HᵀH + λD`, solving.
+    LmFactor,
+    /// Levenberg–Marquardt: evaluating the trial points.
+    LmTrial,
+    /// The last-resort backtracking and the bookkeeping.
+    Other,
+}
+
+impl Phase {
+    /// Every phase, in the order of [`NewtonProfile::ns`].
+    pub const ALL: [Phase; 7] = [
+        Phase::Jacobian,
+        Phase::NewtonDirection,
+        Phase::NewtonSearch,
+        Phase::MinNorm,
+        Phase::LmFactor,
+        Phase::LmTrial,
+        Phase::Other,
+    ];
+
+    /// Short name for tables.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Jacobian => "jacobian",
+            Phase::NewtonDirection => "newton_lu",
+            Phase::NewtonSearch => "newton_search",
+            Phase::MinNorm => "min_norm",
+            Phase::LmFactor => "lm_factor",
+            Phase::LmTrial => "lm_trial",
+            Phase::Other => "other",
+        }
+    }
+}
+
+/// Counts and times summed over the solves since the profile was last taken.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct NewtonProfile {
+    /// Runs of the plain iteration (each stage of a continuation is one).
+    pub runs: usize,
+    /// Iterations of all runs.
+    pub iterations: usize,
+    /// Iterations by attempt: plain, damped plain, continuation, damped continuation.
+    pub attempt_iterations: [usize; 4],
+    /// Evaluations of `F`.
+    pub f_evals: usize,
+    /// LU factorisations of `H`.
+    pub lu_factorizations: usize,
+    /// QR factorisations of the minimum-norm step.
+    pub min_norm_factorizations: usize,
+    /// Levenberg–Marquardt damping trials (each one factorisation of `HᵀH + λD`).
+    pub lm_trials: usize,
+    /// Iterations that tried Levenberg–Marquardt.
+    pub lm_iterations: usize,
+    /// Nanoseconds per phase, in the order of [`Phase::ALL`].
+    pub ns: [u64; 7],
+}
+
+impl NewtonProfile {
+    /// Adds `other` to this profile.
+    pub fn add(&mut self, other: &NewtonProfile) {
+        self.runs += other.runs;
+        self.iterations += other.iterations;
+        for (a, b) in self
+            .attempt_iterations
+            .iter_mut()
+            .zip(other.attempt_iterations)
+        {
+            *a += b;
+        }
+        self.f_evals += other.f_evals;
+        self.lu_factorizations += other.lu_factorizations;
+        self.min_norm_factorizations += other.min_norm_factorizations;
+        self.lm_trials += other.lm_trials;
+        self.lm_iterations += other.lm_iterations;
+        for (a, b) in self.ns.iter_mut().zip(other.ns) {
+            *a += b;
+        }
+    }
+
+    /// Total time of the timed phases, in seconds.
+    pub fn seconds(&self) -> f64 {
+        self.ns.iter().sum::<u64>() as f64 * 1e-9
+    }
+}
+
+/// A stopwatch that charges the time since its last lap to a phase; does nothing (reads no
+/// clock) when profiling is off.
+pub(crate) struct Clock {
+    last: Option<Instant>,
+}
+
+impl Clock {
+    pub(crate) fn new(on: bool) -> Self {
+        Clock {
+            last: on.then(Instant::now),
+        }
+    }
+
+    /// Charges the time since the last lap to `phase`.
+    #[inline]
+    pub(crate) fn lap(&mut self, profile: &mut NewtonProfile, phase: Phase) {
+        if let Some(last) = self.last {
+            let now = Instant::now();
+            let i = Phase::ALL.iter().position(|p| *p == phase).unwrap_or(6);
+            profile.ns[i] += now.duration_since(last).as_nanos() as u64;
+            self.last = Some(now);
+        }
+    }
+}
