@@ -16,9 +16,6 @@ pub(crate) struct SmallLu {
     a: Vec<f64>,
     /// Row `k` was interchanged with row `piv[k] ≥ k` at elimination step `k`.
     piv: Vec<usize>,
-    /// The rows (below the diagonal, from `k + 1`) of the non-zero multipliers of the current
-    /// elimination step.
-    nonzero: Vec<usize>,
 }
 
 impl SmallLu {
@@ -27,7 +24,6 @@ impl SmallLu {
             n,
             a: vec![0.0; n * n],
             piv: vec![0; n],
-            nonzero: Vec::with_capacity(n),
         }
     }
 
@@ -72,34 +68,16 @@ impl SmallLu {
             }
             let (head, tail) = a.split_at_mut((k + 1) * n);
             let lk = &mut head[k * n + k + 1..(k + 1) * n];
-            let nz = &mut self.nonzero;
-            nz.clear();
-            for (r, l) in lk.iter_mut().enumerate() {
+            for l in lk.iter_mut() {
                 *l /= pivot;
-                if *l != 0.0 {
-                    nz.push(r);
-                }
             }
-            if nz.is_empty() {
-                continue;
-            }
-            // A row whose multiplier is zero would only subtract zeros: when most are, update
-            // the others by index (the same operations in the same order, so the same factors).
-            let sparse = 2 * nz.len() < lk.len();
             for col in tail.chunks_exact_mut(n) {
                 let akj = col[k];
                 if akj == 0.0 {
                     continue;
                 }
-                let below = &mut col[k + 1..];
-                if sparse {
-                    for &r in nz.iter() {
-                        below[r] -= lk[r] * akj;
-                    }
-                } else {
-                    for (x, l) in below.iter_mut().zip(lk.iter()) {
-                        *x -= l * akj;
-                    }
+                for (x, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
+                    *x -= l * akj;
                 }
             }
         }
@@ -268,12 +246,12 @@ mod tests {
         (a, piv)
     }
 
-    /// Skipping the zero multipliers of a sparse matrix (a step problem's Jacobian is a third
+    /// Skipping the columns whose pivot-row entry is zero (a step problem's Jacobian is a third
     /// full) changes no factor: the same operations in the same order on every other entry.
     #[test]
-    fn sparse_multipliers_give_the_factors_of_the_full_elimination() {
+    fn skipped_zero_updates_give_the_factors_of_the_full_elimination() {
         for (n, seed, keep) in [(7, 3, 0.2), (31, 4, 0.15), (31, 6, 0.4), (48, 5, 0.1)] {
-            // Mostly zero, with a dominant-free diagonal so that rows interchange.
+            // Mostly zero, with a diagonal that does not dominate, so that rows interchange.
             let mut s: u64 = seed;
             let a: Vec<f64> = (0..n * n)
                 .map(|k| {
