@@ -135,21 +135,57 @@ impl DenseLu {
 
     /// Factorises the column-major `n × n` matrix `a`.
     pub fn factor(&mut self, a: &[f64]) -> Result<(), LinalgError> {
-        let n = self.n;
         self.factored = false;
         if a.iter().any(|v| !v.is_finite()) {
             return Err(LinalgError::NonFinite);
         }
+        match &mut self.small {
+            Some(small) => small.storage_mut().copy_from_slice(a),
+            None => {
+                let n = self.n;
+                self.lu.copy_from(MatRef::from_column_major_slice(a, n, n));
+            }
+        }
+        self.eliminate()
+    }
+
+    /// Factorises the matrix whose entries in `pattern` are `values` (the others zero): the
+    /// same factors as [`DenseLu::factor`] of its dense form, without forming it first for the
+    /// small kernel, which takes the entries straight into its storage (`buf`, `n × n`, is the
+    /// dense form for faer's blocked LU).
+    pub fn factor_in_pattern(
+        &mut self,
+        pattern: &CscPattern,
+        values: &[f64],
+        buf: &mut [f64],
+    ) -> Result<(), LinalgError> {
+        self.factored = false;
+        if values.iter().any(|v| !v.is_finite()) {
+            return Err(LinalgError::NonFinite);
+        }
+        match &mut self.small {
+            Some(small) => pattern.to_dense(values, small.storage_mut()),
+            None => {
+                let n = self.n;
+                pattern.to_dense(values, buf);
+                self.lu
+                    .copy_from(MatRef::from_column_major_slice(buf, n, n));
+            }
+        }
+        self.eliminate()
+    }
+
+    /// Factorises the loaded matrix in place and judges its pivots.
+    fn eliminate(&mut self) -> Result<(), LinalgError> {
+        let n = self.n;
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         if let Some(small) = &mut self.small {
-            small.factor(a);
+            small.eliminate();
             for d in small.pivots() {
                 lo = lo.min(d.abs());
                 hi = hi.max(d.abs());
             }
         } else {
-            let src = MatRef::from_column_major_slice(a, n, n);
-            self.lu.copy_from(src);
             let stack = MemStack::new(&mut self.mem);
             pp_factor::lu_in_place(
                 self.lu.as_mut(),
@@ -448,10 +484,7 @@ impl LinearSolver {
     /// Factorises the matrix given by `values` in the pattern.
     pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
         match self {
-            LinearSolver::Dense { lu, buf, pattern } => {
-                pattern.to_dense(values, buf);
-                lu.factor(buf)
-            }
+            LinearSolver::Dense { lu, buf, pattern } => lu.factor_in_pattern(pattern, values, buf),
             LinearSolver::Sparse(s) => s.factor(values),
         }
     }

@@ -211,22 +211,29 @@ pub struct WorstComponent {
 pub fn diagnose(mcp: &dyn Mcp, z: &[f64]) -> (f64, Option<WorstComponent>) {
     let mut f = vec![0.0; mcp.dim()];
     mcp.evaluate(z, &mut f);
+    diagnose_values(mcp, z, &f)
+}
+
+/// [`diagnose`] for `F(z)` already evaluated into `f`: the natural residual and the worst
+/// component (the first of the largest), whose name is formed once.
+pub fn diagnose_values(mcp: &dyn Mcp, z: &[f64], f: &[f64]) -> (f64, Option<WorstComponent>) {
     let (l, u) = (mcp.lower(), mcp.upper());
-    let mut worst: Option<WorstComponent> = None;
+    let mut worst: Option<(usize, f64)> = None;
     for i in 0..z.len() {
         let mut c = natural_map_component(z[i], f[i], l[i], u[i]).abs();
         if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
         }
-        if worst.as_ref().is_none_or(|w| c > w.value) {
-            worst = Some(WorstComponent {
-                index: i,
-                value: c,
-                name: mcp.component_name(i),
-            });
+        if worst.is_none_or(|(_, w)| c > w) {
+            worst = Some((i, c));
         }
     }
-    (natural_residual(z, &f, l, u), worst)
+    let worst = worst.map(|(index, value)| WorstComponent {
+        index,
+        value,
+        name: mcp.component_name(index),
+    });
+    (natural_residual(z, f, l, u), worst)
 }
 
 /// The Fischer–Burmeister function `φ(a, b) = √(a² + b²) − a − b`; zero iff `a ≥ 0, b ≥ 0, ab = 0`.

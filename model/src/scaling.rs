@@ -10,7 +10,7 @@
 
 use std::sync::Arc;
 
-use crate::mcp::{Mcp, diagnose, fb_residual};
+use crate::mcp::{Mcp, diagnose_values, fb_residual};
 use crate::pattern::CscPattern;
 use crate::solver::{Solution, SolveError};
 
@@ -213,27 +213,31 @@ pub fn solve_in_scales(
     z0: &[f64],
     mut solve: impl FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError>,
 ) -> Result<Solution, SolveError> {
-    let Some((scales, scaled)) = mcp
+    // `ScaledMcp::new` accepts exactly the valid scales; it is only built when the scaled
+    // attempt runs (a problem within the SI band that converges as given never needs it).
+    let Some(scales) = mcp
         .scales()
-        .filter(|s| !s.is_identity())
-        .and_then(|s| ScaledMcp::new(mcp, s).map(|m| (s, m)))
+        .filter(|s| !s.is_identity() && s.is_valid(mcp.dim()))
         .filter(|_| z0.len() == mcp.dim())
     else {
         return solve(mcp, z0);
     };
     let in_scales = |solve: &mut SolveFn<'_>| {
+        let Some(scaled) = ScaledMcp::new(mcp, scales) else {
+            return solve(mcp, z0);
+        };
         // The point in the problem's unknowns, its residuals recomputed there: a summary's
         // residual is always that of the returned point on the problem given; only the
         // termination says what the scaled tolerance judged.
         let unscale = |mut sol: Box<Solution>| {
             sol.z = scaled.to_unscaled(&sol.z);
-            let (residual, worst) = diagnose(mcp, &sol.z);
             let mut f = vec![0.0; sol.z.len()];
             mcp.evaluate(&sol.z, &mut f);
+            let (residual, worst) = diagnose_values(mcp, &sol.z, &f);
             sol.summary.residual = residual;
             sol.summary.worst = worst;
             sol.summary.fb_residual = fb_residual(&sol.z, &f, mcp.lower(), mcp.upper());
-            sol.summary.f_evals += 2;
+            sol.summary.f_evals += 1;
             sol
         };
         match solve(&scaled, &scaled.to_scaled(z0)) {

@@ -555,10 +555,16 @@ impl ReducedSystem {
         // The weak rows of J(z*), gathered once: (which weak component, column, value).
         let pattern = mcp.jacobian_pattern();
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        // Each row's weak component, if any (looked up once per stored entry).
+        let mut slot = vec![usize::MAX; n];
+        for (w, c) in weak.iter().enumerate() {
+            slot[c.index] = w;
+        }
         let mut rows = Vec::new();
         for j in 0..n {
             for q in cp[j]..cp[j + 1] {
-                if let Some(w) = weak.iter().position(|w| w.index == ri[q]) {
+                let w = slot[ri[q]];
+                if w != usize::MAX {
                     rows.push((w, j, self.jac[q]));
                 }
             }

@@ -3,7 +3,7 @@
 use std::time::{Duration, Instant};
 
 use crate::counters::{Counter, Counters};
-use crate::mcp::{Mcp, WorstComponent, diagnose, fb_residual};
+use crate::mcp::{Mcp, WorstComponent, diagnose_values, fb_residual};
 
 /// Why a solve stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -289,9 +289,23 @@ pub fn finish_solve(
     z: Vec<f64>,
     report: SolveReport,
 ) -> Result<Solution, SolveError> {
-    let (residual, worst) = diagnose(mcp, &z);
+    // One evaluation of F serves both residuals.
     let mut f = vec![0.0; z.len()];
     mcp.evaluate(&z, &mut f);
+    let mut report = report;
+    report.f_evals += 1;
+    finish_solve_at(mcp, z, &f, report)
+}
+
+/// [`finish_solve`] for a backend that has `F(z)` at hand in `f` (its last evaluation, at the
+/// point it returns): the same judgement without evaluating `F` again.
+pub fn finish_solve_at(
+    mcp: &dyn Mcp,
+    z: Vec<f64>,
+    f: &[f64],
+    report: SolveReport,
+) -> Result<Solution, SolveError> {
+    let (residual, worst) = diagnose_values(mcp, &z, f);
     let termination = if residual <= report.tolerance {
         Termination::Converged
     } else if report.termination == Termination::Converged {
@@ -303,11 +317,10 @@ pub fn finish_solve(
         solver: report.solver.into(),
         termination,
         iterations: report.iterations,
-        // `diagnose` and the FB residual each evaluate F once.
-        f_evals: report.f_evals + 2,
+        f_evals: report.f_evals,
         jac_evals: report.jac_evals,
         residual,
-        fb_residual: fb_residual(&z, &f, mcp.lower(), mcp.upper()),
+        fb_residual: fb_residual(&z, f, mcp.lower(), mcp.upper()),
         worst,
         time: report.started.elapsed(),
         trace: report.trace,

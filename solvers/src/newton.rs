@@ -41,8 +41,8 @@ use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
     Counter, Counters, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, natural_residual, solve_in_scales,
-    validate_start,
+    SolveReport, StepKind, Termination, finish_solve, finish_solve_at, natural_residual,
+    solve_in_scales, validate_start,
 };
 
 use crate::normal_equations::NormalEquations;
@@ -238,14 +238,18 @@ struct Workspace {
     phi_check: Vec<f64>,
     /// Dense copy of `H` for the minimum-norm step (empty for sparse problems).
     dense: Vec<f64>,
-    /// Diagonal additions of [`pin_zero_columns`].
+    /// Diagonal additions of [`pin_zero_columns`], and its row scales.
     pin: Vec<f64>,
+    row_scale: Vec<f64>,
     /// The point, F, Φ and direction of the Newton line search, while the
     /// Levenberg–Marquardt step is tried.
     z_alt: Vec<f64>,
     f_alt: Vec<f64>,
     phi_alt: Vec<f64>,
     d_alt: Vec<f64>,
+    /// The best natural residual after each iteration of a solve, for the stall test (kept
+    /// here so that a solve allocates nothing once it has run as many iterations before).
+    best_history: Vec<f64>,
 }
 
 impl Workspace {
@@ -270,6 +274,7 @@ impl Workspace {
             &mut self.f_check,
             &mut self.phi_check,
             &mut self.pin,
+            &mut self.row_scale,
             &mut self.z_alt,
             &mut self.f_alt,
             &mut self.phi_alt,
@@ -361,6 +366,11 @@ impl NewtonSolver {
             self.pattern = Some(pattern.clone());
         }
         self.ws.resize(mcp.dim(), pattern.nnz());
+        // The stall test's history holds at most one entry per iteration and the start.
+        let history = self.settings.max_iterations.saturating_add(1).min(1 << 16);
+        self.ws
+            .best_history
+            .reserve(history.saturating_sub(self.ws.best_history.len()));
         let dense = self.settings.min_norm_step && mcp.dim() <= self.settings.dense_max;
         self.ws.resize_dense(mcp.dim(), dense);
         Ok(())
@@ -473,7 +483,12 @@ fn generalized_jacobian_rows(
 /// Adds to the diagonal of `h` (in `pattern`), for each column whose largest entry is at most
 /// [`ZERO_COLUMN`] times the largest entry of `h`, the largest entry of its row (1 when the row
 /// is zero too); records the additions in `pin` and returns whether there was any.
-fn pin_zero_columns(pattern: &CscPattern, h: &mut [f64], pin: &mut [f64]) -> bool {
+fn pin_zero_columns(
+    pattern: &CscPattern,
+    h: &mut [f64],
+    pin: &mut [f64],
+    row_scale: &mut [f64],
+) -> bool {
     let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
     let n = cp.len() - 1;
     let largest = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
@@ -492,7 +507,7 @@ fn pin_zero_columns(pattern: &CscPattern, h: &mut [f64], pin: &mut [f64]) -> boo
     }
     // Row scales of the pinned columns' rows (their own index: H is square with the diagonal
     // pairing variable j with row j).
-    let mut row_scale = vec![0.0f64; n];
+    row_scale.fill(0.0);
     for j in 0..n {
         for p in cp[j]..cp[j + 1] {
             let r = ri[p];
@@ -738,7 +753,8 @@ impl NewtonSolver {
         ws.z_best.copy_from_slice(&ws.z);
         let mut best_residual = residual;
         // The best residual after each iteration (index 0: at the start), for the stall test.
-        let mut best_history = vec![best_residual];
+        ws.best_history.clear();
+        ws.best_history.push(best_residual);
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
         let mut lm_mu = s.lm_initial_damping;
@@ -800,7 +816,8 @@ impl NewtonSolver {
             // σ of an open contact, where p_n = p_f = 0) get a unit of their row's scale on the
             // diagonal for the factorisation, so the step leaves them where their (consistent)
             // row puts them instead of failing the LU over the whole system.
-            let pinned = s.pin_zero_columns && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin);
+            let pinned = s.pin_zero_columns
+                && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin, &mut ws.row_scale);
             let mut newton_ok = linear.factor(&ws.h).is_ok();
             if newton_ok {
                 for i in 0..n {
@@ -1080,10 +1097,10 @@ impl NewtonSolver {
                 best_residual = residual;
                 ws.z_best.copy_from_slice(&ws.z);
             }
-            best_history.push(best_residual);
+            ws.best_history.push(best_residual);
             if s.stall_window > 0
                 && iterations > s.stall_window
-                && best_residual > s.stall_reduction * best_history[iterations - s.stall_window]
+                && best_residual > s.stall_reduction * ws.best_history[iterations - s.stall_window]
             {
                 termination = Termination::Stagnated;
                 break;
@@ -1117,31 +1134,34 @@ impl NewtonSolver {
             prof.f_evals = f_evals;
             total.add(&prof);
         }
-        if termination == Termination::Converged || residual <= best_residual {
+        // Returning the last iterate: F there is at hand (the iteration keeps `f = F(z)`).
+        let at_last = termination == Termination::Converged || residual <= best_residual;
+        if at_last {
             ws.z_best.copy_from_slice(&ws.z);
         }
-        finish_solve(
-            mcp,
-            ws.z_best.clone(),
-            SolveReport {
-                solver: "newton",
-                termination,
-                tolerance: s.tolerance,
-                iterations,
-                f_evals,
-                jac_evals,
-                started: start,
-                trace,
-                counters: Counters::from([
-                    (Counter::NewtonSteps, newton_steps),
-                    (Counter::MinNormSteps, min_norm_steps),
-                    (Counter::NonmonotoneSteps, nonmonotone_steps),
-                    (Counter::WatchdogRestores, watchdog_restores),
-                    (Counter::LevenbergMarquardtSteps, lm_steps),
-                    (Counter::GradientSteps, gradient_steps),
-                ]),
-            },
-        )
+        let report = SolveReport {
+            solver: "newton",
+            termination,
+            tolerance: s.tolerance,
+            iterations,
+            f_evals,
+            jac_evals,
+            started: start,
+            trace,
+            counters: Counters::from([
+                (Counter::NewtonSteps, newton_steps),
+                (Counter::MinNormSteps, min_norm_steps),
+                (Counter::NonmonotoneSteps, nonmonotone_steps),
+                (Counter::WatchdogRestores, watchdog_restores),
+                (Counter::LevenbergMarquardtSteps, lm_steps),
+                (Counter::GradientSteps, gradient_steps),
+            ]),
+        };
+        if at_last {
+            finish_solve_at(mcp, ws.z_best.clone(), &ws.f, report)
+        } else {
+            finish_solve(mcp, ws.z_best.clone(), report)
+        }
     }
 }
 

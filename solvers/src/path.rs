@@ -43,8 +43,8 @@ use std::time::Instant;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, mid, natural_residual, solve_in_scales,
-    validate_start,
+    SolveReport, StepKind, Termination, finish_solve, finish_solve_at, mid, natural_residual,
+    solve_in_scales, validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -221,6 +221,8 @@ pub struct PathSolver {
     trial: Point,
     checkpoint: Point,
     best_z: Vec<f64>,
+    /// `F` at `best_z` (the final residuals need no evaluation of their own).
+    best_f: Vec<f64>,
     jac: Vec<f64>,
     /// The Jacobian at `trial`, evaluated by the acceptance test; it becomes `jac` when the
     /// trial is accepted.
@@ -259,6 +261,7 @@ impl PathSolver {
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
+            self.best_f.copy_from_slice(&self.current.f);
         }
         residual
     }
@@ -274,6 +277,7 @@ impl PathSolver {
             trial: Point::default(),
             checkpoint: Point::default(),
             best_z: Vec::new(),
+            best_f: Vec::new(),
             jac: Vec::new(),
             trial_jac: Vec::new(),
             trial_has_jac: false,
@@ -318,6 +322,7 @@ impl PathSolver {
         self.checkpoint.resize(n);
         for v in [
             &mut self.best_z,
+            &mut self.best_f,
             &mut self.q,
             &mut self.jz,
             &mut self.step_x,
@@ -588,6 +593,7 @@ impl PathSolver {
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
+            self.best_f.copy_from_slice(&self.current.f);
         }
         let mut termination = if self.current.merit.is_finite() {
             Termination::MaxIterations
@@ -843,6 +849,7 @@ impl PathSolver {
         if termination == Termination::Converged || residual <= *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
+            self.best_f.copy_from_slice(&self.current.f);
         }
         if residual <= s.tolerance {
             Termination::Converged
@@ -1035,40 +1042,43 @@ impl PathSolver {
             f_evals,
             jac_evals,
             iterations,
+            best_residual,
             ..
         } = run;
-        finish_solve(
-            mcp,
-            self.best_z.clone(),
-            SolveReport {
-                solver: "path",
-                termination,
-                tolerance: s.tolerance,
-                iterations,
-                f_evals,
-                jac_evals,
-                started,
-                trace,
-                counters: ecp_model::Counters::from([
-                    (Counter::Pivots, counters.pivots),
-                    (Counter::CrashSteps, counters.crash_steps),
-                    (Counter::PathSteps, counters.path_steps),
-                    (Counter::NonmonotoneSteps, counters.nonmonotone_steps),
-                    (Counter::WatchdogRestores, counters.watchdog_restores),
-                    (Counter::PathBacktracks, counters.path_backtracks),
-                    (
-                        Counter::ProximalPerturbations,
-                        counters.proximal_perturbations,
-                    ),
-                    (Counter::RayTerminations, counters.ray_terminations),
-                    (Counter::Restarts, counters.restarts),
-                    (Counter::GuardedAttempts, counters.guarded_attempts),
-                    (Counter::FischerAttempts, counters.fischer_attempts),
-                    (Counter::BestPointRestarts, counters.best_point_restarts),
-                    (Counter::TimeLimitReached, counters.time_limit_reached),
-                ]),
-            },
-        )
+        let report = SolveReport {
+            solver: "path",
+            termination,
+            tolerance: s.tolerance,
+            iterations,
+            f_evals,
+            jac_evals,
+            started,
+            trace,
+            counters: ecp_model::Counters::from([
+                (Counter::Pivots, counters.pivots),
+                (Counter::CrashSteps, counters.crash_steps),
+                (Counter::PathSteps, counters.path_steps),
+                (Counter::NonmonotoneSteps, counters.nonmonotone_steps),
+                (Counter::WatchdogRestores, counters.watchdog_restores),
+                (Counter::PathBacktracks, counters.path_backtracks),
+                (
+                    Counter::ProximalPerturbations,
+                    counters.proximal_perturbations,
+                ),
+                (Counter::RayTerminations, counters.ray_terminations),
+                (Counter::Restarts, counters.restarts),
+                (Counter::GuardedAttempts, counters.guarded_attempts),
+                (Counter::FischerAttempts, counters.fischer_attempts),
+                (Counter::BestPointRestarts, counters.best_point_restarts),
+                (Counter::TimeLimitReached, counters.time_limit_reached),
+            ]),
+        };
+        // `best_f` is F at `best_z` once a finite residual made the point this solve's best.
+        if best_residual.is_finite() {
+            finish_solve_at(mcp, self.best_z.clone(), &self.best_f, report)
+        } else {
+            finish_solve(mcp, self.best_z.clone(), report)
+        }
     }
 }
 

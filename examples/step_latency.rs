@@ -1,0 +1,84 @@
+//! Repeats one warm-started step solve (or step sensitivity) `N` times, for instruction counts
+//! under callgrind (`docs/latency.md#profile`), which the machine's load does not disturb:
+//!
+//! ```text
+//! cargo build --release --example step_latency
+//! valgrind --tool=callgrind target/release/examples/step_latency desk-newton 1000
+//! ```
+//!
+//! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
+//! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th). The
+//! difference of two runs' totals over the difference of their `N` is the cost of one solve,
+//! without the set-up. Prints the last solve's iterations so the work cannot be optimised away.
+
+use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator};
+use ecp::formulations::{Scene, Simulation, scenarios};
+use ecp::model::McpSolver;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp::solvers::path::{PathSettings, PathSolver};
+
+/// `scene` after `k - 1` steps with `solver`, with step `k` prepared (as `benches/common`).
+fn at_step(scene: Scene, k: usize, solver: &mut dyn McpSolver) -> (Simulation, Vec<f64>) {
+    let mut sim = Simulation::new(scene).expect("scene");
+    for _ in 1..k {
+        sim.step(solver).expect("step");
+    }
+    sim.prepare_step().expect("prepare");
+    let z0 = sim.z().to_vec();
+    (sim, z0)
+}
+
+fn repeat(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize {
+    let (sim, z0) = at_step(scene, k, solver);
+    let mut iterations = 0;
+    for _ in 0..n {
+        match solver.solve(sim.mcp(), &z0) {
+            Ok(sol) => iterations = sol.summary.iterations,
+            Err(e) => panic!("step {k}: {e}"),
+        }
+    }
+    iterations
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let (case, n) = match args.as_slice() {
+        [_, case, n] => (case.as_str(), n.parse::<usize>().expect("N: a count")),
+        _ => {
+            eprintln!(
+                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity> N"
+            );
+            std::process::exit(2);
+        }
+    };
+    let newton = || NewtonSolver::new(NewtonSettings::default());
+    let out = match case {
+        "desk-newton" => repeat(&mut newton(), scenarios::desk(), 100, n),
+        "desk-path" => repeat(
+            &mut PathSolver::new(PathSettings::default()),
+            scenarios::desk(),
+            100,
+            n,
+        ),
+        "a1-newton" => repeat(&mut newton(), scenarios::a1_sliding(), 20, n),
+        "tbar-newton" => repeat(&mut newton(), scenarios::t_bar(), 340, n),
+        "desk-sensitivity" => {
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            for _ in 0..100 {
+                sim.step(&mut solver).expect("desk step");
+            }
+            let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+            let mut columns = 0;
+            for _ in 0..n {
+                columns = differ.differentiate(&sim).expect("sensitivity").dz.len();
+            }
+            columns
+        }
+        other => {
+            eprintln!("unknown case {other}");
+            std::process::exit(2);
+        }
+    };
+    println!("{case} x{n}: {out}");
+}

@@ -1,0 +1,89 @@
+//! Heap allocations of warm-started step solves (`docs/latency.md#allocations`), counted by a
+//! global allocator that counts per thread (the test harness runs tests on several threads).
+//!
+//! The Newton backend's iteration allocates nothing once its workspace has grown: a solve
+//! allocates only what it returns (the point, and the summary's backend name, worst-component
+//! name and counters), whatever the number of iterations. Whole file: a few seconds in debug
+//! mode.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::cell::Cell;
+
+use ecp::formulations::{Simulation, scenarios};
+use ecp::model::McpSolver;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+
+/// The system allocator, counting the allocations (and reallocations) of each thread.
+struct Counting;
+
+thread_local! {
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
+}
+
+fn count() {
+    // `try_with`: the thread's counter may be gone while the thread exits.
+    let _ = ALLOCATIONS.try_with(|c| c.set(c.get() + 1));
+}
+
+// SAFETY: every call is forwarded to `System` with the same arguments.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        count();
+        unsafe { System.alloc(layout) }
+    }
+    unsafe fn alloc_zeroed(&self, layout: Layout) -> *mut u8 {
+        count();
+        unsafe { System.alloc_zeroed(layout) }
+    }
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        count();
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        unsafe { System.dealloc(ptr, layout) }
+    }
+}
+
+#[global_allocator]
+static GLOBAL: Counting = Counting;
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
+}
+
+/// The most a converged Newton solve allocates besides its iterations: the returned point (1),
+/// the summary's counters (2: six entries pushed), its backend name (1) and the worst
+/// component's name (up to 3: `format!` grows its string piece by piece). One allocation per
+/// iteration would exceed it on every solve of two iterations or more.
+const NEWTON_SOLVE_ALLOCATIONS_MAX: usize = 7;
+
+#[test]
+fn a_warm_newton_step_solve_allocates_only_its_result() {
+    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut counted = Vec::new();
+    for step in 1..=120 {
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let z0 = sim.z().to_vec();
+        let before = allocations();
+        let sol = sim
+            .solve_step_problem(&mut solver, &z0)
+            .unwrap_or_else(|e| panic!("step {step}: {e}"));
+        let spent = allocations() - before;
+        // The first solves grow the workspace.
+        if step > 20 {
+            counted.push((step, spent, sol.summary.iterations));
+        }
+        drop(sol);
+        sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+    }
+    // The bound means something only when solves take several iterations.
+    let most = counted.iter().map(|c| c.2).max().unwrap_or(0);
+    assert!(most >= 2, "at most {most} iterations per solve");
+    for (step, spent, iterations) in counted {
+        assert!(
+            spent <= NEWTON_SOLVE_ALLOCATIONS_MAX,
+            "solve of step {step} ({iterations} iterations): {spent} allocations"
+        );
+    }
+}
