@@ -79,6 +79,6 @@ pub use solver::{
     Termination, finish_solve, validate_start,
 };
 pub use structure::{
-    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, PatchVertex,
-    StepStructure,
+    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, ContactPartner,
+    PatchVertex, StepStructure,
 };
