@@ -507,7 +507,20 @@ impl StepQp {
                 normal: rows.frame.normal,
             });
         }
-        let sweeps = if polish { 3 } else { 0 };
+        // Contacts between two dynamic bodies couple the bodies' friction problems (a stack: the
+        // friction under A depends on the friction of B on A), so the Gauss–Seidel sweeps go on
+        // until they settle (COUPLED_SWEEPS at most); a scene of half-space contacts keeps its
+        // three sweeps.
+        let coupled = self
+            .contacts
+            .iter()
+            .flatten()
+            .any(|rows| rows.sides.len() > 1);
+        let sweeps = match (polish, coupled) {
+            (false, _) => 0,
+            (true, false) => 3,
+            (true, true) => COUPLED_SWEEPS,
+        };
         // The friction wrenches each contact's friction currently acts through, per side.
         let mut current: Vec<Vec<BodyFriction>> = self
             .contacts
@@ -521,7 +534,12 @@ impl StepQp {
                 })
             })
             .collect();
-        for _sweep in 0..sweeps {
+        for sweep in 0..sweeps {
+            let before: Vec<ContactImpulses> = if coupled {
+                contacts.clone()
+            } else {
+                Vec::new()
+            };
             self.correct_normal_impulses(bodies, &mut contacts, &mut wrench_sum);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
@@ -585,6 +603,9 @@ impl StepQp {
                     }
                 }
             }
+            if coupled && sweep >= 2 && settled(&before, &contacts) {
+                break;
+            }
         }
         let velocities: Vec<[f64; 6]> = bodies
             .iter()
@@ -622,6 +643,29 @@ impl StepQp {
             contacts,
         }
     }
+}
+
+/// Gauss–Seidel sweeps of the polish at most when contacts couple two dynamic bodies.
+const COUPLED_SWEEPS: usize = 50;
+
+/// Whether a polish sweep changed no impulse by more than `1e-14` of the largest one.
+fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
+    let values = |c: &ContactImpulses| {
+        c.vertex_impulses
+            .iter()
+            .map(|(_, l)| *l)
+            .chain(c.friction)
+            .collect::<Vec<f64>>()
+    };
+    let mut scale: f64 = 0.0;
+    let mut change: f64 = 0.0;
+    for (b, a) in before.iter().zip(after) {
+        for (x, y) in values(b).iter().zip(values(a)) {
+            scale = scale.max(y.abs());
+            change = change.max((x - y).abs());
+        }
+    }
+    change <= 1e-14 * scale
 }
 
 impl ContactRows {
