@@ -944,3 +944,68 @@ fn issue16_pile_runs_to_the_end() {
         close(name, s.v.x, 0.4, 1e-6);
     }
 }
+
+/// The scenes users will want (`docs/bodies.md`) with the conic backend alone (no fallback,
+/// keep going, at most 600 s each): steps converged, Newton-polish steps, step times and the
+/// deepest penetration, printed for `docs/bodies.md#the-conic-backend`; asserts only that every
+/// step converged. Run with
+/// `cargo test -p ecp --test bodies -- --ignored user_scenes_with_the_conic_backend --nocapture`.
+#[test]
+#[ignore = "slow (minutes): cargo test -p ecp --test bodies -- --ignored user_scenes_with_the_conic_backend --nocapture"]
+fn user_scenes_with_the_conic_backend() {
+    let mut failed = Vec::new();
+    for name in ["tbar_gripper", "parts_feeder", "bin20"] {
+        let file = load_scene(
+            &Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("scenes")
+                .join(format!("{name}.toml")),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let out_dir = std::env::temp_dir().join(format!("ecp-conic-{name}-{}", std::process::id()));
+        let options = ecp::run::RunOptions {
+            out_dir: out_dir.clone(),
+            solver: Some("conic".into()),
+            plots: false,
+            fallbacks: false,
+            keep_going: true,
+            time_limit: Some(std::time::Duration::from_secs(600)),
+            ..Default::default()
+        };
+        let o = ecp::run::run_scene(&file, &options, |_| {}).unwrap_or_else(|e| panic!("{e}"));
+        let s = &o.summary;
+        let polished = o
+            .records
+            .iter()
+            .filter(|r| r.summary.counters.get(Counter::NewtonPolish).unwrap_or(0) > 0)
+            .count();
+        let overlap = o.stepper_error.clone().unwrap_or_default();
+        // The smallest gap of a contact pair at a step end (negative: the hulls overlap).
+        let pair_gap = o
+            .records
+            .iter()
+            .flat_map(|r| r.pairs.iter().map(|p| p.gap))
+            .fold(f64::INFINITY, f64::min);
+        eprintln!(
+            "{name}, conic: {} of {} steps, {} converged, {} failed, {polished} finished by the \
+             Newton polish, wall {:.1} s ({:.1} steps/s), step median {:.0} µs p95 {:.0} µs max \
+             {:.0} µs, max penetration {:.3e} m, smallest pair gap {pair_gap:.3e} m, timed out {}, \
+             stepper error '{overlap}'",
+            s.steps,
+            s.planned_steps,
+            s.converged_steps,
+            s.failed_steps,
+            s.wall_s,
+            s.steps as f64 / s.wall_s,
+            s.step_us.median,
+            s.step_us.p95,
+            s.step_us.max,
+            s.max_penetration,
+            o.timed_out,
+        );
+        if !o.succeeded() {
+            failed.push(name);
+        }
+        let _ = std::fs::remove_dir_all(&out_dir);
+    }
+    assert!(failed.is_empty(), "not every step converged: {failed:?}");
+}
