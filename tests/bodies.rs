@@ -1,6 +1,6 @@
 //! Bodies touching bodies (`docs/model.md#bodies-touching-bodies`): the scene files
 //! `scenes/d1_stack.toml` … `scenes/d8_edge_on_edge.toml` run by the multi-body formulation
-//! with Newton and PATH, against the exact answers of `docs/model.md#scenarios`
+//! with Newton, PATH and the conic backend, against the exact answers of `docs/model.md#scenarios`
 //! (velocities 1e-9, ECPs 1e-8, impulses 1e-9; every step must converge, and the overlap check
 //! between every two real bodies runs at every step end); a reach that leaves a pair out is
 //! caught; the scene-file errors of the multi-body format; `contacts.csv` and `summary.json`.
@@ -12,7 +12,7 @@ use ecp::formulations::bodies::pairs::Reach;
 use ecp::formulations::{
     PairRecord, SceneError, Simulation, SimulationBuilder, StepMethod, StepRecord,
 };
-use ecp::model::McpSolver;
+use ecp::model::{Counter, McpSolver};
 use ecp::run::{RunOptions, run_scene};
 use ecp::scene::{load_scene, parse_scene};
 use ecp::solvers::{BackendOptions, Registry};
@@ -55,8 +55,14 @@ fn run(scene: ecp::formulations::Scene, backend: &str, steps: Option<usize>) -> 
     }
     let iters: Vec<usize> = out.iter().map(|r| r.summary.iterations).collect();
     let us: f64 = out.iter().map(|r| r.solve_us).sum::<f64>() / out.len().max(1) as f64;
+    // The conic backend's own fixed point, or its Newton finish after a stagnated one.
+    let polished = out
+        .iter()
+        .filter(|r| r.summary.counters.get(Counter::NewtonPolish).unwrap_or(0) > 0)
+        .count();
     eprintln!(
-        "{name}, {backend}: {} steps, iterations mean {:.2} max {}, solve {us:.0} µs per step",
+        "{name}, {backend}: {} steps, iterations mean {:.2} max {}, solve {us:.0} µs per step, \
+         {polished} steps finished by the Newton polish",
         out.len(),
         iters.iter().sum::<usize>() as f64 / iters.len().max(1) as f64,
         iters.iter().max().copied().unwrap_or(0)
@@ -145,6 +151,11 @@ fn d1_stack_newton() {
 }
 
 #[test]
+fn d1_stack_conic() {
+    stack("d1_stack", "conic", (0.0, 0.0));
+}
+
+#[test]
 fn d1_stack_path() {
     stack("d1_stack", "path", (0.0, 0.0));
 }
@@ -152,6 +163,11 @@ fn d1_stack_path() {
 #[test]
 fn d2_offset_stack_newton() {
     stack("d2_offset_stack", "newton", (0.1, 0.05));
+}
+
+#[test]
+fn d2_offset_stack_conic() {
+    stack("d2_offset_stack", "conic", (0.1, 0.05));
 }
 
 #[test]
@@ -224,6 +240,11 @@ fn d3_block_on_block_newton() {
 }
 
 #[test]
+fn d3_block_on_block_conic() {
+    block_on_block("conic");
+}
+
+#[test]
 fn d3_block_on_block_path() {
     block_on_block("path");
 }
@@ -269,6 +290,11 @@ fn d4_conveyor_newton() {
 }
 
 #[test]
+fn d4_conveyor_conic() {
+    conveyor("conic");
+}
+
+#[test]
 fn d4_conveyor_path() {
     conveyor("path");
 }
@@ -311,6 +337,11 @@ fn collision(backend: &str) {
 #[test]
 fn d5_collision_newton() {
     collision("newton");
+}
+
+#[test]
+fn d5_collision_conic() {
+    collision("conic");
 }
 
 #[test]
@@ -404,6 +435,11 @@ fn d6_incline_body_newton() {
 }
 
 #[test]
+fn d6_incline_body_conic() {
+    incline_body("conic");
+}
+
+#[test]
 fn d6_incline_body_path() {
     incline_body("path");
 }
@@ -441,6 +477,11 @@ fn tower(backend: &str) {
 #[test]
 fn d7_tower_newton() {
     tower("newton");
+}
+
+#[test]
+fn d7_tower_conic() {
+    tower("conic");
 }
 
 #[test]
@@ -531,6 +572,11 @@ fn edge_on_edge(backend: &str) {
 #[test]
 fn d8_edge_on_edge_newton() {
     edge_on_edge("newton");
+}
+
+#[test]
+fn d8_edge_on_edge_conic() {
+    edge_on_edge("conic");
 }
 
 #[test]
@@ -665,26 +711,29 @@ fn run_writes_contacts_and_pairs() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
-/// The conic backend has no two-body structure yet: it refuses a multi-body scene with a
-/// message that names the backends that can run it.
+/// The conic backend runs a multi-body scene through `ecp run` (`--solver conic`): every step
+/// converged, by the conic backend itself (no fallback).
 #[test]
-fn the_conic_backend_refuses_a_multibody_scene() {
+fn the_conic_backend_runs_a_multibody_scene() {
     let file = load_scene(&Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/d1_stack.toml"))
         .unwrap_or_else(|e| panic!("{e}"));
+    let out_dir = std::env::temp_dir().join(format!("ecp-bodies-conic-{}", std::process::id()));
     let options = ecp::run::RunOptions {
-        out_dir: std::env::temp_dir().join(format!("ecp-bodies-conic-{}", std::process::id())),
+        out_dir: out_dir.clone(),
         solver: Some("conic".into()),
         plots: false,
+        steps: Some(10),
         ..Default::default()
     };
-    let e = ecp::run::run_scene(&file, &options, |_| {})
-        .err()
-        .map(|e| e.to_string())
-        .unwrap_or_default();
-    assert!(
-        e.contains("conic") && e.contains("bodies") && e.contains("--solver newton"),
-        "{e}"
-    );
+    let outcome = ecp::run::run_scene(&file, &options, |_| {}).unwrap_or_else(|e| panic!("{e}"));
+    assert!(outcome.succeeded(), "{:?}", outcome.stepper_error);
+    assert_eq!(outcome.records.len(), 10);
+    for r in &outcome.records {
+        assert!(r.converged, "step {}", r.step);
+        assert_eq!(r.method, StepMethod::Direct, "step {}", r.step);
+        assert_eq!(r.summary.solver, "conic", "step {}", r.step);
+    }
+    let _ = std::fs::remove_dir_all(&out_dir);
 }
 
 /// `ecp check` lists the pairs the overlap check watches and those with a contact set at t = 0.
@@ -894,4 +943,70 @@ fn issue16_pile_runs_to_the_end() {
     for (name, s) in [("B", b), ("C", c), ("D", d), ("E", e)] {
         close(name, s.v.x, 0.4, 1e-6);
     }
+}
+
+/// The scenes users will want (`docs/bodies.md`) with the conic backend alone (no fallback,
+/// keep going, at most 600 s each): steps converged, Newton-polish steps, step times and the
+/// deepest penetration, printed for `docs/bodies.md#the-conic-backend`; asserts that every step
+/// of the gripper and the feeder converged (bin20 does not). Run with
+/// `cargo test -p ecp --test bodies -- --ignored user_scenes_with_the_conic_backend --nocapture`.
+#[test]
+#[ignore = "slow (minutes): cargo test -p ecp --test bodies -- --ignored user_scenes_with_the_conic_backend --nocapture"]
+fn user_scenes_with_the_conic_backend() {
+    let mut failed = Vec::new();
+    for name in ["tbar_gripper", "parts_feeder", "bin20"] {
+        let file = load_scene(
+            &Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("scenes")
+                .join(format!("{name}.toml")),
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let out_dir = std::env::temp_dir().join(format!("ecp-conic-{name}-{}", std::process::id()));
+        let options = ecp::run::RunOptions {
+            out_dir: out_dir.clone(),
+            solver: Some("conic".into()),
+            plots: false,
+            fallbacks: false,
+            keep_going: true,
+            time_limit: Some(std::time::Duration::from_secs(600)),
+            ..Default::default()
+        };
+        let o = ecp::run::run_scene(&file, &options, |_| {}).unwrap_or_else(|e| panic!("{e}"));
+        let s = &o.summary;
+        let polished = o
+            .records
+            .iter()
+            .filter(|r| r.summary.counters.get(Counter::NewtonPolish).unwrap_or(0) > 0)
+            .count();
+        let overlap = o.stepper_error.clone().unwrap_or_default();
+        // The smallest gap of a contact pair at a step end (negative: the hulls overlap).
+        let pair_gap = o
+            .records
+            .iter()
+            .flat_map(|r| r.pairs.iter().map(|p| p.gap))
+            .fold(f64::INFINITY, f64::min);
+        eprintln!(
+            "{name}, conic: {} of {} steps, {} converged, {} failed, {polished} finished by the \
+             Newton polish, wall {:.1} s ({:.1} steps/s), step median {:.0} µs p95 {:.0} µs max \
+             {:.0} µs, max penetration {:.3e} m, smallest pair gap {pair_gap:.3e} m, timed out {}, \
+             stepper error '{overlap}'",
+            s.steps,
+            s.planned_steps,
+            s.converged_steps,
+            s.failed_steps,
+            s.wall_s,
+            s.steps as f64 / s.wall_s,
+            s.step_us.median,
+            s.step_us.p95,
+            s.step_us.max,
+            s.max_penetration,
+            o.timed_out,
+        );
+        // bin20 is measured, not asserted: its landing steps fail (docs/bodies.md).
+        if !o.succeeded() && name != "bin20" {
+            failed.push(name);
+        }
+        let _ = std::fs::remove_dir_all(&out_dir);
+    }
+    assert!(failed.is_empty(), "not every step converged: {failed:?}");
 }

@@ -201,7 +201,10 @@ mod tests {
     fn builtin_names_and_capabilities() {
         let r = FormulationRegistry::builtin();
         assert_eq!(r.names(), ["hull", "union", "reduced", "point", "bodies"]);
-        assert_eq!(r.names_with(|c| c.step_structure), ["hull", "union"]);
+        assert_eq!(
+            r.names_with(|c| c.step_structure),
+            ["hull", "union", "bodies"]
+        );
         assert!(
             r.capabilities("union")
                 .is_ok_and(|c| c.non_isolated_solutions)

@@ -79,6 +79,6 @@ pub use solver::{
     Termination, finish_solve, finish_solve_at, validate_start,
 };
 pub use structure::{
-    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, PatchVertex,
-    StepStructure,
+    BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, ContactPartner,
+    PatchVertex, StepStructure,
 };

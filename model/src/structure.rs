@@ -45,25 +45,57 @@ pub struct BodyDynamics {
     pub free_velocity: [f64; 6],
 }
 
-/// A vertex of Conv(F) near G at a trial configuration.
+/// A vertex of Conv(F) near G at a trial configuration; for a contact between two hulls, a
+/// vertex of the contact patch (a vertex of F over G, a vertex of G under F, or where an edge of
+/// F crosses an edge of G, seen along the normal).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PatchVertex {
     /// Index of the vertex in the hull's vertex list (stable for the body's lifetime): the map
-    /// back re-evaluates the vertex at the new configuration from it.
+    /// back re-evaluates the vertex at the new configuration from it. For a contact between two
+    /// hulls, an index the formulation decodes in the same way (which feature of which side).
     pub index: usize,
-    /// World position at the trial configuration.
+    /// World position at the trial configuration (on Conv(F)): F's lever arm.
     pub position: [f64; 3],
-    /// Signed distance to G, `g(position)` (positive outside G).
+    /// Signed distance to G along the normal (positive outside G).
     pub gap: f64,
+    /// The point of G facing `position` along the normal, `position − gap n` (G's lever arm;
+    /// unused for a half-space).
+    pub partner_position: [f64; 3],
 }
 
-/// One contact (Conv(F) of a body against a fixed half-space G) evaluated at a trial
-/// end-of-step configuration (`docs/model.md#contact`, `docs/model.md#friction`).
+/// The other side G of a contact.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub enum ContactPartner {
+    /// A fixed half-space (the one-face case): no velocity, no impulse.
+    #[default]
+    HalfSpace,
+    /// A dynamic body (in [`StepStructure::body`] numbering), with its centre of mass at the
+    /// trial configuration: it receives the opposite impulse.
+    Body {
+        /// Index of the body.
+        body: usize,
+        /// Its centre of mass at the trial configuration.
+        center_of_mass: [f64; 3],
+    },
+    /// A fixed or kinematic body: its velocity over the step is data (zero when fixed) and it
+    /// receives no impulse.
+    Prescribed {
+        /// Its velocity `(v, ω)` over the step, `v` that of `center_of_mass`.
+        velocity: [f64; 6],
+        /// The reference point of `velocity` (its end-of-step position).
+        center_of_mass: [f64; 3],
+    },
+}
+
+/// One contact (Conv(F) of a body against a fixed half-space G, or against the convex hull of
+/// another body) evaluated at a trial end-of-step configuration (`docs/model.md#contact`,
+/// `docs/model.md#friction`, `docs/model.md#contact-between-two-bodies`).
 #[derive(Clone, Debug, PartialEq)]
 pub struct ContactGeometry {
     /// Index of the body (in [`StepStructure::body`] numbering).
     pub body: usize,
-    /// Unit normal `n` of G pointing into F.
+    /// Unit normal `n` of G pointing into F (for two hulls, the pair's normal `ν_G/|ν_G|` at the
+    /// trial point).
     pub normal: [f64; 3],
     /// First unit tangent `t`.
     pub tangent: [f64; 3],
@@ -80,6 +112,9 @@ pub struct ContactGeometry {
     pub ecp: [f64; 3],
     /// Friction parameters.
     pub friction: ContactFriction,
+    /// The other side: a half-space, a dynamic body or a body with prescribed velocity. The
+    /// friction acts on the velocity of F relative to G at the ECP.
+    pub partner: ContactPartner,
 }
 
 /// Impulses of one contact in a conic solution.
@@ -92,6 +127,9 @@ pub struct ContactImpulses {
     pub friction: [f64; 3],
     /// Slip magnitude `σ ≥ 0` (`docs/model.md#friction`).
     pub sigma: f64,
+    /// The normal the impulses were computed with (zero when the backend did not say): the map
+    /// back of a contact between two hulls orients the pair's normal by it.
+    pub normal: [f64; 3],
 }
 
 /// A point of a structure-exploiting backend: end-of-step velocities and contact impulses.

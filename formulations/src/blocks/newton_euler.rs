@@ -87,6 +87,56 @@ impl BodyStepData {
         p
     }
 
+    /// The free-motion velocity (the step's Newton–Euler rows without contact impulses) with the
+    /// end-of-step orientation `R1` and the gyroscopic impulse at the trial angular velocity
+    /// `w_trial` held fixed: `v^u + p_lin/m` and
+    /// `I_w1⁻¹ (R1 I_b R0ᵀ ω^u + p_ang − h ω̃ × (I_w1 ω̃))`, `I_w1 = R1 I_b R1ᵀ`
+    /// ([`BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`): what a
+    /// structure-exploiting backend reads ([`ecp_model::BodyDynamics`]).
+    pub fn free_velocity(&self, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
+        let impulse = self.impulse();
+        let (v0, w0) = (
+            self.nu_start.fixed_rows::<3>(0).into_owned(),
+            self.nu_start.fixed_rows::<3>(3).into_owned(),
+        );
+        let r0 = rotation_matrix(&self.q_start);
+        let iw1 = r1 * self.inertia * r1.transpose();
+        let lin = v0 + impulse.fixed_rows::<3>(0) / self.mass;
+        let rhs = r1 * (self.inertia * (r0.transpose() * w0)) + impulse.fixed_rows::<3>(3)
+            - w_trial.cross(&(iw1 * w_trial)) * self.h;
+        // The inertia is validated symmetric positive definite when the scene is built.
+        let ang = match iw1.cholesky() {
+            Some(ch) => ch.solve(&rhs),
+            None => w0,
+        };
+        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+    }
+
+    /// The mass matrix `diag(m I₃, R1 I_b R1ᵀ)` at the end-of-step orientation `R1` and the
+    /// free-motion velocity ([`BodyStepData::free_velocity`]): the body as a
+    /// structure-exploiting backend sees it.
+    pub fn dynamics(&self, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> ecp_model::BodyDynamics {
+        let iw1 = r1 * self.inertia * r1.transpose();
+        let mut m = Matrix6::zeros();
+        for i in 0..3 {
+            m[(i, i)] = self.mass;
+            for j in 0..3 {
+                m[(3 + i, 3 + j)] = iw1[(i, j)];
+            }
+        }
+        let mut mass = [[0.0; 6]; 6];
+        for (i, row) in mass.iter_mut().enumerate() {
+            for (j, v) in row.iter_mut().enumerate() {
+                *v = m[(i, j)];
+            }
+        }
+        let f = self.free_velocity(r1, w_trial);
+        ecp_model::BodyDynamics {
+            mass,
+            free_velocity: [f[0], f[1], f[2], f[3], f[4], f[5]],
+        }
+    }
+
     /// The inertial part of the rows of [`NewtonEuler`] at the end-of-step velocity
     /// `ν = (v, ω)` and orientation `Q` (`R1 = R(Q)`, `R0 = R(Q^u)`, `I_w1 = R1 I_body R1ᵀ`):
     /// `[−m (v − v^u); −I_w1 ω + R1 I_body R0ᵀ ω^u − h ω × (I_w1 ω)]`, to which the applied

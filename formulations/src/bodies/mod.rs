@@ -21,10 +21,13 @@
 
 pub mod overlap;
 pub mod pairs;
+mod structure;
 
 use nalgebra::{Vector3, Vector4};
 
-use ecp_model::{BlockMcp, DataBlock, DataId, Input, Problem, ResId, VarBlock, VarId};
+use ecp_model::{
+    BlockMcp, DataBlock, DataId, Input, Problem, ResId, StepStructure, VarBlock, VarId,
+};
 
 use crate::blocks::{
     AXIS_DATA, BodyDataIds, FaceSet, FrictionParams, KinematicMap, NewtonEuler, PairBody,
@@ -96,6 +99,8 @@ pub struct MultiBody {
     pending: Option<Vec<PairKey>>,
     /// The normals of the contacts the last problem had, by key (carried over a rebuild).
     normals: Vec<(PairKey, Vector3<f64>)>,
+    /// The span's data for the structural view ([`StepStructure`], `structure.rs`).
+    span: structure::Span,
 }
 
 impl MultiBody {
@@ -563,8 +568,8 @@ impl StepFormulation for MultiBody {
 
     fn capabilities(&self) -> Capabilities {
         Capabilities {
-            // The conic backend's two-body structure is not written yet.
-            step_structure: false,
+            // The structural view of `structure.rs`: the conic backend solves these steps.
+            step_structure: true,
             fallback_backends: true,
             substeps: true,
             user_terms: true,
@@ -858,6 +863,7 @@ impl StepFormulation for MultiBody {
         for c in &self.contacts {
             mcp.set_data(c.data.axis, reference_axis(&c.normal).as_slice())?;
         }
+        self.record_span(mcp);
         Ok(())
     }
 
@@ -1046,6 +1052,10 @@ impl StepFormulation for MultiBody {
                 mode,
             });
         }
+    }
+
+    fn structure(&self) -> Option<&dyn StepStructure> {
+        Some(self)
     }
 }
 

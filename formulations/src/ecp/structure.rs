@@ -4,11 +4,11 @@
 //! crate. The driver hands it to every backend with the step's MCP, so generic backends see the
 //! same problem as without it.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Matrix6, Vector3, Vector4, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4, Vector6};
 
 use ecp_model::{
-    BlockMcp, BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, PatchVertex,
-    StepStructure,
+    BlockMcp, BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactPartner,
+    PatchVertex, StepStructure,
 };
 
 use super::layout::Layout;
@@ -87,31 +87,9 @@ impl Layout {
         self.span.bodies[b]
     }
 
-    /// The free-motion velocity of body `b` (the step's Newton–Euler rows without contact
-    /// impulses) with the end-of-step orientation `R1` and the gyroscopic impulse at the trial
-    /// angular velocity `w_trial` held fixed: `v^u + p_lin/m` and
-    /// `I_w1⁻¹ (R1 I_b R0ᵀ ω^u + p_ang − h ω̃ × (I_w1 ω̃))`, `I_w1 = R1 I_b R1ᵀ`
-    /// ([`BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`). At
-    /// the step's solution (ω̃ its ω, R1 its orientation) it is the velocity the step reaches
-    /// without contact impulses.
+    /// The free-motion velocity of body `b` ([`BodyStepData::free_velocity`]).
     fn free_velocity(&self, b: usize, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
-        let d = self.body_data(b);
-        let impulse = d.impulse();
-        let (v0, w0) = (
-            d.nu_start.fixed_rows::<3>(0).into_owned(),
-            d.nu_start.fixed_rows::<3>(3).into_owned(),
-        );
-        let r0 = rotation_matrix(&d.q_start);
-        let iw1 = r1 * d.inertia * r1.transpose();
-        let lin = v0 + impulse.fixed_rows::<3>(0) / d.mass;
-        let rhs = r1 * (d.inertia * (r0.transpose() * w0)) + impulse.fixed_rows::<3>(3)
-            - w_trial.cross(&(iw1 * w_trial)) * d.h;
-        // The inertia is validated symmetric positive definite when the scene is built.
-        let ang = match iw1.cholesky() {
-            Some(ch) => ch.solve(&rhs),
-            None => w0,
-        };
-        Vector6::new(lin.x, lin.y, lin.z, ang.x, ang.y, ang.z)
+        self.body_data(b).free_velocity(r1, w_trial)
     }
 
     /// Start position (step coordinates) and orientation of body `b`, from its `start` data.
@@ -196,27 +174,8 @@ impl StepStructure for Layout {
     }
 
     fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
-        let d = self.body_data(b);
         let (r1, w_trial) = self.trial(b, z);
-        let iw1 = r1 * d.inertia * r1.transpose();
-        let mut m = Matrix6::zeros();
-        for i in 0..3 {
-            m[(i, i)] = d.mass;
-            for j in 0..3 {
-                m[(3 + i, 3 + j)] = iw1[(i, j)];
-            }
-        }
-        let mut mass = [[0.0; 6]; 6];
-        for (i, row) in mass.iter_mut().enumerate() {
-            for (j, v) in row.iter_mut().enumerate() {
-                *v = m[(i, j)];
-            }
-        }
-        let f = self.free_velocity(b, &r1, &w_trial);
-        BodyDynamics {
-            mass,
-            free_velocity: [f[0], f[1], f[2], f[3], f[4], f[5]],
-        }
+        self.body_data(b).dynamics(&r1, &w_trial)
     }
 
     fn num_contacts(&self) -> usize {
@@ -263,6 +222,7 @@ impl StepStructure for Layout {
                     index: j,
                     position: arr(&p),
                     gap: g,
+                    partner_position: arr(&(p - n * g)),
                 });
             }
         }
@@ -283,6 +243,7 @@ impl StepStructure for Layout {
                 e_o: f.e_o,
                 e_r: f.e_r,
             },
+            partner: ContactPartner::HalfSpace,
         }
     }
 

@@ -198,7 +198,7 @@ pub fn predicted_pose(
 /// Non-negative multipliers on the faces active within `tol` (value ≥ −tol) whose gradients
 /// combine to the direction `dir` in the least-squares sense; when none is positive, 1 on the
 /// face whose gradient is most aligned with `dir`.
-fn cone_combination(
+pub(crate) fn cone_combination(
     grads: &[Vector3<f64>],
     values: &[f64],
     tol: f64,

@@ -395,9 +395,8 @@ impl McpSolver for ConicSolver {
                     let shifts = geometry
                         .iter()
                         .map(|g| {
-                            let v = nu.get(g.body).copied().unwrap_or([0.0; 6]);
                             if exact {
-                                step::de_saxce_shift(g, &v)
+                                step::de_saxce_shift(g, &nu)
                             } else {
                                 0.0
                             }

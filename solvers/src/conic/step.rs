@@ -42,7 +42,10 @@
 //! Control Optim. 14, 1976), restricted to the contact's normal wrench.
 
 use ecp_model::linalg;
-use ecp_model::{BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, StepStructure};
+use ecp_model::{
+    BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, ContactPartner, PatchVertex,
+    StepStructure,
+};
 
 use super::qp::{Cone, ConicQp, QpResult};
 
@@ -72,20 +75,33 @@ fn wrench(d: &[f64; 3], r: &[f64; 3]) -> [f64; 6] {
     [d[0], d[1], d[2], m[0], m[1], m[2]]
 }
 
+/// One body a contact acts on, with the contact's wrenches on it: F's `+W`, and for a contact
+/// with another dynamic body G, G's `−W` at G's lever arms (equal and opposite impulses,
+/// `docs/model.md#impulses-on-both-bodies`).
+#[derive(Clone, Debug)]
+struct Side {
+    body: usize,
+    /// Wrenches `W_{n,j}` of the patch vertices on this body.
+    normal_wrenches: Vec<[f64; 6]>,
+    /// Friction wrenches `W_t, W_o, W_r` at the current ECP on this body.
+    friction_wrenches: [[f64; 6]; 3],
+}
+
 /// Where one contact sits in the QP.
 #[derive(Clone, Debug)]
 struct ContactRows {
-    body: usize,
+    /// F, then G when G is a dynamic body.
+    sides: Vec<Side>,
     /// Hull indices of the patch vertices, in row order.
     vertices: Vec<usize>,
-    /// Wrenches `W_{n,j}` of the patch vertices.
-    normal_wrenches: Vec<[f64; 6]>,
     /// First row of the vertex rows.
     first_row: usize,
-    /// Linearised gap rate of each patch vertex at `ν = 0`: `g_j/h − W_{n,j}ᵀ ν^k` (no shift).
+    /// Linearised gap rate of each patch vertex at `ν = 0`: `g_j/h − Σ_sides W_{n,j}ᵀ ν^k` (no
+    /// shift).
     gap_rates: Vec<f64>,
-    /// Friction wrenches `W_t, W_o, W_r` at the current ECP.
-    friction_wrenches: [[f64; 6]; 3],
+    /// The part of the friction rows' relative velocity that is data: `−W_{f,G}ᵀ ν_G` of a G
+    /// with prescribed velocity (zero otherwise).
+    slip_offset: [f64; 3],
     /// World positions of the patch vertices, in row order.
     positions: Vec<[f64; 3]>,
     /// The contact's geometry (frame, CM), for friction wrenches at another point.
@@ -118,13 +134,94 @@ fn friction_wrenches(g: &ContactGeometry) -> [[f64; 6]; 3] {
     ]
 }
 
-/// The De Saxcé shift `μ ‖E u_T‖` of contact `g` at velocities `nu` of its body.
-pub(crate) fn de_saxce_shift(g: &ContactGeometry, nu: &[f64; 6]) -> f64 {
+/// The dynamic body G of a contact between two bodies, with its centre of mass.
+fn dynamic_partner(g: &ContactGeometry) -> Option<(usize, [f64; 3])> {
+    match g.partner {
+        ContactPartner::Body {
+            body,
+            center_of_mass,
+        } => Some((body, center_of_mass)),
+        _ => None,
+    }
+}
+
+/// `−w` (G's share of an equal and opposite impulse).
+fn negated(w: [f64; 6]) -> [f64; 6] {
+    w.map(|v| -v)
+}
+
+/// The wrenches of patch vertex `v` of contact `g` on each body it acts on: `(F, W_{n,j})` and,
+/// for a dynamic G, `(G, −[n; (v_G − x_G) × n])` at G's point of the vertex.
+fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> Vec<(usize, [f64; 6])> {
+    let mut out = vec![(
+        g.body,
+        wrench(&g.normal, &sub(&v.position, &g.center_of_mass)),
+    )];
+    if let Some((b, x)) = dynamic_partner(g) {
+        out.push((b, negated(wrench(&g.normal, &sub(&v.partner_position, &x)))));
+    }
+    out
+}
+
+/// A body and the friction wrenches `W_t, W_o, W_r` of a contact on it.
+type BodyFriction = (usize, [[f64; 6]; 3]);
+
+/// The friction wrenches of contact `g` at its ECP on each body it acts on (F's, and G's
+/// opposite ones for a dynamic G), and the data part of the relative slip (a G with prescribed
+/// velocity, `docs/model.md#friction-on-the-relative-velocity`).
+fn friction_sides(g: &ContactGeometry) -> (Vec<BodyFriction>, [f64; 3]) {
+    let mut out = vec![(g.body, friction_wrenches(g))];
+    let mut offset = [0.0; 3];
+    match g.partner {
+        ContactPartner::HalfSpace => {}
+        ContactPartner::Body {
+            body,
+            center_of_mass,
+        } => {
+            let w = friction_wrenches(&ContactGeometry {
+                center_of_mass,
+                patch: Vec::new(),
+                ..g.clone()
+            });
+            out.push((body, w.map(negated)));
+        }
+        ContactPartner::Prescribed {
+            velocity,
+            center_of_mass,
+        } => {
+            let w = friction_wrenches(&ContactGeometry {
+                center_of_mass,
+                patch: Vec::new(),
+                ..g.clone()
+            });
+            for i in 0..3 {
+                offset[i] = -dot6(&w[i], &velocity);
+            }
+        }
+    }
+    (out, offset)
+}
+
+/// Whether every body contact `g` acts on exists.
+fn bodies_exist(g: &ContactGeometry, num_bodies: usize) -> bool {
+    g.body < num_bodies && dynamic_partner(g).is_none_or(|(b, _)| b < num_bodies && b != g.body)
+}
+
+/// The De Saxcé shift `μ ‖E u_T‖` of contact `g` at the velocities `nu` of every body (the slip
+/// of F relative to G).
+pub(crate) fn de_saxce_shift(g: &ContactGeometry, nu: &[[f64; 6]]) -> f64 {
     let f = g.friction;
     let axes = [f.e_t, f.e_o, f.e_r];
-    let w = friction_wrenches(g);
+    let (sides, offset) = friction_sides(g);
     let slip: f64 = (0..3)
-        .map(|i| (axes[i] * dot6(&w[i], nu)).powi(2))
+        .map(|i| {
+            let u = sides
+                .iter()
+                .map(|(b, w)| dot6(&w[i], nu.get(*b).unwrap_or(&[0.0; 6])))
+                .sum::<f64>()
+                + offset[i];
+            (axes[i] * u).powi(2)
+        })
         .sum::<f64>()
         .sqrt();
     f.mu * slip
@@ -144,17 +241,26 @@ pub(crate) struct Anchor<'a> {
     pub previous_loads: Option<&'a [f64]>,
 }
 
-/// Which contacts are anchored: those with a patch whose body has at least two of them.
+/// Which contacts are anchored: those with a patch on a body (F, or a dynamic G) that has at
+/// least two of them.
 pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize) -> Vec<bool> {
     let mut per_body = vec![0usize; num_bodies];
     for g in geometry {
         if !g.patch.is_empty() && g.body < num_bodies {
             per_body[g.body] += 1;
+            if let Some((b, _)) = dynamic_partner(g).filter(|(b, _)| *b < num_bodies) {
+                per_body[b] += 1;
+            }
         }
     }
     geometry
         .iter()
-        .map(|g| !g.patch.is_empty() && g.body < num_bodies && per_body[g.body] >= 2)
+        .map(|g| {
+            !g.patch.is_empty()
+                && g.body < num_bodies
+                && (per_body[g.body] >= 2
+                    || dynamic_partner(g).is_some_and(|(b, _)| b < num_bodies && per_body[b] >= 2))
+        })
         .collect()
 }
 
@@ -224,15 +330,13 @@ pub(crate) fn build(
     let mut contacts = Vec::with_capacity(geometry.len());
     let mut patch_vertices = 0;
     for (c, g) in geometry.iter().enumerate() {
-        if g.patch.is_empty() || g.body >= nb {
+        if g.patch.is_empty() || !bodies_exist(g, nb) {
             contacts.push(None);
             continue;
         }
-        let b = g.body;
         let f = g.friction;
         let axes = [f.e_t, f.e_o, f.e_r];
-        let friction_wrenches = friction_wrenches(g);
-        let nu_k = &trial[b];
+        let (friction_sides, slip_offset) = friction_sides(g);
         let s = shifts.get(c).copied().unwrap_or(0.0);
         let a_col = friction_vars
             .iter()
@@ -242,10 +346,14 @@ pub(crate) fn build(
         let mut vertices = Vec::with_capacity(g.patch.len());
         let mut positions = Vec::with_capacity(g.patch.len());
         let mut gap_rates = Vec::with_capacity(g.patch.len());
-        let mut normal_wrenches = Vec::with_capacity(g.patch.len());
+        let mut normal_wrenches: Vec<Vec<[f64; 6]>> =
+            vec![Vec::with_capacity(g.patch.len()); friction_sides.len()];
         for v in &g.patch {
-            let w = wrench(&g.normal, &sub(&v.position, &g.center_of_mass));
-            let mut coeffs: Vec<(usize, f64)> = (0..6).map(|i| (6 * b + i, -w[i])).collect();
+            let ws = normal_sides(g, v);
+            let mut coeffs: Vec<(usize, f64)> = ws
+                .iter()
+                .flat_map(|(b, w)| (0..6).map(move |i| (6 * b + i, -w[i])))
+                .collect();
             if let Some(a) = a_col {
                 coeffs.push((a, f.mu));
             }
@@ -256,12 +364,17 @@ pub(crate) fn build(
                 coeffs.push((col + 1, -dot3(&arm, &g.bitangent)));
                 coeffs.push((col + 2, -1.0));
             }
-            let rate = v.gap / h - dot6(&w, nu_k);
+            let mut rate = v.gap / h;
+            for (b, w) in &ws {
+                rate -= dot6(w, &trial[*b]);
+            }
             qp.push_row(&coeffs, rate + s);
             gap_rates.push(rate);
             vertices.push(v.index);
             positions.push(v.position);
-            normal_wrenches.push(w);
+            for (k, (_, w)) in ws.into_iter().enumerate() {
+                normal_wrenches[k].push(w);
+            }
         }
         if let (Some(col), Some((rho_m, rho_n)), Some(a)) = (anchor_cols[c], weights[c], anchor) {
             qp.add_p(col, col, 1.0 / rho_m);
@@ -278,21 +391,30 @@ pub(crate) fn build(
         let soc_row = a_col.map(|a| {
             let r0 = qp.push_row(&[(a, -1.0)], 0.0);
             for i in 0..3 {
-                let coeffs: Vec<(usize, f64)> = (0..6)
-                    .map(|k| (6 * b + k, -axes[i] * friction_wrenches[i][k]))
+                let coeffs: Vec<(usize, f64)> = friction_sides
+                    .iter()
+                    .flat_map(|(b, w)| (0..6).map(move |k| (6 * b + k, -axes[i] * w[i][k])))
                     .collect();
-                qp.push_row(&coeffs, 0.0);
+                // The data part of the relative slip (a G moved by its schedule).
+                qp.push_row(&coeffs, axes[i] * slip_offset[i]);
             }
             qp.cones.push(Cone::SecondOrder(4));
             r0
         });
         contacts.push(Some(ContactRows {
-            body: b,
+            sides: friction_sides
+                .into_iter()
+                .zip(normal_wrenches)
+                .map(|((body, friction_wrenches), normal_wrenches)| Side {
+                    body,
+                    normal_wrenches,
+                    friction_wrenches,
+                })
+                .collect(),
             vertices,
-            normal_wrenches,
             first_row,
             gap_rates,
-            friction_wrenches,
+            slip_offset,
             axes,
             soc_row,
             mu: f.mu,
@@ -352,7 +474,7 @@ impl StepQp {
                 continue;
             };
             let mut vertex_impulses = Vec::with_capacity(rows.vertices.len());
-            for (k, (&j, w)) in rows.vertices.iter().zip(&rows.normal_wrenches).enumerate() {
+            for (k, &j) in rows.vertices.iter().enumerate() {
                 let row = rows.first_row + k;
                 let l = if result.z[row] > result.s[row] {
                     result.z[row]
@@ -360,16 +482,21 @@ impl StepQp {
                     0.0
                 };
                 vertex_impulses.push((j, l));
-                for i in 0..6 {
-                    wrench_sum[rows.body][i] += l * w[i];
+                for side in &rows.sides {
+                    let w = &side.normal_wrenches[k];
+                    for i in 0..6 {
+                        wrench_sum[side.body][i] += l * w[i];
+                    }
                 }
             }
             let mut friction = [0.0; 3];
             if let Some(r0) = rows.soc_row {
                 for i in 0..3 {
                     friction[i] = rows.axes[i] * result.z[r0 + 1 + i];
-                    for k in 0..6 {
-                        wrench_sum[rows.body][k] += friction[i] * rows.friction_wrenches[i][k];
+                    for side in &rows.sides {
+                        for k in 0..6 {
+                            wrench_sum[side.body][k] += friction[i] * side.friction_wrenches[i][k];
+                        }
                     }
                 }
             }
@@ -377,66 +504,107 @@ impl StepQp {
                 vertex_impulses,
                 friction,
                 sigma: 0.0,
+                normal: rows.frame.normal,
             });
         }
-        let sweeps = if polish { 3 } else { 0 };
-        // The friction wrenches each contact's friction currently acts through.
-        let mut current: Vec<[[f64; 6]; 3]> = self
+        // Contacts between two dynamic bodies couple the bodies' friction problems (a stack: the
+        // friction under A depends on the friction of B on A), so the Gauss–Seidel sweeps go on
+        // until they settle (COUPLED_SWEEPS at most); a scene of half-space contacts keeps its
+        // three sweeps.
+        let coupled = self
             .contacts
             .iter()
-            .map(|r| r.as_ref().map_or([[0.0; 6]; 3], |r| r.friction_wrenches))
+            .flatten()
+            .any(|rows| rows.sides.len() > 1);
+        let sweeps = match (polish, coupled) {
+            (false, _) => 0,
+            (true, false) => 3,
+            (true, true) => COUPLED_SWEEPS,
+        };
+        // The friction wrenches each contact's friction currently acts through, per side.
+        let mut current: Vec<Vec<BodyFriction>> = self
+            .contacts
+            .iter()
+            .map(|r| {
+                r.as_ref().map_or(Vec::new(), |r| {
+                    r.sides
+                        .iter()
+                        .map(|s| (s.body, s.friction_wrenches))
+                        .collect()
+                })
+            })
             .collect();
-        for _sweep in 0..sweeps {
+        for sweep in 0..sweeps {
+            let before: Vec<ContactImpulses> = if coupled {
+                contacts.clone()
+            } else {
+                Vec::new()
+            };
             self.correct_normal_impulses(bodies, &mut contacts, &mut wrench_sum);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
                     continue;
                 }
-                let b = rows.body;
-                let body = &bodies[b];
                 // Remove this contact's friction, then solve its local problem with the friction
                 // acting at the centre of pressure of the normal impulses (the ECP a1 of the point
                 // that is assembled, `docs/model.md#newton-euler`, `docs/model.md#friction`), which
                 // may differ from the ECP the QP was built at until the fixed point converges.
-                for i in 0..3 {
-                    for k in 0..6 {
-                        wrench_sum[b][k] -= imp.friction[i] * current[c][i][k];
+                for (b, wf) in &current[c] {
+                    for i in 0..3 {
+                        for k in 0..6 {
+                            wrench_sum[*b][k] -= imp.friction[i] * wf[i][k];
+                        }
                     }
                 }
+                let mut offset = rows.slip_offset;
                 if rows.anchor.is_some()
                     && let Some(cop) = rows.centre_of_pressure(&imp.vertex_impulses)
                 {
-                    current[c] = friction_wrenches(&ContactGeometry {
+                    let (sides, o) = friction_sides(&ContactGeometry {
                         ecp: cop,
                         patch: Vec::new(),
                         ..rows.frame.clone()
                     });
+                    current[c] = sides;
+                    offset = o;
                 }
-                let wf = &current[c];
-                let dv = solve6(&body.mass, &wrench_sum[b]);
-                let mut nu0 = body.free_velocity;
-                for k in 0..6 {
-                    nu0[k] += dv[k];
-                }
-                let minv_w: Vec<[f64; 6]> = wf.iter().map(|w| solve6(&body.mass, w)).collect();
+                // The local problem on the slip of F relative to G: the Delassus matrix and the
+                // slip without this friction summed over the bodies it acts on.
                 let mut a = [[0.0; 3]; 3];
                 let mut u0 = [0.0; 3];
-                for i in 0..3 {
-                    u0[i] = dot6(&wf[i], &nu0);
-                    for j in 0..3 {
-                        a[i][j] = dot6(&wf[i], &minv_w[j]);
+                for (b, wf) in &current[c] {
+                    let body = &bodies[*b];
+                    let dv = solve6(&body.mass, &wrench_sum[*b]);
+                    let mut nu0 = body.free_velocity;
+                    for k in 0..6 {
+                        nu0[k] += dv[k];
                     }
+                    let minv_w: Vec<[f64; 6]> = wf.iter().map(|w| solve6(&body.mass, w)).collect();
+                    for i in 0..3 {
+                        u0[i] += dot6(&wf[i], &nu0);
+                        for j in 0..3 {
+                            a[i][j] += dot6(&wf[i], &minv_w[j]);
+                        }
+                    }
+                }
+                for i in 0..3 {
+                    u0[i] += offset[i];
                 }
                 let pn: f64 = imp.vertex_impulses.iter().map(|(_, l)| l).sum();
                 let (p, sigma) = local_friction(&a, &u0, &rows.axes, rows.mu * pn);
                 imp.friction = p;
                 imp.sigma = sigma;
-                for i in 0..3 {
-                    for k in 0..6 {
-                        wrench_sum[b][k] += p[i] * wf[i][k];
+                for (b, wf) in &current[c] {
+                    for i in 0..3 {
+                        for k in 0..6 {
+                            wrench_sum[*b][k] += p[i] * wf[i][k];
+                        }
                     }
                 }
+            }
+            if coupled && sweep >= 2 && settled(&before, &contacts) {
+                break;
             }
         }
         let velocities: Vec<[f64; 6]> = bodies
@@ -455,9 +623,16 @@ impl StepQp {
             // σ = ‖E u_T‖ at the new velocities (the relaxation's slip).
             for (rows, imp) in self.contacts.iter().zip(contacts.iter_mut()) {
                 if let Some(rows) = rows {
-                    let nu = &velocities[rows.body];
                     imp.sigma = (0..3)
-                        .map(|i| (rows.axes[i] * dot6(&rows.friction_wrenches[i], nu)).powi(2))
+                        .map(|i| {
+                            let u = rows
+                                .sides
+                                .iter()
+                                .map(|s| dot6(&s.friction_wrenches[i], &velocities[s.body]))
+                                .sum::<f64>()
+                                + rows.slip_offset[i];
+                            (rows.axes[i] * u).powi(2)
+                        })
                         .sum::<f64>()
                         .sqrt();
                 }
@@ -468,6 +643,29 @@ impl StepQp {
             contacts,
         }
     }
+}
+
+/// Gauss–Seidel sweeps of the polish at most when contacts couple two dynamic bodies.
+const COUPLED_SWEEPS: usize = 50;
+
+/// Whether a polish sweep changed no impulse by more than `1e-14` of the largest one.
+fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
+    let values = |c: &ContactImpulses| {
+        c.vertex_impulses
+            .iter()
+            .map(|(_, l)| *l)
+            .chain(c.friction)
+            .collect::<Vec<f64>>()
+    };
+    let mut scale: f64 = 0.0;
+    let mut change: f64 = 0.0;
+    for (b, a) in before.iter().zip(after) {
+        for (x, y) in values(b).iter().zip(values(a)) {
+            scale = scale.max(y.abs());
+            change = change.max((x - y).abs());
+        }
+    }
+    change <= 1e-14 * scale
 }
 
 impl ContactRows {
@@ -509,12 +707,12 @@ impl StepQp {
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
     ) {
-        for (b, body) in bodies.iter().enumerate() {
+        for group in self.groups(bodies.len()) {
             // (contact, position in the contact's vertex list) of every loaded vertex.
             let mut loaded: Vec<(usize, usize)> = Vec::new();
             for (c, rows) in self.contacts.iter().enumerate() {
                 let Some(rows) = rows else { continue };
-                if rows.body != b {
+                if !group.contains(&rows.sides[0].body) {
                     continue;
                 }
                 for (k, &(_, l)) in contacts[c].vertex_impulses.iter().enumerate() {
@@ -526,31 +724,64 @@ impl StepQp {
             if loaded.is_empty() {
                 continue;
             }
-            let w: Vec<[f64; 6]> = loaded
+            // The wrenches of each loaded vertex on each body of the group.
+            let w: Vec<Vec<(usize, [f64; 6])>> = loaded
                 .iter()
-                .filter_map(|&(c, k)| self.contacts[c].as_ref().map(|r| r.normal_wrenches[k]))
+                .filter_map(|&(c, k)| {
+                    self.contacts[c].as_ref().map(|r| {
+                        r.sides
+                            .iter()
+                            .map(|s| (s.body, s.normal_wrenches[k]))
+                            .collect()
+                    })
+                })
                 .collect();
             if w.len() != loaded.len() {
                 continue;
             }
-            let dv = solve6(&body.mass, &wrench_sum[b]);
-            let mut nu = body.free_velocity;
-            for i in 0..6 {
-                nu[i] += dv[i];
-            }
-            let minv_w: Vec<[f64; 6]> = w.iter().map(|x| solve6(&body.mass, x)).collect();
+            let nu: Vec<(usize, [f64; 6])> = group
+                .iter()
+                .map(|&b| {
+                    let body = &bodies[b];
+                    let dv = solve6(&body.mass, &wrench_sum[b]);
+                    let mut nu = body.free_velocity;
+                    for i in 0..6 {
+                        nu[i] += dv[i];
+                    }
+                    (b, nu)
+                })
+                .collect();
+            let velocity = |b: usize| nu.iter().find(|(c, _)| *c == b).map(|(_, v)| *v);
+            let minv_w: Vec<Vec<(usize, [f64; 6])>> = w
+                .iter()
+                .map(|ws| {
+                    ws.iter()
+                        .map(|(b, x)| (*b, solve6(&bodies[*b].mass, x)))
+                        .collect()
+                })
+                .collect();
             let k = loaded.len();
             let mut d = vec![vec![0.0; k]; k];
             let mut r = vec![0.0; k];
             for i in 0..k {
                 for j in 0..k {
-                    d[i][j] = dot6(&w[i], &minv_w[j]);
+                    // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
+                    for (bi, wi) in &w[i] {
+                        for (bj, mj) in &minv_w[j] {
+                            if bi == bj {
+                                d[i][j] += dot6(wi, mj);
+                            }
+                        }
+                    }
                 }
                 let (c, kk) = loaded[i];
-                let rate = self.contacts[c]
+                let mut rate = self.contacts[c]
                     .as_ref()
                     .map_or(0.0, |rows| rows.gap_rates[kk]);
-                r[i] = -(rate + dot6(&w[i], &nu));
+                for (b, wi) in &w[i] {
+                    rate += dot6(wi, &velocity(*b).unwrap_or([0.0; 6]));
+                }
+                r[i] = -rate;
             }
             let anchored = loaded.iter().any(|&(c, _)| {
                 self.contacts[c]
@@ -577,11 +808,47 @@ impl StepQp {
                 let step = alpha * delta[i];
                 let entry = &mut contacts[c].vertex_impulses[kk];
                 entry.1 = (entry.1 + step).max(0.0);
-                for j in 0..6 {
-                    wrench_sum[b][j] += step * w[i][j];
+                for (b, wi) in &w[i] {
+                    for j in 0..6 {
+                        wrench_sum[*b][j] += step * wi[j];
+                    }
                 }
             }
         }
+    }
+
+    /// The bodies coupled by contacts (connected components of the contact graph), each sorted,
+    /// in the order of their smallest body: the loaded vertices of one group share a Delassus
+    /// system. A body touching only half-spaces is a group by itself.
+    fn groups(&self, num_bodies: usize) -> Vec<Vec<usize>> {
+        let mut root: Vec<usize> = (0..num_bodies).collect();
+        fn find(root: &mut [usize], mut b: usize) -> usize {
+            while root[b] != b {
+                root[b] = root[root[b]];
+                b = root[b];
+            }
+            b
+        }
+        for rows in self.contacts.iter().flatten() {
+            let first = rows.sides[0].body;
+            for side in &rows.sides[1..] {
+                let (a, b) = (find(&mut root, first), find(&mut root, side.body));
+                if a != b {
+                    root[a.max(b)] = a.min(b);
+                }
+            }
+        }
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut index = vec![usize::MAX; num_bodies];
+        for b in 0..num_bodies {
+            let r = find(&mut root, b);
+            if index[r] == usize::MAX {
+                index[r] = groups.len();
+                groups.push(Vec::new());
+            }
+            groups[index[r]].push(b);
+        }
+        groups
     }
 }
 
@@ -953,6 +1220,7 @@ mod tests {
                     index: j,
                     position: [j as f64, 0.0, 0.0],
                     gap: 0.0,
+                    partner_position: [j as f64, 0.0, 0.0],
                 })
                 .collect(),
             ecp: [0.0; 3],
@@ -962,6 +1230,7 @@ mod tests {
                 e_o: 1.0,
                 e_r: 0.1,
             },
+            partner: ContactPartner::HalfSpace,
         }
     }
 
