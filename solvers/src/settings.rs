@@ -593,6 +593,14 @@ mod tests {
             v,
         );
         refused(
+            "qp_tolerance_factor",
+            ConicSettings {
+                qp_tolerance_factor: -1e-3,
+                ..d()
+            },
+            v,
+        );
+        refused(
             "anchor_load",
             ConicSettings {
                 anchor_load: f64::INFINITY,

@@ -253,7 +253,6 @@ fn eliminate(
 
 /// The direction of the linearised KKT system with right-hand side `t` of the scaled
 /// complementarity rows: `P dx + Aᵀdz = −r_x`, `A dx + ds = −r_z`, `W⁻¹ds + W dz = t`.
-#[allow(clippy::too_many_arguments)]
 fn newton_direction(
     kkt: &Factored<'_>,
     a: &[f64],
