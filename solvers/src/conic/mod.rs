@@ -167,7 +167,9 @@ pub struct ConicSettings {
     /// residual is small. The polish makes each QP's answer exact on its identified active set,
     /// and the fixed point is still stopped on the natural residual at
     /// [`ConicSettings::tolerance`], so this changes how fast it gets there, not where. `0`: every
-    /// QP to clarabel's tolerances. Default `1e-2` (`docs/latency.md#conic-backend`).
+    /// QP to clarabel's tolerances. Default `0`: 1e-3 saves about 15 % of the desk's step but
+    /// moves A1's ω by 1.5e-9 (`tests/scenarios.rs` allows 1e-9), 1e-2 makes `a5_drop_tilted`
+    /// need a Newton polish (`docs/latency.md#conic-backend`).
     pub qp_tolerance_factor: f64,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
@@ -208,7 +210,7 @@ impl Default for ConicSettings {
             newton_handoff: 0.0,
             newton_handoff_iterations: 4,
             dense_qp: false,
-            qp_tolerance_factor: 1e-3,
+            qp_tolerance_factor: 0.0,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
