@@ -36,6 +36,32 @@ fn desk_step(bencher: divan::Bencher) {
     });
 }
 
+/// The same step with every outer QP solved to clarabel's tolerances
+/// (`ConicSettings::qp_tolerance_factor` 0): the default before the inexact QPs.
+#[divan::bench]
+fn desk_step_exact_qps(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
+    solver.settings_mut().qp_tolerance_factor = 0.0;
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
+/// The fastest combination measured (not the default: the handoff slows corner scenes,
+/// `docs/latency.md#conic-backend`): dense QPs, inexact QPs, Newton handoff at 1e-3.
+#[divan::bench]
+fn desk_step_dense_handoff(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
+    let settings = solver.settings_mut();
+    settings.dense_qp = true;
+    settings.newton_handoff = 1e-3;
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
 #[divan::bench]
 fn desk_step_anitescu(bencher: divan::Bencher) {
     let (sim, mut solver, z0) = desk_at_step_100(ConicMode::AnitescuRelaxation);

@@ -221,6 +221,7 @@ impl ConicSettings {
         c.positive("patch_band", self.patch_band)?;
         c.non_negative("anchor_moment", self.anchor_moment)?;
         c.non_negative("anchor_load", self.anchor_load)?;
+        c.non_negative("qp_tolerance_factor", self.qp_tolerance_factor)?;
         let k = &self.clarabel;
         c.iterations("clarabel.max_iter", k.max_iter as usize)?;
         c.positive("clarabel.tol_gap_abs", k.tol_gap_abs)?;
@@ -587,6 +588,14 @@ mod tests {
             "anchor_moment",
             ConicSettings {
                 anchor_moment: -1.0,
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "qp_tolerance_factor",
+            ConicSettings {
+                qp_tolerance_factor: -1e-3,
                 ..d()
             },
             v,

@@ -64,9 +64,11 @@
 
 mod anderson;
 pub mod closest_point;
+mod dense_qp;
 mod qp;
 mod step;
 
+use std::borrow::Cow;
 use std::time::Instant;
 
 use clarabel::solver::DefaultSettings;
@@ -150,6 +152,25 @@ pub struct ConicSettings {
     pub newton_handoff: f64,
     /// Newton iterations of one handoff attempt. Default 4.
     pub newton_handoff_iterations: usize,
+    /// Solve each outer QP first with the built-in dense interior-point method
+    /// (`conic/dense_qp.rs`: Nesterov–Todd scaling, Mehrotra's predictor–corrector, one dense
+    /// Cholesky factorisation per iteration) to the same tolerances, and with clarabel when it
+    /// does not get there (counter `"clarabel_fallbacks"`) or the QP has more than 48 variables.
+    /// Default `false`: on sliding contacts it loses its last digits near a duality gap of 1e-8
+    /// and leaves the QP to clarabel, so alone it makes the desk slower; with loose QP tolerances
+    /// and the Newton handoff it gave the fastest desk step measured
+    /// (`docs/latency.md#conic-backend`).
+    pub dense_qp: bool,
+    /// Inexact outer QPs: the QP of an outer iteration whose input has natural residual `r` is
+    /// solved to the tolerances `min(factor · r, 1e-6)` (clarabel's `tol_feas`, `tol_gap_abs`,
+    /// `tol_gap_rel`), never tighter than [`ConicSettings::clarabel`]'s, which apply once the
+    /// residual is small. The polish makes each QP's answer exact on its identified active set,
+    /// and the fixed point is still stopped on the natural residual at
+    /// [`ConicSettings::tolerance`], so this changes how fast it gets there, not where. `0`: every
+    /// QP to clarabel's tolerances. Default `0`: 1e-3 saves about 15 % of the desk's step but
+    /// moves A1's ω by 1.5e-9 (`tests/scenarios.rs` allows 1e-9), 1e-2 makes `a5_drop_tilted`
+    /// need a Newton polish (`docs/latency.md#conic-backend`).
+    pub qp_tolerance_factor: f64,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
@@ -188,6 +209,8 @@ impl Default for ConicSettings {
             newton_polish: 50,
             newton_handoff: 0.0,
             newton_handoff_iterations: 4,
+            dense_qp: false,
+            qp_tolerance_factor: 0.0,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
@@ -202,7 +225,9 @@ impl Default for ConicSettings {
 /// last QP), `"anitescu_relaxation"` (1 in that mode), `"newton_polish"` (Newton iterations
 /// after a fixed point that stagnated or hit its limit, 0 unless enabled and needed),
 /// `"newton_handoff"` (Newton iterations of the finish of a fixed point that got within
-/// [`ConicSettings::newton_handoff`]).
+/// [`ConicSettings::newton_handoff`]), `"dense_qp_iterations"` (interior-point iterations of the
+/// dense QP method, all QPs, [`ConicSettings::dense_qp`]), `"clarabel_fallbacks"` (QPs it left
+/// to clarabel).
 pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
@@ -245,6 +270,22 @@ impl ConicSolver {
 }
 
 impl ConicSolver {
+    /// The QP settings of an outer iteration whose input has natural residual `residual`
+    /// ([`ConicSettings::qp_tolerance_factor`]).
+    fn qp_settings(&self, residual: f64) -> Cow<'_, DefaultSettings<f64>> {
+        let k = &self.settings.clarabel;
+        let factor = self.settings.qp_tolerance_factor;
+        let loose = (factor * residual).min(1e-6);
+        if factor <= 0.0 || !loose.is_finite() || loose <= k.tol_feas {
+            return Cow::Borrowed(k);
+        }
+        let mut s = k.clone();
+        s.tol_feas = loose;
+        s.tol_gap_abs = loose.max(k.tol_gap_abs);
+        s.tol_gap_rel = loose.max(k.tol_gap_rel);
+        Cow::Owned(s)
+    }
+
     /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations: with the
     /// Newton backend's default safeguards after a stagnated fixed point, the plain iteration
     /// alone for a handoff: its solution or best point (`None` when Newton
@@ -296,6 +337,8 @@ struct Run {
     started: Instant,
     f_evals: usize,
     clarabel_iterations: usize,
+    dense_qp_iterations: usize,
+    clarabel_fallbacks: usize,
     status: Option<ClarabelStatus>,
     patch_vertices: usize,
     newton_polish: usize,
@@ -354,6 +397,8 @@ impl McpSolver for ConicSolver {
             started: Instant::now(),
             f_evals: 0,
             clarabel_iterations: 0,
+            dense_qp_iterations: 0,
+            clarabel_fallbacks: 0,
             status: None,
             patch_vertices: 0,
             newton_polish: 0,
@@ -428,7 +473,17 @@ impl McpSolver for ConicSolver {
             }
             let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
             run.patch_vertices = sub.patch_vertices;
-            let result = match sub.qp.solve(&self.settings.clarabel) {
+            let qp_settings = self.qp_settings(if exact { residual } else { 0.0 });
+            let dense = self
+                .settings
+                .dense_qp
+                .then(|| dense_qp::solve(&sub.qp, &qp_settings))
+                .flatten();
+            let from_dense = dense.is_some();
+            if self.settings.dense_qp && !from_dense {
+                run.clarabel_fallbacks += 1;
+            }
+            let result = match dense.map_or_else(|| sub.qp.solve(&qp_settings), Ok) {
                 Ok(r) => r,
                 Err(msg) => {
                     self.last_error = Some(msg);
@@ -436,7 +491,11 @@ impl McpSolver for ConicSolver {
                     break;
                 }
             };
-            run.clarabel_iterations += result.iterations as usize;
+            if from_dense {
+                run.dense_qp_iterations += result.iterations as usize;
+            } else {
+                run.clarabel_iterations += result.iterations as usize;
+            }
             run.status = Some(result.status);
             self.last_status = Some(result.status);
             iterations = it + 1;
@@ -617,6 +676,14 @@ impl McpSolver for ConicSolver {
                     ),
                     (Counter::NewtonPolish, run.newton_polish),
                     (Counter::NewtonHandoff, run.newton_handoff),
+                    (
+                        Counter::Custom("dense_qp_iterations"),
+                        run.dense_qp_iterations,
+                    ),
+                    (
+                        Counter::Custom("clarabel_fallbacks"),
+                        run.clarabel_fallbacks,
+                    ),
                 ]),
             },
         )
