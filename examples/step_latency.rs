@@ -43,7 +43,13 @@ fn repeat(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let (case, n) = match args.as_slice() {
-        [_, case, n] => (case.as_str(), n.parse::<usize>().expect("N: a count")),
+        [_, case, n] => match n.parse::<usize>() {
+            Ok(n) => (case.as_str(), n),
+            Err(_) => {
+                eprintln!("step_latency: N must be a count of repetitions, got {n:?}");
+                std::process::exit(2);
+            }
+        },
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity> N"

@@ -10,7 +10,6 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
 
 use ecp::formulations::{Simulation, scenarios};
-use ecp::model::McpSolver;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 /// The system allocator, counting the allocations (and reallocations) of each thread.

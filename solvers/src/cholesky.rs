@@ -35,7 +35,8 @@ impl Cholesky {
         // lower triangle, column by column (contiguous inner loops).
         for j in 0..n {
             let d = l[j * n + j];
-            if !(d > floor) || !d.is_finite() {
+            // NaN fails `d > floor` as well: refused like a small pivot.
+            if d.partial_cmp(&floor) != Some(std::cmp::Ordering::Greater) || !d.is_finite() {
                 return false;
             }
             let ljj = d.sqrt();

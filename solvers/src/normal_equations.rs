@@ -189,7 +189,7 @@ impl NormalEquations {
     /// then only adds its `λ` and factorises ([`NormalEquations::factor_damped`]).
     pub(crate) fn form(&mut self, h: &[f64]) -> f64 {
         self.base.fill(0.0);
-        let max_diag = match &self.form {
+        match &self.form {
             Form::Product { triples, diag, .. } => {
                 for &(pi, pj, pos) in triples {
                     self.base[pos] += h[pi] * h[pj];
@@ -214,8 +214,7 @@ impl NormalEquations {
                     .map(|w| h[w[0]..w[1]].iter().map(|v| v * v).sum::<f64>())
                     .fold(0.0, f64::max)
             }
-        };
-        max_diag
+        }
     }
 
     /// Factorises the last formed system with damping `λ` (absolute).
