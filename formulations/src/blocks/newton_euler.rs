@@ -67,6 +67,28 @@ impl BodyStepData {
         }
     }
 
+    /// The body data as stored in a prepared step problem's data blocks `d`, with the scene's
+    /// `gravity` and `h`; also the CM position at the start of the step (the structural views
+    /// of the hull and bodies formulations read both).
+    pub fn from_mcp(
+        mcp: &ecp_model::BlockMcp,
+        d: &super::data::BodyDataIds,
+        gravity: Vector3<f64>,
+        h: f64,
+    ) -> (Self, Vector3<f64>) {
+        let s = mcp.data(d.start);
+        let data = BodyStepData {
+            mass: mcp.data(d.mass)[0],
+            inertia: inertia_from_entries(mcp.data(d.inertia)),
+            q_start: v4(s, start::Q),
+            nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
+            wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
+            gravity,
+            h,
+        };
+        (data, v3(s, start::X))
+    }
+
     /// The generalised mass matrix `diag(m I, R I_body Rᵀ)` at `Q^u` (the mass matrix of the
     /// start of the step; the rows of [`NewtonEuler`] use the one of the end).
     pub fn mass_matrix(&self) -> Matrix6<f64> {

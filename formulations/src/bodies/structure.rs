@@ -23,8 +23,7 @@ use ecp_model::{
 
 use super::pairs::Partner;
 use super::{MultiBody, touching_features};
-use crate::blocks::data::start;
-use crate::blocks::{BodyStepData, FaceSet, FrictionParams, PairFrame, inertia_from_entries};
+use crate::blocks::{BodyStepData, FaceSet, FrictionParams, PairFrame};
 use crate::geometry::{ConvexHull, HullPose, cone_combination};
 use crate::rotation::{kinematic_map, rotation_matrix};
 
@@ -201,24 +200,10 @@ impl MultiBody {
             .bodies
             .iter()
             .map(|b| {
-                let d = b.data;
-                let s = mcp.data(d.start);
+                let (data, start_x) = BodyStepData::from_mcp(mcp, &b.data, gravity, h);
                 SpanBody {
-                    data: BodyStepData {
-                        mass: mcp.data(d.mass)[0],
-                        inertia: inertia_from_entries(mcp.data(d.inertia)),
-                        q_start: Vector4::new(
-                            s[start::Q],
-                            s[start::Q + 1],
-                            s[start::Q + 2],
-                            s[start::Q + 3],
-                        ),
-                        nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
-                        wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
-                        gravity,
-                        h,
-                    },
-                    start_x: Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]),
+                    data,
+                    start_x,
                     nu: mcp.range(b.nu),
                     q: mcp.range(b.q),
                 }

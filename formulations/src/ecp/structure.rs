@@ -12,8 +12,7 @@ use ecp_model::{
 };
 
 use super::layout::Layout;
-use crate::blocks::data::start;
-use crate::blocks::{BodyStepData, FrictionParams, inertia_from_entries};
+use crate::blocks::{BodyStepData, FrictionParams};
 use crate::rotation::{kinematic_map, rotation_matrix};
 use crate::scene::BodyState;
 
@@ -37,25 +36,9 @@ impl Layout {
         self.span.bodies.clear();
         self.span.start_x.clear();
         for body in &self.bodies {
-            let d = body.data;
-            let s = mcp.data(d.start);
-            self.span.bodies.push(BodyStepData {
-                mass: mcp.data(d.mass)[0],
-                inertia: inertia_from_entries(mcp.data(d.inertia)),
-                q_start: Vector4::new(
-                    s[start::Q],
-                    s[start::Q + 1],
-                    s[start::Q + 2],
-                    s[start::Q + 3],
-                ),
-                nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
-                wrench: Vector6::from_column_slice(mcp.data(d.wrench)),
-                gravity,
-                h,
-            });
-            self.span
-                .start_x
-                .push(Vector3::new(s[start::X], s[start::X + 1], s[start::X + 2]));
+            let (data, start_x) = BodyStepData::from_mcp(mcp, &body.data, gravity, h);
+            self.span.bodies.push(data);
+            self.span.start_x.push(start_x);
         }
         self.span.start.clear();
         self.span.start.extend_from_slice(start);
