@@ -126,7 +126,12 @@ pub(crate) struct StepQp {
 
 /// Friction wrenches `W_t, W_o, W_r` of a contact at its current ECP.
 fn friction_wrenches(g: &ContactGeometry) -> [[f64; 6]; 3] {
-    let arm = sub(&g.ecp, &g.center_of_mass);
+    friction_wrenches_about(g, &g.center_of_mass)
+}
+
+/// [`friction_wrenches`] on a body whose centre of mass is `center` (the partner of a contact).
+fn friction_wrenches_about(g: &ContactGeometry, center: &[f64; 3]) -> [[f64; 6]; 3] {
+    let arm = sub(&g.ecp, center);
     [
         wrench(&g.tangent, &arm),
         wrench(&g.bitangent, &arm),
@@ -177,23 +182,15 @@ fn friction_sides(g: &ContactGeometry) -> (Vec<BodyFriction>, [f64; 3]) {
         ContactPartner::Body {
             body,
             center_of_mass,
-        } => {
-            let w = friction_wrenches(&ContactGeometry {
-                center_of_mass,
-                patch: Vec::new(),
-                ..g.clone()
-            });
-            out.push((body, w.map(negated)));
-        }
+        } => out.push((
+            body,
+            friction_wrenches_about(g, &center_of_mass).map(negated),
+        )),
         ContactPartner::Prescribed {
             velocity,
             center_of_mass,
         } => {
-            let w = friction_wrenches(&ContactGeometry {
-                center_of_mass,
-                patch: Vec::new(),
-                ..g.clone()
-            });
+            let w = friction_wrenches_about(g, &center_of_mass);
             for i in 0..3 {
                 offset[i] = -dot6(&w[i], &velocity);
             }
