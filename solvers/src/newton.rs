@@ -1318,13 +1318,18 @@ mod tests {
         let p = ecp_model::mcp_library::kojima_josephy();
         let (label, z0) = &p.starts[2];
         assert_eq!(label, "mcplib3");
+        // Without the non-monotone restart, which solves it too (below).
+        let monotone = NewtonSettings {
+            nonmonotone_restart: false,
+            ..NewtonSettings::default()
+        };
         let plain = NewtonSolver::new(NewtonSettings {
             smoothing: None,
-            ..NewtonSettings::default()
+            ..monotone.clone()
         })
         .solve(&p.mcp, z0);
         assert!(matches!(plain, Err(SolveError::NotConverged { .. })));
-        let sol = NewtonSolver::new(NewtonSettings::default())
+        let sol = NewtonSolver::new(monotone.clone())
             .solve(&p.mcp, z0)
             .unwrap_or_else(|e| panic!("{e}"));
         assert!(sol.summary.residual <= 1e-10, "{:e}", sol.summary.residual);
@@ -1340,7 +1345,7 @@ mod tests {
                 ..SmoothingSettings::default()
             }),
             damped_restart: None,
-            ..NewtonSettings::default()
+            ..monotone
         })
         .solve(&p.mcp, z0);
         let summary = match budget {
@@ -1350,6 +1355,25 @@ mod tests {
         };
         let spent = summary.counter(Counter::SmoothingIterations).unwrap();
         assert!((1..=5).contains(&spent), "{spent}");
+    }
+
+    /// The same start: the non-monotone restart (full Newton steps under the watchdog) reaches
+    /// a listed solution before any continuation runs.
+    #[test]
+    fn the_nonmonotone_restart_solves_what_the_plain_iteration_does_not() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let z0 = &p.starts[2].1;
+        let sol = NewtonSolver::new(NewtonSettings {
+            smoothing: None,
+            damped_restart: None,
+            ..NewtonSettings::default()
+        })
+        .solve(&p.mcp, z0)
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(sol.summary.residual <= 1e-10, "{:e}", sol.summary.residual);
+        assert!(sol.summary.counter(Counter::NonmonotoneSteps).unwrap() > 0);
+        let d = p.distance_to_solutions(&sol.z, None);
+        assert!(d.is_some_and(|d| d < 1e-8), "{d:?}");
     }
 
     #[test]

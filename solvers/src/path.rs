@@ -1349,6 +1349,8 @@ mod tests {
             fischer_restart: false,
             best_point_restart: false,
             smoothing: None,
+            // The diverging Newton points without the bound of the test below.
+            watchdog_growth: f64::INFINITY,
             ..PathSettings::default()
         };
         let err = PathSolver::new(settings.clone())
@@ -1368,7 +1370,33 @@ mod tests {
         assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
     }
 
-    /// The configuration of the test above without the guard, which fails: the smoothing
+    /// The cycle of the test above comes from Newton points far above the checkpoint's merit:
+    /// with `watchdog_growth` (the default 1e6) the watchdog does not take them, and the
+    /// unguarded first attempt converges by itself (docs/path.md#hard-steps).
+    #[test]
+    fn path_watchdog_growth_breaks_the_checkpoint_cycle() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let z0 = &p.starts[5].1;
+        let sol = PathSolver::new(PathSettings {
+            crash_iterations: 0,
+            restarts: 0,
+            max_iterations: 60,
+            guarded_watchdog: false,
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
+            ..PathSettings::default()
+        })
+        .solve(&p.mcp, z0)
+        .unwrap();
+        assert!(sol.summary.residual <= 1e-10);
+        assert!(sol.summary.iterations <= 60);
+        assert_eq!(sol.summary.counter(Counter::GuardedAttempts).unwrap(), 0);
+        assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
+    }
+
+    /// The configuration of the first test above without the guard or the growth bound, which
+    /// fails: the smoothing
     /// continuation solves it by itself and lands on the problem's solution.
     #[test]
     fn path_smoothing_continuation_solves_what_the_plain_attempt_does_not() {
@@ -1382,6 +1410,7 @@ mod tests {
             fischer_restart: false,
             best_point_restart: false,
             smoothing: None,
+            watchdog_growth: f64::INFINITY,
             ..PathSettings::default()
         };
         let smoothed = PathSolver::new(PathSettings {
