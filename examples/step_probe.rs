@@ -69,9 +69,19 @@ fn run() -> Result<(), String> {
         max_iterations: file.solver.max_iterations,
         non_isolated_solutions: false,
     };
-    let mut driver = Registry::builtin()
-        .build(&with, &options)
-        .map_err(|e| e.to_string())?;
+    // `newton-monotone`: Newton without the non-monotone restart (the trajectory of before it).
+    let mut driver: Box<dyn McpSolver> = if with == "newton-monotone" {
+        let d = NewtonSettings::default();
+        Box::new(NewtonSolver::new(NewtonSettings {
+            tolerance: options.tolerance.unwrap_or(d.tolerance),
+            nonmonotone_restart: false,
+            ..d
+        }))
+    } else {
+        Registry::builtin()
+            .build(&with, &options)
+            .map_err(|e| e.to_string())?
+    };
     for k in 1..step {
         let rec = sim.step(driver.as_mut()).map_err(|e| e.to_string())?;
         if !rec.converged {
