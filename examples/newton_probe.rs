@@ -83,7 +83,7 @@ fn main() -> ExitCode {
     });
     let names: Vec<&str> = Phase::ALL.iter().map(|p| p.name()).collect();
     println!(
-        "step  ms  conv  iters[plain,damped,smooth,dsmooth]  lu  qr  lm_iters  lm_trials  f_evals  ms: {}",
+        "step  ms  conv  iters[plain,damped,smooth,dsmooth,nonmonotone]  lu  qr  lm_iters  lm_trials  f_evals  ms: {}",
         names.join(" ")
     );
     let (mut total, mut failed, mut wall) = (NewtonProfile::default(), 0usize, 0.0f64);
@@ -180,6 +180,8 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "lm_cholesky" => s.lm_cholesky = b()?,
         "stall_window" => s.stall_window = n()?,
         "stall_reduction" => s.stall_reduction = f()?,
+        "nonmonotone_restart" => s.nonmonotone_restart = b()?,
+        "watchdog_steps" => s.watchdog_steps = n()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,
         "smoothing_first" => s.smoothing_first = b()?,

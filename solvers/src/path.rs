@@ -67,6 +67,13 @@ pub struct PathSettings {
     /// Non-monotone watchdog: full Newton points accepted without sufficient decrease after the
     /// last checkpoint before returning to it. 0 makes the method monotone. Default 5.
     pub watchdog: usize,
+    /// The watchdog takes a Newton point without sufficient decrease only while its merit is at
+    /// most this times the checkpoint's. Without the bound, on steps whose linearisation is
+    /// nearly singular (`012_multi_body` steps 1008–1009, h = 1 ms) the watchdog took Newton
+    /// points with merits 1e20–1e49 times the checkpoint's, five in a row from each return to
+    /// the checkpoint, each one's Lemke path hundreds of pivots long, until the attempt's
+    /// iterations ran out (`docs/path.md#hard-steps`). Default `1e6`.
+    pub watchdog_growth: f64,
     /// Sufficient-decrease constant σ of the path search, `‖F_N(p(t))‖ ≤ (1 − σt)‖F_N(x_c)‖`.
     /// Default `1e-4`.
     pub sufficient_decrease: f64,
@@ -120,6 +127,13 @@ pub struct PathSettings {
     /// loop of the linearised problem is cut short too). `f64::INFINITY` for no limit.
     /// Default 20.
     pub time_limit: f64,
+    /// On a problem with scene scales ([`ecp_model::solve_in_scales`]), run the first attempt in
+    /// both systems of units (as given and in the scales, in `solve_in_scales`' order) before
+    /// the other attempts in either. Without it every attempt runs in the first system before
+    /// any in the second; on a step at h = 1 ms (`012_multi_body` step 475, 121 unknowns) every
+    /// attempt as given cycled at its watchdog (635 iterations, 370 000 pivots, 6 s) where the
+    /// first attempt in the scales converges in 3 (`docs/path.md#hard-steps`). Default `true`.
+    pub first_in_both_units: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -131,6 +145,7 @@ impl Default for PathSettings {
             max_iterations: 200,
             crash_iterations: 50,
             watchdog: 5,
+            watchdog_growth: 1e6,
             sufficient_decrease: 1e-4,
             backtrack: 0.5,
             max_path_backtracks: 30,
@@ -146,6 +161,7 @@ impl Default for PathSettings {
             smoothing: Some(SmoothingSettings::default()),
             lemke: LemkeSettings::default(),
             time_limit: 20.0,
+            first_in_both_units: true,
             trace: false,
         }
     }
@@ -734,7 +750,12 @@ impl PathSolver {
             let sigma = s.sufficient_decrease;
             let mut accepted: Option<f64> = None;
             let decrease = self.trial.merit <= (1.0 - sigma * t_full) * reference;
-            let watchdog_open = !monotone && since_checkpoint < s.watchdog;
+            // A Newton point whose merit is orders of magnitude above the checkpoint's is the
+            // linearisation of a nearly singular Jacobian, not a step across a kink: the
+            // watchdog does not take it (`PathSettings::watchdog_growth`).
+            let watchdog_open = !monotone
+                && since_checkpoint < s.watchdog
+                && self.trial.merit <= s.watchdog_growth * reference;
             let usable =
                 (decrease || watchdog_open) && self.trial_usable(mcp, s.tolerance, jac_evals);
             if decrease && usable {
@@ -873,23 +894,85 @@ impl McpSolver for PathSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
-        solve_in_scales(mcp, z0, |mcp, z0| self.solve_unscaled(mcp, z0))
+        let scaled = mcp
+            .scales()
+            .is_some_and(|s| !s.is_identity() && s.is_valid(mcp.dim()));
+        if !(scaled && self.settings.first_in_both_units) {
+            return solve_in_scales(mcp, z0, |mcp, z0| {
+                self.solve_unscaled(mcp, z0, Attempts::All)
+            });
+        }
+        // The first attempt in both systems of units (`PathSettings::first_in_both_units`),
+        // then the other attempts in both.
+        let first = solve_in_scales(mcp, z0, |mcp, z0| {
+            self.solve_unscaled(mcp, z0, Attempts::First)
+        });
+        let Err(SolveError::NotConverged { best: first }) = first else {
+            return first;
+        };
+        let rest = solve_in_scales(mcp, z0, |mcp, z0| {
+            self.solve_unscaled(mcp, z0, Attempts::Rest)
+        });
+        match rest {
+            Ok(mut sol) => {
+                sol.summary.iterations += first.summary.iterations;
+                Ok(sol)
+            }
+            Err(SolveError::NotConverged { mut best }) => {
+                best.summary.iterations += first.summary.iterations;
+                if first.summary.residual < best.summary.residual {
+                    let iterations = best.summary.iterations;
+                    best = first;
+                    best.summary.iterations = iterations;
+                }
+                Err(SolveError::NotConverged { best })
+            }
+            e => e,
+        }
     }
 }
 
+/// Which attempts of a solve [`PathSolver::solve_unscaled`] runs
+/// ([`PathSettings::first_in_both_units`]).
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Attempts {
+    /// Every attempt: the first, the guarded one, the restarts, the smoothing continuation.
+    All,
+    /// The first attempt only.
+    First,
+    /// Every attempt but the first.
+    Rest,
+}
+
 impl PathSolver {
-    /// [`McpSolver::solve`] on `mcp` as given.
-    fn solve_unscaled(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+    /// [`McpSolver::solve`] on `mcp` as given: the `which` attempts, within a budget of
+    /// [`PathSettings::time_limit`] of their own.
+    fn solve_unscaled(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        which: Attempts,
+    ) -> Result<Solution, SolveError> {
         let started = Instant::now();
         validate_start(mcp, z0)?;
-        let s = self.settings.clone();
-        self.deadline = if s.time_limit.is_finite() {
-            started.checked_add(std::time::Duration::from_secs_f64(s.time_limit))
+        self.deadline = if self.settings.time_limit.is_finite() {
+            started.checked_add(std::time::Duration::from_secs_f64(self.settings.time_limit))
         } else {
             None
         };
         self.lemke.set_deadline(self.deadline);
-        let first = self.solve_attempts(mcp, z0, &s, started);
+        let s = match which {
+            Attempts::First => PathSettings {
+                guarded_watchdog: false,
+                restarts: 0,
+                fischer_restart: false,
+                best_point_restart: false,
+                smoothing: None,
+                ..self.settings.clone()
+            },
+            _ => self.settings.clone(),
+        };
+        let first = self.solve_attempts(mcp, z0, &s, started, which == Attempts::Rest);
         let (Some(smoothing), Err(SolveError::NotConverged { best })) = (s.smoothing, &first)
         else {
             return first;
@@ -919,11 +1002,11 @@ impl PathSolver {
                     tolerance,
                     ..stage.clone()
                 };
-                self.solve_attempts(problem, z, &st, started)
+                self.solve_attempts(problem, z, &st, started, false)
             },
             || deadline.is_some_and(|d| Instant::now() >= d),
         )?;
-        let last = self.solve_attempts(mcp, &end.z, &s, started);
+        let last = self.solve_attempts(mcp, &end.z, &s, started, false);
         let previous = best.summary.iterations;
         let tally = |summary: &mut ecp_model::Summary| end.tally(summary, previous);
         match last {
@@ -949,13 +1032,16 @@ impl PathSolver {
 
 impl PathSolver {
     /// Every attempt of one solve from `z0` with settings `s` (the first, the guarded one, the
-    /// restarts), within the deadline already set; `started` is the solve's start.
+    /// restarts), within the deadline already set; `started` is the solve's start. With
+    /// `skip_first` the first attempt is taken as failed without running it (it ran before,
+    /// [`PathSettings::first_in_both_units`]).
     fn solve_attempts(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
         s: &PathSettings,
         started: Instant,
+        skip_first: bool,
     ) -> Result<Solution, SolveError> {
         let s = s.clone();
         if *self.lemke.settings() != s.lemke {
@@ -973,7 +1059,11 @@ impl PathSolver {
             iterations: 0,
             best_residual: f64::INFINITY,
         };
-        let mut termination = self.attempt(mcp, &pattern, z0, &s, 0.0, false, &mut run);
+        let mut termination = if skip_first {
+            Termination::MaxIterations
+        } else {
+            self.attempt(mcp, &pattern, z0, &s, 0.0, false, &mut run)
+        };
         // A second attempt with the guarded watchdog (see `PathSettings::guarded_watchdog`).
         if s.guarded_watchdog
             && termination != Termination::Converged
@@ -1259,6 +1349,8 @@ mod tests {
             fischer_restart: false,
             best_point_restart: false,
             smoothing: None,
+            // The diverging Newton points without the bound of the test below.
+            watchdog_growth: f64::INFINITY,
             ..PathSettings::default()
         };
         let err = PathSolver::new(settings.clone())
@@ -1278,7 +1370,33 @@ mod tests {
         assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
     }
 
-    /// The configuration of the test above without the guard, which fails: the smoothing
+    /// The cycle of the test above comes from Newton points far above the checkpoint's merit:
+    /// with `watchdog_growth` (the default 1e6) the watchdog does not take them, and the
+    /// unguarded first attempt converges by itself (docs/path.md#hard-steps).
+    #[test]
+    fn path_watchdog_growth_breaks_the_checkpoint_cycle() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let z0 = &p.starts[5].1;
+        let sol = PathSolver::new(PathSettings {
+            crash_iterations: 0,
+            restarts: 0,
+            max_iterations: 60,
+            guarded_watchdog: false,
+            fischer_restart: false,
+            best_point_restart: false,
+            smoothing: None,
+            ..PathSettings::default()
+        })
+        .solve(&p.mcp, z0)
+        .unwrap();
+        assert!(sol.summary.residual <= 1e-10);
+        assert!(sol.summary.iterations <= 60);
+        assert_eq!(sol.summary.counter(Counter::GuardedAttempts).unwrap(), 0);
+        assert!(p.distance_to_solutions(&sol.z, None).unwrap() < 1e-8);
+    }
+
+    /// The configuration of the first test above without the guard or the growth bound, which
+    /// fails: the smoothing
     /// continuation solves it by itself and lands on the problem's solution.
     #[test]
     fn path_smoothing_continuation_solves_what_the_plain_attempt_does_not() {
@@ -1292,6 +1410,7 @@ mod tests {
             fischer_restart: false,
             best_point_restart: false,
             smoothing: None,
+            watchdog_growth: f64::INFINITY,
             ..PathSettings::default()
         };
         let smoothed = PathSolver::new(PathSettings {

@@ -200,6 +200,12 @@ impl PathSettings {
         )?;
         c.positive("restart_proximal", self.restart_proximal)?;
         c.that(
+            "watchdog_growth",
+            self.watchdog_growth,
+            self.watchdog_growth >= 1.0,
+            "must be at least 1 (inf for no bound)",
+        )?;
+        c.that(
             "time_limit",
             self.time_limit,
             self.time_limit > 0.0 && !self.time_limit.is_nan(),
@@ -474,6 +480,16 @@ mod tests {
             },
             v,
         );
+        for bad in [0.5, f64::NAN] {
+            refused(
+                "watchdog_growth",
+                PathSettings {
+                    watchdog_growth: bad,
+                    ..d()
+                },
+                v,
+            );
+        }
         refused(
             "backtrack",
             PathSettings {

@@ -57,8 +57,9 @@ pub struct NewtonProfile {
     pub runs: usize,
     /// Iterations of all runs.
     pub iterations: usize,
-    /// Iterations by attempt: plain, damped plain, continuation, damped continuation.
-    pub attempt_iterations: [usize; 4],
+    /// Iterations by attempt: plain, damped plain, continuation, damped continuation,
+    /// non-monotone plain ([`crate::newton::NewtonSettings::nonmonotone_restart`]).
+    pub attempt_iterations: [usize; 5],
     /// Evaluations of `F`.
     pub f_evals: usize,
     /// LU factorisations of `H`.

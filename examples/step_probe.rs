@@ -1,0 +1,334 @@
+//! One hard step of a scene, solved again by each backend with its counters and trace
+//! (`docs/newton.md#hard-steps`, `docs/path.md#hard-steps`):
+//!
+//! ```text
+//! cargo run --release --example step_probe -- SCENE.toml --step K [--with newton|path]
+//!     [--trace] [--compare] [--as-given] [--states] [--sweep] [--newton NAME=VALUE ..] [--path NAME=VALUE ..]
+//! ```
+//!
+//! runs the scene's steps 1 … K−1 with the backend `--with` (default `path`; hull formulation,
+//! the scene's tolerance, no fallbacks, as the stress suite), prepares step K and solves that
+//! step problem from its warm start with PATH and with Newton (each built as the registry builds
+//! it, then changed by the `--newton` / `--path` settings), printing the summary, the counters
+//! and, with `--trace`, every iteration (residual, merit, step kind, step length).
+use std::process::ExitCode;
+use std::time::Instant;
+
+use ecp::formulations::{FormulationRegistry, SimulationBuilder};
+use ecp::model::{IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError};
+use ecp::scene::load_scene;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp::solvers::path::{PathSettings, PathSolver};
+use ecp::solvers::registry::{BackendOptions, Registry};
+
+fn main() -> ExitCode {
+    match run() {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("{e}");
+            ExitCode::from(2)
+        }
+    }
+}
+
+fn run() -> Result<(), String> {
+    let mut args = std::env::args().skip(1);
+    let (mut path, mut step, mut with, mut trace) = (None, None, "path".to_string(), false);
+    let (mut compare, mut as_given, mut states, mut sweep) = (false, false, false, false);
+    let (mut newton_sets, mut path_sets) = (Vec::new(), Vec::new());
+    while let Some(a) = args.next() {
+        let mut value = || args.next().unwrap_or_default();
+        match a.as_str() {
+            "--step" => step = value().parse::<usize>().ok(),
+            "--with" => with = value(),
+            "--trace" => trace = true,
+            "--compare" => compare = true,
+            "--as-given" => as_given = true,
+            "--states" => states = true,
+            "--sweep" => sweep = true,
+            "--newton" => newton_sets.push(value()),
+            "--path" => path_sets.push(value()),
+            _ => path = Some(a),
+        }
+    }
+    if sweep && let Some(path) = &path {
+        return sweep_steps(path, &newton_sets);
+    }
+    let (Some(path), Some(step)) = (path, step) else {
+        return Err("usage: step_probe SCENE.toml --step K [--with B] [--trace] [--compare] [--as-given] [--states] [--sweep] [--newton K=V] [--path K=V]".into());
+    };
+    let file = load_scene(std::path::Path::new(&path)).map_err(|e| e.to_string())?;
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .map_err(|e| e.to_string())?;
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .map_err(|e| e.to_string())?;
+    let options = BackendOptions {
+        tolerance: file.solver.tolerance,
+        max_iterations: file.solver.max_iterations,
+        non_isolated_solutions: false,
+    };
+    // `newton-monotone`: Newton without the non-monotone restart (the trajectory of before it).
+    let mut driver: Box<dyn McpSolver> = if with == "newton-monotone" {
+        let d = NewtonSettings::default();
+        Box::new(NewtonSolver::new(NewtonSettings {
+            tolerance: options.tolerance.unwrap_or(d.tolerance),
+            nonmonotone_restart: false,
+            ..d
+        }))
+    } else {
+        Registry::builtin()
+            .build(&with, &options)
+            .map_err(|e| e.to_string())?
+    };
+    for k in 1..step {
+        let rec = sim.step(driver.as_mut()).map_err(|e| e.to_string())?;
+        if !rec.converged {
+            println!("step {k}: not converged with {with} (state kept)");
+        }
+    }
+    if states {
+        // The bodies' states at the start of step K, as scene-file lines.
+        for (b, st) in sim.states().iter().enumerate() {
+            println!(
+                "# body {b}\nposition = [{:?}, {:?}, {:?}]\norientation = [{:?}, {:?}, {:?}, {:?}]\nvelocity = [{:?}, {:?}, {:?}]\nangular_velocity = [{:?}, {:?}, {:?}]",
+                st.x[0],
+                st.x[1],
+                st.x[2],
+                st.q[0],
+                st.q[1],
+                st.q[2],
+                st.q[3],
+                st.v[0],
+                st.v[1],
+                st.v[2],
+                st.w[0],
+                st.w[1],
+                st.w[2]
+            );
+        }
+        println!("# t = {:?}", sim.time());
+    }
+    sim.prepare_step().map_err(|e| e.to_string())?;
+    let z0 = sim.z().to_vec();
+    println!("step {step}: {} unknowns", z0.len());
+
+    let d = PathSettings::default();
+    let mut ps = PathSettings {
+        tolerance: options.tolerance.unwrap_or(d.tolerance),
+        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
+        trace,
+        ..d
+    };
+    for kv in &path_sets {
+        set_path(&mut ps, kv)?;
+    }
+    let d = NewtonSettings::default();
+    let mut ns = NewtonSettings {
+        tolerance: options.tolerance.unwrap_or(d.tolerance),
+        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
+        trace,
+        ..d
+    };
+    for kv in &newton_sets {
+        set_newton(&mut ns, kv)?;
+    }
+    let mut path_solver = PathSolver::new(ps);
+    let mut newton_solver = NewtonSolver::new(ns).with_profile();
+    if trace {
+        // Every iteration of every attempt (a summary's trace has the last attempt's only).
+        path_solver = path_solver.with_observer(Box::new(Printer));
+        newton_solver = newton_solver.with_observer(Box::new(Printer));
+    }
+    let step_problem = sim.step_problem();
+    let unscaled = Unscaled(&step_problem);
+    let problem: &dyn Mcp = if as_given { &unscaled } else { &step_problem };
+    let zp = report("path", &mut path_solver, problem, &z0, trace);
+    let zn = report("newton", &mut newton_solver, problem, &z0, trace);
+    if compare {
+        // Each unknown at the warm start, PATH's end point and Newton's, with F there.
+        let mcp = sim.mcp();
+        let (mut fp, mut fnw) = (vec![0.0; z0.len()], vec![0.0; z0.len()]);
+        mcp.evaluate(&zp, &mut fp);
+        mcp.evaluate(&zn, &mut fnw);
+        for i in 0..z0.len() {
+            println!(
+                "{:3} {:24} [{:9.2e},{:9.2e}] z0 {:11.4e} path {:11.4e} (F {:10.3e}) newton {:11.4e} (F {:10.3e})",
+                i,
+                mcp.component_name(i),
+                mcp.lower()[i],
+                mcp.upper()[i],
+                z0[i],
+                zp[i],
+                fp[i],
+                zn[i],
+                fnw[i]
+            );
+        }
+    }
+    let p = newton_solver.take_profile();
+    println!(
+        "newton profile: iterations by attempt [plain, damped, smooth, dsmooth, nonmonotone] {:?}, lu {}, qr {}, lm_iters {}, lm_trials {}",
+        p.attempt_iterations,
+        p.lu_factorizations,
+        p.min_norm_factorizations,
+        p.lm_iterations,
+        p.lm_trials
+    );
+    Ok(())
+}
+
+fn report(
+    name: &str,
+    solver: &mut dyn McpSolver,
+    problem: &dyn Mcp,
+    z0: &[f64],
+    _trace: bool,
+) -> Vec<f64> {
+    let started = Instant::now();
+    let result = solver.solve(problem, z0);
+    let ms = started.elapsed().as_secs_f64() * 1e3;
+    let (sol, converged): (&Solution, bool) = match &result {
+        Ok(s) => (s, true),
+        Err(SolveError::NotConverged { best }) => (best, false),
+        Err(e) => {
+            println!("{name}: {e}");
+            return z0.to_vec();
+        }
+    };
+    let s = &sol.summary;
+    println!(
+        "{name}: converged {converged}, {:?}, {} iterations, residual {:.2e}, {ms:.1} ms, worst {:?}",
+        s.termination, s.iterations, s.residual, s.worst
+    );
+    println!("  {}", s.counters);
+    sol.z.clone()
+}
+
+/// `--sweep`: steps the scene with Newton changed by the `--newton` settings, and solves each
+/// step also with the default Newton from the same warm start; prints the steps where the two
+/// took different iteration counts, and the totals.
+fn sweep_steps(path: &str, sets: &[String]) -> Result<(), String> {
+    let file = load_scene(std::path::Path::new(path)).map_err(|e| e.to_string())?;
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .map_err(|e| e.to_string())?;
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .map_err(|e| e.to_string())?;
+    let d = NewtonSettings::default();
+    let base = NewtonSettings {
+        tolerance: file.solver.tolerance.unwrap_or(d.tolerance),
+        max_iterations: file.solver.max_iterations.unwrap_or(d.max_iterations),
+        ..d
+    };
+    let mut changed = base.clone();
+    for kv in sets {
+        set_newton(&mut changed, kv)?;
+    }
+    let mut driver = NewtonSolver::new(changed);
+    let mut other = NewtonSolver::new(base);
+    let iterations = |r: &Result<Solution, SolveError>| match r {
+        Ok(s) => (s.summary.iterations, true),
+        Err(SolveError::NotConverged { best }) => (best.summary.iterations, false),
+        Err(_) => (0, false),
+    };
+    let (mut ta, mut tb) = (0usize, 0usize);
+    for k in 1..=file.scene.num_steps() {
+        sim.prepare_step().map_err(|e| e.to_string())?;
+        let z0 = sim.z().to_vec();
+        let a = iterations(&sim.solve_step_problem(&mut driver, &z0));
+        let b = iterations(&sim.solve_step_problem(&mut other, &z0));
+        ta += a.0;
+        tb += b.0;
+        if a != b {
+            println!("step {k}: --newton settings {a:?}, defaults {b:?}");
+        }
+        sim.step(&mut driver).map_err(|e| e.to_string())?;
+    }
+    println!("total iterations: --newton settings {ta}, defaults {tb}");
+    Ok(())
+}
+
+/// Prints every iteration it sees.
+struct Printer;
+
+impl Observer for Printer {
+    fn observe(&mut self, r: &IterationRecord) {
+        println!(
+            "  {:4} res {:.3e} merit {:.3e} {:?} t {:.3e} |d| {:.2e}",
+            r.iteration, r.residual, r.merit, r.step, r.step_length, r.direction_norm
+        );
+    }
+}
+
+/// The step problem without its scene scales: the backends solve it as given only.
+struct Unscaled<'a>(&'a dyn Mcp);
+
+impl Mcp for Unscaled<'_> {
+    fn dim(&self) -> usize {
+        self.0.dim()
+    }
+    fn lower(&self) -> &[f64] {
+        self.0.lower()
+    }
+    fn upper(&self) -> &[f64] {
+        self.0.upper()
+    }
+    fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+        self.0.evaluate(z, f)
+    }
+    fn jacobian_pattern(&self) -> &std::sync::Arc<ecp::model::CscPattern> {
+        self.0.jacobian_pattern()
+    }
+    fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+        self.0.jacobian(z, values)
+    }
+    fn component_name(&self, i: usize) -> String {
+        self.0.component_name(i)
+    }
+}
+
+fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
+    let (name, value) = kv.split_once('=').ok_or("expected NAME=VALUE")?;
+    let f = || value.parse::<f64>().map_err(|e| e.to_string());
+    let n = || value.parse::<usize>().map_err(|e| e.to_string());
+    let b = || value.parse::<bool>().map_err(|e| e.to_string());
+    match name {
+        "lm_initial_damping" => s.lm_initial_damping = f()?,
+        "stall_window" => s.stall_window = n()?,
+        "nonmonotone_restart" => s.nonmonotone_restart = b()?,
+        "watchdog_steps" => s.watchdog_steps = n()?,
+        "smoothing" if !b()? => s.smoothing = None,
+        "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),
+        "smoothing_first" => s.smoothing_first = b()?,
+        "min_norm_step" => s.min_norm_step = b()?,
+        "max_iterations" => s.max_iterations = n()?,
+        _ => return Err(format!("unknown Newton setting {name}")),
+    }
+    Ok(())
+}
+
+fn set_path(s: &mut PathSettings, kv: &str) -> Result<(), String> {
+    let (name, value) = kv.split_once('=').ok_or("expected NAME=VALUE")?;
+    let f = || value.parse::<f64>().map_err(|e| e.to_string());
+    let n = || value.parse::<usize>().map_err(|e| e.to_string());
+    let b = || value.parse::<bool>().map_err(|e| e.to_string());
+    match name {
+        "watchdog" => s.watchdog = n()?,
+        "watchdog_growth" => s.watchdog_growth = f()?,
+        "first_in_both_units" => s.first_in_both_units = b()?,
+        "crash_iterations" => s.crash_iterations = n()?,
+        "restarts" => s.restarts = n()?,
+        "guarded_watchdog" => s.guarded_watchdog = b()?,
+        "fischer_restart" => s.fischer_restart = b()?,
+        "best_point_restart" => s.best_point_restart = b()?,
+        "smoothing" if !b()? => s.smoothing = None,
+        "max_iterations" => s.max_iterations = n()?,
+        "proximal_initial" => s.proximal_initial = f()?,
+        "max_path_backtracks" => s.max_path_backtracks = n()?,
+        _ => return Err(format!("unknown PATH setting {name}")),
+    }
+    Ok(())
+}

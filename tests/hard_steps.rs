@@ -1,0 +1,146 @@
+//! Steps of the stress regression scenes that cost Newton or PATH far more than the other
+//! backend (`docs/newton.md#hard-steps`, `docs/path.md#hard-steps`): each is reached by stepping
+//! its scene as the stress suite does (hull formulation, the scene's tolerance, no fallbacks),
+//! then solved again from its warm start, with the mend and without it.
+
+use std::path::Path;
+
+use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder};
+use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
+use ecp::scene::load_scene;
+use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp::solvers::path::{PathSettings, PathSolver};
+use ecp::solvers::registry::{BackendOptions, Registry};
+
+/// The scene `tests/stress_regressions/NAME.toml` stepped by `driver` (built as the registry
+/// builds it) through step `step − 1`, with step `step` prepared; and the scene's tolerance.
+fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/stress_regressions")
+        .join(format!("{name}.toml"));
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    for k in 1..step {
+        let rec = sim.step(driver).unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "{name}: step {k} did not converge");
+    }
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    (sim, file.solver.tolerance)
+}
+
+fn registry_solver(name: &str, tolerance: Option<f64>) -> Box<dyn McpSolver> {
+    Registry::builtin()
+        .build(
+            name,
+            &BackendOptions {
+                tolerance,
+                ..Default::default()
+            },
+        )
+        .unwrap_or_else(|e| panic!("{e}"))
+}
+
+fn converged(result: Result<Solution, SolveError>) -> Solution {
+    match result {
+        Ok(sol) => sol,
+        Err(SolveError::NotConverged { best }) => panic!(
+            "not converged: {} iterations, residual {:e}",
+            best.summary.iterations, best.summary.residual
+        ),
+        Err(e) => panic!("{e}"),
+    }
+}
+
+/// `075_room_corner` step 12 (h = 10 ms, μ = 0.92, an L-shaped body tossed into a room corner;
+/// 70 unknowns): the floor contact's closest point moves 14 cm to an edge while the body's
+/// angular velocity changes by 3 rad/s. The monotone Armijo search accepts 1/64 … 1/4 of
+/// the Newton steps (the merit is strongly curved along them): the plain iteration is cut by the
+/// stall test after 39 iterations and the continuations took 477 more. The non-monotone restart
+/// (full Newton steps under the watchdog) solves it in 10.
+#[test]
+fn newton_room_corner_step_12_nonmonotone_restart() {
+    let mut driver = registry_solver("newton", None);
+    let (sim, tolerance) = at_step("075_room_corner", driver.as_mut(), 12);
+    let z0 = sim.z().to_vec();
+    let settings = NewtonSettings {
+        tolerance: tolerance.unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
+    assert!(
+        mended.summary.iterations <= 60,
+        "{} iterations",
+        mended.summary.iterations
+    );
+    assert_eq!(
+        mended
+            .summary
+            .counter(Counter::SmoothingStages)
+            .unwrap_or(0),
+        0
+    );
+    let before = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            nonmonotone_restart: false,
+            ..settings
+        }),
+        &z0,
+    ));
+    assert!(
+        before.summary.iterations > 200,
+        "{} iterations",
+        before.summary.iterations
+    );
+    // The same solution (both converged to 1e-10 in the scene's scales), but for the slip
+    // rates σ of the two open contacts, which any σ ≥ 0 solves at p_n = 0.
+    let problem = sim.step_problem();
+    for (i, (a, b)) in mended.z.iter().zip(&before.z).enumerate() {
+        let name = problem.component_name(i);
+        if !name.contains("sigma") {
+            assert!((a - b).abs() <= 1e-8, "{name}: {a:e} against {b:e}");
+        }
+    }
+}
+
+/// `012_multi_body` step 475 on PATH's own trajectory (as it was before these settings): every
+/// attempt as given cycled at its watchdog (635 iterations, 370 000 pivots, 6 s) before the
+/// first attempt in the scene scales converged in 3. With `first_in_both_units` the scaled
+/// first attempt runs before the restarts as given.
+#[test]
+#[ignore = "slow: cargo test --release --test hard_steps -- --ignored path_multi_body_step_475"]
+fn path_multi_body_step_475_first_in_both_units() {
+    let old = PathSettings {
+        first_in_both_units: false,
+        watchdog_growth: f64::INFINITY,
+        ..PathSettings::default()
+    };
+    let mut driver = PathSolver::new(old.clone());
+    let (sim, tolerance) = at_step("012_multi_body", &mut driver, 475);
+    let z0 = sim.z().to_vec();
+    let tolerance = tolerance.unwrap_or(1e-10);
+    let mended = converged(sim.solve_step_problem(
+        &mut PathSolver::new(PathSettings {
+            tolerance,
+            ..PathSettings::default()
+        }),
+        &z0,
+    ));
+    assert!(
+        mended.summary.iterations <= 250,
+        "{} iterations",
+        mended.summary.iterations
+    );
+    let before = converged(
+        sim.solve_step_problem(&mut PathSolver::new(PathSettings { tolerance, ..old }), &z0),
+    );
+    assert!(
+        before.summary.iterations > 500,
+        "{} iterations",
+        before.summary.iterations
+    );
+}
