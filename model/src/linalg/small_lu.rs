@@ -27,6 +27,11 @@ impl SmallLu {
         }
     }
 
+    /// Dimension `n`.
+    pub(crate) fn dim(&self) -> usize {
+        self.n
+    }
+
     /// Factorises the column-major `n × n` matrix `src` (finite: the caller checks). A zero
     /// pivot column is left unreduced; the caller's pivot-ratio test reports the matrix singular.
     #[cfg(test)]
