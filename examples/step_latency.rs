@@ -91,7 +91,10 @@ fn main() {
             for _ in 0..100 {
                 sim.step(&mut solver).expect("desk step");
             }
-            let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+            let mut differ = StepDifferentiator::new(SensitivityOptions {
+                structured_solve,
+                ..SensitivityOptions::default()
+            });
             let mut columns = 0;
             for _ in 0..n {
                 columns = differ.differentiate(&sim).expect("sensitivity").dz.len();

@@ -66,7 +66,7 @@ pub struct SchurLu {
     c_rows: Vec<usize>,
     c_pos: Vec<usize>,
     c_vals: Vec<f64>,
-    /// `W = A⁻¹ B`, one column of length `grouped.len()` per coupling.
+    /// `W = A⁻¹ B`, row-major: `grouped.len()` rows, one column per coupling.
     w: Vec<f64>,
     s: SmallLu,
     /// Work vectors: the grouped and the rest parts of a right-hand side.
@@ -218,34 +218,39 @@ impl SchurLu {
         for &(p, k) in &self.d_entries {
             s[k] = values[p];
         }
-        // S −= C W, one column of W = A⁻¹ B per coupled rest unknown.
+        // W = A⁻¹ B (row-major, one column per coupled rest unknown), then S −= C W.
+        let nc = self.couplings.len();
+        self.w.fill(0.0);
         for (c, coupling) in self.couplings.iter().enumerate() {
-            let w = &mut self.w[c * ne..(c + 1) * ne];
-            w.fill(0.0);
             for &(p, e) in &coupling.entries {
-                w[e] = values[p];
-            }
-            for group in &self.groups {
-                let size = group_len(&group.lu);
-                group.lu.solve(&mut w[group.offset..group.offset + size]);
-            }
-            let col = &mut s[coupling.rest * m..(coupling.rest + 1) * m];
-            for (e, &we) in w.iter().enumerate() {
-                if we == 0.0 {
-                    continue;
-                }
-                for k in self.c_ptr[e]..self.c_ptr[e + 1] {
-                    col[self.c_rows[k]] -= self.c_vals[k] * we;
-                }
+                self.w[e * nc + c] = values[p];
             }
         }
-        if s.iter().any(|v| !v.is_finite()) {
-            return Err(LinalgError::NonFinite);
+        for group in &self.groups {
+            let size = group_len(&group.lu);
+            group.lu.solve_rows(
+                &mut self.w[group.offset * nc..(group.offset + size) * nc],
+                nc,
+            );
+        }
+        for (e, row) in self.w.chunks_exact(nc.max(1)).enumerate().take(ne) {
+            for k in self.c_ptr[e]..self.c_ptr[e + 1] {
+                let (r, cv) = (self.c_rows[k], self.c_vals[k]);
+                for (coupling, we) in self.couplings.iter().zip(row) {
+                    s[coupling.rest * m + r] -= cv * we;
+                }
+            }
         }
         self.s.eliminate();
+        let mut finite = true;
         for d in self.s.pivots() {
+            finite &= d.is_finite();
             lo = lo.min(d.abs());
             hi = hi.max(d.abs());
+        }
+        if !finite {
+            // An overflow in S (its entries are not tested one by one).
+            return Err(LinalgError::NonFinite);
         }
         if self.n > 0 && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
             return Err(LinalgError::Singular {
@@ -260,7 +265,6 @@ impl SchurLu {
     pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         self.check(b)?;
         let m = self.rest.len();
-        let ne = self.grouped.len();
         for (x, &i) in self.xe.iter_mut().zip(&self.grouped) {
             *x = b[i];
         }
@@ -285,13 +289,13 @@ impl SchurLu {
         if m > 0 {
             self.s.solve(&mut self.xc);
         }
-        for (c, coupling) in self.couplings.iter().enumerate() {
-            let xc = self.xc[coupling.rest];
-            if xc == 0.0 {
-                continue;
-            }
-            for (x, w) in self.xe.iter_mut().zip(&self.w[c * ne..(c + 1) * ne]) {
-                *x -= w * xc;
+        let nc = self.couplings.len();
+        if nc > 0 {
+            for (x, row) in self.xe.iter_mut().zip(self.w.chunks_exact(nc)) {
+                let dot: f64 = (self.couplings.iter().zip(row))
+                    .map(|(c, w)| w * self.xc[c.rest])
+                    .sum();
+                *x -= dot;
             }
         }
         self.scatter(b)
@@ -309,9 +313,11 @@ impl SchurLu {
             *x = b[i];
         }
         // x_C = S⁻ᵀ (b_C − Wᵀ b_E); x_E = A⁻ᵀ (b_E − Cᵀ x_C).
+        let nc = self.couplings.len();
         for (c, coupling) in self.couplings.iter().enumerate() {
-            let w = &self.w[c * ne..(c + 1) * ne];
-            let dot: f64 = w.iter().zip(&self.xe).map(|(w, x)| w * x).sum();
+            let dot: f64 = (self.xe.iter().enumerate())
+                .map(|(e, x)| self.w[e * nc + c] * x)
+                .sum();
             self.xc[coupling.rest] -= dot;
         }
         if m > 0 {
