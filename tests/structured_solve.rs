@@ -17,7 +17,10 @@ const AGREEMENT: f64 = 1e-12;
 /// scaled difference, its step and component, and the steps whose iteration counts differ.
 fn compare(scene: Scene, steps: usize) -> (f64, usize, String, usize) {
     let mut sim = Simulation::new(scene).unwrap_or_else(|e| panic!("{e}"));
-    let mut lu = NewtonSolver::new(NewtonSettings::default());
+    let mut lu = NewtonSolver::new(NewtonSettings {
+        structured_solve: false,
+        ..NewtonSettings::default()
+    });
     let mut schur = NewtonSolver::new(NewtonSettings {
         structured_solve: true,
         ..NewtonSettings::default()
