@@ -87,7 +87,7 @@ impl SchurLu {
         for (g, indices) in groups.iter().enumerate() {
             let offset = grouped.len();
             for (k, &i) in indices.iter().enumerate() {
-                if *slot.get(i)? != None {
+                if slot.get(i)?.is_some() {
                     return None;
                 }
                 slot[i] = Some(Slot::Group(g, k));
