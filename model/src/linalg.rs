@@ -587,11 +587,7 @@ impl LinearSolver {
                 dense_used: true,
                 ..
             } => dense.solve_many_in_place(b, k),
-            LinearSolver::Structured { schur, .. } => {
-                let n = schur.dim().max(1);
-                b.chunks_exact_mut(n)
-                    .try_for_each(|col| schur.solve_in_place(col))
-            }
+            LinearSolver::Structured { schur, .. } => schur.solve_many_in_place(b, k),
             LinearSolver::Sparse(s) => {
                 let n = s.pattern().dim().max(1);
                 b.chunks_exact_mut(n)
