@@ -99,6 +99,27 @@ fn scenario_step(bencher: divan::Bencher, name: &str) {
     });
 }
 
+/// [`desk_step`] and [`scenario_step`] with the block elimination of each body's ν and q
+/// instead of the LU of the whole Newton matrix (`NewtonSettings::structured_solve`,
+/// `docs/latency.md#structured-linear-solve`).
+#[divan::bench(args = ["desk", "a1", "tbar"])]
+fn step_block_elimination(bencher: divan::Bencher, name: &str) {
+    let (scene, k) = match name {
+        "desk" => (scenarios::desk(), 100),
+        "a1" => (scenarios::a1_sliding(), 20),
+        _ => (scenarios::t_bar(), 340),
+    };
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        structured_solve: true,
+        ..NewtonSettings::default()
+    });
+    let (sim, z0) = common::at_step(scene, k, &mut solver);
+    bencher.bench_local(|| match solver.solve(sim.mcp(), &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("{name} step: {e}"),
+    });
+}
+
 #[divan::bench(sample_count = 10)]
 fn desk_run_400_steps(bencher: divan::Bencher) {
     bencher.bench_local(|| {

@@ -6,6 +6,9 @@
 //! valgrind --tool=callgrind target/release/examples/step_latency desk-newton 1000
 //! ```
 //!
+//! A third argument `schur` solves with `NewtonSettings::structured_solve` on (the block
+//! elimination, `docs/latency.md#structured-linear-solve`), `lu` (the default) with it off.
+//!
 //! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
 //! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
@@ -42,9 +45,9 @@ fn repeat(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize
 
 fn main() {
     let args: Vec<String> = std::env::args().collect();
-    let (case, n) = match args.as_slice() {
-        [_, case, n] => match n.parse::<usize>() {
-            Ok(n) => (case.as_str(), n),
+    let (case, n, linear) = match args.as_slice() {
+        [_, case, n, rest @ ..] if rest.len() <= 1 => match n.parse::<usize>() {
+            Ok(n) => (case.as_str(), n, rest.first().map_or("lu", String::as_str)),
             Err(_) => {
                 eprintln!("step_latency: N must be a count of repetitions, got {n:?}");
                 std::process::exit(2);
@@ -52,12 +55,26 @@ fn main() {
         },
         _ => {
             eprintln!(
-                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity> N"
+                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity> N \
+                 [lu|schur]"
             );
             std::process::exit(2);
         }
     };
-    let newton = || NewtonSolver::new(NewtonSettings::default());
+    let structured_solve = match linear {
+        "lu" => false,
+        "schur" => true,
+        other => {
+            eprintln!("step_latency: the linear solve is lu or schur, got {other:?}");
+            std::process::exit(2);
+        }
+    };
+    let newton = || {
+        NewtonSolver::new(NewtonSettings {
+            structured_solve,
+            ..NewtonSettings::default()
+        })
+    };
     let out = match case {
         "desk-newton" => repeat(&mut newton(), scenarios::desk(), 100, n),
         "desk-path" => repeat(
@@ -74,7 +91,10 @@ fn main() {
             for _ in 0..100 {
                 sim.step(&mut solver).expect("desk step");
             }
-            let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+            let mut differ = StepDifferentiator::new(SensitivityOptions {
+                structured_solve,
+                ..SensitivityOptions::default()
+            });
             let mut columns = 0;
             for _ in 0..n {
                 columns = differ.differentiate(&sim).expect("sensitivity").dz.len();

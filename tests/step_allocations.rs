@@ -86,3 +86,28 @@ fn a_warm_newton_step_solve_allocates_only_its_result() {
         );
     }
 }
+
+/// The whole step (`Simulation::step`: checkpoint, prepared problem, solve, read-out, record)
+/// still allocates (`docs/latency.md#allocations`): the checkpoint's copies of the states and
+/// `z`, the loads, the solve's result, the `StepRecord`'s vectors and the kept `LastStep`. This
+/// pins the count so that it can only fall: measured 35 on the desk, steps 21–120, Newton
+/// (`cargo test --test step_allocations -- --nocapture` prints it).
+const WHOLE_STEP_ALLOCATIONS_MAX: usize = 35;
+
+#[test]
+fn a_whole_desk_step_allocates_a_bounded_number_of_times() {
+    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut most = 0;
+    for step in 1..=120 {
+        let before = allocations();
+        let record = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+        let spent = allocations() - before;
+        drop(record);
+        if step > 20 {
+            most = most.max(spent);
+        }
+    }
+    println!("whole desk step: at most {most} allocations");
+    assert!(most <= WHOLE_STEP_ALLOCATIONS_MAX, "{most} allocations");
+}

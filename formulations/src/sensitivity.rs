@@ -312,6 +312,10 @@ pub enum SensitivityError {
 pub struct SensitivityOptions {
     /// Active-set classification and degeneracy tolerances.
     pub active_set: ActiveSetOptions,
+    /// Factorise the reduced Jacobian by block elimination of each body's ν and q
+    /// (`docs/latency.md#structured-linear-solve`) instead of the LU of the whole matrix.
+    /// Default `false`.
+    pub structured_solve: bool,
 }
 
 /// A degenerate point met by a step sensitivity (module documentation).
@@ -423,7 +427,7 @@ impl StepDifferentiator {
     pub fn new(options: SensitivityOptions) -> Self {
         StepDifferentiator {
             options,
-            system: ReducedSystem::new(),
+            system: ReducedSystem::new().with_structured_solve(options.structured_solve),
         }
     }
 

@@ -15,7 +15,9 @@ use faer::{Mat, Par};
 
 use crate::pattern::CscPattern;
 
+mod schur;
 mod small_lu;
+pub use schur::SchurLu;
 use small_lu::SmallLu;
 
 /// Largest dimension [`DenseLu`] factorises with its own small-matrix kernel instead of faer's
@@ -454,6 +456,17 @@ pub enum LinearSolver {
     },
     /// Sparse LU with reused symbolic analysis.
     Sparse(Box<SparseLu>),
+    /// Block elimination of the problem's elimination groups ([`SchurLu`]), with the dense LU
+    /// of the whole matrix for a matrix whose block elimination fails (a singular group block
+    /// or Schur complement: the dense LU then gives the verdict).
+    Structured {
+        /// The block elimination.
+        schur: Box<SchurLu>,
+        /// The dense solver of the whole matrix.
+        dense: Box<LinearSolver>,
+        /// Whether the last factorisation is the dense one.
+        dense_used: bool,
+    },
 }
 
 impl LinearSolver {
@@ -470,22 +483,72 @@ impl LinearSolver {
             Ok(LinearSolver::Sparse(Box::new(SparseLu::analyze(pattern)?)))
         }
     }
+    /// Block elimination of `groups` ([`SchurLu`], falling back to the dense LU when it fails)
+    /// when `n ≤ dense_max`, the pattern has the groups' structure and they are not empty;
+    /// otherwise as [`LinearSolver::for_pattern`].
+    pub fn structured(
+        pattern: &CscPattern,
+        dense_max: usize,
+        groups: &[Vec<usize>],
+    ) -> Result<Self, LinalgError> {
+        let dense = Self::for_pattern(pattern, dense_max)?;
+        if !dense.is_dense() || groups.is_empty() {
+            return Ok(dense);
+        }
+        match SchurLu::analyze(pattern, groups) {
+            Some(schur) => Ok(LinearSolver::Structured {
+                schur: Box::new(schur),
+                dense: Box::new(dense),
+                dense_used: false,
+            }),
+            None => Ok(dense),
+        }
+    }
     /// True when this solver serves `pattern` (so its analysis can be reused).
     pub fn serves(&self, pattern: &CscPattern) -> bool {
         match self {
             LinearSolver::Dense { pattern: p, .. } => p == pattern,
             LinearSolver::Sparse(s) => s.pattern() == pattern,
+            LinearSolver::Structured { dense, .. } => dense.serves(pattern),
         }
     }
     /// True for the dense variant.
     pub fn is_dense(&self) -> bool {
         matches!(self, LinearSolver::Dense { .. })
     }
+    /// True for the block elimination.
+    pub fn is_structured(&self) -> bool {
+        matches!(self, LinearSolver::Structured { .. })
+    }
+    /// True when the last factorisation was the block elimination's (not the dense fallback's).
+    pub fn factored_by_elimination(&self) -> bool {
+        matches!(
+            self,
+            LinearSolver::Structured {
+                dense_used: false,
+                ..
+            }
+        )
+    }
     /// Factorises the matrix given by `values` in the pattern.
     pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
         match self {
             LinearSolver::Dense { lu, buf, pattern } => lu.factor_in_pattern(pattern, values, buf),
             LinearSolver::Sparse(s) => s.factor(values),
+            LinearSolver::Structured {
+                schur,
+                dense,
+                dense_used,
+            } => {
+                *dense_used = false;
+                match schur.factor(values) {
+                    Err(LinalgError::Singular { .. }) => {
+                        *dense_used = true;
+                        dense.factor(values)
+                    }
+                    r => r,
+                }
+            }
         }
     }
     /// Solves `A x = b` in place.
@@ -493,6 +556,12 @@ impl LinearSolver {
         match self {
             LinearSolver::Dense { lu, .. } => lu.solve_in_place(b),
             LinearSolver::Sparse(s) => s.solve_in_place(b),
+            LinearSolver::Structured {
+                dense,
+                dense_used: true,
+                ..
+            } => dense.solve_in_place(b),
+            LinearSolver::Structured { schur, .. } => schur.solve_in_place(b),
         }
     }
     /// Solves `Aᵀ x = b` in place.
@@ -500,6 +569,12 @@ impl LinearSolver {
         match self {
             LinearSolver::Dense { lu, .. } => lu.solve_transpose_in_place(b),
             LinearSolver::Sparse(s) => s.solve_transpose_in_place(b),
+            LinearSolver::Structured {
+                dense,
+                dense_used: true,
+                ..
+            } => dense.solve_transpose_in_place(b),
+            LinearSolver::Structured { schur, .. } => schur.solve_transpose_in_place(b),
         }
     }
     /// Solves `A X = B` in place for the `k` columns of the column-major `n × k` matrix `b`
@@ -507,6 +582,12 @@ impl LinearSolver {
     pub fn solve_many_in_place(&mut self, b: &mut [f64], k: usize) -> Result<(), LinalgError> {
         match self {
             LinearSolver::Dense { lu, .. } => lu.solve_many_in_place(b, k),
+            LinearSolver::Structured {
+                dense,
+                dense_used: true,
+                ..
+            } => dense.solve_many_in_place(b, k),
+            LinearSolver::Structured { schur, .. } => schur.solve_many_in_place(b, k),
             LinearSolver::Sparse(s) => {
                 let n = s.pattern().dim().max(1);
                 b.chunks_exact_mut(n)
@@ -543,6 +624,12 @@ impl std::fmt::Debug for LinearSolver {
         match self {
             LinearSolver::Dense { lu, .. } => write!(f, "LinearSolver::Dense({lu:?})"),
             LinearSolver::Sparse(s) => write!(f, "LinearSolver::Sparse({s:?})"),
+            LinearSolver::Structured { schur, .. } => write!(
+                f,
+                "LinearSolver::Structured(n: {}, reduced: {})",
+                schur.dim(),
+                schur.reduced_dim()
+            ),
         }
     }
 }

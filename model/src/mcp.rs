@@ -47,6 +47,13 @@ pub trait Mcp {
     fn scales(&self) -> Option<&McpScales> {
         None
     }
+    /// Groups of unknowns that a linear solver may eliminate first, each with its own rows
+    /// (`docs/latency.md#structured-linear-solve`): in a contact step, one body's Newton–Euler
+    /// and kinematic-map unknowns `(ν, q)`, whose rows involve no other body's. Disjoint index
+    /// lists; empty (the default) for a problem without that structure.
+    fn elimination_groups(&self) -> &[Vec<usize>] {
+        &[]
+    }
 }
 
 type FFn = dyn Fn(&[f64], &mut [f64]) + Send + Sync;

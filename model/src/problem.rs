@@ -53,6 +53,7 @@ pub struct Problem {
     vars: Vec<VarBlock>,
     data: Vec<DataBlock>,
     residuals: Vec<PendingResidual>,
+    groups: Vec<Vec<VarId>>,
 }
 
 impl Problem {
@@ -65,6 +66,13 @@ impl Problem {
     pub fn add_variable_block(&mut self, block: VarBlock) -> VarId {
         self.vars.push(block);
         VarId(self.vars.len() - 1)
+    }
+
+    /// Marks variable blocks whose unknowns (with their paired rows) a linear solver may
+    /// eliminate first ([`Mcp::elimination_groups`]): a body's `ν` and `q`. A block belongs to
+    /// one group at most (checked when the problem is built).
+    pub fn add_elimination_group(&mut self, vars: &[VarId]) {
+        self.groups.push(vars.to_vec());
     }
 
     /// Adds a data block (model parameters residual blocks read, [`crate::data`]); its values
@@ -347,6 +355,24 @@ impl Problem {
             }
         }
         let has_terms = blocks.iter().any(|b| b.term);
+        let mut grouped = vec![false; self.vars.len()];
+        let mut groups = Vec::with_capacity(self.groups.len());
+        for group in &self.groups {
+            let mut indices = Vec::new();
+            for v in group {
+                match grouped.get_mut(v.0) {
+                    Some(g) if !*g => *g = true,
+                    _ => {
+                        return Err(ModelError::Pairing(format!(
+                            "variable block {} is in two elimination groups or does not exist",
+                            v.0
+                        )));
+                    }
+                }
+                indices.extend(offsets[v.0]..offsets[v.0] + self.vars[v.0].size());
+            }
+            groups.push(indices);
+        }
         Ok(BlockMcp {
             n,
             lower,
@@ -359,6 +385,7 @@ impl Problem {
             blocks,
             has_terms,
             pattern: Arc::new(pattern),
+            groups,
         })
     }
 }
@@ -450,6 +477,8 @@ pub struct BlockMcp {
     blocks: Vec<AssembledBlock>,
     has_terms: bool,
     pattern: Arc<CscPattern>,
+    /// [`Mcp::elimination_groups`], as index lists.
+    groups: Vec<Vec<usize>>,
 }
 
 impl BlockMcp {
@@ -707,5 +736,8 @@ impl Mcp for BlockMcp {
             Some(block) => block.component_name(i - self.offsets[v]),
             None => format!("z[{i}]"),
         }
+    }
+    fn elimination_groups(&self) -> &[Vec<usize>] {
+        &self.groups
     }
 }

@@ -179,6 +179,10 @@ impl Mcp for ScaledMcp<'_> {
         self.inner.component_name(i)
     }
     // No structural view: its data are in the unscaled units.
+    fn elimination_groups(&self) -> &[Vec<usize>] {
+        // A diagonal scaling keeps every block of the Jacobian where it was.
+        self.inner.elimination_groups()
+    }
 }
 
 /// A backend's solve, as [`solve_in_scales`] calls it.

@@ -208,6 +208,8 @@ pub struct ReducedSystem {
     reduced: Vec<f64>,
     held: Vec<bool>,
     dense_max: usize,
+    /// Block elimination of the problem's elimination groups ([`LinearSolver::structured`]).
+    structured: bool,
     regularised: Option<Regularised>,
     work: Vec<f64>,
 }
@@ -249,6 +251,17 @@ impl ReducedSystem {
         }
     }
 
+    /// Solves by block elimination of the problem's elimination groups
+    /// ([`crate::Mcp::elimination_groups`], `docs/latency.md#structured-linear-solve`) when
+    /// `on`: held rows are unit rows, so the reduced matrix keeps the groups' structure.
+    pub fn with_structured_solve(mut self, on: bool) -> Self {
+        if self.structured != on {
+            self.linear = None;
+        }
+        self.structured = on;
+        self
+    }
+
     /// The Jacobian values `J(z*)` of the last [`ReducedSystem::factor`], in the pattern's order.
     pub fn jacobian_values(&self) -> &[f64] {
         &self.jac
@@ -281,7 +294,12 @@ impl ReducedSystem {
             .as_ref()
             .is_some_and(|p| Arc::ptr_eq(p, pattern) || **p == **pattern);
         if !reuse || self.linear.is_none() {
-            self.linear = Some(LinearSolver::for_pattern(pattern, self.dense_max)?);
+            let groups = if self.structured {
+                mcp.elimination_groups()
+            } else {
+                &[]
+            };
+            self.linear = Some(LinearSolver::structured(pattern, self.dense_max, groups)?);
             self.pattern = Some(pattern.clone());
         }
         self.jac.resize(pattern.nnz(), 0.0);

@@ -82,6 +82,12 @@ pub struct NewtonSettings {
     pub lm_cholesky: bool,
     /// Largest dimension solved with dense LU; larger problems use sparse LU. Default 120.
     pub dense_max: usize,
+    /// Solve the Newton systems of dense problems by block elimination of the problem's
+    /// elimination groups ([`ecp_model::Mcp::elimination_groups`]: a body's Newton–Euler and
+    /// kinematic-map unknowns), leaving a dense system in the contact unknowns
+    /// (`docs/latency.md#structured-linear-solve`); the LU of the whole matrix for problems
+    /// without groups, and for a matrix whose block elimination fails. Default `false`.
+    pub structured_solve: bool,
     /// When the LU of `H` is singular or its step fails the descent test, try the
     /// minimum-norm least-squares step `d = −H⁺Φ` (complete orthogonal decomposition, dense
     /// problems only) before the Levenberg–Marquardt safeguard. At the solutions of the
@@ -198,6 +204,7 @@ impl Default for NewtonSettings {
             max_lm_trials: 30,
             lm_cholesky: false,
             dense_max: 120,
+            structured_solve: false,
             min_norm_step: true,
             rank_tolerance: 1e-10,
             min_norm_radius: 1e-3,
@@ -310,6 +317,8 @@ pub struct NewtonSolver {
     settings: NewtonSettings,
     ws: Workspace,
     linear: Option<LinearSolver>,
+    /// [`NewtonSettings::structured_solve`] when `linear` was chosen.
+    linear_structured: bool,
     normal: Option<NormalEquations>,
     min_norm: MinNorm,
     pattern: Option<Arc<CscPattern>>,
@@ -330,6 +339,7 @@ impl NewtonSolver {
             settings,
             ws: Workspace::default(),
             linear: None,
+            linear_structured: false,
             normal: None,
             min_norm: MinNorm::default(),
             pattern: None,
@@ -374,11 +384,19 @@ impl NewtonSolver {
             Some(p) => Arc::ptr_eq(p, pattern) || **p == **pattern,
             None => false,
         };
+        let groups = if self.settings.structured_solve {
+            mcp.elimination_groups()
+        } else {
+            &[]
+        };
+        // The groups come with the pattern (the same problem), but the setting may change.
+        let same = same && self.linear_structured == self.settings.structured_solve;
         if !same {
-            let lin = LinearSolver::for_pattern(pattern, self.settings.dense_max).map_err(|e| {
-                SolveError::InvalidProblem(format!("cannot analyse the Jacobian pattern: {e}"))
-            })?;
+            let lin = LinearSolver::structured(pattern, self.settings.dense_max, groups).map_err(
+                |e| SolveError::InvalidProblem(format!("cannot analyse the Jacobian pattern: {e}")),
+            )?;
             self.linear = Some(lin);
+            self.linear_structured = self.settings.structured_solve;
             self.normal = None;
             self.pattern = Some(pattern.clone());
         }
@@ -890,6 +908,9 @@ impl NewtonSolver {
             let pinned = s.pin_zero_columns
                 && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin, &mut ws.row_scale);
             let mut newton_ok = linear.factor(&ws.h).is_ok();
+            if newton_ok && linear.factored_by_elimination() {
+                prof.structured_factorizations += 1;
+            }
             if newton_ok {
                 for i in 0..n {
                     ws.d[i] = -ws.phi[i];

@@ -206,6 +206,9 @@ impl StepFormulation for EcpContacts {
                 VarBlock::free(format!("{}.q", spec.name), 7)
                     .with_component_names(["x", "y", "z", "qw", "qx", "qy", "qz"]),
             );
+            // The Newton–Euler and kinematic-map rows involve only this body's ν and q besides
+            // the contact unknowns: a linear solver eliminates them first.
+            problem.add_elimination_group(&[nu, q]);
             // The convex sets that get a contact: Conv(F), or every piece that can touch (union).
             let sets: Vec<(Option<usize>, ConvexHull)> = if self.union {
                 let mut sets = Vec::new();

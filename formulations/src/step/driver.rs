@@ -211,6 +211,9 @@ impl Mcp for StepProblem<'_> {
     fn scales(&self) -> Option<&ecp_model::McpScales> {
         self.scales
     }
+    fn elimination_groups(&self) -> &[Vec<usize>] {
+        self.mcp.elimination_groups()
+    }
 }
 
 /// Keeps the better of two failed solves (the smaller natural residual, the first on a tie).

@@ -27,6 +27,11 @@ impl SmallLu {
         }
     }
 
+    /// Dimension `n`.
+    pub(crate) fn dim(&self) -> usize {
+        self.n
+    }
+
     /// Factorises the column-major `n × n` matrix `src` (finite: the caller checks). A zero
     /// pivot column is left unreduced; the caller's pivot-ratio test reports the matrix singular.
     #[cfg(test)]
@@ -133,6 +138,53 @@ impl SmallLu {
         }
     }
 
+    /// Solves `A X = B` in place for the `k` columns of the row-major `n × k` matrix `b`:
+    /// row operations on whole rows, so that a few right-hand sides share each factor entry
+    /// (the block elimination's `A⁻¹ B`, [`super::SchurLu`]).
+    pub(crate) fn solve_rows(&self, b: &mut [f64], k: usize) {
+        let n = self.n;
+        let a = &self.a;
+        for (r, &p) in self.piv.iter().enumerate() {
+            if p != r {
+                for c in 0..k {
+                    b.swap(r * k + c, p * k + c);
+                }
+            }
+        }
+        for r in 0..n {
+            let (head, tail) = b.split_at_mut((r + 1) * k);
+            let row = &head[r * k..];
+            if row.iter().all(|v| *v == 0.0) {
+                continue;
+            }
+            for (l, below) in a[r * n + r + 1..(r + 1) * n]
+                .iter()
+                .zip(tail.chunks_exact_mut(k))
+            {
+                if *l != 0.0 {
+                    for (x, y) in below.iter_mut().zip(row) {
+                        *x -= l * y;
+                    }
+                }
+            }
+        }
+        for r in (0..n).rev() {
+            let (head, tail) = b.split_at_mut(r * k);
+            let row = &mut tail[..k];
+            let d = a[r * n + r];
+            for x in row.iter_mut() {
+                *x /= d;
+            }
+            for (u, above) in a[r * n..r * n + r].iter().zip(head.chunks_exact_mut(k)) {
+                if *u != 0.0 {
+                    for (x, y) in above.iter_mut().zip(row.iter()) {
+                        *x -= u * y;
+                    }
+                }
+            }
+        }
+    }
+
     /// Solves `Aᵀ x = b` in place: `Uᵀ y = b`, `Lᵀ w = y`, `x = Pᵀ w`.
     pub(crate) fn solve_transpose(&self, b: &mut [f64]) {
         let n = self.n;
@@ -211,6 +263,16 @@ mod tests {
                     err < 1e-10,
                     "n = {n}, transpose = {transpose}: error {err:.2e}"
                 );
+            }
+            // Three right-hand sides as the rows of a row-major matrix.
+            let b = mul(&a, &x, n, false);
+            let mut rows: Vec<f64> = b.iter().flat_map(|v| [*v, 2.0 * v, -v]).collect();
+            lu.solve_rows(&mut rows, 3);
+            for (i, v) in x.iter().enumerate() {
+                for (c, f) in [1.0, 2.0, -1.0].iter().enumerate() {
+                    let err = (rows[i * 3 + c] - f * v).abs();
+                    assert!(err < 1e-10, "n = {n}, rows: error {err:.2e}");
+                }
             }
         }
     }
