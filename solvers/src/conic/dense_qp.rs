@@ -567,7 +567,7 @@ impl DenseQp {
                     (piv, best) = (r, v);
                 }
             }
-            if !(best > scale * f64::EPSILON * f64::EPSILON) {
+            if best.is_nan() || best <= scale * f64::EPSILON * f64::EPSILON {
                 return false;
             }
             self.pivots[c] = piv;
