@@ -162,7 +162,8 @@ pub struct ConicSettings {
     /// `false`: its answers differ from clarabel's within the tolerances (the vertex impulses
     /// are not unique, sliding velocities differ by up to 1e-7), and with them
     /// `a5_drop_tilted`'s fixed point stagnated at step 16 (26 outer iterations and a Newton
-    /// polish, against 6 with clarabel; `docs/latency.md#conic-backend`).
+    /// polish, against 6 with clarabel) and the stress scene `073_ladder` failed 348 steps
+    /// (`docs/latency.md#conic-backend`).
     pub dense_qp: bool,
     /// Inexact outer QPs: the QP of an outer iteration whose input has natural residual `r` is
     /// solved to the tolerances `min(factor · r, 1e-6)` (clarabel's `tol_feas`, `tol_gap_abs`,
