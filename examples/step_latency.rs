@@ -8,7 +8,8 @@
 //!
 //! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
 //! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th), and
-//! `desk-conic` (the conic backend's defaults), `desk-conic-clarabel` (every QP by clarabel). The
+//! `desk-conic` (the conic backend's defaults: every QP by clarabel), `desk-conic-dense` (the
+//! QPs by the dense method first, `ConicSettings::dense_qp`). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
 //! without the set-up. Prints the last solve's iterations so the work cannot be optimised away.
 
@@ -68,7 +69,7 @@ fn main() {
         },
         _ => {
             eprintln!(
-                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity|desk-conic|desk-conic-clarabel> N"
+                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity|desk-conic|desk-conic-dense> N"
             );
             std::process::exit(2);
         }
@@ -89,9 +90,9 @@ fn main() {
             100,
             n,
         ),
-        "desk-conic-clarabel" => repeat_structured(
+        "desk-conic-dense" => repeat_structured(
             &mut ConicSolver::new(ConicSettings {
-                dense_qp: false,
+                dense_qp: true,
                 ..ConicSettings::default()
             }),
             scenarios::desk(),
