@@ -48,6 +48,18 @@ fn desk_step_exact_qps(bencher: divan::Bencher) {
     });
 }
 
+/// The same step with every QP solved first by the dense method (`ConicSettings::dense_qp`,
+/// opt-in: `docs/latency.md#conic-backend`).
+#[divan::bench]
+fn desk_step_dense_qp(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
+    solver.settings_mut().dense_qp = true;
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
 /// The fastest combination measured (not the default: the handoff slows corner scenes,
 /// `docs/latency.md#conic-backend`): dense QPs, inexact QPs, Newton handoff at 1e-3.
 #[divan::bench]

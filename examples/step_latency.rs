@@ -10,13 +10,16 @@
 //! elimination, `docs/latency.md#structured-linear-solve`), `lu` (the default) with it off.
 //!
 //! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
-//! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th). The
+//! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th), and
+//! `desk-conic` (the conic backend's defaults: every QP by clarabel), `desk-conic-dense` (the
+//! QPs by the dense method first, `ConicSettings::dense_qp`). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
 //! without the set-up. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator};
 use ecp::formulations::{Scene, Simulation, scenarios};
 use ecp::model::McpSolver;
+use ecp::solvers::conic::{ConicSettings, ConicSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 
@@ -43,6 +46,20 @@ fn repeat(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize
     iterations
 }
 
+/// As [`repeat`], for the conic backend (which needs the step's structural view).
+fn repeat_structured(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize {
+    let (sim, z0) = at_step(scene, k, solver);
+    let view = sim.step_problem();
+    let mut iterations = 0;
+    for _ in 0..n {
+        match solver.solve(&view, &z0) {
+            Ok(sol) => iterations = sol.summary.iterations,
+            Err(e) => panic!("step {k}: {e}"),
+        }
+    }
+    iterations
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let (case, n, linear) = match args.as_slice() {
@@ -55,8 +72,8 @@ fn main() {
         },
         _ => {
             eprintln!(
-                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity> N \
-                 [lu|schur]"
+                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity|\
+                 desk-conic|desk-conic-dense> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -84,6 +101,21 @@ fn main() {
             n,
         ),
         "a1-newton" => repeat(&mut newton(), scenarios::a1_sliding(), 20, n),
+        "desk-conic" => repeat_structured(
+            &mut ConicSolver::new(ConicSettings::default()),
+            scenarios::desk(),
+            100,
+            n,
+        ),
+        "desk-conic-dense" => repeat_structured(
+            &mut ConicSolver::new(ConicSettings {
+                dense_qp: true,
+                ..ConicSettings::default()
+            }),
+            scenarios::desk(),
+            100,
+            n,
+        ),
         "tbar-newton" => repeat(&mut newton(), scenarios::t_bar(), 340, n),
         "desk-sensitivity" => {
             let mut solver = newton();
