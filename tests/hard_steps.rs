@@ -144,3 +144,49 @@ fn path_multi_body_step_475_first_in_both_units() {
         before.summary.iterations
     );
 }
+
+/// `012_multi_body` run as `ecp run` runs it, with PATH: before `first_attempt_pivots` step 1008
+/// spent the whole 20 s `time_limit` in its first attempt as given (42 iterations of thousands
+/// of pivots each, 32 of the run's 36 s) where the first attempt in the scene scales converges in
+/// 7 iterations and 13 pivots. Now no step makes more pivots than the budget (100 per unknown)
+/// plus one more Lemke path (at most 50 per unknown) and the scaled attempt's.
+#[test]
+#[ignore = "slow: cargo test --release --test hard_steps -- --ignored path_multi_body_run_first_attempt_pivots"]
+fn path_multi_body_run_first_attempt_pivots() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/012_multi_body.toml");
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let out = std::env::temp_dir().join(format!("ecp_hard_steps_012_{}", std::process::id()));
+    let options = ecp::run::RunOptions {
+        out_dir: out.clone(),
+        solver: Some("path".to_string()),
+        formulation: Some("hull".to_string()),
+        plots: false,
+        fallbacks: false,
+        ..Default::default()
+    };
+    let n = {
+        let (sim, _) = at_step(
+            "012_multi_body",
+            &mut PathSolver::new(PathSettings::default()),
+            1,
+        );
+        sim.z().len()
+    };
+    let mut worst = (0usize, 0usize);
+    let outcome = ecp::run::run_scene(&file, &options, |rec| {
+        assert!(rec.converged, "step {} did not converge", rec.step);
+        let pivots = rec.summary.counter(Counter::Pivots).unwrap_or(0);
+        if pivots > worst.0 {
+            worst = (pivots, rec.step);
+        }
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let _ = std::fs::remove_dir_all(&out);
+    assert_eq!(outcome.records.len(), file.scene.num_steps());
+    let (pivots, step) = worst;
+    assert!(
+        pivots <= 160 * n,
+        "step {step}: {pivots} pivots for {n} unknowns"
+    );
+}

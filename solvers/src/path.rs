@@ -134,6 +134,15 @@ pub struct PathSettings {
     /// attempt as given cycled at its watchdog (635 iterations, 370 000 pivots, 6 s) where the
     /// first attempt in the scales converges in 3 (`docs/path.md#hard-steps`). Default `true`.
     pub first_in_both_units: bool,
+    /// When [`PathSettings::first_in_both_units`] splits the first attempt, each of its two
+    /// halves (as given, in the scales) stops once it has made this many pivots per unknown
+    /// (`first_attempt_pivots · n` in all), so that one system of units cannot spend the whole
+    /// [`PathSettings::time_limit`] before the other is tried. A first attempt that converges
+    /// makes a few pivots per unknown; on `012_multi_body` step 1008 (121 unknowns) the attempt
+    /// as given ran 42 iterations of thousands of pivots each into the 20 s limit, where the one
+    /// in the scales converges in 7 iterations and 13 pivots (`docs/path.md#hard-steps`). The
+    /// later attempts have no pivot budget. `0` for none. Default `100`.
+    pub first_attempt_pivots: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -162,6 +171,7 @@ impl Default for PathSettings {
             lemke: LemkeSettings::default(),
             time_limit: 20.0,
             first_in_both_units: true,
+            first_attempt_pivots: 100,
             trace: false,
         }
     }
@@ -259,6 +269,8 @@ pub struct PathSolver {
     observer: Option<Box<dyn Observer>>,
     /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
     deadline: Option<Instant>,
+    /// Pivots an attempt may make (`PathSettings::first_attempt_pivots`); `None` for no limit.
+    pivot_budget: Option<usize>,
     /// The current attempt judges points by the Fischer–Burmeister merit
     /// ([`PathSettings::fischer_restart`]).
     fischer: bool,
@@ -310,6 +322,7 @@ impl PathSolver {
             factor: BasisFactor::default(),
             observer: None,
             deadline: None,
+            pivot_budget: None,
             fischer: false,
         }
     }
@@ -601,6 +614,7 @@ impl PathSolver {
             best_residual,
         } = run;
         let iterations_at_start = *iterations;
+        let pivots_at_start = counters.pivots;
 
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
@@ -700,6 +714,12 @@ impl PathSolver {
                 break;
             }
             if *iterations - iterations_at_start >= s.max_iterations {
+                break;
+            }
+            if self
+                .pivot_budget
+                .is_some_and(|b| counters.pivots - pivots_at_start >= b)
+            {
                 break;
             }
             if self.out_of_time() {
@@ -961,6 +981,8 @@ impl PathSolver {
             None
         };
         self.lemke.set_deadline(self.deadline);
+        self.pivot_budget = (which == Attempts::First && self.settings.first_attempt_pivots > 0)
+            .then(|| self.settings.first_attempt_pivots.saturating_mul(mcp.dim()));
         let s = match which {
             Attempts::First => PathSettings {
                 guarded_watchdog: false,
