@@ -229,12 +229,7 @@ impl DenseLu {
             return Err(LinalgError::NotFactored);
         }
         let n = self.n;
-        if b.len() != n * k {
-            return Err(LinalgError::Factorization(format!(
-                "right-hand side has {} entries, expected {n} × {k}",
-                b.len()
-            )));
-        }
+        check_many_rhs(b.len(), n, k)?;
         if let (Some(small), true) = (&self.small, k < SMALL_MANY_RHS) {
             for col in b.chunks_exact_mut(n.max(1)) {
                 small.solve(col);
@@ -631,6 +626,17 @@ impl std::fmt::Debug for LinearSolver {
                 schur.reduced_dim()
             ),
         }
+    }
+}
+
+/// The check of a many-right-hand-side solve: `b` holds `k` columns of length `n`.
+pub(crate) fn check_many_rhs(len: usize, n: usize, k: usize) -> Result<(), LinalgError> {
+    if len == n * k {
+        Ok(())
+    } else {
+        Err(LinalgError::Factorization(format!(
+            "right-hand side has {len} entries, expected {n} × {k}"
+        )))
     }
 }
 

@@ -273,6 +273,13 @@ struct Workspace {
 }
 
 impl Workspace {
+    /// Keeps the current point as the watchdog's checkpoint (a non-monotone sequence starts).
+    fn save_checkpoint(&mut self) {
+        self.z_check.copy_from_slice(&self.z);
+        self.f_check.copy_from_slice(&self.f);
+        self.phi_check.copy_from_slice(&self.phi);
+    }
+
     fn resize(&mut self, n: usize, nnz: usize) {
         self.n = n;
         for v in [
@@ -959,9 +966,7 @@ impl NewtonSolver {
                     } else if self.nonmonotone && s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         // The non-monotone restart: the full step, under the watchdog.
                         if checkpoint.is_none() {
-                            ws.z_check.copy_from_slice(&ws.z);
-                            ws.f_check.copy_from_slice(&ws.f);
-                            ws.phi_check.copy_from_slice(&ws.phi);
+                            ws.save_checkpoint();
                             checkpoint = Some(psi);
                             watchdog_count = 0;
                         }
@@ -1027,9 +1032,7 @@ impl NewtonSolver {
                                     accepted = Some((1.0, p));
                                 } else if local && s.watchdog_steps > 0 && psi < watchdog_ceiling {
                                     if checkpoint.is_none() {
-                                        ws.z_check.copy_from_slice(&ws.z);
-                                        ws.f_check.copy_from_slice(&ws.f);
-                                        ws.phi_check.copy_from_slice(&ws.phi);
+                                        ws.save_checkpoint();
                                         checkpoint = Some(psi);
                                         watchdog_count = 0;
                                     }

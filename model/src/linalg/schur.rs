@@ -16,7 +16,7 @@
 //! differs from the LU of the whole matrix (groups first), so results move by round-off.
 
 use super::small_lu::SmallLu;
-use super::{LinalgError, SINGULAR_PIVOT_RATIO};
+use super::{LinalgError, SINGULAR_PIVOT_RATIO, check_many_rhs};
 use crate::pattern::CscPattern;
 
 /// Where an unknown sits in the partition.
@@ -314,12 +314,7 @@ impl SchurLu {
             return Err(LinalgError::NotFactored);
         }
         let n = self.n;
-        if b.len() != n * k {
-            return Err(LinalgError::Factorization(format!(
-                "right-hand side has {} entries, expected {n} × {k}",
-                b.len()
-            )));
-        }
+        check_many_rhs(b.len(), n, k)?;
         let (ne, m, nc) = (self.grouped.len(), self.rest.len(), self.couplings.len());
         self.many_e.resize(ne * k, 0.0);
         self.many_c.resize(m * k, 0.0);
