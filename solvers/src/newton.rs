@@ -639,30 +639,26 @@ impl NewtonSolver {
         let nonmonotone = Attempt {
             profile: 4,
             runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,
-            smoothed: false,
+            kind: AttemptKind::Nonmonotone,
             damped: false,
-            nonmonotone: true,
         };
         let damped_plain = Attempt {
             profile: 1,
             runs: damping.is_some(),
-            smoothed: false,
+            kind: AttemptKind::Plain,
             damped: true,
-            nonmonotone: false,
         };
         let smoothed = Attempt {
             profile: 2,
             runs: smoothing,
-            smoothed: true,
+            kind: AttemptKind::Smoothed,
             damped: false,
-            nonmonotone: false,
         };
         let damped_smoothed = Attempt {
             profile: 3,
             runs: smoothing && damping.is_some(),
-            smoothed: true,
+            kind: AttemptKind::Smoothed,
             damped: true,
-            nonmonotone: false,
         };
         let dense = mcp.dim() <= self.settings.dense_max;
         let mut attempts = [nonmonotone, damped_plain, smoothed, damped_smoothed];
@@ -684,17 +680,17 @@ impl NewtonSolver {
             if a.damped {
                 self.settings.lm_initial_damping = damping.unwrap_or(saved);
             }
-            let result = if a.smoothed {
-                self.smoothing_continuation(mcp, z0)
-            } else if a.nonmonotone {
-                // One run, without the minimum-norm restart of `solve_plain`: the attempt is
-                // meant to be cheap, and the later attempts cover what it does not solve.
-                self.nonmonotone = true;
-                let r = self.solve_once(mcp, z0);
-                self.nonmonotone = false;
-                r
-            } else {
-                self.solve_plain(mcp, z0)
+            let result = match a.kind {
+                AttemptKind::Smoothed => self.smoothing_continuation(mcp, z0),
+                AttemptKind::Nonmonotone => {
+                    // One run, without the minimum-norm restart of `solve_plain`: the attempt
+                    // is meant to be cheap, and the later attempts cover what it does not solve.
+                    self.nonmonotone = true;
+                    let r = self.solve_once(mcp, z0);
+                    self.nonmonotone = false;
+                    r
+                }
+                AttemptKind::Plain => self.solve_plain(mcp, z0),
             };
             self.settings.lm_initial_damping = saved;
             match result {
@@ -716,6 +712,17 @@ impl NewtonSolver {
     }
 }
 
+/// What an attempt of [`NewtonSolver::solve_restarted`] runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum AttemptKind {
+    /// The plain iteration ([`NewtonSolver::solve_plain`]).
+    Plain,
+    /// Full Newton steps under the watchdog ([`NewtonSettings::nonmonotone_restart`]).
+    Nonmonotone,
+    /// The smoothing continuation.
+    Smoothed,
+}
+
 /// One attempt of [`NewtonSolver::solve_restarted`].
 #[derive(Clone, Copy)]
 struct Attempt {
@@ -723,12 +730,9 @@ struct Attempt {
     profile: usize,
     /// Whether the settings ask for it.
     runs: bool,
-    /// The smoothing continuation (else the plain iteration).
-    smoothed: bool,
+    kind: AttemptKind,
     /// With the damped restart's initial damping.
     damped: bool,
-    /// Full Newton steps under the watchdog ([`NewtonSettings::nonmonotone_restart`]).
-    nonmonotone: bool,
 }
 
 impl NewtonSolver {
