@@ -234,16 +234,22 @@ fn sweep_steps(path: &str, sets: &[String]) -> Result<(), String> {
         Err(SolveError::NotConverged { best }) => (best.summary.iterations, false),
         Err(_) => (0, false),
     };
-    let (mut ta, mut tb) = (0usize, 0usize);
+    let (mut ta, mut tb, mut wa, mut wb) = (0usize, 0usize, 0usize, 0usize);
     for k in 1..=file.scene.num_steps() {
         sim.prepare_step().map_err(|e| e.to_string())?;
         let z0 = sim.z().to_vec();
+        // Not the profile of the last step's solve by `sim.step` below.
+        let _ = driver.take_profile();
         let a = iterations(&sim.solve_step_problem(&mut driver, &z0));
         let b = iterations(&sim.solve_step_problem(&mut other, &z0));
         // Iterations by attempt [plain, damped, smooth, dsmooth, nonmonotone].
         let (pa, pb) = (driver.take_profile(), other.take_profile());
         ta += a.0;
         tb += b.0;
+        // Iterations run, over every attempt in both unit systems (a summary counts those of the
+        // unit system that answered).
+        wa += pa.attempt_iterations.iter().sum::<usize>();
+        wb += pb.attempt_iterations.iter().sum::<usize>();
         if a != b {
             println!(
                 "step {k}: --newton settings {a:?} {:?}, defaults {b:?} {:?}",
@@ -252,7 +258,9 @@ fn sweep_steps(path: &str, sets: &[String]) -> Result<(), String> {
         }
         sim.step(&mut driver).map_err(|e| e.to_string())?;
     }
-    println!("total iterations: --newton settings {ta}, defaults {tb}");
+    println!(
+        "total iterations: --newton settings {ta}, defaults {tb}; run (all attempts, both unit systems): {wa}, {wb}"
+    );
     Ok(())
 }
 

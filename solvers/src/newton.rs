@@ -192,12 +192,13 @@ pub struct NewtonSettings {
     /// solves is unchanged; on problems above [`NewtonSettings::dense_max`] after the damped
     /// plain iteration too. Default `true`.
     pub nonmonotone_restart: bool,
-    /// Steps undone by the watchdog (a failed non-monotone sequence of minimum-norm steps, taken
-    /// back to its checkpoint) count neither in the stall test's window nor as minimum-norm steps
-    /// for the restart without them ([`NewtonSettings::min_norm_step`]): after the restore the
-    /// iteration goes on exactly as the restart would from that point, so the restart replayed
-    /// the same iterations, and the stall test had cut the first run 4 iterations earlier than
-    /// the restart (`docs/newton.md#linearly-converging-steps`). Default `true`.
+    /// Steps undone by the watchdog (a failed non-monotone sequence, taken back to its
+    /// checkpoint) count neither in the stall test's window nor as minimum-norm steps for the
+    /// restart without them ([`NewtonSettings::min_norm_step`]), and the stall test does not
+    /// judge a run while such a sequence is open. After a restore the iteration goes on as the
+    /// restart would from that point, so the restart replayed the same iterations, and the stall
+    /// test had cut the first run 4 iterations before it would have converged
+    /// (`docs/newton.md#linearly-converging-steps`). Default `true`.
     pub forget_undone_steps: bool,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
