@@ -80,7 +80,8 @@ pub struct NewtonSettings {
     /// instead of LU (half the arithmetic; `HᵀH` is formed once per iteration either way,
     /// `docs/newton.md#wall-time`). Default `false`.
     pub lm_cholesky: bool,
-    /// From this many Levenberg–Marquardt iterations of one run on, the damping is
+    /// In the plain iteration (not in the restarts after it), from this many
+    /// Levenberg–Marquardt iterations of one run on, the damping is
     /// `λ = ν‖Φ‖²` (Yamashita–Fukushima; `ν` adapted by the ratio of actual to predicted
     /// decrease, as Fan and Pan adapt it) instead of Moré's `λ = μ · max diag(HᵀH)`, whose factor
     /// falls by at most 3 per step from [`NewtonSettings::lm_initial_damping`]. Where the plain
@@ -1118,9 +1119,12 @@ impl NewtonSolver {
                 {
                     self.normal = NormalEquations::new(&pattern, s.dense_max, s.lm_cholesky).ok();
                 }
-                let residual_damping = s
-                    .lm_residual_damping_after
-                    .is_some_and(|after| lm_run >= after);
+                // In the plain iteration only: the restarts after it were tuned with Moré's
+                // damping (the damped restart is a choice of it), and the non-monotone restart
+                // with it solves steps that the plain iteration with either damping does not.
+                let residual_damping = self.attempt == 0
+                    && s.lm_residual_damping_after
+                        .is_some_and(|after| lm_run >= after);
                 lm_run += 1;
                 if let Some(ne) = self.normal.as_mut() {
                     // HᵀH once per iteration; each damping trial only adds its λ and factorises.
