@@ -176,11 +176,13 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         |s: &mut NewtonSettings| s.smoothing.get_or_insert_with(Default::default).to_owned();
     match name {
         "max_lm_trials" => s.max_lm_trials = n()?,
+        "lm_residual_damping_after" => s.lm_residual_damping_after = value.parse::<usize>().ok(),
         "lm_initial_damping" => s.lm_initial_damping = f()?,
         "lm_cholesky" => s.lm_cholesky = b()?,
         "stall_window" => s.stall_window = n()?,
         "stall_reduction" => s.stall_reduction = f()?,
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
+        "forget_undone_steps" => s.forget_undone_steps = b()?,
         "watchdog_steps" => s.watchdog_steps = n()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,

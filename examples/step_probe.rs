@@ -227,27 +227,40 @@ fn sweep_steps(path: &str, sets: &[String]) -> Result<(), String> {
     for kv in sets {
         set_newton(&mut changed, kv)?;
     }
-    let mut driver = NewtonSolver::new(changed);
-    let mut other = NewtonSolver::new(base);
+    let mut driver = NewtonSolver::new(changed).with_profile();
+    let mut other = NewtonSolver::new(base).with_profile();
     let iterations = |r: &Result<Solution, SolveError>| match r {
         Ok(s) => (s.summary.iterations, true),
         Err(SolveError::NotConverged { best }) => (best.summary.iterations, false),
         Err(_) => (0, false),
     };
-    let (mut ta, mut tb) = (0usize, 0usize);
+    let (mut ta, mut tb, mut wa, mut wb) = (0usize, 0usize, 0usize, 0usize);
     for k in 1..=file.scene.num_steps() {
         sim.prepare_step().map_err(|e| e.to_string())?;
         let z0 = sim.z().to_vec();
+        // Not the profile of the last step's solve by `sim.step` below.
+        let _ = driver.take_profile();
         let a = iterations(&sim.solve_step_problem(&mut driver, &z0));
         let b = iterations(&sim.solve_step_problem(&mut other, &z0));
+        // Iterations by attempt [plain, damped, smooth, dsmooth, nonmonotone].
+        let (pa, pb) = (driver.take_profile(), other.take_profile());
         ta += a.0;
         tb += b.0;
+        // Iterations run, over every attempt in both unit systems (a summary counts those of the
+        // unit system that answered).
+        wa += pa.attempt_iterations.iter().sum::<usize>();
+        wb += pb.attempt_iterations.iter().sum::<usize>();
         if a != b {
-            println!("step {k}: --newton settings {a:?}, defaults {b:?}");
+            println!(
+                "step {k}: --newton settings {a:?} {:?}, defaults {b:?} {:?}",
+                pa.attempt_iterations, pb.attempt_iterations
+            );
         }
         sim.step(&mut driver).map_err(|e| e.to_string())?;
     }
-    println!("total iterations: --newton settings {ta}, defaults {tb}");
+    println!(
+        "total iterations: --newton settings {ta}, defaults {tb}; run (all attempts, both unit systems): {wa}, {wb}"
+    );
     Ok(())
 }
 
@@ -299,12 +312,14 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "lm_initial_damping" => s.lm_initial_damping = f()?,
         "stall_window" => s.stall_window = n()?,
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
+        "forget_undone_steps" => s.forget_undone_steps = b()?,
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),
         "smoothing_first" => s.smoothing_first = b()?,
         "min_norm_step" => s.min_norm_step = b()?,
         "max_iterations" => s.max_iterations = n()?,
+        "lm_residual_damping_after" => s.lm_residual_damping_after = value.parse::<usize>().ok(),
         _ => return Err(format!("unknown Newton setting {name}")),
     }
     Ok(())

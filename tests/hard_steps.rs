@@ -10,7 +10,6 @@ use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
 use ecp::scene::load_scene;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
-use ecp::solvers::registry::{BackendOptions, Registry};
 
 /// The scene `tests/stress_regressions/NAME.toml` stepped by `driver` (built as the registry
 /// builds it) through step `step − 1`, with step `step` prepared; and the scene's tolerance.
@@ -33,18 +32,6 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
     (sim, file.solver.tolerance)
 }
 
-fn registry_solver(name: &str, tolerance: Option<f64>) -> Box<dyn McpSolver> {
-    Registry::builtin()
-        .build(
-            name,
-            &BackendOptions {
-                tolerance,
-                ..Default::default()
-            },
-        )
-        .unwrap_or_else(|e| panic!("{e}"))
-}
-
 fn converged(result: Result<Solution, SolveError>) -> Solution {
     match result {
         Ok(sol) => sol,
@@ -64,8 +51,10 @@ fn converged(result: Result<Solution, SolveError>) -> Solution {
 /// (full Newton steps under the watchdog) solves it in 10.
 #[test]
 fn newton_room_corner_step_12_nonmonotone_restart() {
-    let mut driver = registry_solver("newton", None);
-    let (sim, tolerance) = at_step("075_room_corner", driver.as_mut(), 12);
+    // The trajectory on which the step was measured: Newton before the valley mend of
+    // `newton_convex_push_step_58_residual_damping` (the registry's Newton reaches another state).
+    let mut driver = NewtonSolver::new(newton_before_valley_mend(None));
+    let (sim, tolerance) = at_step("075_room_corner", &mut driver, 12);
     let z0 = sim.z().to_vec();
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
@@ -87,7 +76,7 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
     let before = converged(sim.solve_step_problem(
         &mut NewtonSolver::new(NewtonSettings {
             nonmonotone_restart: false,
-            ..settings
+            ..newton_before_valley_mend(tolerance)
         }),
         &z0,
     ));
@@ -104,6 +93,65 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
         if !name.contains("sigma") {
             assert!((a - b).abs() <= 1e-8, "{name}: {a:e} against {b:e}");
         }
+    }
+}
+
+/// Newton as it was before the residual damping and the forgetting of undone steps
+/// (`docs/newton.md#linearly-converging-steps`), with the scene's tolerance.
+fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
+    NewtonSettings {
+        tolerance: tolerance.unwrap_or(1e-10),
+        lm_residual_damping_after: None,
+        forget_undone_steps: false,
+        ..NewtonSettings::default()
+    }
+}
+
+/// `015_convex_push` step 58 on the trajectory of Newton before the mend (h = 6 ms, μ = 0.42, a
+/// convex point body pushed along the floor, rocking on an edge that lies flat on it; 53
+/// unknowns): the ECP moves 9 cm along the edge within the step, and the edge's position is
+/// only weakly determined (through the torque of `p_n`), so the plain iteration follows a long
+/// valley of the merit in Levenberg–Marquardt steps. Moré's damping, starting from `1e-3` of
+/// `max diag HᵀH` and falling by at most 3 per step, took a dozen steps of ρ ≈ 1 before the
+/// steps reached the length the valley allows; a watchdog excursion of minimum-norm steps then
+/// cost the first run the 4 iterations after which the stall test cut it, and the restart
+/// without minimum-norm steps replayed the same iterations: 85 in all. With `λ = ν‖Φ‖²` after
+/// three Levenberg–Marquardt steps and the undone steps forgotten: 30.
+#[test]
+fn newton_convex_push_step_58_residual_damping() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/015_convex_push.toml");
+    let tolerance = load_scene(&path)
+        .unwrap_or_else(|e| panic!("{e}"))
+        .solver
+        .tolerance;
+    let before = newton_before_valley_mend(tolerance);
+    let mut driver = NewtonSolver::new(before.clone());
+    let (sim, _) = at_step("015_convex_push", &mut driver, 58);
+    let z0 = sim.z().to_vec();
+    let mended = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            tolerance: tolerance.unwrap_or(1e-10),
+            ..NewtonSettings::default()
+        }),
+        &z0,
+    ));
+    assert!(
+        mended.summary.iterations <= 40,
+        "{} iterations",
+        mended.summary.iterations
+    );
+    let old = converged(sim.solve_step_problem(&mut NewtonSolver::new(before), &z0));
+    assert!(
+        old.summary.iterations >= 70,
+        "{} iterations",
+        old.summary.iterations
+    );
+    // The same solution (both converged to 1e-10 in the scene's scales).
+    let problem = sim.step_problem();
+    for (i, (a, b)) in mended.z.iter().zip(&old.z).enumerate() {
+        let name = problem.component_name(i);
+        assert!((a - b).abs() <= 1e-8, "{name}: {a:e} against {b:e}");
     }
 }
 

@@ -80,6 +80,17 @@ pub struct NewtonSettings {
     /// instead of LU (half the arithmetic; `HᵀH` is formed once per iteration either way,
     /// `docs/newton.md#wall-time`). Default `false`.
     pub lm_cholesky: bool,
+    /// In the plain iteration (not in the restarts after it), from this many
+    /// Levenberg–Marquardt iterations of one run on, the damping is
+    /// `λ = ν‖Φ‖²` (Yamashita–Fukushima; `ν` adapted by the ratio of actual to predicted
+    /// decrease, as Fan and Pan adapt it) instead of Moré's `λ = μ · max diag(HᵀH)`, whose factor
+    /// falls by at most 3 per step from [`NewtonSettings::lm_initial_damping`]. Where the plain
+    /// iteration has to follow a long valley of the merit (a contact point sliding along an edge
+    /// that lies flat on the support, `docs/newton.md#linearly-converging-steps`) Moré's damping
+    /// takes a dozen steps of ρ ≈ 1 before the steps reach the length the valley allows. The
+    /// first iterations of a run keep Moré's damping, so steps that need few
+    /// Levenberg–Marquardt iterations are unchanged. `None` turns it off. Default `Some(3)`.
+    pub lm_residual_damping_after: Option<usize>,
     /// Largest dimension solved with dense LU; larger problems use sparse LU. Default 120.
     pub dense_max: usize,
     /// Solve the Newton systems of dense problems by block elimination of the problem's
@@ -182,6 +193,14 @@ pub struct NewtonSettings {
     /// solves is unchanged; on problems above [`NewtonSettings::dense_max`] after the damped
     /// plain iteration too. Default `true`.
     pub nonmonotone_restart: bool,
+    /// Steps undone by the watchdog (a failed non-monotone sequence, taken back to its
+    /// checkpoint) count neither in the stall test's window nor as minimum-norm steps for the
+    /// restart without them ([`NewtonSettings::min_norm_step`]), and the stall test does not
+    /// judge a run while such a sequence is open. After a restore the iteration goes on as the
+    /// restart would from that point, so the restart replayed the same iterations, and the stall
+    /// test had cut the first run 4 iterations before it would have converged
+    /// (`docs/newton.md#linearly-converging-steps`). Default `true`.
+    pub forget_undone_steps: bool,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -203,6 +222,7 @@ impl Default for NewtonSettings {
             lm_initial_damping: 1e-3,
             max_lm_trials: 30,
             lm_cholesky: false,
+            lm_residual_damping_after: Some(3),
             dense_max: 120,
             structured_solve: false,
             min_norm_step: true,
@@ -222,6 +242,7 @@ impl Default for NewtonSettings {
             stall_window: 30,
             stall_reduction: 0.5,
             nonmonotone_restart: true,
+            forget_undone_steps: true,
             scene_scales: true,
             trace: false,
         }
@@ -337,6 +358,9 @@ pub struct NewtonSolver {
     /// The running attempt takes full Newton steps under the watchdog
     /// ([`NewtonSettings::nonmonotone_restart`]).
     nonmonotone: bool,
+    /// Minimum-norm steps of the last run that no watchdog restore undid
+    /// ([`NewtonSettings::forget_undone_steps`]).
+    min_norm_kept: usize,
 }
 
 impl NewtonSolver {
@@ -354,6 +378,7 @@ impl NewtonSolver {
             profile: None,
             attempt: 0,
             nonmonotone: false,
+            min_norm_kept: 0,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -740,8 +765,15 @@ impl NewtonSolver {
     /// after taking some (see [`NewtonSettings::min_norm_step`]).
     fn solve_plain(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let first = self.solve_once(mcp, z0);
-        let used_min_norm =
-            |summary: &ecp_model::Summary| summary.counter(Counter::MinNormSteps).unwrap_or(0) > 0;
+        let kept = self.min_norm_kept;
+        let forget = self.settings.forget_undone_steps;
+        let used_min_norm = |summary: &ecp_model::Summary| {
+            if forget {
+                kept > 0
+            } else {
+                summary.counter(Counter::MinNormSteps).unwrap_or(0) > 0
+            }
+        };
         match first {
             // The minimum-norm steps are for non-isolated solution sets; on an isolated but
             // hard step (a light body in free flight near contact) their non-monotone watchdog
@@ -835,6 +867,9 @@ impl NewtonSolver {
         let mut checkpoint: Option<f64> = None;
         let mut watchdog_count = 0usize;
         let mut watchdog_ceiling = f64::INFINITY;
+        // Minimum-norm steps kept, and those of the running non-monotone sequence (undone when
+        // the watchdog restores its checkpoint).
+        let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
         let mut prof = NewtonProfile::default();
@@ -859,6 +894,10 @@ impl NewtonSolver {
         let mut iterations = 0;
         let mut lm_mu = s.lm_initial_damping;
         let mut lm_growth = 2.0;
+        // Levenberg–Marquardt iterations of this run, and ν of the damping λ = ν‖Φ‖² once
+        // `lm_residual_damping_after` of them have run.
+        let mut lm_run = 0usize;
+        let mut lm_nu = 1.0f64;
         if !psi.is_finite() {
             termination = Termination::NonFiniteFunction;
         }
@@ -1057,6 +1096,11 @@ impl NewtonSolver {
                             }
                             if accepted.is_some() {
                                 min_norm_steps += 1;
+                                if checkpoint.is_some() {
+                                    min_norm_pending += 1;
+                                } else {
+                                    min_norm_kept += 1;
+                                }
                             }
                         }
                     }
@@ -1075,22 +1119,37 @@ impl NewtonSolver {
                 {
                     self.normal = NormalEquations::new(&pattern, s.dense_max, s.lm_cholesky).ok();
                 }
+                // In the plain iteration only: the restarts after it were tuned with Moré's
+                // damping (the damped restart is a choice of it), and the non-monotone restart
+                // with it solves steps that the plain iteration with either damping does not.
+                let residual_damping = self.attempt == 0
+                    && s.lm_residual_damping_after
+                        .is_some_and(|after| lm_run >= after);
+                lm_run += 1;
                 if let Some(ne) = self.normal.as_mut() {
                     // HᵀH once per iteration; each damping trial only adds its λ and factorises.
                     let max_diag = ne.form(&ws.h).max(1e-300);
                     for _ in 0..s.max_lm_trials {
                         prof.lm_trials += 1;
-                        if ne.factor_damped(lm_mu * max_diag).is_err() {
-                            lm_mu *= lm_growth;
-                            lm_growth *= 2.0;
-                            continue;
-                        }
-                        for i in 0..n {
-                            ws.d[i] = -ws.grad[i];
-                        }
-                        if ne.solve_in_place(&mut ws.d).is_err() {
-                            lm_mu *= lm_growth;
-                            lm_growth *= 2.0;
+                        let lambda = if residual_damping {
+                            // Not below the round-off of HᵀH.
+                            (lm_nu * 2.0 * psi).max(1e-14 * max_diag)
+                        } else {
+                            lm_mu * max_diag
+                        };
+                        let failed = ne.factor_damped(lambda).is_err() || {
+                            for i in 0..n {
+                                ws.d[i] = -ws.grad[i];
+                            }
+                            ne.solve_in_place(&mut ws.d).is_err()
+                        };
+                        if failed {
+                            if residual_damping {
+                                lm_nu *= 4.0;
+                            } else {
+                                lm_mu *= lm_growth;
+                                lm_growth *= 2.0;
+                            }
                             continue;
                         }
                         pattern.mul_vec(&ws.h, &ws.d, &mut ws.hd);
@@ -1101,13 +1160,28 @@ impl NewtonSolver {
                         match trial {
                             Some(p) if predicted > 0.0 && psi - p >= 1e-4 * predicted => {
                                 let rho = (psi - p) / predicted;
-                                lm_mu = (lm_mu
-                                    * (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3)))
-                                .max(1e-20);
-                                lm_growth = 2.0;
+                                if residual_damping {
+                                    // Fan–Pan's update of ν.
+                                    if rho > 0.75 {
+                                        lm_nu = (lm_nu / 4.0).max(1e-8);
+                                    } else if rho < 0.25 {
+                                        lm_nu *= 4.0;
+                                    }
+                                } else {
+                                    lm_mu = (lm_mu
+                                        * (1.0f64 / 3.0).max(1.0 - (2.0 * rho - 1.0).powi(3)))
+                                    .max(1e-20);
+                                    lm_growth = 2.0;
+                                }
                                 accepted = Some((1.0, p));
                                 kind = StepKind::LevenbergMarquardt;
                                 break;
+                            }
+                            _ if residual_damping => {
+                                lm_nu *= 4.0;
+                                if lm_nu * 2.0 * psi > 1e20 * max_diag {
+                                    break;
+                                }
                             }
                             _ => {
                                 lm_mu *= lm_growth;
@@ -1209,9 +1283,13 @@ impl NewtonSolver {
                 ws.z_best.copy_from_slice(&ws.z);
             }
             ws.best_history.push(best_residual);
+            // The iterations the stall test counts (those undone by a restore are dropped
+            // from the history with `forget_undone_steps`).
+            let counted = ws.best_history.len() - 1;
             if s.stall_window > 0
-                && iterations > s.stall_window
-                && best_residual > s.stall_reduction * ws.best_history[iterations - s.stall_window]
+                && !(s.forget_undone_steps && checkpoint.is_some())
+                && counted > s.stall_window
+                && best_residual > s.stall_reduction * ws.best_history[counted - s.stall_window]
             {
                 termination = Termination::Stagnated;
                 break;
@@ -1220,7 +1298,14 @@ impl NewtonSolver {
                 watchdog_count += 1;
                 if psi <= (1.0 - s.armijo) * psi_check || residual <= s.tolerance {
                     checkpoint = None;
+                    min_norm_kept += min_norm_pending;
+                    min_norm_pending = 0;
                 } else if watchdog_count >= s.watchdog_steps {
+                    if s.forget_undone_steps {
+                        let keep = ws.best_history.len().saturating_sub(watchdog_count).max(1);
+                        ws.best_history.truncate(keep);
+                    }
+                    min_norm_pending = 0;
                     // The sequence failed: back to the checkpoint, monotone steps from there.
                     std::mem::swap(&mut ws.z, &mut ws.z_check);
                     std::mem::swap(&mut ws.f, &mut ws.f_check);
@@ -1238,6 +1323,7 @@ impl NewtonSolver {
             }
             clock.lap(&mut prof, Phase::Other);
         }
+        self.min_norm_kept = min_norm_kept + min_norm_pending;
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;
