@@ -41,12 +41,12 @@
 //! moved in one iteration. This is the proximal point method on the dual (Rockafellar, SIAM J.
 //! Control Optim. 14, 1976), restricted to the contact's normal wrench.
 
-use ecp_model::linalg;
 use ecp_model::{
     BodyDynamics, ConicPoint, ContactGeometry, ContactImpulses, ContactPartner, PatchVertex,
     StepStructure,
 };
 
+use super::min_norm::{PsdRange, Scratch, cholesky_solve};
 use super::qp::{Cone, ConicQp, QpResult};
 
 fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
@@ -758,15 +758,15 @@ impl StepQp {
                 })
                 .collect();
             let k = loaded.len();
-            let mut d = vec![vec![0.0; k]; k];
-            let mut r = vec![0.0; k];
+            let mut d = Scratch::new(k * k);
+            let mut r = Scratch::new(k);
             for i in 0..k {
                 for j in 0..k {
                     // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
                     for (bi, wi) in &w[i] {
                         for (bj, mj) in &minv_w[j] {
                             if bi == bj {
-                                d[i][j] += dot6(wi, mj);
+                                d[i * k + j] += dot6(wi, mj);
                             }
                         }
                     }
@@ -785,14 +785,17 @@ impl StepQp {
                     .as_ref()
                     .is_some_and(|r| r.anchor.is_some())
             });
-            let delta = if anchored {
-                self.anchored_correction(&loaded, contacts, d, &r)
-            } else {
-                pseudo_solve(d, &r)
+            let mut delta = Scratch::new(k);
+            let solved = match PsdRange::new(&d, k) {
+                Some(range) if anchored => {
+                    self.anchored_correction(&loaded, contacts, &range, &r, &mut delta)
+                }
+                Some(range) => range.min_norm(&r, &mut delta),
+                None => false,
             };
-            let Some(delta) = delta else {
+            if !solved {
                 continue;
-            };
+            }
             // Largest step in [0, 1] keeping every λ ≥ 0.
             let mut alpha: f64 = 1.0;
             for (i, &(c, kk)) in loaded.iter().enumerate() {
@@ -852,22 +855,24 @@ impl StepQp {
 impl StepQp {
     /// The correction `δ` of the loaded normal impulses `λ` (list `loaded` of (contact, row))
     /// that solves the Delassus system `D δ = r` (in the least-squares sense, like
-    /// [`pseudo_solve`]) and, among its solutions, minimises the anchor penalty
+    /// [`PsdRange::min_norm`]) and, among its solutions, minimises the anchor penalty
     /// `Σ_c ½ρ_m‖A_c(λ + δ)‖² + ½ρ_n(1_cᵀ(λ + δ) − p_{n,c}^k)²` of the anchored contacts plus
     /// `½τ‖δ‖²` (`A_c`: the tangential lever arms about the contact's ECP; `τ` tiny, for the
-    /// load patterns the anchor does not see). Solved as the KKT system
-    /// `[Q Uᵣ; Uᵣᵀ 0] [δ; y] = [−g; S⁻¹Uᵣᵀr]` on the range `Uᵣ` of `D = U S Uᵀ`.
+    /// load patterns the anchor does not see). Those solutions are `δ₀ + N t`, `δ₀ = D⁺r`, `N`
+    /// an orthonormal basis of the null space of `D` (`range`); `t` solves
+    /// `NᵀQN t = −Nᵀ(Q δ₀ + g)`. Written into `delta`; `false` when that fails.
     fn anchored_correction(
         &self,
         loaded: &[(usize, usize)],
         contacts: &[ContactImpulses],
-        d: Vec<Vec<f64>>,
+        range: &PsdRange,
         r: &[f64],
-    ) -> Option<Vec<f64>> {
+        delta: &mut [f64],
+    ) -> bool {
         let k = loaded.len();
         // Q and g = ∇(anchor penalty) at δ = 0.
-        let mut q = vec![vec![0.0; k]; k];
-        let mut g = vec![0.0; k];
+        let mut q = Scratch::new(k * k);
+        let mut g = Scratch::new(k);
         let mut groups: Vec<usize> = loaded.iter().map(|&(c, _)| c).collect();
         groups.dedup();
         for &c in &groups {
@@ -904,89 +909,63 @@ impl StepQp {
                 g[i] += rho_m * (arms[mi][0] * moment[0] + arms[mi][1] * moment[1])
                     + rho_n * (load - previous);
                 for (mj, &j) in members.iter().enumerate() {
-                    q[i][j] +=
+                    q[i * k + j] +=
                         rho_m * (arms[mi][0] * arms[mj][0] + arms[mi][1] * arms[mj][1]) + rho_n;
                 }
             }
         }
-        let scale = (0..k).map(|i| q[i][i]).fold(0.0, f64::max);
+        let scale = (0..k).map(|i| q[i * k + i]).fold(0.0, f64::max);
         let tau = 1e-8 * if scale > 0.0 { scale } else { 1.0 };
         for i in 0..k {
-            q[i][i] += tau;
+            q[i * k + i] += tau;
         }
-        // Range of D and the constraint Uᵣᵀδ = S⁻¹Uᵣᵀr.
-        let (eig, vecs) = symmetric_eigen(d)?;
-        let max_eig = eig.iter().copied().fold(0.0, f64::max);
-        let range: Vec<usize> = (0..k).filter(|&m| eig[m] > 1e-12 * max_eig).collect();
-        let n = k + range.len();
-        let mut a = vec![vec![0.0; n]; n];
-        let mut rhs = vec![0.0; n];
+        if !range.min_norm(r, delta) {
+            return false;
+        }
+        let rank = range.rank();
+        let free = k - rank;
+        if free == 0 {
+            return true;
+        }
+        // In the basis Q = [Q₁ N]: h = Qᵀ(Q δ₀ + g), G = QᵀQQ; their null-space parts.
+        let mut h = Scratch::new(k);
         for i in 0..k {
-            a[i][..k].copy_from_slice(&q[i]);
-            rhs[i] = -g[i];
+            h[i] = g[i] + (0..k).map(|j| q[i * k + j] * delta[j]).sum::<f64>();
         }
-        for (m, &col) in range.iter().enumerate() {
-            for i in 0..k {
-                a[i][k + m] = vecs[i][col];
-                a[k + m][i] = vecs[i][col];
+        range.apply_qt(&mut h);
+        // Qᵀ Q_pen by columns (Q_pen symmetric: its rows), then (Qᵀ Q_pen) Q by rows.
+        for row in q.chunks_exact_mut(k) {
+            range.apply_qt(row);
+        }
+        transpose_in_place(&mut q, k);
+        for row in q.chunks_exact_mut(k) {
+            range.apply_qt(row);
+        }
+        let mut gn = Scratch::new(free * free);
+        let mut t = Scratch::new(k);
+        for i in 0..free {
+            for j in 0..free {
+                gn[i * free + j] = q[(rank + i) * k + rank + j];
             }
-            rhs[k + m] = (0..k).map(|i| vecs[i][col] * r[i]).sum::<f64>() / eig[col];
+            t[rank + i] = -h[rank + i];
         }
-        let x = solve_dense(a, rhs)?;
-        Some(x[..k].to_vec())
-    }
-}
-
-/// Eigen-decomposition of a symmetric matrix ([`linalg::symmetric_eigen`]): eigenvalues and
-/// the eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
-fn symmetric_eigen(d: Vec<Vec<f64>>) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
-    let n = d.len();
-    let a: Vec<f64> = (0..n)
-        .flat_map(|j| d.iter().map(move |row| row[j]))
-        .collect();
-    let (eig, u) = linalg::symmetric_eigen(&a, n).ok()?;
-    let v = (0..n)
-        .map(|i| (0..n).map(|j| u[j * n + i]).collect())
-        .collect();
-    Some((eig, v))
-}
-
-/// Solves the dense square system `A x = b` ([`linalg::DenseLu`], partial pivoting); `None`
-/// when `A` is numerically singular or the result is not finite.
-fn solve_dense(a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
-    let n = b.len();
-    let col: Vec<f64> = (0..n)
-        .flat_map(|j| a.iter().map(move |row| row[j]))
-        .collect();
-    let mut lu = linalg::DenseLu::new(n);
-    lu.factor(&col).ok()?;
-    lu.solve_in_place(&mut b).ok()?;
-    b.iter().all(|v| v.is_finite()).then_some(b)
-}
-
-/// Minimum-norm solution of the symmetric positive semi-definite system `D x = r` (from its
-/// eigen-decomposition, eigenvalues below `1e-12` of the largest dropped).
-fn pseudo_solve(d: Vec<Vec<f64>>, r: &[f64]) -> Option<Vec<f64>> {
-    let n = r.len();
-    let (eig, v) = symmetric_eigen(d)?;
-    let max_eig = eig.iter().map(|e| e.abs()).fold(0.0, f64::max);
-    if max_eig.is_nan() || max_eig <= 0.0 || !max_eig.is_finite() {
-        return None;
-    }
-    let mut x = vec![0.0; n];
-    for k in 0..n {
-        let e = eig[k];
-        if e > 1e-12 * max_eig {
-            let proj: f64 = (0..n).map(|i| v[i][k] * r[i]).sum::<f64>() / e;
-            for i in 0..n {
-                x[i] += proj * v[i][k];
-            }
+        if !cholesky_solve(&mut gn, free, &mut t[rank..]) {
+            return false;
         }
+        range.apply_q(&mut t);
+        for (d, ti) in delta.iter_mut().zip(t.iter()) {
+            *d += ti;
+        }
+        delta.iter().all(|v| v.is_finite())
     }
-    if x.iter().all(|v| v.is_finite()) {
-        Some(x)
-    } else {
-        None
+}
+
+/// Transposes the `n × n` row-major `a` in place.
+fn transpose_in_place(a: &mut [f64], n: usize) {
+    for i in 0..n {
+        for j in i + 1..n {
+            a.swap(i * n + j, j * n + i);
+        }
     }
 }
 
@@ -1182,28 +1161,6 @@ mod tests {
         }
     }
 
-    #[test]
-    fn pseudo_solve_gives_the_minimum_norm_solution() {
-        // Rank 1: D = u uᵀ with u = (1, 1); r = (2, 2) ⇒ x = (1, 1).
-        let d = vec![vec![1.0, 1.0], vec![1.0, 1.0]];
-        let x = pseudo_solve(d, &[2.0, 2.0]).expect("solvable");
-        assert!(
-            (x[0] - 1.0).abs() < 1e-12 && (x[1] - 1.0).abs() < 1e-12,
-            "{x:?}"
-        );
-        let d = vec![
-            vec![4.0, 1.0, 0.0],
-            vec![1.0, 3.0, 0.5],
-            vec![0.0, 0.5, 2.0],
-        ];
-        let r = [1.0, -2.0, 0.5];
-        let x = pseudo_solve(d.clone(), &r).expect("solvable");
-        for i in 0..3 {
-            let dx: f64 = (0..3).map(|j| d[i][j] * x[j]).sum();
-            assert!((dx - r[i]).abs() < 1e-12);
-        }
-    }
-
     fn contact(body: usize, patch: usize) -> ContactGeometry {
         ContactGeometry {
             body,
@@ -1238,42 +1195,6 @@ mod tests {
         assert_eq!(anchored_contacts(&g, 2), vec![true, true, false, false]);
         // A contact naming a body that does not exist is never anchored.
         assert_eq!(anchored_contacts(&g, 1), vec![true, true, false, false]);
-    }
-
-    #[test]
-    fn symmetric_eigen_reconstructs_the_matrix() {
-        let d = vec![
-            vec![4.0, 1.0, 0.0],
-            vec![1.0, 3.0, 0.5],
-            vec![0.0, 0.5, 2.0],
-        ];
-        let (eig, v) = symmetric_eigen(d.clone()).expect("finite");
-        for i in 0..3 {
-            for j in 0..3 {
-                let a: f64 = (0..3).map(|k| v[i][k] * eig[k] * v[j][k]).sum();
-                assert!(
-                    (a - d[i][j]).abs() < 1e-13,
-                    "({i}, {j}): {a} vs {}",
-                    d[i][j]
-                );
-            }
-        }
-        assert!(symmetric_eigen(vec![vec![f64::NAN]]).is_none());
-    }
-
-    #[test]
-    fn solve_dense_solves_and_refuses_singular_systems() {
-        let a = vec![
-            vec![0.0, 2.0, 1.0],
-            vec![1.0, 1.0, 0.0],
-            vec![3.0, 0.0, 1.0],
-        ];
-        let x = solve_dense(a.clone(), vec![5.0, 3.0, 6.0]).expect("nonsingular");
-        for i in 0..3 {
-            let ax: f64 = (0..3).map(|j| a[i][j] * x[j]).sum();
-            assert!((ax - [5.0, 3.0, 6.0][i]).abs() < 1e-14);
-        }
-        assert!(solve_dense(vec![vec![1.0, 2.0], vec![2.0, 4.0]], vec![1.0, 2.0]).is_none());
     }
 
     #[test]
