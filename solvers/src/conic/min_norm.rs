@@ -153,6 +153,7 @@ impl PsdRange {
     }
 
     /// Rank of `D`.
+    #[cfg(test)]
     pub(crate) fn rank(&self) -> usize {
         self.rank
     }
@@ -252,40 +253,6 @@ impl PsdRange {
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
-}
-
-/// Cholesky solve of the symmetric positive definite `n × n` system `a x = b` in place
-/// (`a` row-major, overwritten by its factor; `b` becomes `x`); `false` when `a` is not
-/// numerically positive definite.
-pub(crate) fn cholesky_solve(a: &mut [f64], n: usize, b: &mut [f64]) -> bool {
-    let scale = (0..n).map(|i| a[i * n + i]).fold(0.0f64, f64::max);
-    if !(scale > 0.0 && scale.is_finite()) {
-        return false;
-    }
-    for j in 0..n {
-        let (head, tail) = a.split_at_mut((j + 1) * n);
-        let row_j = &mut head[j * n..];
-        let d = row_j[j] - dot(&row_j[..j], &row_j[..j]);
-        if !(d > scale * f64::EPSILON && d.is_finite()) {
-            return false;
-        }
-        let l = d.sqrt();
-        row_j[j] = l;
-        for row_i in tail.chunks_exact_mut(n) {
-            row_i[j] = (row_i[j] - dot(&row_i[..j], &row_j[..j])) / l;
-        }
-    }
-    for i in 0..n {
-        b[i] = (b[i] - dot(&a[i * n..i * n + i], &b[..i])) / a[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut acc = b[i];
-        for j in i + 1..n {
-            acc -= a[j * n + i] * b[j];
-        }
-        b[i] = acc / a[i * n + i];
-    }
-    b.iter().all(|v| v.is_finite())
 }
 
 #[cfg(test)]
@@ -430,15 +397,5 @@ mod tests {
     fn refuses_zero_and_non_finite_matrices() {
         assert!(PsdRange::new(&[0.0; 4], 2).is_none());
         assert!(PsdRange::new(&[1.0, f64::NAN, f64::NAN, 1.0], 2).is_none());
-    }
-
-    #[test]
-    fn cholesky_solve_solves_and_refuses_indefinite_systems() {
-        let mut a = [4.0, 1.0, 1.0, 3.0];
-        let mut b = [1.0, 2.0];
-        assert!(cholesky_solve(&mut a, 2, &mut b));
-        assert!((4.0 * b[0] + b[1] - 1.0).abs() < 1e-15 && (b[0] + 3.0 * b[1] - 2.0).abs() < 1e-15);
-        let mut a = [1.0, 2.0, 2.0, 1.0];
-        assert!(!cholesky_solve(&mut a, 2, &mut [1.0, 1.0]));
     }
 }

@@ -46,7 +46,9 @@ use ecp_model::{
     StepStructure,
 };
 
-use super::min_norm::{PsdRange, Scratch, cholesky_solve};
+use ecp_model::linalg;
+
+use super::min_norm::{PsdRange, Scratch};
 use super::qp::{Cone, ConicQp, QpResult};
 
 fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
@@ -786,12 +788,16 @@ impl StepQp {
                     .is_some_and(|r| r.anchor.is_some())
             });
             let mut delta = Scratch::new(k);
-            let solved = match PsdRange::new(&d, k) {
-                Some(range) if anchored => {
-                    self.anchored_correction(&loaded, contacts, &range, &r, &mut delta)
-                }
-                Some(range) => range.min_norm(&r, &mut delta),
-                None => false,
+            let solved = if anchored {
+                // Kept on the eigendecomposition: the same correction by the null space of
+                // `PsdRange` (tried) agrees to 1e-12 per step, but the union desk's fixed point
+                // then stops elsewhere within its tolerance (loads 4.5e-4 apart by the end).
+                let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
+                self.anchored_correction(&loaded, contacts, rows, &r)
+                    .map(|x| delta.copy_from_slice(&x))
+                    .is_some()
+            } else {
+                PsdRange::new(&d, k).is_some_and(|range| range.min_norm(&r, &mut delta))
             };
             if !solved {
                 continue;
@@ -855,24 +861,22 @@ impl StepQp {
 impl StepQp {
     /// The correction `δ` of the loaded normal impulses `λ` (list `loaded` of (contact, row))
     /// that solves the Delassus system `D δ = r` (in the least-squares sense, like
-    /// [`PsdRange::min_norm`]) and, among its solutions, minimises the anchor penalty
+    /// [`pseudo_solve`]) and, among its solutions, minimises the anchor penalty
     /// `Σ_c ½ρ_m‖A_c(λ + δ)‖² + ½ρ_n(1_cᵀ(λ + δ) − p_{n,c}^k)²` of the anchored contacts plus
     /// `½τ‖δ‖²` (`A_c`: the tangential lever arms about the contact's ECP; `τ` tiny, for the
-    /// load patterns the anchor does not see). Those solutions are `δ₀ + N t`, `δ₀ = D⁺r`, `N`
-    /// an orthonormal basis of the null space of `D` (`range`); `t` solves
-    /// `NᵀQN t = −Nᵀ(Q δ₀ + g)`. Written into `delta`; `false` when that fails.
+    /// load patterns the anchor does not see). Solved as the KKT system
+    /// `[Q Uᵣ; Uᵣᵀ 0] [δ; y] = [−g; S⁻¹Uᵣᵀr]` on the range `Uᵣ` of `D = U S Uᵀ`.
     fn anchored_correction(
         &self,
         loaded: &[(usize, usize)],
         contacts: &[ContactImpulses],
-        range: &PsdRange,
+        d: Vec<Vec<f64>>,
         r: &[f64],
-        delta: &mut [f64],
-    ) -> bool {
+    ) -> Option<Vec<f64>> {
         let k = loaded.len();
         // Q and g = ∇(anchor penalty) at δ = 0.
-        let mut q = Scratch::new(k * k);
-        let mut g = Scratch::new(k);
+        let mut q = vec![vec![0.0; k]; k];
+        let mut g = vec![0.0; k];
         let mut groups: Vec<usize> = loaded.iter().map(|&(c, _)| c).collect();
         groups.dedup();
         for &c in &groups {
@@ -909,64 +913,64 @@ impl StepQp {
                 g[i] += rho_m * (arms[mi][0] * moment[0] + arms[mi][1] * moment[1])
                     + rho_n * (load - previous);
                 for (mj, &j) in members.iter().enumerate() {
-                    q[i * k + j] +=
+                    q[i][j] +=
                         rho_m * (arms[mi][0] * arms[mj][0] + arms[mi][1] * arms[mj][1]) + rho_n;
                 }
             }
         }
-        let scale = (0..k).map(|i| q[i * k + i]).fold(0.0, f64::max);
+        let scale = (0..k).map(|i| q[i][i]).fold(0.0, f64::max);
         let tau = 1e-8 * if scale > 0.0 { scale } else { 1.0 };
         for i in 0..k {
-            q[i * k + i] += tau;
+            q[i][i] += tau;
         }
-        if !range.min_norm(r, delta) {
-            return false;
-        }
-        let rank = range.rank();
-        let free = k - rank;
-        if free == 0 {
-            return true;
-        }
-        // In the basis Q = [Q₁ N]: h = Qᵀ(Q δ₀ + g), G = QᵀQQ; their null-space parts.
-        let mut h = Scratch::new(k);
+        // Range of D and the constraint Uᵣᵀδ = S⁻¹Uᵣᵀr.
+        let (eig, vecs) = symmetric_eigen(d)?;
+        let max_eig = eig.iter().copied().fold(0.0, f64::max);
+        let range: Vec<usize> = (0..k).filter(|&m| eig[m] > 1e-12 * max_eig).collect();
+        let n = k + range.len();
+        let mut a = vec![vec![0.0; n]; n];
+        let mut rhs = vec![0.0; n];
         for i in 0..k {
-            h[i] = g[i] + (0..k).map(|j| q[i * k + j] * delta[j]).sum::<f64>();
+            a[i][..k].copy_from_slice(&q[i]);
+            rhs[i] = -g[i];
         }
-        range.apply_qt(&mut h);
-        // Qᵀ Q_pen by columns (Q_pen symmetric: its rows), then (Qᵀ Q_pen) Q by rows.
-        for row in q.chunks_exact_mut(k) {
-            range.apply_qt(row);
-        }
-        transpose_in_place(&mut q, k);
-        for row in q.chunks_exact_mut(k) {
-            range.apply_qt(row);
-        }
-        let mut gn = Scratch::new(free * free);
-        let mut t = Scratch::new(k);
-        for i in 0..free {
-            for j in 0..free {
-                gn[i * free + j] = q[(rank + i) * k + rank + j];
+        for (m, &col) in range.iter().enumerate() {
+            for i in 0..k {
+                a[i][k + m] = vecs[i][col];
+                a[k + m][i] = vecs[i][col];
             }
-            t[rank + i] = -h[rank + i];
+            rhs[k + m] = (0..k).map(|i| vecs[i][col] * r[i]).sum::<f64>() / eig[col];
         }
-        if !cholesky_solve(&mut gn, free, &mut t[rank..]) {
-            return false;
-        }
-        range.apply_q(&mut t);
-        for (d, ti) in delta.iter_mut().zip(t.iter()) {
-            *d += ti;
-        }
-        delta.iter().all(|v| v.is_finite())
+        let x = solve_dense(a, rhs)?;
+        Some(x[..k].to_vec())
     }
 }
 
-/// Transposes the `n × n` row-major `a` in place.
-fn transpose_in_place(a: &mut [f64], n: usize) {
-    for i in 0..n {
-        for j in i + 1..n {
-            a.swap(i * n + j, j * n + i);
-        }
-    }
+/// Eigen-decomposition of a symmetric matrix ([`linalg::symmetric_eigen`]): eigenvalues and
+/// the eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
+fn symmetric_eigen(d: Vec<Vec<f64>>) -> Option<(Vec<f64>, Vec<Vec<f64>>)> {
+    let n = d.len();
+    let a: Vec<f64> = (0..n)
+        .flat_map(|j| d.iter().map(move |row| row[j]))
+        .collect();
+    let (eig, u) = linalg::symmetric_eigen(&a, n).ok()?;
+    let v = (0..n)
+        .map(|i| (0..n).map(|j| u[j * n + i]).collect())
+        .collect();
+    Some((eig, v))
+}
+
+/// Solves the dense square system `A x = b` ([`linalg::DenseLu`], partial pivoting); `None`
+/// when `A` is numerically singular or the result is not finite.
+fn solve_dense(a: Vec<Vec<f64>>, mut b: Vec<f64>) -> Option<Vec<f64>> {
+    let n = b.len();
+    let col: Vec<f64> = (0..n)
+        .flat_map(|j| a.iter().map(move |row| row[j]))
+        .collect();
+    let mut lu = linalg::DenseLu::new(n);
+    lu.factor(&col).ok()?;
+    lu.solve_in_place(&mut b).ok()?;
+    b.iter().all(|v| v.is_finite()).then_some(b)
 }
 
 fn solve3(a: &[[f64; 3]; 3], b: &[f64; 3]) -> Option<[f64; 3]> {
