@@ -755,7 +755,15 @@ impl DenseQp {
         for i in 0..m {
             self.rhs[n + i] = -self.u[i] - self.t[i];
         }
-        if !self.solve_refined() {
+        // The affine direction only sets the centring σ and the corrector's second-order
+        // term: one solve without refinement is enough (the combined direction, which moves
+        // the residuals, is refined).
+        if affine {
+            let mut sol = std::mem::take(&mut self.sol);
+            sol[..k].copy_from_slice(&self.rhs[..k]);
+            self.kkt_solve(&mut sol[..k]);
+            self.sol = sol;
+        } else if !self.solve_refined() {
             return None;
         }
         if !self.sol[..k].iter().all(|v| v.is_finite()) {
