@@ -5,8 +5,10 @@
 //! A pivoted Cholesky factorisation `D ≈ F Fᵀ` with a rank test (`F` of full column rank `r`)
 //! and a Householder QR `F = Q R` give the range of `D` (the first `r` columns of `Q`), its null
 //! space (the others) and `D⁺ = Q₁ R⁻ᵀ R⁻¹ Q₁ᵀ`, the minimum-norm solution. This replaces a
-//! symmetric eigendecomposition (`faer`, half the polish's instructions on the desk); the
-//! storage is on the stack up to [`STACK_ORDER`] loaded vertices.
+//! symmetric eigendecomposition (`faer`, half the polish's instructions on the desk) for bodies
+//! without anchored contacts; the storage is on the stack up to [`STACK_ORDER`] loaded
+//! vertices. (The anchored correction stays on the eigendecomposition:
+//! `docs/latency.md#the-dense-qps-kkt-solve-by-its-schur-complement-the-polish-without-faer-branch-wip-conickernel-issues-18-and-15`.)
 
 use std::ops::{Deref, DerefMut};
 
