@@ -6,17 +6,20 @@
 //! sparse LDLᵀ, iterative refinement, its homogeneous embedding) spends about 6 µs per iteration
 //! on it. This is the textbook infeasible-start method with Nesterov–Todd scaling and Mehrotra's
 //! predictor–corrector (Vandenberghe, "The CVXOPT linear and quadratic cone program solvers",
-//! 2010, §§ 3–5) on dense matrices, with two choices that let it reach clarabel's 1e-12 on
-//! sliding contacts, where the friction cone's `s` and `z` both approach its boundary:
+//! 2010, §§ 3–5) on dense matrices, with the choices that let it reach clarabel's 1e-12 on
+//! sliding contacts, where the friction cone's `s` and `z` both approach its boundary
+//! (`docs/latency.md#a-dense-qp-method-that-meets-clarabels-tolerances-branch-wip-conicqp-issues-18-and-15`):
 //!
-//! - each Newton system is the augmented (KKT) system `[P Aᵀ; A −W²]`, factored by LU with
-//!   partial pivoting and refined on itself, not the normal equations `P + AᵀW⁻²A`: once
-//!   `W⁻²` spans twenty orders of magnitude the normal equations lose the dual residual's
-//!   digits (it stalled near a duality gap of 1e-8);
-//! - the second-order cone's scaling point is computed in the form of ECOS and clarabel (from
-//!   `s` and `z` normalised by their cone "determinants" `(s₀ − ‖s₁‖)(s₀ + ‖s₁‖)`, `w̄` then
-//!   renormalised so that `w̄ᵀJw̄ = 1` holds to round-off), and `W x`, `W⁻¹ x` are applied in
-//!   ECOS's product form rather than through dense `W` matrices.
+//! - each Newton system is CVXOPT's scaled KKT system `[P Ãᵀ; Ã −I]`, `Ã = W⁻¹A`, unknowns
+//!   `dx` and `W dz`, refined on itself until its componentwise backward error is at round-off
+//!   (not the unscaled `[P Aᵀ; A −W²]`, whose residual is in the units of `s`);
+//! - it is solved by the Cholesky factor of its Schur complement `P + ÃᵀÃ` (`n × n`, 7 × 7 on
+//!   the desk) and only when that is not positive definite or its refined solve stays above
+//!   round-off (a body's velocity fixed by loaded rows of size 1e6 while its mass is of size
+//!   1: `d5_collision`), by LU on the whole `(n + m)²` system for the rest of the QP;
+//! - the Nesterov–Todd scaling is updated from the scaled step rather than recomputed from
+//!   `s` and `z` (CVXOPT's `update_scaling`), and step lengths are taken in the scaled space;
+//!   `W x`, `W⁻¹ x` are applied in the arrow (product) form rather than as dense matrices.
 //!
 //! It stops by clarabel's own tests (relative primal and dual residuals at most `tol_feas`,
 //! absolute or relative duality gap at most `tol_gap_abs`/`tol_gap_rel`), on the unscaled data,
@@ -55,6 +58,12 @@ const MAX_ITERATIONS: u32 = 40;
 /// Steps of iterative refinement of each KKT solve at most.
 const REFINEMENT_STEPS: usize = 3;
 
+/// Componentwise backward error of a KKT solve at which its refinement stops.
+const BACKWARD_ERROR: f64 = 4.0 * f64::EPSILON;
+
+/// Backward error above which a refined solve by the Schur complement is not trusted.
+const SCHUR_BACKWARD_ERROR: f64 = 1e-14;
+
 /// One cone of K: first row, dimension, second-order or not.
 #[derive(Clone, Copy, Debug)]
 struct Block {
@@ -87,14 +96,23 @@ pub(crate) struct DenseQp {
     eta: Vec<f64>,
     /// `λ = W z = W⁻¹ s`.
     lambda: Vec<f64>,
-    /// The augmented matrix `[P Aᵀ; A −W²]`, `(n + m)²`, row-major.
-    kkt: Vec<f64>,
-    /// Its LU factors with partial pivoting, and the row permutation.
-    lu: Vec<f64>,
-    pivots: Vec<usize>,
+    /// The lower Cholesky factor of the Schur complement `P + ÃᵀÃ` (`n × n`, row-major) by
+    /// which the scaled KKT system is solved.
+    chol: Vec<f64>,
+    /// Right-hand side, solution, residual and correction of the scaled KKT system, `n + m`
+    /// each (the `x` rows first).
     rhs: Vec<f64>,
     sol: Vec<f64>,
     res: Vec<f64>,
+    corr: Vec<f64>,
+    /// Whether this QP's KKT systems are solved by [`DenseQp::lu`] (once the Schur complement
+    /// was not numerically positive definite).
+    use_lu: bool,
+    /// The LU factors with partial pivoting of the whole `(n + m)²` scaled KKT matrix,
+    /// row-major, and the row permutation: the fallback when the Schur complement's Cholesky
+    /// fails (sized on first use).
+    lu: Vec<f64>,
+    pivots: Vec<usize>,
     dx: Vec<f64>,
     ds: Vec<f64>,
     dz: Vec<f64>,
@@ -103,14 +121,19 @@ pub(crate) struct DenseQp {
     v_affine: Vec<f64>,
     /// `W⁻¹A`, dense `m × n`, row-major.
     scaled_a: Vec<f64>,
-    /// A column of `A` and its scaled image.
-    column: Vec<f64>,
-    scaled_column: Vec<f64>,
     /// Temporaries of length `m` and `n`.
     t: Vec<f64>,
     u: Vec<f64>,
     v: Vec<f64>,
     px: Vec<f64>,
+}
+
+/// The file named by the environment variable `ECP_DENSE_QP_AUDIT`, read once: when it is set,
+/// [`DenseQp::solve`] audits instead of solving (`DenseQp::audit`).
+fn audit_file() -> Option<&'static std::path::Path> {
+    static FILE: std::sync::OnceLock<Option<std::path::PathBuf>> = std::sync::OnceLock::new();
+    FILE.get_or_init(|| std::env::var_os("ECP_DENSE_QP_AUDIT").map(Into::into))
+        .as_deref()
 }
 
 /// `v` set to `len` zeros (allocates only when it must grow).
@@ -127,6 +150,43 @@ impl DenseQp {
         qp: &ConicQp,
         settings: &DefaultSettings<f64>,
     ) -> Option<QpResult> {
+        if let Some(path) = audit_file() {
+            return self.audit(qp, settings, path);
+        }
+        self.solve_densely(qp, settings)
+    }
+
+    /// Measurement only (the coverage table of `docs/latency.md#conic-backend`): solves `qp`
+    /// by this method and by clarabel, appends `n m dense clarabel` to `path` (`dense` the
+    /// method's iterations or `fell_back`, `clarabel` clarabel's iterations and status) and
+    /// returns `None`, so that the run follows clarabel's answers.
+    fn audit(
+        &mut self,
+        qp: &ConicQp,
+        settings: &DefaultSettings<f64>,
+        path: &std::path::Path,
+    ) -> Option<QpResult> {
+        use std::io::Write;
+        let dense = self
+            .solve_densely(qp, settings)
+            .map_or("fell_back".to_string(), |r| r.iterations.to_string());
+        let clarabel = qp.solve(settings).map_or("error".to_string(), |r| {
+            format!("{} {:?}", r.iterations, r.status)
+        });
+        let line = format!("{} {} {dense} {clarabel}\n", qp.n, qp.rows());
+        if let Ok(mut f) = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(path)
+        {
+            // A measurement aid: a failed write only loses a line of the table.
+            let _ = f.write_all(line.as_bytes());
+        }
+        None
+    }
+
+    /// The method itself ([`DenseQp::solve`] without the audit).
+    fn solve_densely(&mut self, qp: &ConicQp, settings: &DefaultSettings<f64>) -> Option<QpResult> {
         if !self.load(qp) {
             return None;
         }
@@ -316,35 +376,33 @@ impl DenseQp {
             &mut self.dz,
             &mut self.u_affine,
             &mut self.v_affine,
-            &mut self.column,
-            &mut self.scaled_column,
             &mut self.t,
             &mut self.u,
             &mut self.v,
         ] {
             zeroed(v, m);
         }
-        for v in [&mut self.rhs, &mut self.sol, &mut self.res] {
+        for v in [&mut self.rhs, &mut self.sol, &mut self.res, &mut self.corr] {
             zeroed(v, k);
         }
-        zeroed(&mut self.kkt, k * k);
-        zeroed(&mut self.lu, k * k);
-        self.pivots.clear();
-        self.pivots.resize(k, 0);
+        zeroed(&mut self.chol, n * n);
+        self.use_lu = false;
         true
     }
 
     /// The QP without rows: `P x = −q`.
     fn unconstrained(&mut self, qp: &ConicQp) -> Option<QpResult> {
         let n = self.n;
-        self.kkt[..n * n].copy_from_slice(&self.p);
+        // With no rows the Schur complement is P itself.
+        if !self.factor() {
+            return None;
+        }
         for j in 0..n {
             self.rhs[j] = -qp.q[j];
         }
-        if !self.factor_current(n) {
+        if !self.solve_refined() {
             return None;
         }
-        self.solve_refined(n);
         let x = self.sol[..n].to_vec();
         // Its optimality: the residual of P x + q relative to the data.
         mat_vec(&self.p, &x, n, &mut self.px);
@@ -374,16 +432,16 @@ impl DenseQp {
                 self.w[blk.first] = 1.0;
             }
         }
-        self.assemble();
-        let k = n + m;
-        if !self.factor_current(k) {
+        if !self.factor() {
             return None;
         }
         for j in 0..n {
             self.rhs[j] = -qp.q[j];
         }
-        self.rhs[n..k].copy_from_slice(&qp.b);
-        self.solve_refined(k);
+        self.rhs[n..n + m].copy_from_slice(&qp.b);
+        if !self.solve_refined() {
+            return None;
+        }
         self.x.copy_from_slice(&self.sol[..n]);
         mat_vec(&self.a, &self.x, n, &mut self.s);
         for i in 0..m {
@@ -504,136 +562,181 @@ impl DenseQp {
         true
     }
 
-    /// Writes `[P Ãᵀ; Ã −I]`, `Ã = W⁻¹A`, at the current scaling into `kkt`: CVXOPT's scaled
-    /// KKT system, whose unknowns are `dx` and `W dz`. The unscaled `[P Aᵀ; A −W²]` has the
-    /// same solution, but its rows are in the units of `s`: once `W` spans twelve orders of
-    /// magnitude, a residual of round-off size there is not small in the scaled space where
-    /// the complementarity rows live, and the direction left the cone.
+    /// Writes `Ã = W⁻¹A` at the current scaling into `scaled_a`: the matrix of CVXOPT's scaled
+    /// KKT system `[P Ãᵀ; Ã −I]`, whose unknowns are `dx` and `W dz`. The unscaled
+    /// `[P Aᵀ; A −W²]` has the same solution, but its rows are in the units of `s`: once `W`
+    /// spans twelve orders of magnitude, a residual of round-off size there is not small in the
+    /// scaled space where the complementarity rows live, and the direction left the cone.
+    /// A non-negative row is divided by its `w`; a second-order block is
+    /// `β⁻¹(2Jv (Jv)ᵀA_b − JA_b)` (the arrow form of `W⁻¹`, `O(d)` per column).
     fn assemble(&mut self) {
-        let (n, m) = (self.n, self.m);
-        let k = n + m;
-        for j in 0..n {
-            for i in 0..m {
-                self.column[i] = self.a[i * n + j];
+        let n = self.n;
+        let (a, scaled) = (&self.a, &mut self.scaled_a);
+        for blk in &self.blocks {
+            let (o, d) = (blk.first, blk.dim);
+            let rows = o * n..(o + d) * n;
+            let (a_b, s_b) = (&a[rows.clone()], &mut scaled[rows]);
+            if !blk.soc {
+                let inv = 1.0 / self.w[o];
+                for (t, x) in s_b.iter_mut().zip(a_b) {
+                    *t = inv * x;
+                }
+                continue;
             }
-            for blk in &self.blocks {
-                apply_w(
-                    blk,
-                    &self.w,
-                    &self.eta,
-                    &self.column,
-                    &mut self.scaled_column,
-                    true,
-                );
+            let v = &self.w[o..o + d];
+            let inv = 1.0 / self.eta[o];
+            // c_j = 2 (Jv)ᵀ A_b[:, j] = 2 (v₀ a₀ⱼ − Σᵢ vᵢ aᵢⱼ), in `s_b`'s first row for now.
+            let (head, tail) = a_b.split_at(n);
+            for (cj, &a0) in s_b[..n].iter_mut().zip(head) {
+                *cj = v[0] * a0;
             }
-            for i in 0..m {
-                self.scaled_a[i * n + j] = self.scaled_column[i];
+            for (i, row) in tail.chunks_exact(n).enumerate() {
+                let vi = v[i + 1];
+                for (cj, &x) in s_b[..n].iter_mut().zip(row) {
+                    *cj -= vi * x;
+                }
+            }
+            let (first, rest) = s_b.split_at_mut(n);
+            for cj in first.iter_mut() {
+                *cj *= 2.0;
+            }
+            for (i, (out, row)) in rest
+                .chunks_exact_mut(n)
+                .zip(tail.chunks_exact(n))
+                .enumerate()
+            {
+                let vi = v[i + 1];
+                for ((t, &x), &cj) in out.iter_mut().zip(row).zip(first.iter()) {
+                    *t = inv * (x - cj * vi);
+                }
+            }
+            for (cj, &a0) in first.iter_mut().zip(head) {
+                *cj = inv * (*cj * v[0] - a0);
             }
         }
+    }
+
+    /// Assembles `Ã` at the current scaling and factors the scaled KKT system: by the Cholesky
+    /// factor of its Schur complement, or, once that is not numerically positive definite in
+    /// this QP, by LU on the whole system.
+    fn factor(&mut self) -> bool {
+        self.assemble();
+        if !self.use_lu && self.factor_schur() {
+            return true;
+        }
+        self.use_lu = true;
+        self.factor_lu()
+    }
+
+    /// LU with partial pivoting of `[P Ãᵀ; Ã −I]` into `lu`; `false` when it is singular.
+    /// The Schur complement `P + ÃᵀÃ` loses a body's mass to round-off when loaded vertex rows
+    /// of size `‖Ã‖² ≈ 1e13` fix its velocity (`d5_collision`: a pivot of `−4e-3` for a
+    /// diagonal of `3e13`); the augmented matrix, of entries `‖Ã‖`, keeps it.
+    fn factor_lu(&mut self) -> bool {
+        let (n, m) = (self.n, self.m);
+        let k = n + m;
+        zeroed(&mut self.lu, k * k);
+        self.pivots.clear();
+        self.pivots.resize(k, 0);
+        let lu = &mut self.lu;
         for r in 0..n {
-            self.kkt[r * k..r * k + n].copy_from_slice(&self.p[r * n..(r + 1) * n]);
+            lu[r * k..r * k + n].copy_from_slice(&self.p[r * n..(r + 1) * n]);
             for i in 0..m {
-                self.kkt[r * k + n + i] = self.scaled_a[i * n + r];
+                lu[r * k + n + i] = self.scaled_a[i * n + r];
             }
         }
         for i in 0..m {
             let row = (n + i) * k;
-            self.kkt[row..row + n].copy_from_slice(&self.scaled_a[i * n..(i + 1) * n]);
-            self.kkt[row + n..row + k].fill(0.0);
-            self.kkt[row + n + i] = -1.0;
+            lu[row..row + n].copy_from_slice(&self.scaled_a[i * n..(i + 1) * n]);
+            lu[row + n + i] = -1.0;
+        }
+        lu_in_place(lu, &mut self.pivots, k)
+    }
+
+    /// Solves the factored scaled KKT system in place (`v` of length `n + m`).
+    fn kkt_solve(&self, v: &mut [f64]) {
+        if self.use_lu {
+            lu_solve(&self.lu, &self.pivots, self.n + self.m, v);
+        } else {
+            schur_solve(&self.chol, &self.scaled_a, self.n, v);
         }
     }
 
-    /// Assembles and factors the KKT matrix at the current scaling.
-    fn factor(&mut self) -> bool {
-        self.assemble();
-        self.factor_current(self.n + self.m)
+    /// The Cholesky factor of `P + ÃᵀÃ` (lower triangle of `chol`); `false` when it is not
+    /// numerically positive definite. This replaces the LU of the `(n + m)²` augmented system:
+    /// `⅓n³` instead of `⅔(n + m)³`, and `ÃᵀÃ` skips the zeros of `A`.
+    fn factor_schur(&mut self) -> bool {
+        let (n, m) = (self.n, self.m);
+        let h = &mut self.chol[..n * n];
+        for (i, row) in h.chunks_exact_mut(n).enumerate() {
+            row[..=i].copy_from_slice(&self.p[i * n..i * n + i + 1]);
+        }
+        for r in self.scaled_a[..m * n].chunks_exact(n) {
+            for (i, &ai) in r.iter().enumerate() {
+                if ai == 0.0 {
+                    continue;
+                }
+                for (hij, &aj) in h[i * n..i * n + i + 1].iter_mut().zip(r) {
+                    *hij += ai * aj;
+                }
+            }
+        }
+        cholesky_in_place(h, n)
     }
 
-    /// LU factorisation with partial pivoting of the leading `k × k` of `kkt` (stored with row
-    /// length `k`) into `lu`; `false` when it is singular.
-    fn factor_current(&mut self, k: usize) -> bool {
-        let lu = &mut self.lu[..k * k];
-        lu.copy_from_slice(&self.kkt[..k * k]);
-        let scale = lu.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        if !(scale > 0.0 && scale.is_finite()) {
+    /// `sol` solving the scaled KKT system `K sol = rhs`, `K = [P Ãᵀ; Ã −I]`, refined on `K`
+    /// while its residual falls and is above round-off: the Schur complement squares the
+    /// condition of `Ã`, whose loaded vertex rows are scaled by up to 1e6 near the solution, so
+    /// the first solve may miss the last digits the refinement recovers.
+    fn solve_refined(&mut self) -> bool {
+        if self.refine() <= SCHUR_BACKWARD_ERROR || self.use_lu {
+            return true;
+        }
+        // The Schur complement lost digits its refinement cannot recover (`d5_collision`: a
+        // backward error of 1e-7 after three steps, and the dual residual grew from 1e-17 to
+        // 2e-8 over the iterations): this QP goes on with the LU of the whole system.
+        self.use_lu = true;
+        if !self.factor_lu() {
             return false;
         }
-        for c in 0..k {
-            let (mut piv, mut best) = (c, lu[c * k + c].abs());
-            for r in c + 1..k {
-                let v = lu[r * k + c].abs();
-                if v > best {
-                    (piv, best) = (r, v);
-                }
-            }
-            if best.is_nan() || best <= scale * f64::EPSILON * f64::EPSILON {
-                return false;
-            }
-            self.pivots[c] = piv;
-            if piv != c {
-                for j in 0..k {
-                    lu.swap(c * k + j, piv * k + j);
-                }
-            }
-            let d = lu[c * k + c];
-            for r in c + 1..k {
-                let f = lu[r * k + c] / d;
-                lu[r * k + c] = f;
-                if f != 0.0 {
-                    for j in c + 1..k {
-                        lu[r * k + j] -= f * lu[c * k + j];
-                    }
-                }
-            }
-        }
+        self.refine();
         true
     }
 
-    /// Solves `lu x = v` in place (`v` of length `k`).
-    fn lu_solve(lu: &[f64], pivots: &[usize], k: usize, v: &mut [f64]) {
-        for c in 0..k {
-            v.swap(c, pivots[c]);
-        }
-        for r in 0..k {
-            let mut acc = v[r];
-            for j in 0..r {
-                acc -= lu[r * k + j] * v[j];
-            }
-            v[r] = acc;
-        }
-        for r in (0..k).rev() {
-            let mut acc = v[r];
-            for j in r + 1..k {
-                acc -= lu[r * k + j] * v[j];
-            }
-            v[r] = acc / lu[r * k + r];
-        }
-    }
-
-    /// `sol` solving `kkt sol = rhs` (first `k` entries), refined on `kkt` itself while the
-    /// residual falls.
-    fn solve_refined(&mut self, k: usize) {
-        self.sol[..k].copy_from_slice(&self.rhs[..k]);
-        Self::lu_solve(&self.lu, &self.pivots, k, &mut self.sol[..k]);
+    /// [`DenseQp::solve_refined`] with the current factors; returns the final backward error.
+    fn refine(&mut self) -> f64 {
+        let (n, m) = (self.n, self.m);
+        let k = n + m;
+        let mut sol = std::mem::take(&mut self.sol);
+        sol[..k].copy_from_slice(&self.rhs[..k]);
+        self.kkt_solve(&mut sol[..k]);
+        self.sol = sol;
         let mut last = f64::INFINITY;
-        for _ in 0..REFINEMENT_STEPS {
-            let mut norm = 0.0f64;
-            for r in 0..k {
-                let row = &self.kkt[r * k..(r + 1) * k];
-                let v = self.rhs[r] - dot(row, &self.sol[..k]);
-                self.res[r] = v;
-                norm = norm.max(v.abs());
-            }
-            if norm == 0.0 || norm >= 0.5 * last {
+        let mut steps = 0;
+        for _ in 0..=REFINEMENT_STEPS {
+            let berr = kkt_residual(
+                &self.p,
+                &self.scaled_a,
+                n,
+                &self.sol[..k],
+                &self.rhs[..k],
+                &mut self.res[..k],
+            );
+            steps += 1;
+            if berr <= BACKWARD_ERROR || berr >= 0.5 * last || steps > REFINEMENT_STEPS {
+                last = berr;
                 break;
             }
-            last = norm;
-            Self::lu_solve(&self.lu, &self.pivots, k, &mut self.res[..k]);
-            for r in 0..k {
-                self.sol[r] += self.res[r];
+            last = berr;
+            let mut corr = std::mem::take(&mut self.corr);
+            corr[..k].copy_from_slice(&self.res[..k]);
+            self.kkt_solve(&mut corr[..k]);
+            self.corr = corr;
+            for (x, c) in self.sol[..k].iter_mut().zip(&self.corr[..k]) {
+                *x += c;
             }
         }
+        last
     }
 
     /// The direction of `P dx + Aᵀdz = −r_x`, `A dx + ds = −r_z`, `W⁻¹ds + W dz = t`: `dx`,
@@ -652,7 +755,17 @@ impl DenseQp {
         for i in 0..m {
             self.rhs[n + i] = -self.u[i] - self.t[i];
         }
-        self.solve_refined(k);
+        // The affine direction only sets the centring σ and the corrector's second-order
+        // term: one solve without refinement is enough (the combined direction, which moves
+        // the residuals, is refined).
+        if affine {
+            let mut sol = std::mem::take(&mut self.sol);
+            sol[..k].copy_from_slice(&self.rhs[..k]);
+            self.kkt_solve(&mut sol[..k]);
+            self.sol = sol;
+        } else if !self.solve_refined() {
+            return None;
+        }
         if !self.sol[..k].iter().all(|v| v.is_finite()) {
             return None;
         }
@@ -696,6 +809,173 @@ fn apply_w(blk: &Block, w: &[f64], eta: &[f64], x: &[f64], y: &mut [f64], invers
     for i in 1..d {
         y[o + i] = scale * (sign * vx * v[i] + xv[i]);
     }
+}
+
+/// Cholesky factorisation `H = LLᵀ` in place of the lower triangle of `h` (`n × n`,
+/// row-major; the upper triangle is not read); `false` when a pivot is not positive beyond
+/// round-off of the largest diagonal entry.
+fn cholesky_in_place(h: &mut [f64], n: usize) -> bool {
+    let scale = (0..n).map(|i| h[i * n + i]).fold(0.0f64, f64::max);
+    if !(scale > 0.0 && scale.is_finite()) {
+        return false;
+    }
+    let tiny = scale * f64::EPSILON * f64::EPSILON;
+    for j in 0..n {
+        let (head, tail) = h.split_at_mut((j + 1) * n);
+        let row_j = &mut head[j * n..];
+        let d = row_j[j] - dot(&row_j[..j], &row_j[..j]);
+        if !(d > tiny && d.is_finite()) {
+            return false;
+        }
+        let l = d.sqrt();
+        row_j[j] = l;
+        for row_i in tail.chunks_exact_mut(n) {
+            row_i[j] = (row_i[j] - dot(&row_i[..j], &row_j[..j])) / l;
+        }
+    }
+    true
+}
+
+/// LU factorisation with partial pivoting of the `k × k` row-major `lu` in place, the row
+/// interchanges in `pivots`; `false` when it is singular.
+fn lu_in_place(lu: &mut [f64], pivots: &mut [usize], k: usize) -> bool {
+    let scale = lu.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    if !(scale > 0.0 && scale.is_finite()) {
+        return false;
+    }
+    for c in 0..k {
+        let (mut piv, mut best) = (c, lu[c * k + c].abs());
+        for r in c + 1..k {
+            let v = lu[r * k + c].abs();
+            if v > best {
+                (piv, best) = (r, v);
+            }
+        }
+        if best.is_nan() || best <= scale * f64::EPSILON * f64::EPSILON {
+            return false;
+        }
+        pivots[c] = piv;
+        if piv != c {
+            for j in 0..k {
+                lu.swap(c * k + j, piv * k + j);
+            }
+        }
+        let d = lu[c * k + c];
+        for r in c + 1..k {
+            let f = lu[r * k + c] / d;
+            lu[r * k + c] = f;
+            if f != 0.0 {
+                for j in c + 1..k {
+                    lu[r * k + j] -= f * lu[c * k + j];
+                }
+            }
+        }
+    }
+    true
+}
+
+/// Solves `LU x = v` in place from [`lu_in_place`]'s factors.
+fn lu_solve(lu: &[f64], pivots: &[usize], k: usize, v: &mut [f64]) {
+    for c in 0..k {
+        v.swap(c, pivots[c]);
+    }
+    for r in 0..k {
+        v[r] -= dot(&lu[r * k..r * k + r], &v[..r]);
+    }
+    for r in (0..k).rev() {
+        let acc = v[r] - dot(&lu[r * k + r + 1..(r + 1) * k], &v[r + 1..k]);
+        v[r] = acc / lu[r * k + r];
+    }
+}
+
+/// Solves the scaled KKT system `[P Ãᵀ; Ã −I][x; y] = [f; g]` in place (`v = [f; g]`, length
+/// `n + m`) by the Schur complement's factor `L`: `LLᵀx = f + Ãᵀg`, `y = Ãx − g`.
+fn schur_solve(chol: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
+    let (x, y) = v.split_at_mut(n);
+    for (&g, row) in y.iter().zip(scaled_a.chunks_exact(n)) {
+        if g != 0.0 {
+            for (xj, &a) in x.iter_mut().zip(row) {
+                *xj += a * g;
+            }
+        }
+    }
+    for i in 0..n {
+        let row = &chol[i * n..i * n + i + 1];
+        x[i] = (x[i] - dot(&row[..i], &x[..i])) / row[i];
+    }
+    for i in (0..n).rev() {
+        let mut acc = x[i];
+        for j in i + 1..n {
+            acc -= chol[j * n + i] * x[j];
+        }
+        x[i] = acc / chol[i * n + i];
+    }
+    for (g, row) in y.iter_mut().zip(scaled_a.chunks_exact(n)) {
+        *g = dot(row, x) - *g;
+    }
+}
+
+/// The residual `res = rhs − K v` of the scaled KKT system `K = [P Ãᵀ; Ã −I]` and its
+/// componentwise backward error `maxᵢ |resᵢ| / (|K||v| + |rhs|)ᵢ` (Oettli–Prager, the test of
+/// LAPACK's refinement): round-off level (a few ε) when `v` is as good as the data allow.
+fn kkt_residual(
+    p: &[f64],
+    scaled_a: &[f64],
+    n: usize,
+    v: &[f64],
+    rhs: &[f64],
+    res: &mut [f64],
+) -> f64 {
+    let (x, y) = v.split_at(n);
+    let m = y.len();
+    let (rx, ry) = res.split_at_mut(n);
+    let mut berr = 0.0f64;
+    // x rows: P x + Ãᵀy, by columns of Ãᵀ (rows of Ã) for the contiguous layout.
+    let mut scale = [0.0f64; MAX_VARIABLES];
+    let scale = &mut scale[..n];
+    for ((r, s), (row, &b)) in rx
+        .iter_mut()
+        .zip(scale.iter_mut())
+        .zip(p[..n * n].chunks_exact(n).zip(&rhs[..n]))
+    {
+        let (mut acc, mut abs) = (b, b.abs());
+        for (&pij, &xj) in row.iter().zip(x) {
+            acc -= pij * xj;
+            abs += (pij * xj).abs();
+        }
+        *r = acc;
+        *s = abs;
+    }
+    for (row, &yi) in scaled_a[..m * n].chunks_exact(n).zip(y) {
+        if yi == 0.0 {
+            continue;
+        }
+        for ((r, s), &a) in rx.iter_mut().zip(scale.iter_mut()).zip(row) {
+            *r -= a * yi;
+            *s += (a * yi).abs();
+        }
+    }
+    for (r, s) in rx.iter().zip(scale.iter()) {
+        if *r != 0.0 {
+            berr = berr.max(r.abs() / s);
+        }
+    }
+    for ((r, row), (&yi, &b)) in ry
+        .iter_mut()
+        .zip(scaled_a.chunks_exact(n))
+        .zip(y.iter().zip(&rhs[n..]))
+    {
+        let (mut acc, mut abs) = (b + yi, b.abs() + yi.abs());
+        for (&a, &xj) in row.iter().zip(x) {
+            acc -= a * xj;
+            abs += (a * xj).abs();
+        }
+        *r = acc;
+        if acc != 0.0 {
+            berr = berr.max(acc.abs() / abs);
+        }
+    }
+    berr
 }
 
 /// `s₀² − ‖s₁‖²` of a second-order cone entry, as `(s₀ − ‖s₁‖)(s₀ + ‖s₁‖)`.

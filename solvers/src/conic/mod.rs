@@ -65,6 +65,7 @@
 mod anderson;
 pub mod closest_point;
 mod dense_qp;
+mod min_norm;
 mod qp;
 mod step;
 
