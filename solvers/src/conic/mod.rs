@@ -436,7 +436,15 @@ impl McpSolver for ConicSolver {
         });
         let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
         let mut handoff_tried = false;
-        for it in 0..max_outer {
+        // The stopping test comes before the first QP: a warm start that already solves the step
+        // (a body at rest, free flight) costs no QP.
+        let outer = if exact && residual <= self.settings.tolerance {
+            termination = Termination::Converged;
+            0
+        } else {
+            max_outer
+        };
+        for it in 0..outer {
             let mut geometry: Vec<_> = (0..nc)
                 .map(|c| structure.contact(c, &z_in, self.settings.patch_band))
                 .collect();
