@@ -8,6 +8,7 @@ use std::path::Path;
 use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder};
 use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
 use ecp::scene::load_scene;
+use ecp::solvers::conic::{ConicSettings, ConicSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 
@@ -237,4 +238,113 @@ fn path_multi_body_run_first_attempt_pivots() {
         pivots <= 160 * n,
         "step {step}: {pivots} pivots for {n} unknowns"
     );
+}
+
+/// The scene file `path` (hull formulation) stepped by the conic backend with `dense_qp` as
+/// given through step `step − 1` (every step must converge), with step `step` prepared.
+fn conic_at_step(path: &Path, dense_qp: bool, step: usize) -> Simulation {
+    let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut driver = ConicSolver::new(ConicSettings {
+        tolerance: file.solver.tolerance.unwrap_or(1e-10),
+        dense_qp,
+        ..ConicSettings::default()
+    });
+    for k in 1..step {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged,
+            "{}: step {k} did not converge (residual {:e})",
+            path.display(),
+            rec.summary.residual
+        );
+    }
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    sim
+}
+
+/// `a5_drop_tilted` step 16 (the tilted box tipping on one vertex; `docs/latency.md#conic-backend`):
+/// with a fixed three Gauss–Seidel sweeps in the polish, the outer fixed point converged to a
+/// point whose loaded vertex was 1.2e-12 m deep (natural residual 1.23e-10, tolerance 1e-10)
+/// when the QPs came from the dense method, and stagnated there for 26 QPs; the remainder of
+/// the truncated sweeps depended on which QP method produced the duals. With the sweeps run
+/// until they settle, both QP methods give the same outer iterates to round-off and converge
+/// in 6 QPs, without a Newton polish.
+#[test]
+fn conic_a5_drop_tilted_step_16_both_qp_methods() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a5_drop_tilted.toml");
+    let sim = conic_at_step(&path, false, 16);
+    let z0 = sim.z().to_vec();
+    let solve = |dense_qp: bool| {
+        converged(sim.solve_step_problem(
+            &mut ConicSolver::new(ConicSettings {
+                dense_qp,
+                newton_polish: 0,
+                ..ConicSettings::default()
+            }),
+            &z0,
+        ))
+    };
+    let (clarabel, dense) = (solve(false), solve(true));
+    for sol in [&clarabel, &dense] {
+        assert!(
+            sol.summary.iterations <= 8,
+            "{} outer QPs",
+            sol.summary.iterations
+        );
+    }
+    assert_eq!(clarabel.summary.iterations, dense.summary.iterations);
+    assert_eq!(
+        dense.summary.counter(Counter::Custom("clarabel_fallbacks")),
+        Some(0)
+    );
+    // The same point to round-off (the steps' unknowns are O(1) here).
+    let worst = clarabel
+        .z
+        .iter()
+        .zip(&dense.z)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0, f64::max);
+    assert!(
+        worst <= 1e-12,
+        "the two QP methods' answers differ by {worst:e}"
+    );
+}
+
+/// `073_ladder` (a ladder against a wall: two contacts of one body, the anchored case) with every
+/// QP by the dense method: step 320 failed (the fixed point stagnated at 2.4e-8 from the warm
+/// start and from the stepper's retry, also after a Newton polish) and so did every later step (348
+/// failed steps). With the settled polish the step converges without a Newton polish (from the
+/// plain warm start the fixed point still stagnates, at 1.5e-7: the retry from the
+/// active-contact guess solves it, in 4 QPs), and so do the next 20.
+#[test]
+fn conic_ladder_073_step_320_dense_qps() {
+    let path =
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/073_ladder.toml");
+    let mut sim = conic_at_step(&path, true, 320);
+    let mut solver = ConicSolver::new(ConicSettings {
+        tolerance: 1e-10,
+        dense_qp: true,
+        newton_polish: 0,
+        ..ConicSettings::default()
+    });
+    for k in 320..340 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.iterations <= 8,
+            "step {k}: converged {}, {} outer QPs, residual {:e}",
+            rec.converged,
+            rec.summary.iterations,
+            rec.summary.residual
+        );
+    }
 }

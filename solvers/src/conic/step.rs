@@ -451,11 +451,13 @@ impl StepQp {
     ///   solution of its local maximum-dissipation problem (the per-contact problem of the
     ///   Acary–Cadoux / NSGS literature), `min ½ pᵀA p + u₀ᵀp` over the ellipsoid
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
-    ///   ([`local_friction`]), in three Gauss–Seidel sweeps over the contacts of a body, starting
-    ///   from clarabel's dual; it sticks with `u_T = 0` exactly or slides with
-    ///   `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly (`docs/model.md#friction`); the friction of an
-    ///   anchored contact acts at the centre of pressure of its corrected normal impulses (the
-    ///   ECP of the assembled point) rather than at the ECP the QP was built at;
+    ///   ([`local_friction`]), in Gauss–Seidel sweeps (normal correction, then each contact's
+    ///   friction) until they settle, starting from the QP's dual; it sticks with `u_T = 0`
+    ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
+    ///   (`docs/model.md#friction`); every contact's friction acts at the centre of pressure of
+    ///   its corrected normal impulses (the ECP of the assembled point) rather than at the ECP
+    ///   the QP was built at: otherwise the ECP lags one outer iteration behind the impulses, the
+    ///   fixed point's slowest mode (the desk: 5 QPs per step instead of 2);
     /// - the velocities are recomputed from the impulses by the Newton–Euler equations,
     ///   `ν = ν_free + M⁻¹ Σ W p`, so that the dynamics hold to round-off.
     ///
@@ -506,20 +508,12 @@ impl StepQp {
                 normal: rows.frame.normal,
             });
         }
-        // Contacts between two dynamic bodies couple the bodies' friction problems (a stack: the
-        // friction under A depends on the friction of B on A), so the Gauss–Seidel sweeps go on
-        // until they settle (COUPLED_SWEEPS at most); a scene of half-space contacts keeps its
-        // three sweeps.
-        let coupled = self
-            .contacts
-            .iter()
-            .flatten()
-            .any(|rows| rows.sides.len() > 1);
-        let sweeps = match (polish, coupled) {
-            (false, _) => 0,
-            (true, false) => 3,
-            (true, true) => COUPLED_SWEEPS,
-        };
+        // The Gauss–Seidel sweeps go on until they settle (MAX_SWEEPS at most): a fixed number
+        // leaves a remainder that depends on where they start, i.e. on which QP method produced
+        // the duals, and the outer fixed point then converges to a point off the step's solution
+        // by that remainder (`a5_drop_tilted` step 16: a loaded vertex 1.2e-12 m deep, natural
+        // residual 1.23e-10 > 1e-10, with the dense QPs; `docs/latency.md#conic-backend`).
+        let sweeps = if polish { MAX_SWEEPS } else { 0 };
         // The friction wrenches each contact's friction currently acts through, per side.
         let mut current: Vec<Vec<BodyFriction>> = self
             .contacts
@@ -534,11 +528,7 @@ impl StepQp {
             })
             .collect();
         for sweep in 0..sweeps {
-            let before: Vec<ContactImpulses> = if coupled {
-                contacts.clone()
-            } else {
-                Vec::new()
-            };
+            let before = contacts.clone();
             self.correct_normal_impulses(bodies, &mut contacts, &mut wrench_sum);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
@@ -557,9 +547,7 @@ impl StepQp {
                     }
                 }
                 let mut offset = rows.slip_offset;
-                if rows.anchor.is_some()
-                    && let Some(cop) = rows.centre_of_pressure(&imp.vertex_impulses)
-                {
+                if let Some(cop) = rows.centre_of_pressure(&imp.vertex_impulses) {
                     let (sides, o) = friction_sides(&ContactGeometry {
                         ecp: cop,
                         patch: Vec::new(),
@@ -602,7 +590,7 @@ impl StepQp {
                     }
                 }
             }
-            if coupled && sweep >= 2 && settled(&before, &contacts) {
+            if sweep >= 2 && settled(&before, &contacts) {
                 break;
             }
         }
@@ -644,8 +632,8 @@ impl StepQp {
     }
 }
 
-/// Gauss–Seidel sweeps of the polish at most when contacts couple two dynamic bodies.
-const COUPLED_SWEEPS: usize = 50;
+/// Gauss–Seidel sweeps of the polish at most.
+const MAX_SWEEPS: usize = 50;
 
 /// Whether a polish sweep changed no impulse by more than `1e-14` of the largest one.
 fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
