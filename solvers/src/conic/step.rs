@@ -640,7 +640,10 @@ const MAX_SWEEPS: usize = 50;
 /// corrected rows, far below the `135_union_tip` violation (−0.068 m/s).
 const VIOLATION: f64 = 1e-9;
 
-/// Whether a polish sweep changed no impulse by more than `1e-14` of the largest one.
+/// Relative change of the impulses below which the polish's sweeps have settled.
+const SETTLED: f64 = 1e-12;
+
+/// Whether a polish sweep changed no impulse by more than `SETTLED` of the largest one.
 fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
     let values = |c: &ContactImpulses| {
         c.vertex_impulses
@@ -657,7 +660,7 @@ fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
             change = change.max((x - y).abs());
         }
     }
-    change <= 1e-14 * scale
+    change <= SETTLED * scale
 }
 
 impl ContactRows {
