@@ -635,7 +635,15 @@ impl StepQp {
 /// Gauss–Seidel sweeps of the polish at most.
 const MAX_SWEEPS: usize = 50;
 
-/// Whether a polish sweep changed no impulse by more than `1e-14` of the largest one.
+/// An unloaded vertex joins the polish's active set when its gap rate is below `−VIOLATION`
+/// times the largest gap rate of its group (at least 1 m/s): far above the round-off of the
+/// corrected rows, far below the `135_union_tip` violation (−0.068 m/s).
+const VIOLATION: f64 = 1e-9;
+
+/// Relative change of the impulses below which the polish's sweeps have settled.
+const SETTLED: f64 = 1e-12;
+
+/// Whether a polish sweep changed no impulse by more than `SETTLED` of the largest one.
 fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
     let values = |c: &ContactImpulses| {
         c.vertex_impulses
@@ -652,7 +660,7 @@ fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
             change = change.max((x - y).abs());
         }
     }
-    change <= 1e-14 * scale
+    change <= SETTLED * scale
 }
 
 impl ContactRows {
@@ -695,24 +703,25 @@ impl StepQp {
         wrench_sum: &mut [[f64; 6]],
     ) {
         for group in self.groups(bodies.len()) {
-            // (contact, position in the contact's vertex list) of every loaded vertex.
-            let mut loaded: Vec<(usize, usize)> = Vec::new();
+            // (contact, position in the contact's vertex list) of every vertex of the group, and
+            // whether it is in the active set (loaded, or added below because it was violated).
+            let mut vertices: Vec<(usize, usize)> = Vec::new();
+            let mut active: Vec<bool> = Vec::new();
             for (c, rows) in self.contacts.iter().enumerate() {
                 let Some(rows) = rows else { continue };
                 if !group.contains(&rows.sides[0].body) {
                     continue;
                 }
                 for (k, &(_, l)) in contacts[c].vertex_impulses.iter().enumerate() {
-                    if l > 0.0 {
-                        loaded.push((c, k));
-                    }
+                    vertices.push((c, k));
+                    active.push(l > 0.0);
                 }
             }
-            if loaded.is_empty() {
+            if !active.iter().any(|&a| a) {
                 continue;
             }
-            // The wrenches of each loaded vertex on each body of the group.
-            let w: Vec<Vec<(usize, [f64; 6])>> = loaded
+            // The wrenches of each vertex on each body of the group.
+            let w: Vec<Vec<(usize, [f64; 6])>> = vertices
                 .iter()
                 .filter_map(|&(c, k)| {
                     self.contacts[c].as_ref().map(|r| {
@@ -723,22 +732,9 @@ impl StepQp {
                     })
                 })
                 .collect();
-            if w.len() != loaded.len() {
+            if w.len() != vertices.len() {
                 continue;
             }
-            let nu: Vec<(usize, [f64; 6])> = group
-                .iter()
-                .map(|&b| {
-                    let body = &bodies[b];
-                    let dv = solve6(&body.mass, &wrench_sum[b]);
-                    let mut nu = body.free_velocity;
-                    for i in 0..6 {
-                        nu[i] += dv[i];
-                    }
-                    (b, nu)
-                })
-                .collect();
-            let velocity = |b: usize| nu.iter().find(|(c, _)| *c == b).map(|(_, v)| *v);
             let minv_w: Vec<Vec<(usize, [f64; 6])>> = w
                 .iter()
                 .map(|ws| {
@@ -747,68 +743,140 @@ impl StepQp {
                         .collect()
                 })
                 .collect();
-            let k = loaded.len();
-            let mut d = Scratch::new(k * k);
-            let mut r = Scratch::new(k);
-            for i in 0..k {
-                for j in 0..k {
-                    // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
-                    for (bi, wi) in &w[i] {
-                        for (bj, mj) in &minv_w[j] {
-                            if bi == bj {
-                                d[i * k + j] += dot6(wi, mj);
+            // Active-set loop (a primal active-set method on the Delassus LCP): correct the active
+            // vertices' gaps; a vertex whose impulse would go negative blocks the step and leaves
+            // the set; when the step is full, the most violated unloaded vertex (gap rate below
+            // zero: the correction pushed it into its partner) joins it. Without it the loaded
+            // vertices' correction may drive an unloaded vertex into the floor, a point the QP,
+            // which keeps every vertex's row, never gives (`135_union_tip` step 94:
+            // -0.068 m/s, `docs/latency.md#conic-backend`).
+            let mut just_added: Option<usize> = None;
+            for _ in 0..2 * vertices.len() + 2 {
+                let rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
+                let loaded: Vec<usize> = (0..vertices.len()).filter(|&i| active[i]).collect();
+                let k = loaded.len();
+                if k == 0 {
+                    break;
+                }
+                let mut d = Scratch::new(k * k);
+                let mut r = Scratch::new(k);
+                for (a, &i) in loaded.iter().enumerate() {
+                    for (b, &j) in loaded.iter().enumerate() {
+                        // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
+                        for (bi, wi) in &w[i] {
+                            for (bj, mj) in &minv_w[j] {
+                                if bi == bj {
+                                    d[a * k + b] += dot6(wi, mj);
+                                }
                             }
                         }
                     }
+                    r[a] = -rates[i];
                 }
-                let (c, kk) = loaded[i];
-                let mut rate = self.contacts[c]
-                    .as_ref()
-                    .map_or(0.0, |rows| rows.gap_rates[kk]);
-                for (b, wi) in &w[i] {
-                    rate += dot6(wi, &velocity(*b).unwrap_or([0.0; 6]));
+                let pairs: Vec<(usize, usize)> = loaded.iter().map(|&i| vertices[i]).collect();
+                let anchored = pairs.iter().any(|&(c, _)| {
+                    self.contacts[c]
+                        .as_ref()
+                        .is_some_and(|r| r.anchor.is_some())
+                });
+                let mut delta = Scratch::new(k);
+                let solved = if anchored {
+                    // Kept on the eigendecomposition: the same correction by the null space of
+                    // `PsdRange` (tried) agrees to 1e-12 per step, but the union desk's fixed
+                    // point then stops elsewhere within its tolerance (loads 4.5e-4 apart by
+                    // the end).
+                    let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
+                    self.anchored_correction(&pairs, contacts, rows, &r)
+                        .map(|x| delta.copy_from_slice(&x))
+                        .is_some()
+                } else {
+                    PsdRange::new(&d, k).is_some_and(|range| range.min_norm(&r, &mut delta))
+                };
+                if !solved {
+                    break;
                 }
-                r[i] = -rate;
-            }
-            let anchored = loaded.iter().any(|&(c, _)| {
-                self.contacts[c]
-                    .as_ref()
-                    .is_some_and(|r| r.anchor.is_some())
-            });
-            let mut delta = Scratch::new(k);
-            let solved = if anchored {
-                // Kept on the eigendecomposition: the same correction by the null space of
-                // `PsdRange` (tried) agrees to 1e-12 per step, but the union desk's fixed point
-                // then stops elsewhere within its tolerance (loads 4.5e-4 apart by the end).
-                let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
-                self.anchored_correction(&loaded, contacts, rows, &r)
-                    .map(|x| delta.copy_from_slice(&x))
-                    .is_some()
-            } else {
-                PsdRange::new(&d, k).is_some_and(|range| range.min_norm(&r, &mut delta))
-            };
-            if !solved {
-                continue;
-            }
-            // Largest step in [0, 1] keeping every λ ≥ 0.
-            let mut alpha: f64 = 1.0;
-            for (i, &(c, kk)) in loaded.iter().enumerate() {
-                let l = contacts[c].vertex_impulses[kk].1;
-                if delta[i] < 0.0 && l + delta[i] < 0.0 {
-                    alpha = alpha.min(l / -delta[i]);
-                }
-            }
-            for (i, &(c, kk)) in loaded.iter().enumerate() {
-                let step = alpha * delta[i];
-                let entry = &mut contacts[c].vertex_impulses[kk];
-                entry.1 = (entry.1 + step).max(0.0);
-                for (b, wi) in &w[i] {
-                    for j in 0..6 {
-                        wrench_sum[*b][j] += step * wi[j];
+                // Largest step in [0, 1] keeping every λ ≥ 0, and the vertex that blocks it.
+                let mut alpha: f64 = 1.0;
+                let mut blocking = None;
+                for (a, &(c, kk)) in pairs.iter().enumerate() {
+                    let l = contacts[c].vertex_impulses[kk].1;
+                    if delta[a] < 0.0 && l + delta[a] < 0.0 && l / -delta[a] < alpha {
+                        alpha = l / -delta[a];
+                        blocking = Some(loaded[a]);
                     }
+                }
+                if blocking.is_some() && blocking == just_added && alpha == 0.0 {
+                    // The added vertex cannot take load along this correction: stop here.
+                    break;
+                }
+                for (a, &(c, kk)) in pairs.iter().enumerate() {
+                    let step = alpha * delta[a];
+                    let entry = &mut contacts[c].vertex_impulses[kk];
+                    entry.1 = (entry.1 + step).max(0.0);
+                    for (b, wi) in &w[loaded[a]] {
+                        for j in 0..6 {
+                            wrench_sum[*b][j] += step * wi[j];
+                        }
+                    }
+                }
+                if blocking.is_some() {
+                    // As before the loop: the blocking vertex is unloaded, and the next sweep
+                    // corrects the rest.
+                    break;
+                }
+                // Full step: the most violated vertex outside the set, if any, joins it.
+                let rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
+                let scale = rates.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                let worst = (0..vertices.len())
+                    .filter(|&i| !active[i])
+                    .min_by(|&a, &b| rates[a].total_cmp(&rates[b]));
+                match worst {
+                    Some(i) if rates[i] < -VIOLATION * scale.max(1.0) => {
+                        active[i] = true;
+                        just_added = Some(i);
+                    }
+                    _ => break,
                 }
             }
         }
+    }
+
+    /// Linearised gap rates `g_j/h + W_{n,j}ᵀ(ν − ν^k)` of `vertices` (wrenches `w`) at the
+    /// velocities `ν = ν_free + M⁻¹ Σ W p` of the bodies of `group`.
+    fn gap_rates(
+        &self,
+        group: &[usize],
+        bodies: &[BodyDynamics],
+        wrench_sum: &[[f64; 6]],
+        vertices: &[(usize, usize)],
+        w: &[Vec<(usize, [f64; 6])>],
+    ) -> Vec<f64> {
+        let nu: Vec<(usize, [f64; 6])> = group
+            .iter()
+            .map(|&b| {
+                let body = &bodies[b];
+                let dv = solve6(&body.mass, &wrench_sum[b]);
+                let mut nu = body.free_velocity;
+                for i in 0..6 {
+                    nu[i] += dv[i];
+                }
+                (b, nu)
+            })
+            .collect();
+        let velocity = |b: usize| nu.iter().find(|(c, _)| *c == b).map(|(_, v)| *v);
+        vertices
+            .iter()
+            .zip(w)
+            .map(|(&(c, kk), ws)| {
+                let mut rate = self.contacts[c]
+                    .as_ref()
+                    .map_or(0.0, |rows| rows.gap_rates[kk]);
+                for (b, wi) in ws {
+                    rate += dot6(wi, &velocity(*b).unwrap_or([0.0; 6]));
+                }
+                rate
+            })
+            .collect()
     }
 
     /// The bodies coupled by contacts (connected components of the contact graph), each sorted,
