@@ -3,7 +3,8 @@
 //! its scene as the stress suite does (hull formulation, the scene's tolerance, no fallbacks),
 //! then solved again from its warm start, with the mend and without it.
 
-use std::path::Path;
+use std::ops::RangeBounds;
+use std::path::{Path, PathBuf};
 
 use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder};
 use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
@@ -12,13 +13,31 @@ use ecp::solvers::conic::{ConicSettings, ConicSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 use ecp::solvers::path::{PathSettings, PathSolver};
 
+/// `tests/stress_regressions/NAME.toml`.
+fn regression_scene(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("tests/stress_regressions")
+        .join(format!("{name}.toml"))
+}
+
+/// The tolerance the scene file `path` asks for.
+fn scene_tolerance(path: &Path) -> Option<f64> {
+    load_scene(path)
+        .unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        .solver
+        .tolerance
+}
+
 /// The scene `tests/stress_regressions/NAME.toml` stepped by `driver` (built as the registry
 /// builds it) through step `step − 1`, with step `step` prepared; and the scene's tolerance.
 fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("tests/stress_regressions")
-        .join(format!("{name}.toml"));
-    let file = load_scene(&path).unwrap_or_else(|e| panic!("{name}: {e}"));
+    at_step_of(&regression_scene(name), driver, step)
+}
+
+/// The scene file `path` (hull formulation) stepped by `driver` through step `step − 1` (every
+/// step must converge), with step `step` prepared; and the scene's tolerance.
+fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
+    let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let stepper = FormulationRegistry::builtin()
         .create("hull")
         .unwrap_or_else(|e| panic!("{e}"));
@@ -27,10 +46,24 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
         .unwrap_or_else(|e| panic!("{e}"));
     for k in 1..step {
         let rec = sim.step(driver).unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(rec.converged, "{name}: step {k} did not converge");
+        assert!(
+            rec.converged,
+            "{}: step {k} did not converge (residual {:e})",
+            path.display(),
+            rec.summary.residual
+        );
     }
     sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
     (sim, file.solver.tolerance)
+}
+
+/// Asserts that a solve took a number of iterations in `range`.
+fn assert_iterations(sol: &Solution, range: impl RangeBounds<usize> + std::fmt::Debug) {
+    assert!(
+        range.contains(&sol.summary.iterations),
+        "{} iterations, expected {range:?}",
+        sol.summary.iterations
+    );
 }
 
 fn converged(result: Result<Solution, SolveError>) -> Solution {
@@ -62,11 +95,7 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
         ..NewtonSettings::default()
     };
     let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
-    assert!(
-        mended.summary.iterations <= 60,
-        "{} iterations",
-        mended.summary.iterations
-    );
+    assert_iterations(&mended, ..=60);
     assert_eq!(
         mended
             .summary
@@ -81,11 +110,7 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
         }),
         &z0,
     ));
-    assert!(
-        before.summary.iterations > 200,
-        "{} iterations",
-        before.summary.iterations
-    );
+    assert_iterations(&before, 201..);
     // The same solution (both converged to 1e-10 in the scene's scales), but for the slip
     // rates σ of the two open contacts, which any σ ≥ 0 solves at p_n = 0.
     let problem = sim.step_problem();
@@ -120,12 +145,7 @@ fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
 /// three Levenberg–Marquardt steps and the undone steps forgotten: 30.
 #[test]
 fn newton_convex_push_step_58_residual_damping() {
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/015_convex_push.toml");
-    let tolerance = load_scene(&path)
-        .unwrap_or_else(|e| panic!("{e}"))
-        .solver
-        .tolerance;
+    let tolerance = scene_tolerance(&regression_scene("015_convex_push"));
     let before = newton_before_valley_mend(tolerance);
     let mut driver = NewtonSolver::new(before.clone());
     let (sim, _) = at_step("015_convex_push", &mut driver, 58);
@@ -137,17 +157,9 @@ fn newton_convex_push_step_58_residual_damping() {
         }),
         &z0,
     ));
-    assert!(
-        mended.summary.iterations <= 40,
-        "{} iterations",
-        mended.summary.iterations
-    );
+    assert_iterations(&mended, ..=40);
     let old = converged(sim.solve_step_problem(&mut NewtonSolver::new(before), &z0));
-    assert!(
-        old.summary.iterations >= 70,
-        "{} iterations",
-        old.summary.iterations
-    );
+    assert_iterations(&old, 70..);
     // The same solution (both converged to 1e-10 in the scene's scales).
     let problem = sim.step_problem();
     for (i, (a, b)) in mended.z.iter().zip(&old.z).enumerate() {
@@ -179,19 +191,11 @@ fn path_multi_body_step_475_first_in_both_units() {
         }),
         &z0,
     ));
-    assert!(
-        mended.summary.iterations <= 250,
-        "{} iterations",
-        mended.summary.iterations
-    );
+    assert_iterations(&mended, ..=250);
     let before = converged(
         sim.solve_step_problem(&mut PathSolver::new(PathSettings { tolerance, ..old }), &z0),
     );
-    assert!(
-        before.summary.iterations > 500,
-        "{} iterations",
-        before.summary.iterations
-    );
+    assert_iterations(&before, 501..);
 }
 
 /// `012_multi_body` run as `ecp run` runs it, with PATH: before `first_attempt_pivots` step 1008
@@ -240,34 +244,15 @@ fn path_multi_body_run_first_attempt_pivots() {
     );
 }
 
-/// The scene file `path` (hull formulation) stepped by the conic backend with `dense_qp` as
-/// given through step `step − 1` (every step must converge), with step `step` prepared.
+/// The scene file `path` stepped by the conic backend with `dense_qp` as given through step
+/// `step − 1` (every step must converge), with step `step` prepared.
 fn conic_at_step(path: &Path, dense_qp: bool, step: usize) -> Simulation {
-    let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
-    let stepper = FormulationRegistry::builtin()
-        .create("hull")
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
-        .build()
-        .unwrap_or_else(|e| panic!("{e}"));
     let mut driver = ConicSolver::new(ConicSettings {
-        tolerance: file.solver.tolerance.unwrap_or(1e-10),
+        tolerance: scene_tolerance(path).unwrap_or(1e-10),
         dense_qp,
         ..ConicSettings::default()
     });
-    for k in 1..step {
-        let rec = sim
-            .step(&mut driver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(
-            rec.converged,
-            "{}: step {k} did not converge (residual {:e})",
-            path.display(),
-            rec.summary.residual
-        );
-    }
-    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
-    sim
+    at_step_of(path, &mut driver, step).0
 }
 
 /// `a5_drop_tilted` step 16 (the tilted box tipping on one vertex; `docs/latency.md#conic-backend`):
@@ -326,8 +311,7 @@ fn conic_a5_drop_tilted_step_16_both_qp_methods() {
 /// active-contact guess solves it, in 4 QPs), and so do the next 20.
 #[test]
 fn conic_ladder_073_step_320_dense_qps() {
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/073_ladder.toml");
+    let path = regression_scene("073_ladder");
     let mut sim = conic_at_step(&path, true, 320);
     let mut solver = ConicSolver::new(ConicSettings {
         tolerance: 1e-10,
@@ -357,13 +341,8 @@ fn conic_ladder_073_step_320_dense_qps() {
 /// violated vertex joins the corrected set) the step converges, and so do the next 5.
 #[test]
 fn conic_union_tip_135_step_94_active_set_polish() {
-    let path =
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/stress_regressions/135_union_tip.toml");
-    let tolerance = load_scene(&path)
-        .unwrap_or_else(|e| panic!("{e}"))
-        .solver
-        .tolerance
-        .unwrap_or(1e-10);
+    let path = regression_scene("135_union_tip");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let mut sim = conic_at_step(&path, false, 94);
     let mut solver = ConicSolver::new(ConicSettings {
         tolerance,
