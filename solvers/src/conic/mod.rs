@@ -155,15 +155,14 @@ pub struct ConicSettings {
     pub newton_handoff_iterations: usize,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
-    /// predictor–corrector, the scaled KKT system by dense LU with iterative refinement) to the
-    /// same tolerances, and with clarabel when it does not get there (counter
-    /// `"clarabel_fallbacks"`) or the QP has more than 48 variables. It meets clarabel's 1e-12
-    /// on every QP of the desk, A1–A6, T-bar and D1–D6, D8 runs, in about 12 interior-point
-    /// iterations instead of 16, and the desk step costs a fifth fewer instructions. Default
-    /// `false`: with it the stress scene `088_room_corner` fails 123 steps (clarabel: none).
-    /// Since the polish's sweeps run until they settle, both QP methods give the same outer
-    /// iterates to round-off on the steps that used to differ (`a5_drop_tilted` step 16,
-    /// `073_ladder` from step 320; `docs/latency.md#conic-backend`).
+    /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
+    /// with iterative refinement, dense LU where that falls short) to the same tolerances, and
+    /// with clarabel when it does not get there (counter `"clarabel_fallbacks"`) or the QP has
+    /// more than 48 variables. It meets clarabel's 1e-12 on every QP of the desk, A1–A6, T-bar
+    /// and D1–D6, D8 runs, in about 12 interior-point iterations instead of 16. Default `true`:
+    /// the desk step costs about half the instructions of clarabel's, and on the stress suite
+    /// every conic run converges with either method (`docs/latency.md#conic-backend`). `false`
+    /// solves every QP with clarabel.
     pub dense_qp: bool,
     /// Inexact outer QPs: the QP of an outer iteration whose input has natural residual `r` is
     /// solved to the tolerances `min(factor · r, 1e-6)` (clarabel's `tol_feas`, `tol_gap_abs`,
@@ -213,7 +212,7 @@ impl Default for ConicSettings {
             newton_polish: 50,
             newton_handoff: 0.0,
             newton_handoff_iterations: 4,
-            dense_qp: false,
+            dense_qp: true,
             qp_tolerance_factor: 0.0,
             trace: false,
             clarabel: default_clarabel_settings(),
