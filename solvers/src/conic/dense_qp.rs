@@ -703,14 +703,20 @@ impl DenseQp {
         true
     }
 
-    /// [`DenseQp::solve_refined`] with the current factors; returns the final backward error.
-    fn refine(&mut self) -> f64 {
-        let (n, m) = (self.n, self.m);
-        let k = n + m;
+    /// `sol` solving the factored scaled KKT system `K sol = rhs` once, without refinement.
+    fn solve_unrefined(&mut self) {
+        let k = self.n + self.m;
         let mut sol = std::mem::take(&mut self.sol);
         sol[..k].copy_from_slice(&self.rhs[..k]);
         self.kkt_solve(&mut sol[..k]);
         self.sol = sol;
+    }
+
+    /// [`DenseQp::solve_refined`] with the current factors; returns the final backward error.
+    fn refine(&mut self) -> f64 {
+        let (n, m) = (self.n, self.m);
+        let k = n + m;
+        self.solve_unrefined();
         let mut last = f64::INFINITY;
         let mut steps = 0;
         for _ in 0..=REFINEMENT_STEPS {
@@ -759,10 +765,7 @@ impl DenseQp {
         // term: one solve without refinement is enough (the combined direction, which moves
         // the residuals, is refined).
         if affine {
-            let mut sol = std::mem::take(&mut self.sol);
-            sol[..k].copy_from_slice(&self.rhs[..k]);
-            self.kkt_solve(&mut sol[..k]);
-            self.sol = sol;
+            self.solve_unrefined();
         } else if !self.solve_refined() {
             return None;
         }

@@ -751,8 +751,10 @@ impl StepQp {
             // which keeps every vertex's row, never gives (`135_union_tip` step 94:
             // -0.068 m/s, `docs/latency.md#conic-backend`).
             let mut just_added: Option<usize> = None;
+            // The rates at the current impulses: computed here, then after each full step (the
+            // only way to the next pass of the loop).
+            let mut rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
             for _ in 0..2 * vertices.len() + 2 {
-                let rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
                 let loaded: Vec<usize> = (0..vertices.len()).filter(|&i| active[i]).collect();
                 let k = loaded.len();
                 if k == 0 {
@@ -825,7 +827,7 @@ impl StepQp {
                     break;
                 }
                 // Full step: the most violated vertex outside the set, if any, joins it.
-                let rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
+                rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
                 let scale = rates.iter().fold(0.0f64, |m, x| m.max(x.abs()));
                 let worst = (0..vertices.len())
                     .filter(|&i| !active[i])
