@@ -28,6 +28,8 @@ const RANK_TOLERANCE: f64 = 1e-12;
 const STACK_LEN: usize = 64;
 
 /// `len` numbers, zeroed: on the stack up to [`STACK_LEN`], otherwise on the heap.
+// The large variant is the point: no allocation for the usual sizes.
+#[allow(clippy::large_enum_variant)]
 pub(crate) enum Scratch {
     Stack([f64; STACK_LEN], usize),
     Heap(Vec<f64>),
