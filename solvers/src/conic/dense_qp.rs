@@ -45,7 +45,8 @@ const MAX_KKT: usize = 96;
 /// twice the iterations here: the gap falls by at most that fraction per iteration). 0.995 takes
 /// the desk's QPs from 12.4 to 10.7 iterations (A6 110° 8.8 → 8.1; A5 tilted 9.0 → 9.5, T-bar
 /// 9.9 → 10.1, D5 14.6 → 16.8) and moves the conic trajectories by at most 7e-13 (the settled
-/// polish makes the answer independent of the QP's last digits; `docs/latency.md#conic`).
+/// polish makes the answer independent of the QP's last digits;
+/// `docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`).
 const STEP_FRACTION: f64 = 0.995;
 
 /// Iterations without a better iterate after which the method stops, once its score (the
@@ -141,9 +142,10 @@ fn audit_file() -> Option<&'static std::path::Path> {
 
 /// `f(n)` with `n` a constant in the usual sizes, 7 and 8 variables (one body with one or two
 /// friction cones): the kernels are inlined into each arm and their loops over `n` unrolled,
-/// which removes the mispredicted exits of short loops of varying length (a fifth of the dense
-/// QP's time on the desk, `docs/latency.md#conic`). The same operations in the same order: the
-/// answers are the same to the bit.
+/// which removes the mispredicted exits of short loops of varying length (the Schur factor alone
+/// had a fifth of the desk step's mispredicted branches,
+/// `docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`). The same
+/// operations in the same order: the answers are the same to the bit.
 #[inline(always)]
 fn with_size<R>(n: usize, f: impl FnOnce(usize) -> R) -> R {
     match n {

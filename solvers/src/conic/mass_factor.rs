@@ -2,8 +2,9 @@
 //! every wrench: the polish (`conic/step.rs`, `StepQp::extract`) solves `M x = w` for each
 //! vertex and friction wrench in each Gauss–Seidel sweep, 28 solves per polish on the desk, and
 //! refactoring `M` each time was a seventh of the desk step's instructions
-//! (`docs/latency.md#conic`). Factor and solve are the operations of the former `solve6` in the
-//! same order, so the answers are the same to the bit.
+//! (`docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`).
+//! Factor and solve are the operations of the former `solve6` in the same order, so the answers
+//! are the same to the bit.
 
 /// `M = L Lᵀ` of a symmetric positive definite 6 × 6 mass matrix; a matrix with a non-positive
 /// pivot (not a mass matrix) solves every system to zero, never NaN.

@@ -24,7 +24,8 @@ const RANK_TOLERANCE: f64 = 1e-12;
 /// Largest length kept on the stack by [`Scratch`]: an 8 × 8 system (two four-vertex
 /// contacts of a body). Each scratch is zeroed and moved whole, so it is kept small: at
 /// `STACK_ORDER²` (2 KB) the zeroing and moving of the polish's four scratches per correction
-/// cost more than the desk's 4 × 4 factorisation itself (`docs/latency.md#conic`).
+/// cost about 28 k instructions of the desk step's 867 k
+/// (`docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`).
 const STACK_LEN: usize = 64;
 
 /// `len` numbers, zeroed: on the stack up to [`STACK_LEN`], otherwise on the heap.
