@@ -48,8 +48,9 @@ fn desk_step_exact_qps(bencher: divan::Bencher) {
     });
 }
 
-/// The same step with every QP solved first by the dense method (`ConicSettings::dense_qp`,
-/// opt-in: `docs/latency.md#conic-backend`).
+/// The same step with every QP solved first by the dense method (`ConicSettings::dense_qp`, set
+/// explicitly: the default since `fcc6fbd`, so this is `desk_step` again;
+/// `docs/latency.md#dense-qps-the-default`).
 #[divan::bench]
 fn desk_step_dense_qp(bencher: divan::Bencher) {
     let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);

@@ -40,10 +40,14 @@ pub(crate) const MAX_VARIABLES: usize = 48;
 /// Largest size `n + m` of the augmented system solved densely: its LU costs `⅔(n + m)³`.
 const MAX_KKT: usize = 96;
 
-/// Fraction of the largest step to the cone's boundary taken: 0.99, as clarabel's and CVXOPT's
-/// defaults (the backend's 0.9 for clarabel, `docs/decisions.md`, would cost about twice the
-/// iterations here: the gap falls by at most that fraction per iteration).
-const STEP_FRACTION: f64 = 0.99;
+/// Fraction of the largest step to the cone's boundary taken: 0.995 (clarabel's and CVXOPT's
+/// defaults are 0.99; the backend's 0.9 for clarabel, `docs/decisions.md`, would cost about
+/// twice the iterations here: the gap falls by at most that fraction per iteration). 0.995 takes
+/// the desk's QPs from 12.4 to 10.7 iterations (A6 110° 8.8 → 8.1; A5 tilted 9.0 → 9.5, T-bar
+/// 9.9 → 10.1, D5 14.6 → 16.8) and moves the conic trajectories by at most 7e-13 (the settled
+/// polish makes the answer independent of the QP's last digits;
+/// `docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`).
+const STEP_FRACTION: f64 = 0.995;
 
 /// Iterations without a better iterate after which the method stops, once its score (the
 /// largest ratio of a residual or the gap to its tolerance) is below `STALL_SCORE`. Far from the
@@ -134,6 +138,21 @@ fn audit_file() -> Option<&'static std::path::Path> {
     static FILE: std::sync::OnceLock<Option<std::path::PathBuf>> = std::sync::OnceLock::new();
     FILE.get_or_init(|| std::env::var_os("ECP_DENSE_QP_AUDIT").map(Into::into))
         .as_deref()
+}
+
+/// `f(n)` with `n` a constant in the usual sizes, 7 and 8 variables (one body with one or two
+/// friction cones): the kernels are inlined into each arm and their loops over `n` unrolled,
+/// which removes the mispredicted exits of short loops of varying length (the Schur factor alone
+/// had a fifth of the desk step's mispredicted branches,
+/// `docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`). The same
+/// operations in the same order: the answers are the same to the bit.
+#[inline(always)]
+fn with_size<R>(n: usize, f: impl FnOnce(usize) -> R) -> R {
+    match n {
+        7 => f(7),
+        8 => f(8),
+        _ => f(n),
+    }
 }
 
 /// `v` set to `len` zeros (allocates only when it must grow).
@@ -658,7 +677,7 @@ impl DenseQp {
         if self.use_lu {
             lu_solve(&self.lu, &self.pivots, self.n + self.m, v);
         } else {
-            schur_solve(&self.chol, &self.scaled_a, self.n, v);
+            with_size(self.n, |n| schur_solve(&self.chol, &self.scaled_a, n, v));
         }
     }
 
@@ -666,22 +685,10 @@ impl DenseQp {
     /// numerically positive definite. This replaces the LU of the `(n + m)²` augmented system:
     /// `⅓n³` instead of `⅔(n + m)³`, and `ÃᵀÃ` skips the zeros of `A`.
     fn factor_schur(&mut self) -> bool {
-        let (n, m) = (self.n, self.m);
-        let h = &mut self.chol[..n * n];
-        for (i, row) in h.chunks_exact_mut(n).enumerate() {
-            row[..=i].copy_from_slice(&self.p[i * n..i * n + i + 1]);
-        }
-        for r in self.scaled_a[..m * n].chunks_exact(n) {
-            for (i, &ai) in r.iter().enumerate() {
-                if ai == 0.0 {
-                    continue;
-                }
-                for (hij, &aj) in h[i * n..i * n + i + 1].iter_mut().zip(r) {
-                    *hij += ai * aj;
-                }
-            }
-        }
-        cholesky_in_place(h, n)
+        let m = self.m;
+        with_size(self.n, |n| {
+            schur_factor(&self.p, &self.scaled_a, n, m, &mut self.chol)
+        })
     }
 
     /// `sol` solving the scaled KKT system `K sol = rhs`, `K = [P Ãᵀ; Ã −I]`, refined on `K`
@@ -720,14 +727,16 @@ impl DenseQp {
         let mut last = f64::INFINITY;
         let mut steps = 0;
         for _ in 0..=REFINEMENT_STEPS {
-            let berr = kkt_residual(
-                &self.p,
-                &self.scaled_a,
-                n,
-                &self.sol[..k],
-                &self.rhs[..k],
-                &mut self.res[..k],
-            );
+            let berr = with_size(n, |n| {
+                kkt_residual(
+                    &self.p,
+                    &self.scaled_a,
+                    n,
+                    &self.sol[..k],
+                    &self.rhs[..k],
+                    &mut self.res[..k],
+                )
+            });
             steps += 1;
             if berr <= BACKWARD_ERROR || berr >= 0.5 * last || steps > REFINEMENT_STEPS {
                 last = berr;
@@ -814,9 +823,31 @@ fn apply_w(blk: &Block, w: &[f64], eta: &[f64], x: &[f64], y: &mut [f64], invers
     }
 }
 
+/// The lower Cholesky factor of the Schur complement `P + ÃᵀÃ` of the scaled KKT system into
+/// `chol` ([`DenseQp::factor_schur`]); `false` when it is not numerically positive definite.
+#[inline(always)]
+fn schur_factor(p: &[f64], scaled_a: &[f64], n: usize, m: usize, chol: &mut [f64]) -> bool {
+    let h = &mut chol[..n * n];
+    for (i, row) in h.chunks_exact_mut(n).enumerate() {
+        row[..=i].copy_from_slice(&p[i * n..i * n + i + 1]);
+    }
+    for r in scaled_a[..m * n].chunks_exact(n) {
+        for (i, &ai) in r.iter().enumerate() {
+            if ai == 0.0 {
+                continue;
+            }
+            for (hij, &aj) in h[i * n..i * n + i + 1].iter_mut().zip(r) {
+                *hij += ai * aj;
+            }
+        }
+    }
+    cholesky_in_place(h, n)
+}
+
 /// Cholesky factorisation `H = LLᵀ` in place of the lower triangle of `h` (`n × n`,
 /// row-major; the upper triangle is not read); `false` when a pivot is not positive beyond
 /// round-off of the largest diagonal entry.
+#[inline(always)]
 fn cholesky_in_place(h: &mut [f64], n: usize) -> bool {
     let scale = (0..n).map(|i| h[i * n + i]).fold(0.0f64, f64::max);
     if !(scale > 0.0 && scale.is_finite()) {
@@ -893,6 +924,7 @@ fn lu_solve(lu: &[f64], pivots: &[usize], k: usize, v: &mut [f64]) {
 
 /// Solves the scaled KKT system `[P Ãᵀ; Ã −I][x; y] = [f; g]` in place (`v = [f; g]`, length
 /// `n + m`) by the Schur complement's factor `L`: `LLᵀx = f + Ãᵀg`, `y = Ãx − g`.
+#[inline(always)]
 fn schur_solve(chol: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
     let (x, y) = v.split_at_mut(n);
     for (&g, row) in y.iter().zip(scaled_a.chunks_exact(n)) {
@@ -921,6 +953,7 @@ fn schur_solve(chol: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
 /// The residual `res = rhs − K v` of the scaled KKT system `K = [P Ãᵀ; Ã −I]` and its
 /// componentwise backward error `maxᵢ |resᵢ| / (|K||v| + |rhs|)ᵢ` (Oettli–Prager, the test of
 /// LAPACK's refinement): round-off level (a few ε) when `v` is as good as the data allow.
+#[inline(always)]
 fn kkt_residual(
     p: &[f64],
     scaled_a: &[f64],

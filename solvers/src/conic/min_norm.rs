@@ -6,14 +6,14 @@
 //! and a Householder QR `F = Q R` give the range of `D` (the first `r` columns of `Q`), its null
 //! space (the others) and `D⁺ = Q₁ R⁻ᵀ R⁻¹ Q₁ᵀ`, the minimum-norm solution. This replaces a
 //! symmetric eigendecomposition (`faer`, half the polish's instructions on the desk) for bodies
-//! without anchored contacts; the storage is on the stack up to [`STACK_ORDER`] loaded
-//! vertices. (The anchored correction stays on the eigendecomposition:
+//! without anchored contacts; the storage is on the stack up to 8 loaded vertices
+//! ([`STACK_LEN`]), on the heap above. (The anchored correction stays on the eigendecomposition:
 //! `docs/latency.md#the-dense-qps-kkt-solve-by-its-schur-complement-the-polish-without-faer-branch-wip-conickernel-issues-18-and-15`.)
 
 use std::ops::{Deref, DerefMut};
 
-/// Largest order of a system kept on the stack (a body with four loaded contacts of four
-/// vertices); larger ones use the heap.
+/// Largest order whose permutation and reflector factors are kept on the stack (a body with
+/// four loaded contacts of four vertices); larger ones use the heap.
 pub(crate) const STACK_ORDER: usize = 16;
 
 /// Pivots of the Cholesky factorisation at most this fraction of the largest diagonal entry
@@ -21,18 +21,25 @@ pub(crate) const STACK_ORDER: usize = 16;
 /// fraction of the largest).
 const RANK_TOLERANCE: f64 = 1e-12;
 
-/// `len` numbers, zeroed: on the stack up to `STACK_ORDER²`, otherwise on the heap.
+/// Largest length kept on the stack by [`Scratch`]: an 8 × 8 system (two four-vertex
+/// contacts of a body). Each scratch is zeroed and moved whole, so it is kept small: at
+/// `STACK_ORDER²` (2 KB) the zeroing and moving of the polish's four scratches per correction
+/// cost about 28 k instructions of the desk step's 867 k
+/// (`docs/latency.md#the-conic-desk-step-against-newtons-time-and-instructions-branch-wip-conicratio-issue-18`).
+const STACK_LEN: usize = 64;
+
+/// `len` numbers, zeroed: on the stack up to [`STACK_LEN`], otherwise on the heap.
 // The large variant is the point: no allocation for the usual sizes.
 #[allow(clippy::large_enum_variant)]
 pub(crate) enum Scratch {
-    Stack([f64; STACK_ORDER * STACK_ORDER], usize),
+    Stack([f64; STACK_LEN], usize),
     Heap(Vec<f64>),
 }
 
 impl Scratch {
     pub(crate) fn new(len: usize) -> Self {
-        if len <= STACK_ORDER * STACK_ORDER {
-            Scratch::Stack([0.0; STACK_ORDER * STACK_ORDER], len)
+        if len <= STACK_LEN {
+            Scratch::Stack([0.0; STACK_LEN], len)
         } else {
             Scratch::Heap(vec![0.0; len])
         }
@@ -88,7 +95,9 @@ impl PsdRange {
         // largest remaining diagonal entry of the Schur complement as its pivot, and stops
         // when that is at most `tolerance` (all remaining eigenvalues are then below
         // `(k − j) · tolerance`, as the Schur complement is positive semi-definite).
-        let mut a = Scratch::new(k * k);
+        let mut a_scratch = Scratch::new(k * k);
+        // Dereferenced once: each access through `Scratch` would match on its variant.
+        let a: &mut [f64] = &mut a_scratch;
         a.copy_from_slice(d);
         let mut perm_stack = [0usize; STACK_ORDER];
         let mut perm_heap = Vec::new();
@@ -134,9 +143,10 @@ impl PsdRange {
         }
         // F = Πᵀ L (k × rank, column-major): row perm[i] of F is row i of L.
         let mut qr = Scratch::new(k * rank);
+        let f: &mut [f64] = &mut qr;
         for j in 0..rank {
             for i in j..k {
-                qr[j * k + perm[i]] = a[i * k + j];
+                f[j * k + perm[i]] = a[i * k + j];
             }
         }
         let mut range = PsdRange {
@@ -172,8 +182,17 @@ impl PsdRange {
     /// column rank by construction, so only for non-finite data).
     fn householder(&mut self) -> Option<()> {
         let (k, rank) = (self.k, self.rank);
+        let mut taus = [0.0; STACK_ORDER];
+        let mut taus_heap = Vec::new();
+        let taus: &mut [f64] = if rank > STACK_ORDER {
+            taus_heap.resize(rank, 0.0);
+            &mut taus_heap
+        } else {
+            &mut taus[..rank]
+        };
+        let qr: &mut [f64] = &mut self.qr;
         for j in 0..rank {
-            let (done, rest) = self.qr.split_at_mut((j + 1) * k);
+            let (done, rest) = qr.split_at_mut((j + 1) * k);
             let col = &mut done[j * k..];
             let x0 = col[j];
             let tail: f64 = col[j + 1..].iter().map(|v| v * v).sum();
@@ -196,36 +215,29 @@ impl PsdRange {
                     *o -= s * vi;
                 }
             }
-            if rank > STACK_ORDER {
-                self.tau_heap[j] = tau;
-            } else {
-                self.tau[j] = tau;
-            }
+            taus[j] = tau;
+        }
+        if rank > STACK_ORDER {
+            self.tau_heap = taus_heap;
+        } else {
+            self.tau[..rank].copy_from_slice(taus);
         }
         Some(())
     }
 
     /// `b := Qᵀ b` (`b` of length `k`).
     pub(crate) fn apply_qt(&self, b: &mut [f64]) {
+        let qr: &[f64] = &self.qr;
         for (j, &tau) in self.taus().iter().enumerate() {
-            self.reflect(j, tau, b);
+            reflect(qr, self.k, j, tau, b);
         }
     }
 
     /// `b := Q b` (`b` of length `k`).
     pub(crate) fn apply_q(&self, b: &mut [f64]) {
+        let qr: &[f64] = &self.qr;
         for (j, &tau) in self.taus().iter().enumerate().rev() {
-            self.reflect(j, tau, b);
-        }
-    }
-
-    fn reflect(&self, j: usize, tau: f64, b: &mut [f64]) {
-        let k = self.k;
-        let v = &self.qr[j * k + j + 1..(j + 1) * k];
-        let s = tau * (b[j] + dot(v, &b[j + 1..k]));
-        b[j] -= s;
-        for (bi, vi) in b[j + 1..k].iter_mut().zip(v) {
-            *bi -= s * vi;
+            reflect(qr, self.k, j, tau, b);
         }
     }
 
@@ -233,23 +245,35 @@ impl PsdRange {
     /// (`b`, `x` of length `k`); `false` when it is not finite.
     pub(crate) fn min_norm(&self, b: &[f64], x: &mut [f64]) -> bool {
         let (k, r) = (self.k, self.rank);
+        let qr: &[f64] = &self.qr;
         x.copy_from_slice(b);
         self.apply_qt(x);
         // y = R⁻¹ (Qᵀb)₁, then z = R⁻ᵀ y, both in x[..r].
         for i in (0..r).rev() {
             let mut acc = x[i];
             for c in i + 1..r {
-                acc -= self.qr[c * k + i] * x[c];
+                acc -= qr[c * k + i] * x[c];
             }
-            x[i] = acc / self.qr[i * k + i];
+            x[i] = acc / qr[i * k + i];
         }
         for i in 0..r {
-            let col = &self.qr[i * k..i * k + i];
-            x[i] = (x[i] - dot(col, &x[..i])) / self.qr[i * k + i];
+            let col = &qr[i * k..i * k + i];
+            x[i] = (x[i] - dot(col, &x[..i])) / qr[i * k + i];
         }
         x[r..].fill(0.0);
         self.apply_q(x);
         x.iter().all(|v| v.is_finite())
+    }
+}
+
+/// `b := H_j b`, `H_j = I − τ v_j v_jᵀ` the `j`-th reflector stored in `qr` (column-major, `k`
+/// rows).
+fn reflect(qr: &[f64], k: usize, j: usize, tau: f64, b: &mut [f64]) {
+    let v = &qr[j * k + j + 1..(j + 1) * k];
+    let s = tau * (b[j] + dot(v, &b[j + 1..k]));
+    b[j] -= s;
+    for (bi, vi) in b[j + 1..k].iter_mut().zip(v) {
+        *bi -= s * vi;
     }
 }
 

@@ -65,6 +65,7 @@
 mod anderson;
 pub mod closest_point;
 mod dense_qp;
+mod mass_factor;
 mod min_norm;
 mod qp;
 mod step;

@@ -48,6 +48,7 @@ use ecp_model::{
 
 use ecp_model::linalg;
 
+use super::mass_factor::{MassFactor, solve6};
 use super::min_norm::{PsdRange, Scratch};
 use super::qp::{Cone, ConicQp, QpResult};
 
@@ -467,6 +468,8 @@ impl StepQp {
     /// impulses are clarabel's duals as they are (only the active-set identification of `λ`).
     pub fn extract(&self, result: &QpResult, bodies: &[BodyDynamics], polish: bool) -> ConicPoint {
         let nb = bodies.len();
+        // Each body's mass matrix factored once for the whole polish.
+        let factors: Vec<MassFactor> = bodies.iter().map(|b| MassFactor::new(&b.mass)).collect();
         let mut wrench_sum = vec![[0.0f64; 6]; nb];
         let mut contacts = Vec::with_capacity(self.contacts.len());
         for rows in &self.contacts {
@@ -529,7 +532,7 @@ impl StepQp {
             .collect();
         for sweep in 0..sweeps {
             let before = contacts.clone();
-            self.correct_normal_impulses(bodies, &mut contacts, &mut wrench_sum);
+            self.correct_normal_impulses(bodies, &factors, &mut contacts, &mut wrench_sum);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
@@ -562,12 +565,12 @@ impl StepQp {
                 let mut u0 = [0.0; 3];
                 for (b, wf) in &current[c] {
                     let body = &bodies[*b];
-                    let dv = solve6(&body.mass, &wrench_sum[*b]);
+                    let dv = factors[*b].solve(&wrench_sum[*b]);
                     let mut nu0 = body.free_velocity;
                     for k in 0..6 {
                         nu0[k] += dv[k];
                     }
-                    let minv_w: Vec<[f64; 6]> = wf.iter().map(|w| solve6(&body.mass, w)).collect();
+                    let minv_w: Vec<[f64; 6]> = wf.iter().map(|w| factors[*b].solve(w)).collect();
                     for i in 0..3 {
                         u0[i] += dot6(&wf[i], &nu0);
                         for j in 0..3 {
@@ -598,7 +601,7 @@ impl StepQp {
             .iter()
             .enumerate()
             .map(|(b, body)| {
-                let dv = solve6(&body.mass, &wrench_sum[b]);
+                let dv = factors[b].solve(&wrench_sum[b]);
                 let mut nu = body.free_velocity;
                 for i in 0..6 {
                     nu[i] += dv[i];
@@ -699,6 +702,7 @@ impl StepQp {
     fn correct_normal_impulses(
         &self,
         bodies: &[BodyDynamics],
+        factors: &[MassFactor],
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
     ) {
@@ -737,11 +741,7 @@ impl StepQp {
             }
             let minv_w: Vec<Vec<(usize, [f64; 6])>> = w
                 .iter()
-                .map(|ws| {
-                    ws.iter()
-                        .map(|(b, x)| (*b, solve6(&bodies[*b].mass, x)))
-                        .collect()
-                })
+                .map(|ws| ws.iter().map(|(b, x)| (*b, factors[*b].solve(x))).collect())
                 .collect();
             // Active-set loop (a primal active-set method on the Delassus LCP): correct the active
             // vertices' gaps; a vertex whose impulse would go negative blocks the step and leaves
@@ -753,7 +753,7 @@ impl StepQp {
             let mut just_added: Option<usize> = None;
             // The rates at the current impulses: computed here, then after each full step (the
             // only way to the next pass of the loop).
-            let mut rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
+            let mut rates = self.gap_rates(&group, bodies, factors, wrench_sum, &vertices, &w);
             for _ in 0..2 * vertices.len() + 2 {
                 let loaded: Vec<usize> = (0..vertices.len()).filter(|&i| active[i]).collect();
                 let k = loaded.len();
@@ -827,7 +827,7 @@ impl StepQp {
                     break;
                 }
                 // Full step: the most violated vertex outside the set, if any, joins it.
-                rates = self.gap_rates(&group, bodies, wrench_sum, &vertices, &w);
+                rates = self.gap_rates(&group, bodies, factors, wrench_sum, &vertices, &w);
                 let scale = rates.iter().fold(0.0f64, |m, x| m.max(x.abs()));
                 let worst = (0..vertices.len())
                     .filter(|&i| !active[i])
@@ -849,6 +849,7 @@ impl StepQp {
         &self,
         group: &[usize],
         bodies: &[BodyDynamics],
+        factors: &[MassFactor],
         wrench_sum: &[[f64; 6]],
         vertices: &[(usize, usize)],
         w: &[Vec<(usize, [f64; 6])>],
@@ -857,7 +858,7 @@ impl StepQp {
             .iter()
             .map(|&b| {
                 let body = &bodies[b];
-                let dv = solve6(&body.mass, &wrench_sum[b]);
+                let dv = factors[b].solve(&wrench_sum[b]);
                 let mut nu = body.free_velocity;
                 for i in 0..6 {
                     nu[i] += dv[i];
@@ -1157,45 +1158,6 @@ pub(crate) fn local_friction(
     (p, slip(&p))
 }
 
-/// Solves the 6×6 symmetric positive definite system `M x = r` (Cholesky); a non-positive pivot
-/// (not a mass matrix) gives zero, never NaN.
-fn solve6(m: &[[f64; 6]; 6], r: &[f64; 6]) -> [f64; 6] {
-    let mut l = [[0.0f64; 6]; 6];
-    for i in 0..6 {
-        for j in 0..=i {
-            let mut s = m[i][j];
-            for k in 0..j {
-                s -= l[i][k] * l[j][k];
-            }
-            if i == j {
-                if s.is_nan() || s <= 0.0 {
-                    return [0.0; 6];
-                }
-                l[i][i] = s.sqrt();
-            } else {
-                l[i][j] = s / l[j][j];
-            }
-        }
-    }
-    let mut y = [0.0; 6];
-    for i in 0..6 {
-        let mut s = r[i];
-        for k in 0..i {
-            s -= l[i][k] * y[k];
-        }
-        y[i] = s / l[i][i];
-    }
-    let mut x = [0.0; 6];
-    for i in (0..6).rev() {
-        let mut s = y[i];
-        for k in i + 1..6 {
-            s -= l[k][i] * x[k];
-        }
-        x[i] = s / l[i][i];
-    }
-    x
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -1257,26 +1219,5 @@ mod tests {
         assert_eq!(anchored_contacts(&g, 2), vec![true, true, false, false]);
         // A contact naming a body that does not exist is never anchored.
         assert_eq!(anchored_contacts(&g, 1), vec![true, true, false, false]);
-    }
-
-    #[test]
-    fn solve6_inverts_a_mass_matrix() {
-        let mut m = [[0.0; 6]; 6];
-        for i in 0..3 {
-            m[i][i] = 10.0;
-        }
-        m[3][3] = 2.0;
-        m[4][4] = 3.0;
-        m[5][5] = 1.0;
-        m[3][4] = 0.5;
-        m[4][3] = 0.5;
-        let r = [1.0, -2.0, 3.0, 0.5, 0.25, -1.0];
-        let x = solve6(&m, &r);
-        for i in 0..6 {
-            let mx: f64 = (0..6).map(|j| m[i][j] * x[j]).sum();
-            assert!((mx - r[i]).abs() < 1e-14);
-        }
-        m[5][5] = -1.0;
-        assert_eq!(solve6(&m, &r), [0.0; 6]);
     }
 }
