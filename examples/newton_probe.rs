@@ -180,6 +180,8 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "lm_initial_damping" => s.lm_initial_damping = f()?,
         "lm_cholesky" => s.lm_cholesky = b()?,
         "stall_window" => s.stall_window = n()?,
+        "slow_rate_test" => s.slow_rate_test = b()?,
+        "flat_merit_window" => s.flat_merit_window = n()?,
         "stall_reduction" => s.stall_reduction = f()?,
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
         "forget_undone_steps" => s.forget_undone_steps = b()?,

@@ -181,6 +181,23 @@ pub struct NewtonSettings {
     /// The reduction the stall test asks for over [`NewtonSettings::stall_window`] iterations.
     /// Default `0.5`.
     pub stall_reduction: f64,
+    /// Rate test of one iteration, with [`NewtonSettings::stall_window`] `W`: from `2W`
+    /// iterations of a run on, a run whose best natural residual falls so slowly that, at its
+    /// rate over the last `W` iterations, it would need more than twice the iterations it has
+    /// left to reach the tolerance stops (`stagnated`) and passes to the next attempt. The stall
+    /// test passes a run that halves its residual every 30 iterations; such a run ends at
+    /// [`NewtonSettings::max_iterations`] far from the tolerance (`023_room_corner` step 36: 200
+    /// Levenberg–Marquardt iterations from 5e-1 to 1.7e-6, then the non-monotone restart solves
+    /// the step in 36, `docs/newton.md#newtons-hard-steps-in-the-room-corner`). Runs shorter
+    /// than `2W` are unchanged. Default `true`.
+    pub slow_rate_test: bool,
+    /// Flat-merit test of one iteration: from `2K` iterations of a run on (`K` this window), a
+    /// run whose lowest `Ψ` has not fallen by 0.1 % over the last `K` iterations stops
+    /// (`stagnated`): it sits at a stationary point of the merit that is not a solution
+    /// (Levenberg–Marquardt steps of length 1e-9 at a fixed `Ψ`), where the stall test still
+    /// waits for the rest of its window (`023_room_corner` steps 79, 88, 89). Runs shorter than
+    /// `2K` are unchanged. 0 turns it off. Default 10.
+    pub flat_merit_window: usize,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] (back to the point before it when `Ψ` has not fallen
@@ -241,6 +258,8 @@ impl Default for NewtonSettings {
             smoothing_first: true,
             stall_window: 30,
             stall_reduction: 0.5,
+            slow_rate_test: true,
+            flat_merit_window: 10,
             nonmonotone_restart: true,
             forget_undone_steps: true,
             scene_scales: true,
@@ -291,6 +310,8 @@ struct Workspace {
     /// The best natural residual after each iteration of a solve, for the stall test (kept
     /// here so that a solve allocates nothing once it has run as many iterations before).
     best_history: Vec<f64>,
+    /// The lowest `Ψ` after each iteration, beside `best_history`, for the flat-merit test.
+    best_psi_history: Vec<f64>,
 }
 
 impl Workspace {
@@ -438,6 +459,9 @@ impl NewtonSolver {
         self.ws
             .best_history
             .reserve(history.saturating_sub(self.ws.best_history.len()));
+        self.ws
+            .best_psi_history
+            .reserve(history.saturating_sub(self.ws.best_psi_history.len()));
 
         let dense = self.settings.min_norm_step && mcp.dim() <= self.settings.dense_max;
         self.ws.resize_dense(mcp.dim(), dense);
@@ -889,6 +913,9 @@ impl NewtonSolver {
         // The best residual after each iteration (index 0: at the start), for the stall test.
         ws.best_history.clear();
         ws.best_history.push(best_residual);
+        let mut best_psi = psi;
+        ws.best_psi_history.clear();
+        ws.best_psi_history.push(best_psi);
 
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
@@ -1283,13 +1310,42 @@ impl NewtonSolver {
                 ws.z_best.copy_from_slice(&ws.z);
             }
             ws.best_history.push(best_residual);
+            best_psi = best_psi.min(psi);
+            ws.best_psi_history.push(best_psi);
             // The iterations the stall test counts (those undone by a restore are dropped
             // from the history with `forget_undone_steps`).
             let counted = ws.best_history.len() - 1;
-            if s.stall_window > 0
-                && !(s.forget_undone_steps && checkpoint.is_some())
+            let judged = !(s.forget_undone_steps && checkpoint.is_some());
+            if judged
+                && s.stall_window > 0
                 && counted > s.stall_window
                 && best_residual > s.stall_reduction * ws.best_history[counted - s.stall_window]
+            {
+                termination = Termination::Stagnated;
+                break;
+            }
+            if judged
+                && s.slow_rate_test
+                && s.stall_window > 0
+                && counted >= 2 * s.stall_window
+                && best_residual > s.tolerance
+            {
+                // The rate over the window (the stall test above ensures it is below 1).
+                let rate = (best_residual / ws.best_history[counted - s.stall_window]).ln()
+                    / s.stall_window as f64;
+                let needed = (s.tolerance / best_residual).ln() / rate;
+                let left = s.max_iterations.saturating_sub(iterations);
+                if needed > 2.0 * left as f64 {
+                    termination = Termination::Stagnated;
+                    break;
+                }
+            }
+            let k = s.flat_merit_window;
+            if judged
+                && k > 0
+                && counted >= 2 * k
+                && best_residual > s.tolerance
+                && best_psi >= (1.0 - 1e-3) * ws.best_psi_history[counted - k]
             {
                 termination = Termination::Stagnated;
                 break;
@@ -1304,6 +1360,8 @@ impl NewtonSolver {
                     if s.forget_undone_steps {
                         let keep = ws.best_history.len().saturating_sub(watchdog_count).max(1);
                         ws.best_history.truncate(keep);
+                        ws.best_psi_history.truncate(keep);
+                        best_psi = ws.best_psi_history[keep - 1];
                     }
                     min_norm_pending = 0;
                     // The sequence failed: back to the checkpoint, monotone steps from there.
