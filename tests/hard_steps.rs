@@ -168,6 +168,92 @@ fn newton_convex_push_step_58_residual_damping() {
     }
 }
 
+/// `023_room_corner` stepped by Newton (the registry's settings with the scene's tolerance) to
+/// `step`, and the settings to solve that step with.
+fn room_corner_023_at(step: usize) -> (Simulation, NewtonSettings) {
+    let tolerance = scene_tolerance(&regression_scene("023_room_corner"));
+    let settings = NewtonSettings {
+        tolerance: tolerance.unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mut driver = NewtonSolver::new(settings.clone());
+    let (sim, _) = at_step("023_room_corner", &mut driver, step);
+    (sim, settings)
+}
+
+/// `023_room_corner` step 36 (109 unknowns, a box in a room corner): the plain iteration's
+/// restart without minimum-norm steps converges linearly (residual × 0.96 an iteration, halving
+/// within the stall test's 30) and ran its 200 iterations to 1.7e-6 before the non-monotone
+/// restart solved the step in 36. The rate test stops it once its rate would need more than
+/// 6 times the iterations it has left (at iteration 145): 236 → 181 iterations, the same end
+/// point.
+#[test]
+fn newton_room_corner_023_step_36_rate_test() {
+    let (sim, settings) = room_corner_023_at(36);
+    let z0 = sim.z().to_vec();
+    let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
+    assert_iterations(&mended, ..=190);
+    let before = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            slow_rate_test: false,
+            ..settings
+        }),
+        &z0,
+    ));
+    assert_iterations(&before, 220..);
+    // The same attempt solves it from the same start: the same point.
+    assert_eq!(mended.z, before.z);
+}
+
+/// `023_room_corner` step 88: both runs of the plain iteration (with and without minimum-norm
+/// steps) end on a stationary point of the merit that is not a solution (natural residual
+/// 1.1e-4, Levenberg–Marquardt steps of 1e-8 … 1e-9 at a fixed `Ψ`) and waited there for the
+/// stall test's window. The flat-merit test stops each after 10 flat iterations: 265 → 246
+/// iterations, the same end point (the continuation solves the step either way).
+#[test]
+fn newton_room_corner_023_step_88_flat_merit_test() {
+    let (sim, settings) = room_corner_023_at(88);
+    let z0 = sim.z().to_vec();
+    let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
+    assert_iterations(&mended, ..=255);
+    let before = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            flat_merit_window: 0,
+            ..settings
+        }),
+        &z0,
+    ));
+    assert_iterations(&before, 260..);
+    assert_eq!(mended.z, before.z);
+}
+
+/// `062_room_corner` step 128: the plain iteration crosses a valley of the merit in
+/// Levenberg–Marquardt steps of constant length, its residual falling ~3 % an iteration, and
+/// converges abruptly at iteration 87 (2.6e-3 at 30, 9.7e-5 at 81, 1.8e-7 at 84). Its rate at
+/// iteration 60 foretold 3.96 times the iterations it had left: the rate test's margin (6) has
+/// to let it run (with 2 it was cut at 60 and the step took 109 iterations, at another point).
+#[test]
+fn newton_room_corner_062_step_128_rate_test_lets_a_valley_finish() {
+    let tolerance = scene_tolerance(&regression_scene("062_room_corner"));
+    let settings = NewtonSettings {
+        tolerance: tolerance.unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mut driver = NewtonSolver::new(settings.clone());
+    let (sim, _) = at_step("062_room_corner", &mut driver, 128);
+    let z0 = sim.z().to_vec();
+    let sol = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
+    assert_iterations(&sol, ..=90);
+    let without = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            slow_rate_test: false,
+            ..settings
+        }),
+        &z0,
+    ));
+    assert_eq!(sol.z, without.z);
+}
+
 /// `012_multi_body` step 475 on PATH's own trajectory (as it was before these settings): every
 /// attempt as given cycled at its watchdog (635 iterations, 370 000 pivots, 6 s) before the
 /// first attempt in the scene scales converged in 3. With `first_in_both_units` the scaled

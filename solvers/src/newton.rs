@@ -181,6 +181,30 @@ pub struct NewtonSettings {
     /// The reduction the stall test asks for over [`NewtonSettings::stall_window`] iterations.
     /// Default `0.5`.
     pub stall_reduction: f64,
+    /// Rate test of one iteration, with [`NewtonSettings::stall_window`] `W`: from `2W`
+    /// iterations of a run on, a run whose best natural residual falls so slowly that, at its
+    /// rate over the last `W` iterations, it would need more than 6 times the iterations it has
+    /// left to reach the tolerance stops (`stagnated`) and passes to the next attempt (not in
+    /// the smoothing continuation). The stall
+    /// test passes a run that halves its residual every 30 iterations; such a run ends at
+    /// [`NewtonSettings::max_iterations`] far from the tolerance (`023_room_corner` step 36: 200
+    /// Levenberg–Marquardt iterations from 5e-1 to 1.7e-6, then the non-monotone restart solves
+    /// the step in 36, `docs/newton.md#newtons-hard-steps-in-the-room-corner`). Runs shorter
+    /// than `2W` are unchanged. Default `true`.
+    pub slow_rate_test: bool,
+    /// Flat-merit test of one iteration: from `2K` iterations of a run on (`K` this window), a
+    /// run whose lowest `Ψ` has not fallen by 0.1 % over the last `K` iterations stops
+    /// (`stagnated`): it sits at a stationary point of the merit that is not a solution
+    /// (Levenberg–Marquardt steps of length 1e-9 at a fixed `Ψ`), where the stall test still
+    /// waits for the rest of its window (`023_room_corner` steps 79, 88, 89). Runs shorter than
+    /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
+    pub flat_merit_window: usize,
+    /// Skip the non-monotone restart ([`NewtonSettings::nonmonotone_restart`]) when the plain
+    /// iteration was stopped by the flat-merit test: it stopped at a stationary point of the
+    /// merit, which the full Newton steps from the same start often reach again. Default `false`:
+    /// on eight stress runs it saved 0.4 % of the LU factorisations and changed three
+    /// trajectories (`docs/newton.md#newtons-hard-steps-in-the-room-corner`).
+    pub flat_skips_nonmonotone: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] (back to the point before it when `Ψ` has not fallen
@@ -241,6 +265,9 @@ impl Default for NewtonSettings {
             smoothing_first: true,
             stall_window: 30,
             stall_reduction: 0.5,
+            slow_rate_test: true,
+            flat_merit_window: 10,
+            flat_skips_nonmonotone: false,
             nonmonotone_restart: true,
             forget_undone_steps: true,
             scene_scales: true,
@@ -291,6 +318,8 @@ struct Workspace {
     /// The best natural residual after each iteration of a solve, for the stall test (kept
     /// here so that a solve allocates nothing once it has run as many iterations before).
     best_history: Vec<f64>,
+    /// The lowest `Ψ` after each iteration, beside `best_history`, for the flat-merit test.
+    best_psi_history: Vec<f64>,
 }
 
 impl Workspace {
@@ -361,6 +390,11 @@ pub struct NewtonSolver {
     /// Minimum-norm steps of the last run that no watchdog restore undid
     /// ([`NewtonSettings::forget_undone_steps`]).
     min_norm_kept: usize,
+    /// The last run stopped by the flat-merit test ([`NewtonSettings::flat_merit_window`]).
+    ended_flat: bool,
+    /// A smoothing continuation is running (its stages and its final solve): the rate and
+    /// flat-merit tests stay off there, where a stage cut early changes the continuation's path.
+    in_continuation: bool,
 }
 
 impl NewtonSolver {
@@ -379,6 +413,8 @@ impl NewtonSolver {
             attempt: 0,
             nonmonotone: false,
             min_norm_kept: 0,
+            ended_flat: false,
+            in_continuation: false,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -438,12 +474,21 @@ impl NewtonSolver {
         self.ws
             .best_history
             .reserve(history.saturating_sub(self.ws.best_history.len()));
+        self.ws
+            .best_psi_history
+            .reserve(history.saturating_sub(self.ws.best_psi_history.len()));
 
         let dense = self.settings.min_norm_step && mcp.dim() <= self.settings.dense_max;
         self.ws.resize_dense(mcp.dim(), dense);
         Ok(())
     }
 }
+
+/// The rate test ([`NewtonSettings::slow_rate_test`]) stops a run whose rate would need more
+/// than this many times the iterations it has left: a run that crosses a valley of the merit
+/// in Levenberg–Marquardt steps of constant length converges abruptly at its end, faster than
+/// its rate foretold (`062_room_corner` step 128: up to 3.96 times, then converged at 87).
+const RATE_TEST_MARGIN: f64 = 6.0;
 
 /// Shortest step length tried along the minimum-norm direction before the Levenberg–Marquardt
 /// safeguard takes over (a direction that needs a shorter step is a poor one).
@@ -663,7 +708,9 @@ impl NewtonSolver {
         let mut spent = best.summary.iterations;
         let nonmonotone = Attempt {
             profile: 4,
-            runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,
+            runs: self.settings.nonmonotone_restart
+                && self.settings.watchdog_steps > 0
+                && !(self.settings.flat_skips_nonmonotone && self.ended_flat),
             kind: AttemptKind::Nonmonotone,
             damped: false,
         };
@@ -817,6 +864,7 @@ impl NewtonSolver {
         };
         self.settings.max_iterations = smoothing.stage_iterations;
         self.settings.polish_below = 1.0;
+        self.in_continuation = true;
         let end = continuation(
             mcp,
             z0,
@@ -829,8 +877,15 @@ impl NewtonSolver {
             || false,
         );
         self.settings = saved;
-        let end = end?;
+        let end = match end {
+            Ok(end) => end,
+            Err(e) => {
+                self.in_continuation = false;
+                return Err(e);
+            }
+        };
         let last = self.solve_plain(mcp, &end.z);
+        self.in_continuation = false;
         let tally = |summary: &mut ecp_model::Summary| end.tally(summary, 0);
         match last {
             Ok(mut sol) => {
@@ -872,6 +927,7 @@ impl NewtonSolver {
         let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
+        let mut ended_flat = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -889,6 +945,9 @@ impl NewtonSolver {
         // The best residual after each iteration (index 0: at the start), for the stall test.
         ws.best_history.clear();
         ws.best_history.push(best_residual);
+        let mut best_psi = psi;
+        ws.best_psi_history.clear();
+        ws.best_psi_history.push(best_psi);
 
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
@@ -1283,15 +1342,48 @@ impl NewtonSolver {
                 ws.z_best.copy_from_slice(&ws.z);
             }
             ws.best_history.push(best_residual);
+            best_psi = best_psi.min(psi);
+            ws.best_psi_history.push(best_psi);
             // The iterations the stall test counts (those undone by a restore are dropped
             // from the history with `forget_undone_steps`).
             let counted = ws.best_history.len() - 1;
-            if s.stall_window > 0
-                && !(s.forget_undone_steps && checkpoint.is_some())
+            let judged = !(s.forget_undone_steps && checkpoint.is_some());
+            // The rate and flat-merit tests end runs that are going to fail before the next
+            // attempt; not the continuation's runs.
+            let cut_early = judged && !self.in_continuation;
+            if judged
+                && s.stall_window > 0
                 && counted > s.stall_window
                 && best_residual > s.stall_reduction * ws.best_history[counted - s.stall_window]
             {
                 termination = Termination::Stagnated;
+                break;
+            }
+            if cut_early
+                && s.slow_rate_test
+                && s.stall_window > 0
+                && counted >= 2 * s.stall_window
+                && best_residual > s.tolerance
+            {
+                // The rate over the window (the stall test above ensures it is below 1).
+                let rate = (best_residual / ws.best_history[counted - s.stall_window]).ln()
+                    / s.stall_window as f64;
+                let needed = (s.tolerance / best_residual).ln() / rate;
+                let left = s.max_iterations.saturating_sub(iterations);
+                if needed > RATE_TEST_MARGIN * left as f64 {
+                    termination = Termination::Stagnated;
+                    break;
+                }
+            }
+            let k = s.flat_merit_window;
+            if cut_early
+                && k > 0
+                && counted >= 2 * k
+                && best_residual > s.tolerance
+                && best_psi >= (1.0 - 1e-3) * ws.best_psi_history[counted - k]
+            {
+                termination = Termination::Stagnated;
+                ended_flat = true;
                 break;
             }
             if let Some(psi_check) = checkpoint {
@@ -1304,6 +1396,8 @@ impl NewtonSolver {
                     if s.forget_undone_steps {
                         let keep = ws.best_history.len().saturating_sub(watchdog_count).max(1);
                         ws.best_history.truncate(keep);
+                        ws.best_psi_history.truncate(keep);
+                        best_psi = ws.best_psi_history[keep - 1];
                     }
                     min_norm_pending = 0;
                     // The sequence failed: back to the checkpoint, monotone steps from there.
@@ -1324,6 +1418,7 @@ impl NewtonSolver {
             clock.lap(&mut prof, Phase::Other);
         }
         self.min_norm_kept = min_norm_kept + min_norm_pending;
+        self.ended_flat = ended_flat;
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;

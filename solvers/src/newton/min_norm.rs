@@ -107,11 +107,14 @@ impl MinNorm {
             // Apply it to the remaining columns and downdate their norms.
             let (head, tail) = a.split_at_mut((k + 1) * n);
             let v = &head[k * n + k + 1..(k + 1) * n];
+            if tau != 0.0 {
+                dots(v, tail, n, k + 1, &mut self.work);
+            }
             for (jj, col) in tail.chunks_exact_mut(n).enumerate() {
                 let j = k + 1 + jj;
                 let (top, below) = col[k..].split_at_mut(1);
                 if tau != 0.0 {
-                    let w = tau * (top[0] + dot(v, below));
+                    let w = tau * (top[0] + self.work[jj]);
                     top[0] -= w;
                     for (x, vi) in below.iter_mut().zip(v) {
                         *x -= w * vi;
@@ -253,6 +256,47 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
     (acc[0] + acc[1]) + (acc[2] + acc[3]) + tail
 }
 
+/// `out[q] = dot(v, column q of cols from row off)` for every column of the column-major
+/// `cols` (stride `n`), each summed exactly as [`dot`] sums it (the same partial sums in the
+/// same order, so the factorisation is bitwise that of one [`dot`] a column), four columns at
+/// a time: one column's four partial sums are a chain of dependent additions that leaves the
+/// floating-point units idle, four columns' sums are independent (`docs/newton.md#the-cost-of-a-minimum-norm-step`).
+fn dots(v: &[f64], cols: &[f64], n: usize, off: usize, out: &mut [f64]) {
+    let m = v.len();
+    let full = m - m % 4;
+    let count = cols.len() / n;
+    let col = |q: usize| &cols[q * n + off..q * n + off + m];
+    let mut q = 0;
+    while q + 4 <= count {
+        let (c0, c1, c2, c3) = (col(q), col(q + 1), col(q + 2), col(q + 3));
+        let mut acc = [[0.0f64; 4]; 4];
+        for ((((x, y0), y1), y2), y3) in v[..full]
+            .chunks_exact(4)
+            .zip(c0[..full].chunks_exact(4))
+            .zip(c1[..full].chunks_exact(4))
+            .zip(c2[..full].chunks_exact(4))
+            .zip(c3[..full].chunks_exact(4))
+        {
+            for l in 0..4 {
+                acc[0][l] += x[l] * y0[l];
+                acc[1][l] += x[l] * y1[l];
+                acc[2][l] += x[l] * y2[l];
+                acc[3][l] += x[l] * y3[l];
+            }
+        }
+        for (p, c) in [c0, c1, c2, c3].into_iter().enumerate() {
+            // The remainder as `dot` adds it.
+            let tail: f64 = v[full..].iter().zip(&c[full..]).map(|(x, y)| x * y).sum();
+            let a = acc[p];
+            out[q + p] = (a[0] + a[1]) + (a[2] + a[3]) + tail;
+        }
+        q += 4;
+    }
+    for q in q..count {
+        out[q] = dot(v, col(q));
+    }
+}
+
 fn norm(v: &[f64]) -> f64 {
     // Scaled sum of squares: the columns of H span many orders of magnitude.
     let m = v.iter().fold(0.0f64, |m, x| m.max(x.abs()));
@@ -333,6 +377,22 @@ mod tests {
         assert_eq!(s.factor(2, &a, 1e-12), Some(1));
         assert!(s.solve_in_place(&mut b));
         assert!((b[0] - 2.0).abs() < 1e-15 && b[1] == 0.0, "{b:?}");
+    }
+
+    /// The four-column dot products are bitwise those of [`dot`], for every remainder length.
+    #[test]
+    fn dots_are_bitwise_dot() {
+        for m in 0..11 {
+            let n = m + 3;
+            let v: Vec<f64> = (0..m).map(|i| (i as f64 * 0.37).sin() * 1e3).collect();
+            let cols: Vec<f64> = (0..7 * n).map(|i| (i as f64 * 1.3).cos() / 7.0).collect();
+            let mut out = vec![0.0; 7];
+            dots(&v, &cols, n, 2, &mut out);
+            for q in 0..7 {
+                let expected = dot(&v, &cols[q * n + 2..q * n + 2 + m]);
+                assert_eq!(out[q].to_bits(), expected.to_bits(), "m {m}, column {q}");
+            }
+        }
     }
 
     #[test]
