@@ -14,7 +14,10 @@
 //! `desk-conic` (the conic backend's defaults: every QP by clarabel), `desk-conic-dense` (the
 //! QPs by the dense method first, `ConicSettings::dense_qp`). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
-//! without the set-up. Prints the last solve's iterations so the work cannot be optimised away.
+//! without the set-up. `desk-steps` takes the desk's first `N` whole steps with Newton
+//! (`Simulation::step`: checkpoint, data, solve, read-out, record), so `(Ir(120) − Ir(20)) / 100`
+//! is the mean whole step over steps 21–120; `desk-steps-into` the same with
+//! `Simulation::step_into` and one kept record. Both print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator};
 use ecp::formulations::{Scene, Simulation, scenarios};
@@ -60,6 +63,41 @@ fn repeat_structured(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usiz
     iterations
 }
 
+/// A hash of the bits of every number of the records (states, contacts, residual, iterations):
+/// equal digests mean bit-for-bit equal trajectories. `.1` is the last step's iterations.
+#[derive(Default)]
+struct Digest(u64, usize);
+
+impl Digest {
+    fn mix(&mut self, bits: u64) {
+        // FNV-1a over the 8 bytes.
+        for b in bits.to_le_bytes() {
+            self.0 = (self.0 ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    }
+    fn add(&mut self, rec: &ecp::formulations::StepRecord) {
+        if self.0 == 0 {
+            self.0 = 0xcbf2_9ce4_8422_2325;
+        }
+        for b in &rec.bodies {
+            for v in b.x.iter().chain(&b.q).chain(&b.v).chain(&b.w) {
+                self.mix(v.to_bits());
+            }
+        }
+        for c in &rec.contacts {
+            for v in c.a1.iter().chain(&c.a2) {
+                self.mix(v.to_bits());
+            }
+            for v in [c.lg, c.pn, c.pt, c.po, c.pr, c.sigma, c.min_gap] {
+                self.mix(v.to_bits());
+            }
+        }
+        self.mix(rec.summary.residual.to_bits());
+        self.mix(rec.summary.iterations as u64);
+        self.1 = rec.summary.iterations;
+    }
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let (case, n, linear) = match args.as_slice() {
@@ -73,7 +111,7 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity|\
-                 desk-conic|desk-conic-dense> N [lu|schur]"
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-into> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -117,6 +155,28 @@ fn main() {
             n,
         ),
         "tbar-newton" => repeat(&mut newton(), scenarios::t_bar(), 340, n),
+        "desk-steps" => {
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("desk step"));
+            }
+            println!("desk-steps x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-into" => {
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            let mut digest = Digest::default();
+            let mut record = ecp::formulations::StepRecord::default();
+            for _ in 0..n {
+                sim.step_into(&mut solver, &mut record).expect("desk step");
+                digest.add(&record);
+            }
+            println!("desk-steps-into x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
         "desk-sensitivity" => {
             let mut solver = newton();
             let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");

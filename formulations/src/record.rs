@@ -125,8 +125,9 @@ impl StepMethod {
     }
 }
 
-/// Everything recorded for one step (the rows of `trajectory.csv`, `docs/outputs.md`).
-#[derive(Clone, Debug)]
+/// Everything recorded for one step (the rows of `trajectory.csv`, `docs/outputs.md`). The
+/// default is empty storage for [`crate::step::Simulation::step_into`] to fill.
+#[derive(Clone, Debug, Default)]
 pub struct StepRecord {
     /// Step index, from 1.
     pub step: usize,

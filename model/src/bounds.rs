@@ -155,10 +155,18 @@ impl VarBlock {
     }
     /// Name of component `i`: `block.component` or `block[i]`.
     pub fn component_name(&self, i: usize) -> String {
-        match &self.component_names {
-            Some(names) if i < names.len() => format!("{}.{}", self.name, names[i]),
-            _ => format!("{}[{}]", self.name, i),
-        }
+        let mut name = String::new();
+        self.write_component_name(i, &mut name);
+        name
+    }
+    /// Appends [`VarBlock::component_name`] of `i` to `out`.
+    pub fn write_component_name(&self, i: usize, out: &mut String) {
+        use std::fmt::Write;
+        // Writing into a String cannot fail.
+        _ = match &self.component_names {
+            Some(names) if i < names.len() => write!(out, "{}.{}", self.name, names[i]),
+            _ => write!(out, "{}[{}]", self.name, i),
+        };
     }
 
     pub(crate) fn validate(&self) -> Result<(), ModelError> {

@@ -189,9 +189,21 @@ impl fmt::Display for Counter {
 }
 
 /// The counters a solve reported, in the order they were first set.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Debug, Default, PartialEq, Eq)]
 pub struct Counters {
     entries: Vec<(Counter, usize)>,
+}
+
+/// `clone_from` reuses the storage.
+impl Clone for Counters {
+    fn clone(&self) -> Self {
+        Counters {
+            entries: self.entries.clone(),
+        }
+    }
+    fn clone_from(&mut self, source: &Self) {
+        self.entries.clone_from(&source.entries);
+    }
 }
 
 impl Counters {
@@ -227,6 +239,12 @@ impl Counters {
     /// Every reported counter with its value, in the order they were first set.
     pub fn iter(&self) -> impl Iterator<Item = (Counter, usize)> + '_ {
         self.entries.iter().copied()
+    }
+
+    /// Forgets every counter, keeping the storage (a backend that fills the counters of a kept
+    /// result).
+    pub fn clear(&mut self) {
+        self.entries.clear();
     }
 
     /// Number of reported counters.

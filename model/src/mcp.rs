@@ -36,6 +36,12 @@ pub trait Mcp {
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")
     }
+    /// Appends [`Mcp::component_name`] of `i` to `out`. Override it (and forward it in wrappers)
+    /// to write the name without a `String` of its own: a backend's result then names its worst
+    /// component in storage kept across solves ([`McpSolver::solve_into`](crate::McpSolver)).
+    fn write_component_name(&self, i: usize, out: &mut String) {
+        out.push_str(&self.component_name(i));
+    }
     /// The structural view of a contact step (`docs/backends.md#conic`), when this MCP is one: what
     /// the conic backend needs besides `F`. `None` for a generic MCP.
     fn structure(&self) -> Option<&dyn StepStructure> {
@@ -171,6 +177,14 @@ impl Mcp for FnMcp {
             None => format!("z[{i}]"),
         }
     }
+    fn write_component_name(&self, i: usize, out: &mut String) {
+        use std::fmt::Write;
+        match &self.names {
+            Some(n) => out.push_str(&n[i]),
+            // Writing into a String cannot fail.
+            None => _ = write!(out, "z[{i}]"),
+        }
+    }
 }
 
 /// `mid(l, u, x)`: the projection of `x` onto `[l, u]`.
@@ -204,7 +218,7 @@ pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f
 }
 
 /// Where the natural residual is worst: index, value, and the component's name.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Debug, PartialEq)]
 pub struct WorstComponent {
     /// Flat index.
     pub index: usize,
@@ -212,6 +226,22 @@ pub struct WorstComponent {
     pub value: f64,
     /// Name of the component (block and component).
     pub name: String,
+}
+
+/// `clone_from` reuses the name's storage.
+impl Clone for WorstComponent {
+    fn clone(&self) -> Self {
+        WorstComponent {
+            index: self.index,
+            value: self.value,
+            name: self.name.clone(),
+        }
+    }
+    fn clone_from(&mut self, source: &Self) {
+        self.index = source.index;
+        self.value = source.value;
+        self.name.clone_from(&source.name);
+    }
 }
 
 /// Evaluates `F` at `z` and reports the natural residual and the worst component.
@@ -224,23 +254,45 @@ pub fn diagnose(mcp: &dyn Mcp, z: &[f64]) -> (f64, Option<WorstComponent>) {
 /// [`diagnose`] for `F(z)` already evaluated into `f`: the natural residual and the worst
 /// component (the first of the largest), whose name is formed once.
 pub fn diagnose_values(mcp: &dyn Mcp, z: &[f64], f: &[f64]) -> (f64, Option<WorstComponent>) {
+    let mut worst = None;
+    let residual = diagnose_values_into(mcp, z, f, &mut worst);
+    (residual, worst)
+}
+
+/// [`diagnose_values`] into `worst`, whose name's storage is reused
+/// ([`Mcp::write_component_name`]): returns the natural residual.
+pub fn diagnose_values_into(
+    mcp: &dyn Mcp,
+    z: &[f64],
+    f: &[f64],
+    worst: &mut Option<WorstComponent>,
+) -> f64 {
     let (l, u) = (mcp.lower(), mcp.upper());
-    let mut worst: Option<(usize, f64)> = None;
+    let mut found: Option<(usize, f64)> = None;
     for i in 0..z.len() {
         let mut c = natural_map_component(z[i], f[i], l[i], u[i]).abs();
         if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
         }
-        if worst.is_none_or(|(_, w)| c > w) {
-            worst = Some((i, c));
+        if found.is_none_or(|(_, w)| c > w) {
+            found = Some((i, c));
         }
     }
-    let worst = worst.map(|(index, value)| WorstComponent {
-        index,
-        value,
-        name: mcp.component_name(index),
-    });
-    (natural_residual(z, f, l, u), worst)
+    match (found, worst.as_mut()) {
+        (None, _) => *worst = None,
+        (Some((index, value)), Some(w)) => {
+            w.index = index;
+            w.value = value;
+            w.name.clear();
+            mcp.write_component_name(index, &mut w.name);
+        }
+        (Some((index, value)), None) => {
+            let mut name = String::new();
+            mcp.write_component_name(index, &mut name);
+            *worst = Some(WorstComponent { index, value, name });
+        }
+    }
+    natural_residual(z, f, l, u)
 }
 
 /// The Fischer–Burmeister function `φ(a, b) = √(a² + b²) − a − b`; zero iff `a ≥ 0, b ≥ 0, ab = 0`.

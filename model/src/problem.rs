@@ -730,11 +730,20 @@ impl Mcp for BlockMcp {
         }
     }
     fn component_name(&self, i: usize) -> String {
+        let mut name = String::new();
+        self.write_component_name(i, &mut name);
+        name
+    }
+    fn write_component_name(&self, i: usize, out: &mut String) {
         // Offsets are sorted; find the block containing i.
         let v = self.offsets.partition_point(|&o| o <= i).saturating_sub(1);
         match self.vars.get(v) {
-            Some(block) => block.component_name(i - self.offsets[v]),
-            None => format!("z[{i}]"),
+            Some(block) => block.write_component_name(i - self.offsets[v], out),
+            None => {
+                use std::fmt::Write;
+                // Writing into a String cannot fail.
+                _ = write!(out, "z[{i}]");
+            }
         }
     }
     fn elimination_groups(&self) -> &[Vec<usize>] {

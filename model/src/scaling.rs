@@ -35,10 +35,15 @@ impl McpScales {
     /// Rounds every scale to the nearest power of two (in the logarithm), so that scaling and
     /// unscaling are exact in floating point; a scale that is not positive and finite becomes 1.
     pub fn rounded_to_powers_of_two(mut self) -> Self {
+        self.round_to_powers_of_two();
+        self
+    }
+
+    /// [`McpScales::rounded_to_powers_of_two`] in place.
+    pub fn round_to_powers_of_two(&mut self) {
         for s in self.variables.iter_mut().chain(self.rows.iter_mut()) {
             *s = power_of_two(*s);
         }
-        self
     }
 
     /// Whether both vectors have length `n` and every scale is positive and finite.
@@ -177,6 +182,9 @@ impl Mcp for ScaledMcp<'_> {
     }
     fn component_name(&self, i: usize) -> String {
         self.inner.component_name(i)
+    }
+    fn write_component_name(&self, i: usize, out: &mut String) {
+        self.inner.write_component_name(i, out)
     }
     // No structural view: its data are in the unscaled units.
     fn elimination_groups(&self) -> &[Vec<usize>] {

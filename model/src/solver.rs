@@ -3,7 +3,7 @@
 use std::time::{Duration, Instant};
 
 use crate::counters::{Counter, Counters};
-use crate::mcp::{Mcp, WorstComponent, diagnose_values, fb_residual};
+use crate::mcp::{Mcp, WorstComponent, diagnose_values_into, fb_residual};
 
 /// Why a solve stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -86,7 +86,7 @@ pub trait Observer: Send {
 }
 
 /// What happened in a solve: the counters and numbers a user needs to trust (or not) the result.
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Debug, PartialEq)]
 pub struct Summary {
     /// Backend name.
     pub solver: String,
@@ -111,6 +111,59 @@ pub struct Summary {
     /// Counters specific to the backend (for example [`Counter::Pivots`]), and the stepper's
     /// [`Counter::Retries`].
     pub counters: Counters,
+}
+
+/// No solve yet: an empty backend name, not converged, infinite residuals; storage for
+/// [`McpSolver::solve_into`] to fill.
+impl Default for Summary {
+    fn default() -> Self {
+        Summary {
+            solver: String::new(),
+            termination: Termination::MaxIterations,
+            iterations: 0,
+            f_evals: 0,
+            jac_evals: 0,
+            residual: f64::INFINITY,
+            fb_residual: f64::INFINITY,
+            worst: None,
+            time: Duration::ZERO,
+            trace: Vec::new(),
+            counters: Counters::new(),
+        }
+    }
+}
+
+/// `clone_from` reuses the storage of the strings, the trace and the counters (a step record
+/// refilled every step allocates nothing).
+impl Clone for Summary {
+    fn clone(&self) -> Self {
+        Summary {
+            solver: self.solver.clone(),
+            termination: self.termination,
+            iterations: self.iterations,
+            f_evals: self.f_evals,
+            jac_evals: self.jac_evals,
+            residual: self.residual,
+            fb_residual: self.fb_residual,
+            worst: self.worst.clone(),
+            time: self.time,
+            trace: self.trace.clone(),
+            counters: self.counters.clone(),
+        }
+    }
+    fn clone_from(&mut self, source: &Self) {
+        self.solver.clone_from(&source.solver);
+        self.termination = source.termination;
+        self.iterations = source.iterations;
+        self.f_evals = source.f_evals;
+        self.jac_evals = source.jac_evals;
+        self.residual = source.residual;
+        self.fb_residual = source.fb_residual;
+        self.worst.clone_from(&source.worst);
+        self.time = source.time;
+        self.trace.clone_from(&source.trace);
+        self.counters.clone_from(&source.counters);
+    }
 }
 
 impl Summary {
@@ -187,13 +240,28 @@ fn format_duration(d: Duration) -> String {
     }
 }
 
-/// A point returned by a backend with its summary.
-#[derive(Clone, Debug, PartialEq)]
+/// A point returned by a backend with its summary. The default is empty storage for
+/// [`McpSolver::solve_into`].
+#[derive(Debug, Default, PartialEq)]
 pub struct Solution {
     /// The unknowns in the MCP's own layout.
     pub z: Vec<f64>,
     /// What happened.
     pub summary: Summary,
+}
+
+/// `clone_from` reuses the storage.
+impl Clone for Solution {
+    fn clone(&self) -> Self {
+        Solution {
+            z: self.z.clone(),
+            summary: self.summary.clone(),
+        }
+    }
+    fn clone_from(&mut self, source: &Self) {
+        self.z.clone_from(&source.z);
+        self.summary.clone_from(&source.summary);
+    }
 }
 
 /// Why a solve failed. Every failure carries the best iterate found (never NaN).
@@ -234,6 +302,21 @@ pub trait McpSolver {
     fn name(&self) -> &str;
     /// Solves `mcp` from `z0`. Converged ⇒ `Ok`; otherwise the best iterate in the error.
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError>;
+    /// [`McpSolver::solve`] into storage the caller keeps across solves (a time stepper's):
+    /// converged ⇒ `Ok` and `out` holds the solution; otherwise the error carries the best
+    /// iterate and `out`'s contents are unspecified. The default moves `solve`'s result into
+    /// `out`; a backend overrides it to reuse `out`'s storage (the Newton and PATH backends
+    /// allocate nothing in a warm solve once their workspaces and `out` have grown,
+    /// `docs/latency.md#allocations`). The same point and summary as `solve`, bit for bit.
+    fn solve_into(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
+        *out = self.solve(mcp, z0)?;
+        Ok(())
+    }
 }
 
 /// Validates a starting point against a problem: dimension and finiteness.
@@ -305,27 +388,8 @@ pub fn finish_solve_at(
     f: &[f64],
     report: SolveReport,
 ) -> Result<Solution, SolveError> {
-    let (residual, worst) = diagnose_values(mcp, &z, f);
-    let termination = if residual <= report.tolerance {
-        Termination::Converged
-    } else if report.termination == Termination::Converged {
-        Termination::Stagnated
-    } else {
-        report.termination
-    };
-    let summary = Summary {
-        solver: report.solver.into(),
-        termination,
-        iterations: report.iterations,
-        f_evals: report.f_evals,
-        jac_evals: report.jac_evals,
-        residual,
-        fb_residual: fb_residual(&z, f, mcp.lower(), mcp.upper()),
-        worst,
-        time: report.started.elapsed(),
-        trace: report.trace,
-        counters: report.counters,
-    };
+    let mut summary = Summary::default();
+    judge(mcp, &z, f, report, &mut summary);
     let solution = Solution { z, summary };
     if solution.summary.converged() {
         Ok(solution)
@@ -334,6 +398,48 @@ pub fn finish_solve_at(
             best: Box::new(solution),
         })
     }
+}
+
+/// [`finish_solve_at`] into `out`, reusing its storage: the point, the backend's name and the
+/// worst component's name are copied in, `report`'s counters and trace moved in (a backend
+/// that builds them in the `Counters` and trace it takes from `out` reuses theirs too). So a
+/// backend that keeps its result's storage across solves allocates nothing here. Returns
+/// whether the point converged; the summary is the one [`finish_solve_at`] would give.
+pub fn finish_solve_into(
+    mcp: &dyn Mcp,
+    z: &[f64],
+    f: &[f64],
+    report: SolveReport,
+    out: &mut Solution,
+) -> bool {
+    out.z.clear();
+    out.z.extend_from_slice(z);
+    judge(mcp, z, f, report, &mut out.summary);
+    out.summary.converged()
+}
+
+/// The one judgement of [`finish_solve_at`] and [`finish_solve_into`]: fills `summary` from the
+/// natural residual of `z` (with `F(z) = f`) and the backend's `report`.
+fn judge(mcp: &dyn Mcp, z: &[f64], f: &[f64], report: SolveReport, summary: &mut Summary) {
+    let residual = diagnose_values_into(mcp, z, f, &mut summary.worst);
+    let termination = if residual <= report.tolerance {
+        Termination::Converged
+    } else if report.termination == Termination::Converged {
+        Termination::Stagnated
+    } else {
+        report.termination
+    };
+    summary.solver.clear();
+    summary.solver.push_str(report.solver);
+    summary.termination = termination;
+    summary.iterations = report.iterations;
+    summary.f_evals = report.f_evals;
+    summary.jac_evals = report.jac_evals;
+    summary.residual = residual;
+    summary.fb_residual = fb_residual(z, f, mcp.lower(), mcp.upper());
+    summary.time = report.started.elapsed();
+    summary.trace = report.trace;
+    summary.counters = report.counters;
 }
 
 #[cfg(test)]

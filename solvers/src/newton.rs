@@ -40,8 +40,8 @@ use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{fb_vector, fischer_burmeister};
 use ecp_model::{
-    Counter, Counters, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, finish_solve_at, natural_residual,
+    Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
+    SolveReport, StepKind, Termination, finish_solve, finish_solve_into, natural_residual,
     solve_in_scales, validate_start,
 };
 
@@ -320,6 +320,9 @@ struct Workspace {
     best_history: Vec<f64>,
     /// The lowest `Ψ` after each iteration, beside `best_history`, for the flat-merit test.
     best_psi_history: Vec<f64>,
+    /// The storage of the caller's result ([`McpSolver::solve_into`]), which the next run's
+    /// result is written into (empty otherwise: `solve` allocates its result).
+    result: Solution,
 }
 
 impl Workspace {
@@ -686,6 +689,19 @@ impl McpSolver for NewtonSolver {
             return self.solve_restarted(mcp, z0);
         }
         solve_in_scales(mcp, z0, |mcp, z0| self.solve_restarted(mcp, z0))
+    }
+
+    /// [`McpSolver::solve`] with `out`'s storage: the first run writes its result there
+    /// (`Workspace::result`), so a warm solve that converges in its first run allocates nothing.
+    fn solve_into(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
+        self.ws.result = std::mem::take(out);
+        *out = self.solve(mcp, z0)?;
+        Ok(())
     }
 }
 
@@ -1431,6 +1447,20 @@ impl NewtonSolver {
         if at_last {
             ws.z_best.copy_from_slice(&ws.z);
         }
+        // The result in the storage `solve_into` handed over, if any (counters included).
+        let mut result = std::mem::take(&mut ws.result);
+        let mut counters = std::mem::take(&mut result.summary.counters);
+        counters.clear();
+        for (counter, value) in [
+            (Counter::NewtonSteps, newton_steps),
+            (Counter::MinNormSteps, min_norm_steps),
+            (Counter::NonmonotoneSteps, nonmonotone_steps),
+            (Counter::WatchdogRestores, watchdog_restores),
+            (Counter::LevenbergMarquardtSteps, lm_steps),
+            (Counter::GradientSteps, gradient_steps),
+        ] {
+            counters.set(counter, value);
+        }
         let report = SolveReport {
             solver: "newton",
             termination,
@@ -1440,19 +1470,17 @@ impl NewtonSolver {
             jac_evals,
             started: start,
             trace,
-            counters: Counters::from([
-                (Counter::NewtonSteps, newton_steps),
-                (Counter::MinNormSteps, min_norm_steps),
-                (Counter::NonmonotoneSteps, nonmonotone_steps),
-                (Counter::WatchdogRestores, watchdog_restores),
-                (Counter::LevenbergMarquardtSteps, lm_steps),
-                (Counter::GradientSteps, gradient_steps),
-            ]),
+            counters,
         };
-        if at_last {
-            finish_solve_at(mcp, ws.z_best.clone(), &ws.f, report)
+        if !at_last {
+            return finish_solve(mcp, ws.z_best.clone(), report);
+        }
+        if finish_solve_into(mcp, &ws.z_best, &ws.f, report, &mut result) {
+            Ok(result)
         } else {
-            finish_solve(mcp, ws.z_best.clone(), report)
+            Err(SolveError::NotConverged {
+                best: Box::new(result),
+            })
         }
     }
 }

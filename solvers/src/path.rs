@@ -43,7 +43,7 @@ use std::time::Instant;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, finish_solve_at, mid, natural_residual,
+    SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid, natural_residual,
     solve_in_scales, validate_start,
 };
 
@@ -274,6 +274,9 @@ pub struct PathSolver {
     /// The current attempt judges points by the Fischer–Burmeister merit
     /// ([`PathSettings::fischer_restart`]).
     fischer: bool,
+    /// The storage of the caller's result ([`McpSolver::solve_into`]), which the next run's
+    /// result is written into (empty otherwise: `solve` allocates its result).
+    result: Solution,
 }
 
 impl PathSolver {
@@ -319,6 +322,7 @@ impl PathSolver {
             active_prev: Vec::new(),
             active: Vec::new(),
             order: Vec::new(),
+            result: Solution::default(),
             factor: BasisFactor::default(),
             observer: None,
             deadline: None,
@@ -950,6 +954,20 @@ impl McpSolver for PathSolver {
             e => e,
         }
     }
+
+    /// [`McpSolver::solve`] with `out`'s storage: the first run writes its result there
+    /// (`PathSolver::result`), so a warm solve that converges in its first run allocates
+    /// nothing once its workspace has grown.
+    fn solve_into(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
+        self.result = std::mem::take(out);
+        *out = self.solve(mcp, z0)?;
+        Ok(())
+    }
 }
 
 /// Which attempts of a solve [`PathSolver::solve_unscaled`] runs
@@ -1157,6 +1175,30 @@ impl PathSolver {
             best_residual,
             ..
         } = run;
+        // The result in the storage `solve_into` handed over, if any (counters included).
+        let mut result = std::mem::take(&mut self.result);
+        let mut reported = std::mem::take(&mut result.summary.counters);
+        reported.clear();
+        for (counter, value) in [
+            (Counter::Pivots, counters.pivots),
+            (Counter::CrashSteps, counters.crash_steps),
+            (Counter::PathSteps, counters.path_steps),
+            (Counter::NonmonotoneSteps, counters.nonmonotone_steps),
+            (Counter::WatchdogRestores, counters.watchdog_restores),
+            (Counter::PathBacktracks, counters.path_backtracks),
+            (
+                Counter::ProximalPerturbations,
+                counters.proximal_perturbations,
+            ),
+            (Counter::RayTerminations, counters.ray_terminations),
+            (Counter::Restarts, counters.restarts),
+            (Counter::GuardedAttempts, counters.guarded_attempts),
+            (Counter::FischerAttempts, counters.fischer_attempts),
+            (Counter::BestPointRestarts, counters.best_point_restarts),
+            (Counter::TimeLimitReached, counters.time_limit_reached),
+        ] {
+            reported.set(counter, value);
+        }
         let report = SolveReport {
             solver: "path",
             termination,
@@ -1166,30 +1208,18 @@ impl PathSolver {
             jac_evals,
             started,
             trace,
-            counters: ecp_model::Counters::from([
-                (Counter::Pivots, counters.pivots),
-                (Counter::CrashSteps, counters.crash_steps),
-                (Counter::PathSteps, counters.path_steps),
-                (Counter::NonmonotoneSteps, counters.nonmonotone_steps),
-                (Counter::WatchdogRestores, counters.watchdog_restores),
-                (Counter::PathBacktracks, counters.path_backtracks),
-                (
-                    Counter::ProximalPerturbations,
-                    counters.proximal_perturbations,
-                ),
-                (Counter::RayTerminations, counters.ray_terminations),
-                (Counter::Restarts, counters.restarts),
-                (Counter::GuardedAttempts, counters.guarded_attempts),
-                (Counter::FischerAttempts, counters.fischer_attempts),
-                (Counter::BestPointRestarts, counters.best_point_restarts),
-                (Counter::TimeLimitReached, counters.time_limit_reached),
-            ]),
+            counters: reported,
         };
         // `best_f` is F at `best_z` once a finite residual made the point this solve's best.
-        if best_residual.is_finite() {
-            finish_solve_at(mcp, self.best_z.clone(), &self.best_f, report)
+        if !best_residual.is_finite() {
+            return finish_solve(mcp, self.best_z.clone(), report);
+        }
+        if finish_solve_into(mcp, &self.best_z, &self.best_f, report, &mut result) {
+            Ok(result)
         } else {
-            finish_solve(mcp, self.best_z.clone(), report)
+            Err(SolveError::NotConverged {
+                best: Box::new(result),
+            })
         }
     }
 }

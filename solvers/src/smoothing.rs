@@ -282,6 +282,9 @@ impl Mcp for Smoothed<'_> {
     fn component_name(&self, i: usize) -> String {
         self.mcp.component_name(i)
     }
+    fn write_component_name(&self, i: usize, out: &mut String) {
+        self.mcp.write_component_name(i, out)
+    }
 }
 
 impl Smoothed<'_> {

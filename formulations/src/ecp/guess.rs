@@ -2,12 +2,14 @@
 //! Conv(F) to the half-space at a pose, with face multipliers that satisfy the closest-point
 //! condition there, and impulses that start active where the contact is closed.
 
+use std::cell::Cell;
+
 use nalgebra::{Matrix3, Vector3};
 
 use ecp_model::BlockMcp;
 
 use super::layout::Layout;
-use crate::geometry::{ConvexHull, HalfSpace};
+use crate::geometry::{ConvexHull, Face, HalfSpace};
 use crate::scene::{BodyState, Scene};
 
 /// In the hull and union formulations' warm start, a closed contact's closest-point unknowns
@@ -33,84 +35,95 @@ pub fn closest_point_guess(
     x: &Vector3<f64>,
     r: &Matrix3<f64>,
 ) -> (Vector3<f64>, f64, Vec<f64>) {
+    let mut l = Vec::new();
+    let (a1, gmin) = closest_point_guess_into(set, plane, x, r, &mut l);
+    (a1, gmin, l)
+}
+
+/// [`closest_point_guess`] with the face multipliers written into `l`, whose storage is reused:
+/// allocation-free once `l` has grown (the warm start of every step,
+/// `docs/latency.md#allocations`). Returns `a1` and the gap.
+pub fn closest_point_guess_into(
+    set: &ConvexHull,
+    plane: &HalfSpace,
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+    l: &mut Vec<f64>,
+) -> (Vector3<f64>, f64) {
     let ng = plane.normal();
     let dir_body = r.transpose() * (-ng);
     let verts = set.vertices();
-    let gaps: Vec<f64> = verts.iter().map(|v| plane.value(&(x + r * v))).collect();
-    let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+    // Each vertex's gap is computed twice (the same number) rather than stored.
+    let gap = |v: &Vector3<f64>| plane.value(&(x + r * v));
+    let gmin = verts.iter().map(gap).fold(f64::INFINITY, f64::min);
     let mut a1_body = Vector3::zeros();
     let mut count: f64 = 0.0;
-    for (v, g) in verts.iter().zip(&gaps) {
-        if *g <= gmin + 1e-6 {
+    for v in verts {
+        if gap(v) <= gmin + 1e-6 {
             a1_body += v;
             count += 1.0;
         }
     }
     a1_body /= f64::max(count, 1.0);
     let a1 = x + r * a1_body;
-    let mut l = vec![0.0; set.num_faces()];
+    l.clear();
+    l.resize(set.num_faces(), 0.0);
     let size = verts
         .iter()
         .map(|v| v.norm())
         .fold(0.0, f64::max)
         .max(f64::MIN_POSITIVE);
-    let through: Vec<usize> = set
-        .faces()
-        .iter()
-        .enumerate()
-        .filter(|(_, f)| f.value(&a1_body).abs() <= 1e-9 * size)
-        .map(|(i, _)| i)
-        .collect();
-    match face_cone_multipliers(set, &through, &dir_body) {
-        Some(best) => {
-            for (i, li) in best {
+    // The faces through `a1`; more than `MAX_CONE_FACES` are not tried.
+    let mut through = [0usize; MAX_CONE_FACES];
+    let mut k = 0;
+    for (i, f) in set.faces().iter().enumerate() {
+        if f.value(&a1_body).abs() <= 1e-9 * size {
+            if k < MAX_CONE_FACES {
+                through[k] = i;
+            }
+            k += 1;
+        }
+    }
+    let found = if k <= MAX_CONE_FACES {
+        face_cone_multipliers(set, &through[..k], &dir_body)
+    } else {
+        None
+    };
+    match found {
+        Some((best, m)) => {
+            for &(i, li) in &best[..m] {
                 l[i] = li;
             }
         }
         None => l[set.most_aligned_face(&dir_body)] = 1.0,
     }
-    (a1, gmin, l)
+    (a1, gmin)
 }
 
+/// The most faces through `a1` whose combinations [`face_cone_multipliers`] tries.
+const MAX_CONE_FACES: usize = 16;
+
 /// Non-negative `l` over at most three of the faces `through` with `Σ l_i n̂_i = dir` (to
-/// 1e-9), the one with the fewest faces; `None` when there is none (or too many faces to try).
+/// 1e-9), the one with the fewest faces, as `(face, l_i)` pairs (the first `m` of the array);
+/// `None` when there is none (or too many faces to try).
 fn face_cone_multipliers(
     set: &ConvexHull,
     through: &[usize],
     dir: &Vector3<f64>,
-) -> Option<Vec<(usize, f64)>> {
-    if through.is_empty() || through.len() > 16 {
+) -> Option<([(usize, f64); 3], usize)> {
+    if through.is_empty() || through.len() > MAX_CONE_FACES {
         return None;
     }
     let faces = set.faces();
     let k = through.len();
-    let fits = |idx: &[usize]| -> Option<Vec<(usize, f64)>> {
-        let cols: Vec<Vector3<f64>> = idx.iter().map(|&i| faces[i].normal).collect();
-        let m = cols.len();
-        // Normal equations of the m ≤ 3 columns.
-        let mut a = nalgebra::DMatrix::<f64>::zeros(m, m);
-        let mut b = nalgebra::DVector::<f64>::zeros(m);
-        for p in 0..m {
-            b[p] = cols[p].dot(dir);
-            for q in 0..m {
-                a[(p, q)] = cols[p].dot(&cols[q]);
-            }
-        }
-        let sol = a.lu().solve(&b)?;
-        if sol.iter().any(|v| !v.is_finite() || *v < 0.0) {
-            return None;
-        }
-        let fit: Vector3<f64> = cols.iter().zip(sol.iter()).map(|(c, s)| c * *s).sum();
-        ((fit - dir).norm() <= 1e-9).then(|| idx.iter().copied().zip(sol.iter().copied()).collect())
-    };
     for i in 0..k {
-        if let Some(s) = fits(&[through[i]]) {
+        if let Some(s) = cone_fit_1(faces, [through[i]], dir) {
             return Some(s);
         }
     }
     for i in 0..k {
         for j in i + 1..k {
-            if let Some(s) = fits(&[through[i], through[j]]) {
+            if let Some(s) = cone_fit_2(faces, [through[i], through[j]], dir) {
                 return Some(s);
             }
         }
@@ -118,7 +131,7 @@ fn face_cone_multipliers(
     for i in 0..k {
         for j in i + 1..k {
             for m in j + 1..k {
-                if let Some(s) = fits(&[through[i], through[j], through[m]]) {
+                if let Some(s) = cone_fit_3(faces, [through[i], through[j], through[m]], dir) {
                     return Some(s);
                 }
             }
@@ -127,6 +140,47 @@ fn face_cone_multipliers(
     None
 }
 
+/// `cone_fit_M(faces, idx, dir)`: the non-negative combination of the normals of the `M ≤ 3`
+/// faces `idx` that equals `dir` (to 1e-9), from the normal equations in fixed-size matrices;
+/// `None` when it is not one.
+macro_rules! cone_fit {
+    ($name:ident, $m:literal) => {
+        fn $name(
+            faces: &[Face],
+            idx: [usize; $m],
+            dir: &Vector3<f64>,
+        ) -> Option<([(usize, f64); 3], usize)> {
+            let cols: [Vector3<f64>; $m] = idx.map(|i| faces[i].normal);
+            // Normal equations of the M ≤ 3 columns.
+            let mut a = nalgebra::SMatrix::<f64, $m, $m>::zeros();
+            let mut b = nalgebra::SVector::<f64, $m>::zeros();
+            for p in 0..$m {
+                b[p] = cols[p].dot(dir);
+                for q in 0..$m {
+                    a[(p, q)] = cols[p].dot(&cols[q]);
+                }
+            }
+            let sol = a.lu().solve(&b)?;
+            if sol.iter().any(|v| !v.is_finite() || *v < 0.0) {
+                return None;
+            }
+            let fit: Vector3<f64> = cols.iter().zip(sol.iter()).map(|(c, s)| c * *s).sum();
+            if (fit - dir).norm() > 1e-9 {
+                return None;
+            }
+            let mut out = [(0, 0.0); 3];
+            for p in 0..$m {
+                out[p] = (idx[p], sol[p]);
+            }
+            Some((out, $m))
+        }
+    };
+}
+
+cone_fit!(cone_fit_1, 1);
+cone_fit!(cone_fit_2, 2);
+cone_fit!(cone_fit_3, 3);
+
 /// What the guesses of one step read: the layout, the scene, the states at the span's start
 /// and the step problem (for the ranges of the unknowns).
 pub(crate) struct Guess<'a> {
@@ -134,6 +188,9 @@ pub(crate) struct Guess<'a> {
     pub(crate) scene: &'a Scene,
     pub(crate) states: &'a [BodyState],
     pub(crate) mcp: &'a BlockMcp,
+    /// Storage for the face multipliers of [`closest_point_guess_into`], kept by the
+    /// formulation across steps (taken and put back around each use).
+    pub(crate) faces: &'a Cell<Vec<f64>>,
 }
 
 impl Guess<'_> {
@@ -193,7 +250,8 @@ impl Guess<'_> {
         let plane = &self.scene.planes[c.plane];
         let s = self.states[c.body];
         let ng = plane.normal();
-        let (a1, gmin, l) = closest_point_guess(set, plane, x, r);
+        let mut l = self.faces.take();
+        let (a1, gmin) = closest_point_guess_into(set, plane, x, r, &mut l);
         let a2 = plane.project(&a1);
         let gap = gmin.max(0.0);
         let f = self.scene.friction;
@@ -224,6 +282,7 @@ impl Guess<'_> {
         z[mcp.range(c.a1)].copy_from_slice((a1 - o).as_slice());
         z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
         z[mcp.range(c.l)].copy_from_slice(&l);
+        self.faces.set(l);
         z[mcp.range(c.lg)][0] = gap;
         z[mcp.range(c.pn)][0] = pn;
         z[mcp.range(c.pf)].copy_from_slice(&pf);
@@ -251,7 +310,9 @@ impl Guess<'_> {
         let o = self.layout.origin;
         let s = self.states[c.body];
         let plane = &self.scene.planes[c.plane];
-        let (a1p, gap, l) = closest_point_guess(&self.layout.contact_hulls[i], plane, x1, r1);
+        let mut l = self.faces.take();
+        let (a1p, gap) =
+            closest_point_guess_into(&self.layout.contact_hulls[i], plane, x1, r1, &mut l);
         let mcp = self.mcp;
         let warm = &z[mcp.range(c.a1)];
         let warm = Vector3::new(warm[0], warm[1], warm[2]) + o;
@@ -265,6 +326,7 @@ impl Guess<'_> {
             z[mcp.range(c.lg)][0] = gap.max(0.0);
             z[mcp.range(c.l)].copy_from_slice(&l);
         }
+        self.faces.set(l);
     }
 
     /// [`Guess::contact_at`] at the body's state.

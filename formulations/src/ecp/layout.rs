@@ -68,6 +68,8 @@ pub(crate) struct SpanData {
     pub(crate) h: f64,
     /// The range in `z` of every variable block, by `VarId`.
     pub(crate) ranges: Vec<Range<usize>>,
+    /// Each body's length, velocity and impulse units (`scales.rs`; storage kept across spans).
+    pub(crate) units: Vec<(f64, f64, f64)>,
 }
 
 /// The layout of an ECP step problem (module documentation).

@@ -23,7 +23,9 @@ mod scales;
 mod structure;
 pub mod union;
 
-use nalgebra::Vector3;
+use std::cell::Cell;
+
+use nalgebra::{Matrix3, Vector3};
 
 use ecp_model::{BlockMcp, DataId, Input, McpScales, Problem, ResId, StepStructure, VarBlock};
 
@@ -32,8 +34,8 @@ use crate::blocks::{
     HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, SceneDataIds, add_body_data,
     add_plane_data, add_scene_data,
 };
-use crate::geometry::{ConvexHull, HalfSpace, min_gap};
-use crate::record::{ContactRecord, scene_gaps_and_modes};
+use crate::geometry::{ConvexHull, HalfSpace, contact_mode_at, min_gap};
+use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
 use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
@@ -41,7 +43,7 @@ use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
 };
-use guess::{Guess, closest_point_guess};
+use guess::{Guess, closest_point_guess_into};
 pub use layout::ContactVars;
 use layout::{EcpBody, Layout};
 use union::union_pieces;
@@ -62,6 +64,29 @@ pub const RECENTRE_DISTANCE: f64 = 100.0;
 pub struct EcpContacts {
     union: bool,
     layout: Layout,
+    /// Storage of the warm start kept across steps (`docs/latency.md#allocations`): the face
+    /// multipliers of the closest-point guesses and each body's predicted pose.
+    faces: Kept<Vec<f64>>,
+    motion: Vec<(Vector3<f64>, Matrix3<f64>)>,
+    /// The touching vertices of the contact records' modes (storage kept across steps).
+    touching: Kept<Vec<Vector3<f64>>>,
+}
+
+/// Storage reused across steps by methods that take `&self`: a clone starts empty, and `Debug`
+/// does not show it.
+#[derive(Default)]
+struct Kept<T>(Cell<T>);
+
+impl<T: Default> Clone for Kept<T> {
+    fn clone(&self) -> Self {
+        Kept(Cell::default())
+    }
+}
+
+impl<T> std::fmt::Debug for Kept<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str("Kept")
+    }
 }
 
 impl EcpContacts {
@@ -70,6 +95,9 @@ impl EcpContacts {
         EcpContacts {
             union: false,
             layout: Layout::default(),
+            faces: Kept::default(),
+            motion: Vec::new(),
+            touching: Kept::default(),
         }
     }
 
@@ -80,6 +108,9 @@ impl EcpContacts {
         EcpContacts {
             union: true,
             layout: Layout::default(),
+            faces: Kept::default(),
+            motion: Vec::new(),
+            touching: Kept::default(),
         }
     }
 
@@ -425,6 +456,7 @@ impl StepFormulation for EcpContacts {
             scene: ctx.scene,
             states: ctx.states,
             mcp,
+            faces: &self.faces.0,
         };
         for i in 0..self.layout.contacts.len() {
             guess.contact(i, false, z);
@@ -458,7 +490,7 @@ impl StepFormulation for EcpContacts {
 
     /// Warm start from the previous solution: `q` predicted by the kinematic map; a contact that
     /// ended the last step open (`p_n = 0`) starts at the closest points of the predicted pose
-    /// (`a1`, `a2`, `l_g`, face multipliers that satisfy C2 there, [`closest_point_guess`]) when
+    /// (`a1`, `a2`, `l_g`, face multipliers that satisfy C2 there, [`guess::closest_point_guess`]) when
     /// that pose is still separated, with σ kept > 0 (`guess::Guess::open_contact_sigma`: the
     /// solution leaves σ free, and σ = 0 makes the friction rows' linearisation vanish at the
     /// warm start); when the predicted pose penetrates, the contact closes within the span and
@@ -466,17 +498,20 @@ impl StepFormulation for EcpContacts {
     fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]) {
         let l = &self.layout;
         let o = l.origin;
-        let motion: Vec<_> = l
-            .bodies
-            .iter()
-            .zip(ctx.states)
-            .map(|(body, s)| predict_pose(mcp, z, (body.nu, body.q), s, &o, ctx.h))
-            .collect();
+        let mut motion = std::mem::take(&mut self.motion);
+        motion.clear();
+        motion.extend(
+            l.bodies
+                .iter()
+                .zip(ctx.states)
+                .map(|(body, s)| predict_pose(mcp, z, (body.nu, body.q), s, &o, ctx.h)),
+        );
         let guess = Guess {
             layout: l,
             scene: ctx.scene,
             states: ctx.states,
             mcp,
+            faces: &self.faces.0,
         };
         let scene = ctx.scene;
         for i in 0..l.contacts.len() {
@@ -492,8 +527,11 @@ impl StepFormulation for EcpContacts {
             }
             let (x1, r1) = motion[c.body];
             let plane = scene.planes[c.plane];
-            let (a1, gap, faces) = closest_point_guess(&l.contact_hulls[i], &plane, &x1, &r1);
+            let mut faces = self.faces.0.take();
+            let (a1, gap) =
+                closest_point_guess_into(&l.contact_hulls[i], &plane, &x1, &r1, &mut faces);
             if !a1.iter().all(|v| v.is_finite()) {
+                self.faces.0.set(faces);
                 continue;
             }
             if gap > 0.0 {
@@ -502,15 +540,18 @@ impl StepFormulation for EcpContacts {
                 z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
                 z[mcp.range(c.lg)][0] = gap;
                 z[mcp.range(c.l)].copy_from_slice(&faces);
+                self.faces.0.set(faces);
                 let sigma = guess.open_contact_sigma(i, z);
                 if z[mcp.range(c.sigma)][0] < sigma {
                     z[mcp.range(c.sigma)][0] = sigma;
                 }
             } else {
+                self.faces.0.set(faces);
                 // The predicted pose penetrates: the contact closes within the span.
                 guess.contact_at(i, true, (&x1, &r1), z);
             }
         }
+        self.motion = motion;
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a
@@ -532,6 +573,7 @@ impl StepFormulation for EcpContacts {
             scene: ctx.scene,
             states: ctx.states,
             mcp,
+            faces: &self.faces.0,
         };
         for i in 0..l.contacts.len() {
             let c = l.contacts[i];
@@ -575,11 +617,16 @@ impl StepFormulation for EcpContacts {
         z: &[f64],
         out: &mut Vec<ContactRecord>,
     ) {
-        let table = scene_gaps_and_modes(scene, states);
         let o = self.layout.origin;
         let get = |v| &z[mcp.range(v)];
+        let mut touching = self.touching.0.take();
         for c in &self.layout.contacts {
-            let (gap, mode) = table[c.body][c.plane];
+            // `scene_gaps_and_modes`' entry of the contact's body and plane, without its table.
+            let (s, plane) = (&states[c.body], &scene.planes[c.plane]);
+            let vertices = scene.bodies[c.body].shape.vertices();
+            let r = rotation_matrix(&s.q);
+            let gap = min_gap(vertices, &s.x, &r, plane);
+            let mode = contact_mode_at(vertices, (&s.x, &r), plane, MODE_TOLERANCE, &mut touching);
             let (a1, a2, pf) = (get(c.a1), get(c.a2), get(c.pf));
             out.push(ContactRecord {
                 a1: Vector3::new(a1[0], a1[1], a1[2]) + o,
@@ -594,6 +641,7 @@ impl StepFormulation for EcpContacts {
                 mode,
             });
         }
+        self.touching.0.set(touching);
     }
 
     fn origin(&self) -> Vector3<f64> {

@@ -28,14 +28,24 @@ use ecp_model::{BlockMcp, Mcp, McpScales};
 use super::layout::Layout;
 
 impl Layout {
-    /// The scales of the span just recorded ([`Layout::record_span`]), in `mcp`'s layout.
-    pub(crate) fn scene_scales(&self, mcp: &BlockMcp) -> McpScales {
+    /// The scales of the span just recorded ([`Layout::record_span`]), in `mcp`'s layout,
+    /// written into `s` (and each body's units into `units`), whose storage is reused.
+    pub(crate) fn scene_scales_into(
+        &self,
+        mcp: &BlockMcp,
+        s: &mut McpScales,
+        units: &mut Vec<(f64, f64, f64)>,
+    ) {
         let n = mcp.dim();
-        let mut s = McpScales::identity(n);
+        for v in [&mut s.variables, &mut s.rows] {
+            v.clear();
+            v.resize(n, 1.0);
+        }
         let h = self.span.h;
         let mu_bar = self.span.friction[0].max(1.0);
-        let units: Vec<(f64, f64, f64)> = (self.bodies.iter().zip(&self.span.bodies))
-            .map(|(body, data)| {
+        units.clear();
+        units.extend(
+            (self.bodies.iter().zip(&self.span.bodies)).map(|(body, data)| {
                 let l = bounding_diagonal(body.hull.vertices());
                 let g = data.gravity.norm();
                 let a = if g > 0.0 { g } else { l / (h * h) };
@@ -44,8 +54,8 @@ impl Layout {
                     + data.nu_start.fixed_rows::<3>(3).norm() * 0.5 * l;
                 let v = (a * h).max(speed);
                 (l, v, data.mass * v)
-            })
-            .collect();
+            }),
+        );
         let mut set = |v: ecp_model::VarId, var: &[f64], row: &[f64]| {
             let r = self.range(v);
             for (k, i) in r.enumerate() {
@@ -53,7 +63,7 @@ impl Layout {
                 s.rows[i] = row[k.min(row.len() - 1)];
             }
         };
-        for (body, &(l, v, p)) in self.bodies.iter().zip(&units) {
+        for (body, &(l, v, p)) in self.bodies.iter().zip(units.iter()) {
             set(
                 body.nu,
                 &[v, v, v, v / l, v / l, v / l],
@@ -75,7 +85,7 @@ impl Layout {
             set(c.pf, &[pf, pf, pf * l], &[pf * v, pf * v, pf * v * l]);
             set(c.sigma, &[v], &[pf]);
         }
-        s.rounded_to_powers_of_two()
+        s.round_to_powers_of_two();
     }
 }
 

@@ -8,7 +8,7 @@ use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4, Vector6};
 
 use ecp_model::{
     BlockMcp, BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactPartner,
-    PatchVertex, StepStructure,
+    McpScales, PatchVertex, StepStructure,
 };
 
 use super::layout::Layout;
@@ -44,7 +44,15 @@ impl Layout {
         self.span.start.extend_from_slice(start);
         self.span.friction.copy_from_slice(mcp.data(scene.friction));
         self.span.h = h;
-        self.scales = Some(self.scene_scales(mcp));
+        // Into the storage of the last span's scales.
+        let mut scales = self.scales.take().unwrap_or_else(|| McpScales {
+            variables: Vec::new(),
+            rows: Vec::new(),
+        });
+        let mut units = std::mem::take(&mut self.span.units);
+        self.scene_scales_into(mcp, &mut scales, &mut units);
+        self.span.units = units;
+        self.scales = Some(scales);
     }
 
     fn quat_or_start(&self, b: usize, q: Vector4<f64>) -> Vector4<f64> {

@@ -141,7 +141,32 @@ pub fn contact_mode(world_vertices: &[Vector3<f64>], plane: &HalfSpace, tol: f64
         .filter(|p| plane.value(p) <= tol)
         .copied()
         .collect();
-    let touching = dedupe_points(&touching, VERTEX_MERGE_TOL);
+    mode_of_touching(&dedupe_points(&touching, VERTEX_MERGE_TOL), tol)
+}
+
+/// [`contact_mode`] of a body with body-frame vertices `body_vertices` at CM position `x` and
+/// rotation `r`, the touching vertices gathered in `touching`, whose storage is reused
+/// (allocation-free once it has grown: the records of every step). The same mode.
+pub fn contact_mode_at(
+    body_vertices: &[Vector3<f64>],
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> ContactMode {
+    touching.clear();
+    for v in body_vertices {
+        // The world vertex of `world_vertices`, merged as `dedupe_points` merges.
+        let p = x + r * v;
+        if plane.value(&p) <= tol && !touching.iter().any(|q| (q - p).norm() <= VERTEX_MERGE_TOL) {
+            touching.push(p);
+        }
+    }
+    mode_of_touching(touching, tol)
+}
+
+/// The mode of the touching vertices `touching` (merged, in order): see [`contact_mode`].
+fn mode_of_touching(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
     let Some(p0) = touching.first().copied() else {
         return ContactMode::None;
     };

@@ -12,7 +12,7 @@ use nalgebra::{Vector3, Vector6};
 
 use ecp_model::{
     BlockMcp, CscPattern, DataId, Mcp, McpSolver, ModelError, Problem, Solution, SolveError,
-    StepStructure,
+    StepStructure, Summary,
 };
 
 use super::fallback::{Fallbacks, Spans, rescue};
@@ -20,7 +20,7 @@ use super::formulation::{Capabilities, Prepared, StepContext, StepFormulation};
 use super::handles::StepHandles;
 use super::params::{Param, ParamError};
 use super::terms::{Force, ForceHandles, Term, add_force};
-use crate::record::{ContactRecord, StepMethod, StepRecord, body_energy};
+use crate::record::{StepMethod, StepRecord, body_energy};
 use crate::scene::{BodyState, Scene, SceneError, initial_states};
 
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
@@ -105,6 +105,7 @@ impl SimulationBuilder {
             step: 0,
             t: 0.0,
             last: None,
+            kept: Kept::default(),
         };
         sim.start()?;
         Ok(sim)
@@ -129,7 +130,23 @@ pub struct Simulation {
     t: f64,
     /// The last step taken, while its step problem is still the one in `mcp`.
     last: Option<LastStep>,
+    /// Storage reused from step to step.
+    kept: Kept,
 }
+
+/// What a step writes into storage kept across steps, so that a step allocates nothing once
+/// it has grown (`docs/latency.md#allocations`): the checkpoint, the loads, the backend's result
+/// ([`McpSolver::solve_into`]) and a [`LastStep`] no longer current.
+#[derive(Default)]
+struct Kept {
+    checkpoint: Checkpoint,
+    wrenches: Vec<Vector6<f64>>,
+    solution: Solution,
+    last: Option<LastStep>,
+}
+
+/// The states and `z` at the start of a step, for going back to it.
+type Checkpoint = (Vec<BodyState>, Vec<f64>);
 
 struct Built {
     mcp: BlockMcp,
@@ -204,6 +221,9 @@ impl Mcp for StepProblem<'_> {
     }
     fn component_name(&self, i: usize) -> String {
         self.mcp.component_name(i)
+    }
+    fn write_component_name(&self, i: usize, out: &mut String) {
+        self.mcp.write_component_name(i, out)
     }
     fn structure(&self) -> Option<&dyn StepStructure> {
         self.structure
@@ -527,7 +547,10 @@ impl Simulation {
     /// Sets the data of the span `[t0, t0 + h]` from `start` (the states at its start) and the
     /// warm start in `z`.
     fn prepare_span(&mut self, start: &[BodyState], t0: f64, h: f64) -> Result<(), SceneError> {
-        self.last = None;
+        // Its storage serves the next `LastStep`.
+        if let Some(last) = self.last.take() {
+            self.kept.last = Some(last);
+        }
         let ctx = StepContext {
             scene: &self.scene,
             states: start,
@@ -582,9 +605,23 @@ impl Simulation {
         h: f64,
         solver: &mut dyn McpSolver,
     ) -> Result<Solution, SolveError> {
-        let first = self.solve_step_problem(solver, &self.z);
+        let mut sol = Solution::default();
+        self.solve_prepared_into(start, t0, h, solver, &mut sol)
+            .map(|()| sol)
+    }
+
+    /// [`Simulation::solve_prepared`] into `out` ([`McpSolver::solve_into`]).
+    fn solve_prepared_into(
+        &mut self,
+        start: &[BodyState],
+        t0: f64,
+        h: f64,
+        solver: &mut dyn McpSolver,
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
+        let first = solver.solve_into(&self.step_problem(), &self.z, out);
         let mut failure = match first {
-            Ok(sol) => return Ok(sol),
+            Ok(()) => return Ok(()),
             Err(e) => e,
         };
         let warm = self.z.clone();
@@ -604,12 +641,12 @@ impl Simulation {
                 break;
             }
             attempt += 1;
-            match self.solve_step_problem(solver, &self.z) {
-                Ok(mut sol) => {
-                    sol.summary
+            match solver.solve_into(&self.step_problem(), &self.z, out) {
+                Ok(()) => {
+                    out.summary
                         .counters
                         .add(ecp_model::Counter::Retries, attempt);
-                    return Ok(sol);
+                    return Ok(());
                 }
                 Err(e) => failure = better_failure(failure, e),
             }
@@ -642,6 +679,19 @@ impl Simulation {
         self.step_with(solver, &mut Fallbacks::none())
     }
 
+    /// [`Simulation::step`] into `record`, whose storage is reused: with a backend that
+    /// implements [`McpSolver::solve_into`] without allocating (Newton), a warm step of a
+    /// single-body scene allocates nothing once the first steps have grown the storage
+    /// (`docs/latency.md#allocations`). The same step and record as `step`, bit for bit; on an
+    /// error `record`'s contents are unspecified.
+    pub fn step_into(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        record: &mut StepRecord,
+    ) -> Result<(), SceneError> {
+        self.step_with_into(solver, &mut Fallbacks::none(), record)
+    }
+
     /// Advances one step with `solver`; when it cannot solve the step, with the `fallbacks`, as
     /// far as the formulation's [`Capabilities`] allow: each fallback backend on the same step
     /// problem, then substeps (bisecting only the pieces that fail, down to
@@ -654,57 +704,118 @@ impl Simulation {
         solver: &mut dyn McpSolver,
         fallbacks: &mut Fallbacks,
     ) -> Result<StepRecord, SceneError> {
+        let mut record = StepRecord::default();
+        self.step_with_into(solver, fallbacks, &mut record)?;
+        Ok(record)
+    }
+
+    /// [`Simulation::step_with`] into `record` (as [`Simulation::step_into`]; the fallbacks
+    /// allocate).
+    pub fn step_with_into(
+        &mut self,
+        solver: &mut dyn McpSolver,
+        fallbacks: &mut Fallbacks,
+        record: &mut StepRecord,
+    ) -> Result<(), SceneError> {
         let (t0, h) = (self.t, self.scene.h);
         let started = Instant::now();
         // Before the checkpoint: what the formulation adjusts once per step stays put within the
         // step and its fallbacks.
         self.begin_step()?;
-        let start = self.checkpoint();
+        let mut start = std::mem::take(&mut self.kept.checkpoint);
+        start.0.clone_from(&self.states);
+        start.1.clone_from(&self.z);
+        let mut solution = std::mem::take(&mut self.kept.solution);
+        let taken = self.advance(
+            &start,
+            (t0, h),
+            started,
+            (solver, fallbacks),
+            &mut solution,
+            record,
+        );
+        self.kept.checkpoint = start;
+        self.kept.solution = solution;
+        taken
+    }
+
+    /// The step of [`Simulation::step_with_into`] from its checkpoint `start`, the backend's
+    /// result in `solution`.
+    fn advance(
+        &mut self,
+        start: &Checkpoint,
+        (t0, h): (f64, f64),
+        started: Instant,
+        (solver, fallbacks): (&mut dyn McpSolver, &mut Fallbacks),
+        solution: &mut Solution,
+        record: &mut StepRecord,
+    ) -> Result<(), SceneError> {
         self.prepare_span(&start.0, t0, h)?;
-        let wrenches: Vec<Vector6<f64>> = self.scene.bodies.iter().map(|b| b.load.at(t0)).collect();
-        let (summary, method, solution) = match self.solve_prepared(&start.0, t0, h, solver) {
-            Ok(sol) => {
-                self.take_or_restore(&start, t0, h, &sol.z)?;
-                (sol.summary.clone(), StepMethod::Direct, Some(sol))
-            }
-            Err(SolveError::InvalidProblem(msg)) => {
-                self.restore(&start);
-                return Err(SceneError::Model(ModelError::Dimension(msg)));
-            }
-            Err(SolveError::NotConverged { best }) => {
-                let caps = self.formulation.capabilities();
-                let allowed = (caps.fallback_backends, caps.substeps);
-                let rescued = rescue(self, &start, solver, fallbacks, (t0, h), allowed)
-                    .inspect_err(|_| self.restore(&start))?;
-                match rescued {
-                    Some(rescued) => rescued,
-                    // Exhausted: never take an infeasible iterate; keep the last feasible state,
-                    // the one at the start of the step.
-                    None => (best.summary, StepMethod::Failed, None),
+        let mut wrenches = std::mem::take(&mut self.kept.wrenches);
+        wrenches.clear();
+        wrenches.extend(self.scene.bodies.iter().map(|b| b.load.at(t0)));
+        self.kept.wrenches = wrenches;
+        // `summary`: the record's when it is not `solution`'s; `whole`: `solution` solved the
+        // whole step in one piece.
+        let (summary, method, whole): (Option<Summary>, StepMethod, bool) =
+            match self.solve_prepared_into(&start.0, t0, h, solver, solution) {
+                Ok(()) => {
+                    self.take_or_restore(start, t0, h, &solution.z)?;
+                    (None, StepMethod::Direct, true)
                 }
-            }
-        };
+                Err(SolveError::InvalidProblem(msg)) => {
+                    self.restore(start);
+                    return Err(SceneError::Model(ModelError::Dimension(msg)));
+                }
+                Err(SolveError::NotConverged { best }) => {
+                    let caps = self.formulation.capabilities();
+                    let allowed = (caps.fallback_backends, caps.substeps);
+                    let rescued = rescue(self, start, solver, fallbacks, (t0, h), allowed)
+                        .inspect_err(|_| self.restore(start))?;
+                    match rescued {
+                        Some((summary, method, Some(sol))) => {
+                            *solution = sol;
+                            (Some(summary), method, true)
+                        }
+                        Some((summary, method, None)) => (Some(summary), method, false),
+                        // Exhausted: never take an infeasible iterate; keep the last feasible
+                        // state, the one at the start of the step.
+                        None => (Some(best.summary), StepMethod::Failed, false),
+                    }
+                }
+            };
         let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let converged = method.solved();
         self.step += 1;
         self.t = self.step as f64 * self.scene.h;
         // The step problem in `mcp` is this step's own only when it was solved in one piece.
-        self.last = solution.map(|sol| LastStep {
-            step: self.step,
-            t_start: t0,
-            start: start.0,
-            wrenches,
-            z: sol.z,
-            converged,
-        });
-        Ok(self.record(summary, converged, solve_us, method))
+        if whole {
+            let mut last = self.kept.last.take().unwrap_or_else(|| LastStep {
+                step: 0,
+                t_start: 0.0,
+                start: Vec::new(),
+                wrenches: Vec::new(),
+                z: Vec::new(),
+                converged: false,
+            });
+            last.step = self.step;
+            last.t_start = t0;
+            last.start.clone_from(&start.0);
+            std::mem::swap(&mut last.wrenches, &mut self.kept.wrenches);
+            last.z.clone_from(&solution.z);
+            last.converged = converged;
+            self.last = Some(last);
+        }
+        let summary = summary.as_ref().unwrap_or(&solution.summary);
+        self.record_into(summary, converged, solve_us, method, record);
+        Ok(())
     }
 
     /// [`Simulation::take`], restoring the step's checkpoint when the formulation refuses the
     /// solution.
     fn take_or_restore(
         &mut self,
-        start: &(Vec<BodyState>, Vec<f64>),
+        start: &Checkpoint,
         t0: f64,
         h: f64,
         z: &[f64],
@@ -757,8 +868,9 @@ impl Simulation {
         mut on_step: impl FnMut(&StepRecord) -> bool,
     ) -> Result<usize, SceneError> {
         let mut failed = 0;
+        let mut rec = StepRecord::default();
         while !self.finished() {
-            let rec = self.step_with(solver, fallbacks)?;
+            self.step_with_into(solver, fallbacks, &mut rec)?;
             failed += usize::from(!rec.converged);
             if !on_step(&rec) {
                 break;
@@ -770,40 +882,50 @@ impl Simulation {
     /// The record of the step just taken, from the current states and `z`.
     fn record(
         &self,
-        summary: ecp_model::Summary,
+        summary: Summary,
         converged: bool,
         solve_us: f64,
         method: StepMethod,
     ) -> StepRecord {
-        let mut contacts: Vec<ContactRecord> = Vec::new();
+        let mut record = StepRecord::default();
+        self.record_into(&summary, converged, solve_us, method, &mut record);
+        record
+    }
+
+    /// [`Simulation::record`] into `out`, reusing its storage.
+    fn record_into(
+        &self,
+        summary: &Summary,
+        converged: bool,
+        solve_us: f64,
+        method: StepMethod,
+        out: &mut StepRecord,
+    ) {
+        out.contacts.clear();
         self.formulation.contact_records(
             &self.scene,
             &self.states,
             converged,
             &self.mcp,
             &self.z,
-            &mut contacts,
+            &mut out.contacts,
         );
-        let mut pairs = Vec::new();
+        out.pairs.clear();
         self.formulation
-            .pair_records(&self.scene, converged, &self.mcp, &self.z, &mut pairs);
-        StepRecord {
-            step: self.step,
-            t: self.t,
-            bodies: self.states.clone(),
-            contacts,
-            pairs,
-            energy: self.energy(),
-            summary,
-            converged,
-            solve_us,
-            method,
-        }
+            .pair_records(&self.scene, converged, &self.mcp, &self.z, &mut out.pairs);
+        out.step = self.step;
+        out.t = self.t;
+        out.bodies.clone_from(&self.states);
+        out.energy = self.energy();
+        out.summary.clone_from(summary);
+        out.converged = converged;
+        out.solve_us = solve_us;
+        out.method = method;
     }
 }
 
 impl Spans for Simulation {
-    type Checkpoint = (Vec<BodyState>, Vec<f64>);
+    type Checkpoint = Checkpoint;
 
     fn checkpoint(&self) -> Self::Checkpoint {
         (self.states.clone(), self.z.clone())
@@ -843,6 +965,7 @@ mod tests {
     use super::*;
     use crate::ecp::EcpContacts;
     use crate::point::PointContacts;
+    use crate::record::ContactRecord;
     use crate::scenarios;
     use crate::step::{InertiaEntry, StateComponent};
 
