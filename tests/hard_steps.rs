@@ -447,3 +447,41 @@ fn conic_union_tip_135_step_94_active_set_polish() {
         );
     }
 }
+
+/// `126_v_trough` (a box wedged in a V trough, held by friction) and `020_corner_wall` (a box
+/// pushed into a wall): the body touches two supports, so its contacts carry the conic
+/// backend's load anchor, and the loads that solve a step are not unique (the wedge's squeeze,
+/// the corner's split between floor and wall). The first QP of a step used to centre the anchor
+/// on zero loads: it returned another member of the solution set, millimetres·N·s away from the
+/// warm start, and the fixed point walked back from it by the proximal iteration (10 QPs every
+/// other step on the trough, 7 per step on the corner). Centred on the warm start's loads, a
+/// step close to the previous one takes 1–2 QPs (`docs/latency.md#conic-backend`).
+#[test]
+fn conic_two_supports_first_qp_anchored_at_the_warm_start() {
+    for (name, steps) in [("126_v_trough", 2..=40), ("020_corner_wall", 2..=40)] {
+        let path = regression_scene(name);
+        let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+        let mut sim = conic_at_step(&path, true, *steps.start());
+        let mut solver = ConicSolver::new(ConicSettings {
+            tolerance,
+            newton_polish: 0,
+            ..ConicSettings::default()
+        });
+        for k in steps {
+            let rec = sim
+                .step(&mut solver)
+                .unwrap_or_else(|e| panic!("{name} step {k}: {e}"));
+            assert!(
+                rec.converged && rec.summary.residual <= tolerance,
+                "{name} step {k}: converged {}, residual {:e}",
+                rec.converged,
+                rec.summary.residual
+            );
+            assert!(
+                rec.summary.iterations <= 2,
+                "{name} step {k}: {} outer QPs, expected at most 2",
+                rec.summary.iterations
+            );
+        }
+    }
+}

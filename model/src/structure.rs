@@ -171,4 +171,10 @@ pub trait StepStructure {
     /// active at `a1` with `Σ l_i ∇f_i = −∇g` (non-negative least squares); `p_n`, `p_f`, `σ` as
     /// given. Every entry of `z` is overwritten.
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]);
+    /// The normal impulse `p_n` of contact `c` stored in `z` (a warm start carries the previous
+    /// step's); `None` when the structure does not say. A backend may centre a proximal term
+    /// on it (the conic backend's load anchor, `docs/latency.md#conic-backend`).
+    fn normal_impulse(&self, _c: usize, _z: &[f64]) -> Option<f64> {
+        None
+    }
 }

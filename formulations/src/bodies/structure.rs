@@ -386,6 +386,11 @@ impl StepStructure for MultiBody {
         self.contacts.len()
     }
 
+    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
+        let sc = self.span.contacts.get(c)?;
+        z.get(sc.pn.clone()).and_then(|p| p.first()).copied()
+    }
+
     fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
         self.span
             .bodies

@@ -173,6 +173,11 @@ impl StepStructure for Layout {
         self.contacts.len()
     }
 
+    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
+        let cv = self.contacts.get(c)?;
+        z.get(self.range(cv.pn)).and_then(|p| p.first()).copied()
+    }
+
     fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
         self.bodies
             .iter()

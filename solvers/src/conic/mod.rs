@@ -436,6 +436,16 @@ impl McpSolver for ConicSolver {
         });
         let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
         let mut handoff_tried = false;
+        // The warm start's normal impulse of every contact (empty when the structure does not
+        // say).
+        let warm_loads: Vec<f64> = if residual <= WARM_LOADS_RESIDUAL {
+            (0..nc)
+                .map(|c| structure.normal_impulse(c, z0))
+                .collect::<Option<Vec<f64>>>()
+                .unwrap_or_default()
+        } else {
+            Vec::new()
+        };
         // The stopping test comes before the first QP: a warm start that already solves the step
         // (a body at rest, free flight) costs no QP.
         let outer = if exact && residual <= self.settings.tolerance {
@@ -469,10 +479,20 @@ impl McpSolver for ConicSolver {
             for (g, e) in geometry.iter_mut().zip(&x.ecps) {
                 g.ecp = *e;
             }
-            let previous_loads: Vec<f64> = last_impulses
-                .iter()
-                .map(|p| p.vertex_impulses.iter().map(|(_, l)| l).sum())
-                .collect();
+            // The load anchor's centre: the previous outer iterate's loads, and at the first QP
+            // the warm start's (the previous step's answer). Without them the first QP's anchor
+            // pulls every load towards 0, and on a statically indeterminate contact (a box
+            // wedged in a V trough, held by friction) it returns another member of the solution
+            // set, 5e-3 N·s away, which the fixed point then walks back from in about ten QPs
+            // (`126_v_trough`, `docs/latency.md#conic-backend`).
+            let previous_loads: Vec<f64> = if last_impulses.is_empty() {
+                warm_loads.clone()
+            } else {
+                last_impulses
+                    .iter()
+                    .map(|p| p.vertex_impulses.iter().map(|(_, l)| l).sum())
+                    .collect()
+            };
             let anchor = exact.then_some(step::Anchor {
                 moment: self.settings.anchor_moment,
                 load: self.settings.anchor_load,
@@ -704,6 +724,15 @@ impl McpSolver for ConicSolver {
         )
     }
 }
+
+/// The first QP's load anchor is centred on the warm start's loads (the previous step's answer)
+/// when the warm start's natural residual is at most this, i.e. the step is close to the
+/// previous one: of a non-unique set of loads (a body wedged or pushed into a corner and held by
+/// friction) the QP then keeps the member it had. Further away the centre is zero, as before:
+/// the union desk's warm starts are at 0.1–1 and its trajectory (which depends on the member,
+/// friction acting at each piece's centre of pressure) stays as it was; the stress suite's
+/// troughs and corners are at 1e-11–5e-3 (`docs/latency.md#conic-backend`).
+const WARM_LOADS_RESIDUAL: f64 = 1e-2;
 
 /// The state of the outer fixed point: velocities per body, De Saxcé shifts and ECPs per
 /// contact.

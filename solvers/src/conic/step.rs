@@ -236,8 +236,10 @@ pub(crate) struct Anchor<'a> {
     /// `ρ_n` relative to the contact's normal mobility `W_n(e)ᵀM⁻¹W_n(e)`: weight of the load
     /// anchor.
     pub load: f64,
-    /// The previous iterate's normal impulse `p_{n,c}^k` of every contact; `None` at the first
-    /// iteration (the load anchor is then a small Tikhonov term towards 0).
+    /// The previous iterate's normal impulse `p_{n,c}^k` of every contact; at the first
+    /// iteration the warm start's when it nearly solves the step (`conic/mod.rs`,
+    /// `WARM_LOADS_RESIDUAL`), otherwise `None`: the load anchor is then a Tikhonov term towards
+    /// 0, which picks another member of a non-unique set of loads.
     pub previous_loads: Option<&'a [f64]>,
 }
 
