@@ -238,6 +238,8 @@ pub struct ConicSolver {
     last_error: Option<String>,
     /// The dense QP method's workspace, kept between QPs and solves.
     dense: dense_qp::DenseQp,
+    /// The polish's storage, kept between outer iterations and solves.
+    polish: step::PolishWorkspace,
 }
 
 impl ConicSolver {
@@ -248,6 +250,7 @@ impl ConicSolver {
             last_status: None,
             last_error: None,
             dense: dense_qp::DenseQp::default(),
+            polish: step::PolishWorkspace::default(),
         }
     }
     /// The settings.
@@ -543,7 +546,7 @@ impl McpSolver for ConicSolver {
                 break;
             }
             let polish = exact && self.settings.polish;
-            let point = sub.extract(&result, &bodies, polish);
+            let point = sub.extract(&result, &bodies, polish, &mut self.polish);
             structure.assemble(&point, &mut z_new);
             mcp.evaluate(&z_new, &mut f);
             run.f_evals += 1;

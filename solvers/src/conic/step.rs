@@ -127,6 +127,80 @@ pub(crate) struct StepQp {
     pub patch_vertices: usize,
 }
 
+/// Storage of the polish ([`StepQp::extract`]), kept by the solver across outer iterations and
+/// solves so that a warm polish allocates only the point it returns (`docs/latency.md`): each
+/// vector is cleared and refilled, never dropped.
+#[derive(Default)]
+pub(crate) struct PolishWorkspace {
+    /// Each body's factored mass matrix.
+    factors: Vec<MassFactor>,
+    /// `Σ W p` per body.
+    wrench_sum: Vec<[f64; 6]>,
+    /// The friction wrenches each contact's friction currently acts through, per side.
+    current: Vec<Vec<BodyFriction>>,
+    /// The impulses before a sweep, in the order [`settled`] reads them.
+    before: Vec<f64>,
+    normal: NormalWorkspace,
+}
+
+/// Storage of [`StepQp::correct_normal_impulses`].
+#[derive(Default)]
+struct NormalWorkspace {
+    groups: Groups,
+    vertices: Vec<(usize, usize)>,
+    active: Vec<bool>,
+    w: Vec<VertexWrenches>,
+    minv_w: Vec<VertexWrenches>,
+    rates: Vec<f64>,
+    nu: Vec<(usize, [f64; 6])>,
+    loaded: Vec<usize>,
+    pairs: Vec<(usize, usize)>,
+}
+
+/// The bodies coupled by contacts ([`StepQp::groups`]): the first `len` lists of `list` (the
+/// lists after them are kept for their storage).
+#[derive(Default)]
+struct Groups {
+    root: Vec<usize>,
+    index: Vec<usize>,
+    list: Vec<Vec<usize>>,
+    len: usize,
+}
+
+/// A vertex's wrenches on the bodies it acts on: F, and G when G is dynamic (two at most,
+/// [`normal_sides`]), kept inline.
+#[derive(Clone, Copy, Default)]
+struct VertexWrenches {
+    len: usize,
+    sides: [(usize, [f64; 6]); 2],
+}
+
+impl VertexWrenches {
+    fn iter(&self) -> std::slice::Iter<'_, (usize, [f64; 6])> {
+        self.sides[..self.len].iter()
+    }
+}
+
+impl FromIterator<(usize, [f64; 6])> for VertexWrenches {
+    fn from_iter<I: IntoIterator<Item = (usize, [f64; 6])>>(iter: I) -> Self {
+        let mut out = VertexWrenches::default();
+        for side in iter {
+            // At most two sides by construction (`normal_sides`): an index past them panics.
+            out.sides[out.len] = side;
+            out.len += 1;
+        }
+        out
+    }
+}
+
+impl<'a> IntoIterator for &'a VertexWrenches {
+    type Item = &'a (usize, [f64; 6]);
+    type IntoIter = std::slice::Iter<'a, (usize, [f64; 6])>;
+    fn into_iter(self) -> Self::IntoIter {
+        self.iter()
+    }
+}
+
 /// Friction wrenches `W_t, W_o, W_r` of a contact at its current ECP.
 fn friction_wrenches(g: &ContactGeometry) -> [[f64; 6]; 3] {
     friction_wrenches_about(g, &g.center_of_mass)
@@ -178,7 +252,15 @@ type BodyFriction = (usize, [[f64; 6]; 3]);
 /// opposite ones for a dynamic G), and the data part of the relative slip (a G with prescribed
 /// velocity, `docs/model.md#friction-on-the-relative-velocity`).
 fn friction_sides(g: &ContactGeometry) -> (Vec<BodyFriction>, [f64; 3]) {
-    let mut out = vec![(g.body, friction_wrenches(g))];
+    let mut out = Vec::with_capacity(2);
+    let offset = friction_sides_into(g, &mut out);
+    (out, offset)
+}
+
+/// [`friction_sides`] into `out` (cleared first): the polish's storage, kept across sweeps.
+fn friction_sides_into(g: &ContactGeometry, out: &mut Vec<BodyFriction>) -> [f64; 3] {
+    out.clear();
+    out.push((g.body, friction_wrenches(g)));
     let mut offset = [0.0; 3];
     match g.partner {
         ContactPartner::HalfSpace => {}
@@ -199,7 +281,7 @@ fn friction_sides(g: &ContactGeometry) -> (Vec<BodyFriction>, [f64; 3]) {
             }
         }
     }
-    (out, offset)
+    offset
 }
 
 /// Whether every body contact `g` acts on exists.
@@ -468,11 +550,26 @@ impl StepQp {
     ///
     /// Without `polish` (Anitescu's relaxation, or to measure the plain fixed point) the
     /// impulses are clarabel's duals as they are (only the active-set identification of `λ`).
-    pub fn extract(&self, result: &QpResult, bodies: &[BodyDynamics], polish: bool) -> ConicPoint {
+    pub fn extract(
+        &self,
+        result: &QpResult,
+        bodies: &[BodyDynamics],
+        polish: bool,
+        work: &mut PolishWorkspace,
+    ) -> ConicPoint {
         let nb = bodies.len();
+        let PolishWorkspace {
+            factors,
+            wrench_sum,
+            current,
+            before,
+            normal,
+        } = work;
         // Each body's mass matrix factored once for the whole polish.
-        let factors: Vec<MassFactor> = bodies.iter().map(|b| MassFactor::new(&b.mass)).collect();
-        let mut wrench_sum = vec![[0.0f64; 6]; nb];
+        factors.clear();
+        factors.extend(bodies.iter().map(|b| MassFactor::new(&b.mass)));
+        wrench_sum.clear();
+        wrench_sum.resize(nb, [0.0f64; 6]);
         let mut contacts = Vec::with_capacity(self.contacts.len());
         for rows in &self.contacts {
             let Some(rows) = rows else {
@@ -520,21 +617,19 @@ impl StepQp {
         // residual 1.23e-10 > 1e-10, with the dense QPs; `docs/latency.md#conic-backend`).
         let sweeps = if polish { MAX_SWEEPS } else { 0 };
         // The friction wrenches each contact's friction currently acts through, per side.
-        let mut current: Vec<Vec<BodyFriction>> = self
-            .contacts
-            .iter()
-            .map(|r| {
-                r.as_ref().map_or(Vec::new(), |r| {
-                    r.sides
-                        .iter()
-                        .map(|s| (s.body, s.friction_wrenches))
-                        .collect()
-                })
-            })
-            .collect();
+        current.resize_with(self.contacts.len(), Vec::new);
+        for (sides, r) in current.iter_mut().zip(&self.contacts) {
+            sides.clear();
+            if let Some(r) = r {
+                sides.extend(r.sides.iter().map(|s| (s.body, s.friction_wrenches)));
+            }
+        }
         for sweep in 0..sweeps {
-            let before = contacts.clone();
-            self.correct_normal_impulses(bodies, &factors, &mut contacts, &mut wrench_sum);
+            before.clear();
+            for c in &contacts {
+                before.extend(impulse_values(c));
+            }
+            self.correct_normal_impulses(bodies, factors, &mut contacts, wrench_sum, normal);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
@@ -553,13 +648,14 @@ impl StepQp {
                 }
                 let mut offset = rows.slip_offset;
                 if let Some(cop) = rows.centre_of_pressure(&imp.vertex_impulses) {
-                    let (sides, o) = friction_sides(&ContactGeometry {
-                        ecp: cop,
-                        patch: Vec::new(),
-                        ..rows.frame.clone()
-                    });
-                    current[c] = sides;
-                    offset = o;
+                    offset = friction_sides_into(
+                        &ContactGeometry {
+                            ecp: cop,
+                            patch: Vec::new(),
+                            ..rows.frame.clone()
+                        },
+                        &mut current[c],
+                    );
                 }
                 // The local problem on the slip of F relative to G: the Delassus matrix and the
                 // slip without this friction summed over the bodies it acts on.
@@ -572,7 +668,7 @@ impl StepQp {
                     for k in 0..6 {
                         nu0[k] += dv[k];
                     }
-                    let minv_w: Vec<[f64; 6]> = wf.iter().map(|w| factors[*b].solve(w)).collect();
+                    let minv_w: [[f64; 6]; 3] = std::array::from_fn(|j| factors[*b].solve(&wf[j]));
                     for i in 0..3 {
                         u0[i] += dot6(&wf[i], &nu0);
                         for j in 0..3 {
@@ -595,7 +691,7 @@ impl StepQp {
                     }
                 }
             }
-            if sweep >= 2 && settled(&before, &contacts) {
+            if sweep >= 2 && settled(before, &contacts) {
                 break;
             }
         }
@@ -648,22 +744,19 @@ const VIOLATION: f64 = 1e-9;
 /// Relative change of the impulses below which the polish's sweeps have settled.
 const SETTLED: f64 = 1e-12;
 
-/// Whether a polish sweep changed no impulse by more than `SETTLED` of the largest one.
-fn settled(before: &[ContactImpulses], after: &[ContactImpulses]) -> bool {
-    let values = |c: &ContactImpulses| {
-        c.vertex_impulses
-            .iter()
-            .map(|(_, l)| *l)
-            .chain(c.friction)
-            .collect::<Vec<f64>>()
-    };
+/// A contact's impulses as [`settled`] compares them: the vertices' `λ`, then the friction.
+fn impulse_values(c: &ContactImpulses) -> impl Iterator<Item = f64> + '_ {
+    c.vertex_impulses.iter().map(|(_, l)| *l).chain(c.friction)
+}
+
+/// Whether a polish sweep changed no impulse by more than `SETTLED` of the largest one
+/// (`before`: the [`impulse_values`] of every contact before the sweep, in order).
+fn settled(before: &[f64], after: &[ContactImpulses]) -> bool {
     let mut scale: f64 = 0.0;
     let mut change: f64 = 0.0;
-    for (b, a) in before.iter().zip(after) {
-        for (x, y) in values(b).iter().zip(values(a)) {
-            scale = scale.max(y.abs());
-            change = change.max((x - y).abs());
-        }
+    for (x, y) in before.iter().zip(after.iter().flat_map(impulse_values)) {
+        scale = scale.max(y.abs());
+        change = change.max((x - y).abs());
     }
     change <= SETTLED * scale
 }
@@ -707,12 +800,25 @@ impl StepQp {
         factors: &[MassFactor],
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
+        work: &mut NormalWorkspace,
     ) {
-        for group in self.groups(bodies.len()) {
+        let NormalWorkspace {
+            groups,
+            vertices,
+            active,
+            w,
+            minv_w,
+            rates,
+            nu,
+            loaded,
+            pairs,
+        } = work;
+        self.groups(bodies.len(), groups);
+        for group in &groups.list[..groups.len] {
             // (contact, position in the contact's vertex list) of every vertex of the group, and
             // whether it is in the active set (loaded, or added below because it was violated).
-            let mut vertices: Vec<(usize, usize)> = Vec::new();
-            let mut active: Vec<bool> = Vec::new();
+            vertices.clear();
+            active.clear();
             for (c, rows) in self.contacts.iter().enumerate() {
                 let Some(rows) = rows else { continue };
                 if !group.contains(&rows.sides[0].body) {
@@ -727,24 +833,24 @@ impl StepQp {
                 continue;
             }
             // The wrenches of each vertex on each body of the group.
-            let w: Vec<Vec<(usize, [f64; 6])>> = vertices
-                .iter()
-                .filter_map(|&(c, k)| {
-                    self.contacts[c].as_ref().map(|r| {
-                        r.sides
-                            .iter()
-                            .map(|s| (s.body, s.normal_wrenches[k]))
-                            .collect()
-                    })
+            w.clear();
+            w.extend(vertices.iter().filter_map(|&(c, k)| {
+                self.contacts[c].as_ref().map(|r| {
+                    r.sides
+                        .iter()
+                        .map(|s| (s.body, s.normal_wrenches[k]))
+                        .collect::<VertexWrenches>()
                 })
-                .collect();
+            }));
             if w.len() != vertices.len() {
                 continue;
             }
-            let minv_w: Vec<Vec<(usize, [f64; 6])>> = w
-                .iter()
-                .map(|ws| ws.iter().map(|(b, x)| (*b, factors[*b].solve(x))).collect())
-                .collect();
+            minv_w.clear();
+            minv_w.extend(w.iter().map(|ws| {
+                ws.iter()
+                    .map(|(b, x)| (*b, factors[*b].solve(x)))
+                    .collect::<VertexWrenches>()
+            }));
             // Active-set loop (a primal active-set method on the Delassus LCP): correct the active
             // vertices' gaps; a vertex whose impulse would go negative blocks the step and leaves
             // the set; when the step is full, the most violated unloaded vertex (gap rate below
@@ -755,9 +861,10 @@ impl StepQp {
             let mut just_added: Option<usize> = None;
             // The rates at the current impulses: computed here, then after each full step (the
             // only way to the next pass of the loop).
-            let mut rates = self.gap_rates(&group, bodies, factors, wrench_sum, &vertices, &w);
+            self.gap_rates(group, bodies, factors, wrench_sum, vertices, w, nu, rates);
             for _ in 0..2 * vertices.len() + 2 {
-                let loaded: Vec<usize> = (0..vertices.len()).filter(|&i| active[i]).collect();
+                loaded.clear();
+                loaded.extend((0..vertices.len()).filter(|&i| active[i]));
                 let k = loaded.len();
                 if k == 0 {
                     break;
@@ -777,7 +884,8 @@ impl StepQp {
                     }
                     r[a] = -rates[i];
                 }
-                let pairs: Vec<(usize, usize)> = loaded.iter().map(|&i| vertices[i]).collect();
+                pairs.clear();
+                pairs.extend(loaded.iter().map(|&i| vertices[i]));
                 let anchored = pairs.iter().any(|&(c, _)| {
                     self.contacts[c]
                         .as_ref()
@@ -790,7 +898,7 @@ impl StepQp {
                     // point then stops elsewhere within its tolerance (loads 4.5e-4 apart by
                     // the end).
                     let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
-                    self.anchored_correction(&pairs, contacts, rows, &r)
+                    self.anchored_correction(pairs, contacts, rows, &r)
                         .map(|x| delta.copy_from_slice(&x))
                         .is_some()
                 } else {
@@ -829,7 +937,7 @@ impl StepQp {
                     break;
                 }
                 // Full step: the most violated vertex outside the set, if any, joins it.
-                rates = self.gap_rates(&group, bodies, factors, wrench_sum, &vertices, &w);
+                self.gap_rates(group, bodies, factors, wrench_sum, vertices, w, nu, rates);
                 let scale = rates.iter().fold(0.0f64, |m, x| m.max(x.abs()));
                 let worst = (0..vertices.len())
                     .filter(|&i| !active[i])
@@ -846,7 +954,9 @@ impl StepQp {
     }
 
     /// Linearised gap rates `g_j/h + W_{n,j}ᵀ(ν − ν^k)` of `vertices` (wrenches `w`) at the
-    /// velocities `ν = ν_free + M⁻¹ Σ W p` of the bodies of `group`.
+    /// velocities `ν = ν_free + M⁻¹ Σ W p` of the bodies of `group`, into `rates` (`nu`: the
+    /// velocities' storage).
+    #[allow(clippy::too_many_arguments)]
     fn gap_rates(
         &self,
         group: &[usize],
@@ -854,41 +964,45 @@ impl StepQp {
         factors: &[MassFactor],
         wrench_sum: &[[f64; 6]],
         vertices: &[(usize, usize)],
-        w: &[Vec<(usize, [f64; 6])>],
-    ) -> Vec<f64> {
-        let nu: Vec<(usize, [f64; 6])> = group
-            .iter()
-            .map(|&b| {
-                let body = &bodies[b];
-                let dv = factors[b].solve(&wrench_sum[b]);
-                let mut nu = body.free_velocity;
-                for i in 0..6 {
-                    nu[i] += dv[i];
-                }
-                (b, nu)
-            })
-            .collect();
+        w: &[VertexWrenches],
+        nu: &mut Vec<(usize, [f64; 6])>,
+        rates: &mut Vec<f64>,
+    ) {
+        nu.clear();
+        nu.extend(group.iter().map(|&b| {
+            let body = &bodies[b];
+            let dv = factors[b].solve(&wrench_sum[b]);
+            let mut nu = body.free_velocity;
+            for i in 0..6 {
+                nu[i] += dv[i];
+            }
+            (b, nu)
+        }));
         let velocity = |b: usize| nu.iter().find(|(c, _)| *c == b).map(|(_, v)| *v);
-        vertices
-            .iter()
-            .zip(w)
-            .map(|(&(c, kk), ws)| {
-                let mut rate = self.contacts[c]
-                    .as_ref()
-                    .map_or(0.0, |rows| rows.gap_rates[kk]);
-                for (b, wi) in ws {
-                    rate += dot6(wi, &velocity(*b).unwrap_or([0.0; 6]));
-                }
-                rate
-            })
-            .collect()
+        rates.clear();
+        rates.extend(vertices.iter().zip(w).map(|(&(c, kk), ws)| {
+            let mut rate = self.contacts[c]
+                .as_ref()
+                .map_or(0.0, |rows| rows.gap_rates[kk]);
+            for (b, wi) in ws {
+                rate += dot6(wi, &velocity(*b).unwrap_or([0.0; 6]));
+            }
+            rate
+        }));
     }
 
     /// The bodies coupled by contacts (connected components of the contact graph), each sorted,
     /// in the order of their smallest body: the loaded vertices of one group share a Delassus
     /// system. A body touching only half-spaces is a group by itself.
-    fn groups(&self, num_bodies: usize) -> Vec<Vec<usize>> {
-        let mut root: Vec<usize> = (0..num_bodies).collect();
+    fn groups(&self, num_bodies: usize, out: &mut Groups) {
+        let Groups {
+            root,
+            index,
+            list,
+            len,
+        } = out;
+        root.clear();
+        root.extend(0..num_bodies);
         fn find(root: &mut [usize], mut b: usize) -> usize {
             while root[b] != b {
                 root[b] = root[root[b]];
@@ -899,23 +1013,27 @@ impl StepQp {
         for rows in self.contacts.iter().flatten() {
             let first = rows.sides[0].body;
             for side in &rows.sides[1..] {
-                let (a, b) = (find(&mut root, first), find(&mut root, side.body));
+                let (a, b) = (find(root, first), find(root, side.body));
                 if a != b {
                     root[a.max(b)] = a.min(b);
                 }
             }
         }
-        let mut groups: Vec<Vec<usize>> = Vec::new();
-        let mut index = vec![usize::MAX; num_bodies];
+        *len = 0;
+        index.clear();
+        index.resize(num_bodies, usize::MAX);
         for b in 0..num_bodies {
-            let r = find(&mut root, b);
+            let r = find(root, b);
             if index[r] == usize::MAX {
-                index[r] = groups.len();
-                groups.push(Vec::new());
+                index[r] = *len;
+                if list.len() == *len {
+                    list.push(Vec::new());
+                }
+                list[*len].clear();
+                *len += 1;
             }
-            groups[index[r]].push(b);
+            list[index[r]].push(b);
         }
-        groups
     }
 }
 
