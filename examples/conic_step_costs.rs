@@ -13,7 +13,7 @@ use ecp::formulations::{FormulationRegistry, SimulationBuilder};
 use ecp::model::{Mcp, McpSolver, SolveError};
 use ecp::scene::load_scene;
 use ecp::solvers::conic::{ConicSettings, ConicSolver};
-use ecp::solvers::registry::{BackendOptions, Registry};
+use ecp::solvers::registry::{self, BackendOptions, Registry};
 
 fn main() -> ExitCode {
     match run() {
@@ -142,15 +142,7 @@ fn trace(
 
 /// The conic settings the registry builds, changed by `NAME=VALUE` pairs.
 fn conic_settings(o: &BackendOptions, sets: &[String]) -> Result<ConicSettings, String> {
-    let d = ConicSettings::default();
-    let mut s = ConicSettings {
-        tolerance: o.tolerance.unwrap_or(d.tolerance),
-        max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
-        newton_polish: o
-            .max_iterations
-            .map_or(d.newton_polish, |n| d.newton_polish.min(n)),
-        ..d
-    };
+    let mut s = registry::conic_settings(o);
     for kv in sets {
         let (name, value) = kv.split_once('=').ok_or("expected NAME=VALUE")?;
         let f = || value.parse::<f64>().map_err(|e| e.to_string());

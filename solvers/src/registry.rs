@@ -228,17 +228,23 @@ impl Backend for ConicBackend {
         true
     }
     fn build(&self, o: &BackendOptions) -> Result<Box<dyn McpSolver>, SettingsError> {
-        let d = ConicSettings::default();
-        let s = ConicSettings {
-            tolerance: o.tolerance.unwrap_or(d.tolerance),
-            max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
-            newton_polish: o
-                .max_iterations
-                .map_or(d.newton_polish, |n| d.newton_polish.min(n)),
-            ..d
-        };
+        let s = conic_settings(o);
         s.validate()?;
         Ok(Box::new(ConicSolver::new(s)))
+    }
+}
+
+/// The conic backend's settings for `o`, as the registry builds them (not yet validated): the
+/// defaults with `o`'s tolerance and iteration limit, the Newton polish capped by the latter.
+pub fn conic_settings(o: &BackendOptions) -> ConicSettings {
+    let d = ConicSettings::default();
+    ConicSettings {
+        tolerance: o.tolerance.unwrap_or(d.tolerance),
+        max_iterations: o.max_iterations.unwrap_or(d.max_iterations),
+        newton_polish: o
+            .max_iterations
+            .map_or(d.newton_polish, |n| d.newton_polish.min(n)),
+        ..d
     }
 }
 
