@@ -140,8 +140,6 @@ pub(crate) struct PolishWorkspace {
     current: Vec<Vec<BodyFriction>>,
     /// The impulses before a sweep, in the order [`settled`] reads them.
     before: Vec<f64>,
-    /// The data part of each contact's slip at the centre of pressure its friction acts at.
-    offsets: Vec<[f64; 3]>,
     normal: NormalWorkspace,
 }
 
@@ -539,7 +537,9 @@ impl StepQp {
     ///   Acary–Cadoux / NSGS literature), `min ½ pᵀA p + u₀ᵀp` over the ellipsoid
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
     ///   ([`local_friction`]), in Gauss–Seidel sweeps (normal correction, then each contact's
-    ///   friction) until they settle, starting from the QP's dual; it sticks with `u_T = 0`
+    ///   friction) until they settle, starting from the QP's dual (sweeps still unsettled after
+    ///   [`JOINT_AFTER`] try a joint Newton step on the coupled conditions,
+    ///   [`StepQp::joint_step`], which the next sweeps confirm); it sticks with `u_T = 0`
     ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
     ///   (`docs/model.md#friction`); every contact's friction acts at the centre of pressure of
     ///   its corrected normal impulses (the ECP of the assembled point) rather than at the ECP
@@ -565,7 +565,6 @@ impl StepQp {
             wrench_sum,
             current,
             before,
-            offsets,
             normal,
         } = work;
         // Each body's mass matrix factored once for the whole polish.
@@ -621,12 +620,6 @@ impl StepQp {
         let sweeps = if polish { MAX_SWEEPS } else { 0 };
         // The friction wrenches each contact's friction currently acts through, per side.
         current.resize_with(self.contacts.len(), Vec::new);
-        offsets.clear();
-        offsets.extend(
-            self.contacts
-                .iter()
-                .map(|r| r.as_ref().map_or([0.0; 3], |r| r.slip_offset)),
-        );
         for (sides, r) in current.iter_mut().zip(&self.contacts) {
             sides.clear();
             if let Some(r) = r {
@@ -666,7 +659,6 @@ impl StepQp {
                         &mut current[c],
                     );
                 }
-                offsets[c] = offset;
                 // The local problem on the slip of F relative to G: the Delassus matrix and the
                 // slip without this friction summed over the bodies it acts on.
                 let mut a = [[0.0; 3]; 3];
@@ -708,7 +700,7 @@ impl StepQp {
             // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
             // problem by Newton's method on its active set, which the next sweeps confirm.
             if (sweep + 1) % JOINT_AFTER == 0 {
-                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current, offsets);
+                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current);
             }
         }
         let velocities: Vec<[f64; 6]> = bodies
@@ -1186,14 +1178,30 @@ impl StepQp {
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
         current: &[Vec<BodyFriction>],
-        offsets: &[[f64; 3]],
     ) -> bool {
+        // A patch's vertex wrenches `[n; r × n]` span three dimensions at most (the force along
+        // n, the moments about two axes in the patch), so a contact with more than three loaded
+        // vertices (the desk's legs) has loads that are not unique: refused before any work.
+        let unique = self
+            .contacts
+            .iter()
+            .zip(contacts.iter())
+            .all(|(rows, imp)| {
+                rows.is_none() || imp.vertex_impulses.iter().filter(|(_, l)| *l > 0.0).count() <= 3
+            });
+        if !unique {
+            return false;
+        }
         // The unknowns, their wrenches on each body and the starting values.
         let mut unknowns = Vec::new();
         let mut wrenches: Vec<Vec<(usize, [f64; 6])>> = Vec::new();
         let mut x0 = Vec::new();
         // Friction contacts: (contact, first unknown, sliding, ρ = μ p_n, first λ, λ count).
         let mut frictions = Vec::new();
+        // The data part of each friction contact's slip at its centre of pressure (as the
+        // sweeps compute it; zero but for a G with prescribed velocity).
+        let mut offsets = vec![[0.0; 3]; self.contacts.len()];
+        let mut sides = Vec::new();
         for (c, rows) in self.contacts.iter().enumerate() {
             let Some(rows) = rows else { continue };
             let first_lambda = unknowns.len();
@@ -1211,7 +1219,24 @@ impl StepQp {
             }
             let count = unknowns.len() - first_lambda;
             if rows.soc_row.is_some() && count > 0 {
-                frictions.push((c, unknowns.len(), contacts[c].sigma > 0.0, first_lambda, count));
+                offsets[c] = match rows.centre_of_pressure(&contacts[c].vertex_impulses) {
+                    Some(cop) => friction_sides_into(
+                        &ContactGeometry {
+                            ecp: cop,
+                            patch: Vec::new(),
+                            ..rows.frame.clone()
+                        },
+                        &mut sides,
+                    ),
+                    None => rows.slip_offset,
+                };
+                frictions.push((
+                    c,
+                    unknowns.len(),
+                    contacts[c].sigma > 0.0,
+                    first_lambda,
+                    count,
+                ));
                 for i in 0..3 {
                     unknowns.push(Unknown::Friction(c, i));
                     wrenches.push(current[c].iter().map(|(b, wf)| (*b, wf[i])).collect());
@@ -1263,7 +1288,12 @@ impl StepQp {
         for _ in 0..JOINT_ITERATIONS {
             // Rows' values at x (linear in x), then the residual and Jacobian.
             let v: Vec<f64> = (0..n)
-                .map(|r| v0[r] + (0..n).map(|j| kmat[r * n + j] * (x[j] - x0[j])).sum::<f64>())
+                .map(|r| {
+                    v0[r]
+                        + (0..n)
+                            .map(|j| kmat[r * n + j] * (x[j] - x0[j]))
+                            .sum::<f64>()
+                })
                 .collect();
             let mut f = v.clone();
             let mut jac = kmat.clone();
