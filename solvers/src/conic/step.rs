@@ -1170,7 +1170,10 @@ impl StepQp {
     /// friction stays in its cone, and every sliding one keeps its slip; otherwise nothing
     /// changes and the sweeps go on. Loads that are not unique (four coplanar vertices, the
     /// union desk's legs) make the Jacobian singular: refused the same way. Returns whether
-    /// the point was taken.
+    /// the point was taken. Cold and out of line: most polishes settle before it, and the
+    /// desk's that do not are refused at once by the loaded-vertex count.
+    #[cold]
+    #[inline(never)]
     fn joint_step(
         &self,
         bodies: &[BodyDynamics],
