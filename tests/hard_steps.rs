@@ -485,3 +485,38 @@ fn conic_two_supports_first_qp_anchored_at_the_warm_start() {
         }
     }
 }
+
+/// `087_v_trough` steps 4–12 (μ = 1.18, a box sliding along a steep V on one vertex per
+/// support; `docs/latency.md#conic-backend`): the polish's Gauss–Seidel sweeps (normal
+/// correction, then each contact's friction) contract at about 0.85 per sweep here and stopped
+/// at their cap of 50 with a remainder of 1e-9, so the outer fixed point settled at a natural
+/// residual of 1.136e-10 against the tolerance 1e-10 and stagnated (24–35 QPs, then the Newton
+/// polish; without the Newton polish not converged). With the joint Newton step on the polish's
+/// active set after 10 unsettled sweeps each step takes 3 QPs, without a Newton polish.
+#[test]
+fn conic_v_trough_087_joint_polish() {
+    let path = regression_scene("087_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let mut sim = conic_at_step(&path, true, 4);
+    let mut solver = ConicSolver::new(ConicSettings {
+        tolerance,
+        newton_polish: 0,
+        ..ConicSettings::default()
+    });
+    for k in 4..=12 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        assert!(
+            rec.summary.iterations <= 4,
+            "step {k}: {} outer QPs, expected at most 4",
+            rec.summary.iterations
+        );
+    }
+}

@@ -537,7 +537,9 @@ impl StepQp {
     ///   Acary–Cadoux / NSGS literature), `min ½ pᵀA p + u₀ᵀp` over the ellipsoid
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
     ///   ([`local_friction`]), in Gauss–Seidel sweeps (normal correction, then each contact's
-    ///   friction) until they settle, starting from the QP's dual; it sticks with `u_T = 0`
+    ///   friction) until they settle, starting from the QP's dual (sweeps still unsettled after
+    ///   [`JOINT_AFTER`] try a joint Newton step on the coupled conditions,
+    ///   [`StepQp::joint_step`], which the next sweeps confirm); it sticks with `u_T = 0`
     ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
     ///   (`docs/model.md#friction`); every contact's friction acts at the centre of pressure of
     ///   its corrected normal impulses (the ECP of the assembled point) rather than at the ECP
@@ -694,6 +696,12 @@ impl StepQp {
             if sweep >= 2 && settled(before, &contacts) {
                 break;
             }
+            // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
+            // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
+            // problem by Newton's method on its active set, which the next sweeps confirm.
+            if (sweep + 1) % JOINT_AFTER == 0 {
+                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current);
+            }
         }
         let velocities: Vec<[f64; 6]> = bodies
             .iter()
@@ -735,6 +743,16 @@ impl StepQp {
 
 /// Gauss–Seidel sweeps of the polish at most.
 const MAX_SWEEPS: usize = 50;
+
+/// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
+/// ([`StepQp::joint_step`]). The desk's polishes settle in about 5.
+const JOINT_AFTER: usize = 10;
+
+/// Newton iterations of a joint step at most.
+const JOINT_ITERATIONS: usize = 12;
+
+/// Relative size of the last Newton step at which a joint step has converged.
+const JOINT_SETTLED: f64 = 1e-14;
 
 /// An unloaded vertex joins the polish's active set when its gap rate is below `−VIOLATION`
 /// times the largest gap rate of its group (at least 1 m/s): far above the round-off of the
@@ -1122,6 +1140,253 @@ impl StepQp {
         }
         let x = solve_dense(a, rhs)?;
         Some(x[..k].to_vec())
+    }
+}
+
+/// One unknown of the polish's joint Newton step ([`StepQp::joint_step`]).
+#[derive(Clone, Copy)]
+enum Unknown {
+    /// The normal impulse `λ` of a loaded vertex: (contact, position in its vertex list).
+    Vertex(usize, usize),
+    /// Component `i` of a contact's friction impulse: (contact, i).
+    Friction(usize, usize),
+}
+
+impl StepQp {
+    /// A joint Newton step of the polish: with the active set of its conditions fixed (the
+    /// loaded vertices, each loaded contact's friction sticking or sliding, as the last sweep left
+    /// them) and each friction at its current centre of pressure, solves the coupled conditions
+    /// the Gauss–Seidel sweeps settle one block at a time, all contacts together:
+    ///
+    /// ```text
+    /// g_j/h + W_{n,j}ᵀ(ν − ν^k) = 0                  every loaded vertex j
+    /// u_c = W_{f,c}ᵀ ν + o_c = 0                       sticking contact c
+    /// p_c + μ p_{n,c} E² u_c / ‖E u_c‖ = 0             sliding contact c
+    /// ```
+    ///
+    /// with `ν = ν_free + M⁻¹ Σ W p` linear in the unknowns (`K = Wᵀ M⁻¹ W`, the Delassus
+    /// matrix of every loaded vertex and friction component). The point is taken only when
+    /// Newton's method converges to round-off, every load stays positive, every sticking
+    /// friction stays in its cone, and every sliding one keeps its slip; otherwise nothing
+    /// changes and the sweeps go on. Loads that are not unique (four coplanar vertices, the
+    /// union desk's legs) make the Jacobian singular: refused the same way. Returns whether
+    /// the point was taken. Cold and out of line: most polishes settle before it, and the
+    /// desk's that do not are refused at once by the loaded-vertex count.
+    #[cold]
+    #[inline(never)]
+    fn joint_step(
+        &self,
+        bodies: &[BodyDynamics],
+        factors: &[MassFactor],
+        contacts: &mut [ContactImpulses],
+        wrench_sum: &mut [[f64; 6]],
+        current: &[Vec<BodyFriction>],
+    ) -> bool {
+        // A patch's vertex wrenches `[n; r × n]` span three dimensions at most (the force along
+        // n, the moments about two axes in the patch), so a contact with more than three loaded
+        // vertices (the desk's legs) has loads that are not unique: refused before any work.
+        let unique = self
+            .contacts
+            .iter()
+            .zip(contacts.iter())
+            .all(|(rows, imp)| {
+                rows.is_none() || imp.vertex_impulses.iter().filter(|(_, l)| *l > 0.0).count() <= 3
+            });
+        if !unique {
+            return false;
+        }
+        // The unknowns, their wrenches on each body and the starting values.
+        let mut unknowns = Vec::new();
+        let mut wrenches: Vec<Vec<(usize, [f64; 6])>> = Vec::new();
+        let mut x0 = Vec::new();
+        // Friction contacts: (contact, first unknown, sliding, ρ = μ p_n, first λ, λ count).
+        let mut frictions = Vec::new();
+        // The data part of each friction contact's slip at its centre of pressure (as the
+        // sweeps compute it; zero but for a G with prescribed velocity).
+        let mut offsets = vec![[0.0; 3]; self.contacts.len()];
+        let mut sides = Vec::new();
+        for (c, rows) in self.contacts.iter().enumerate() {
+            let Some(rows) = rows else { continue };
+            let first_lambda = unknowns.len();
+            for (k, &(_, l)) in contacts[c].vertex_impulses.iter().enumerate() {
+                if l > 0.0 {
+                    unknowns.push(Unknown::Vertex(c, k));
+                    wrenches.push(
+                        rows.sides
+                            .iter()
+                            .map(|s| (s.body, s.normal_wrenches[k]))
+                            .collect(),
+                    );
+                    x0.push(l);
+                }
+            }
+            let count = unknowns.len() - first_lambda;
+            if rows.soc_row.is_some() && count > 0 {
+                offsets[c] = match rows.centre_of_pressure(&contacts[c].vertex_impulses) {
+                    Some(cop) => friction_sides_into(
+                        &ContactGeometry {
+                            ecp: cop,
+                            patch: Vec::new(),
+                            ..rows.frame.clone()
+                        },
+                        &mut sides,
+                    ),
+                    None => rows.slip_offset,
+                };
+                frictions.push((
+                    c,
+                    unknowns.len(),
+                    contacts[c].sigma > 0.0,
+                    first_lambda,
+                    count,
+                ));
+                for i in 0..3 {
+                    unknowns.push(Unknown::Friction(c, i));
+                    wrenches.push(current[c].iter().map(|(b, wf)| (*b, wf[i])).collect());
+                    x0.push(contacts[c].friction[i]);
+                }
+            }
+        }
+        let n = unknowns.len();
+        if n == 0 {
+            return false;
+        }
+        // K = Wᵀ M⁻¹ W and the rows' values at the start: gap rates and slips.
+        let velocity: Vec<[f64; 6]> = bodies
+            .iter()
+            .enumerate()
+            .map(|(b, body)| {
+                let dv = factors[b].solve(&wrench_sum[b]);
+                std::array::from_fn(|i| body.free_velocity[i] + dv[i])
+            })
+            .collect();
+        let minv_w: Vec<Vec<(usize, [f64; 6])>> = wrenches
+            .iter()
+            .map(|ws| ws.iter().map(|(b, w)| (*b, factors[*b].solve(w))).collect())
+            .collect();
+        let mut kmat = vec![0.0; n * n];
+        for r in 0..n {
+            for j in 0..n {
+                for (br, wr) in &wrenches[r] {
+                    for (bj, yj) in &minv_w[j] {
+                        if br == bj {
+                            kmat[r * n + j] += dot6(wr, yj);
+                        }
+                    }
+                }
+            }
+        }
+        let mut v0: Vec<f64> = wrenches
+            .iter()
+            .map(|ws| ws.iter().map(|(b, w)| dot6(w, &velocity[*b])).sum())
+            .collect();
+        for (r, u) in unknowns.iter().enumerate() {
+            v0[r] += match *u {
+                Unknown::Vertex(c, k) => self.contacts[c].as_ref().map_or(0.0, |r| r.gap_rates[k]),
+                Unknown::Friction(c, i) => offsets[c][i],
+            };
+        }
+        let mut x = x0.clone();
+        let mut converged = false;
+        for _ in 0..JOINT_ITERATIONS {
+            // Rows' values at x (linear in x), then the residual and Jacobian.
+            let v: Vec<f64> = (0..n)
+                .map(|r| {
+                    v0[r]
+                        + (0..n)
+                            .map(|j| kmat[r * n + j] * (x[j] - x0[j]))
+                            .sum::<f64>()
+                })
+                .collect();
+            let mut f = v.clone();
+            let mut jac = kmat.clone();
+            for &(c, first, sliding, first_lambda, count) in &frictions {
+                if !sliding {
+                    continue;
+                }
+                let Some(rows) = self.contacts[c].as_ref() else {
+                    return false;
+                };
+                let e = rows.axes;
+                let q: [f64; 3] = std::array::from_fn(|i| e[i] * v[first + i]);
+                let sigma = dot3(&q, &q).sqrt();
+                let rho = rows.mu * x[first_lambda..first_lambda + count].iter().sum::<f64>();
+                if sigma.is_nan() || sigma <= 0.0 || rho.is_nan() || rho <= 0.0 {
+                    return false;
+                }
+                let qh = q.map(|v| v / sigma);
+                // d(E² u/σ)/du = E (I − q̂q̂ᵀ) E / σ, q = E u.
+                let t: [[f64; 3]; 3] = std::array::from_fn(|i| {
+                    std::array::from_fn(|l| {
+                        e[i] * (f64::from(u8::from(i == l)) - qh[i] * qh[l]) * e[l] / sigma
+                    })
+                });
+                let dir: [f64; 3] = std::array::from_fn(|i| e[i] * qh[i]);
+                for i in 0..3 {
+                    let r = first + i;
+                    f[r] = x[r] + rho * dir[i];
+                    for j in 0..n {
+                        jac[r * n + j] = rho
+                            * (0..3)
+                                .map(|l| t[i][l] * kmat[(first + l) * n + j])
+                                .sum::<f64>();
+                    }
+                    jac[r * n + r] += 1.0;
+                    for j in first_lambda..first_lambda + count {
+                        jac[r * n + j] += rows.mu * dir[i];
+                    }
+                }
+            }
+            let rows_of: Vec<Vec<f64>> = jac.chunks_exact(n).map(<[f64]>::to_vec).collect();
+            let Some(delta) = solve_dense(rows_of, f.iter().map(|v| -v).collect()) else {
+                return false;
+            };
+            let size = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            let step = delta.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for j in 0..n {
+                x[j] += delta[j];
+            }
+            if step <= JOINT_SETTLED * size {
+                converged = true;
+                break;
+            }
+        }
+        if !converged || x.iter().any(|v| !v.is_finite()) {
+            return false;
+        }
+        // The active set must hold at the new point.
+        for (j, u) in unknowns.iter().enumerate() {
+            if matches!(u, Unknown::Vertex(..)) && x[j] <= 0.0 {
+                return false;
+            }
+        }
+        for &(c, first, sliding, first_lambda, count) in &frictions {
+            let Some(rows) = self.contacts[c].as_ref() else {
+                return false;
+            };
+            let rho = rows.mu * x[first_lambda..first_lambda + count].iter().sum::<f64>();
+            let inside = (0..3)
+                .map(|i| (x[first + i] / rows.axes[i]).powi(2))
+                .sum::<f64>()
+                .sqrt();
+            if !sliding && inside > rho * (1.0 + 1e-12) {
+                return false;
+            }
+        }
+        // Take the point: the impulses and their wrench sums.
+        for (j, u) in unknowns.iter().enumerate() {
+            let change = x[j] - x0[j];
+            match *u {
+                Unknown::Vertex(c, k) => contacts[c].vertex_impulses[k].1 = x[j],
+                Unknown::Friction(c, i) => contacts[c].friction[i] = x[j],
+            }
+            for (b, w) in &wrenches[j] {
+                for i in 0..6 {
+                    wrench_sum[*b][i] += change * w[i];
+                }
+            }
+        }
+        true
     }
 }
 
