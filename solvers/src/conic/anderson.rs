@@ -7,44 +7,76 @@
 //! of the last few iterates removes them; the solver falls back to the plain update when the
 //! mixing does not help.
 
-/// Memory and history of the accelerator.
+/// Memory and history of the accelerator. Its history's vectors are kept when it is reset
+/// (the solver keeps one accelerator across solves, `conic/mod.rs`).
+#[derive(Default)]
 pub(crate) struct Anderson {
     memory: usize,
     xs: Vec<Vec<f64>>,
     gs: Vec<Vec<f64>>,
+    /// Vectors of a forgotten history, reused for the next pairs.
+    spare: Vec<Vec<f64>>,
 }
 
 impl Anderson {
     /// An accelerator remembering `memory` previous iterates (0 disables it).
+    #[cfg(test)]
     pub fn new(memory: usize) -> Self {
         Anderson {
             memory,
-            xs: Vec::new(),
-            gs: Vec::new(),
+            ..Anderson::default()
         }
+    }
+
+    /// Forgets the history and remembers `memory` previous iterates from now on.
+    pub fn restart(&mut self, memory: usize) {
+        self.memory = memory;
+        self.reset();
     }
 
     /// Forgets the history (after a failed step or a change of active set).
     pub fn reset(&mut self) {
-        self.xs.clear();
-        self.gs.clear();
+        self.spare.append(&mut self.xs);
+        self.spare.append(&mut self.gs);
+    }
+
+    /// `v` as a kept vector (a spare one refilled, or a new one).
+    fn kept_copy(&mut self, v: &[f64]) -> Vec<f64> {
+        let mut out = self.spare.pop().unwrap_or_default();
+        out.clear();
+        out.extend_from_slice(v);
+        out
     }
 
     /// Records the pair `(x, G(x))` and returns the next input: the mixed point, or `g` itself
     /// when there is no usable history.
+    #[cfg(test)]
     pub fn next(&mut self, x: &[f64], g: &[f64]) -> Vec<f64> {
+        let mut out = Vec::new();
+        self.next_into(x, g, &mut out);
+        out
+    }
+
+    /// Records the pair `(x, G(x))` and writes the next input into `out`: the mixed point, or
+    /// `g` itself when there is no usable history.
+    pub fn next_into(&mut self, x: &[f64], g: &[f64], out: &mut Vec<f64>) {
+        out.clear();
+        out.extend_from_slice(g);
         if self.memory == 0 {
-            return g.to_vec();
+            return;
         }
-        self.xs.push(x.to_vec());
-        self.gs.push(g.to_vec());
+        let xk = self.kept_copy(x);
+        let gk = self.kept_copy(g);
+        self.xs.push(xk);
+        self.gs.push(gk);
         if self.xs.len() > self.memory + 1 {
-            self.xs.remove(0);
-            self.gs.remove(0);
+            let (x0, g0) = (self.xs.remove(0), self.gs.remove(0));
+            self.spare.push(x0);
+            self.spare.push(g0);
         }
         let k = self.xs.len();
         if k < 2 {
-            return g.to_vec();
+            return;
         }
         let n = x.len();
         let f: Vec<Vec<f64>> = (0..k)
@@ -65,24 +97,22 @@ impl Anderson {
         }
         let trace: f64 = (0..m).map(|i| a[i][i]).sum();
         if trace.is_nan() || trace <= 0.0 || !trace.is_finite() {
-            return g.to_vec();
+            return;
         }
         for i in 0..m {
             a[i][i] += 1e-12 * trace;
         }
         let Some(gamma) = gauss(a, rhs) else {
-            return g.to_vec();
+            return;
         };
-        let mut out = g.to_vec();
         for i in 0..m {
             for j in 0..n {
                 out[j] -= gamma[i] * (self.gs[i + 1][j] - self.gs[i][j]);
             }
         }
-        if out.iter().all(|v| v.is_finite()) {
-            out
-        } else {
-            g.to_vec()
+        if !out.iter().all(|v| v.is_finite()) {
+            out.clear();
+            out.extend_from_slice(g);
         }
     }
 }

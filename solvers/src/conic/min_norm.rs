@@ -83,6 +83,12 @@ impl PsdRange {
     /// Factors `d` (`k × k`, row-major, symmetric positive semi-definite); `None` when it has a
     /// non-finite entry or no positive diagonal entry.
     pub(crate) fn new(d: &[f64], k: usize) -> Option<Self> {
+        with_order(k, |k| Self::factor(d, k))
+    }
+
+    /// [`PsdRange::new`], inlined into each of [`with_order`]'s arms.
+    #[inline(always)]
+    fn factor(d: &[f64], k: usize) -> Option<Self> {
         if d.len() != k * k || d.iter().any(|v| !v.is_finite()) {
             return None;
         }
@@ -180,6 +186,7 @@ impl PsdRange {
 
     /// QR of `F` in place (LAPACK's `dgeqr2`); `None` when a column is zero (`F` has full
     /// column rank by construction, so only for non-finite data).
+    #[inline(always)]
     fn householder(&mut self) -> Option<()> {
         let (k, rank) = (self.k, self.rank);
         let mut taus = [0.0; STACK_ORDER];
@@ -225,15 +232,8 @@ impl PsdRange {
         Some(())
     }
 
-    /// `b := Qᵀ b` (`b` of length `k`).
-    pub(crate) fn apply_qt(&self, b: &mut [f64]) {
-        let qr: &[f64] = &self.qr;
-        for (j, &tau) in self.taus().iter().enumerate() {
-            reflect(qr, self.k, j, tau, b);
-        }
-    }
-
     /// `b := Q b` (`b` of length `k`).
+    #[cfg(test)]
     pub(crate) fn apply_q(&self, b: &mut [f64]) {
         let qr: &[f64] = &self.qr;
         for (j, &tau) in self.taus().iter().enumerate().rev() {
@@ -244,10 +244,18 @@ impl PsdRange {
     /// `x = D⁺ b = Q₁ R⁻ᵀ R⁻¹ Q₁ᵀ b`, the minimum-norm least-squares solution of `D x = b`
     /// (`b`, `x` of length `k`); `false` when it is not finite.
     pub(crate) fn min_norm(&self, b: &[f64], x: &mut [f64]) -> bool {
-        let (k, r) = (self.k, self.rank);
+        with_order(self.k, |k| self.min_norm_sized(k, b, x))
+    }
+
+    /// [`PsdRange::min_norm`] with `k` its order, inlined into each of [`with_order`]'s arms.
+    #[inline(always)]
+    fn min_norm_sized(&self, k: usize, b: &[f64], x: &mut [f64]) -> bool {
+        let r = self.rank;
         let qr: &[f64] = &self.qr;
         x.copy_from_slice(b);
-        self.apply_qt(x);
+        for (j, &tau) in self.taus().iter().enumerate() {
+            reflect(qr, k, j, tau, x);
+        }
         // y = R⁻¹ (Qᵀb)₁, then z = R⁻ᵀ y, both in x[..r].
         for i in (0..r).rev() {
             let mut acc = x[i];
@@ -261,13 +269,29 @@ impl PsdRange {
             x[i] = (x[i] - dot(col, &x[..i])) / qr[i * k + i];
         }
         x[r..].fill(0.0);
-        self.apply_q(x);
+        for (j, &tau) in self.taus().iter().enumerate().rev() {
+            reflect(qr, k, j, tau, x);
+        }
         x.iter().all(|v| v.is_finite())
+    }
+}
+
+/// `f(k)` with `k` a constant for the desk's four loaded vertices (and for three): the
+/// factorisation's and solve's loops over `k` are unrolled, which removes the mispredicted exits
+/// of their short loops (`PsdRange::new` had the most mispredicted branches of any function of
+/// the conic desk step, `docs/latency.md`). The same operations in the same order.
+#[inline(always)]
+fn with_order<R>(k: usize, f: impl FnOnce(usize) -> R) -> R {
+    match k {
+        3 => f(3),
+        4 => f(4),
+        _ => f(k),
     }
 }
 
 /// `b := H_j b`, `H_j = I − τ v_j v_jᵀ` the `j`-th reflector stored in `qr` (column-major, `k`
 /// rows).
+#[inline(always)]
 fn reflect(qr: &[f64], k: usize, j: usize, tau: f64, b: &mut [f64]) {
     let v = &qr[j * k + j + 1..(j + 1) * k];
     let s = tau * (b[j] + dot(v, &b[j + 1..k]));

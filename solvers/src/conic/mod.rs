@@ -240,6 +240,8 @@ pub struct ConicSolver {
     dense: dense_qp::DenseQp,
     /// The polish's storage, kept between outer iterations and solves.
     polish: step::PolishWorkspace,
+    /// The outer iteration's storage, kept between outer iterations and solves.
+    outer: OuterWorkspace,
 }
 
 impl ConicSolver {
@@ -251,6 +253,7 @@ impl ConicSolver {
             last_error: None,
             dense: dense_qp::DenseQp::default(),
             polish: step::PolishWorkspace::default(),
+            outer: OuterWorkspace::default(),
         }
     }
     /// The settings.
@@ -381,9 +384,12 @@ impl McpSolver for ConicSolver {
         // rows at a trial end-of-step point (the end-of-step orientation and the gyroscopic
         // impulse at the trial ω, `ecp_model::BodyDynamics`): evaluated at the point the
         // geometry is evaluated at, so the fixed point converges to the step's solution.
-        let dynamics = |z: &[f64]| -> Vec<ecp_model::BodyDynamics> {
-            (0..nb).map(|b| structure.body(b, z)).collect()
+        let dynamics = |z: &[f64], out: &mut Vec<ecp_model::BodyDynamics>| {
+            out.clear();
+            out.extend((0..nb).map(|b| structure.body(b, z)));
         };
+        // Taken for the solve and put back at its end (an early return only loses the storage).
+        let mut ws = std::mem::take(&mut self.outer);
         let finite = |bodies: &[ecp_model::BodyDynamics]| {
             bodies.iter().all(|b| {
                 b.free_velocity
@@ -392,7 +398,8 @@ impl McpSolver for ConicSolver {
                     .all(|v| v.is_finite())
             })
         };
-        if !finite(&dynamics(z0)) {
+        dynamics(z0, &mut ws.bodies);
+        if !finite(&ws.bodies) {
             return Err(SolveError::InvalidProblem(
                 "the step's mass matrix or free-motion velocity is not finite".into(),
             ));
@@ -415,40 +422,68 @@ impl McpSolver for ConicSolver {
             newton_handoff: 0,
             trace: Vec::new(),
         };
-        let mut f = vec![0.0; n];
+        let OuterWorkspace {
+            f,
+            z_new,
+            best_z,
+            z_in,
+            warm_loads,
+            previous_loads,
+            geometry,
+            new_geometry,
+            bodies,
+            x,
+            g,
+            next,
+            x_flat,
+            g_flat,
+            mixed,
+            seed,
+            qp: qp_storage,
+            result,
+            anderson,
+        } = &mut ws;
+        zeroed(f, n);
         let mut z = z0.to_vec();
-        mcp.evaluate(&z, &mut f);
+        mcp.evaluate(&z, f);
         run.f_evals += 1;
-        let mut residual = natural_residual(&z, &f, lower, upper);
-        let mut best_z = z.clone();
+        let mut residual = natural_residual(&z, f, lower, upper);
+        best_z.clone_from(&z);
         let mut best_residual = residual;
         let mut since_improvement = 0usize;
         let mut stall_reference = residual;
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
-        let mut z_new = vec![0.0; n];
+        zeroed(z_new, n);
         let h = structure.step_length();
         // The fixed-point state: velocities, De Saxcé shifts and ECPs (the ECPs scaled by 1/h to
-        // velocity units). `z_in` is the full vector the geometry is evaluated at.
-        let mut z_in = z0.to_vec();
-        let mut state: Option<State> = None;
-        let mut anderson = anderson::Anderson::new(if exact {
+        // velocity units), in `x` once `have_state`. `z_in` is the full vector the geometry is
+        // evaluated at.
+        z_in.clone_from(&z);
+        let mut have_state = false;
+        anderson.restart(if exact {
             self.settings.anderson_memory
         } else {
             0
         });
-        let mut last_impulses: Vec<ecp_model::ContactImpulses> = Vec::new();
+        // Whether `previous_loads` holds the previous outer iterate's loads (else the first QP's
+        // anchor is centred on `warm_loads`).
+        let mut have_loads = false;
         let mut handoff_tried = false;
         // The warm start's normal impulse of every contact (empty when the structure does not
         // say).
-        let warm_loads: Vec<f64> = if residual <= WARM_LOADS_RESIDUAL {
-            (0..nc)
-                .map(|c| structure.normal_impulse(c, z0))
-                .collect::<Option<Vec<f64>>>()
-                .unwrap_or_default()
-        } else {
-            Vec::new()
-        };
+        warm_loads.clear();
+        if residual <= WARM_LOADS_RESIDUAL {
+            for c in 0..nc {
+                match structure.normal_impulse(c, z0) {
+                    Some(l) => warm_loads.push(l),
+                    None => {
+                        warm_loads.clear();
+                        break;
+                    }
+                }
+            }
+        }
         // The stopping test comes before the first QP: a warm start that already solves the step
         // (a body at rest, free flight) costs no QP.
         let outer = if exact && residual <= self.settings.tolerance {
@@ -458,27 +493,22 @@ impl McpSolver for ConicSolver {
             max_outer
         };
         for it in 0..outer {
-            let mut geometry: Vec<_> = (0..nc)
-                .map(|c| structure.contact(c, &z_in, self.settings.patch_band))
-                .collect();
-            let x = match state.take() {
-                Some(x) => x,
-                None => {
-                    let nu = structure.velocities(&z_in);
-                    let shifts = geometry
-                        .iter()
-                        .map(|g| {
-                            if exact {
-                                step::de_saxce_shift(g, &nu)
-                            } else {
-                                0.0
-                            }
-                        })
-                        .collect();
-                    let ecps = geometry.iter().map(|g| g.ecp).collect();
-                    State { nu, shifts, ecps }
-                }
-            };
+            geometry.clear();
+            geometry.extend((0..nc).map(|c| structure.contact(c, z_in, self.settings.patch_band)));
+            if !have_state {
+                x.nu.clear();
+                x.nu.extend(structure.velocities(z_in));
+                x.shifts.clear();
+                x.shifts.extend(geometry.iter().map(|g| {
+                    if exact {
+                        step::de_saxce_shift(g, &x.nu)
+                    } else {
+                        0.0
+                    }
+                }));
+                x.ecps.clear();
+                x.ecps.extend(geometry.iter().map(|g| g.ecp));
+            }
             for (g, e) in geometry.iter_mut().zip(&x.ecps) {
                 g.ecp = *e;
             }
@@ -488,47 +518,50 @@ impl McpSolver for ConicSolver {
             // wedged in a V trough, held by friction) it returns another member of the solution
             // set, 5e-3 N·s away, which the fixed point then walks back from in about ten QPs
             // (`126_v_trough`, `docs/latency.md#conic-backend`).
-            let previous_loads: Vec<f64> = if last_impulses.is_empty() {
-                warm_loads.clone()
+            let loads: &[f64] = if have_loads {
+                previous_loads
             } else {
-                last_impulses
-                    .iter()
-                    .map(|p| p.vertex_impulses.iter().map(|(_, l)| l).sum())
-                    .collect()
+                warm_loads
             };
             let anchor = exact.then_some(step::Anchor {
                 moment: self.settings.anchor_moment,
                 load: self.settings.anchor_load,
-                previous_loads: (!previous_loads.is_empty()).then_some(previous_loads.as_slice()),
+                previous_loads: (!loads.is_empty()).then_some(loads),
             });
-            let bodies = dynamics(&z_in);
-            if !finite(&bodies) {
+            dynamics(z_in, bodies);
+            if !finite(bodies) {
                 self.last_error = Some(format!(
                     "the mass matrix or free-motion velocity of outer iteration {it} is not finite"
                 ));
                 termination = Termination::SubproblemFailed;
                 break;
             }
-            let sub = step::build(structure, &bodies, &x.nu, &geometry, &x.shifts, anchor);
+            let sub = step::build(
+                structure,
+                bodies,
+                &x.nu,
+                geometry,
+                &x.shifts,
+                anchor,
+                std::mem::take(qp_storage),
+            );
             run.patch_vertices = sub.patch_vertices;
             let qp_settings = Self::qp_settings(&self.settings, if exact { residual } else { 0.0 });
-            let dense = self
-                .settings
-                .dense_qp
-                .then(|| self.dense.solve(&sub.qp, &qp_settings))
-                .flatten();
-            let from_dense = dense.is_some();
+            let from_dense =
+                self.settings.dense_qp && self.dense.solve_into(&sub.qp, &qp_settings, result);
             if self.settings.dense_qp && !from_dense {
                 run.clarabel_fallbacks += 1;
             }
-            let result = match dense.map_or_else(|| sub.qp.solve(&qp_settings), Ok) {
-                Ok(r) => r,
-                Err(msg) => {
-                    self.last_error = Some(msg);
-                    termination = Termination::SubproblemFailed;
-                    break;
+            if !from_dense {
+                match sub.qp.solve(&qp_settings) {
+                    Ok(r) => *result = r,
+                    Err(msg) => {
+                        self.last_error = Some(msg);
+                        termination = Termination::SubproblemFailed;
+                        break;
+                    }
                 }
-            };
+            }
             if from_dense {
                 run.dense_qp_iterations += result.iterations as usize;
             } else {
@@ -546,11 +579,12 @@ impl McpSolver for ConicSolver {
                 break;
             }
             let polish = exact && self.settings.polish;
-            let point = sub.extract(&result, &bodies, polish, &mut self.polish);
-            structure.assemble(&point, &mut z_new);
-            mcp.evaluate(&z_new, &mut f);
+            let mut point = sub.extract(result, bodies, polish, &mut self.polish);
+            *qp_storage = sub.qp;
+            structure.assemble(&point, z_new);
+            mcp.evaluate(z_new, f);
             run.f_evals += 1;
-            let new_residual = natural_residual(&z_new, &f, lower, upper);
+            let new_residual = natural_residual(z_new, f, lower, upper);
             if self.settings.trace {
                 let step_norm = z_new
                     .iter()
@@ -566,7 +600,7 @@ impl McpSolver for ConicSolver {
                     direction_norm: step_norm,
                 });
             }
-            std::mem::swap(&mut z, &mut z_new);
+            std::mem::swap(&mut z, z_new);
             let previous_residual = residual;
             residual = new_residual;
             if residual.is_finite() && (residual < best_residual || !best_residual.is_finite()) {
@@ -615,55 +649,57 @@ impl McpSolver for ConicSolver {
             // anchored contact left without load keeps its ECP: the closest feature of a
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
-            let new_geometry: Vec<_> = (0..nc)
-                .map(|c| structure.contact(c, &z, self.settings.patch_band))
-                .collect();
-            let anchored = if self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0 {
-                step::anchored_contacts(&geometry, nb)
-            } else {
-                vec![false; nc]
-            };
-            let g = State {
-                nu: point.velocities.clone(),
-                shifts: new_geometry
-                    .iter()
-                    .enumerate()
-                    .map(|(c, geo)| {
-                        geo.friction.mu * point.contacts.get(c).map_or(0.0, |p| p.sigma)
-                    })
-                    .collect(),
-                ecps: new_geometry
-                    .iter()
-                    .enumerate()
-                    .map(|(c, geo)| {
-                        let unloaded = point
-                            .contacts
-                            .get(c)
-                            .is_none_or(|p| p.vertex_impulses.iter().all(|(_, l)| *l <= 0.0));
-                        match x.ecps.get(c) {
-                            Some(e) if anchored[c] && unloaded => *e,
-                            _ => geo.ecp,
-                        }
-                    })
-                    .collect(),
-            };
+            new_geometry.clear();
+            new_geometry
+                .extend((0..nc).map(|c| structure.contact(c, &z, self.settings.patch_band)));
+            let anchored = (self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0)
+                .then(|| step::anchored_contacts(geometry, nb));
+            g.nu.clone_from(&point.velocities);
+            g.shifts.clear();
+            g.shifts.extend(
+                new_geometry.iter().enumerate().map(|(c, geo)| {
+                    geo.friction.mu * point.contacts.get(c).map_or(0.0, |p| p.sigma)
+                }),
+            );
+            g.ecps.clear();
+            g.ecps
+                .extend(new_geometry.iter().enumerate().map(|(c, geo)| {
+                    let unloaded = point
+                        .contacts
+                        .get(c)
+                        .is_none_or(|p| p.vertex_impulses.iter().all(|(_, l)| *l <= 0.0));
+                    let is_anchored = anchored.as_ref().is_some_and(|a| a[c]);
+                    match x.ecps.get(c) {
+                        Some(e) if is_anchored && unloaded => *e,
+                        _ => geo.ecp,
+                    }
+                }));
             if residual.is_nan() || residual > 10.0 * previous_residual {
                 // The mixing made things worse: restart it from the plain update.
                 anderson.reset();
             }
-            let mixed = anderson.next(&x.flatten(h), &g.flatten(h));
-            let next = State::unflatten(&mixed, &g, h);
-            last_impulses.clone_from(&point.contacts);
-            let seed = ecp_model::ConicPoint {
-                velocities: next.nu.clone(),
-                contacts: last_impulses.clone(),
-            };
-            structure.assemble(&seed, &mut z_in);
-            state = Some(next);
+            x.flatten_into(h, x_flat);
+            g.flatten_into(h, g_flat);
+            anderson.next_into(x_flat, g_flat, mixed);
+            next.unflatten_from(mixed, g, h);
+            // The next QP's load anchor: this iterate's loads.
+            previous_loads.clear();
+            previous_loads.extend(
+                point
+                    .contacts
+                    .iter()
+                    .map(|p| p.vertex_impulses.iter().map(|(_, l)| l).sum::<f64>()),
+            );
+            have_loads = !point.contacts.is_empty();
+            seed.velocities.clone_from(&next.nu);
+            seed.contacts = std::mem::take(&mut point.contacts);
+            structure.assemble(seed, z_in);
+            std::mem::swap(x, next);
+            have_state = true;
         }
         if exact {
             // Return the best iterate; a later iterate may have been worse.
-            z.copy_from_slice(&best_z);
+            z.copy_from_slice(best_z);
             // Only a fixed point that stagnated or ran out of iterations is finished by Newton;
             // a failed subproblem is reported as such.
             if matches!(
@@ -692,6 +728,7 @@ impl McpSolver for ConicSolver {
         } else {
             Termination::MaxIterations
         };
+        self.outer = ws;
         finish_solve(
             mcp,
             z,
@@ -739,6 +776,7 @@ const WARM_LOADS_RESIDUAL: f64 = 1e-2;
 
 /// The state of the outer fixed point: velocities per body, De Saxcé shifts and ECPs per
 /// contact.
+#[derive(Default)]
 struct State {
     nu: Vec<[f64; 6]>,
     shifts: Vec<f64>,
@@ -746,31 +784,76 @@ struct State {
 }
 
 impl State {
-    /// One vector in velocity units (ECPs divided by h), for the accelerator.
-    fn flatten(&self, h: f64) -> Vec<f64> {
-        let mut v: Vec<f64> = self.nu.iter().flatten().copied().collect();
+    /// One vector in velocity units (ECPs divided by h), for the accelerator, into `v`.
+    fn flatten_into(&self, h: f64, v: &mut Vec<f64>) {
+        v.clear();
+        v.extend(self.nu.iter().flatten().copied());
         v.extend(&self.shifts);
         v.extend(self.ecps.iter().flatten().map(|e| e / h));
-        v
     }
-    /// The inverse of [`State::flatten`], with the shape of `like`; shifts stay ≥ 0.
-    fn unflatten(v: &[f64], like: &State, h: f64) -> State {
+    /// The inverse of [`State::flatten_into`], with the shape of `like`; shifts stay ≥ 0.
+    fn unflatten_from(&mut self, v: &[f64], like: &State, h: f64) {
         let nb = like.nu.len();
         let nc = like.shifts.len();
-        let nu = (0..nb)
-            .map(|b| {
-                let mut x = [0.0; 6];
-                x.copy_from_slice(&v[6 * b..6 * b + 6]);
-                x
-            })
-            .collect();
-        let shifts = (0..nc).map(|c| v[6 * nb + c].max(0.0)).collect();
-        let ecps = (0..nc)
-            .map(|c| {
-                let o = 6 * nb + nc + 3 * c;
-                [v[o] * h, v[o + 1] * h, v[o + 2] * h]
-            })
-            .collect();
-        State { nu, shifts, ecps }
+        self.nu.clear();
+        self.nu.extend((0..nb).map(|b| {
+            let mut x = [0.0; 6];
+            x.copy_from_slice(&v[6 * b..6 * b + 6]);
+            x
+        }));
+        self.shifts.clear();
+        self.shifts.extend((0..nc).map(|c| v[6 * nb + c].max(0.0)));
+        self.ecps.clear();
+        self.ecps.extend((0..nc).map(|c| {
+            let o = 6 * nb + nc + 3 * c;
+            [v[o] * h, v[o + 1] * h, v[o + 2] * h]
+        }));
     }
+}
+
+/// `v` set to `len` zeros (allocates only when it must grow).
+fn zeroed(v: &mut Vec<f64>, len: usize) {
+    v.clear();
+    v.resize(len, 0.0);
+}
+
+/// The outer fixed point's storage ([`ConicSolver`]'s `outer`), kept between outer iterations
+/// and solves so that a warm solve does not grow its vectors anew: each is cleared and
+/// refilled. What is left to allocate per outer iteration is outside this loop (the contact
+/// geometry's patches, the QP's row data in `step::build`, the polished point, the
+/// formulation's `assemble`).
+#[derive(Default)]
+struct OuterWorkspace {
+    /// `F(z)` of the current point.
+    f: Vec<f64>,
+    /// The mapped-back point of the current QP.
+    z_new: Vec<f64>,
+    /// The best iterate so far.
+    best_z: Vec<f64>,
+    /// The point the geometry and the dynamics are evaluated at (the mixed iterate).
+    z_in: Vec<f64>,
+    /// The warm start's normal impulse per contact (empty when unknown or far).
+    warm_loads: Vec<f64>,
+    /// The previous outer iterate's normal impulse per contact.
+    previous_loads: Vec<f64>,
+    /// The contact geometry at `z_in`, and at the new point (for the next shifts and ECPs).
+    geometry: Vec<ecp_model::ContactGeometry>,
+    new_geometry: Vec<ecp_model::ContactGeometry>,
+    /// Mass matrices and free velocities at `z_in`.
+    bodies: Vec<ecp_model::BodyDynamics>,
+    /// The fixed point's input `x`, its image `G(x)`, and the next input.
+    x: State,
+    g: State,
+    next: State,
+    /// `x`, `G(x)` flattened for the accelerator, and its mixed point.
+    x_flat: Vec<f64>,
+    g_flat: Vec<f64>,
+    mixed: Vec<f64>,
+    /// The mixed point with the last impulses, assembled into `z_in`.
+    seed: ecp_model::ConicPoint,
+    /// The QP's storage, handed to `step::build` and taken back.
+    qp: qp::ConicQp,
+    /// The QP's answer.
+    result: qp::QpResult,
+    anderson: anderson::Anderson,
 }

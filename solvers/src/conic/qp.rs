@@ -34,7 +34,7 @@ pub(crate) struct ConicQp {
 }
 
 /// What clarabel returned.
-#[derive(Clone, Debug)]
+#[derive(Clone, Debug, Default)]
 pub(crate) struct QpResult {
     /// Primal solution.
     pub x: Vec<f64>,
@@ -56,6 +56,19 @@ impl ConicQp {
             q: vec![0.0; n],
             ..Default::default()
         }
+    }
+
+    /// Empties the problem and makes it one in `n` variables, keeping the storage: the same
+    /// problem as [`ConicQp::new`] without its allocations (the backend rebuilds one per outer
+    /// iteration).
+    pub fn reset(&mut self, n: usize) {
+        self.n = n;
+        self.p.clear();
+        self.q.clear();
+        self.q.resize(n, 0.0);
+        self.a.clear();
+        self.b.clear();
+        self.cones.clear();
     }
 
     /// Number of rows so far.

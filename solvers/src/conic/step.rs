@@ -351,7 +351,8 @@ pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize)
 /// Builds the subproblem at the trial point (geometry from `geometry`, trial velocities
 /// `trial`) with the normal shift `shifts[c]` of every contact: the De Saxcé shift (exact
 /// mode) or zero (Anitescu's relaxation); with `anchor`, the contacts of bodies with several
-/// contacts get the proximal anchor of the module doc.
+/// contacts get the proximal anchor of the module doc. The QP is built in `storage` (emptied
+/// first; the solver hands back the last iteration's, so that its vectors are not grown anew).
 pub(crate) fn build(
     structure: &dyn StepStructure,
     bodies: &[BodyDynamics],
@@ -359,6 +360,7 @@ pub(crate) fn build(
     geometry: &[ContactGeometry],
     shifts: &[f64],
     anchor: Option<Anchor<'_>>,
+    storage: ConicQp,
 ) -> StepQp {
     let h = structure.step_length();
     let nb = bodies.len();
@@ -399,7 +401,8 @@ pub(crate) fn build(
             })
         })
         .collect();
-    let mut qp = ConicQp::new(next_col);
+    let mut qp = storage;
+    qp.reset(next_col);
     for (b, body) in bodies.iter().enumerate() {
         for i in 0..6 {
             for j in i..6 {
