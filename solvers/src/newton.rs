@@ -199,12 +199,6 @@ pub struct NewtonSettings {
     /// waits for the rest of its window (`023_room_corner` steps 79, 88, 89). Runs shorter than
     /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
     pub flat_merit_window: usize,
-    /// Skip the non-monotone restart ([`NewtonSettings::nonmonotone_restart`]) when the plain
-    /// iteration was stopped by the flat-merit test: it stopped at a stationary point of the
-    /// merit, which the full Newton steps from the same start often reach again. Default `false`:
-    /// on eight stress runs it saved 0.4 % of the LU factorisations and changed three
-    /// trajectories (`docs/newton.md#newtons-hard-steps-in-the-room-corner`).
-    pub flat_skips_nonmonotone: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] (back to the point before it when `Ψ` has not fallen
@@ -267,7 +261,6 @@ impl Default for NewtonSettings {
             stall_reduction: 0.5,
             slow_rate_test: true,
             flat_merit_window: 10,
-            flat_skips_nonmonotone: false,
             nonmonotone_restart: true,
             forget_undone_steps: true,
             scene_scales: true,
@@ -393,8 +386,6 @@ pub struct NewtonSolver {
     /// Minimum-norm steps of the last run that no watchdog restore undid
     /// ([`NewtonSettings::forget_undone_steps`]).
     min_norm_kept: usize,
-    /// The last run stopped by the flat-merit test ([`NewtonSettings::flat_merit_window`]).
-    ended_flat: bool,
     /// A smoothing continuation is running (its stages and its final solve): the rate and
     /// flat-merit tests stay off there, where a stage cut early changes the continuation's path.
     in_continuation: bool,
@@ -416,7 +407,6 @@ impl NewtonSolver {
             attempt: 0,
             nonmonotone: false,
             min_norm_kept: 0,
-            ended_flat: false,
             in_continuation: false,
         }
     }
@@ -724,9 +714,7 @@ impl NewtonSolver {
         let mut spent = best.summary.iterations;
         let nonmonotone = Attempt {
             profile: 4,
-            runs: self.settings.nonmonotone_restart
-                && self.settings.watchdog_steps > 0
-                && !(self.settings.flat_skips_nonmonotone && self.ended_flat),
+            runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,
             kind: AttemptKind::Nonmonotone,
             damped: false,
         };
@@ -943,7 +931,6 @@ impl NewtonSolver {
         let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
-        let mut ended_flat = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1399,7 +1386,6 @@ impl NewtonSolver {
                 && best_psi >= (1.0 - 1e-3) * ws.best_psi_history[counted - k]
             {
                 termination = Termination::Stagnated;
-                ended_flat = true;
                 break;
             }
             if let Some(psi_check) = checkpoint {
@@ -1434,7 +1420,6 @@ impl NewtonSolver {
             clock.lap(&mut prof, Phase::Other);
         }
         self.min_norm_kept = min_norm_kept + min_norm_pending;
-        self.ended_flat = ended_flat;
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;
