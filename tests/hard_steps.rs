@@ -122,13 +122,14 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
     }
 }
 
-/// Newton as it was before the residual damping and the forgetting of undone steps
+/// Newton as it was before the residual damping, the forgetting of undone steps and the ratio test
 /// (`docs/newton.md#linearly-converging-steps`), with the scene's tolerance.
 fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
     NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
         lm_residual_damping_after: None,
         forget_undone_steps: false,
+        ratio_test: false,
         ..NewtonSettings::default()
     }
 }
@@ -168,12 +169,14 @@ fn newton_convex_push_step_58_residual_damping() {
     }
 }
 
-/// `023_room_corner` stepped by Newton (the registry's settings with the scene's tolerance) to
-/// `step`, and the settings to solve that step with.
+/// `023_room_corner` stepped by Newton (the registry's settings with the scene's tolerance,
+/// without the ratio test: the trajectory these steps were measured on; with it step 36 ends
+/// at another point) to `step`, and the settings to solve that step with.
 fn room_corner_023_at(step: usize) -> (Simulation, NewtonSettings) {
     let tolerance = scene_tolerance(&regression_scene("023_room_corner"));
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
+        ratio_test: false,
         ..NewtonSettings::default()
     };
     let mut driver = NewtonSolver::new(settings.clone());
@@ -225,6 +228,39 @@ fn newton_room_corner_023_step_88_flat_merit_test() {
     ));
     assert_iterations(&before, 260..);
     assert_eq!(mended.z, before.z);
+}
+
+/// `023_room_corner` steps 36 and 88 (on the trajectory before the ratio test): full Newton and
+/// minimum-norm steps of length 1 … 90 (scene scales) drive the residual of an inactive face
+/// from ≈ +20 to −100 … −300 and `Ψ` up by 1e6; the plain iteration stalled on a stationary
+/// point of the merit (residual ~1e-4), and the non-monotone restart and (step 88) the smoothing
+/// continuation solved the steps: 218 and 277 iterations. With the ratio test the plain
+/// iteration stops each such step at the first pair that leaves its cone and solves them in
+/// 71 and 28 (`docs/newton.md#the-ratio-test`).
+#[test]
+fn newton_room_corner_023_steps_36_88_ratio_test() {
+    for (step, mended_at_most, before_at_least) in [(36, 90, 200), (88, 40, 240)] {
+        let (sim, settings) = room_corner_023_at(step);
+        let z0 = sim.z().to_vec();
+        let mended = converged(sim.solve_step_problem(
+            &mut NewtonSolver::new(NewtonSettings {
+                ratio_test: true,
+                ..settings.clone()
+            }),
+            &z0,
+        ));
+        assert_iterations(&mended, ..=mended_at_most);
+        // Solved by the plain iteration: no continuation, no restart.
+        assert_eq!(
+            mended
+                .summary
+                .counter(Counter::SmoothingStages)
+                .unwrap_or(0),
+            0
+        );
+        let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+        assert_iterations(&before, before_at_least..);
+    }
 }
 
 /// `062_room_corner` step 128: the plain iteration crosses a valley of the merit in

@@ -49,6 +49,7 @@ use crate::normal_equations::NormalEquations;
 
 mod min_norm;
 mod profile;
+mod ratio;
 use crate::smoothing::{SmoothingSettings, continuation};
 use min_norm::MinNorm;
 use profile::Clock;
@@ -199,6 +200,19 @@ pub struct NewtonSettings {
     /// waits for the rest of its window (`023_room_corner` steps 79, 88, 89). Runs shorter than
     /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
     pub flat_merit_window: usize,
+    /// Ratio test in the plain iteration's line search (`docs/newton.md#the-ratio-test`): when
+    /// the full Newton (or minimum-norm) step fails the Armijo test, the point where the first
+    /// complementarity pair leaves its cone along the step's linearisation (a component reaching
+    /// its bound from inside, or the residual of a component at its bound crossing zero) is
+    /// taken — when it lowers `Ψ`, else under the watchdog of
+    /// [`NewtonSettings::watchdog_steps`] — before the backtracking and Levenberg–Marquardt. The
+    /// Fischer–Burmeister row of an inactive pair linearises to "stay at the bound" and ignores
+    /// its residual, so a long step drives the residual of an inactive face far below zero and
+    /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
+    /// (`023_room_corner` steps 36 and 88: 218 and 277 iterations with the continuation and the
+    /// non-monotone restart, 71 and 28 in the plain iteration with it). Steps whose full Newton
+    /// steps pass the Armijo test are unchanged. Default `true`.
+    pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] (back to the point before it when `Ψ` has not fallen
@@ -261,6 +275,7 @@ impl Default for NewtonSettings {
             stall_reduction: 0.5,
             slow_rate_test: true,
             flat_merit_window: 10,
+            ratio_test: true,
             nonmonotone_restart: true,
             forget_undone_steps: true,
             scene_scales: true,
@@ -652,6 +667,29 @@ fn try_step(
 ) -> Option<f64> {
     for i in 0..ws.n {
         ws.z_trial[i] = ws.z[i] + t * ws.d[i];
+    }
+    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
+    *f_evals += 1;
+    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
+    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+    p.is_finite().then_some(p)
+}
+
+/// [`try_step`] to the ratio test's event at `t` (component `i`); a component that reaches its
+/// bound there is put on it exactly, so the next linearisation sees the pair on its new branch.
+fn try_ratio_step(
+    mcp: &dyn Mcp,
+    ws: &mut Workspace,
+    (t, i, on_bound): (f64, usize, bool),
+    l: &[f64],
+    u: &[f64],
+    f_evals: &mut usize,
+) -> Option<f64> {
+    for k in 0..ws.n {
+        ws.z_trial[k] = ws.z[k] + t * ws.d[k];
+    }
+    if on_bound {
+        ws.z_trial[i] = if ws.d[i] < 0.0 { l[i] } else { u[i] };
     }
     mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
     *f_evals += 1;
@@ -1084,6 +1122,28 @@ impl NewtonSolver {
             // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
             // whichever lowers Ψ more.
             let mut newton_search = None;
+            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, a full step
+            // that failed the Armijo test is cut at the first pair that leaves its cone along
+            // the linearisation; that point is taken when it lowers Ψ, else under the watchdog.
+            let ratio_on = s.ratio_test && self.attempt == 0 && !self.in_continuation;
+            if ratio_on && accepted.is_none() && newton_ok {
+                pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
+                if let Some(event) = ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
+                    && let Some(p) = try_ratio_step(mcp, ws, event, l, u, &mut f_evals)
+                {
+                    if p < psi {
+                        accepted = Some((event.0, p));
+                    } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
+                        if checkpoint.is_none() {
+                            ws.save_checkpoint();
+                            checkpoint = Some(psi);
+                            watchdog_count = 0;
+                        }
+                        accepted = Some((event.0, p));
+                        nonmonotone_steps += 1;
+                    }
+                }
+            }
             if accepted.is_none() && newton_ok && s.newton_line_search {
                 let slope = dot(&ws.grad, &ws.d);
                 let mut t = s.backtrack;
@@ -1129,13 +1189,39 @@ impl NewtonSolver {
                             // the watchdog (it may cross a kink of Φ towards the right active
                             // set: Ψ rises for a step or two, then falls quadratically); failing
                             // that, backtracking.
-                            if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
+                            if let Some(mut p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
+                                // The ratio test, as for the Newton direction above.
+                                let ratio_event = if ratio_on {
+                                    pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
+                                    ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
+                                } else {
+                                    None
+                                };
+                                let watched =
+                                    local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
                                 if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
                                     || natural_residual(&ws.z_trial, &ws.f_trial, l, u)
                                         <= s.tolerance
                                 {
                                     accepted = Some((1.0, p));
-                                } else if local && s.watchdog_steps > 0 && psi < watchdog_ceiling {
+                                } else if let Some(ev) = ratio_event
+                                    && let Some(q) = try_ratio_step(mcp, ws, ev, l, u, &mut f_evals)
+                                    && (q < psi || watched)
+                                {
+                                    if q >= psi {
+                                        if checkpoint.is_none() {
+                                            ws.save_checkpoint();
+                                            checkpoint = Some(psi);
+                                            watchdog_count = 0;
+                                        }
+                                        nonmonotone_steps += 1;
+                                    }
+                                    accepted = Some((ev.0, q));
+                                } else if watched {
+                                    if ratio_event.is_some() {
+                                        // The ratio point was tried: the full step again.
+                                        p = try_step(mcp, ws, 1.0, l, u, &mut f_evals).unwrap_or(p);
+                                    }
                                     if checkpoint.is_none() {
                                         ws.save_checkpoint();
                                         checkpoint = Some(psi);
