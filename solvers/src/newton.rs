@@ -209,9 +209,9 @@ pub struct NewtonSettings {
     /// Fischer–Burmeister row of an inactive pair linearises to "stay at the bound" and ignores
     /// its residual, so a long step drives the residual of an inactive face far below zero and
     /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
-    /// (`023_room_corner` step 88: 277 iterations with the continuation and the non-monotone
-    /// restart, far fewer in the plain iteration with it). It runs from the 20th iteration of a
-    /// run on, so steps the plain iteration solves in fewer are unchanged. Default `true`.
+    /// (`023_room_corner` step 36: 181 iterations with the non-monotone restart, 71 in the plain
+    /// iteration with it). It runs from the 20th iteration of a run on, so steps the plain
+    /// iteration solves in fewer are unchanged. Default `true`.
     pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
