@@ -313,7 +313,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "stall_window" => s.stall_window = n()?,
         "slow_rate_test" => s.slow_rate_test = b()?,
         "flat_merit_window" => s.flat_merit_window = n()?,
-        "flat_skips_nonmonotone" => s.flat_skips_nonmonotone = b()?,
+        "ratio_test" => s.ratio_test = b()?,
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
         "forget_undone_steps" => s.forget_undone_steps = b()?,
         "watchdog_steps" => s.watchdog_steps = n()?,

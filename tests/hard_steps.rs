@@ -122,13 +122,14 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
     }
 }
 
-/// Newton as it was before the residual damping and the forgetting of undone steps
+/// Newton as it was before the residual damping, the forgetting of undone steps and the ratio test
 /// (`docs/newton.md#linearly-converging-steps`), with the scene's tolerance.
 fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
     NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
         lm_residual_damping_after: None,
         forget_undone_steps: false,
+        ratio_test: false,
         ..NewtonSettings::default()
     }
 }
@@ -168,12 +169,14 @@ fn newton_convex_push_step_58_residual_damping() {
     }
 }
 
-/// `023_room_corner` stepped by Newton (the registry's settings with the scene's tolerance) to
-/// `step`, and the settings to solve that step with.
+/// `023_room_corner` stepped by Newton (the registry's settings with the scene's tolerance,
+/// without the ratio test: the trajectory these steps were measured on; with it step 36 ends
+/// at another point) to `step`, and the settings to solve that step with.
 fn room_corner_023_at(step: usize) -> (Simulation, NewtonSettings) {
     let tolerance = scene_tolerance(&regression_scene("023_room_corner"));
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
+        ratio_test: false,
         ..NewtonSettings::default()
     };
     let mut driver = NewtonSolver::new(settings.clone());
@@ -225,6 +228,37 @@ fn newton_room_corner_023_step_88_flat_merit_test() {
     ));
     assert_iterations(&before, 260..);
     assert_eq!(mended.z, before.z);
+}
+
+/// `023_room_corner` step 36 (on the trajectory before the ratio test): after the first Newton
+/// steps, full Newton and minimum-norm steps of length 1 … 90 (scene scales) drive the residual
+/// of an inactive face from ≈ +20 to −100 … −300 and `Ψ` up by 1e4 … 1e6; the plain iteration
+/// crawled in Levenberg–Marquardt steps until the rate test cut it, and the non-monotone restart
+/// solved the step: 181 iterations. With the ratio test (from the 20th iteration of a run on)
+/// the plain iteration stops such steps at the first pair that leaves its cone and solves the
+/// step in 71 (`docs/newton.md#the-ratio-test`).
+#[test]
+fn newton_room_corner_023_step_36_ratio_test() {
+    let (sim, settings) = room_corner_023_at(36);
+    let z0 = sim.z().to_vec();
+    let mended = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            ratio_test: true,
+            ..settings.clone()
+        }),
+        &z0,
+    ));
+    assert_iterations(&mended, ..=90);
+    // Solved by the plain iteration: no continuation.
+    assert_eq!(
+        mended
+            .summary
+            .counter(Counter::SmoothingStages)
+            .unwrap_or(0),
+        0
+    );
+    let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    assert_iterations(&before, 170..);
 }
 
 /// `062_room_corner` step 128: the plain iteration crosses a valley of the merit in

@@ -49,6 +49,7 @@ use crate::normal_equations::NormalEquations;
 
 mod min_norm;
 mod profile;
+mod ratio;
 use crate::smoothing::{SmoothingSettings, continuation};
 use min_norm::MinNorm;
 use profile::Clock;
@@ -199,12 +200,19 @@ pub struct NewtonSettings {
     /// waits for the rest of its window (`023_room_corner` steps 79, 88, 89). Runs shorter than
     /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
     pub flat_merit_window: usize,
-    /// Skip the non-monotone restart ([`NewtonSettings::nonmonotone_restart`]) when the plain
-    /// iteration was stopped by the flat-merit test: it stopped at a stationary point of the
-    /// merit, which the full Newton steps from the same start often reach again. Default `false`:
-    /// on eight stress runs it saved 0.4 % of the LU factorisations and changed three
-    /// trajectories (`docs/newton.md#newtons-hard-steps-in-the-room-corner`).
-    pub flat_skips_nonmonotone: bool,
+    /// Ratio test in the plain iteration's line search (`docs/newton.md#the-ratio-test`): when
+    /// the full Newton (or minimum-norm) step fails the Armijo test, the point where the first
+    /// complementarity pair leaves its cone along the step's linearisation (a component reaching
+    /// its bound from inside, or the residual of a component at its bound crossing zero) is
+    /// taken — when it lowers `Ψ`, else under the watchdog of
+    /// [`NewtonSettings::watchdog_steps`] — before the backtracking and Levenberg–Marquardt. The
+    /// Fischer–Burmeister row of an inactive pair linearises to "stay at the bound" and ignores
+    /// its residual, so a long step drives the residual of an inactive face far below zero and
+    /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
+    /// (`023_room_corner` step 36: 181 iterations with the non-monotone restart, 71 in the plain
+    /// iteration with it). It runs from the 20th iteration of a run on, so steps the plain
+    /// iteration solves in fewer are unchanged. Default `true`.
+    pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] (back to the point before it when `Ψ` has not fallen
@@ -267,7 +275,7 @@ impl Default for NewtonSettings {
             stall_reduction: 0.5,
             slow_rate_test: true,
             flat_merit_window: 10,
-            flat_skips_nonmonotone: false,
+            ratio_test: true,
             nonmonotone_restart: true,
             forget_undone_steps: true,
             scene_scales: true,
@@ -393,8 +401,6 @@ pub struct NewtonSolver {
     /// Minimum-norm steps of the last run that no watchdog restore undid
     /// ([`NewtonSettings::forget_undone_steps`]).
     min_norm_kept: usize,
-    /// The last run stopped by the flat-merit test ([`NewtonSettings::flat_merit_window`]).
-    ended_flat: bool,
     /// A smoothing continuation is running (its stages and its final solve): the rate and
     /// flat-merit tests stay off there, where a stage cut early changes the continuation's path.
     in_continuation: bool,
@@ -416,7 +422,6 @@ impl NewtonSolver {
             attempt: 0,
             nonmonotone: false,
             min_norm_kept: 0,
-            ended_flat: false,
             in_continuation: false,
         }
     }
@@ -492,6 +497,14 @@ impl NewtonSolver {
 /// in Levenberg–Marquardt steps of constant length converges abruptly at its end, faster than
 /// its rate foretold (`062_room_corner` step 128: up to 3.96 times, then converged at 87).
 const RATE_TEST_MARGIN: f64 = 6.0;
+
+/// The ratio test ([`NewtonSettings::ratio_test`]) runs from this many iterations of a run on
+/// (as the flat-merit test judges a run from `2 × flat_merit_window` = 20): a step the plain
+/// iteration solves in fewer is bitwise unchanged. From the first iteration on it also solved
+/// `023_room_corner` step 36 (218 → 71 LU factorisations) but moved the reference scenes D5 by
+/// 5.2e-12 (beyond `tests/bodies.rs`' momentum tolerance of 1e-12), D6 by 1.4e-12 and the T-bar
+/// gripper by 1.1e-10 (`docs/newton.md#the-ratio-test`).
+const RATIO_TEST_AFTER: usize = 20;
 
 /// Shortest step length tried along the minimum-norm direction before the Levenberg–Marquardt
 /// safeguard takes over (a direction that needs a shorter step is a poor one).
@@ -670,6 +683,29 @@ fn try_step(
     p.is_finite().then_some(p)
 }
 
+/// [`try_step`] to the ratio test's event at `t` (component `i`); a component that reaches its
+/// bound there is put on it exactly, so the next linearisation sees the pair on its new branch.
+fn try_ratio_step(
+    mcp: &dyn Mcp,
+    ws: &mut Workspace,
+    (t, i, on_bound): (f64, usize, bool),
+    l: &[f64],
+    u: &[f64],
+    f_evals: &mut usize,
+) -> Option<f64> {
+    for k in 0..ws.n {
+        ws.z_trial[k] = ws.z[k] + t * ws.d[k];
+    }
+    if on_bound {
+        ws.z_trial[i] = if ws.d[i] < 0.0 { l[i] } else { u[i] };
+    }
+    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
+    *f_evals += 1;
+    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
+    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+    p.is_finite().then_some(p)
+}
+
 fn dot(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).map(|(x, y)| x * y).sum()
 }
@@ -724,9 +760,7 @@ impl NewtonSolver {
         let mut spent = best.summary.iterations;
         let nonmonotone = Attempt {
             profile: 4,
-            runs: self.settings.nonmonotone_restart
-                && self.settings.watchdog_steps > 0
-                && !(self.settings.flat_skips_nonmonotone && self.ended_flat),
+            runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,
             kind: AttemptKind::Nonmonotone,
             damped: false,
         };
@@ -943,7 +977,6 @@ impl NewtonSolver {
         let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
-        let mut ended_flat = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1097,6 +1130,32 @@ impl NewtonSolver {
             // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
             // whichever lowers Ψ more.
             let mut newton_search = None;
+            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, from
+            // `RATIO_TEST_AFTER` iterations of a run on, a full step that failed the Armijo test
+            // is cut at the first pair that leaves its cone along the linearisation; that point
+            // is taken when it lowers Ψ, else under the watchdog.
+            let ratio_on = s.ratio_test
+                && self.attempt == 0
+                && !self.in_continuation
+                && iterations >= RATIO_TEST_AFTER;
+            if ratio_on && accepted.is_none() && newton_ok {
+                pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
+                if let Some(event) = ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
+                    && let Some(p) = try_ratio_step(mcp, ws, event, l, u, &mut f_evals)
+                {
+                    if p < psi {
+                        accepted = Some((event.0, p));
+                    } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
+                        if checkpoint.is_none() {
+                            ws.save_checkpoint();
+                            checkpoint = Some(psi);
+                            watchdog_count = 0;
+                        }
+                        accepted = Some((event.0, p));
+                        nonmonotone_steps += 1;
+                    }
+                }
+            }
             if accepted.is_none() && newton_ok && s.newton_line_search {
                 let slope = dot(&ws.grad, &ws.d);
                 let mut t = s.backtrack;
@@ -1142,13 +1201,39 @@ impl NewtonSolver {
                             // the watchdog (it may cross a kink of Φ towards the right active
                             // set: Ψ rises for a step or two, then falls quadratically); failing
                             // that, backtracking.
-                            if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
+                            if let Some(mut p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
+                                // The ratio test, as for the Newton direction above.
+                                let ratio_event = if ratio_on {
+                                    pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
+                                    ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
+                                } else {
+                                    None
+                                };
+                                let watched =
+                                    local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
                                 if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
                                     || natural_residual(&ws.z_trial, &ws.f_trial, l, u)
                                         <= s.tolerance
                                 {
                                     accepted = Some((1.0, p));
-                                } else if local && s.watchdog_steps > 0 && psi < watchdog_ceiling {
+                                } else if let Some(ev) = ratio_event
+                                    && let Some(q) = try_ratio_step(mcp, ws, ev, l, u, &mut f_evals)
+                                    && (q < psi || watched)
+                                {
+                                    if q >= psi {
+                                        if checkpoint.is_none() {
+                                            ws.save_checkpoint();
+                                            checkpoint = Some(psi);
+                                            watchdog_count = 0;
+                                        }
+                                        nonmonotone_steps += 1;
+                                    }
+                                    accepted = Some((ev.0, q));
+                                } else if watched {
+                                    if ratio_event.is_some() {
+                                        // The ratio point was tried: the full step again.
+                                        p = try_step(mcp, ws, 1.0, l, u, &mut f_evals).unwrap_or(p);
+                                    }
                                     if checkpoint.is_none() {
                                         ws.save_checkpoint();
                                         checkpoint = Some(psi);
@@ -1399,7 +1484,6 @@ impl NewtonSolver {
                 && best_psi >= (1.0 - 1e-3) * ws.best_psi_history[counted - k]
             {
                 termination = Termination::Stagnated;
-                ended_flat = true;
                 break;
             }
             if let Some(psi_check) = checkpoint {
@@ -1434,7 +1518,6 @@ impl NewtonSolver {
             clock.lap(&mut prof, Phase::Other);
         }
         self.min_norm_kept = min_norm_kept + min_norm_pending;
-        self.ended_flat = ended_flat;
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;
