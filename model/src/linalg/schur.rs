@@ -36,9 +36,6 @@ struct Group {
     lu: SmallLu,
     /// `(position in the values, position in the column-major block)`.
     entries: Vec<(usize, usize)>,
-    /// The entries' values `lu` holds the factors of (empty before the first factorisation):
-    /// a block bitwise the same as the last one is not factorised again.
-    factored_values: Vec<f64>,
 }
 
 /// A column of `B` (a rest unknown that appears in some group's rows).
@@ -71,10 +68,6 @@ pub struct SchurLu {
     c_vals: Vec<f64>,
     /// `W = A⁻¹ B`, row-major: `grouped.len()` rows, one column per coupling.
     w: Vec<f64>,
-    /// The entries of `B` (couplings in order) `w` was computed from, and whether `w` is that
-    /// of the current group factors and these entries (then it is kept).
-    w_values: Vec<f64>,
-    w_valid: bool,
     s: SmallLu,
     /// Work vectors: the grouped and the rest parts of a right-hand side.
     xe: Vec<f64>,
@@ -107,7 +100,6 @@ impl SchurLu {
                 offset,
                 lu: SmallLu::new(indices.len()),
                 entries: Vec::new(),
-                factored_values: Vec::new(),
             });
         }
         let mut rest = Vec::new();
@@ -174,8 +166,6 @@ impl SchurLu {
             c_pos,
             c_vals: vec![0.0; nc],
             w,
-            w_values: Vec::new(),
-            w_valid: false,
             s: SmallLu::new(m),
             xe: vec![0.0; ne],
             xc: vec![0.0; m],
@@ -205,31 +195,17 @@ impl SchurLu {
             return Err(LinalgError::NonFinite);
         }
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-        // A group block changes within a step only through the body's q and ω: one bitwise the
-        // same as at the last factorisation keeps its factors (the same numbers as a new LU).
-        let mut groups_kept = true;
         for group in &mut self.groups {
-            let same = group.factored_values.len() == group.entries.len()
-                && (group.entries.iter().zip(&group.factored_values))
-                    .all(|(&(p, _), v)| values[p].to_bits() == v.to_bits());
-            if !same {
-                groups_kept = false;
-                group.factored_values.clear();
-                let a = group.lu.storage_mut();
-                a.fill(0.0);
-                for &(p, k) in &group.entries {
-                    a[k] = values[p];
-                    group.factored_values.push(values[p]);
-                }
-                group.lu.eliminate();
+            let a = group.lu.storage_mut();
+            a.fill(0.0);
+            for &(p, k) in &group.entries {
+                a[k] = values[p];
             }
+            group.lu.eliminate();
             for d in group.lu.pivots() {
                 lo = lo.min(d.abs());
                 hi = hi.max(d.abs());
             }
-        }
-        if !groups_kept {
-            self.w_valid = false;
         }
         // A singular group block: no Schur complement to form.
         if !self.grouped.is_empty() && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi) {
@@ -249,27 +225,18 @@ impl SchurLu {
         }
         // W = A⁻¹ B (row-major, one column per coupled rest unknown), then S −= C W.
         let nc = self.couplings.len();
-        let b_kept = self.w_valid
-            && (self.couplings.iter().flat_map(|c| &c.entries))
-                .zip(&self.w_values)
-                .all(|(&(p, _), v)| values[p].to_bits() == v.to_bits());
-        if !b_kept {
-            self.w.fill(0.0);
-            self.w_values.clear();
-            for (c, coupling) in self.couplings.iter().enumerate() {
-                for &(p, e) in &coupling.entries {
-                    self.w[e * nc + c] = values[p];
-                    self.w_values.push(values[p]);
-                }
+        self.w.fill(0.0);
+        for (c, coupling) in self.couplings.iter().enumerate() {
+            for &(p, e) in &coupling.entries {
+                self.w[e * nc + c] = values[p];
             }
-            for group in &self.groups {
-                let size = group_len(&group.lu);
-                group.lu.solve_rows(
-                    &mut self.w[group.offset * nc..(group.offset + size) * nc],
-                    nc,
-                );
-            }
-            self.w_valid = true;
+        }
+        for group in &self.groups {
+            let size = group_len(&group.lu);
+            group.lu.solve_rows(
+                &mut self.w[group.offset * nc..(group.offset + size) * nc],
+                nc,
+            );
         }
         for (e, row) in self.w.chunks_exact(nc.max(1)).enumerate().take(ne) {
             for k in self.c_ptr[e]..self.c_ptr[e + 1] {
