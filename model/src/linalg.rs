@@ -177,6 +177,37 @@ impl DenseLu {
         self.eliminate()
     }
 
+    /// [`DenseLu::factor_in_pattern`] with the dense position of every stored entry given
+    /// ([`CscPattern::dense_positions`]): one pass over the entries, which scatters them and
+    /// tests them for finiteness together (the Newton iteration's factorisations).
+    pub fn factor_scattered(
+        &mut self,
+        positions: &[usize],
+        values: &[f64],
+        buf: &mut [f64],
+    ) -> Result<(), LinalgError> {
+        self.factored = false;
+        let target = match &mut self.small {
+            Some(small) => small.storage_mut(),
+            None => &mut *buf,
+        };
+        target.fill(0.0);
+        let mut finite = true;
+        for (&k, &v) in positions.iter().zip(values) {
+            finite &= v.is_finite();
+            target[k] = v;
+        }
+        if !finite {
+            return Err(LinalgError::NonFinite);
+        }
+        if self.small.is_none() {
+            let n = self.n;
+            self.lu
+                .copy_from(MatRef::from_column_major_slice(buf, n, n));
+        }
+        self.eliminate()
+    }
+
     /// Factorises the loaded matrix in place and judges its pivots.
     fn eliminate(&mut self) -> Result<(), LinalgError> {
         let n = self.n;
@@ -448,6 +479,8 @@ pub enum LinearSolver {
         buf: Vec<f64>,
         /// The pattern the values come in.
         pattern: CscPattern,
+        /// The dense (column-major) position of each stored entry.
+        positions: Vec<usize>,
     },
     /// Sparse LU with reused symbolic analysis.
     Sparse(Box<SparseLu>),
@@ -473,6 +506,7 @@ impl LinearSolver {
                 lu: Box::new(DenseLu::new(n)),
                 buf: vec![0.0; n * n],
                 pattern: pattern.clone(),
+                positions: pattern.dense_positions(),
             })
         } else {
             Ok(LinearSolver::Sparse(Box::new(SparseLu::analyze(pattern)?)))
@@ -528,7 +562,9 @@ impl LinearSolver {
     /// Factorises the matrix given by `values` in the pattern.
     pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
         match self {
-            LinearSolver::Dense { lu, buf, pattern } => lu.factor_in_pattern(pattern, values, buf),
+            LinearSolver::Dense {
+                lu, buf, positions, ..
+            } => lu.factor_scattered(positions, values, buf),
             LinearSolver::Sparse(s) => s.factor(values),
             LinearSolver::Structured {
                 schur,

@@ -116,6 +116,18 @@ impl CscPattern {
         }
     }
 
+    /// The position in a dense column-major `n × n` array of each stored entry, in storage
+    /// order (a scatter without the column loop: `out[positions[p]] = values[p]`).
+    pub fn dense_positions(&self) -> Vec<usize> {
+        let mut positions = Vec::with_capacity(self.nnz());
+        for j in 0..self.n {
+            for &r in &self.row_idx[self.col_ptr[j]..self.col_ptr[j + 1]] {
+                positions.push(j * self.n + r);
+            }
+        }
+        positions
+    }
+
     /// `y = A x` for `A` stored in this pattern.
     pub fn mul_vec(&self, values: &[f64], x: &[f64], y: &mut [f64]) {
         y.fill(0.0);

@@ -592,7 +592,16 @@ fn generalized_jacobian_rows(
         }
     }
     if any {
-        pattern.mul_vec(jac, degenerate, jv);
+        // J v over the (few) columns where v is not zero: the other columns add nothing.
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        jv.fill(0.0);
+        for (j, &v) in degenerate.iter().enumerate() {
+            if v != 0.0 {
+                for p in cp[j]..cp[j + 1] {
+                    jv[ri[p]] += jac[p] * v;
+                }
+            }
+        }
         for i in 0..n {
             let v = degenerate[i];
             if v > 0.0 {
@@ -609,26 +618,67 @@ fn generalized_jacobian_rows(
     }
 }
 
+/// Writes `H = D_a + D_b J` into `h` (in `pattern`, the diagonal always stored) and `∇Ψ = HᵀΦ`
+/// into `grad`, in one pass over the stored entries; also, for [`pin_zero_columns`], the
+/// largest magnitude of each column in `col_max` (NaN for a column holding a NaN) and returns
+/// the largest of `H` (NaNs left out).
+#[allow(clippy::too_many_arguments)]
+fn assemble_h_and_gradient(
+    pattern: &CscPattern,
+    jac: &[f64],
+    da: &[f64],
+    db: &[f64],
+    phi: &[f64],
+    h: &mut [f64],
+    grad: &mut [f64],
+    col_max: &mut [f64],
+) -> f64 {
+    let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
+    let mut largest = 0.0f64;
+    for j in 0..cp.len() - 1 {
+        let (mut s, mut cmax, mut nan) = (0.0, 0.0f64, false);
+        for p in cp[j]..cp[j + 1] {
+            let r = ri[p];
+            let mut v = db[r] * jac[p];
+            if p == diag[j] {
+                v += da[j];
+            }
+            h[p] = v;
+            s += v * phi[r];
+            let a = v.abs();
+            cmax = cmax.max(a);
+            nan |= a.is_nan();
+        }
+        grad[j] = s;
+        largest = largest.max(cmax);
+        col_max[j] = if nan { f64::NAN } else { cmax };
+    }
+    largest
+}
+
 /// Adds to the diagonal of `h` (in `pattern`), for each column whose largest entry is at most
 /// [`ZERO_COLUMN`] times the largest entry of `h`, the largest entry of its row (1 when the row
-/// is zero too); records the additions in `pin` and returns whether there was any.
+/// is zero too); records the additions in `pin` and returns whether there was any. `pin` holds
+/// each column's largest magnitude on entry and `largest` the largest of `h`
+/// ([`assemble_h_and_gradient`]).
 fn pin_zero_columns(
     pattern: &CscPattern,
     h: &mut [f64],
+    largest: f64,
     pin: &mut [f64],
     row_scale: &mut [f64],
 ) -> bool {
     let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
     let n = cp.len() - 1;
-    let largest = h.iter().fold(0.0f64, |m, v| m.max(v.abs()));
     let threshold = ZERO_COLUMN * largest;
     let mut any = false;
-    for j in 0..n {
-        pin[j] = 0.0;
-        let col = cp[j]..cp[j + 1];
-        if h[col].iter().all(|v| v.abs() <= threshold) {
-            pin[j] = f64::NAN;
+    for p in pin.iter_mut() {
+        // A NaN column is not below the threshold.
+        if *p <= threshold {
+            *p = f64::NAN;
             any = true;
+        } else {
+            *p = 0.0;
         }
     }
     if !any {
@@ -1041,17 +1091,17 @@ impl NewtonSolver {
                 &mut ws.degenerate,
                 &mut ws.jv,
             );
-            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-            for j in 0..n {
-                for p in cp[j]..cp[j + 1] {
-                    ws.h[p] = ws.db[ri[p]] * ws.jac[p];
-                }
-            }
-            for (j, &p) in pattern.diag_pos().iter().enumerate() {
-                ws.h[p] += ws.da[j];
-            }
-            // ∇Ψ = HᵀΦ.
-            pattern.mul_transpose_vec(&ws.h, &ws.phi, &mut ws.grad);
+            // H and ∇Ψ = HᵀΦ; `pin` gets the column maxima for the pinning test below.
+            let largest = assemble_h_and_gradient(
+                &pattern,
+                &ws.jac,
+                &ws.da,
+                &ws.db,
+                &ws.phi,
+                &mut ws.h,
+                &mut ws.grad,
+                &mut ws.pin,
+            );
             clock.lap(&mut prof, Phase::Jacobian);
 
             // Newton direction, with the DFK descent test.
@@ -1064,7 +1114,7 @@ impl NewtonSolver {
             // diagonal for the factorisation, so the step leaves them where their (consistent)
             // row puts them instead of failing the LU over the whole system.
             let pinned = s.pin_zero_columns
-                && pin_zero_columns(&pattern, &mut ws.h, &mut ws.pin, &mut ws.row_scale);
+                && pin_zero_columns(&pattern, &mut ws.h, largest, &mut ws.pin, &mut ws.row_scale);
             let mut newton_ok = linear.factor(&ws.h).is_ok();
             if newton_ok && linear.factored_by_elimination() {
                 prof.structured_factorizations += 1;

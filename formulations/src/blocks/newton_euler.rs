@@ -214,6 +214,13 @@ impl BodyStepData {
         jac: &mut JacobianBlocks<'_>,
     ) {
         use body_input::*;
+        // The Newton iteration wants no data derivative: skip the rotations below.
+        if ![MASS, INERTIA, START, WRENCH, GRAVITY, H]
+            .iter()
+            .any(|&k| jac.wants(k0 + k))
+        {
+            return;
+        }
         let dv = v3(nu.as_slice(), 0) - v3(self.nu_start.as_slice(), 0);
         let w1 = v3(nu.as_slice(), 3);
         let w0 = v3(self.nu_start.as_slice(), 3);
