@@ -492,31 +492,37 @@ fn conic_union_tip_135_step_94_active_set_polish() {
 /// step close to the previous one takes 1–2 QPs (`docs/latency.md#conic-backend`).
 #[test]
 fn conic_two_supports_first_qp_anchored_at_the_warm_start() {
-    for (name, steps) in [("126_v_trough", 2..=40), ("020_corner_wall", 2..=40)] {
-        let path = regression_scene(name);
-        let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
-        let mut sim = conic_at_step(&path, true, *steps.start());
-        let mut solver = ConicSolver::new(ConicSettings {
-            tolerance,
-            newton_polish: 0,
-            ..ConicSettings::default()
-        });
-        for k in steps {
-            let rec = sim
-                .step(&mut solver)
-                .unwrap_or_else(|e| panic!("{name} step {k}: {e}"));
-            assert!(
-                rec.converged && rec.summary.residual <= tolerance,
-                "{name} step {k}: converged {}, residual {:e}",
-                rec.converged,
-                rec.summary.residual
-            );
-            assert!(
-                rec.summary.iterations <= 2,
-                "{name} step {k}: {} outer QPs, expected at most 2",
-                rec.summary.iterations
-            );
-        }
+    for name in ["126_v_trough", "020_corner_wall"] {
+        conic_steps_within(name, 2..=40, 2);
+    }
+}
+
+/// Steps `steps` of the regression scene `name` with the conic backend (dense QPs, no Newton
+/// polish): each converges to the scene's tolerance in at most `max_qps` outer QPs.
+fn conic_steps_within(name: &str, steps: std::ops::RangeInclusive<usize>, max_qps: usize) {
+    let path = regression_scene(name);
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let mut sim = conic_at_step(&path, true, *steps.start());
+    let mut solver = ConicSolver::new(ConicSettings {
+        tolerance,
+        newton_polish: 0,
+        ..ConicSettings::default()
+    });
+    for k in steps {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("{name} step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "{name} step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        assert!(
+            rec.summary.iterations <= max_qps,
+            "{name} step {k}: {} outer QPs, expected at most {max_qps}",
+            rec.summary.iterations
+        );
     }
 }
 
@@ -529,28 +535,5 @@ fn conic_two_supports_first_qp_anchored_at_the_warm_start() {
 /// active set after 10 unsettled sweeps each step takes 3 QPs, without a Newton polish.
 #[test]
 fn conic_v_trough_087_joint_polish() {
-    let path = regression_scene("087_v_trough");
-    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
-    let mut sim = conic_at_step(&path, true, 4);
-    let mut solver = ConicSolver::new(ConicSettings {
-        tolerance,
-        newton_polish: 0,
-        ..ConicSettings::default()
-    });
-    for k in 4..=12 {
-        let rec = sim
-            .step(&mut solver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(
-            rec.converged && rec.summary.residual <= tolerance,
-            "step {k}: converged {}, residual {:e}",
-            rec.converged,
-            rec.summary.residual
-        );
-        assert!(
-            rec.summary.iterations <= 4,
-            "step {k}: {} outer QPs, expected at most 4",
-            rec.summary.iterations
-        );
-    }
+    conic_steps_within("087_v_trough", 4..=12, 4);
 }

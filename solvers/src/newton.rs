@@ -726,6 +726,17 @@ fn try_step(
     for i in 0..ws.n {
         ws.z_trial[i] = ws.z[i] + t * ws.d[i];
     }
+    merit_at_trial(mcp, ws, l, u, f_evals)
+}
+
+/// `Ψ` at `ws.z_trial` (`F` and `Φ` there kept in the workspace); `None` when not finite.
+fn merit_at_trial(
+    mcp: &dyn Mcp,
+    ws: &mut Workspace,
+    l: &[f64],
+    u: &[f64],
+    f_evals: &mut usize,
+) -> Option<f64> {
     mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
     *f_evals += 1;
     fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
@@ -749,11 +760,7 @@ fn try_ratio_step(
     if on_bound {
         ws.z_trial[i] = if ws.d[i] < 0.0 { l[i] } else { u[i] };
     }
-    mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
-    *f_evals += 1;
-    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
-    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
-    p.is_finite().then_some(p)
+    merit_at_trial(mcp, ws, l, u, f_evals)
 }
 
 fn dot(a: &[f64], b: &[f64]) -> f64 {
