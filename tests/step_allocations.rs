@@ -192,10 +192,12 @@ fn a_whole_desk_step_allocates_a_bounded_number_of_times() {
 /// fixed point (`conic/mod.rs`, `OuterWorkspace`: geometry and dynamics vectors, states,
 /// accelerator, the QP's triplets and answer); what is left is each QP's geometry (the formulation's
 /// patches), the QP's per-contact rows (`step::build`), the polished point, the formulation's
-/// `assemble`, and the returned solution and summary. Measured 160 on every solve (221 before the
-/// outer loop kept its storage, 697 to 809 before the polish did): `cargo test --release --test
-/// step_allocations -- --nocapture` prints it.
-const CONIC_DESK_SOLVE_ALLOCATIONS_MAX: usize = 160;
+/// `assemble`, and the returned solution and summary. Measured 160 on every solve in the release
+/// profile and 162 in the debug profile that CI tests (221 before the outer loop kept its
+/// storage, 697 to 809 before the polish did): `cargo test [--release] --test step_allocations
+/// -- --nocapture` prints it. The bound leaves that profile difference a margin and still fails
+/// on the 221 of the loop without kept storage.
+const CONIC_DESK_SOLVE_ALLOCATIONS_MAX: usize = 170;
 
 #[test]
 fn a_warm_conic_desk_solve_allocates_a_bounded_number_of_times() {
