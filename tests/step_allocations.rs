@@ -54,6 +54,37 @@ fn allocations() -> usize {
     ALLOCATIONS.with(Cell::get)
 }
 
+/// Desk steps `1..=last` with `solver`: each step's problem is solved once more from the step's
+/// warm start while counting allocations (the first 20 solves grow the workspace and are not
+/// returned), then stepped. Returns `(step, allocations, iterations)` of steps 21–`last`; every
+/// counted solve must converge.
+fn warm_desk_solve_allocations(
+    solver: &mut dyn McpSolver,
+    last: usize,
+) -> Vec<(usize, usize, usize)> {
+    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+    let mut counted = Vec::new();
+    for step in 1..=last {
+        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+        let z0 = sim.z().to_vec();
+        let before = allocations();
+        let sol = sim
+            .solve_step_problem(&mut *solver, &z0)
+            .unwrap_or_else(|e| panic!("step {step}: {e}"));
+        let spent = allocations() - before;
+        assert!(
+            sol.summary.converged(),
+            "step {step}: the solve did not converge"
+        );
+        if step > 20 {
+            counted.push((step, spent, sol.summary.iterations));
+        }
+        drop(sol);
+        sim.step(&mut *solver).unwrap_or_else(|e| panic!("{e}"));
+    }
+    counted
+}
+
 /// The most a converged Newton solve allocates besides its iterations: the returned point (1),
 /// the summary's counters (2: six entries pushed), its backend name (1) and the worst
 /// component's name (up to 3: `format!` grows its string piece by piece). One allocation per
@@ -62,24 +93,8 @@ const NEWTON_SOLVE_ALLOCATIONS_MAX: usize = 7;
 
 #[test]
 fn a_warm_newton_step_solve_allocates_only_its_result() {
-    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
     let mut solver = NewtonSolver::new(NewtonSettings::default());
-    let mut counted = Vec::new();
-    for step in 1..=120 {
-        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
-        let z0 = sim.z().to_vec();
-        let before = allocations();
-        let sol = sim
-            .solve_step_problem(&mut solver, &z0)
-            .unwrap_or_else(|e| panic!("step {step}: {e}"));
-        let spent = allocations() - before;
-        // The first solves grow the workspace.
-        if step > 20 {
-            counted.push((step, spent, sol.summary.iterations));
-        }
-        drop(sol);
-        sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
-    }
+    let counted = warm_desk_solve_allocations(&mut solver, 120);
     // The bound means something only when solves take several iterations.
     let most = counted.iter().map(|c| c.2).max().unwrap_or(0);
     assert!(most >= 2, "at most {most} iterations per solve");
@@ -201,29 +216,10 @@ const CONIC_DESK_SOLVE_ALLOCATIONS_MAX: usize = 170;
 
 #[test]
 fn a_warm_conic_desk_solve_allocates_a_bounded_number_of_times() {
-    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
     let mut solver = ConicSolver::new(ConicSettings::default());
-    let mut most = 0;
-    let mut least = usize::MAX;
-    for step in 1..=80 {
-        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
-        let z0 = sim.z().to_vec();
-        let before = allocations();
-        let sol = sim
-            .solve_step_problem(&mut solver, &z0)
-            .unwrap_or_else(|e| panic!("step {step}: {e}"));
-        let spent = allocations() - before;
-        assert!(
-            sol.summary.converged(),
-            "step {step}: the conic solve did not converge"
-        );
-        drop(sol);
-        if step > 20 {
-            most = most.max(spent);
-            least = least.min(spent);
-        }
-        sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
-    }
+    let counted = warm_desk_solve_allocations(&mut solver, 80);
+    let most = counted.iter().map(|c| c.1).max().unwrap_or(0);
+    let least = counted.iter().map(|c| c.1).min().unwrap_or(usize::MAX);
     println!("warm conic desk solve: {least} to {most} allocations");
     assert!(
         most <= CONIC_DESK_SOLVE_ALLOCATIONS_MAX,
