@@ -160,12 +160,21 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
         L::div(lk, pivot);
+        // The columns to update two at a time, sharing the pass over the multipliers.
+        let mut waiting: Option<(&mut [f64], f64)> = None;
         for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
                 continue;
             }
-            L::sub_scaled(&mut col[k + 1..], lk, akj);
+            let below = &mut col[k + 1..];
+            match waiting.take() {
+                Some((first, s)) => L::sub_scaled2(first, below, lk, s, akj),
+                None => waiting = Some((below, akj)),
+            }
+        }
+        if let Some((last, s)) = waiting {
+            L::sub_scaled(last, lk, s);
         }
     }
 }
@@ -425,7 +434,7 @@ mod tests {
                 }
             })
             .collect();
-        if n > 3 && seed % 3 == 0 {
+        if n > 3 && seed.is_multiple_of(3) {
             // A zero column and a repeated one.
             let (z, r) = ((seed as usize) % n, (seed as usize + 1) % n);
             a[z * n..(z + 1) * n].fill(0.0);
