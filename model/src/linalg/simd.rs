@@ -13,9 +13,6 @@
 pub(super) trait Lanes {
     /// `x_i −= l_i s` for every `i` (the shorter length of `x` and `l`).
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64);
-    /// `x_i −= l_i s` and `y_i −= l_i t` for every `i`: two columns' updates with one pass over
-    /// `l` (each entry gets the operation [`Lanes::sub_scaled`] would give it).
-    fn sub_scaled2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f64, t: f64);
     /// `x_i /= d` for every `i`.
     fn div(x: &mut [f64], d: f64);
 }
@@ -28,13 +25,6 @@ impl Lanes for Portable {
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
         for (x, l) in x.iter_mut().zip(l) {
             *x -= l * s;
-        }
-    }
-    #[inline(always)]
-    fn sub_scaled2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f64, t: f64) {
-        for ((x, y), l) in x.iter_mut().zip(y.iter_mut()).zip(l) {
-            *x -= l * s;
-            *y -= l * t;
         }
     }
     #[inline(always)]
@@ -71,11 +61,6 @@ impl Lanes for Avx2 {
         unsafe { sub_scaled_avx2(x, l, s) }
     }
     #[inline(always)]
-    fn sub_scaled2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f64, t: f64) {
-        // SAFETY: as in `sub_scaled`.
-        unsafe { sub_scaled2_avx2(x, y, l, s, t) }
-    }
-    #[inline(always)]
     fn div(x: &mut [f64], d: f64) {
         // SAFETY: as in `sub_scaled`.
         unsafe { div_avx2(x, d) }
@@ -106,41 +91,6 @@ fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
         }
         if i < len {
             *xp.add(i) -= *lp.add(i) * s;
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn sub_scaled2_avx2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f64, t: f64) {
-    use std::arch::x86_64::*;
-    let len = x.len().min(y.len()).min(l.len());
-    let (xp, yp, lp) = (x.as_mut_ptr(), y.as_mut_ptr(), l.as_ptr());
-    let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`, within the three slices (`x` and `y` are
-    // distinct `&mut` slices, so they do not overlap).
-    unsafe {
-        while i + 4 <= len {
-            let l4 = _mm256_loadu_pd(lp.add(i));
-            let px = _mm256_mul_pd(l4, s4);
-            let py = _mm256_mul_pd(l4, t4);
-            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(_mm256_loadu_pd(xp.add(i)), px));
-            _mm256_storeu_pd(yp.add(i), _mm256_sub_pd(_mm256_loadu_pd(yp.add(i)), py));
-            i += 4;
-        }
-        if i + 2 <= len {
-            let l2 = _mm_loadu_pd(lp.add(i));
-            let px = _mm_mul_pd(l2, _mm256_castpd256_pd128(s4));
-            let py = _mm_mul_pd(l2, _mm256_castpd256_pd128(t4));
-            _mm_storeu_pd(xp.add(i), _mm_sub_pd(_mm_loadu_pd(xp.add(i)), px));
-            _mm_storeu_pd(yp.add(i), _mm_sub_pd(_mm_loadu_pd(yp.add(i)), py));
-            i += 2;
-        }
-        if i < len {
-            *xp.add(i) -= *lp.add(i) * s;
-            *yp.add(i) -= *lp.add(i) * t;
         }
     }
 }

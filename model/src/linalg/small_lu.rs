@@ -160,21 +160,12 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
         L::div(lk, pivot);
-        // The columns to update two at a time, sharing the pass over the multipliers.
-        let mut waiting: Option<(&mut [f64], f64)> = None;
         for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
                 continue;
             }
-            let below = &mut col[k + 1..];
-            match waiting.take() {
-                Some((first, s)) => L::sub_scaled2(first, below, lk, s, akj),
-                None => waiting = Some((below, akj)),
-            }
-        }
-        if let Some((last, s)) = waiting {
-            L::sub_scaled(last, lk, s);
+            L::sub_scaled(&mut col[k + 1..], lk, akj);
         }
     }
 }
