@@ -288,6 +288,53 @@ fn newton_room_corner_062_step_128_rate_test_lets_a_valley_finish() {
     assert_eq!(sol.z, without.z);
 }
 
+/// `018_union_tip` (h = 8 ms, μ = 0.12, an L of two boxes tipped over an edge of its hull by a
+/// torque; 32 unknowns): while the body tips, its contact's ECP lies inside the edge, and the
+/// predicted pose (the last step's velocity continued) tilts that edge by its second-order error
+/// (`h²|ω|²` × its length, 1e-5 … 2e-4 m), so one end of the edge came lowest and the warm start
+/// moved `a1` there, up to 37 cm from the solution's, with three face multipliers. The
+/// Fischer–Burmeister rows of that vertex hold `a1` on it, and Newton needed the continuation on
+/// every step from 27 to 50 (37–899 iterations a step, 9471 in the run against PATH's 677). The
+/// warm start now keeps a contact on its edge or face when the predicted lowest point is on that
+/// feature and does not penetrate (`docs/newton.md#a-tipping-edge-predicted-tilted-018_union_tip`):
+/// 4–7 iterations a step, no restart.
+#[test]
+fn newton_union_tip_018_tipping_edge_keeps_its_ecp() {
+    let path = regression_scene("018_union_tip");
+    let settings = NewtonSettings {
+        tolerance: scene_tolerance(&path).unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mut driver = NewtonSolver::new(settings.clone());
+    let (mut sim, _) = at_step_of(&path, &mut driver, 27);
+    // Steps 27–50: the body tips over the edge, then lifts onto a vertex at step 52.
+    for k in 27..=50 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged,
+            "step {k}: residual {:e}",
+            rec.summary.residual
+        );
+        assert!(
+            rec.summary.iterations <= 12,
+            "step {k}: {} iterations, expected at most 12",
+            rec.summary.iterations
+        );
+        assert_eq!(
+            rec.summary.counter(Counter::SmoothingStages).unwrap_or(0),
+            0,
+            "step {k}"
+        );
+    }
+    // Step 38 from its warm start: the plain iteration alone.
+    let (sim, _) = at_step_of(&path, &mut NewtonSolver::new(settings.clone()), 38);
+    let z0 = sim.z().to_vec();
+    let sol = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    assert_iterations(&sol, ..=12);
+}
+
 /// `012_multi_body` step 475 on PATH's own trajectory (as it was before these settings): every
 /// attempt as given cycled at its watchdog (635 iterations, 370 000 pivots, 6 s) before the
 /// first attempt in the scene scales converged in 3. With `first_in_both_units` the scaled
