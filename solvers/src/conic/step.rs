@@ -541,6 +541,34 @@ pub(crate) fn build(
 }
 
 impl StepQp {
+    /// The QP's shape as [`StepQp::extract`] reads an answer (variables, rows, and each
+    /// contact's vertex rows, their hull vertices and its cone), into `out`: an answer of a QP
+    /// with the same layout can be read as if it were this QP's (the outer iteration's reuse of
+    /// the previous QP's answer, `conic/mod.rs`).
+    pub fn layout_into(&self, out: &mut Vec<usize>) {
+        out.clear();
+        out.push(self.qp.n);
+        out.push(self.qp.rows());
+        for rows in &self.contacts {
+            match rows {
+                None => out.push(usize::MAX),
+                Some(r) => {
+                    out.push(r.first_row);
+                    out.push(r.soc_row.unwrap_or(usize::MAX));
+                    out.push(r.vertices.len());
+                    out.extend_from_slice(&r.vertices);
+                }
+            }
+        }
+    }
+
+    /// Whether some contact has the proximal anchor (a body with several loaded contacts).
+    pub fn anchored(&self) -> bool {
+        self.contacts
+            .iter()
+            .any(|r| r.as_ref().is_some_and(|r| r.anchor.is_some()))
+    }
+
     /// Reads velocities and impulses from clarabel's solution.
     ///
     /// The interior-point solution is read consistently with the complementarity it
