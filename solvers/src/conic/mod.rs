@@ -183,7 +183,7 @@ pub struct ConicSettings {
     /// confirms the first's active set). Otherwise the QP is solved as without it. Not with
     /// anchored contacts (the module doc of `conic/step.rs`): their loads are not unique and
     /// the member the polish reaches depends on the answer it starts from (the union desk's
-    /// velocities moved by 4e-8 with it). Counted in
+    /// velocities moved by 4e-8 with it). Tried once per solve at most. Counted in
     /// `"qp_reuses"`. Default `true`: the desk step without its second QP
     /// (`docs/latency.md#the-second-qp-of-a-step-the-first-qps-answer-polished-again-branch-wip-conicwarm-issue-18`).
     pub reuse_qp: bool,
@@ -490,6 +490,10 @@ impl McpSolver for ConicSolver {
         let mut handoff_tried = false;
         // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
         let mut have_answer = false;
+        // One reuse per solve at most: where the previous answer's active set is not the new
+        // QP's, the trial's polish runs all its sweeps (the stress suite's troughs: 3.5× the
+        // wall time when every outer iteration tried it).
+        let mut reuse_tried = false;
         // The warm start's normal impulse of every contact (empty when the structure does not
         // say).
         warm_loads.clear();
@@ -569,9 +573,10 @@ impl McpSolver for ConicSolver {
             // The previous QP's answer polished against this QP's data: when it solves the step,
             // this iteration needs no QP (`ConicSettings::reuse_qp`).
             let polish = exact && self.settings.polish;
-            if have_answer && polish && self.settings.reuse_qp && !sub.anchored() {
+            if have_answer && !reuse_tried && polish && self.settings.reuse_qp && !sub.anchored() {
                 sub.layout_into(new_layout);
                 if new_layout == layout {
+                    reuse_tried = true;
                     let point = sub.extract(result, bodies, true, &mut self.polish);
                     structure.assemble(&point, z_new);
                     mcp.evaluate(z_new, f);
