@@ -247,13 +247,20 @@ fn negated(w: [f64; 6]) -> [f64; 6] {
 
 /// The wrenches of patch vertex `v` of contact `g` on each body it acts on: `(F, W_{n,j})` and,
 /// for a dynamic G, `(G, −[n; (v_G − x_G) × n])` at G's point of the vertex.
-fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> Vec<(usize, [f64; 6])> {
-    let mut out = vec![(
-        g.body,
-        wrench(&g.normal, &sub(&v.position, &g.center_of_mass)),
-    )];
+fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> VertexWrenches {
+    let mut out = VertexWrenches {
+        len: 1,
+        sides: [
+            (
+                g.body,
+                wrench(&g.normal, &sub(&v.position, &g.center_of_mass)),
+            ),
+            (0, [0.0; 6]),
+        ],
+    };
     if let Some((b, x)) = dynamic_partner(g) {
-        out.push((b, negated(wrench(&g.normal, &sub(&v.partner_position, &x)))));
+        out.sides[1] = (b, negated(wrench(&g.normal, &sub(&v.partner_position, &x))));
+        out.len = 2;
     }
     out
 }
@@ -429,6 +436,8 @@ pub(crate) fn build(
     }
     let mut contacts = Vec::with_capacity(geometry.len());
     let mut patch_vertices = 0;
+    // One row's coefficients, refilled for every row.
+    let mut coeffs: Vec<(usize, f64)> = Vec::with_capacity(16);
     for (c, g) in geometry.iter().enumerate() {
         if g.patch.is_empty() || !bodies_exist(g, nb) {
             contacts.push(None);
@@ -450,10 +459,11 @@ pub(crate) fn build(
             vec![Vec::with_capacity(g.patch.len()); friction_sides.len()];
         for v in &g.patch {
             let ws = normal_sides(g, v);
-            let mut coeffs: Vec<(usize, f64)> = ws
-                .iter()
-                .flat_map(|(b, w)| (0..6).map(move |i| (6 * b + i, -w[i])))
-                .collect();
+            coeffs.clear();
+            coeffs.extend(
+                ws.iter()
+                    .flat_map(|(b, w)| (0..6).map(move |i| (6 * b + i, -w[i]))),
+            );
             if let Some(a) = a_col {
                 coeffs.push((a, f.mu));
             }
@@ -472,8 +482,8 @@ pub(crate) fn build(
             gap_rates.push(rate);
             vertices.push(v.index);
             positions.push(v.position);
-            for (k, (_, w)) in ws.into_iter().enumerate() {
-                normal_wrenches[k].push(w);
+            for (k, (_, w)) in ws.iter().enumerate() {
+                normal_wrenches[k].push(*w);
             }
         }
         if let (Some(col), Some((rho_m, rho_n)), Some(a)) = (anchor_cols[c], weights[c], anchor) {
@@ -491,10 +501,12 @@ pub(crate) fn build(
         let soc_row = a_col.map(|a| {
             let r0 = qp.push_row(&[(a, -1.0)], 0.0);
             for i in 0..3 {
-                let coeffs: Vec<(usize, f64)> = friction_sides
-                    .iter()
-                    .flat_map(|(b, w)| (0..6).map(move |k| (6 * b + k, -axes[i] * w[i][k])))
-                    .collect();
+                coeffs.clear();
+                coeffs.extend(
+                    friction_sides
+                        .iter()
+                        .flat_map(|(b, w)| (0..6).map(move |k| (6 * b + k, -axes[i] * w[i][k]))),
+                );
                 // The data part of the relative slip (a G moved by its schedule).
                 qp.push_row(&coeffs, axes[i] * slip_offset[i]);
             }
