@@ -573,6 +573,7 @@ impl McpSolver for ConicSolver {
             // The previous QP's answer polished against this QP's data: when it solves the step,
             // this iteration needs no QP (`ConicSettings::reuse_qp`).
             let polish = exact && self.settings.polish;
+            let mut reused = None;
             if have_answer && !reuse_tried && polish && self.settings.reuse_qp && !sub.anchored() {
                 sub.layout_into(new_layout);
                 if new_layout == layout {
@@ -583,70 +584,63 @@ impl McpSolver for ConicSolver {
                     run.f_evals += 1;
                     let reused_residual = natural_residual(z_new, f, lower, upper);
                     if reused_residual <= self.settings.tolerance {
-                        *qp_storage = sub.qp;
-                        run.qp_reuses += 1;
-                        iterations = it + 1;
-                        if self.settings.trace {
-                            run.trace.push(IterationRecord {
-                                iteration: it,
-                                residual,
-                                merit: residual,
-                                step: StepKind::Conic,
-                                step_length: 1.0,
-                                direction_norm: max_change(z_new, &z),
-                            });
-                        }
-                        std::mem::swap(&mut z, z_new);
-                        residual = reused_residual;
-                        if residual < best_residual || !best_residual.is_finite() {
-                            best_residual = residual;
-                            best_z.copy_from_slice(&z);
-                        }
-                        termination = Termination::Converged;
-                        break;
+                        reused = Some((reused_residual, point));
                     }
                 }
             }
-            let qp_settings = Self::qp_settings(&self.settings, if exact { residual } else { 0.0 });
-            let from_dense =
-                self.settings.dense_qp && self.dense.solve_into(&sub.qp, &qp_settings, result);
-            if self.settings.dense_qp && !from_dense {
-                run.clarabel_fallbacks += 1;
-            }
-            if !from_dense {
-                match sub.qp.solve(&qp_settings) {
-                    Ok(r) => *result = r,
-                    Err(msg) => {
-                        self.last_error = Some(msg);
+            // The new iterate: the reused answer (it solves the step, so the convergence test
+            // below ends the solve) or this iteration's QP's.
+            let (new_residual, mut point) = match reused {
+                Some(answer) => {
+                    run.qp_reuses += 1;
+                    *qp_storage = sub.qp;
+                    iterations = it + 1;
+                    answer
+                }
+                None => {
+                    let qp_settings =
+                        Self::qp_settings(&self.settings, if exact { residual } else { 0.0 });
+                    let from_dense = self.settings.dense_qp
+                        && self.dense.solve_into(&sub.qp, &qp_settings, result);
+                    if self.settings.dense_qp && !from_dense {
+                        run.clarabel_fallbacks += 1;
+                    }
+                    if !from_dense {
+                        match sub.qp.solve(&qp_settings) {
+                            Ok(r) => *result = r,
+                            Err(msg) => {
+                                self.last_error = Some(msg);
+                                termination = Termination::SubproblemFailed;
+                                break;
+                            }
+                        }
+                    }
+                    if from_dense {
+                        run.dense_qp_iterations += result.iterations as usize;
+                    } else {
+                        run.clarabel_iterations += result.iterations as usize;
+                    }
+                    run.status = Some(result.status);
+                    self.last_status = Some(result.status);
+                    iterations = it + 1;
+                    if !qp::usable(result.status) {
+                        self.last_error = Some(format!(
+                            "clarabel returned {:?} on the QP of outer iteration {it}",
+                            result.status
+                        ));
                         termination = Termination::SubproblemFailed;
                         break;
                     }
+                    let point = sub.extract(result, bodies, polish, &mut self.polish);
+                    sub.layout_into(layout);
+                    have_answer = true;
+                    *qp_storage = sub.qp;
+                    structure.assemble(&point, z_new);
+                    mcp.evaluate(z_new, f);
+                    run.f_evals += 1;
+                    (natural_residual(z_new, f, lower, upper), point)
                 }
-            }
-            if from_dense {
-                run.dense_qp_iterations += result.iterations as usize;
-            } else {
-                run.clarabel_iterations += result.iterations as usize;
-            }
-            run.status = Some(result.status);
-            self.last_status = Some(result.status);
-            iterations = it + 1;
-            if !qp::usable(result.status) {
-                self.last_error = Some(format!(
-                    "clarabel returned {:?} on the QP of outer iteration {it}",
-                    result.status
-                ));
-                termination = Termination::SubproblemFailed;
-                break;
-            }
-            let mut point = sub.extract(result, bodies, polish, &mut self.polish);
-            sub.layout_into(layout);
-            have_answer = true;
-            *qp_storage = sub.qp;
-            structure.assemble(&point, z_new);
-            mcp.evaluate(z_new, f);
-            run.f_evals += 1;
-            let new_residual = natural_residual(z_new, f, lower, upper);
+            };
             if self.settings.trace {
                 run.trace.push(IterationRecord {
                     iteration: it,
