@@ -632,7 +632,10 @@ impl McpSolver for ConicSolver {
                         break;
                     }
                     let point = sub.extract(result, bodies, polish, &mut self.polish);
-                    sub.layout_into(layout);
+                    // The layout a later reuse compares against, only while one can be tried.
+                    if !reuse_tried && polish && self.settings.reuse_qp {
+                        sub.layout_into(layout);
+                    }
                     have_answer = true;
                     *qp_storage = sub.qp;
                     structure.assemble(&point, z_new);
