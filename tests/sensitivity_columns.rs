@@ -1,9 +1,10 @@
 //! The step sensitivities' θ columns solved by the small kernel's row-oriented solve (the
 //! default) against faer's blocked triangular solves (`SensitivityOptions::blocked_columns`,
 //! the route before it: `docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`),
-//! on the paper's desk, A1 and the T-bar at every 10th step: every column of `dz/dθ` and of the
-//! state derivatives within 1e-12 of the blocked route's, relative to the column's largest
-//! entry; the same statuses, degeneracies and solve kind. Whole file: a few seconds in debug.
+//! on the paper's desk and the T-bar at every 10th step, A1 at every other: every column of `dz/dθ` and of the
+//! state derivatives within 1e-12 of the blocked route's, relative to the largest entry of the
+//! column of `dz/dθ`; the same statuses, degeneracies and solve kind. Whole file: a few
+//! seconds in debug.
 
 use ecp::formulations::sensitivity::{
     Degeneracy, SensitivityOptions, StepDifferentiator, StepSensitivity,
@@ -14,15 +15,21 @@ use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 /// The lead's bound (issue 18): results unchanged to 1e-12.
 const AGREEMENT: f64 = 1e-12;
 
-/// Largest difference of the columns of `a` and `b` (`rows` entries each), relative to the
-/// largest magnitude of `a`'s column.
-fn column_difference(a: &[f64], b: &[f64], rows: usize) -> f64 {
-    assert_eq!(a.len(), b.len());
+/// Largest difference of the columns of `a` and `b` against the blocked route's, relative to
+/// the largest magnitude of that column of `dz/dθ` (`a` is `n × p`; `state`, `m × p`, is read
+/// from the same columns, so its differences are relative to the same scale: a state column
+/// that is zero up to round-off is judged against its `dz` column, not against its own noise).
+fn column_difference(a: &StepSensitivity, b: &StepSensitivity) -> f64 {
+    assert_eq!((a.dz.len(), a.state.len()), (b.dz.len(), b.state.len()));
+    let (n, p) = (a.n.max(1), a.inputs.len().max(1));
+    let m = (a.state.len() / p).max(1);
     let mut worst = 0.0f64;
-    for (x, y) in a.chunks(rows.max(1)).zip(b.chunks(rows.max(1))) {
-        let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs())).max(1e-300);
-        for (u, v) in x.iter().zip(y) {
-            worst = worst.max((u - v).abs() / scale);
+    for c in 0..a.inputs.len() {
+        let (x, y) = (&a.dz[c * n..(c + 1) * n], &b.dz[c * n..(c + 1) * n]);
+        let (u, v) = (&a.state[c * m..(c + 1) * m], &b.state[c * m..(c + 1) * m]);
+        let scale = x.iter().fold(0.0f64, |s, v| s.max(v.abs())).max(1e-300);
+        for (e, f) in x.iter().zip(y).chain(u.iter().zip(v)) {
+            worst = worst.max((e - f).abs() / scale);
         }
     }
     worst
@@ -62,9 +69,9 @@ fn same_degeneracies(a: &StepSensitivity, b: &StepSensitivity, label: &str) {
     }
 }
 
-/// Every 10th of the first `steps` steps of `scene`; returns the largest relative column
+/// Every `every`-th of the first `steps` steps of `scene`; returns the largest relative column
 /// difference and the number of steps compared.
-fn check(label: &str, scene: Scene, steps: usize) -> (f64, usize) {
+fn check(label: &str, scene: Scene, steps: usize, every: usize) -> (f64, usize) {
     let mut sim = Simulation::new(scene).unwrap_or_else(|e| panic!("{e}"));
     let mut solver = NewtonSolver::new(NewtonSettings::default());
     let mut rows = StepDifferentiator::new(SensitivityOptions::default());
@@ -79,7 +86,7 @@ fn check(label: &str, scene: Scene, steps: usize) -> (f64, usize) {
         }
         sim.step(&mut solver)
             .unwrap_or_else(|e| panic!("{label} step {step}: {e}"));
-        if step % 10 != 0 {
+        if step % every != 0 {
             continue;
         }
         let a = blocked
@@ -96,11 +103,7 @@ fn check(label: &str, scene: Scene, steps: usize) -> (f64, usize) {
             "{at_step}"
         );
         same_degeneracies(&a, &b, &at_step);
-        let d = column_difference(&a.dz, &b.dz, a.n).max(column_difference(
-            &a.state,
-            &b.state,
-            a.state.len() / a.inputs.len(),
-        ));
+        let d = column_difference(&a, &b);
         if d > worst {
             (worst, at) = (d, step);
         }
@@ -113,7 +116,7 @@ fn check(label: &str, scene: Scene, steps: usize) -> (f64, usize) {
 
 #[test]
 fn the_desk_sensitivities_by_rows_agree_with_the_blocked_solves() {
-    let (worst, compared) = check("desk", scenarios::desk(), 400);
+    let (worst, compared) = check("desk", scenarios::desk(), 400, 10);
     assert_eq!(compared, 40);
     // Different arithmetic: the routes are not bitwise the same, so the comparison compares.
     assert!(worst > 0.0, "the two routes gave bitwise the same columns");
@@ -121,12 +124,13 @@ fn the_desk_sensitivities_by_rows_agree_with_the_blocked_solves() {
 
 #[test]
 fn a1_sensitivities_by_rows_agree_with_the_blocked_solves() {
-    let (_, compared) = check("A1", scenarios::a1_sliding(), 400);
-    assert!(compared >= 10, "{compared} steps compared");
+    // A1 slides to rest within its 55 steps: every other step.
+    let (_, compared) = check("A1", scenarios::a1_sliding(), 400, 2);
+    assert!(compared >= 20, "{compared} steps compared");
 }
 
 #[test]
 fn the_t_bar_sensitivities_by_rows_agree_with_the_blocked_solves() {
-    let (_, compared) = check("T-bar", scenarios::t_bar(), 400);
+    let (_, compared) = check("T-bar", scenarios::t_bar(), 400, 10);
     assert!(compared >= 10, "{compared} steps compared");
 }
