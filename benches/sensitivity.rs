@@ -5,7 +5,10 @@
 //!   (as in `--bench newton`);
 //! - `desk_step_sensitivity`: the derivatives of that step's solution with respect to all 30
 //!   step inputs (friction, mass, inertia, start state, load): one Jacobian and one data-Jacobian
-//!   evaluation, one factorisation of the reduced Jacobian (symbolic analysis reused), 30 solves;
+//!   evaluation, one factorisation of the reduced Jacobian (symbolic analysis reused), 30 solves
+//!   (as the rows of one matrix by the small kernel, `docs/latency.md`);
+//!   `desk_step_sensitivity_blocked_columns` the same with the 30 solves by faer's blocked
+//!   triangular solves (`SensitivityOptions::blocked_columns`, the route before);
 //! - `desk_100_steps_*`: the first 100 desk steps alone, with the adjoint gradient of a
 //!   reference loss for μ and e_r (and every step's wrench), and with the forward one;
 //! - `pieces`: the parts of a step sensitivity — the data Jacobian `∂F/∂θ` (30 columns), the
@@ -48,6 +51,23 @@ fn desk_step_sensitivity(bencher: divan::Bencher) {
         sim.step(&mut solver).expect("desk step");
     }
     let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+    bencher.bench_local(|| match differ.differentiate(&sim) {
+        Ok(s) => s.dz.len(),
+        Err(e) => panic!("desk sensitivity: {e}"),
+    });
+}
+
+#[divan::bench]
+fn desk_step_sensitivity_blocked_columns(bencher: divan::Bencher) {
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    for _ in 0..100 {
+        sim.step(&mut solver).expect("desk step");
+    }
+    let mut differ = StepDifferentiator::new(SensitivityOptions {
+        blocked_columns: true,
+        ..SensitivityOptions::default()
+    });
     bencher.bench_local(|| match differ.differentiate(&sim) {
         Ok(s) => s.dz.len(),
         Err(e) => panic!("desk sensitivity: {e}"),

@@ -227,3 +227,47 @@ fn a_warm_conic_desk_solve_allocates_a_bounded_number_of_times() {
         "{most} allocations"
     );
 }
+
+/// The most a repeated desk step sensitivity allocates (`StepDifferentiator::differentiate`
+/// after the 100th step, its workspace grown by two calls): the returned `StepSensitivity`
+/// (its `dz`, state derivatives, inputs, statuses, degeneracies and their component names) and
+/// the short lists of the classification and the data Jacobian's block bookkeeping; the
+/// workspace itself (the reduced system, the LU, the row-major solution, `∂F/∂θ`) allocates
+/// nothing once grown. `cargo test [--release] --test step_allocations -- --nocapture` prints
+/// the count; the bound leaves a margin for the profiles and fails if a per-column or per-entry
+/// allocation comes back (30 columns).
+const DESK_SENSITIVITY_ALLOCATIONS_MAX: usize = 30;
+
+#[test]
+fn a_repeated_desk_step_sensitivity_allocates_a_bounded_number_of_times() {
+    use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator};
+    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    for _ in 0..100 {
+        sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+    }
+    let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+    let mut counts = Vec::new();
+    for call in 0..6 {
+        let before = allocations();
+        let s = differ
+            .differentiate(&sim)
+            .unwrap_or_else(|e| panic!("call {call}: {e}"));
+        let spent = allocations() - before;
+        assert_eq!(s.dz.len(), s.n * 30);
+        drop(s);
+        if call >= 2 {
+            counts.push(spent);
+        }
+    }
+    println!("repeated desk step sensitivity: {counts:?} allocations per call");
+    assert!(
+        counts.windows(2).all(|w| w[0] == w[1]),
+        "the count changes between calls: {counts:?}"
+    );
+    assert!(
+        counts[0] <= DESK_SENSITIVITY_ALLOCATIONS_MAX,
+        "{} allocations",
+        counts[0]
+    );
+}

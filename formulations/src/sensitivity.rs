@@ -316,6 +316,10 @@ pub struct SensitivityOptions {
     /// (`docs/latency.md#structured-linear-solve`) instead of the LU of the whole matrix.
     /// Default `false`.
     pub structured_solve: bool,
+    /// Solve the step inputs' columns with faer's blocked triangular solves (the route before
+    /// the small kernel's row-oriented solve, `docs/latency.md`; the results differ by
+    /// round-off). Default `false`.
+    pub blocked_columns: bool,
 }
 
 /// A degenerate point met by a step sensitivity (module documentation).
@@ -420,6 +424,9 @@ impl StepSensitivity {
 pub struct StepDifferentiator {
     options: SensitivityOptions,
     system: ReducedSystem,
+    /// `∂F/∂θ` of the step inputs, kept so that its storage is not zeroed twice per call (the
+    /// data Jacobian zeroes it itself).
+    rhs: Vec<f64>,
 }
 
 impl StepDifferentiator {
@@ -427,7 +434,10 @@ impl StepDifferentiator {
     pub fn new(options: SensitivityOptions) -> Self {
         StepDifferentiator {
             options,
-            system: ReducedSystem::new().with_structured_solve(options.structured_solve),
+            system: ReducedSystem::new()
+                .with_structured_solve(options.structured_solve)
+                .with_blocked_columns(options.blocked_columns),
+            rhs: Vec::new(),
         }
     }
 
@@ -492,13 +502,14 @@ impl StepDifferentiator {
         let mut inputs = StepInput::all(bodies);
         inputs.extend_from_slice(extra);
         let p = inputs.len();
-        let rhs = input_columns(sim, z, &inputs)?;
+        input_columns(sim, z, &inputs, &mut self.rhs)?;
+        let rhs = &self.rhs;
         // Stage 1: everything but the held-contact geometry.
         let mut first = status.clone();
         for &i in &geometry {
             first[i] = ComponentStatus::Held;
         }
-        let d = self.system.differentiate(mcp, z, &first, &rhs, p, opts)?;
+        let d = self.system.differentiate(mcp, z, &first, rhs, p, opts)?;
         let mut dz = d.dz;
         if let SolveKind::Regularised { consistency } = d.solve {
             degeneracies.push(Degeneracy::Singular { consistency });
@@ -528,8 +539,13 @@ impl StepDifferentiator {
                 degeneracies.push(Degeneracy::SeparatedGeometry { consistency });
             }
         }
-        // Slopes along the combined derivative (stage 1 alone holds the contact geometry).
-        let weak = self.system.weak_slopes(mcp, &status, &dz, &rhs, p, opts);
+        // Slopes along the combined derivative (stage 1 alone holds the contact geometry);
+        // without a second stage stage 1's are those (same status, same derivative).
+        let weak = if geometry.is_empty() {
+            d.weak
+        } else {
+            self.system.weak_slopes(mcp, &status, &dz, rhs, p, opts)
+        };
         for w in &weak {
             degeneracies.push(Degeneracy::WeaklyActive {
                 component: mcp.component_name(w.index),
@@ -539,21 +555,25 @@ impl StepDifferentiator {
             });
         }
         // The stored state: x, Q/|Q|, v, ω.
+        // Written column by column, body by body: every entry once, no zeroing first.
         let m = STATE_SIZE * bodies;
-        let mut state = vec![0.0; m * p];
-        for (b, &(nu_id, q_id)) in bodies_vars.iter().enumerate() {
-            let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
-            let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
-            let norm = qraw.norm();
-            let qn = qraw / norm;
-            for c in 0..p {
-                let col = &dz[c * n..(c + 1) * n];
-                let out = &mut state[c * m + STATE_SIZE * b..c * m + STATE_SIZE * (b + 1)];
-                out[..3].copy_from_slice(&col[q0..q0 + 3]);
+        let frames: Vec<_> = bodies_vars
+            .iter()
+            .map(|&(nu_id, q_id)| {
+                let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
+                let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
+                let norm = qraw.norm();
+                (nu0, q0, qraw / norm, norm)
+            })
+            .collect();
+        let mut state = Vec::with_capacity(m * p);
+        for col in dz.chunks_exact(n.max(1)).take(p) {
+            for &(nu0, q0, qn, norm) in &frames {
+                state.extend_from_slice(&col[q0..q0 + 3]);
                 let dq = Vector4::new(col[q0 + 3], col[q0 + 4], col[q0 + 5], col[q0 + 6]);
                 let dqn = (dq - qn * qn.dot(&dq)) / norm;
-                out[3..7].copy_from_slice(dqn.as_slice());
-                out[7..13].copy_from_slice(&col[nu0..nu0 + 6]);
+                state.extend_from_slice(dqn.as_slice());
+                state.extend_from_slice(&col[nu0..nu0 + 6]);
             }
         }
         let solve = degeneracies
@@ -578,13 +598,15 @@ impl StepDifferentiator {
     }
 }
 
-/// `∂F/∂θ` at `z` for the step inputs `inputs` (one column each, `n × inputs.len()`,
-/// column-major): the data Jacobian of the data blocks they live in ([`StepInput::data`]).
+/// `∂F/∂θ` at `z` for the step inputs `inputs` into `out` (one column each,
+/// `n × inputs.len()`, column-major): the data Jacobian of the data blocks they live in
+/// ([`StepInput::data`]).
 fn input_columns(
     sim: &Simulation,
     z: &[f64],
     inputs: &[StepInput],
-) -> Result<Vec<f64>, SensitivityError> {
+    out: &mut Vec<f64>,
+) -> Result<(), SensitivityError> {
     let mcp = sim.mcp();
     let n = mcp.dim();
     // The data blocks the inputs live in, each once, and the column of each block's first
@@ -610,17 +632,19 @@ fn input_columns(
         };
         at.push(first[slot] + k);
     }
-    let mut full = vec![0.0; n * p];
-    mcp.data_jacobian(z, &wrt, &mut full)?;
+    // The data Jacobian zeroes its output itself: `resize` only keeps the length right.
+    out.resize(n * p, 0.0);
+    mcp.data_jacobian(z, &wrt, out)?;
     // The step inputs are laid out as their data blocks ([`StepInput::all`]): no reordering.
     if at.iter().copied().eq(0..p) {
-        return Ok(full);
+        return Ok(());
     }
-    let mut rhs = vec![0.0; n * inputs.len()];
+    let full = std::mem::take(out);
+    out.resize(n * inputs.len(), 0.0);
     for (c, &col) in at.iter().enumerate() {
-        rhs[c * n..(c + 1) * n].copy_from_slice(&full[col * n..(col + 1) * n]);
+        out[c * n..(c + 1) * n].copy_from_slice(&full[col * n..(col + 1) * n]);
     }
-    Ok(rhs)
+    Ok(())
 }
 
 /// The step sensitivities of the last step `sim` took ([`StepDifferentiator::differentiate`]

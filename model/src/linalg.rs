@@ -19,6 +19,7 @@ mod schur;
 mod simd;
 mod small_lu;
 pub use schur::SchurLu;
+pub(crate) use simd::{add_row_combination, transpose};
 use small_lu::SmallLu;
 
 /// Largest dimension [`DenseLu`] factorises with its own small-matrix kernel instead of faer's
@@ -290,6 +291,25 @@ impl DenseLu {
         } else {
             Err(LinalgError::NonFinite)
         }
+    }
+
+    /// Solves `A X = B` in place for the `k` columns of the **row-major** `n × k` matrix `b`
+    /// with the small kernel's row-oriented solve (its AVX2 loops; the step sensitivities'
+    /// many right-hand sides, `docs/latency.md`). Returns `Ok(false)` and leaves `b` alone when
+    /// the factors are faer's (above [`SMALL_DENSE_MAX`]). The result is not tested for
+    /// finiteness: the caller reads it anyway.
+    pub fn solve_rows_in_place(&mut self, b: &mut [f64], k: usize) -> Result<bool, LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let Some(small) = &self.small else {
+            return Ok(false);
+        };
+        check_many_rhs(b.len(), self.n, k)?;
+        if k > 0 {
+            small.solve_rows(b, k);
+        }
+        Ok(true)
     }
 
     fn solve_impl(&mut self, b: &mut [f64], transpose: bool) -> Result<(), LinalgError> {
@@ -607,6 +627,19 @@ impl LinearSolver {
                 ..
             } => dense.solve_transpose_in_place(b),
             LinearSolver::Structured { schur, .. } => schur.solve_transpose_in_place(b),
+        }
+    }
+    /// True when [`LinearSolver::solve_rows_in_place`] solves: the dense variant with the small
+    /// kernel's factors.
+    pub fn solves_rows(&self) -> bool {
+        matches!(self, LinearSolver::Dense { lu, .. } if lu.small.is_some())
+    }
+    /// [`DenseLu::solve_rows_in_place`] for the dense variant (`Ok(false)`, `b` untouched, for
+    /// the others).
+    pub fn solve_rows_in_place(&mut self, b: &mut [f64], k: usize) -> Result<bool, LinalgError> {
+        match self {
+            LinearSolver::Dense { lu, .. } => lu.solve_rows_in_place(b, k),
+            _ => Ok(false),
         }
     }
     /// Solves `A X = B` in place for the `k` columns of the column-major `n × k` matrix `b`

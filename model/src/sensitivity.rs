@@ -42,10 +42,19 @@
 //! `(0, 1)`), but evaluated at `z*`, not at the previous iterate; so this module factorises `A`
 //! once at `z*` — one numeric factorisation per step, reusing the symbolic analysis — and solves
 //! every θ column (or, for gradients, one transposed system) with it.
+//!
+//! **The θ columns together.** With the small dense kernel (up to
+//! [`crate::linalg::SMALL_DENSE_MAX`] unknowns) the `p` columns are solved as the rows of one
+//! row-major `n × p` matrix by the kernel's row-oriented triangular solves (each factor entry
+//! updates all `p` columns in one vector loop), and the weak components' slopes are formed from
+//! that row-major solution, one vector loop per stored entry of a weak row
+//! (`docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`). The
+//! results differ from faer's blocked solves, kept behind
+//! [`ReducedSystem::with_blocked_columns`], by round-off only.
 
 use std::sync::Arc;
 
-use crate::linalg::{DenseLu, LinalgError, LinearSolver};
+use crate::linalg::{DenseLu, LinalgError, LinearSolver, add_row_combination, transpose};
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 
@@ -212,6 +221,20 @@ pub struct ReducedSystem {
     structured: bool,
     regularised: Option<Regularised>,
     work: Vec<f64>,
+    /// Solve the θ columns with faer's blocked triangular solves (module documentation).
+    blocked_columns: bool,
+    /// The row-major `n × p` solution of the last [`ReducedSystem::solve_columns`] by rows,
+    /// valid while `rows_for` is `Some(p)`.
+    rows: Vec<f64>,
+    rows_for: Option<usize>,
+    /// Largest magnitude in the right-hand side of that solve (before its sign change).
+    rhs_max: f64,
+    /// The pattern by rows: row `i`'s stored entries `(column, position)` are
+    /// `row_entries[row_ptr[i]..row_ptr[i + 1]]`, columns ascending.
+    row_ptr: Vec<usize>,
+    row_entries: Vec<(usize, usize)>,
+    /// One row of `p` residual slopes per weak component.
+    slope_rows: Vec<f64>,
 }
 
 /// The fallback of a singular reduced matrix: `A` dense and an LU of `AᵀA + λI`.
@@ -262,6 +285,14 @@ impl ReducedSystem {
         self
     }
 
+    /// Solves the θ columns of [`ReducedSystem::solve_columns`] with faer's blocked triangular
+    /// solves when `on` (the route before the row-oriented kernel, kept to compare against;
+    /// the results differ by round-off). Default off.
+    pub fn with_blocked_columns(mut self, on: bool) -> Self {
+        self.blocked_columns = on;
+        self
+    }
+
     /// The Jacobian values `J(z*)` of the last [`ReducedSystem::factor`], in the pattern's order.
     pub fn jacobian_values(&self) -> &[f64] {
         &self.jac
@@ -288,6 +319,7 @@ impl ReducedSystem {
                 status.len()
             )));
         }
+        self.rows_for = None;
         let pattern = mcp.jacobian_pattern();
         let reuse = self
             .pattern
@@ -301,6 +333,7 @@ impl ReducedSystem {
             };
             self.linear = Some(LinearSolver::structured(pattern, self.dense_max, groups)?);
             self.pattern = Some(pattern.clone());
+            self.index_rows(pattern);
         }
         self.jac.resize(pattern.nnz(), 0.0);
         mcp.jacobian(z, &mut self.jac);
@@ -330,6 +363,30 @@ impl ReducedSystem {
             Ok(()) => Ok(()),
             Err(LinalgError::Singular { .. }) => self.regularise(),
             Err(e) => Err(e.into()),
+        }
+    }
+
+    /// The pattern by rows (`row_ptr`, `row_entries`), for the weak rows' slopes.
+    fn index_rows(&mut self, pattern: &CscPattern) {
+        let n = pattern.dim();
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        self.row_ptr.clear();
+        self.row_ptr.resize(n + 1, 0);
+        for &i in ri {
+            self.row_ptr[i + 1] += 1;
+        }
+        for i in 0..n {
+            self.row_ptr[i + 1] += self.row_ptr[i];
+        }
+        let mut next = self.row_ptr[..n].to_vec();
+        self.row_entries.clear();
+        self.row_entries.resize(ri.len(), (0, 0));
+        for j in 0..n {
+            for q in cp[j]..cp[j + 1] {
+                let i = ri[q];
+                self.row_entries[next[i]] = (j, q);
+                next[i] += 1;
+            }
         }
     }
 
@@ -418,6 +475,15 @@ impl ReducedSystem {
                 rhs.len()
             )));
         }
+        self.rows_for = None;
+        let by_rows = self.regularised.is_none()
+            && !self.blocked_columns
+            && n > 0
+            && p > 0
+            && self.linear.as_ref().is_some_and(LinearSolver::solves_rows);
+        if by_rows {
+            return self.solve_columns_by_rows(rhs, p);
+        }
         if rhs.iter().any(|v| !v.is_finite()) {
             return Err(ImplicitError::NonFinite);
         }
@@ -446,6 +512,54 @@ impl ReducedSystem {
             worst = worst.max(self.solve_one(col)?);
         }
         Ok(self.kind(worst))
+    }
+
+    /// [`ReducedSystem::solve_columns`] by the small kernel's row-oriented solve: the columns
+    /// (held rows zeroed) transposed into the row-major `rows`, solved there, negated and
+    /// copied back; `rows` keeps the solution for the weak slopes.
+    fn solve_columns_by_rows(
+        &mut self,
+        rhs: &mut [f64],
+        p: usize,
+    ) -> Result<SolveKind, ImplicitError> {
+        let n = self.held.len();
+        // One contiguous pass for the finiteness test and the largest magnitude (the weak
+        // slopes' scale); `a <= MAX` is false for NaN and ±∞.
+        let (mut finite, mut max) = (true, 0.0f64);
+        for v in rhs.iter() {
+            let a = v.abs();
+            finite &= a <= f64::MAX;
+            max = if a > max { a } else { max };
+        }
+        if !finite {
+            return Err(ImplicitError::NonFinite);
+        }
+        // Transposed without the sign change: solving `A x = −b` gives `−x` of `A x = b` bit
+        // for bit but for the signs of zeros (every operation of the solve commutes with
+        // negation), so the sign goes on the way back.
+        self.rows.resize(n * p, 0.0);
+        let rows = &mut self.rows[..n * p];
+        transpose(rhs, n, p, rows);
+        for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
+            if h {
+                dst.fill(0.0);
+            }
+        }
+        let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+        if !linear.solve_rows_in_place(rows, p)? {
+            return Err(LinalgError::NotFactored.into());
+        }
+        for v in rows.iter_mut() {
+            *v = -*v;
+            finite &= v.abs() <= f64::MAX;
+        }
+        if !finite {
+            return Err(LinalgError::NonFinite.into());
+        }
+        transpose(rows, p, n, rhs);
+        self.rhs_max = max;
+        self.rows_for = Some(p);
+        Ok(SolveKind::Direct)
     }
 
     /// The adjoint of [`ReducedSystem::solve_columns`]: overwrites `g` by `μ = P A⁻ᵀ g`, so that
@@ -532,7 +646,11 @@ impl ReducedSystem {
         self.factor(mcp, z, status)?;
         let mut dz = dfdtheta.to_vec();
         let solve = self.solve_columns(&mut dz, p)?;
-        let weak = self.weak_slopes(mcp, status, &dz, dfdtheta, p, opts);
+        let weak = if self.rows_for == Some(p) {
+            self.weak_slopes_by_rows(mcp, status, dfdtheta, p, opts)
+        } else {
+            self.weak_slopes(mcp, status, &dz, dfdtheta, p, opts)
+        };
         Ok(ImplicitDerivative {
             dz,
             columns: p,
@@ -604,6 +722,54 @@ impl ReducedSystem {
             }
         }
         for w in weak.iter_mut() {
+            w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
+        }
+        weak
+    }
+}
+
+impl ReducedSystem {
+    /// [`ReducedSystem::weak_slopes`] along the row-major solution the last
+    /// [`ReducedSystem::solve_columns`] kept (`rows_for == Some(p)`, its right-hand side
+    /// `dfdtheta`): per weak row, `dF_i = ∂F_i/∂θ + J_i dz` for all `p` columns at once, one
+    /// vector loop per stored entry of the row. Bitwise the same slopes as `weak_slopes` of the
+    /// same `dz`: every `dF_ik` gets the same products in the same order (columns ascending).
+    fn weak_slopes_by_rows(
+        &mut self,
+        mcp: &dyn Mcp,
+        status: &[ComponentStatus],
+        dfdtheta: &[f64],
+        p: usize,
+        opts: &ActiveSetOptions,
+    ) -> Vec<WeakComponent> {
+        let n = mcp.dim();
+        let mut weak: Vec<WeakComponent> = status
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
+            .map(|(index, _)| WeakComponent {
+                index,
+                slope: 0.0,
+                two_sided: true,
+            })
+            .collect();
+        if weak.is_empty()
+            || self.jac.len() != mcp.jacobian_pattern().nnz()
+            || self.row_ptr.len() != n + 1
+        {
+            return weak;
+        }
+        let scale = self.rhs_max.max(1.0);
+        self.slope_rows.resize(weak.len() * p, 0.0);
+        let rows = &self.rows[..n * p];
+        for (w, y) in weak.iter_mut().zip(self.slope_rows.chunks_exact_mut(p)) {
+            let i = w.index;
+            for (k, v) in y.iter_mut().enumerate() {
+                *v = dfdtheta[k * n + i];
+            }
+            let entries = &self.row_entries[self.row_ptr[i]..self.row_ptr[i + 1]];
+            add_row_combination(y, rows, entries, &self.jac);
+            w.slope = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
         }
         weak
@@ -757,6 +923,73 @@ mod tests {
         let fwd: f64 = (0..3).map(|i| g[i] * d.dz[i]).sum();
         let adj: f64 = -(0..3).map(|i| mu[i] * dfdtheta[i]).sum::<f64>();
         assert!((fwd - adj).abs() < 1e-13, "{fwd} vs {adj}");
+    }
+
+    /// The θ columns by the small kernel's rows against faer's blocked solves: the same
+    /// derivative to round-off, and the weak slopes formed from the row-major solution bitwise
+    /// those of [`ReducedSystem::weak_slopes`] on the same derivative.
+    #[test]
+    fn columns_by_rows_agree_with_the_blocked_solves() {
+        let (n, p) = (13, 9);
+        let mut s = 3u64;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        // J: a third of the off-diagonal entries zero, a dominant diagonal.
+        let jac: Vec<f64> = (0..n * n)
+            .map(|q| {
+                let v = next();
+                if q % n == q / n {
+                    4.0 + v
+                } else if v.abs() < 0.17 {
+                    0.0
+                } else {
+                    v
+                }
+            })
+            .collect();
+        let dfdtheta: Vec<f64> = (0..n * p)
+            .map(|q| if q % 4 == 1 { 0.0 } else { next() * 3.0 })
+            .collect();
+        let j2 = jac.clone();
+        let mcp = FnMcp::dense(
+            vec![0.0; n],
+            vec![f64::INFINITY; n],
+            |_z: &[f64], f: &mut [f64]| f.fill(0.0),
+            move |_z: &[f64], out: &mut [f64]| out.copy_from_slice(&j2),
+        )
+        .unwrap();
+        use ComponentStatus::*;
+        let status: Vec<ComponentStatus> = (0..n)
+            .map(|i| [Free, WeaklyActive, Free, Active, Held][i % 5])
+            .collect();
+        let opts = ActiveSetOptions::default();
+        let z = vec![0.0; n];
+        let mut rows = ReducedSystem::new();
+        let a = rows
+            .differentiate(&mcp, &z, &status, &dfdtheta, p, &opts)
+            .unwrap();
+        let mut blocked = ReducedSystem::new().with_blocked_columns(true);
+        let b = blocked
+            .differentiate(&mcp, &z, &status, &dfdtheta, p, &opts)
+            .unwrap();
+        assert_eq!((a.solve, b.solve), (SolveKind::Direct, SolveKind::Direct));
+        for (x, y) in a.dz.chunks(n).zip(b.dz.chunks(n)) {
+            let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            for (u, v) in x.iter().zip(y) {
+                assert!((u - v).abs() <= 1e-14 * scale, "{u} against {v}");
+            }
+        }
+        assert_eq!(a.weak.len(), 3);
+        assert!(a.weak.iter().all(|w| w.slope > 0.0));
+        let by_columns = rows.weak_slopes(&mcp, &status, &a.dz, &dfdtheta, p, &opts);
+        for (u, v) in a.weak.iter().zip(&by_columns) {
+            assert_eq!((u.index, u.two_sided), (v.index, v.two_sided));
+            assert_eq!(u.slope.to_bits(), v.slope.to_bits());
+        }
     }
 
     /// A weakly active component whose residual moves along the held branch is one-sided; one

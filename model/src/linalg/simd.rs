@@ -116,3 +116,157 @@ fn div_avx2(x: &mut [f64], d: f64) {
         }
     }
 }
+
+/// `y += Σ_e values[q_e] · rows[j_e]` over `entries = [(j_e, q_e), ..]` in their order, where
+/// `rows[j]` is row `j` of the row-major matrix `rows` with `y.len()` columns: a sparse row
+/// times a dense row-major matrix (the sensitivities' weak residual slopes,
+/// [`crate::sensitivity`]). Each entry of `y` gets the products in the order of `entries`,
+/// each rounded before its addition — bitwise the scalar loop `y_k += v · x_jk` column by
+/// column — with four lanes where the processor has AVX2.
+pub(crate) fn add_row_combination(
+    y: &mut [f64],
+    rows: &[f64],
+    entries: &[(usize, usize)],
+    values: &[f64],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the processor has AVX2.
+        unsafe { add_row_combination_avx2(y, rows, entries, values) };
+        return;
+    }
+    add_row_combination_with::<Portable>(y, rows, entries, values);
+}
+
+#[inline(always)]
+fn add_row_combination_with<L: Lanes>(
+    y: &mut [f64],
+    rows: &[f64],
+    entries: &[(usize, usize)],
+    values: &[f64],
+) {
+    let k = y.len();
+    for &(j, q) in entries {
+        // `x − l·(−v)` is `x + l·v` bit for bit: negation is exact and rounding symmetric.
+        L::sub_scaled(y, &rows[j * k..(j + 1) * k], -values[q]);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn add_row_combination_avx2(
+    y: &mut [f64],
+    rows: &[f64],
+    entries: &[(usize, usize)],
+    values: &[f64],
+) {
+    add_row_combination_with::<Avx2>(y, rows, entries, values);
+}
+
+/// `dst[j·c + k] = src[k·m + j]`: the column-major `m × c` matrix `src` written row-major into
+/// `dst` (the sensitivities' θ columns into the rows the small kernel's row-oriented solve works
+/// on, and back, [`crate::sensitivity`]); 4 × 4 blocks in registers where the processor has AVX2.
+pub(crate) fn transpose(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
+    assert!(src.len() >= m * c && dst.len() >= m * c);
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the processor has AVX2; the lengths are checked above.
+        unsafe { transpose_avx2(src, m, c, dst) };
+        return;
+    }
+    transpose_tail(src, m, c, dst, 0, 0);
+}
+
+/// The entries of [`transpose`] with row `j ≥ j0` or column `k ≥ k0`.
+fn transpose_tail(src: &[f64], m: usize, c: usize, dst: &mut [f64], j0: usize, k0: usize) {
+    for k in 0..c {
+        let from = if k < k0 { j0 } else { 0 };
+        for j in from..m {
+            dst[j * c + k] = src[k * m + j];
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn transpose_avx2(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
+    use std::arch::x86_64::*;
+    let (m4, c4) = (m / 4 * 4, c / 4 * 4);
+    let (s, d) = (src.as_ptr(), dst.as_mut_ptr());
+    for k in (0..c4).step_by(4) {
+        for j in (0..m4).step_by(4) {
+            // SAFETY: rows j..j + 4 < m of columns k..k + 4 < c, within `m · c` entries of
+            // both slices (checked by the caller).
+            unsafe {
+                let a0 = _mm256_loadu_pd(s.add(k * m + j));
+                let a1 = _mm256_loadu_pd(s.add((k + 1) * m + j));
+                let a2 = _mm256_loadu_pd(s.add((k + 2) * m + j));
+                let a3 = _mm256_loadu_pd(s.add((k + 3) * m + j));
+                let t0 = _mm256_unpacklo_pd(a0, a1);
+                let t1 = _mm256_unpackhi_pd(a0, a1);
+                let t2 = _mm256_unpacklo_pd(a2, a3);
+                let t3 = _mm256_unpackhi_pd(a2, a3);
+                _mm256_storeu_pd(d.add(j * c + k), _mm256_permute2f128_pd(t0, t2, 0x20));
+                _mm256_storeu_pd(d.add((j + 1) * c + k), _mm256_permute2f128_pd(t1, t3, 0x20));
+                _mm256_storeu_pd(d.add((j + 2) * c + k), _mm256_permute2f128_pd(t0, t2, 0x31));
+                _mm256_storeu_pd(d.add((j + 3) * c + k), _mm256_permute2f128_pd(t1, t3, 0x31));
+            }
+        }
+    }
+    transpose_tail(src, m, c, dst, m4, c4);
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The row combination gives bitwise what the scalar loop `y_k += v · x_jk` gives, entry
+    /// by entry in the order of the entries, for row lengths around the lane widths.
+    #[test]
+    fn row_combination_is_bitwise_the_scalar_loop() {
+        let mut s = 7u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            ((s >> 11) as f64 / (1u64 << 53) as f64 - 0.5) * 10f64.powi((s % 7) as i32 - 3)
+        };
+        for k in [0, 1, 2, 3, 4, 5, 7, 8, 30, 31] {
+            let rows: Vec<f64> = (0..6 * k).map(|_| next()).collect();
+            let values: Vec<f64> = (0..9).map(|_| next()).collect();
+            let entries = [(2, 0), (0, 3), (5, 8), (2, 1), (4, 4)];
+            let y0: Vec<f64> = (0..k).map(|_| next()).collect();
+            let mut expected = y0.clone();
+            for (c, e) in expected.iter_mut().enumerate() {
+                for &(j, q) in &entries {
+                    *e += values[q] * rows[j * k + c];
+                }
+            }
+            let mut y = y0.clone();
+            add_row_combination(&mut y, &rows, &entries, &values);
+            let mut portable = y0;
+            add_row_combination_with::<Portable>(&mut portable, &rows, &entries, &values);
+            for c in 0..k {
+                assert_eq!(y[c].to_bits(), expected[c].to_bits(), "k = {k}, column {c}");
+                assert_eq!(portable[c].to_bits(), expected[c].to_bits(), "k = {k}");
+            }
+        }
+    }
+    /// The transpose puts every entry where the index formula says, for sizes around the
+    /// block width.
+    #[test]
+    fn transpose_moves_every_entry() {
+        for m in [0, 1, 3, 4, 5, 8, 13, 31] {
+            for c in [0, 1, 2, 4, 7, 30] {
+                let src: Vec<f64> = (0..m * c).map(|i| i as f64 + 0.5).collect();
+                let mut dst = vec![f64::NAN; m * c];
+                transpose(&src, m, c, &mut dst);
+                for j in 0..m {
+                    for k in 0..c {
+                        assert_eq!(dst[j * c + k], src[k * m + j], "m = {m}, c = {c}");
+                    }
+                }
+            }
+        }
+    }
+}
