@@ -160,14 +160,34 @@ struct JointWorkspace {
 #[derive(Default)]
 struct NormalWorkspace {
     groups: Groups,
-    vertices: Vec<(usize, usize)>,
+    /// Per group (as `groups` lists them): what stays the same over one polish's sweeps.
+    cache: Vec<GroupCache>,
     active: Vec<bool>,
-    w: Vec<VertexWrenches>,
-    minv_w: Vec<VertexWrenches>,
     rates: Vec<f64>,
     nu: Vec<(usize, [f64; 6])>,
     loaded: Vec<usize>,
     pairs: Vec<(usize, usize)>,
+}
+
+/// What one group's normal correction computes the same at every sweep of a polish: the QP's
+/// rows, the mass matrices and so the vertices' wrenches are fixed for the polish, and the
+/// Delassus matrix of a loaded set depends on nothing else. Kept from the polish's first sweep
+/// (`fresh`) on; the factorisation is kept for the last loaded set, which the desk's sweeps
+/// keep from the first to the last (the same operations on the same numbers: the answers are
+/// bitwise those of factoring at every sweep).
+#[derive(Default)]
+struct GroupCache {
+    /// Whether `vertices`, `w` and `minv_w` hold this polish's values.
+    ready: bool,
+    /// (contact, position in the contact's vertex list) of every vertex of the group.
+    vertices: Vec<(usize, usize)>,
+    /// The wrenches of each vertex on each body of the group, and `M⁻¹` times them.
+    w: Vec<VertexWrenches>,
+    minv_w: Vec<VertexWrenches>,
+    /// The loaded set `range` factors (indices into `vertices`), when `factored`.
+    range_for: Vec<usize>,
+    factored: bool,
+    range: Option<PsdRange>,
 }
 
 /// The bodies coupled by contacts ([`StepQp::groups`]): the first `len` lists of `list` (the
@@ -688,7 +708,14 @@ impl StepQp {
             for c in &contacts {
                 before.extend(impulse_values(c));
             }
-            self.correct_normal_impulses(bodies, factors, &mut contacts, wrench_sum, normal);
+            self.correct_normal_impulses(
+                bodies,
+                factors,
+                &mut contacts,
+                wrench_sum,
+                normal,
+                sweep == 0,
+            );
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
@@ -869,6 +896,8 @@ impl StepQp {
     /// normal wrench, and along the rest (load split, centres of pressure) the QP's own
     /// optimum is decided by the anchor alone, so the polish picks exactly that member instead
     /// of keeping the interior-point method's round-off in those directions.
+    ///
+    /// `fresh`: the polish's first sweep (the groups and [`GroupCache`] are made again).
     fn correct_normal_impulses(
         &self,
         bodies: &[BodyDynamics],
@@ -876,56 +905,81 @@ impl StepQp {
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
         work: &mut NormalWorkspace,
+        fresh: bool,
     ) {
         let NormalWorkspace {
             groups,
-            vertices,
+            cache,
             active,
-            w,
-            minv_w,
             rates,
             nu,
             loaded,
             pairs,
         } = work;
-        self.groups(bodies.len(), groups);
-        for group in &groups.list[..groups.len] {
-            // (contact, position in the contact's vertex list) of every vertex of the group, and
-            // whether it is in the active set (loaded, or added below because it was violated).
-            vertices.clear();
-            active.clear();
-            for (c, rows) in self.contacts.iter().enumerate() {
-                let Some(rows) = rows else { continue };
-                if !group.contains(&rows.sides[0].body) {
-                    continue;
-                }
-                for (k, &(_, l)) in contacts[c].vertex_impulses.iter().enumerate() {
-                    vertices.push((c, k));
-                    active.push(l > 0.0);
+        if fresh {
+            self.groups(bodies.len(), groups);
+            if cache.len() < groups.len {
+                cache.resize_with(groups.len, GroupCache::default);
+            }
+            for gc in cache.iter_mut() {
+                gc.ready = false;
+                gc.factored = false;
+            }
+        }
+        for (group, gc) in groups.list[..groups.len].iter().zip(cache.iter_mut()) {
+            let GroupCache {
+                ready,
+                vertices,
+                w,
+                minv_w,
+                range_for,
+                factored,
+                range,
+            } = gc;
+            // (contact, position in the contact's vertex list) of every vertex of the group.
+            if !*ready {
+                vertices.clear();
+                for (c, rows) in self.contacts.iter().enumerate() {
+                    let Some(rows) = rows else { continue };
+                    if !group.contains(&rows.sides[0].body) {
+                        continue;
+                    }
+                    vertices.extend((0..contacts[c].vertex_impulses.len()).map(|k| (c, k)));
                 }
             }
+            // Whether each vertex is in the active set (loaded, or added below because it was
+            // violated).
+            active.clear();
+            active.extend(
+                vertices
+                    .iter()
+                    .map(|&(c, k)| contacts[c].vertex_impulses[k].1 > 0.0),
+            );
             if !active.iter().any(|&a| a) {
                 continue;
             }
-            // The wrenches of each vertex on each body of the group.
-            w.clear();
-            w.extend(vertices.iter().filter_map(|&(c, k)| {
-                self.contacts[c].as_ref().map(|r| {
-                    r.sides
-                        .iter()
-                        .map(|s| (s.body, s.normal_wrenches[k]))
+            if !*ready {
+                // The wrenches of each vertex on each body of the group.
+                w.clear();
+                w.extend(vertices.iter().filter_map(|&(c, k)| {
+                    self.contacts[c].as_ref().map(|r| {
+                        r.sides
+                            .iter()
+                            .map(|s| (s.body, s.normal_wrenches[k]))
+                            .collect::<VertexWrenches>()
+                    })
+                }));
+                minv_w.clear();
+                minv_w.extend(w.iter().map(|ws| {
+                    ws.iter()
+                        .map(|(b, x)| (*b, factors[*b].solve(x)))
                         .collect::<VertexWrenches>()
-                })
-            }));
+                }));
+                *ready = true;
+            }
             if w.len() != vertices.len() {
                 continue;
             }
-            minv_w.clear();
-            minv_w.extend(w.iter().map(|ws| {
-                ws.iter()
-                    .map(|(b, x)| (*b, factors[*b].solve(x)))
-                    .collect::<VertexWrenches>()
-            }));
             // Active-set loop (a primal active-set method on the Delassus LCP): correct the active
             // vertices' gaps; a vertex whose impulse would go negative blocks the step and leaves
             // the set; when the step is full, the most violated unloaded vertex (gap rate below
@@ -944,19 +998,25 @@ impl StepQp {
                 if k == 0 {
                     break;
                 }
-                let mut d = Scratch::new(k * k);
-                let mut r = Scratch::new(k);
-                for (a, &i) in loaded.iter().enumerate() {
-                    for (b, &j) in loaded.iter().enumerate() {
-                        // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
-                        for (bi, wi) in &w[i] {
-                            for (bj, mj) in &minv_w[j] {
-                                if bi == bj {
-                                    d[a * k + b] += dot6(wi, mj);
+                // The Delassus matrix of the loaded set: Σ over the bodies both vertices act on
+                // of w_iᵀ M⁻¹ w_j.
+                let delassus = || {
+                    let mut d = Scratch::new(k * k);
+                    for (a, &i) in loaded.iter().enumerate() {
+                        for (b, &j) in loaded.iter().enumerate() {
+                            for (bi, wi) in &w[i] {
+                                for (bj, mj) in &minv_w[j] {
+                                    if bi == bj {
+                                        d[a * k + b] += dot6(wi, mj);
+                                    }
                                 }
                             }
                         }
                     }
+                    d
+                };
+                let mut r = Scratch::new(k);
+                for (a, &i) in loaded.iter().enumerate() {
                     r[a] = -rates[i];
                 }
                 pairs.clear();
@@ -972,12 +1032,20 @@ impl StepQp {
                     // `PsdRange` (tried) agrees to 1e-12 per step, but the union desk's fixed
                     // point then stops elsewhere within its tolerance (loads 4.5e-4 apart by
                     // the end).
+                    let d = delassus();
                     let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
                     self.anchored_correction(pairs, contacts, rows, &r)
                         .map(|x| delta.copy_from_slice(&x))
                         .is_some()
                 } else {
-                    PsdRange::new(&d, k).is_some_and(|range| range.min_norm(&r, &mut delta))
+                    if !*factored || range_for != loaded {
+                        *range = PsdRange::new(&delassus(), k);
+                        range_for.clone_from(loaded);
+                        *factored = true;
+                    }
+                    range
+                        .as_ref()
+                        .is_some_and(|range| range.min_norm(&r, &mut delta))
                 };
                 if !solved {
                     break;
