@@ -630,7 +630,7 @@ impl StepQp {
     /// impulses are clarabel's duals as they are (only the active-set identification of `λ`).
     pub fn extract(
         &self,
-        result: &QpResult,
+        start: PolishStart<'_>,
         bodies: &[BodyDynamics],
         polish: bool,
         work: &mut PolishWorkspace,
@@ -655,13 +655,22 @@ impl StepQp {
                 contacts.push(ContactImpulses::default());
                 continue;
             };
+            let c = contacts.len();
             let mut vertex_impulses = Vec::with_capacity(rows.vertices.len());
             for (k, &j) in rows.vertices.iter().enumerate() {
-                let row = rows.first_row + k;
-                let l = if result.z[row] > result.s[row] {
-                    result.z[row]
-                } else {
-                    0.0
+                let l = match start {
+                    PolishStart::Qp(result) => {
+                        let row = rows.first_row + k;
+                        if result.z[row] > result.s[row] {
+                            result.z[row]
+                        } else {
+                            0.0
+                        }
+                    }
+                    PolishStart::Impulses(previous) => previous
+                        .get(c)
+                        .and_then(|p| p.vertex_impulses.get(k))
+                        .map_or(0.0, |&(_, l)| l),
                 };
                 vertex_impulses.push((j, l));
                 for side in &rows.sides {
@@ -674,7 +683,12 @@ impl StepQp {
             let mut friction = [0.0; 3];
             if let Some(r0) = rows.soc_row {
                 for i in 0..3 {
-                    friction[i] = rows.axes[i] * result.z[r0 + 1 + i];
+                    friction[i] = match start {
+                        PolishStart::Qp(result) => rows.axes[i] * result.z[r0 + 1 + i],
+                        PolishStart::Impulses(previous) => {
+                            previous.get(c).map_or(0.0, |p| p.friction[i])
+                        }
+                    };
                     for side in &rows.sides {
                         for k in 0..6 {
                             wrench_sum[side.body][k] += friction[i] * side.friction_wrenches[i][k];
@@ -823,6 +837,14 @@ impl StepQp {
             contacts,
         }
     }
+}
+
+/// Where [`StepQp::extract`] starts: a QP's answer, or the impulses of a point polished against a
+/// QP of the same layout ([`StepQp::layout_into`]), in contact and vertex-row order.
+#[derive(Clone, Copy)]
+pub(crate) enum PolishStart<'a> {
+    Qp(&'a QpResult),
+    Impulses(&'a [ContactImpulses]),
 }
 
 /// Gauss–Seidel sweeps of the polish at most.
