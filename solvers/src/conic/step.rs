@@ -404,12 +404,11 @@ pub(crate) fn build(
 ) -> StepQp {
     let h = structure.step_length();
     let nb = bodies.len();
-    let friction_vars: Vec<usize> = geometry
-        .iter()
-        .enumerate()
-        .filter(|(_, g)| !g.patch.is_empty() && g.friction.mu > 0.0)
-        .map(|(c, _)| c)
-        .collect();
+    // One friction variable `a` per loaded contact with friction, in contact order (counted,
+    // not listed: a list per QP was one more allocation per outer iteration).
+    let has_friction_var = |g: &ContactGeometry| !g.patch.is_empty() && g.friction.mu > 0.0;
+    let friction_vars = geometry.iter().filter(|g| has_friction_var(g)).count();
+    let mut friction_seen = 0;
     // Columns of the anchor variables (ξ_c, ζ_c) of each anchored contact.
     let anchor = anchor.filter(|a| a.moment > 0.0 && a.load > 0.0);
     let weights: Vec<Option<(f64, f64)>> = match anchor {
@@ -431,7 +430,7 @@ pub(crate) fn build(
             .collect(),
         None => vec![None; geometry.len()],
     };
-    let mut next_col = 6 * nb + friction_vars.len();
+    let mut next_col = 6 * nb + friction_vars;
     let anchor_cols: Vec<Option<usize>> = weights
         .iter()
         .map(|w| {
@@ -459,6 +458,10 @@ pub(crate) fn build(
     // One row's coefficients, refilled for every row.
     let mut coeffs: Vec<(usize, f64)> = Vec::with_capacity(16);
     for (c, g) in geometry.iter().enumerate() {
+        let a_col = has_friction_var(g).then(|| {
+            friction_seen += 1;
+            6 * nb + friction_seen - 1
+        });
         if g.patch.is_empty() || !bodies_exist(g, nb) {
             contacts.push(None);
             continue;
@@ -467,10 +470,6 @@ pub(crate) fn build(
         let axes = [f.e_t, f.e_o, f.e_r];
         let (friction_sides, slip_offset) = friction_sides(g);
         let s = shifts.get(c).copied().unwrap_or(0.0);
-        let a_col = friction_vars
-            .iter()
-            .position(|&k| k == c)
-            .map(|k| 6 * nb + k);
         let first_row = qp.rows();
         let mut vertices = Vec::with_capacity(g.patch.len());
         let mut positions = Vec::with_capacity(g.patch.len());
@@ -551,9 +550,18 @@ pub(crate) fn build(
             soc_row,
             mu: f.mu,
             positions,
+            // Field by field: `..g.clone()` would copy the patch only to drop it.
             frame: ContactGeometry {
+                body: g.body,
+                normal: g.normal,
+                tangent: g.tangent,
+                bitangent: g.bitangent,
+                center_of_mass: g.center_of_mass,
+                gap: g.gap,
                 patch: Vec::new(),
-                ..g.clone()
+                ecp: g.ecp,
+                friction: g.friction,
+                partner: g.partner,
             },
             anchor: weights[c].map(|(rho_m, rho_n)| {
                 let previous = anchor
