@@ -578,7 +578,15 @@ impl McpSolver for ConicSolver {
                 sub.layout_into(new_layout);
                 if new_layout == layout {
                     reuse_tried = true;
-                    let point = sub.extract(result, bodies, true, &mut self.polish);
+                    // From the previous QP's polished impulses (`seed`'s: the last iterate, that
+                    // QP's point): the sweeps start settled and only follow the data's change
+                    // (the desk: 12 sweeps from that QP's raw duals, `docs/latency.md`).
+                    let point = sub.extract(
+                        step::PolishStart::Impulses(&seed.contacts),
+                        bodies,
+                        true,
+                        &mut self.polish,
+                    );
                     structure.assemble(&point, z_new);
                     mcp.evaluate(z_new, f);
                     run.f_evals += 1;
@@ -631,7 +639,12 @@ impl McpSolver for ConicSolver {
                         termination = Termination::SubproblemFailed;
                         break;
                     }
-                    let point = sub.extract(result, bodies, polish, &mut self.polish);
+                    let point = sub.extract(
+                        step::PolishStart::Qp(result),
+                        bodies,
+                        polish,
+                        &mut self.polish,
+                    );
                     // The layout a later reuse compares against, only while one can be tried.
                     if !reuse_tried && polish && self.settings.reuse_qp {
                         sub.layout_into(layout);

@@ -160,14 +160,34 @@ struct JointWorkspace {
 #[derive(Default)]
 struct NormalWorkspace {
     groups: Groups,
-    vertices: Vec<(usize, usize)>,
+    /// Per group (as `groups` lists them): what stays the same over one polish's sweeps.
+    cache: Vec<GroupCache>,
     active: Vec<bool>,
-    w: Vec<VertexWrenches>,
-    minv_w: Vec<VertexWrenches>,
     rates: Vec<f64>,
     nu: Vec<(usize, [f64; 6])>,
     loaded: Vec<usize>,
     pairs: Vec<(usize, usize)>,
+}
+
+/// What one group's normal correction computes the same at every sweep of a polish: the QP's
+/// rows, the mass matrices and so the vertices' wrenches are fixed for the polish, and the
+/// Delassus matrix of a loaded set depends on nothing else. Kept from the polish's first sweep
+/// (`fresh`) on; the factorisation is kept for the last loaded set, which the desk's sweeps
+/// keep from the first to the last (the same operations on the same numbers: the answers are
+/// bitwise those of factoring at every sweep).
+#[derive(Default)]
+struct GroupCache {
+    /// Whether `vertices`, `w` and `minv_w` hold this polish's values.
+    ready: bool,
+    /// (contact, position in the contact's vertex list) of every vertex of the group.
+    vertices: Vec<(usize, usize)>,
+    /// The wrenches of each vertex on each body of the group, and `M⁻¹` times them.
+    w: Vec<VertexWrenches>,
+    minv_w: Vec<VertexWrenches>,
+    /// The loaded set `range` factors (indices into `vertices`), when `factored`.
+    range_for: Vec<usize>,
+    factored: bool,
+    range: Option<PsdRange>,
 }
 
 /// The bodies coupled by contacts ([`StepQp::groups`]): the first `len` lists of `list` (the
@@ -384,12 +404,11 @@ pub(crate) fn build(
 ) -> StepQp {
     let h = structure.step_length();
     let nb = bodies.len();
-    let friction_vars: Vec<usize> = geometry
-        .iter()
-        .enumerate()
-        .filter(|(_, g)| !g.patch.is_empty() && g.friction.mu > 0.0)
-        .map(|(c, _)| c)
-        .collect();
+    // One friction variable `a` per loaded contact with friction, in contact order (counted,
+    // not listed: a list per QP was one more allocation per outer iteration).
+    let has_friction_var = |g: &ContactGeometry| !g.patch.is_empty() && g.friction.mu > 0.0;
+    let friction_vars = geometry.iter().filter(|g| has_friction_var(g)).count();
+    let mut friction_seen = 0;
     // Columns of the anchor variables (ξ_c, ζ_c) of each anchored contact.
     let anchor = anchor.filter(|a| a.moment > 0.0 && a.load > 0.0);
     let weights: Vec<Option<(f64, f64)>> = match anchor {
@@ -411,7 +430,7 @@ pub(crate) fn build(
             .collect(),
         None => vec![None; geometry.len()],
     };
-    let mut next_col = 6 * nb + friction_vars.len();
+    let mut next_col = 6 * nb + friction_vars;
     let anchor_cols: Vec<Option<usize>> = weights
         .iter()
         .map(|w| {
@@ -439,6 +458,10 @@ pub(crate) fn build(
     // One row's coefficients, refilled for every row.
     let mut coeffs: Vec<(usize, f64)> = Vec::with_capacity(16);
     for (c, g) in geometry.iter().enumerate() {
+        let a_col = has_friction_var(g).then(|| {
+            friction_seen += 1;
+            6 * nb + friction_seen - 1
+        });
         if g.patch.is_empty() || !bodies_exist(g, nb) {
             contacts.push(None);
             continue;
@@ -447,10 +470,6 @@ pub(crate) fn build(
         let axes = [f.e_t, f.e_o, f.e_r];
         let (friction_sides, slip_offset) = friction_sides(g);
         let s = shifts.get(c).copied().unwrap_or(0.0);
-        let a_col = friction_vars
-            .iter()
-            .position(|&k| k == c)
-            .map(|k| 6 * nb + k);
         let first_row = qp.rows();
         let mut vertices = Vec::with_capacity(g.patch.len());
         let mut positions = Vec::with_capacity(g.patch.len());
@@ -531,9 +550,18 @@ pub(crate) fn build(
             soc_row,
             mu: f.mu,
             positions,
+            // Field by field: `..g.clone()` would copy the patch only to drop it.
             frame: ContactGeometry {
+                body: g.body,
+                normal: g.normal,
+                tangent: g.tangent,
+                bitangent: g.bitangent,
+                center_of_mass: g.center_of_mass,
+                gap: g.gap,
                 patch: Vec::new(),
-                ..g.clone()
+                ecp: g.ecp,
+                friction: g.friction,
+                partner: g.partner,
             },
             anchor: weights[c].map(|(rho_m, rho_n)| {
                 let previous = anchor
@@ -593,7 +621,8 @@ impl StepQp {
     ///   Acary–Cadoux / NSGS literature), `min ½ pᵀA p + u₀ᵀp` over the ellipsoid
     ///   `‖E⁻¹p‖ ≤ μ p_n`, `A = W_fᵀM⁻¹W_f`, `u₀` the slip without this contact's friction
     ///   ([`local_friction`]), in Gauss–Seidel sweeps (normal correction, then each contact's
-    ///   friction) until they settle, starting from the QP's dual (sweeps still unsettled after
+    ///   friction) until they settle, starting from the QP's dual or, for the outer loop's reuse,
+    ///   from the previous QP's polished impulses ([`PolishStart`]; sweeps still unsettled after
     ///   [`JOINT_AFTER`] try a joint Newton step on the coupled conditions,
     ///   [`StepQp::joint_step`], which the next sweeps confirm); it sticks with `u_T = 0`
     ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
@@ -610,7 +639,7 @@ impl StepQp {
     /// impulses are clarabel's duals as they are (only the active-set identification of `λ`).
     pub fn extract(
         &self,
-        result: &QpResult,
+        start: PolishStart<'_>,
         bodies: &[BodyDynamics],
         polish: bool,
         work: &mut PolishWorkspace,
@@ -635,13 +664,22 @@ impl StepQp {
                 contacts.push(ContactImpulses::default());
                 continue;
             };
+            let c = contacts.len();
             let mut vertex_impulses = Vec::with_capacity(rows.vertices.len());
             for (k, &j) in rows.vertices.iter().enumerate() {
-                let row = rows.first_row + k;
-                let l = if result.z[row] > result.s[row] {
-                    result.z[row]
-                } else {
-                    0.0
+                let l = match start {
+                    PolishStart::Qp(result) => {
+                        let row = rows.first_row + k;
+                        if result.z[row] > result.s[row] {
+                            result.z[row]
+                        } else {
+                            0.0
+                        }
+                    }
+                    PolishStart::Impulses(previous) => previous
+                        .get(c)
+                        .and_then(|p| p.vertex_impulses.get(k))
+                        .map_or(0.0, |&(_, l)| l),
                 };
                 vertex_impulses.push((j, l));
                 for side in &rows.sides {
@@ -654,7 +692,12 @@ impl StepQp {
             let mut friction = [0.0; 3];
             if let Some(r0) = rows.soc_row {
                 for i in 0..3 {
-                    friction[i] = rows.axes[i] * result.z[r0 + 1 + i];
+                    friction[i] = match start {
+                        PolishStart::Qp(result) => rows.axes[i] * result.z[r0 + 1 + i],
+                        PolishStart::Impulses(previous) => {
+                            previous.get(c).map_or(0.0, |p| p.friction[i])
+                        }
+                    };
                     for side in &rows.sides {
                         for k in 0..6 {
                             wrench_sum[side.body][k] += friction[i] * side.friction_wrenches[i][k];
@@ -688,7 +731,14 @@ impl StepQp {
             for c in &contacts {
                 before.extend(impulse_values(c));
             }
-            self.correct_normal_impulses(bodies, factors, &mut contacts, wrench_sum, normal);
+            self.correct_normal_impulses(
+                bodies,
+                factors,
+                &mut contacts,
+                wrench_sum,
+                normal,
+                sweep == 0,
+            );
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
@@ -798,11 +848,21 @@ impl StepQp {
     }
 }
 
+/// Where [`StepQp::extract`] starts: a QP's answer, or the impulses of a point polished against a
+/// QP of the same layout ([`StepQp::layout_into`]), in contact and vertex-row order.
+#[derive(Clone, Copy)]
+pub(crate) enum PolishStart<'a> {
+    Qp(&'a QpResult),
+    Impulses(&'a [ContactImpulses]),
+}
+
 /// Gauss–Seidel sweeps of the polish at most.
 const MAX_SWEEPS: usize = 50;
 
 /// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
-/// ([`StepQp::joint_step`]). The desk's polishes settle in about 5.
+/// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
+/// sweep; its four loaded vertices refuse the joint step) and in 3 from the previous polish's
+/// impulses.
 const JOINT_AFTER: usize = 10;
 
 /// Newton iterations of a joint step at most.
@@ -869,6 +929,8 @@ impl StepQp {
     /// normal wrench, and along the rest (load split, centres of pressure) the QP's own
     /// optimum is decided by the anchor alone, so the polish picks exactly that member instead
     /// of keeping the interior-point method's round-off in those directions.
+    ///
+    /// `fresh`: the polish's first sweep (the groups and [`GroupCache`] are made again).
     fn correct_normal_impulses(
         &self,
         bodies: &[BodyDynamics],
@@ -876,56 +938,81 @@ impl StepQp {
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
         work: &mut NormalWorkspace,
+        fresh: bool,
     ) {
         let NormalWorkspace {
             groups,
-            vertices,
+            cache,
             active,
-            w,
-            minv_w,
             rates,
             nu,
             loaded,
             pairs,
         } = work;
-        self.groups(bodies.len(), groups);
-        for group in &groups.list[..groups.len] {
-            // (contact, position in the contact's vertex list) of every vertex of the group, and
-            // whether it is in the active set (loaded, or added below because it was violated).
-            vertices.clear();
-            active.clear();
-            for (c, rows) in self.contacts.iter().enumerate() {
-                let Some(rows) = rows else { continue };
-                if !group.contains(&rows.sides[0].body) {
-                    continue;
-                }
-                for (k, &(_, l)) in contacts[c].vertex_impulses.iter().enumerate() {
-                    vertices.push((c, k));
-                    active.push(l > 0.0);
+        if fresh {
+            self.groups(bodies.len(), groups);
+            if cache.len() < groups.len {
+                cache.resize_with(groups.len, GroupCache::default);
+            }
+            for gc in cache.iter_mut() {
+                gc.ready = false;
+                gc.factored = false;
+            }
+        }
+        for (group, gc) in groups.list[..groups.len].iter().zip(cache.iter_mut()) {
+            let GroupCache {
+                ready,
+                vertices,
+                w,
+                minv_w,
+                range_for,
+                factored,
+                range,
+            } = gc;
+            // (contact, position in the contact's vertex list) of every vertex of the group.
+            if !*ready {
+                vertices.clear();
+                for (c, rows) in self.contacts.iter().enumerate() {
+                    let Some(rows) = rows else { continue };
+                    if !group.contains(&rows.sides[0].body) {
+                        continue;
+                    }
+                    vertices.extend((0..contacts[c].vertex_impulses.len()).map(|k| (c, k)));
                 }
             }
+            // Whether each vertex is in the active set (loaded, or added below because it was
+            // violated).
+            active.clear();
+            active.extend(
+                vertices
+                    .iter()
+                    .map(|&(c, k)| contacts[c].vertex_impulses[k].1 > 0.0),
+            );
             if !active.iter().any(|&a| a) {
                 continue;
             }
-            // The wrenches of each vertex on each body of the group.
-            w.clear();
-            w.extend(vertices.iter().filter_map(|&(c, k)| {
-                self.contacts[c].as_ref().map(|r| {
-                    r.sides
-                        .iter()
-                        .map(|s| (s.body, s.normal_wrenches[k]))
+            if !*ready {
+                // The wrenches of each vertex on each body of the group.
+                w.clear();
+                w.extend(vertices.iter().filter_map(|&(c, k)| {
+                    self.contacts[c].as_ref().map(|r| {
+                        r.sides
+                            .iter()
+                            .map(|s| (s.body, s.normal_wrenches[k]))
+                            .collect::<VertexWrenches>()
+                    })
+                }));
+                minv_w.clear();
+                minv_w.extend(w.iter().map(|ws| {
+                    ws.iter()
+                        .map(|(b, x)| (*b, factors[*b].solve(x)))
                         .collect::<VertexWrenches>()
-                })
-            }));
+                }));
+                *ready = true;
+            }
             if w.len() != vertices.len() {
                 continue;
             }
-            minv_w.clear();
-            minv_w.extend(w.iter().map(|ws| {
-                ws.iter()
-                    .map(|(b, x)| (*b, factors[*b].solve(x)))
-                    .collect::<VertexWrenches>()
-            }));
             // Active-set loop (a primal active-set method on the Delassus LCP): correct the active
             // vertices' gaps; a vertex whose impulse would go negative blocks the step and leaves
             // the set; when the step is full, the most violated unloaded vertex (gap rate below
@@ -944,19 +1031,25 @@ impl StepQp {
                 if k == 0 {
                     break;
                 }
-                let mut d = Scratch::new(k * k);
-                let mut r = Scratch::new(k);
-                for (a, &i) in loaded.iter().enumerate() {
-                    for (b, &j) in loaded.iter().enumerate() {
-                        // Σ over the bodies both vertices act on of w_iᵀ M⁻¹ w_j.
-                        for (bi, wi) in &w[i] {
-                            for (bj, mj) in &minv_w[j] {
-                                if bi == bj {
-                                    d[a * k + b] += dot6(wi, mj);
+                // The Delassus matrix of the loaded set: Σ over the bodies both vertices act on
+                // of w_iᵀ M⁻¹ w_j.
+                let delassus = || {
+                    let mut d = Scratch::new(k * k);
+                    for (a, &i) in loaded.iter().enumerate() {
+                        for (b, &j) in loaded.iter().enumerate() {
+                            for (bi, wi) in &w[i] {
+                                for (bj, mj) in &minv_w[j] {
+                                    if bi == bj {
+                                        d[a * k + b] += dot6(wi, mj);
+                                    }
                                 }
                             }
                         }
                     }
+                    d
+                };
+                let mut r = Scratch::new(k);
+                for (a, &i) in loaded.iter().enumerate() {
                     r[a] = -rates[i];
                 }
                 pairs.clear();
@@ -972,12 +1065,20 @@ impl StepQp {
                     // `PsdRange` (tried) agrees to 1e-12 per step, but the union desk's fixed
                     // point then stops elsewhere within its tolerance (loads 4.5e-4 apart by
                     // the end).
+                    let d = delassus();
                     let rows = d.chunks_exact(k).map(<[f64]>::to_vec).collect();
                     self.anchored_correction(pairs, contacts, rows, &r)
                         .map(|x| delta.copy_from_slice(&x))
                         .is_some()
                 } else {
-                    PsdRange::new(&d, k).is_some_and(|range| range.min_norm(&r, &mut delta))
+                    if !*factored || range_for != loaded {
+                        *range = PsdRange::new(&delassus(), k);
+                        range_for.clone_from(loaded);
+                        *factored = true;
+                    }
+                    range
+                        .as_ref()
+                        .is_some_and(|range| range.min_norm(&r, &mut delta))
                 };
                 if !solved {
                     break;
