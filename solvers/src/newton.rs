@@ -141,10 +141,13 @@ pub struct NewtonSettings {
     /// Shortest step length of that search. Default `1e-4`.
     pub newton_shortest_step: f64,
     /// A solve that reaches the tolerance with a natural residual above this fraction of it
-    /// takes one more full Newton step, kept when it lowers the residual: the local phase is
+    /// takes one more full Newton step (the minimum-norm step where `H` is singular, dense
+    /// problems), kept when it lowers the residual: the local phase is
     /// quadratic, so the step costs one factorisation and usually gains several digits. It
     /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
-    /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md). Default `1e-3`.
+    /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md; D5's vertical momentum,
+    /// which the ground's normal impulses set: off by 5.2e-12 at a residual of 5.2e-12 in a
+    /// ground contact, `docs/newton.md#the-ratio-test`). Default `1e-3`.
     pub polish_below: f64,
     /// After a failed solve, solve again from the start by the smoothing continuation
     /// (`docs/newton.md#smoothing-continuation`, [`crate::smoothing`]): this iteration on the
@@ -210,8 +213,9 @@ pub struct NewtonSettings {
     /// its residual, so a long step drives the residual of an inactive face far below zero and
     /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
     /// (`023_room_corner` step 36: 181 iterations with the non-monotone restart, 71 in the plain
-    /// iteration with it). It runs from the 20th iteration of a run on, so steps the plain
-    /// iteration solves in fewer are unchanged. Default `true`.
+    /// iteration with it; step 88: 246 with the continuation, 28). It runs from the first
+    /// iteration: the situation it describes (a full step that fails the Armijo test) is its
+    /// gate. Default `true`.
     pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
@@ -497,14 +501,6 @@ impl NewtonSolver {
 /// in Levenberg–Marquardt steps of constant length converges abruptly at its end, faster than
 /// its rate foretold (`062_room_corner` step 128: up to 3.96 times, then converged at 87).
 const RATE_TEST_MARGIN: f64 = 6.0;
-
-/// The ratio test ([`NewtonSettings::ratio_test`]) runs from this many iterations of a run on
-/// (as the flat-merit test judges a run from `2 × flat_merit_window` = 20): a step the plain
-/// iteration solves in fewer is bitwise unchanged. From the first iteration on it also solved
-/// `023_room_corner` step 36 (218 → 71 LU factorisations) but moved the reference scenes D5 by
-/// 5.2e-12 (beyond `tests/bodies.rs`' momentum tolerance of 1e-12), D6 by 1.4e-12 and the T-bar
-/// gripper by 1.1e-10 (`docs/newton.md#the-ratio-test`).
-const RATIO_TEST_AFTER: usize = 20;
 
 /// Shortest step length tried along the minimum-norm direction before the Levenberg–Marquardt
 /// safeguard takes over (a direction that needs a shorter step is a poor one).
@@ -1148,7 +1144,26 @@ impl NewtonSolver {
             let mut kind = StepKind::Newton;
             let mut accepted = None;
             if polishing {
-                let better = if newton_ok {
+                // At a singular `H` (a solution set that is not isolated: the B–C contact height
+                // of D5's collision) there is no LU step; the minimum-norm step solves `H d = −Φ`
+                // as well where `Φ` is in the range of `H`, so it gains the same digits
+                // (`docs/newton.md#the-ratio-test`).
+                let mut polish_ok = newton_ok;
+                if !polish_ok && !ws.dense.is_empty() {
+                    pattern.to_dense(&ws.h, &mut ws.dense);
+                    prof.min_norm_factorizations += 1;
+                    if self
+                        .min_norm
+                        .factor(n, &ws.dense, s.rank_tolerance)
+                        .is_some()
+                    {
+                        for i in 0..n {
+                            ws.d[i] = -ws.phi[i];
+                        }
+                        polish_ok = self.min_norm.solve_in_place(&mut ws.d);
+                    }
+                }
+                let better = if polish_ok {
                     try_step(mcp, ws, 1.0, l, u, &mut f_evals)
                         .filter(|_| natural_residual(&ws.z_trial, &ws.f_trial, l, u) < residual)
                 } else {
@@ -1187,14 +1202,10 @@ impl NewtonSolver {
             // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
             // whichever lowers Ψ more.
             let mut newton_search = None;
-            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, from
-            // `RATIO_TEST_AFTER` iterations of a run on, a full step that failed the Armijo test
-            // is cut at the first pair that leaves its cone along the linearisation; that point
-            // is taken when it lowers Ψ, else under the watchdog.
-            let ratio_on = s.ratio_test
-                && self.attempt == 0
-                && !self.in_continuation
-                && iterations >= RATIO_TEST_AFTER;
+            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, a full step
+            // that failed the Armijo test is cut at the first pair that leaves its cone along the
+            // linearisation; that point is taken when it lowers Ψ, else under the watchdog.
+            let ratio_on = s.ratio_test && self.attempt == 0 && !self.in_continuation;
             if ratio_on && accepted.is_none() && newton_ok {
                 pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
                 if let Some(event) = ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
@@ -1786,6 +1797,49 @@ mod tests {
         assert_eq!(polished.summary.iterations, 1);
         let plain = NewtonSolver::new(NewtonSettings {
             polish_below: 1.0,
+            ..NewtonSettings::default()
+        })
+        .solve(&mcp, &start)
+        .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            plain.summary.residual > 1e-11,
+            "{:e}",
+            plain.summary.residual
+        );
+        assert_eq!(plain.summary.iterations, 0);
+    }
+
+    #[test]
+    fn the_final_step_polishes_at_a_singular_h_with_the_minimum_norm_step() {
+        // F(x, y) = (x + y − 1, 2 (x + y − 1)) (free): every point of the line x + y = 1 solves
+        // it and `H` is singular everywhere (the LU step does not exist). From a point whose
+        // residual (4e-11) is between 1e-3 of the tolerance and the tolerance, the final step
+        // is the minimum-norm one, which lands on the line.
+        let mcp = FnMcp::dense(
+            vec![f64::NEG_INFINITY; 2],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = z[0] + z[1] - 1.0;
+                f[1] = 2.0 * (z[0] + z[1] - 1.0);
+            },
+            // Column-major.
+            |_, j| j.copy_from_slice(&[1.0, 2.0, 1.0, 2.0]),
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"));
+        let start = [0.5 + 2e-11, 0.5];
+        let polished = NewtonSolver::new(NewtonSettings::default())
+            .solve(&mcp, &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(
+            polished.summary.residual <= 1e-15,
+            "{:e}",
+            polished.summary.residual
+        );
+        assert_eq!(polished.summary.iterations, 1);
+        // Without a minimum-norm step (sparse problems, or the setting off) the converged
+        // start is returned as it is.
+        let plain = NewtonSolver::new(NewtonSettings {
+            min_norm_step: false,
             ..NewtonSettings::default()
         })
         .solve(&mcp, &start)
