@@ -141,8 +141,9 @@ pub struct NewtonSettings {
     /// Shortest step length of that search. Default `1e-4`.
     pub newton_shortest_step: f64,
     /// A solve that reaches the tolerance with a natural residual above this fraction of it
-    /// takes one more full Newton step (the minimum-norm step where `H` is singular, dense
-    /// problems), kept when it lowers the residual: the local phase is
+    /// takes one more full Newton step (the minimum-norm step where `H` is singular, in a run
+    /// that took steps of the ratio test, dense problems), kept when it lowers the residual:
+    /// the local phase is
     /// quadratic, so the step costs one factorisation and usually gains several digits. It
     /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
     /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md; D5's vertical momentum,
@@ -204,7 +205,7 @@ pub struct NewtonSettings {
     /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
     pub flat_merit_window: usize,
     /// Ratio test in the plain iteration's line search (`docs/newton.md#the-ratio-test`): when
-    /// the full Newton (or minimum-norm) step fails the Armijo test, the point where the first
+    /// the full Newton step fails the Armijo test, the point where the first
     /// complementarity pair leaves its cone along the step's linearisation (a component reaching
     /// its bound from inside, or the residual of a component at its bound crossing zero) is
     /// taken — when it lowers `Ψ`, else under the watchdog of
@@ -214,8 +215,11 @@ pub struct NewtonSettings {
     /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
     /// (`023_room_corner` step 36: 181 iterations with the non-monotone restart, 71 in the plain
     /// iteration with it; step 88: 246 with the continuation, 28). It runs from the first
-    /// iteration: the situation it describes (a full step that fails the Armijo test) is its
-    /// gate. Default `true`.
+    /// iteration, along the Newton direction only: a full Newton step that fails the Armijo
+    /// test is the situation it describes. Not along the minimum-norm direction (a singular `H`,
+    /// a solution set that is not isolated, where a pair's event is no basis change): there it
+    /// cut the union T-bar's step 38 from 3 iterations to 227 (`docs/newton.md#the-ratio-test`).
+    /// Default `true`.
     pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
@@ -1030,6 +1034,8 @@ impl NewtonSolver {
         let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
+        // Steps of this run cut by the ratio test (`NewtonSettings::ratio_test`).
+        let mut ratio_steps = 0usize;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1146,10 +1152,11 @@ impl NewtonSolver {
             if polishing {
                 // At a singular `H` (a solution set that is not isolated: the B–C contact height
                 // of D5's collision) there is no LU step; the minimum-norm step solves `H d = −Φ`
-                // as well where `Φ` is in the range of `H`, so it gains the same digits
-                // (`docs/newton.md#the-ratio-test`).
+                // as well where `Φ` is in the range of `H`, so it gains the same digits. Only in
+                // a run that took ratio steps: they are what moved its end point; runs without
+                // them end where they did (`docs/newton.md#the-ratio-test`).
                 let mut polish_ok = newton_ok;
-                if !polish_ok && !ws.dense.is_empty() {
+                if !polish_ok && ratio_steps > 0 && !ws.dense.is_empty() {
                     pattern.to_dense(&ws.h, &mut ws.dense);
                     prof.min_norm_factorizations += 1;
                     if self
@@ -1213,6 +1220,7 @@ impl NewtonSolver {
                 {
                     if p < psi {
                         accepted = Some((event.0, p));
+                        ratio_steps += 1;
                     } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         if checkpoint.is_none() {
                             ws.save_checkpoint();
@@ -1221,6 +1229,7 @@ impl NewtonSolver {
                         }
                         accepted = Some((event.0, p));
                         nonmonotone_steps += 1;
+                        ratio_steps += 1;
                     }
                 }
             }
@@ -1269,14 +1278,7 @@ impl NewtonSolver {
                             // the watchdog (it may cross a kink of Φ towards the right active
                             // set: Ψ rises for a step or two, then falls quadratically); failing
                             // that, backtracking.
-                            if let Some(mut p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
-                                // The ratio test, as for the Newton direction above.
-                                let ratio_event = if ratio_on {
-                                    pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
-                                    ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
-                                } else {
-                                    None
-                                };
+                            if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
                                 let watched =
                                     local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
                                 if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
@@ -1284,24 +1286,7 @@ impl NewtonSolver {
                                         <= s.tolerance
                                 {
                                     accepted = Some((1.0, p));
-                                } else if let Some(ev) = ratio_event
-                                    && let Some(q) = try_ratio_step(mcp, ws, ev, l, u, &mut f_evals)
-                                    && (q < psi || watched)
-                                {
-                                    if q >= psi {
-                                        if checkpoint.is_none() {
-                                            ws.save_checkpoint();
-                                            checkpoint = Some(psi);
-                                            watchdog_count = 0;
-                                        }
-                                        nonmonotone_steps += 1;
-                                    }
-                                    accepted = Some((ev.0, q));
                                 } else if watched {
-                                    if ratio_event.is_some() {
-                                        // The ratio point was tried: the full step again.
-                                        p = try_step(mcp, ws, 1.0, l, u, &mut f_evals).unwrap_or(p);
-                                    }
                                     if checkpoint.is_none() {
                                         ws.save_checkpoint();
                                         checkpoint = Some(psi);
@@ -1797,49 +1782,6 @@ mod tests {
         assert_eq!(polished.summary.iterations, 1);
         let plain = NewtonSolver::new(NewtonSettings {
             polish_below: 1.0,
-            ..NewtonSettings::default()
-        })
-        .solve(&mcp, &start)
-        .unwrap_or_else(|e| panic!("{e}"));
-        assert!(
-            plain.summary.residual > 1e-11,
-            "{:e}",
-            plain.summary.residual
-        );
-        assert_eq!(plain.summary.iterations, 0);
-    }
-
-    #[test]
-    fn the_final_step_polishes_at_a_singular_h_with_the_minimum_norm_step() {
-        // F(x, y) = (x + y − 1, 2 (x + y − 1)) (free): every point of the line x + y = 1 solves
-        // it and `H` is singular everywhere (the LU step does not exist). From a point whose
-        // residual (4e-11) is between 1e-3 of the tolerance and the tolerance, the final step
-        // is the minimum-norm one, which lands on the line.
-        let mcp = FnMcp::dense(
-            vec![f64::NEG_INFINITY; 2],
-            vec![f64::INFINITY; 2],
-            |z, f| {
-                f[0] = z[0] + z[1] - 1.0;
-                f[1] = 2.0 * (z[0] + z[1] - 1.0);
-            },
-            // Column-major.
-            |_, j| j.copy_from_slice(&[1.0, 2.0, 1.0, 2.0]),
-        )
-        .unwrap_or_else(|e| panic!("valid problem: {e}"));
-        let start = [0.5 + 2e-11, 0.5];
-        let polished = NewtonSolver::new(NewtonSettings::default())
-            .solve(&mcp, &start)
-            .unwrap_or_else(|e| panic!("{e}"));
-        assert!(
-            polished.summary.residual <= 1e-15,
-            "{:e}",
-            polished.summary.residual
-        );
-        assert_eq!(polished.summary.iterations, 1);
-        // Without a minimum-norm step (sparse problems, or the setting off) the converged
-        // start is returned as it is.
-        let plain = NewtonSolver::new(NewtonSettings {
-            min_norm_step: false,
             ..NewtonSettings::default()
         })
         .solve(&mcp, &start)
