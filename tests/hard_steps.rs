@@ -86,7 +86,7 @@ fn converged(result: Result<Solution, SolveError>) -> Solution {
 #[test]
 fn newton_room_corner_step_12_nonmonotone_restart() {
     // The trajectory on which the step was measured: Newton before the valley mend of
-    // `newton_convex_push_step_58_residual_damping` (the registry's Newton reaches another state).
+    // `newton_convex_push_step_74_residual_damping` (the registry's Newton reaches another state).
     let mut driver = NewtonSolver::new(newton_before_valley_mend(None));
     let (sim, tolerance) = at_step("075_room_corner", &mut driver, 12);
     let z0 = sim.z().to_vec();
@@ -134,22 +134,27 @@ fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
     }
 }
 
-/// `015_convex_push` step 58 on the trajectory of Newton before the mend (h = 6 ms, μ = 0.42, a
-/// convex point body pushed along the floor, rocking on an edge that lies flat on it; 53
-/// unknowns): the ECP moves 9 cm along the edge within the step, and the edge's position is
-/// only weakly determined (through the torque of `p_n`), so the plain iteration follows a long
-/// valley of the merit in Levenberg–Marquardt steps. Moré's damping, starting from `1e-3` of
-/// `max diag HᵀH` and falling by at most 3 per step, took a dozen steps of ρ ≈ 1 before the
-/// steps reached the length the valley allows; a watchdog excursion of minimum-norm steps then
-/// cost the first run the 4 iterations after which the stall test cut it, and the restart
-/// without minimum-norm steps replayed the same iterations: 85 in all. With `λ = ν‖Φ‖²` after
-/// three Levenberg–Marquardt steps and the undone steps forgotten: 30.
+/// `015_convex_push` (h = 6 ms, μ = 0.42, a convex point body pushed along the floor, rocking on
+/// an edge that lies flat on it; 53 unknowns) on the trajectory of Newton before the mend. The
+/// mend was measured on step 58, where the ECP moved 9 cm along the edge within the step, and the
+/// edge's position is only weakly determined (through the torque of `p_n`), so the plain
+/// iteration followed a long valley of the merit in Levenberg–Marquardt steps. Moré's damping,
+/// starting from `1e-3` of `max diag HᵀH` and falling by at most 3 per step, took a dozen steps
+/// of ρ ≈ 1 before the steps reached the length the valley allows; a watchdog excursion of
+/// minimum-norm steps then cost the first run the 4 iterations after which the stall test cut
+/// it, and the restart without minimum-norm steps replayed the same iterations: 85 in all, 30
+/// with `λ = ν‖Φ‖²` after three Levenberg–Marquardt steps and the undone steps forgotten. Since
+/// the tipping-edge warm start (`docs/newton.md#a-tipping-edge-predicted-tilted-018_union_tip`)
+/// that step starts with the ECP on the edge and takes 4 iterations with either setting; step
+/// 74 of the new trajectory is the valley the test keeps (`step_probe --sweep --newton
+/// lm_residual_damping_after=none --newton forget_undone_steps=false --newton
+/// ratio_test=false`): 85 iterations before the mend, 35 with it.
 #[test]
-fn newton_convex_push_step_58_residual_damping() {
+fn newton_convex_push_step_74_residual_damping() {
     let tolerance = scene_tolerance(&regression_scene("015_convex_push"));
     let before = newton_before_valley_mend(tolerance);
     let mut driver = NewtonSolver::new(before.clone());
-    let (sim, _) = at_step("015_convex_push", &mut driver, 58);
+    let (sim, _) = at_step("015_convex_push", &mut driver, 74);
     let z0 = sim.z().to_vec();
     // Without the ratio test, which came later: with it this step takes 49 iterations.
     let mended = converged(sim.solve_step_problem(
@@ -317,6 +322,53 @@ fn newton_room_corner_062_step_128_rate_test_lets_a_valley_finish() {
         &z0,
     ));
     assert_eq!(sol.z, without.z);
+}
+
+/// `018_union_tip` (h = 8 ms, μ = 0.12, an L of two boxes tipped over an edge of its hull by a
+/// torque; 32 unknowns): while the body tips, its contact's ECP lies inside the edge, and the
+/// predicted pose (the last step's velocity continued) tilts that edge by its second-order error
+/// (`h²|ω|²` × its length, 1e-5 … 2e-4 m), so one end of the edge came lowest and the warm start
+/// moved `a1` there, up to 37 cm from the solution's, with three face multipliers. The
+/// Fischer–Burmeister rows of that vertex hold `a1` on it, and Newton needed the continuation on
+/// every step from 27 to 50 (37–899 iterations a step, 9471 in the run against PATH's 677). The
+/// warm start now keeps a contact on its edge or face when the predicted lowest point is on that
+/// feature and does not penetrate (`docs/newton.md#a-tipping-edge-predicted-tilted-018_union_tip`):
+/// 4–7 iterations a step, no restart.
+#[test]
+fn newton_union_tip_018_tipping_edge_keeps_its_ecp() {
+    let path = regression_scene("018_union_tip");
+    let settings = NewtonSettings {
+        tolerance: scene_tolerance(&path).unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mut driver = NewtonSolver::new(settings.clone());
+    let (mut sim, _) = at_step_of(&path, &mut driver, 27);
+    // Steps 27–50: the body tips over the edge, then lifts onto a vertex at step 52.
+    for k in 27..=50 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged,
+            "step {k}: residual {:e}",
+            rec.summary.residual
+        );
+        assert!(
+            rec.summary.iterations <= 12,
+            "step {k}: {} iterations, expected at most 12",
+            rec.summary.iterations
+        );
+        assert_eq!(
+            rec.summary.counter(Counter::SmoothingStages).unwrap_or(0),
+            0,
+            "step {k}"
+        );
+    }
+    // Step 38 from its warm start: the plain iteration alone.
+    let (sim, _) = at_step_of(&path, &mut NewtonSolver::new(settings.clone()), 38);
+    let z0 = sim.z().to_vec();
+    let sol = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    assert_iterations(&sol, ..=12);
 }
 
 /// `012_multi_body` step 475 on PATH's own trajectory (as it was before these settings): every

@@ -16,6 +16,7 @@ use faer::{Mat, Par};
 use crate::pattern::CscPattern;
 
 mod schur;
+mod simd;
 mod small_lu;
 pub use schur::SchurLu;
 use small_lu::SmallLu;

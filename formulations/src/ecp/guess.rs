@@ -294,7 +294,9 @@ impl Guess<'_> {
     /// closest-point unknowns (`a1`, `a2`, `l_g`, the face multipliers) move to the closest
     /// points of the predicted pose, the impulses stay. The test: the warm start's `a1`, carried
     /// rigidly to the predicted pose, lies more than [`FEATURE_SWITCH`] above the predicted
-    /// pose's lowest point.
+    /// pose's lowest point, unless that point lies on the contact's own feature (every face
+    /// through the warm `a1`) and above the support: the prediction then only lifts and tilts the
+    /// feature the contact stays on ([`lowest_on_feature`]).
     ///
     /// Without it, a box rocking from one edge onto the opposite one, or landing flat on the face
     /// next to the edge it stood on, starts every backend with the ECP on the old edge, up to
@@ -319,7 +321,17 @@ impl Guess<'_> {
         let r0 = crate::rotation::rotation_matrix(&s.q);
         let carried = x1 + r1 * (r0.transpose() * (warm - s.x));
         let finite = a1p.iter().all(|v| v.is_finite()) && gap.is_finite();
-        if finite && plane.value(&carried) > gap + FEATURE_SWITCH {
+        // Not when the predicted pose lifts the contact's own feature off the support and only
+        // tilts it (a body tipping over an edge): the contact stays on that feature.
+        let lifted_and_tilted = || {
+            gap >= 0.0
+                && lowest_on_feature(
+                    &self.layout.contact_hulls[i],
+                    &(r0.transpose() * (warm - s.x)),
+                    &(r1.transpose() * (a1p - x1)),
+                )
+        };
+        if finite && plane.value(&carried) > gap + FEATURE_SWITCH && !lifted_and_tilted() {
             let a2 = plane.project(&a1p);
             z[mcp.range(c.a1)].copy_from_slice((a1p - o).as_slice());
             z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
@@ -334,5 +346,72 @@ impl Guess<'_> {
         let s = self.states[self.layout.contacts[i].body];
         let r = crate::rotation::rotation_matrix(&s.q);
         self.contact_at(i, force_active, (&s.x, &r), z);
+    }
+}
+
+/// Whether the lowest point `low` of Conv(F) at the predicted pose lies on every face of the hull
+/// through the warm start's `a1` (both in body coordinates): the contact's feature (an edge, a
+/// face) stays lowest, and only its tilt in the predicted pose made one end of it lower than
+/// the carried `a1`. The predicted pose continues the last step's velocity, which for a body
+/// tipping over an edge that lies flat on the support is a second-order error: it lifts the edge
+/// and tilts it (`018_union_tip`, steps 27–52: the lower end 8e-6 … 7e-4 m above the support,
+/// the carried `a1` 1e-6 … 6e-4 m above that, against [`FEATURE_SWITCH`]), while the solution
+/// keeps the edge flat with `a1` inside it, up to 37 cm from its end
+/// (`docs/newton.md#a-tipping-edge-predicted-tilted-018_union_tip`).
+fn lowest_on_feature(hull: &ConvexHull, warm: &Vector3<f64>, low: &Vector3<f64>) -> bool {
+    let size = hull
+        .vertices()
+        .iter()
+        .map(|v| v.norm())
+        .fold(0.0, f64::max)
+        .max(f64::MIN_POSITIVE);
+    let on = |f: &Face, p: &Vector3<f64>| f.value(p).abs() <= 1e-9 * size;
+    let mut through = 0usize;
+    for f in hull.faces() {
+        if on(f, warm) {
+            through += 1;
+            if !on(f, low) {
+                return false;
+            }
+        }
+    }
+    through > 0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The box `[−1, 1]³`.
+    fn cube() -> ConvexHull {
+        let mut v = Vec::new();
+        for x in [-1.0, 1.0] {
+            for y in [-1.0, 1.0] {
+                for z in [-1.0, 1.0] {
+                    v.push(Vector3::new(x, y, z));
+                }
+            }
+        }
+        ConvexHull::from_points(&v).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    #[test]
+    fn the_lowest_point_on_the_contacts_edge_or_face_is_on_its_feature() {
+        let h = cube();
+        // `a1` inside the edge y = z = −1; an end of that edge, then a vertex off it.
+        let edge = Vector3::new(0.3, -1.0, -1.0);
+        assert!(lowest_on_feature(&h, &edge, &Vector3::new(1.0, -1.0, -1.0)));
+        assert!(!lowest_on_feature(&h, &edge, &Vector3::new(1.0, 1.0, -1.0)));
+        // The face z = −1: its vertices and edges are on it, the top face's are not.
+        let face = Vector3::new(0.2, 0.1, -1.0);
+        assert!(lowest_on_feature(&h, &face, &Vector3::new(-1.0, 1.0, -1.0)));
+        assert!(lowest_on_feature(&h, &face, &Vector3::new(0.0, 1.0, -1.0)));
+        assert!(!lowest_on_feature(&h, &face, &Vector3::new(0.0, 1.0, 1.0)));
+        // A point on no face (inside the hull) has no feature.
+        assert!(!lowest_on_feature(
+            &h,
+            &Vector3::zeros(),
+            &Vector3::new(1.0, 1.0, 1.0)
+        ));
     }
 }

@@ -8,6 +8,10 @@
 //! column whose entry in the pivot row is zero, which pays on the step problems' Jacobians
 //! (a third full).
 
+#[cfg(target_arch = "x86_64")]
+use super::simd::Avx2;
+use super::simd::{Lanes, Portable, avx2_available};
+
 /// The factors `P A = L U` of a square matrix: `L` (unit diagonal, below) and `U` (on and above
 /// the diagonal) in one column-major array, and the row interchanges.
 #[derive(Clone, Debug)]
@@ -16,6 +20,8 @@ pub(crate) struct SmallLu {
     a: Vec<f64>,
     /// Row `k` was interchanged with row `piv[k] ≥ k` at elimination step `k`.
     piv: Vec<usize>,
+    /// The vector loops run with AVX2 (the processor has it; bitwise the same results).
+    avx2: bool,
 }
 
 impl SmallLu {
@@ -24,6 +30,7 @@ impl SmallLu {
             n,
             a: vec![0.0; n * n],
             piv: vec![0; n],
+            avx2: avx2_available(),
         }
     }
 
@@ -49,43 +56,13 @@ impl SmallLu {
 
     /// Factorises the matrix in [`SmallLu::storage_mut`] in place (finite: the caller checks).
     pub(crate) fn eliminate(&mut self) {
-        let n = self.n;
-        let a = &mut self.a;
-        for k in 0..n {
-            let mut p = k;
-            let mut best = a[k * n + k].abs();
-            for i in k + 1..n {
-                let v = a[k * n + i].abs();
-                if v > best {
-                    best = v;
-                    p = i;
-                }
-            }
-            self.piv[k] = p;
-            if p != k {
-                for j in 0..n {
-                    a.swap(j * n + k, j * n + p);
-                }
-            }
-            let pivot = a[k * n + k];
-            if pivot == 0.0 {
-                continue;
-            }
-            let (head, tail) = a.split_at_mut((k + 1) * n);
-            let lk = &mut head[k * n + k + 1..(k + 1) * n];
-            for l in lk.iter_mut() {
-                *l /= pivot;
-            }
-            for col in tail.chunks_exact_mut(n) {
-                let akj = col[k];
-                if akj == 0.0 {
-                    continue;
-                }
-                for (x, l) in col[k + 1..].iter_mut().zip(lk.iter()) {
-                    *x -= l * akj;
-                }
-            }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the processor has AVX2.
+            unsafe { eliminate_avx2(self.n, &mut self.a, &mut self.piv) };
+            return;
         }
+        eliminate_with::<Portable>(self.n, &mut self.a, &mut self.piv);
     }
 
     /// `L` and `U` in one column-major array (`L` below the diagonal, unit diagonal implied).
@@ -114,75 +91,26 @@ impl SmallLu {
 
     /// Solves `A x = b` in place.
     pub(crate) fn solve(&self, b: &mut [f64]) {
-        let n = self.n;
-        let a = &self.a;
-        for (k, &p) in self.piv.iter().enumerate() {
-            b.swap(k, p);
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the processor has AVX2.
+            unsafe { solve_avx2(self.n, &self.a, &self.piv, b) };
+            return;
         }
-        for k in 0..n {
-            let bk = b[k];
-            if bk != 0.0 {
-                for (x, l) in b[k + 1..].iter_mut().zip(&a[k * n + k + 1..(k + 1) * n]) {
-                    *x -= l * bk;
-                }
-            }
-        }
-        for k in (0..n).rev() {
-            b[k] /= a[k * n + k];
-            let bk = b[k];
-            if bk != 0.0 {
-                for (x, u) in b[..k].iter_mut().zip(&a[k * n..k * n + k]) {
-                    *x -= u * bk;
-                }
-            }
-        }
+        solve_with::<Portable>(self.n, &self.a, &self.piv, b);
     }
 
     /// Solves `A X = B` in place for the `k` columns of the row-major `n × k` matrix `b`:
     /// row operations on whole rows, so that a few right-hand sides share each factor entry
     /// (the block elimination's `A⁻¹ B`, [`super::SchurLu`]).
     pub(crate) fn solve_rows(&self, b: &mut [f64], k: usize) {
-        let n = self.n;
-        let a = &self.a;
-        for (r, &p) in self.piv.iter().enumerate() {
-            if p != r {
-                for c in 0..k {
-                    b.swap(r * k + c, p * k + c);
-                }
-            }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the processor has AVX2.
+            unsafe { solve_rows_avx2(self.n, &self.a, &self.piv, b, k) };
+            return;
         }
-        for r in 0..n {
-            let (head, tail) = b.split_at_mut((r + 1) * k);
-            let row = &head[r * k..];
-            if row.iter().all(|v| *v == 0.0) {
-                continue;
-            }
-            for (l, below) in a[r * n + r + 1..(r + 1) * n]
-                .iter()
-                .zip(tail.chunks_exact_mut(k))
-            {
-                if *l != 0.0 {
-                    for (x, y) in below.iter_mut().zip(row) {
-                        *x -= l * y;
-                    }
-                }
-            }
-        }
-        for r in (0..n).rev() {
-            let (head, tail) = b.split_at_mut(r * k);
-            let row = &mut tail[..k];
-            let d = a[r * n + r];
-            for x in row.iter_mut() {
-                *x /= d;
-            }
-            for (u, above) in a[r * n..r * n + r].iter().zip(head.chunks_exact_mut(k)) {
-                if *u != 0.0 {
-                    for (x, y) in above.iter_mut().zip(row.iter()) {
-                        *x -= u * y;
-                    }
-                }
-            }
-        }
+        solve_rows_with::<Portable>(self.n, &self.a, &self.piv, b, k);
     }
 
     /// Solves `Aᵀ x = b` in place: `Uᵀ y = b`, `Lᵀ w = y`, `x = Pᵀ w`.
@@ -203,6 +131,122 @@ impl SmallLu {
             b.swap(k, p);
         }
     }
+}
+
+/// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
+/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
+#[inline(always)]
+fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
+    for k in 0..n {
+        let mut p = k;
+        let mut best = a[k * n + k].abs();
+        for i in k + 1..n {
+            let v = a[k * n + i].abs();
+            if v > best {
+                best = v;
+                p = i;
+            }
+        }
+        piv[k] = p;
+        if p != k {
+            for j in 0..n {
+                a.swap(j * n + k, j * n + p);
+            }
+        }
+        let pivot = a[k * n + k];
+        if pivot == 0.0 {
+            continue;
+        }
+        let (head, tail) = a.split_at_mut((k + 1) * n);
+        let lk = &mut head[k * n + k + 1..(k + 1) * n];
+        L::div(lk, pivot);
+        for col in tail.chunks_exact_mut(n) {
+            let akj = col[k];
+            if akj == 0.0 {
+                continue;
+            }
+            L::sub_scaled(&mut col[k + 1..], lk, akj);
+        }
+    }
+}
+
+/// Row interchanges, then `L y = P b` and `U x = y` by columns, a column skipped where its
+/// entry of the right-hand side is zero.
+#[inline(always)]
+fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
+    for (k, &p) in piv.iter().enumerate() {
+        b.swap(k, p);
+    }
+    for k in 0..n {
+        let bk = b[k];
+        if bk != 0.0 {
+            L::sub_scaled(&mut b[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
+        }
+    }
+    for k in (0..n).rev() {
+        b[k] /= a[k * n + k];
+        let bk = b[k];
+        if bk != 0.0 {
+            L::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
+        }
+    }
+}
+
+/// [`solve_with`] for the `k` columns of a row-major `n × k` matrix, by whole rows.
+#[inline(always)]
+fn solve_rows_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
+    for (r, &p) in piv.iter().enumerate() {
+        if p != r {
+            for c in 0..k {
+                b.swap(r * k + c, p * k + c);
+            }
+        }
+    }
+    for r in 0..n {
+        let (head, tail) = b.split_at_mut((r + 1) * k);
+        let row = &head[r * k..];
+        if row.iter().all(|v| *v == 0.0) {
+            continue;
+        }
+        for (l, below) in a[r * n + r + 1..(r + 1) * n]
+            .iter()
+            .zip(tail.chunks_exact_mut(k))
+        {
+            if *l != 0.0 {
+                L::sub_scaled(below, row, *l);
+            }
+        }
+    }
+    for r in (0..n).rev() {
+        let (head, tail) = b.split_at_mut(r * k);
+        let row = &mut tail[..k];
+        L::div(row, a[r * n + r]);
+        for (u, above) in a[r * n..r * n + r].iter().zip(head.chunks_exact_mut(k)) {
+            if *u != 0.0 {
+                L::sub_scaled(above, row, *u);
+            }
+        }
+    }
+}
+
+// The same loops compiled for AVX2, entered only when the processor has it (`SmallLu::avx2`).
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+    eliminate_with::<Avx2>(n, a, piv);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
+    solve_with::<Avx2>(n, a, piv, b);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
+    solve_rows_with::<Avx2>(n, a, piv, b, k);
 }
 
 #[cfg(test)]
@@ -355,5 +399,98 @@ mod tests {
         let mut lu = SmallLu::new(2);
         lu.factor(&[0.0, 0.0, 1.0, 2.0]);
         assert!(lu.pivots().any(|d| d == 0.0));
+    }
+
+    /// A matrix with entries in [-1, 1], `1 − keep` of them zero, some columns zero or repeated
+    /// (singular, zero pivots) and some entries tiny or huge (row interchanges, fill-in).
+    fn awkward_matrix(n: usize, seed: u64, keep: f64) -> Vec<f64> {
+        let mut s = seed;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut a: Vec<f64> = (0..n * n)
+            .map(|_| {
+                let u = next();
+                if u >= keep {
+                    return 0.0;
+                }
+                let v = 2.0 * next() - 1.0;
+                match (next() * 10.0) as u32 {
+                    0 => v * 1e-9,
+                    1 => v * 1e7,
+                    _ => v,
+                }
+            })
+            .collect();
+        if n > 3 && seed.is_multiple_of(3) {
+            // A zero column and a repeated one.
+            let (z, r) = ((seed as usize) % n, (seed as usize + 1) % n);
+            a[z * n..(z + 1) * n].fill(0.0);
+            let src = a[((r + 1) % n) * n..((r + 1) % n + 1) * n].to_vec();
+            a[r * n..(r + 1) * n].copy_from_slice(&src);
+        }
+        a
+    }
+
+    fn bits(v: &[f64]) -> Vec<u64> {
+        v.iter().map(|x| x.to_bits()).collect()
+    }
+
+    /// The AVX2 loops give bitwise the factors, interchanges and solutions of the portable ones
+    /// (the same operations on each entry in the same order, no fused multiply-add), on regular,
+    /// singular and zero-pivot matrices of every size the kernel serves.
+    #[test]
+    fn avx2_loops_give_bitwise_the_portable_results() {
+        if !avx2_available() {
+            eprintln!("no AVX2 on this processor: only the portable loops run");
+            return;
+        }
+        let mut cases = 0;
+        for n in 1..=48 {
+            for (seed, keep) in [(3, 0.35), (4, 0.8), (6, 0.15), (7, 1.0)] {
+                let a = awkward_matrix(n, seed * 1000 + n as u64, keep);
+                let mut fast = SmallLu::new(n);
+                let mut plain = SmallLu::new(n);
+                plain.avx2 = false;
+                assert!(fast.avx2);
+                fast.factor(&a);
+                plain.factor(&a);
+                assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
+                assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, seed {seed}");
+                let rhs: Vec<f64> = (0..n)
+                    .map(|i| {
+                        if i % 4 == 1 {
+                            0.0
+                        } else {
+                            (i as f64 * 0.7).cos()
+                        }
+                    })
+                    .collect();
+                let (mut x, mut y) = (rhs.clone(), rhs.clone());
+                fast.solve(&mut x);
+                plain.solve(&mut y);
+                assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
+                for k in [1, 3, 5, 30] {
+                    let rows: Vec<f64> = (0..n * k)
+                        .map(|i| {
+                            if i % 7 == 2 {
+                                0.0
+                            } else {
+                                (i as f64 * 0.3).sin()
+                            }
+                        })
+                        .collect();
+                    let (mut x, mut y) = (rows.clone(), rows.clone());
+                    fast.solve_rows(&mut x, k);
+                    plain.solve_rows(&mut y, k);
+                    assert_eq!(bits(&x), bits(&y), "rows, n = {n}, k = {k}, seed {seed}");
+                }
+                cases += 1;
+            }
+        }
+        assert_eq!(cases, 48 * 4);
     }
 }
