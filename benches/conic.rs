@@ -36,6 +36,18 @@ fn desk_step(bencher: divan::Bencher) {
     });
 }
 
+/// The same step with every outer iteration solving its QP (`ConicSettings::reuse_qp` off: the
+/// default before the second QP of a step was replaced by the first's answer polished again).
+#[divan::bench]
+fn desk_step_without_reuse(bencher: divan::Bencher) {
+    let (sim, mut solver, z0) = desk_at_step_100(ConicMode::Exact);
+    solver.settings_mut().reuse_qp = false;
+    bencher.bench_local(|| match sim.solve_step_problem(&mut solver, &z0) {
+        Ok(sol) => sol.summary.iterations,
+        Err(e) => panic!("desk step: {e}"),
+    });
+}
+
 /// The same step with every outer QP solved to clarabel's tolerances
 /// (`ConicSettings::qp_tolerance_factor` 0): the default before the inexact QPs.
 #[divan::bench]

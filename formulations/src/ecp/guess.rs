@@ -319,7 +319,9 @@ impl Guess<'_> {
         let warm = &z[mcp.range(c.a1)];
         let warm = Vector3::new(warm[0], warm[1], warm[2]) + o;
         let r0 = crate::rotation::rotation_matrix(&s.q);
-        let carried = x1 + r1 * (r0.transpose() * (warm - s.x));
+        // The warm `a1` in body coordinates, then carried rigidly to the predicted pose.
+        let warm_in_body = r0.transpose() * (warm - s.x);
+        let carried = x1 + r1 * warm_in_body;
         let finite = a1p.iter().all(|v| v.is_finite()) && gap.is_finite();
         // Not when the predicted pose lifts the contact's own feature off the support and only
         // tilts it (a body tipping over an edge): the contact stays on that feature.
@@ -327,7 +329,7 @@ impl Guess<'_> {
             gap >= 0.0
                 && lowest_on_feature(
                     &self.layout.contact_hulls[i],
-                    &(r0.transpose() * (warm - s.x)),
+                    &warm_in_body,
                     &(r1.transpose() * (a1p - x1)),
                 )
         };

@@ -175,6 +175,18 @@ pub struct ConicSettings {
     /// moves A1's ω by 1.5e-9 (`tests/scenarios.rs` allows 1e-9), 1e-2 makes `a5_drop_tilted`
     /// need a Newton polish (`docs/latency.md#conic-backend`).
     pub qp_tolerance_factor: f64,
+    /// Before solving the QP of an outer iteration after the first, polish the previous QP's
+    /// answer against the new QP's data when both QPs have the same rows (the same patch
+    /// vertices and cones), and take that point when its natural residual is at most
+    /// [`ConicSettings::tolerance`]: the polish makes it exact on the previous QP's active set,
+    /// which is the new QP's when the geometry moved little (the desk's second QP of a step
+    /// confirms the first's active set). Otherwise the QP is solved as without it. Not with
+    /// anchored contacts (the module doc of `conic/step.rs`): their loads are not unique and
+    /// the member the polish reaches depends on the answer it starts from (the union desk's
+    /// velocities moved by 4e-8 with it). Tried once per solve at most. Counted in
+    /// `"qp_reuses"`. Default `true`: the desk step without its second QP
+    /// (`docs/latency.md#the-second-qp-of-a-step-the-first-qps-answer-polished-again-branch-wip-conicwarm-issue-18`).
+    pub reuse_qp: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
@@ -215,6 +227,7 @@ impl Default for ConicSettings {
             newton_handoff_iterations: 4,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
+            reuse_qp: true,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
@@ -231,7 +244,8 @@ impl Default for ConicSettings {
 /// `"newton_handoff"` (Newton iterations of the finish of a fixed point that got within
 /// [`ConicSettings::newton_handoff`]), `"dense_qp_iterations"` (interior-point iterations of the
 /// dense QP method, all QPs, [`ConicSettings::dense_qp`]), `"clarabel_fallbacks"` (QPs it left
-/// to clarabel).
+/// to clarabel), `"qp_reuses"` (outer iterations that took the previous QP's answer polished
+/// again instead of a QP, [`ConicSettings::reuse_qp`]).
 pub struct ConicSolver {
     settings: ConicSettings,
     last_status: Option<ClarabelStatus>,
@@ -356,6 +370,7 @@ struct Run {
     patch_vertices: usize,
     newton_polish: usize,
     newton_handoff: usize,
+    qp_reuses: usize,
     trace: Vec<IterationRecord>,
 }
 
@@ -420,6 +435,7 @@ impl McpSolver for ConicSolver {
             patch_vertices: 0,
             newton_polish: 0,
             newton_handoff: 0,
+            qp_reuses: 0,
             trace: Vec::new(),
         };
         let OuterWorkspace {
@@ -441,6 +457,8 @@ impl McpSolver for ConicSolver {
             seed,
             qp: qp_storage,
             result,
+            layout,
+            new_layout,
             anderson,
         } = &mut ws;
         zeroed(f, n);
@@ -470,6 +488,12 @@ impl McpSolver for ConicSolver {
         // anchor is centred on `warm_loads`).
         let mut have_loads = false;
         let mut handoff_tried = false;
+        // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
+        let mut have_answer = false;
+        // One reuse per solve at most: where the previous answer's active set is not the new
+        // QP's, the trial's polish runs all its sweeps (the stress suite's troughs: 3.5× the
+        // wall time when every outer iteration tried it).
+        let mut reuse_tried = false;
         // The warm start's normal impulse of every contact (empty when the structure does not
         // say).
         warm_loads.clear();
@@ -546,58 +570,88 @@ impl McpSolver for ConicSolver {
                 std::mem::take(qp_storage),
             );
             run.patch_vertices = sub.patch_vertices;
-            let qp_settings = Self::qp_settings(&self.settings, if exact { residual } else { 0.0 });
-            let from_dense =
-                self.settings.dense_qp && self.dense.solve_into(&sub.qp, &qp_settings, result);
-            if self.settings.dense_qp && !from_dense {
-                run.clarabel_fallbacks += 1;
-            }
-            if !from_dense {
-                match sub.qp.solve(&qp_settings) {
-                    Ok(r) => *result = r,
-                    Err(msg) => {
-                        self.last_error = Some(msg);
-                        termination = Termination::SubproblemFailed;
-                        break;
+            // The previous QP's answer polished against this QP's data: when it solves the step,
+            // this iteration needs no QP (`ConicSettings::reuse_qp`).
+            let polish = exact && self.settings.polish;
+            let mut reused = None;
+            if have_answer && !reuse_tried && polish && self.settings.reuse_qp && !sub.anchored() {
+                sub.layout_into(new_layout);
+                if new_layout == layout {
+                    reuse_tried = true;
+                    let point = sub.extract(result, bodies, true, &mut self.polish);
+                    structure.assemble(&point, z_new);
+                    mcp.evaluate(z_new, f);
+                    run.f_evals += 1;
+                    let reused_residual = natural_residual(z_new, f, lower, upper);
+                    if reused_residual <= self.settings.tolerance {
+                        reused = Some((reused_residual, point));
                     }
                 }
             }
-            if from_dense {
-                run.dense_qp_iterations += result.iterations as usize;
-            } else {
-                run.clarabel_iterations += result.iterations as usize;
-            }
-            run.status = Some(result.status);
-            self.last_status = Some(result.status);
-            iterations = it + 1;
-            if !qp::usable(result.status) {
-                self.last_error = Some(format!(
-                    "clarabel returned {:?} on the QP of outer iteration {it}",
-                    result.status
-                ));
-                termination = Termination::SubproblemFailed;
-                break;
-            }
-            let polish = exact && self.settings.polish;
-            let mut point = sub.extract(result, bodies, polish, &mut self.polish);
-            *qp_storage = sub.qp;
-            structure.assemble(&point, z_new);
-            mcp.evaluate(z_new, f);
-            run.f_evals += 1;
-            let new_residual = natural_residual(z_new, f, lower, upper);
+            // The new iterate: the reused answer (it solves the step, so the convergence test
+            // below ends the solve) or this iteration's QP's.
+            let (new_residual, mut point) = match reused {
+                Some(answer) => {
+                    run.qp_reuses += 1;
+                    *qp_storage = sub.qp;
+                    iterations = it + 1;
+                    answer
+                }
+                None => {
+                    let qp_settings =
+                        Self::qp_settings(&self.settings, if exact { residual } else { 0.0 });
+                    let from_dense = self.settings.dense_qp
+                        && self.dense.solve_into(&sub.qp, &qp_settings, result);
+                    if self.settings.dense_qp && !from_dense {
+                        run.clarabel_fallbacks += 1;
+                    }
+                    if !from_dense {
+                        match sub.qp.solve(&qp_settings) {
+                            Ok(r) => *result = r,
+                            Err(msg) => {
+                                self.last_error = Some(msg);
+                                termination = Termination::SubproblemFailed;
+                                break;
+                            }
+                        }
+                    }
+                    if from_dense {
+                        run.dense_qp_iterations += result.iterations as usize;
+                    } else {
+                        run.clarabel_iterations += result.iterations as usize;
+                    }
+                    run.status = Some(result.status);
+                    self.last_status = Some(result.status);
+                    iterations = it + 1;
+                    if !qp::usable(result.status) {
+                        self.last_error = Some(format!(
+                            "clarabel returned {:?} on the QP of outer iteration {it}",
+                            result.status
+                        ));
+                        termination = Termination::SubproblemFailed;
+                        break;
+                    }
+                    let point = sub.extract(result, bodies, polish, &mut self.polish);
+                    // The layout a later reuse compares against, only while one can be tried.
+                    if !reuse_tried && polish && self.settings.reuse_qp {
+                        sub.layout_into(layout);
+                    }
+                    have_answer = true;
+                    *qp_storage = sub.qp;
+                    structure.assemble(&point, z_new);
+                    mcp.evaluate(z_new, f);
+                    run.f_evals += 1;
+                    (natural_residual(z_new, f, lower, upper), point)
+                }
+            };
             if self.settings.trace {
-                let step_norm = z_new
-                    .iter()
-                    .zip(&z)
-                    .map(|(a, b)| (a - b).abs())
-                    .fold(0.0, f64::max);
                 run.trace.push(IterationRecord {
                     iteration: it,
                     residual,
                     merit: residual,
                     step: StepKind::Conic,
                     step_length: 1.0,
-                    direction_norm: step_norm,
+                    direction_norm: max_change(z_new, &z),
                 });
             }
             std::mem::swap(&mut z, z_new);
@@ -759,6 +813,7 @@ impl McpSolver for ConicSolver {
                         Counter::Custom("clarabel_fallbacks"),
                         run.clarabel_fallbacks,
                     ),
+                    (Counter::Custom("qp_reuses"), run.qp_reuses),
                 ]),
             },
         )
@@ -773,6 +828,14 @@ impl McpSolver for ConicSolver {
 /// friction acting at each piece's centre of pressure) stays as it was; the stress suite's
 /// troughs and corners are at 1e-11–5e-3 (`docs/latency.md#conic-backend`).
 const WARM_LOADS_RESIDUAL: f64 = 1e-2;
+
+/// The largest entry of `a − b`, in absolute value.
+fn max_change(a: &[f64], b: &[f64]) -> f64 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f64::max)
+}
 
 /// The state of the outer fixed point: velocities per body, De Saxcé shifts and ECPs per
 /// contact.
@@ -855,5 +918,8 @@ struct OuterWorkspace {
     qp: qp::ConicQp,
     /// The QP's answer.
     result: qp::QpResult,
+    /// The shape of the QP `result` answers, and of the current one ([`step::StepQp::layout_into`]).
+    layout: Vec<usize>,
+    new_layout: Vec<usize>,
     anderson: anderson::Anderson,
 }

@@ -141,6 +141,19 @@ pub(crate) struct PolishWorkspace {
     /// The impulses before a sweep, in the order [`settled`] reads them.
     before: Vec<f64>,
     normal: NormalWorkspace,
+    joint: JointWorkspace,
+}
+
+/// Storage of [`StepQp::joint_step`]'s Newton iterations: the Delassus matrix and the
+/// Jacobian column-major (as [`linalg::DenseLu`] takes them), the rows' values, the residual
+/// (then the Newton step) and the LU's workspace, made again only when the size changes.
+#[derive(Default)]
+struct JointWorkspace {
+    kmat: Vec<f64>,
+    jac: Vec<f64>,
+    v: Vec<f64>,
+    step: Vec<f64>,
+    lu: Option<linalg::DenseLu>,
 }
 
 /// Storage of [`StepQp::correct_normal_impulses`].
@@ -234,13 +247,20 @@ fn negated(w: [f64; 6]) -> [f64; 6] {
 
 /// The wrenches of patch vertex `v` of contact `g` on each body it acts on: `(F, W_{n,j})` and,
 /// for a dynamic G, `(G, −[n; (v_G − x_G) × n])` at G's point of the vertex.
-fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> Vec<(usize, [f64; 6])> {
-    let mut out = vec![(
-        g.body,
-        wrench(&g.normal, &sub(&v.position, &g.center_of_mass)),
-    )];
+fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> VertexWrenches {
+    let mut out = VertexWrenches {
+        len: 1,
+        sides: [
+            (
+                g.body,
+                wrench(&g.normal, &sub(&v.position, &g.center_of_mass)),
+            ),
+            (0, [0.0; 6]),
+        ],
+    };
     if let Some((b, x)) = dynamic_partner(g) {
-        out.push((b, negated(wrench(&g.normal, &sub(&v.partner_position, &x)))));
+        out.sides[1] = (b, negated(wrench(&g.normal, &sub(&v.partner_position, &x))));
+        out.len = 2;
     }
     out
 }
@@ -416,6 +436,8 @@ pub(crate) fn build(
     }
     let mut contacts = Vec::with_capacity(geometry.len());
     let mut patch_vertices = 0;
+    // One row's coefficients, refilled for every row.
+    let mut coeffs: Vec<(usize, f64)> = Vec::with_capacity(16);
     for (c, g) in geometry.iter().enumerate() {
         if g.patch.is_empty() || !bodies_exist(g, nb) {
             contacts.push(None);
@@ -437,10 +459,11 @@ pub(crate) fn build(
             vec![Vec::with_capacity(g.patch.len()); friction_sides.len()];
         for v in &g.patch {
             let ws = normal_sides(g, v);
-            let mut coeffs: Vec<(usize, f64)> = ws
-                .iter()
-                .flat_map(|(b, w)| (0..6).map(move |i| (6 * b + i, -w[i])))
-                .collect();
+            coeffs.clear();
+            coeffs.extend(
+                ws.iter()
+                    .flat_map(|(b, w)| (0..6).map(move |i| (6 * b + i, -w[i]))),
+            );
             if let Some(a) = a_col {
                 coeffs.push((a, f.mu));
             }
@@ -459,8 +482,8 @@ pub(crate) fn build(
             gap_rates.push(rate);
             vertices.push(v.index);
             positions.push(v.position);
-            for (k, (_, w)) in ws.into_iter().enumerate() {
-                normal_wrenches[k].push(w);
+            for (k, (_, w)) in ws.iter().enumerate() {
+                normal_wrenches[k].push(*w);
             }
         }
         if let (Some(col), Some((rho_m, rho_n)), Some(a)) = (anchor_cols[c], weights[c], anchor) {
@@ -478,10 +501,12 @@ pub(crate) fn build(
         let soc_row = a_col.map(|a| {
             let r0 = qp.push_row(&[(a, -1.0)], 0.0);
             for i in 0..3 {
-                let coeffs: Vec<(usize, f64)> = friction_sides
-                    .iter()
-                    .flat_map(|(b, w)| (0..6).map(move |k| (6 * b + k, -axes[i] * w[i][k])))
-                    .collect();
+                coeffs.clear();
+                coeffs.extend(
+                    friction_sides
+                        .iter()
+                        .flat_map(|(b, w)| (0..6).map(move |k| (6 * b + k, -axes[i] * w[i][k]))),
+                );
                 // The data part of the relative slip (a G moved by its schedule).
                 qp.push_row(&coeffs, axes[i] * slip_offset[i]);
             }
@@ -528,6 +553,34 @@ pub(crate) fn build(
 }
 
 impl StepQp {
+    /// The QP's shape as [`StepQp::extract`] reads an answer (variables, rows, and each
+    /// contact's vertex rows, their hull vertices and its cone), into `out`: an answer of a QP
+    /// with the same layout can be read as if it were this QP's (the outer iteration's reuse of
+    /// the previous QP's answer, `conic/mod.rs`).
+    pub fn layout_into(&self, out: &mut Vec<usize>) {
+        out.clear();
+        out.push(self.qp.n);
+        out.push(self.qp.rows());
+        for rows in &self.contacts {
+            match rows {
+                None => out.push(usize::MAX),
+                Some(r) => {
+                    out.push(r.first_row);
+                    out.push(r.soc_row.unwrap_or(usize::MAX));
+                    out.push(r.vertices.len());
+                    out.extend_from_slice(&r.vertices);
+                }
+            }
+        }
+    }
+
+    /// Whether some contact has the proximal anchor (a body with several loaded contacts).
+    pub fn anchored(&self) -> bool {
+        self.contacts
+            .iter()
+            .any(|r| r.as_ref().is_some_and(|r| r.anchor.is_some()))
+    }
+
     /// Reads velocities and impulses from clarabel's solution.
     ///
     /// The interior-point solution is read consistently with the complementarity it
@@ -569,6 +622,7 @@ impl StepQp {
             current,
             before,
             normal,
+            joint,
         } = work;
         // Each body's mass matrix factored once for the whole polish.
         factors.clear();
@@ -703,7 +757,7 @@ impl StepQp {
             // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
             // problem by Newton's method on its active set, which the next sweeps confirm.
             if (sweep + 1) % JOINT_AFTER == 0 {
-                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current);
+                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current, joint);
             }
         }
         let velocities: Vec<[f64; 6]> = bodies
@@ -1184,6 +1238,7 @@ impl StepQp {
         contacts: &mut [ContactImpulses],
         wrench_sum: &mut [[f64; 6]],
         current: &[Vec<BodyFriction>],
+        joint: &mut JointWorkspace,
     ) -> bool {
         // A patch's vertex wrenches `[n; r × n]` span three dimensions at most (the force along
         // n, the moments about two axes in the patch), so a contact with more than three loaded
@@ -1267,18 +1322,33 @@ impl StepQp {
             .iter()
             .map(|ws| ws.iter().map(|(b, w)| (*b, factors[*b].solve(w))).collect())
             .collect();
-        let mut kmat = vec![0.0; n * n];
+        let JointWorkspace {
+            kmat,
+            jac,
+            v,
+            step: delta,
+            lu,
+        } = joint;
+        // Column-major: `K_rj` at `kmat[j * n + r]`.
+        kmat.clear();
+        kmat.resize(n * n, 0.0);
         for r in 0..n {
             for j in 0..n {
                 for (br, wr) in &wrenches[r] {
                     for (bj, yj) in &minv_w[j] {
                         if br == bj {
-                            kmat[r * n + j] += dot6(wr, yj);
+                            kmat[j * n + r] += dot6(wr, yj);
                         }
                     }
                 }
             }
         }
+        if lu.as_ref().is_none_or(|lu| lu.dim() != n) {
+            *lu = Some(linalg::DenseLu::new(n));
+        }
+        let Some(lu) = lu.as_mut() else {
+            return false;
+        };
         let mut v0: Vec<f64> = wrenches
             .iter()
             .map(|ws| ws.iter().map(|(b, w)| dot6(w, &velocity[*b])).sum())
@@ -1293,16 +1363,16 @@ impl StepQp {
         let mut converged = false;
         for _ in 0..JOINT_ITERATIONS {
             // Rows' values at x (linear in x), then the residual and Jacobian.
-            let v: Vec<f64> = (0..n)
-                .map(|r| {
-                    v0[r]
-                        + (0..n)
-                            .map(|j| kmat[r * n + j] * (x[j] - x0[j]))
-                            .sum::<f64>()
-                })
-                .collect();
-            let mut f = v.clone();
-            let mut jac = kmat.clone();
+            v.clear();
+            v.extend((0..n).map(|r| {
+                v0[r]
+                    + (0..n)
+                        .map(|j| kmat[j * n + r] * (x[j] - x0[j]))
+                        .sum::<f64>()
+            }));
+            // The residual F, negated below into the Newton step's right-hand side.
+            delta.clone_from(v);
+            jac.clone_from(kmat);
             for &(c, first, sliding, first_lambda, count) in &frictions {
                 if !sliding {
                     continue;
@@ -1327,23 +1397,28 @@ impl StepQp {
                 let dir: [f64; 3] = std::array::from_fn(|i| e[i] * qh[i]);
                 for i in 0..3 {
                     let r = first + i;
-                    f[r] = x[r] + rho * dir[i];
+                    delta[r] = x[r] + rho * dir[i];
                     for j in 0..n {
-                        jac[r * n + j] = rho
+                        jac[j * n + r] = rho
                             * (0..3)
-                                .map(|l| t[i][l] * kmat[(first + l) * n + j])
+                                .map(|l| t[i][l] * kmat[j * n + first + l])
                                 .sum::<f64>();
                     }
                     jac[r * n + r] += 1.0;
                     for j in first_lambda..first_lambda + count {
-                        jac[r * n + j] += rows.mu * dir[i];
+                        jac[j * n + r] += rows.mu * dir[i];
                     }
                 }
             }
-            let rows_of: Vec<Vec<f64>> = jac.chunks_exact(n).map(<[f64]>::to_vec).collect();
-            let Some(delta) = solve_dense(rows_of, f.iter().map(|v| -v).collect()) else {
+            for d in delta.iter_mut() {
+                *d = -*d;
+            }
+            if lu.factor(jac).is_err()
+                || lu.solve_in_place(delta).is_err()
+                || delta.iter().any(|d| !d.is_finite())
+            {
                 return false;
-            };
+            }
             let size = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             let step = delta.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             for j in 0..n {
