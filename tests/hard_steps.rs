@@ -156,11 +156,9 @@ fn newton_convex_push_step_74_residual_damping() {
     let mut driver = NewtonSolver::new(before.clone());
     let (sim, _) = at_step("015_convex_push", &mut driver, 74);
     let z0 = sim.z().to_vec();
-    // Without the ratio test, which came later: with it this step takes 49 iterations.
     let mended = converged(sim.solve_step_problem(
         &mut NewtonSolver::new(NewtonSettings {
             tolerance: tolerance.unwrap_or(1e-10),
-            ratio_test: false,
             ..NewtonSettings::default()
         }),
         &z0,

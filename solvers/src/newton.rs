@@ -1209,9 +1209,14 @@ impl NewtonSolver {
             // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
             // whichever lowers Ψ more.
             let mut newton_search = None;
+            // Whether `newton_search` holds the ratio test's point (counted when it is taken).
+            let mut ratio_candidate = false;
             // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, a full step
             // that failed the Armijo test is cut at the first pair that leaves its cone along the
-            // linearisation; that point is taken when it lowers Ψ, else under the watchdog.
+            // linearisation. That point, when it lowers Ψ, is a point of the Newton direction's
+            // search like the Armijo point (which it replaces): compared with the
+            // Levenberg–Marquardt step below, the lower Ψ taken. When it raises Ψ it is taken
+            // under the watchdog (the kink of Φ the pair crosses, as a pivot).
             let ratio_on = s.ratio_test && self.attempt == 0 && !self.in_continuation;
             if ratio_on && accepted.is_none() && newton_ok {
                 pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
@@ -1219,8 +1224,12 @@ impl NewtonSolver {
                     && let Some(p) = try_ratio_step(mcp, ws, event, l, u, &mut f_evals)
                 {
                     if p < psi {
-                        accepted = Some((event.0, p));
-                        ratio_steps += 1;
+                        newton_search = Some((event.0, p));
+                        ratio_candidate = true;
+                        ws.z_alt.copy_from_slice(&ws.z_trial);
+                        ws.f_alt.copy_from_slice(&ws.f_trial);
+                        ws.phi_alt.copy_from_slice(&ws.phi_trial);
+                        ws.d_alt.copy_from_slice(&ws.d);
                     } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         if checkpoint.is_none() {
                             ws.save_checkpoint();
@@ -1417,6 +1426,9 @@ impl NewtonSolver {
                 std::mem::swap(&mut ws.d, &mut ws.d_alt);
                 accepted = Some((t, p));
                 kind = StepKind::Newton;
+                if ratio_candidate {
+                    ratio_steps += 1;
+                }
             }
             if accepted.is_none() {
                 // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
