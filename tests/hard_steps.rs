@@ -239,9 +239,9 @@ fn newton_room_corner_023_step_88_flat_merit_test() {
 /// steps, full Newton and minimum-norm steps of length 1 … 90 (scene scales) drive the residual
 /// of an inactive face from ≈ +20 to −100 … −300 and `Ψ` up by 1e4 … 1e6; the plain iteration
 /// crawled in Levenberg–Marquardt steps until the rate test cut it, and the non-monotone restart
-/// solved the step: 181 iterations. With the ratio test (from the 20th iteration of a run on)
-/// the plain iteration stops such steps at the first pair that leaves its cone and solves the
-/// step in 71 (`docs/newton.md#the-ratio-test`).
+/// solved the step: 181 iterations. With the ratio test the plain iteration stops such steps at
+/// the first pair that leaves its cone and solves the step in 71
+/// (`docs/newton.md#the-ratio-test`).
 #[test]
 fn newton_room_corner_023_step_36_ratio_test() {
     let (sim, settings) = room_corner_023_at(36);
@@ -264,6 +264,35 @@ fn newton_room_corner_023_step_36_ratio_test() {
     );
     let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
     assert_iterations(&before, 170..);
+}
+
+/// `023_room_corner` step 88 (on the trajectory before the ratio test): both runs of the plain
+/// iteration end on a stationary point of the merit (natural residual 1.1e-4) and the smoothing
+/// continuation solves the step: 246 iterations, also with the ratio test gated to the 20th
+/// iteration of a run on (the flat-merit test cut the plain runs at 31 and 20). With the ratio
+/// test from the first iteration the plain iteration solves it in 28
+/// (`docs/newton.md#the-ratio-test`).
+#[test]
+fn newton_room_corner_023_step_88_ratio_test_from_the_first_iteration() {
+    let (sim, settings) = room_corner_023_at(88);
+    let z0 = sim.z().to_vec();
+    let mended = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            ratio_test: true,
+            ..settings.clone()
+        }),
+        &z0,
+    ));
+    assert_iterations(&mended, ..=40);
+    assert_eq!(
+        mended
+            .summary
+            .counter(Counter::SmoothingStages)
+            .unwrap_or(0),
+        0
+    );
+    let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    assert_iterations(&before, 200..);
 }
 
 /// `062_room_corner` step 128: the plain iteration crosses a valley of the merit in

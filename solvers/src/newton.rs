@@ -141,10 +141,14 @@ pub struct NewtonSettings {
     /// Shortest step length of that search. Default `1e-4`.
     pub newton_shortest_step: f64,
     /// A solve that reaches the tolerance with a natural residual above this fraction of it
-    /// takes one more full Newton step, kept when it lowers the residual: the local phase is
+    /// takes one more full Newton step (the minimum-norm step where `H` is singular, in a run
+    /// that took steps of the ratio test, dense problems), kept when it lowers the residual:
+    /// the local phase is
     /// quadratic, so the step costs one factorisation and usually gains several digits. It
     /// matters where the solution is sensitive to the residual (a spinning box coming to rest:
-    /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md). Default `1e-3`.
+    /// ω_z off by 6e-9 at natural residual 1.7e-11, docs/newton.md; D5's vertical momentum,
+    /// which the ground's normal impulses set: off by 5.2e-12 at a residual of 5.2e-12 in a
+    /// ground contact, `docs/newton.md#the-ratio-test`). Default `1e-3`.
     pub polish_below: f64,
     /// After a failed solve, solve again from the start by the smoothing continuation
     /// (`docs/newton.md#smoothing-continuation`, [`crate::smoothing`]): this iteration on the
@@ -201,17 +205,23 @@ pub struct NewtonSettings {
     /// `2K` and the smoothing continuation's runs are unchanged. 0 turns it off. Default 10.
     pub flat_merit_window: usize,
     /// Ratio test in the plain iteration's line search (`docs/newton.md#the-ratio-test`): when
-    /// the full Newton (or minimum-norm) step fails the Armijo test, the point where the first
+    /// the full Newton step fails the Armijo test, the point where the first
     /// complementarity pair leaves its cone along the step's linearisation (a component reaching
     /// its bound from inside, or the residual of a component at its bound crossing zero) is
-    /// taken — when it lowers `Ψ`, else under the watchdog of
+    /// taken — when `Ψ` falls there by half the fall the linearisation predicts; when it falls
+    /// less, the point competes with the Levenberg–Marquardt step (`018_union_tip` step 50: 145
+    /// → 6 iterations); when `Ψ` rises, under the watchdog of
     /// [`NewtonSettings::watchdog_steps`] — before the backtracking and Levenberg–Marquardt. The
     /// Fischer–Burmeister row of an inactive pair linearises to "stay at the bound" and ignores
     /// its residual, so a long step drives the residual of an inactive face far below zero and
     /// `Ψ` up by orders of magnitude; PATH's pivoting stops at the first such event
     /// (`023_room_corner` step 36: 181 iterations with the non-monotone restart, 71 in the plain
-    /// iteration with it). It runs from the 20th iteration of a run on, so steps the plain
-    /// iteration solves in fewer are unchanged. Default `true`.
+    /// iteration with it; step 88: 246 with the continuation, 28). It runs from the first
+    /// iteration, along the Newton direction only: a full Newton step that fails the Armijo
+    /// test is the situation it describes. Not along the minimum-norm direction (a singular `H`,
+    /// a solution set that is not isolated, where a pair's event is no basis change): there it
+    /// cut the union T-bar's step 38 from 3 iterations to 227 (`docs/newton.md#the-ratio-test`).
+    /// Default `true`.
     pub ratio_test: bool,
     /// After a failed plain iteration, the plain iteration once more from the start in which a
     /// full Newton step that fails the Armijo test is still taken, under the watchdog of
@@ -498,13 +508,16 @@ impl NewtonSolver {
 /// its rate foretold (`062_room_corner` step 128: up to 3.96 times, then converged at 87).
 const RATE_TEST_MARGIN: f64 = 6.0;
 
-/// The ratio test ([`NewtonSettings::ratio_test`]) runs from this many iterations of a run on
-/// (as the flat-merit test judges a run from `2 × flat_merit_window` = 20): a step the plain
-/// iteration solves in fewer is bitwise unchanged. From the first iteration on it also solved
-/// `023_room_corner` step 36 (218 → 71 LU factorisations) but moved the reference scenes D5 by
-/// 5.2e-12 (beyond `tests/bodies.rs`' momentum tolerance of 1e-12), D6 by 1.4e-12 and the T-bar
-/// gripper by 1.1e-10 (`docs/newton.md#the-ratio-test`).
-const RATIO_TEST_AFTER: usize = 20;
+/// The ratio test's point ([`NewtonSettings::ratio_test`]) is taken outright when `Ψ` fell there
+/// by at least this fraction of the fall the linearisation predicts: the model held up to the
+/// pair's event, so the event is the basis change the step describes. A point that lowers `Ψ`
+/// less is compared with the Levenberg–Marquardt step (`018_union_tip` step 50: the event
+/// point lowered `Ψ` by 5 % where the linearisation predicted 37 % and Levenberg–Marquardt
+/// gave 73 %; taken outright, the step took 145 iterations, compared 6). 0.75 gave the same
+/// runs of `023_room_corner`, `087_v_trough`, `135_union_tip` and `025_multi_body`; 0.25 those
+/// of `087_v_trough` and `023_room_corner` without the test
+/// (`docs/newton.md#a-gate-the-linearisation-held-up-to-the-event`).
+const RATIO_MODEL_AGREEMENT: f64 = 0.5;
 
 /// Shortest step length tried along the minimum-norm direction before the Levenberg–Marquardt
 /// safeguard takes over (a direction that needs a shorter step is a poor one).
@@ -1034,6 +1047,8 @@ impl NewtonSolver {
         let (mut min_norm_kept, mut min_norm_pending) = (0usize, 0usize);
         // Taking the final full Newton step after convergence.
         let mut polishing = false;
+        // Steps of this run cut by the ratio test (`NewtonSettings::ratio_test`).
+        let mut ratio_steps = 0usize;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1148,7 +1163,27 @@ impl NewtonSolver {
             let mut kind = StepKind::Newton;
             let mut accepted = None;
             if polishing {
-                let better = if newton_ok {
+                // At a singular `H` (a solution set that is not isolated: the B–C contact height
+                // of D5's collision) there is no LU step; the minimum-norm step solves `H d = −Φ`
+                // as well where `Φ` is in the range of `H`, so it gains the same digits. Only in
+                // a run that took ratio steps: they are what moved its end point; runs without
+                // them end where they did (`docs/newton.md#the-ratio-test`).
+                let mut polish_ok = newton_ok;
+                if !polish_ok && ratio_steps > 0 && !ws.dense.is_empty() {
+                    pattern.to_dense(&ws.h, &mut ws.dense);
+                    prof.min_norm_factorizations += 1;
+                    if self
+                        .min_norm
+                        .factor(n, &ws.dense, s.rank_tolerance)
+                        .is_some()
+                    {
+                        for i in 0..n {
+                            ws.d[i] = -ws.phi[i];
+                        }
+                        polish_ok = self.min_norm.solve_in_place(&mut ws.d);
+                    }
+                }
+                let better = if polish_ok {
                     try_step(mcp, ws, 1.0, l, u, &mut f_evals)
                         .filter(|_| natural_residual(&ws.z_trial, &ws.f_trial, l, u) < residual)
                 } else {
@@ -1187,21 +1222,35 @@ impl NewtonSolver {
             // aside: the Levenberg–Marquardt step below is tried too, and the iteration takes
             // whichever lowers Ψ more.
             let mut newton_search = None;
-            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, from
-            // `RATIO_TEST_AFTER` iterations of a run on, a full step that failed the Armijo test
-            // is cut at the first pair that leaves its cone along the linearisation; that point
-            // is taken when it lowers Ψ, else under the watchdog.
-            let ratio_on = s.ratio_test
-                && self.attempt == 0
-                && !self.in_continuation
-                && iterations >= RATIO_TEST_AFTER;
+            // Whether `newton_search` holds the ratio test's point (counted when it is taken).
+            let mut ratio_candidate = false;
+            // The ratio test (`NewtonSettings::ratio_test`): in the plain iteration, a full step
+            // that failed the Armijo test is cut at the first pair that leaves its cone along the
+            // linearisation. That point is taken when the linearisation held up to it (`Ψ` fell
+            // by `RATIO_MODEL_AGREEMENT` of the fall it predicts); when it lowers `Ψ` less, it is
+            // a point of the Newton direction's search like the Armijo point (which it
+            // replaces), compared with the Levenberg–Marquardt step below, the lower `Ψ` taken;
+            // when it raises `Ψ`, it is taken under the watchdog (the kink of Φ the pair
+            // crosses, as a pivot).
+            let ratio_on = s.ratio_test && self.attempt == 0 && !self.in_continuation;
             if ratio_on && accepted.is_none() && newton_ok {
                 pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
                 if let Some(event) = ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
                     && let Some(p) = try_ratio_step(mcp, ws, event, l, u, &mut f_evals)
                 {
-                    if p < psi {
+                    // Along the Newton direction the linearisation predicts Φ(t) = (1 − t)Φ,
+                    // so Ψ(t) = (1 − t)²Ψ: a fall of (1 − (1 − t)²)Ψ.
+                    let predicted = (1.0 - (1.0 - event.0) * (1.0 - event.0)) * psi;
+                    if psi - p >= RATIO_MODEL_AGREEMENT * predicted {
                         accepted = Some((event.0, p));
+                        ratio_steps += 1;
+                    } else if p < psi {
+                        newton_search = Some((event.0, p));
+                        ratio_candidate = true;
+                        ws.z_alt.copy_from_slice(&ws.z_trial);
+                        ws.f_alt.copy_from_slice(&ws.f_trial);
+                        ws.phi_alt.copy_from_slice(&ws.phi_trial);
+                        ws.d_alt.copy_from_slice(&ws.d);
                     } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         if checkpoint.is_none() {
                             ws.save_checkpoint();
@@ -1210,6 +1259,7 @@ impl NewtonSolver {
                         }
                         accepted = Some((event.0, p));
                         nonmonotone_steps += 1;
+                        ratio_steps += 1;
                     }
                 }
             }
@@ -1258,14 +1308,7 @@ impl NewtonSolver {
                             // the watchdog (it may cross a kink of Φ towards the right active
                             // set: Ψ rises for a step or two, then falls quadratically); failing
                             // that, backtracking.
-                            if let Some(mut p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
-                                // The ratio test, as for the Newton direction above.
-                                let ratio_event = if ratio_on {
-                                    pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
-                                    ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
-                                } else {
-                                    None
-                                };
+                            if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
                                 let watched =
                                     local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
                                 if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
@@ -1273,24 +1316,7 @@ impl NewtonSolver {
                                         <= s.tolerance
                                 {
                                     accepted = Some((1.0, p));
-                                } else if let Some(ev) = ratio_event
-                                    && let Some(q) = try_ratio_step(mcp, ws, ev, l, u, &mut f_evals)
-                                    && (q < psi || watched)
-                                {
-                                    if q >= psi {
-                                        if checkpoint.is_none() {
-                                            ws.save_checkpoint();
-                                            checkpoint = Some(psi);
-                                            watchdog_count = 0;
-                                        }
-                                        nonmonotone_steps += 1;
-                                    }
-                                    accepted = Some((ev.0, q));
                                 } else if watched {
-                                    if ratio_event.is_some() {
-                                        // The ratio point was tried: the full step again.
-                                        p = try_step(mcp, ws, 1.0, l, u, &mut f_evals).unwrap_or(p);
-                                    }
                                     if checkpoint.is_none() {
                                         ws.save_checkpoint();
                                         checkpoint = Some(psi);
@@ -1421,6 +1447,9 @@ impl NewtonSolver {
                 std::mem::swap(&mut ws.d, &mut ws.d_alt);
                 accepted = Some((t, p));
                 kind = StepKind::Newton;
+                if ratio_candidate {
+                    ratio_steps += 1;
+                }
             }
             if accepted.is_none() {
                 // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
