@@ -598,7 +598,7 @@ fn conic_v_trough_087_joint_polish() {
 /// multiplications. Asserted: every trial is such a Cholesky (none an augmented LU), at most
 /// 5e4 multiplications each, and the step needs at most 600 trials (281 measured); with
 /// `lm_sparse_product = false`, as before, every trial is an augmented LU; both converge to the
-/// same point.
+/// same point (to 1e-7 relative: the trials' round-off differs, so the iterates do).
 #[test]
 fn newton_multi_body_025_step_30_cheap_damping_trials() {
     let tolerance = scene_tolerance(&regression_scene("025_multi_body"));
@@ -638,12 +638,16 @@ fn newton_multi_body_025_step_30_cheap_damping_trials() {
     assert_eq!(profile.lm_augmented_factorizations, profile.lm_trials);
     assert_eq!(profile.lm_cholesky_flops, 0.0);
     // The same solution (both converged in the scene's scales), but for the slip rates σ of
-    // open contacts, which any σ ≥ 0 solves at p_n = 0.
+    // open contacts, which any σ ≥ 0 solves at p_n = 0, and the multipliers `l` of the hull's
+    // faces, which are not unique where the closest point is a vertex or an edge.
     let problem = sim.step_problem();
     for (i, (a, b)) in cheap.z.iter().zip(&old.z).enumerate() {
         let name = problem.component_name(i);
-        if !name.contains("sigma") {
-            assert!((a - b).abs() <= 1e-8, "{name}: {a:e} against {b:e}");
+        if !name.contains("sigma") && !name.contains(".l[") {
+            assert!(
+                (a - b).abs() <= 1e-7 * (1.0 + b.abs()),
+                "{name}: {a:e} against {b:e}"
+            );
         }
     }
 }

@@ -507,6 +507,20 @@ mod tests {
         (pattern, columns)
     }
 
+    /// The values of `columns` in `pattern` (which may hold explicit zeros: the diagonal).
+    fn values_in(pattern: &CscPattern, columns: &[Vec<(usize, f64)>]) -> Vec<f64> {
+        let mut h = vec![0.0; pattern.nnz()];
+        for (j, col) in columns.iter().enumerate() {
+            for &(i, v) in col {
+                let p = pattern
+                    .position(i, j)
+                    .unwrap_or_else(|| panic!("({i}, {j})"));
+                h[p] = v;
+            }
+        }
+        h
+    }
+
     /// `(HᵀH + λI) x = b` solved straightforwardly: the dense product formed entry by entry
     /// and factorised by dense LU.
     fn dense_solve(n: usize, columns: &[Vec<(usize, f64)>], lambda: f64, b: &[f64]) -> Vec<f64> {
@@ -539,8 +553,7 @@ mod tests {
         for (seed, rank_deficient) in [(7u64, false), (11, true)] {
             let (pattern, columns) = block_matrix(4, 40, 5, seed, rank_deficient);
             let n = pattern.dim();
-            let h: Vec<f64> = columns.iter().flatten().map(|&(_, v)| v).collect();
-            assert_eq!(h.len(), pattern.nnz());
+            let h = values_in(&pattern, &columns);
             let mut state = seed + 1;
             let b: Vec<f64> = (0..n).map(|_| uniform(&mut state)).collect();
             let mut ne =
@@ -586,7 +599,7 @@ mod tests {
         let mut ne =
             NormalEquations::new(&pattern, 120, false, true).unwrap_or_else(|e| panic!("{e}"));
         assert!(!ne.is_augmented());
-        let mut h: Vec<f64> = columns.iter().flatten().map(|&(_, v)| v).collect();
+        let mut h = values_in(&pattern, &columns);
         for p in pattern.col_ptr()[17]..pattern.col_ptr()[18] {
             h[p] = 0.0;
         }
