@@ -150,12 +150,14 @@ fn main() -> ExitCode {
         .map(|n| format!("{:.1}", *n as f64 * 1e-6))
         .collect();
     println!(
-        "total: {planned} steps, {failed} failed, {wall:.1} ms in solves; iterations {:?}, lu {}, qr {}, lm_iters {}, lm_trials {}, f_evals {}; ms: {}",
+        "total: {planned} steps, {failed} failed, {wall:.1} ms in solves; iterations {:?}, lu {}, qr {}, lm_iters {}, lm_trials {} (augmented LU {}, sparse Cholesky {:.3e} flops), f_evals {}; ms: {}",
         total.attempt_iterations,
         total.lu_factorizations,
         total.min_norm_factorizations,
         total.lm_iterations,
         total.lm_trials,
+        total.lm_augmented_factorizations,
+        total.lm_cholesky_flops,
         total.f_evals,
         phases.join(" ")
     );
@@ -179,6 +181,7 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "lm_residual_damping_after" => s.lm_residual_damping_after = value.parse::<usize>().ok(),
         "lm_initial_damping" => s.lm_initial_damping = f()?,
         "lm_cholesky" => s.lm_cholesky = b()?,
+        "lm_sparse_product" => s.lm_sparse_product = b()?,
         "stall_window" => s.stall_window = n()?,
         "slow_rate_test" => s.slow_rate_test = b()?,
         "flat_merit_window" => s.flat_merit_window = n()?,

@@ -618,3 +618,65 @@ fn conic_steps_within(name: &str, steps: std::ops::RangeInclusive<usize>, max_qp
 fn conic_v_trough_087_joint_polish() {
     conic_steps_within("087_v_trough", 4..=12, 4);
 }
+
+/// `025_multi_body` step 30 (four bodies apart, 170 unknowns: above `dense_max`, so the
+/// Levenberg–Marquardt system is not the dense product): one of the three steps that made the
+/// run 10× PATH's (`docs/newton.md#cheap-levenberg-marquardt-trials`). Each damping trial was a
+/// sparse LU of the augmented 340 × 340 system (1.1 ms against 0.17 ms for the LU of `H`); the
+/// product `HᵀH + λI` keeps the bodies' blocks, and its sparse Cholesky needs 3.4e4
+/// multiplications. Asserted: every trial is such a Cholesky (none an augmented LU), at most
+/// 5e4 multiplications each, and the step needs at most 600 trials (281 measured); with
+/// `lm_sparse_product = false`, as before, every trial is an augmented LU; both converge to the
+/// same point (to 1e-7 relative: the trials' round-off differs, so the iterates do).
+#[test]
+fn newton_multi_body_025_step_30_cheap_damping_trials() {
+    let tolerance = scene_tolerance(&regression_scene("025_multi_body"));
+    let settings = NewtonSettings {
+        tolerance: tolerance.unwrap_or(1e-10),
+        ..NewtonSettings::default()
+    };
+    let mut driver = NewtonSolver::new(settings.clone());
+    let (sim, _) = at_step("025_multi_body", &mut driver, 30);
+    let z0 = sim.z().to_vec();
+    assert!(sim.step_problem().dim() > settings.dense_max);
+
+    let mut solver = NewtonSolver::new(settings.clone()).with_profile();
+    let cheap = converged(sim.solve_step_problem(&mut solver, &z0));
+    let profile = solver.take_profile();
+    assert!(
+        (100..=600).contains(&profile.lm_trials),
+        "{} damping trials",
+        profile.lm_trials
+    );
+    assert_eq!(profile.lm_augmented_factorizations, 0);
+    assert!(
+        profile.lm_cholesky_flops <= 5e4 * profile.lm_trials as f64,
+        "{:e} multiplications in {} trials",
+        profile.lm_cholesky_flops,
+        profile.lm_trials
+    );
+
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        lm_sparse_product: false,
+        ..settings
+    })
+    .with_profile();
+    let old = converged(sim.solve_step_problem(&mut solver, &z0));
+    let profile = solver.take_profile();
+    assert!(profile.lm_trials > 0);
+    assert_eq!(profile.lm_augmented_factorizations, profile.lm_trials);
+    assert_eq!(profile.lm_cholesky_flops, 0.0);
+    // The same solution (both converged in the scene's scales), but for the slip rates σ of
+    // open contacts, which any σ ≥ 0 solves at p_n = 0, and the multipliers `l` of the hull's
+    // faces, which are not unique where the closest point is a vertex or an edge.
+    let problem = sim.step_problem();
+    for (i, (a, b)) in cheap.z.iter().zip(&old.z).enumerate() {
+        let name = problem.component_name(i);
+        if !name.contains("sigma") && !name.contains(".l[") {
+            assert!(
+                (a - b).abs() <= 1e-7 * (1.0 + b.abs()),
+                "{name}: {a:e} against {b:e}"
+            );
+        }
+    }
+}

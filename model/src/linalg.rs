@@ -18,9 +18,11 @@ use crate::pattern::CscPattern;
 mod schur;
 mod simd;
 mod small_lu;
+mod sparse_cholesky;
 pub use schur::SchurLu;
 pub(crate) use simd::{add_row_combination, transpose};
 use small_lu::SmallLu;
+pub use sparse_cholesky::{SparseCholesky, cholesky_flops};
 
 /// Largest dimension [`DenseLu`] factorises with its own small-matrix kernel instead of faer's
 /// blocked LU (`docs/latency.md`: below it the kernel is faster, above it faer is).

@@ -72,6 +72,13 @@ pub struct NewtonProfile {
     pub lm_trials: usize,
     /// Iterations that tried Levenberg–Marquardt.
     pub lm_iterations: usize,
+    /// Of the damping trials, those that factorised the augmented `2n × 2n` system by sparse LU
+    /// (above [`crate::newton::NewtonSettings::dense_max`], when the product's sparse Cholesky
+    /// was not chosen: [`crate::newton::NewtonSettings::lm_sparse_product`]).
+    pub lm_augmented_factorizations: usize,
+    /// Multiplications of the damping trials' sparse Cholesky factorisations of `HᵀH + λI`, by
+    /// their symbolic count (`docs/newton.md#cheap-levenberg-marquardt-trials`).
+    pub lm_cholesky_flops: f64,
     /// Nanoseconds per phase, in the order of [`Phase::ALL`].
     pub ns: [u64; 7],
 }
@@ -94,6 +101,8 @@ impl NewtonProfile {
         self.min_norm_factorizations += other.min_norm_factorizations;
         self.lm_trials += other.lm_trials;
         self.lm_iterations += other.lm_iterations;
+        self.lm_augmented_factorizations += other.lm_augmented_factorizations;
+        self.lm_cholesky_flops += other.lm_cholesky_flops;
         for (a, b) in self.ns.iter_mut().zip(other.ns) {
             *a += b;
         }
