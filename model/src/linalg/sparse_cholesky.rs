@@ -340,7 +340,7 @@ mod tests {
         let m = |i: usize, j: usize| -> f64 {
             if i == j {
                 2.0 + (i % 3) as f64
-            } else if i == 7 || (i * 7 + j * 11) % 17 == 0 {
+            } else if i == 7 || (i * 7 + j * 11).is_multiple_of(17) {
                 ((i * 37 + j * 13) % 23) as f64 / 7.0 - 1.5
             } else {
                 0.0
