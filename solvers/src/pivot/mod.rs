@@ -487,14 +487,14 @@ impl Lemke {
         &mut self.settings
     }
 
-    /// Sets (or clears) the wall-clock instant after which pivoting stops as if the pivot limit
-    /// had been reached; the limit is checked every 16 pivots.
     /// Caps the pivots of each later path (`None`: only `LemkeSettings::max_pivots`); a path
     /// that reaches the cap ends with [`PivotError::MaxPivots`], as at `max_pivots`.
     pub fn set_pivot_cap(&mut self, cap: Option<usize>) {
         self.pivot_cap = cap;
     }
 
+    /// Sets (or clears) the wall-clock instant after which pivoting stops as if the pivot limit
+    /// had been reached; the limit is checked every 16 pivots.
     pub fn set_deadline(&mut self, deadline: Option<std::time::Instant>) {
         self.deadline = deadline;
     }
