@@ -425,6 +425,8 @@ pub struct Lemke {
     /// Wall-clock instant after which the pivot loop stops with [`PivotError::MaxPivots`] (the
     /// per-solve budget of a caller such as the PATH-like solver); `None` for no limit.
     deadline: Option<std::time::Instant>,
+    /// Pivots a path may make at most, below `LemkeSettings::max_pivots` (`set_pivot_cap`).
+    pivot_cap: Option<usize>,
 }
 
 /// The entering column's kind, kept over the ratio test (its values stay in `entering_col`).
@@ -471,6 +473,7 @@ impl Lemke {
             lcp_bounds: (Vec::new(), Vec::new()),
             refactorizations: 0,
             deadline: None,
+            pivot_cap: None,
         }
     }
 
@@ -482,6 +485,12 @@ impl Lemke {
     /// Mutable settings.
     pub fn settings_mut(&mut self) -> &mut LemkeSettings {
         &mut self.settings
+    }
+
+    /// Caps the pivots of each later path (`None`: only `LemkeSettings::max_pivots`); a path
+    /// that reaches the cap ends with [`PivotError::MaxPivots`], as at `max_pivots`.
+    pub fn set_pivot_cap(&mut self, cap: Option<usize>) {
+        self.pivot_cap = cap;
     }
 
     /// Sets (or clears) the wall-clock instant after which pivoting stops as if the pivot limit
@@ -945,6 +954,7 @@ impl Lemke {
         } else {
             self.settings.max_pivots
         };
+        let max_pivots = self.pivot_cap.map_or(max_pivots, |c| max_pivots.min(c));
         let s_var = 2 * n;
         // The artificial variable enters first, decreasing from 1.
         let mut entering = s_var;

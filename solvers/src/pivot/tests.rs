@@ -296,3 +296,30 @@ fn lemke_as_mcp_solver_reports_a_nonlinear_problem_as_not_converged() {
     assert!(best.summary.residual > 1e-3);
     assert!(best.z.iter().all(|v| v.is_finite()));
 }
+
+#[test]
+fn lemke_pivot_cap_stops_the_path_and_clears() {
+    // M = I, q = −1 (n = 5): z = 1, one pivot per variable after the artificial enters.
+    let n = 5;
+    let mut m = vec![0.0; n * n];
+    for i in 0..n {
+        m[i * n + i] = 1.0;
+    }
+    let q = vec![-1.0; n];
+    let mut lemke = Lemke::new(LemkeSettings::default());
+    let free = lemke.solve_lcp(&m, &q).unwrap();
+    assert!(free.pivots > 3, "uncapped path: {} pivots", free.pivots);
+    lemke.set_pivot_cap(Some(2));
+    match lemke.solve_lcp(&m, &q) {
+        Err(PivotError::MaxPivots { pivots }) => assert_eq!(pivots, 2),
+        other => panic!("capped path: {other:?}"),
+    }
+    lemke.set_pivot_cap(None);
+    let again = lemke.solve_lcp(&m, &q).unwrap();
+    assert_eq!(again.pivots, free.pivots);
+    assert!(
+        again.z.iter().all(|z| (z - 1.0).abs() < 1e-14),
+        "{:?}",
+        again.z
+    );
+}
