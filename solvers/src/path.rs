@@ -140,8 +140,10 @@ pub struct PathSettings {
     /// [`PathSettings::time_limit`] before the other is tried. A first attempt that converges
     /// makes a few pivots per unknown; on `012_multi_body` step 1008 (121 unknowns) the attempt
     /// as given ran 42 iterations of thousands of pivots each into the 20 s limit, where the one
-    /// in the scales converges in 7 iterations and 13 pivots (`docs/path.md#hard-steps`). The
-    /// later attempts have no pivot budget. `0` for none. Default `100`.
+    /// in the scales converges in 7 iterations and 13 pivots (`docs/path.md#hard-steps`). While
+    /// the budget lasts, each Lemke path of the attempt also stops at 10 pivots per unknown or
+    /// at what is left of the budget, so no path overruns it (a longer path was a cycling one on
+    /// `038_multi_body`). The later attempts have no pivot budget. `0` for none. Default `100`.
     pub first_attempt_pivots: usize,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
