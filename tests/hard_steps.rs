@@ -244,26 +244,7 @@ fn newton_room_corner_023_step_88_flat_merit_test() {
 /// (`docs/newton.md#the-ratio-test`).
 #[test]
 fn newton_room_corner_023_step_36_ratio_test() {
-    let (sim, settings) = room_corner_023_at(36);
-    let z0 = sim.z().to_vec();
-    let mended = converged(sim.solve_step_problem(
-        &mut NewtonSolver::new(NewtonSettings {
-            ratio_test: true,
-            ..settings.clone()
-        }),
-        &z0,
-    ));
-    assert_iterations(&mended, ..=90);
-    // Solved by the plain iteration: no continuation.
-    assert_eq!(
-        mended
-            .summary
-            .counter(Counter::SmoothingStages)
-            .unwrap_or(0),
-        0
-    );
-    let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
-    assert_iterations(&before, 170..);
+    room_corner_023_mended_by_the_ratio_test(36, 90, 170);
 }
 
 /// `023_room_corner` step 88 (on the trajectory before the ratio test): both runs of the plain
@@ -274,7 +255,13 @@ fn newton_room_corner_023_step_36_ratio_test() {
 /// (`docs/newton.md#the-ratio-test`).
 #[test]
 fn newton_room_corner_023_step_88_ratio_test_from_the_first_iteration() {
-    let (sim, settings) = room_corner_023_at(88);
+    room_corner_023_mended_by_the_ratio_test(88, 40, 200);
+}
+
+/// `023_room_corner`'s step `step` with the ratio test: at most `mended_max` iterations, by the
+/// plain iteration (no continuation); without it at least `before_min`.
+fn room_corner_023_mended_by_the_ratio_test(step: usize, mended_max: usize, before_min: usize) {
+    let (sim, settings) = room_corner_023_at(step);
     let z0 = sim.z().to_vec();
     let mended = converged(sim.solve_step_problem(
         &mut NewtonSolver::new(NewtonSettings {
@@ -283,16 +270,17 @@ fn newton_room_corner_023_step_88_ratio_test_from_the_first_iteration() {
         }),
         &z0,
     ));
-    assert_iterations(&mended, ..=40);
+    assert_iterations(&mended, ..=mended_max);
     assert_eq!(
         mended
             .summary
             .counter(Counter::SmoothingStages)
             .unwrap_or(0),
-        0
+        0,
+        "step {step}: solved by the plain iteration, no continuation"
     );
     let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
-    assert_iterations(&before, 200..);
+    assert_iterations(&before, before_min..);
 }
 
 /// `062_room_corner` step 128: the plain iteration crosses a valley of the merit in

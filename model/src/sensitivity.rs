@@ -675,16 +675,7 @@ impl ReducedSystem {
         opts: &ActiveSetOptions,
     ) -> Vec<WeakComponent> {
         let n = mcp.dim();
-        let mut weak: Vec<WeakComponent> = status
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
-            .map(|(index, _)| WeakComponent {
-                index,
-                slope: 0.0,
-                two_sided: true,
-            })
-            .collect();
+        let mut weak = weak_components(status);
         if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() {
             return weak;
         }
@@ -743,16 +734,7 @@ impl ReducedSystem {
         opts: &ActiveSetOptions,
     ) -> Vec<WeakComponent> {
         let n = mcp.dim();
-        let mut weak: Vec<WeakComponent> = status
-            .iter()
-            .enumerate()
-            .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
-            .map(|(index, _)| WeakComponent {
-                index,
-                slope: 0.0,
-                two_sided: true,
-            })
-            .collect();
+        let mut weak = weak_components(status);
         if weak.is_empty()
             || self.jac.len() != mcp.jacobian_pattern().nnz()
             || self.row_ptr.len() != n + 1
@@ -789,6 +771,20 @@ fn residual(a: &[f64], x: &[f64], b: &[f64], r: &mut [f64]) {
     }
 }
 
+/// The weakly active components of `status`, each with slope 0 and two-sided until
+/// [`ReducedSystem::weak_slopes`] (or its row-major twin) measures them.
+fn weak_components(status: &[ComponentStatus]) -> Vec<WeakComponent> {
+    status
+        .iter()
+        .enumerate()
+        .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
+        .map(|(index, _)| WeakComponent {
+            index,
+            slope: 0.0,
+            two_sided: true,
+        })
+        .collect()
+}
 #[cfg(test)]
 mod tests {
     use super::*;

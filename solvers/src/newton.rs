@@ -1179,18 +1179,15 @@ impl NewtonSolver {
                 // them end where they did (`docs/newton.md#the-ratio-test`).
                 let mut polish_ok = newton_ok;
                 if !polish_ok && ratio_steps > 0 && !ws.dense.is_empty() {
-                    pattern.to_dense(&ws.h, &mut ws.dense);
                     prof.min_norm_factorizations += 1;
-                    if self
-                        .min_norm
-                        .factor(n, &ws.dense, s.rank_tolerance)
-                        .is_some()
-                    {
-                        for i in 0..n {
-                            ws.d[i] = -ws.phi[i];
-                        }
-                        polish_ok = self.min_norm.solve_in_place(&mut ws.d);
-                    }
+                    polish_ok = self.min_norm.newton_step(
+                        &pattern,
+                        &ws.h,
+                        &mut ws.dense,
+                        &ws.phi[..n],
+                        &mut ws.d[..n],
+                        s.rank_tolerance,
+                    );
                 }
                 let better = if polish_ok {
                     try_step(mcp, ws, 1.0, l, u, &mut f_evals)
@@ -1300,59 +1297,54 @@ impl NewtonSolver {
             if accepted.is_none() && !newton_ok && !ws.dense.is_empty() {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
-                pattern.to_dense(&ws.h, &mut ws.dense);
                 prof.min_norm_factorizations += 1;
-                if self
-                    .min_norm
-                    .factor(n, &ws.dense, s.rank_tolerance)
-                    .is_some()
-                {
-                    for i in 0..n {
-                        ws.d[i] = -ws.phi[i];
-                    }
-                    if self.min_norm.solve_in_place(&mut ws.d) {
-                        let slope = dot(&ws.grad, &ws.d);
-                        if slope < 0.0 {
-                            // The full step, judged by Armijo; failing that, taken anyway under
-                            // the watchdog (it may cross a kink of Φ towards the right active
-                            // set: Ψ rises for a step or two, then falls quadratically); failing
-                            // that, backtracking.
-                            if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
-                                let watched =
-                                    local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
-                                if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
+                if self.min_norm.newton_step(
+                    &pattern,
+                    &ws.h,
+                    &mut ws.dense,
+                    &ws.phi[..n],
+                    &mut ws.d[..n],
+                    s.rank_tolerance,
+                ) {
+                    let slope = dot(&ws.grad, &ws.d);
+                    if slope < 0.0 {
+                        // The full step, judged by Armijo; failing that, taken anyway under
+                        // the watchdog (it may cross a kink of Φ towards the right active
+                        // set: Ψ rises for a step or two, then falls quadratically); failing
+                        // that, backtracking.
+                        if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
+                            let watched = local && s.watchdog_steps > 0 && psi < watchdog_ceiling;
+                            if (p <= psi + s.armijo * slope && (local || p <= 0.5 * psi))
+                                || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance
+                            {
+                                accepted = Some((1.0, p));
+                            } else if watched {
+                                if checkpoint.is_none() {
+                                    ws.save_checkpoint();
+                                    checkpoint = Some(psi);
+                                    watchdog_count = 0;
+                                }
+                                accepted = Some((1.0, p));
+                                nonmonotone_steps += 1;
+                            }
+                        }
+                        let mut t = s.backtrack;
+                        while local && accepted.is_none() && t >= MIN_NORM_SHORTEST_STEP {
+                            if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
+                                && (p <= psi + s.armijo * t * slope
                                     || natural_residual(&ws.z_trial, &ws.f_trial, l, u)
-                                        <= s.tolerance
-                                {
-                                    accepted = Some((1.0, p));
-                                } else if watched {
-                                    if checkpoint.is_none() {
-                                        ws.save_checkpoint();
-                                        checkpoint = Some(psi);
-                                        watchdog_count = 0;
-                                    }
-                                    accepted = Some((1.0, p));
-                                    nonmonotone_steps += 1;
-                                }
+                                        <= s.tolerance)
+                            {
+                                accepted = Some((t, p));
                             }
-                            let mut t = s.backtrack;
-                            while local && accepted.is_none() && t >= MIN_NORM_SHORTEST_STEP {
-                                if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
-                                    && (p <= psi + s.armijo * t * slope
-                                        || natural_residual(&ws.z_trial, &ws.f_trial, l, u)
-                                            <= s.tolerance)
-                                {
-                                    accepted = Some((t, p));
-                                }
-                                t *= s.backtrack;
-                            }
-                            if accepted.is_some() {
-                                min_norm_steps += 1;
-                                if checkpoint.is_some() {
-                                    min_norm_pending += 1;
-                                } else {
-                                    min_norm_kept += 1;
-                                }
+                            t *= s.backtrack;
+                        }
+                        if accepted.is_some() {
+                            min_norm_steps += 1;
+                            if checkpoint.is_some() {
+                                min_norm_pending += 1;
+                            } else {
+                                min_norm_kept += 1;
                             }
                         }
                     }

@@ -180,6 +180,28 @@ impl MinNorm {
         self.rank
     }
 
+    /// The minimum-norm Newton step `d = −H⁺Φ` of a sparse `H` (`values` in `pattern`), through
+    /// the dense scratch `dense`: decomposes `H` and solves into `d`. Returns `false` when the
+    /// decomposition or the solve fails (`d` then unspecified).
+    pub(crate) fn newton_step(
+        &mut self,
+        pattern: &ecp_model::CscPattern,
+        values: &[f64],
+        dense: &mut [f64],
+        phi: &[f64],
+        d: &mut [f64],
+        rel_tol: f64,
+    ) -> bool {
+        pattern.to_dense(values, dense);
+        if self.factor(phi.len(), dense, rel_tol).is_none() {
+            return false;
+        }
+        for (di, fi) in d.iter_mut().zip(phi) {
+            *di = -fi;
+        }
+        self.solve_in_place(d)
+    }
+
     /// Overwrites `b` with the minimum-norm least-squares solution of `H d = b`. Returns `false`
     /// (leaving `b` unspecified) without a valid decomposition or when the result is not finite.
     pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> bool {
