@@ -360,6 +360,21 @@ impl Workspace {
         self.phi_check.copy_from_slice(&self.phi);
     }
 
+    /// Opens the watchdog at the current point (merit `psi`) unless it is open already: a step
+    /// that raises `Ψ` is about to be taken under it.
+    fn open_watchdog(
+        &mut self,
+        checkpoint: &mut Option<f64>,
+        watchdog_count: &mut usize,
+        psi: f64,
+    ) {
+        if checkpoint.is_none() {
+            self.save_checkpoint();
+            *checkpoint = Some(psi);
+            *watchdog_count = 0;
+        }
+    }
+
     fn resize(&mut self, n: usize, nnz: usize) {
         self.n = n;
         for v in [
@@ -1214,11 +1229,7 @@ impl NewtonSolver {
                         accepted = Some((1.0, p));
                     } else if self.nonmonotone && s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         // The non-monotone restart: the full step, under the watchdog.
-                        if checkpoint.is_none() {
-                            ws.save_checkpoint();
-                            checkpoint = Some(psi);
-                            watchdog_count = 0;
-                        }
+                        ws.open_watchdog(&mut checkpoint, &mut watchdog_count, psi);
                         accepted = Some((1.0, p));
                         nonmonotone_steps += 1;
                     }
@@ -1258,11 +1269,7 @@ impl NewtonSolver {
                         ws.phi_alt.copy_from_slice(&ws.phi_trial);
                         ws.d_alt.copy_from_slice(&ws.d);
                     } else if s.watchdog_steps > 0 && psi < watchdog_ceiling {
-                        if checkpoint.is_none() {
-                            ws.save_checkpoint();
-                            checkpoint = Some(psi);
-                            watchdog_count = 0;
-                        }
+                        ws.open_watchdog(&mut checkpoint, &mut watchdog_count, psi);
                         accepted = Some((event.0, p));
                         nonmonotone_steps += 1;
                         ratio_steps += 1;
@@ -1319,11 +1326,7 @@ impl NewtonSolver {
                             {
                                 accepted = Some((1.0, p));
                             } else if watched {
-                                if checkpoint.is_none() {
-                                    ws.save_checkpoint();
-                                    checkpoint = Some(psi);
-                                    watchdog_count = 0;
-                                }
+                                ws.open_watchdog(&mut checkpoint, &mut watchdog_count, psi);
                                 accepted = Some((1.0, p));
                                 nonmonotone_steps += 1;
                             }
