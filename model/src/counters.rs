@@ -170,7 +170,12 @@ impl Counter {
 /// Counters are the same when their names are: `Custom("pivots")` is [`Counter::Pivots`].
 impl PartialEq for Counter {
     fn eq(&self, other: &Self) -> bool {
-        self.as_str() == other.as_str()
+        match (self, other) {
+            (Counter::Custom(_), _) | (_, Counter::Custom(_)) => self.as_str() == other.as_str(),
+            // Two built-ins: their names are distinct (tested), so the variant decides, without
+            // comparing strings (a backend sets several counters per solve).
+            _ => std::mem::discriminant(self) == std::mem::discriminant(other),
+        }
     }
 }
 

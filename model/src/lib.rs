@@ -67,8 +67,9 @@ pub use counters::{Counter, Counters};
 pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use error::ModelError;
 pub use mcp::{
-    FnMcp, Mcp, WorstComponent, diagnose, diagnose_values, diagnose_values_into, fb_component,
-    fb_residual, fb_vector, fischer_burmeister, mid, natural_residual, residual_of,
+    FinalResiduals, FnMcp, Mcp, WorstComponent, diagnose, diagnose_values, diagnose_values_into,
+    fb_component, fb_residual, fb_vector, final_residuals, fischer_burmeister, mid,
+    natural_residual, residual_of, worst_component, write_worst_component,
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, Problem, ResId, VarId};
@@ -76,7 +77,8 @@ pub use residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock}
 pub use scaling::{McpScales, ScaledMcp, far_from_si, solve_in_scales};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,
-    Termination, finish_solve, finish_solve_at, finish_solve_into, validate_start,
+    Termination, finish_solve, finish_solve_at, finish_solve_into, finish_solve_with,
+    validate_start,
 };
 pub use structure::{
     BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactImpulses, ContactPartner,

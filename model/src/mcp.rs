@@ -267,17 +267,94 @@ pub fn diagnose_values_into(
     f: &[f64],
     worst: &mut Option<WorstComponent>,
 ) -> f64 {
-    let (l, u) = (mcp.lower(), mcp.upper());
-    let mut found: Option<(usize, f64)> = None;
-    for i in 0..z.len() {
-        let mut c = natural_map_component(z[i], f[i], l[i], u[i]).abs();
+    let found = worst_component(z, f, mcp.lower(), mcp.upper());
+    write_worst_component(mcp, found, worst);
+    // The largest component is the natural residual (see `final_residuals`).
+    found.map_or(0.0, |(_, w)| w)
+}
+
+/// The first component of the largest natural residual and its value, a NaN counting as `+∞`
+/// ([`FinalResiduals::worst`]); its value is [`natural_residual`] bit for bit (`max` returns
+/// one of its arguments, and the NaN and non-finite cases are `+∞` in both). `None` when empty.
+pub fn worst_component(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> Option<(usize, f64)> {
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
+    let mut worst: Option<(usize, f64)> = None;
+    for i in 0..n {
+        let mut c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
         if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
         }
-        if found.is_none_or(|(_, w)| c > w) {
-            found = Some((i, c));
+        if worst.is_none_or(|(_, w)| c > w) {
+            worst = Some((i, c));
         }
     }
+    worst
+}
+
+/// The residuals a solve's summary reports of its final point ([`final_residuals`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FinalResiduals {
+    /// [`natural_residual`].
+    pub natural: f64,
+    /// The first component of the largest natural residual and its value (a NaN counting as
+    /// `+∞`), as [`diagnose_values`] names it; `None` for an empty problem.
+    pub worst: Option<(usize, f64)>,
+    /// `‖Φ‖₂²`, summed in component order ([`fb_residual`] is its square root, `+∞` when it is
+    /// not finite).
+    pub fb_squared: f64,
+}
+
+impl FinalResiduals {
+    /// From the worst component ([`worst_component`]) and `‖Φ‖₂²` summed in component order
+    /// from `0.0`: the natural residual is the worst component's value.
+    pub fn new(worst: Option<(usize, f64)>, fb_squared: f64) -> Self {
+        FinalResiduals {
+            natural: worst.map_or(0.0, |(_, w)| w),
+            worst,
+            fb_squared,
+        }
+    }
+
+    /// [`fb_residual`] from the sum of squares.
+    pub fn fb_residual(&self) -> f64 {
+        if self.fb_squared.is_finite() {
+            self.fb_squared.sqrt()
+        } else {
+            f64::INFINITY
+        }
+    }
+}
+
+/// [`natural_residual`], the worst component of [`diagnose_values`] and the sum of squares of
+/// [`fb_residual`] in one pass over the components: bit for bit what the three give.
+pub fn final_residuals(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> FinalResiduals {
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
+    let mut worst: Option<(usize, f64)> = None;
+    let mut fb_squared = 0.0;
+    for i in 0..n {
+        let (zi, fi, li, ui) = (z[i], f[i], lower[i], upper[i]);
+        let mut c = natural_map_component(zi, fi, li, ui).abs();
+        if c.is_nan() || fi.is_nan() || zi.is_nan() {
+            c = f64::INFINITY;
+        }
+        if worst.is_none_or(|(_, w)| c > w) {
+            worst = Some((i, c));
+        }
+        let p = fb_component(zi, fi, li, ui);
+        fb_squared += p * p;
+    }
+    FinalResiduals::new(worst, fb_squared)
+}
+
+/// Writes the worst component `found` (index and value, [`FinalResiduals::worst`]) into
+/// `worst`, reusing its name's storage: the one place a result's worst component is named.
+pub fn write_worst_component(
+    mcp: &dyn Mcp,
+    found: Option<(usize, f64)>,
+    worst: &mut Option<WorstComponent>,
+) {
     match (found, worst.as_mut()) {
         (None, _) => *worst = None,
         (Some((index, value)), Some(w)) => {
@@ -292,7 +369,6 @@ pub fn diagnose_values_into(
             *worst = Some(WorstComponent { index, value, name });
         }
     }
-    natural_residual(z, f, l, u)
 }
 
 /// The Fischer–Burmeister function `φ(a, b) = √(a² + b²) − a − b`; zero iff `a ≥ 0, b ≥ 0, ab = 0`.

@@ -3,7 +3,7 @@
 use std::time::{Duration, Instant};
 
 use crate::counters::{Counter, Counters};
-use crate::mcp::{Mcp, WorstComponent, diagnose_values_into, fb_residual};
+use crate::mcp::{FinalResiduals, Mcp, WorstComponent, final_residuals, write_worst_component};
 
 /// Why a solve stopped.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -389,7 +389,8 @@ pub fn finish_solve_at(
     report: SolveReport,
 ) -> Result<Solution, SolveError> {
     let mut summary = Summary::default();
-    judge(mcp, &z, f, report, &mut summary);
+    let residuals = final_residuals(&z, f, mcp.lower(), mcp.upper());
+    judge(mcp, &residuals, report, &mut summary);
     let solution = Solution { z, summary };
     if solution.summary.converged() {
         Ok(solution)
@@ -412,16 +413,31 @@ pub fn finish_solve_into(
     report: SolveReport,
     out: &mut Solution,
 ) -> bool {
+    let residuals = final_residuals(z, f, mcp.lower(), mcp.upper());
+    finish_solve_with(mcp, z, &residuals, report, out)
+}
+
+/// [`finish_solve_into`] for a backend that has the residuals of `z` at hand (computed by
+/// [`final_residuals`] or bit for bit as it does, at `z`): the same summary without another
+/// pass over the components.
+pub fn finish_solve_with(
+    mcp: &dyn Mcp,
+    z: &[f64],
+    residuals: &FinalResiduals,
+    report: SolveReport,
+    out: &mut Solution,
+) -> bool {
     out.z.clear();
     out.z.extend_from_slice(z);
-    judge(mcp, z, f, report, &mut out.summary);
+    judge(mcp, residuals, report, &mut out.summary);
     out.summary.converged()
 }
 
-/// The one judgement of [`finish_solve_at`] and [`finish_solve_into`]: fills `summary` from the
-/// natural residual of `z` (with `F(z) = f`) and the backend's `report`.
-fn judge(mcp: &dyn Mcp, z: &[f64], f: &[f64], report: SolveReport, summary: &mut Summary) {
-    let residual = diagnose_values_into(mcp, z, f, &mut summary.worst);
+/// The one judgement of [`finish_solve_at`], [`finish_solve_into`] and [`finish_solve_with`]:
+/// fills `summary` from the residuals of the final point and the backend's `report`.
+fn judge(mcp: &dyn Mcp, residuals: &FinalResiduals, report: SolveReport, summary: &mut Summary) {
+    let residual = residuals.natural;
+    write_worst_component(mcp, residuals.worst, &mut summary.worst);
     let termination = if residual <= report.tolerance {
         Termination::Converged
     } else if report.termination == Termination::Converged {
@@ -436,7 +452,7 @@ fn judge(mcp: &dyn Mcp, z: &[f64], f: &[f64], report: SolveReport, summary: &mut
     summary.f_evals = report.f_evals;
     summary.jac_evals = report.jac_evals;
     summary.residual = residual;
-    summary.fb_residual = fb_residual(z, f, mcp.lower(), mcp.upper());
+    summary.fb_residual = residuals.fb_residual();
     summary.time = report.started.elapsed();
     summary.trace = report.trace;
     summary.counters = report.counters;
