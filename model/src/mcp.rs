@@ -424,3 +424,48 @@ pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
     mcp.evaluate(z, &mut f);
     natural_residual(z, &f, mcp.lower(), mcp.upper())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `final_residuals` and `worst_component` give the bits of the three separate passes they
+    /// replace, NaN and infinite components included.
+    #[test]
+    fn final_residuals_match_the_separate_passes() {
+        let inf = f64::INFINITY;
+        let lower = [0.0, -inf, 0.0, -inf, -1.0, 0.0];
+        let upper = [inf, inf, 2.0, 3.0, 1.0, inf];
+        let cases: [([f64; 6], [f64; 6]); 4] = [
+            (
+                [0.5, 1.0, 1.5, 2.0, 0.25, 0.0],
+                [-0.25, 1e-3, 0.5, -2.0, 3.0, 0.0],
+            ),
+            ([0.0; 6], [0.0; 6]),
+            (
+                [0.5, 1.0, 1.5, 2.0, 0.25, 0.0],
+                [0.1, f64::NAN, 0.5, -2.0, 3.0, 0.0],
+            ),
+            (
+                [0.5, 1.0, 1.5, 2.0, 0.25, 0.0],
+                [0.1, 0.2, -inf, -2.0, 3.0, 0.0],
+            ),
+        ];
+        for (z, f) in cases {
+            let all = final_residuals(&z, &f, &lower, &upper);
+            let natural = natural_residual(&z, &f, &lower, &upper);
+            assert_eq!(all.natural.to_bits(), natural.to_bits(), "{z:?} {f:?}");
+            let mcp = FnMcp::dense(lower.to_vec(), upper.to_vec(), |_, _| {}, |_, _| {})
+                .unwrap_or_else(|e| panic!("{e}"));
+            let (r, worst) = diagnose_values(&mcp, &z, &f);
+            assert_eq!(r.to_bits(), natural.to_bits());
+            let worst = worst.unwrap_or_else(|| panic!("a worst component"));
+            assert_eq!(all.worst, Some((worst.index, worst.value)));
+            assert_eq!(worst_component(&z, &f, &lower, &upper), all.worst);
+            let fb = fb_residual(&z, &f, &lower, &upper);
+            assert_eq!(all.fb_residual().to_bits(), fb.to_bits(), "{z:?} {f:?}");
+        }
+        let empty = final_residuals(&[], &[], &[], &[]);
+        assert_eq!((empty.natural, empty.worst), (0.0, None));
+    }
+}
