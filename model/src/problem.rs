@@ -621,17 +621,40 @@ impl BlockMcp {
             .map(|b| b.col_pos.len())
             .max()
             .unwrap_or(0);
-        let rows = self.blocks.iter().map(|b| b.rows).max().unwrap_or(0);
-        let mut local = Vec::with_capacity(width * rows);
-        let mut local_pos = Vec::with_capacity(width);
+        let mut local = Vec::new();
+        let mut positions = Vec::with_capacity(width);
         let mut scatter = Vec::with_capacity(width);
-        for b in &self.blocks {
-            let wanted = |i: &Input| matches!(i, Input::Data(d) if column[d.0].is_some());
+        let wanted = |i: &Input| matches!(i, Input::Data(d) if column[d.0].is_some());
+        // Paired blocks own their rows and write straight into `out` (entry (i, j) of a data
+        // input at column c of θ lives at c·n + row0 + i); the terms, after them, add theirs
+        // through a local buffer, as in the MCP Jacobian.
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            if !b.inputs.iter().any(wanted) {
+                continue;
+            }
+            positions.clear();
+            for (input, range) in b.inputs.iter().zip(&b.ranges) {
+                let first = match input {
+                    Input::Data(d) => column[d.0],
+                    Input::Var(_) => None,
+                };
+                positions.extend(
+                    (0..range.len).map(|j| {
+                        first.map_or(JacobianBlocks::DISCARD, |c| (c + j) * self.n + b.row0)
+                    }),
+                );
+            }
+            let mut jac =
+                JacobianBlocks::with_discards(out, &positions, &b.block_start, b.rows, true);
+            b.block
+                .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
+        }
+        for b in self.blocks.iter().filter(|b| b.term) {
             if !b.inputs.iter().any(wanted) {
                 continue;
             }
             // Local dense rows × (wanted data columns); `scatter` maps them to columns of θ.
-            local_pos.clear();
+            positions.clear();
             scatter.clear();
             for (input, range) in b.inputs.iter().zip(&b.ranges) {
                 let first = match input {
@@ -641,17 +664,17 @@ impl BlockMcp {
                 for j in 0..range.len {
                     match first {
                         Some(c) => {
-                            local_pos.push(scatter.len() * b.rows);
+                            positions.push(scatter.len() * b.rows);
                             scatter.push(c + j);
                         }
-                        None => local_pos.push(JacobianBlocks::DISCARD),
+                        None => positions.push(JacobianBlocks::DISCARD),
                     }
                 }
             }
             local.clear();
             local.resize(scatter.len() * b.rows, 0.0);
             {
-                let mut jac = JacobianBlocks::new(&mut local, &local_pos, &b.block_start, b.rows);
+                let mut jac = JacobianBlocks::new(&mut local, &positions, &b.block_start, b.rows);
                 b.block
                     .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
             }
