@@ -210,7 +210,9 @@ impl AffineMatrix<'_> {
                     }
                 }
             }
-            AffineMatrix::Sparse { pattern, values } => pattern.mul_vec(values, z, out),
+            AffineMatrix::Sparse { pattern, values } => {
+                mul_vec_nonzero_columns(pattern, values, z, out)
+            }
         }
         if shift != 0.0 {
             for (o, zi) in out.iter_mut().zip(z) {
@@ -1251,9 +1253,29 @@ impl Lemke {
     }
 }
 
+/// `y = A x` for `A` stored in `pattern`, skipping the columns where `x_j = 0`: bitwise the
+/// same as [`CscPattern::mul_vec`] for finite values (a sum started at +0 never becomes −0, so
+/// adding the skipped ±0 products changes nothing).
+pub(crate) fn mul_vec_nonzero_columns(
+    pattern: &CscPattern,
+    values: &[f64],
+    x: &[f64],
+    y: &mut [f64],
+) {
+    y.fill(0.0);
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    for (j, &xj) in x.iter().enumerate() {
+        if xj != 0.0 {
+            for p in cp[j]..cp[j + 1] {
+                y[ri[p]] += values[p] * xj;
+            }
+        }
+    }
+}
+
 /// True when no entry is NaN or infinite: a branch-free scan of the exponent bits (all ones
 /// only for NaN and ±∞), which vectorises.
-fn all_finite(values: &[f64]) -> bool {
+pub(crate) fn all_finite(values: &[f64]) -> bool {
     const EXPONENT: u64 = 0x7FF0_0000_0000_0000;
     values.iter().fold(0u64, |acc, v| {
         acc | u64::from(v.to_bits() & EXPONENT == EXPONENT)
