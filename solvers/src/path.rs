@@ -267,6 +267,7 @@ pub struct PathSolver {
     q: Vec<f64>,
     jz: Vec<f64>,
     step_x: Vec<f64>,
+    /// The crash step's reduced Jacobian `J_II` (column-major, `ni × ni`).
     reduced: Vec<f64>,
     /// Row of the reduced crash system of each variable (`usize::MAX` when not in it).
     reduced_slot: Vec<usize>,
@@ -584,7 +585,7 @@ impl PathSolver {
             upper,
             diagonal_shift: lambda,
         };
-        let result = self.lemke.solve_affine_with_path(
+        let result = self.lemke.trace_path(
             &problem,
             &AffineStart::NormalMap(&self.current.x),
             &mut self.path,

@@ -536,7 +536,7 @@ impl Lemke {
         problem: &AffineMcp<'_>,
         start: &AffineStart<'_>,
     ) -> Result<PivotSolution, PivotError> {
-        self.run(problem, start, None)
+        self.run(problem, start, None, true)
     }
 
     /// As [`Lemke::solve_affine`], and records the breakpoints of the path in `path` (also
@@ -547,7 +547,18 @@ impl Lemke {
         start: &AffineStart<'_>,
         path: &mut PivotPath,
     ) -> Result<PivotSolution, PivotError> {
-        self.run(problem, start, Some(path))
+        self.run(problem, start, Some(path), true)
+    }
+
+    /// As [`Lemke::solve_affine_with_path`] for a caller that needs only the path, the pivot
+    /// count and the residual: the returned `z` and `w` are empty (nothing is allocated).
+    pub(crate) fn trace_path(
+        &mut self,
+        problem: &AffineMcp<'_>,
+        start: &AffineStart<'_>,
+        path: &mut PivotPath,
+    ) -> Result<PivotSolution, PivotError> {
+        self.run(problem, start, Some(path), false)
     }
 
     fn validate(problem: &AffineMcp<'_>, start: &AffineStart<'_>) -> Result<(), PivotError> {
@@ -807,6 +818,7 @@ impl Lemke {
         problem: &AffineMcp<'_>,
         start: &AffineStart<'_>,
         mut path: Option<&mut PivotPath>,
+        want_solution: bool,
     ) -> Result<PivotSolution, PivotError> {
         Self::validate(problem, start)?;
         let n = problem.q.len();
@@ -910,25 +922,36 @@ impl Lemke {
             self.refine(problem);
         }
         self.current_x(n);
-        let mut z = vec![0.0; n];
+        // z and w in the workspace (`self.z`, `self.r`), copied out only when the caller wants
+        // the solution: the PATH-like solver reads the path, and allocates nothing here.
+        let mut z = std::mem::take(&mut self.z);
+        let mut w = std::mem::take(&mut self.r);
         for i in 0..n {
-            z[i] = mid(l[i], u[i], self.z[i]);
+            z[i] = mid(l[i], u[i], z[i]);
         }
-        let mut w = vec![0.0; n];
         problem.m.mul(&z, problem.diagonal_shift, &mut w);
         for i in 0..n {
             w[i] += problem.q[i];
         }
         if let Some(p) = path {
             // The end point, recomputed cleanly (normal-map coordinates x = z − w).
-            let x: Vec<f64> = (0..n).map(|i| z[i] - w[i]).collect();
+            for i in 0..n {
+                self.x[i] = z[i] - w[i];
+            }
             if p.len() > 1 {
                 p.xs.truncate((p.len() - 1) * n);
                 p.ss.pop();
             }
-            p.push(&x, 0.0);
+            p.push(&self.x, 0.0);
         }
         let residual = natural_residual(&z, &w, l, u);
+        let (z_out, w_out) = if want_solution {
+            (z.clone(), w.clone())
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        self.z = z;
+        self.r = w;
         if !residual.is_finite() {
             return Err(PivotError::SingularBasis {
                 pivots,
@@ -936,8 +959,8 @@ impl Lemke {
             });
         }
         Ok(PivotSolution {
-            z,
-            w,
+            z: z_out,
+            w: w_out,
             pivots,
             residual,
             refactorizations: self.refactorizations,
