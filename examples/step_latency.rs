@@ -10,7 +10,7 @@
 //! elimination, `docs/latency.md#structured-linear-solve`), `lu` (the default) with it off.
 //!
 //! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
-//! `tbar-newton`, `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th), and
+//! `tbar-newton`, `a1-path`, `tbar-path` (PATH on A1's 20th and the T-bar's 340th step), `desk-sensitivity` (the 100th desk step, A1's 20th, the T-bar's 340th), and
 //! `desk-conic` (the conic backend's defaults: every QP by clarabel), `desk-conic-dense` (the
 //! QPs by the dense method first, `ConicSettings::dense_qp`). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
@@ -40,12 +40,20 @@ fn at_step(scene: Scene, k: usize, solver: &mut dyn McpSolver) -> (Simulation, V
 fn repeat(solver: &mut dyn McpSolver, scene: Scene, k: usize, n: usize) -> usize {
     let (sim, z0) = at_step(scene, k, solver);
     let mut iterations = 0;
+    let mut counts = String::new();
     for _ in 0..n {
         match solver.solve(sim.mcp(), &z0) {
-            Ok(sol) => iterations = sol.summary.iterations,
+            Ok(sol) => {
+                iterations = sol.summary.iterations;
+                if counts.is_empty() {
+                    // The work of one solve (PATH's crash steps, path steps and pivots).
+                    counts = format!("{:?}", sol.summary.counters);
+                }
+            }
             Err(e) => panic!("step {k}: {e}"),
         }
     }
+    println!("counters of the last solve: {counts}");
     iterations
 }
 
@@ -110,7 +118,7 @@ fn main() {
         },
         _ => {
             eprintln!(
-                "usage: step_latency <desk-newton|desk-path|a1-newton|tbar-newton|desk-sensitivity|\
+                "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|\
                  desk-conic|desk-conic-dense|desk-steps|desk-steps-into> N [lu|schur]"
             );
             std::process::exit(2);
@@ -139,6 +147,18 @@ fn main() {
             n,
         ),
         "a1-newton" => repeat(&mut newton(), scenarios::a1_sliding(), 20, n),
+        "a1-path" => repeat(
+            &mut PathSolver::new(PathSettings::default()),
+            scenarios::a1_sliding(),
+            20,
+            n,
+        ),
+        "tbar-path" => repeat(
+            &mut PathSolver::new(PathSettings::default()),
+            scenarios::t_bar(),
+            340,
+            n,
+        ),
         "desk-conic" => repeat_structured(
             &mut ConicSolver::new(ConicSettings::default()),
             scenarios::desk(),

@@ -49,7 +49,8 @@ use ecp_model::{
 
 use crate::pivot::basis::BasisFactor;
 use crate::pivot::{
-    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath,
+    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath, all_finite,
+    mul_vec_nonzero_columns,
 };
 use crate::smoothing::{SmoothingSettings, continuation};
 
@@ -266,8 +267,12 @@ pub struct PathSolver {
     q: Vec<f64>,
     jz: Vec<f64>,
     step_x: Vec<f64>,
-    dense: Vec<f64>,
+    /// The crash step's reduced Jacobian `J_II` (column-major, `ni × ni`).
     reduced: Vec<f64>,
+    /// Row of the reduced crash system of each variable (`usize::MAX` when not in it).
+    reduced_slot: Vec<usize>,
+    /// Right-hand side and solution of the reduced crash system.
+    crash_rhs: Vec<f64>,
     rhs: Vec<f64>,
     inactive: Vec<usize>,
     active_prev: Vec<i8>,
@@ -323,8 +328,9 @@ impl PathSolver {
             q: Vec::new(),
             jz: Vec::new(),
             step_x: Vec::new(),
-            dense: Vec::new(),
             reduced: Vec::new(),
+            reduced_slot: Vec::new(),
+            crash_rhs: Vec::new(),
             rhs: Vec::new(),
             inactive: Vec::new(),
             active_prev: Vec::new(),
@@ -452,7 +458,7 @@ impl PathSolver {
         }
         mcp.jacobian(&self.trial.z, &mut self.trial_jac);
         *jac_evals += 1;
-        self.trial_has_jac = self.trial_jac.iter().all(|v| v.is_finite());
+        self.trial_has_jac = all_finite(&self.trial_jac);
         self.trial_has_jac
     }
 
@@ -495,14 +501,24 @@ impl PathSolver {
         }
         let ni = self.inactive.len();
         if ni > 0 {
-            self.dense.resize(n * n, 0.0);
-            pattern.to_dense(&self.jac, &mut self.dense);
-            // rhs = −F − J (b − z), restricted to I.
-            pattern.mul_vec(&self.jac, &self.jz, &mut self.rhs);
+            // rhs = −F − J (b − z), restricted to I (`b − z` is zero on I and wherever z is at
+            // its bound already, so most columns are skipped).
+            mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
+            // J_II gathered straight from the pattern (no dense copy of the whole J).
+            self.reduced_slot.clear();
+            self.reduced_slot.resize(n, usize::MAX);
+            for (k, &i) in self.inactive.iter().enumerate() {
+                self.reduced_slot[i] = k;
+            }
+            self.reduced.clear();
             self.reduced.resize(ni * ni, 0.0);
+            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
             for (kc, &j) in self.inactive.iter().enumerate() {
-                for (kr, &i) in self.inactive.iter().enumerate() {
-                    self.reduced[kc * ni + kr] = self.dense[j * n + i];
+                for p in cp[j]..cp[j + 1] {
+                    let kr = self.reduced_slot[ri[p]];
+                    if kr != usize::MAX {
+                        self.reduced[kc * ni + kr] = self.jac[p];
+                    }
                 }
             }
             self.order.clear();
@@ -510,17 +526,19 @@ impl PathSolver {
             if self.factor.factor(ni, &self.reduced, &self.order).is_err() {
                 return None;
             }
-            let mut b: Vec<f64> = self
-                .inactive
-                .iter()
-                .map(|&i| -cur.f[i] - self.rhs[i])
-                .collect();
+            let mut b = std::mem::take(&mut self.crash_rhs);
+            b.clear();
+            b.extend(self.inactive.iter().map(|&i| -cur.f[i] - self.rhs[i]));
             self.factor.solve(&mut b);
-            if b.iter().any(|v| !v.is_finite()) {
-                return None;
+            let finite = b.iter().all(|v| v.is_finite());
+            if finite {
+                for (k, &i) in self.inactive.iter().enumerate() {
+                    self.step_x[i] = cur.z[i] + b[k];
+                }
             }
-            for (k, &i) in self.inactive.iter().enumerate() {
-                self.step_x[i] = cur.z[i] + b[k];
+            self.crash_rhs = b;
+            if !finite {
+                return None;
             }
         }
         // Projected arc z(t) = π(z + t (target − z)), accepted on the path-search test.
@@ -553,7 +571,7 @@ impl PathSolver {
     ) -> Result<f64, PivotError> {
         let n = self.current.z.len();
         // q = F(z_k) − (J + λI) z_k, so that the affine map is F(z_k) + (J + λI)(z − z_k).
-        pattern.mul_vec(&self.jac, &self.current.z, &mut self.jz);
+        mul_vec_nonzero_columns(pattern, &self.jac, &self.current.z, &mut self.jz);
         for i in 0..n {
             self.q[i] = self.current.f[i] - self.jz[i] - lambda * self.current.z[i];
         }
@@ -567,7 +585,7 @@ impl PathSolver {
             upper,
             diagonal_shift: lambda,
         };
-        let result = self.lemke.solve_affine_with_path(
+        let result = self.lemke.trace_path(
             &problem,
             &AffineStart::NormalMap(&self.current.x),
             &mut self.path,
@@ -679,7 +697,7 @@ impl PathSolver {
                     *jac_evals += 1;
                     have_jac = true;
                 }
-                if self.jac.iter().any(|v| !v.is_finite()) {
+                if !all_finite(&self.jac) {
                     break;
                 }
                 let Some(t) = self.crash_step(mcp, pattern, s.tolerance, f_evals, jac_evals) else {
@@ -751,7 +769,7 @@ impl PathSolver {
                 mcp.jacobian(&self.current.z, &mut self.jac);
                 *jac_evals += 1;
             }
-            if self.jac.iter().any(|v| !v.is_finite()) {
+            if !all_finite(&self.jac) {
                 termination = Termination::NonFiniteFunction;
                 break;
             }

@@ -210,7 +210,9 @@ impl AffineMatrix<'_> {
                     }
                 }
             }
-            AffineMatrix::Sparse { pattern, values } => pattern.mul_vec(values, z, out),
+            AffineMatrix::Sparse { pattern, values } => {
+                mul_vec_nonzero_columns(pattern, values, z, out)
+            }
         }
         if shift != 0.0 {
             for (o, zi) in out.iter_mut().zip(z) {
@@ -534,7 +536,7 @@ impl Lemke {
         problem: &AffineMcp<'_>,
         start: &AffineStart<'_>,
     ) -> Result<PivotSolution, PivotError> {
-        self.run(problem, start, None)
+        self.run(problem, start, None, true)
     }
 
     /// As [`Lemke::solve_affine`], and records the breakpoints of the path in `path` (also
@@ -545,7 +547,18 @@ impl Lemke {
         start: &AffineStart<'_>,
         path: &mut PivotPath,
     ) -> Result<PivotSolution, PivotError> {
-        self.run(problem, start, Some(path))
+        self.run(problem, start, Some(path), true)
+    }
+
+    /// As [`Lemke::solve_affine_with_path`] for a caller that needs only the path, the pivot
+    /// count and the residual: the returned `z` and `w` are empty (nothing is allocated).
+    pub(crate) fn trace_path(
+        &mut self,
+        problem: &AffineMcp<'_>,
+        start: &AffineStart<'_>,
+        path: &mut PivotPath,
+    ) -> Result<PivotSolution, PivotError> {
+        self.run(problem, start, Some(path), false)
     }
 
     fn validate(problem: &AffineMcp<'_>, start: &AffineStart<'_>) -> Result<(), PivotError> {
@@ -805,6 +818,7 @@ impl Lemke {
         problem: &AffineMcp<'_>,
         start: &AffineStart<'_>,
         mut path: Option<&mut PivotPath>,
+        want_solution: bool,
     ) -> Result<PivotSolution, PivotError> {
         Self::validate(problem, start)?;
         let n = problem.q.len();
@@ -908,25 +922,36 @@ impl Lemke {
             self.refine(problem);
         }
         self.current_x(n);
-        let mut z = vec![0.0; n];
+        // z and w in the workspace (`self.z`, `self.r`), copied out only when the caller wants
+        // the solution: the PATH-like solver reads the path, and allocates nothing here.
+        let mut z = std::mem::take(&mut self.z);
+        let mut w = std::mem::take(&mut self.r);
         for i in 0..n {
-            z[i] = mid(l[i], u[i], self.z[i]);
+            z[i] = mid(l[i], u[i], z[i]);
         }
-        let mut w = vec![0.0; n];
         problem.m.mul(&z, problem.diagonal_shift, &mut w);
         for i in 0..n {
             w[i] += problem.q[i];
         }
         if let Some(p) = path {
             // The end point, recomputed cleanly (normal-map coordinates x = z − w).
-            let x: Vec<f64> = (0..n).map(|i| z[i] - w[i]).collect();
+            for i in 0..n {
+                self.x[i] = z[i] - w[i];
+            }
             if p.len() > 1 {
                 p.xs.truncate((p.len() - 1) * n);
                 p.ss.pop();
             }
-            p.push(&x, 0.0);
+            p.push(&self.x, 0.0);
         }
         let residual = natural_residual(&z, &w, l, u);
+        let (z_out, w_out) = if want_solution {
+            (z.clone(), w.clone())
+        } else {
+            (Vec::new(), Vec::new())
+        };
+        self.z = z;
+        self.r = w;
         if !residual.is_finite() {
             return Err(PivotError::SingularBasis {
                 pivots,
@@ -934,8 +959,8 @@ impl Lemke {
             });
         }
         Ok(PivotSolution {
-            z,
-            w,
+            z: z_out,
+            w: w_out,
             pivots,
             residual,
             refactorizations: self.refactorizations,
@@ -1251,9 +1276,29 @@ impl Lemke {
     }
 }
 
+/// `y = A x` for `A` stored in `pattern`, skipping the columns where `x_j = 0`: bitwise the
+/// same as [`CscPattern::mul_vec`] for finite values (a sum started at +0 never becomes −0, so
+/// adding the skipped ±0 products changes nothing).
+pub(crate) fn mul_vec_nonzero_columns(
+    pattern: &CscPattern,
+    values: &[f64],
+    x: &[f64],
+    y: &mut [f64],
+) {
+    y.fill(0.0);
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    for (j, &xj) in x.iter().enumerate() {
+        if xj != 0.0 {
+            for p in cp[j]..cp[j + 1] {
+                y[ri[p]] += values[p] * xj;
+            }
+        }
+    }
+}
+
 /// True when no entry is NaN or infinite: a branch-free scan of the exponent bits (all ones
 /// only for NaN and ±∞), which vectorises.
-fn all_finite(values: &[f64]) -> bool {
+pub(crate) fn all_finite(values: &[f64]) -> bool {
     const EXPONENT: u64 = 0x7FF0_0000_0000_0000;
     values.iter().fold(0u64, |acc, v| {
         acc | u64::from(v.to_bits() & EXPONENT == EXPONENT)
