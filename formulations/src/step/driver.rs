@@ -24,6 +24,11 @@ use super::terms::{Force, ForceHandles, Term, add_force};
 use crate::record::{StepMethod, StepRecord, body_energy};
 use crate::scene::{BodyState, Scene, SceneError, initial_states};
 
+/// The most iterations of a step that [`StepContext::history`] keeps (measured on the stress
+/// suite: extrapolating after steps of 9 and 131 iterations, an impact settling, cost 1653
+/// iterations against 1, `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
+const SMOOTH_ITERATIONS: usize = 5;
+
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
 /// stay in [`Simulation::mcp`] until the next step is prepared, which clears this.
 #[derive(Clone, Debug, PartialEq)]
@@ -340,12 +345,22 @@ impl Simulation {
                 }
             }
         }
+        // The iterates kept hold for the new problem only when its unknowns are laid out as before.
+        let same_layout = carry_z
+            && mcp.variable_blocks().len() == self.mcp.variable_blocks().len()
+            && (mcp.variable_blocks().iter().enumerate()).all(|(i, v)| {
+                let id = ecp_model::VarId(i);
+                v.name() == self.mcp.variable_blocks()[i].name()
+                    && mcp.range(id) == self.mcp.range(id)
+            });
+        if !same_layout {
+            self.kept.history.clear();
+        }
         self.mcp = mcp;
         self.z = z;
         self.handles = built.handles;
         self.force_handles = built.forces;
         self.last = None;
-        self.kept.history.clear();
         Ok(())
     }
 
@@ -823,16 +838,17 @@ impl Simulation {
             last.converged = converged;
             self.last = Some(last);
         }
-        // A smooth step: solved by `solver` from the warm start itself, in at least one
-        // iteration. A warm start returned as it was is not extrapolated from: at rest the
-        // extrapolation of round-off, taken unrefined step after step, drifts (the T-bar at rest,
-        // ω off by up to 1.7e-12 after 8 steps of 0 iterations; its residual stays below the
-        // tolerance).
+        // A smooth step: solved by `solver` from the warm start itself, in at least one and at
+        // most `SMOOTH_ITERATIONS` iterations. A warm start returned as it was is not
+        // extrapolated from: at rest the extrapolation of round-off, taken unrefined step after
+        // step, drifts (the T-bar at rest, ω off by up to 1.7e-12 after 8 steps of 0 iterations;
+        // its residual stays below the tolerance). A step that took more iterations was an
+        // event (an impact settling, a change of feature), which the next steps do not continue.
         let retried = (solution.summary.counters)
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
-        let refined = solution.summary.iterations > 0;
-        if whole && method == StepMethod::Direct && !retried && refined {
+        let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
+        if whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
             self.kept.history.push(&self.z, origin);
         } else {
