@@ -68,7 +68,8 @@ pub struct StepContext<'a> {
     pub step: usize,
     /// The iterates after the read-out of the two (or three) steps before this span, when the
     /// span is a whole step and they were solved directly, in one piece, from their warm start
-    /// (no retry, no fallback), in the same origin, with no state, parameter or data set since.
+    /// in 1–5 iterations (no retry, no fallback), in the same origin, with no state, parameter or
+    /// data set since.
     /// What a warm start may extrapolate from
     /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`); `None` otherwise.
     pub history: Option<Iterates<'a>>,
