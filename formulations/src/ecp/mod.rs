@@ -629,9 +629,10 @@ impl StepFormulation for EcpContacts {
     /// that pose is still separated, with σ kept > 0 (`guess::Guess::open_contact_sigma`: the
     /// solution leaves σ free, and σ = 0 makes the friction rows' linearisation vanish at the
     /// warm start); when the predicted pose penetrates, the contact closes within the span and
-    /// starts active. On a smooth step (the driver's [`StepContext::history`], and every contact
-    /// open or closed in both of the last two steps) `ν` and the closed contacts' unknowns are
-    /// extrapolated from the last two steps instead (`guess::extrapolate`).
+    /// starts active. On a smooth step (the driver's [`StepContext::history`], every contact in
+    /// the same mode in the last two steps and some body's `ν` changing: `same_contact_modes`,
+    /// `moving`) `ν` and the closed contacts' unknowns are extrapolated from the last steps
+    /// instead (`guess::extrapolate`).
     fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]) {
         let smooth = ctx.history.and_then(|mut it| {
             if !self.same_contact_modes(ctx, mcp, it.before, it.last) || !self.moving(ctx, mcp, &it)
