@@ -2,35 +2,40 @@
 //! from it (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`):
 //!
 //! ```text
-//! cargo run --release --example warm_probe -- SCENE.toml [--from K] [--to K] [--formulation F]
+//! cargo run --release --example warm_probe -- SCENE.toml [--from K] [--to K] [--formulation F] [--extrapolated]
 //! ```
 //!
 //! runs the scene with the Newton backend (the scene file's tolerance and iteration limit, no
 //! fallbacks) and prints, for steps `K` in `[from, to]`, the natural residual at the start of
 //! each iteration and of the returned point, and the largest difference between the warm start
 //! and the solution per kind of unknown (the variable blocks' name suffixes: `nu`, `q`, `a1`,
-//! `pn`, …). Then the mean iterations over all steps.
+//! `pn`, …). Then the mean iterations over all steps. `--extrapolated` turns on
+//! [`WarmStart::Extrapolated`].
 use std::collections::BTreeMap;
 use std::process::ExitCode;
 
-use ecp::formulations::{FormulationRegistry, SimulationBuilder};
+use ecp::formulations::{FormulationRegistry, SimulationBuilder, WarmStart};
 use ecp::scene::load_scene;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 fn main() -> ExitCode {
     let mut args = std::env::args().skip(1);
     let (mut path, mut from, mut to, mut formulation) = (None, 1usize, 0usize, None);
+    let mut warm_start = WarmStart::Previous;
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_default();
         match a.as_str() {
             "--from" => from = value().parse().unwrap_or(1),
             "--to" => to = value().parse().unwrap_or(0),
             "--formulation" => formulation = Some(value()),
+            "--extrapolated" => warm_start = WarmStart::Extrapolated,
             _ => path = Some(a),
         }
     }
     let Some(path) = path else {
-        eprintln!("usage: warm_probe SCENE.toml [--from K] [--to K] [--formulation F]");
+        eprintln!(
+            "usage: warm_probe SCENE.toml [--from K] [--to K] [--formulation F] [--extrapolated]"
+        );
         return ExitCode::from(2);
     };
     let file = match load_scene(std::path::Path::new(&path)) {
@@ -56,6 +61,7 @@ fn main() -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    sim.set_warm_start(warm_start);
     let d = NewtonSettings::default();
     let mut solver = NewtonSolver::new(NewtonSettings {
         tolerance: file.solver.tolerance.unwrap_or(d.tolerance),

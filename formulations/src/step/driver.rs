@@ -111,6 +111,7 @@ impl SimulationBuilder {
             step: 0,
             t: 0.0,
             last: None,
+            warm_start: WarmStart::default(),
             kept: Kept::default(),
         };
         sim.start()?;
@@ -136,8 +137,24 @@ pub struct Simulation {
     t: f64,
     /// The last step taken, while its step problem is still the one in `mcp`.
     last: Option<LastStep>,
+    /// Whether a step's warm start may extrapolate from the last steps ([`WarmStart`]).
+    warm_start: WarmStart,
     /// Storage reused from step to step.
     kept: Kept,
+}
+
+/// The warm start of a step ([`Simulation::set_warm_start`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum WarmStart {
+    /// The formulation's warm start from the last step's solution alone
+    /// ([`StepContext::history`] is `None`).
+    #[default]
+    Previous,
+    /// The formulation may extrapolate from the iterates of the last smooth steps
+    /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`): fewer iterations
+    /// on smooth motion; off by default (the stress suite's 023_room_corner and 096_union_tip
+    /// took many more Newton iterations with it).
+    Extrapolated,
 }
 
 /// What a step writes into storage kept across steps, so that a step allocates nothing once
@@ -516,6 +533,16 @@ impl Simulation {
         Ok(())
     }
 
+    /// Chooses the warm start of the next steps ([`WarmStart`]; `Previous` by default).
+    pub fn set_warm_start(&mut self, warm_start: WarmStart) {
+        self.warm_start = warm_start;
+    }
+
+    /// The warm start of the next steps ([`Simulation::set_warm_start`]).
+    pub fn warm_start(&self) -> WarmStart {
+        self.warm_start
+    }
+
     /// Sets the values of data block `d` of the step problem (a user force's or term's
     /// parameters) between steps.
     pub fn set_data(&mut self, d: DataId, values: &[f64]) -> Result<(), ModelError> {
@@ -577,7 +604,8 @@ impl Simulation {
             self.kept.last = Some(last);
         }
         let (origin, dim) = (self.formulation.origin(), self.z.len());
-        let history = (self.kept.history).iterates(h == self.scene.h, &origin, dim);
+        let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
+        let history = (self.kept.history).iterates(whole_step, &origin, dim);
         let ctx = StepContext {
             scene: &self.scene,
             states: start,
@@ -656,7 +684,8 @@ impl Simulation {
         let mut attempt = 0;
         loop {
             let (origin, dim) = (self.formulation.origin(), self.z.len());
-            let history = (self.kept.history).iterates(h == self.scene.h, &origin, dim);
+            let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
+            let history = (self.kept.history).iterates(whole_step, &origin, dim);
             let ctx = StepContext {
                 scene: &self.scene,
                 states: start,
@@ -848,7 +877,8 @@ impl Simulation {
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
         let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
-        if whole && method == StepMethod::Direct && !retried && easy {
+        let extrapolated = self.warm_start == WarmStart::Extrapolated;
+        if extrapolated && whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
             self.kept.history.push(&self.z, origin);
         } else {

@@ -16,7 +16,7 @@ pub mod history;
 pub mod params;
 pub mod terms;
 
-pub use driver::{LastStep, Simulation, SimulationBuilder, StepProblem};
+pub use driver::{LastStep, Simulation, SimulationBuilder, StepProblem, WarmStart};
 pub use fallback::Fallbacks;
 pub use formulation::{Capabilities, Prepared, SensitivitySupport, StepContext, StepFormulation};
 pub use handles::{BodyHandles, ContactHandles, StepHandles};
