@@ -48,5 +48,5 @@ pub use registry::{FormulationRegistry, RegistryError};
 pub use scene::{BodySpec, BodyState, Load, Scene, SceneError};
 pub use step::{
     Capabilities, Fallbacks, Force, Param, Simulation, SimulationBuilder, StateComponent,
-    StepFormulation, Term,
+    StepFormulation, Term, WarmStart,
 };

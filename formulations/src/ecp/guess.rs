@@ -11,6 +11,7 @@ use ecp_model::BlockMcp;
 use super::layout::Layout;
 use crate::geometry::{ConvexHull, Face, HalfSpace};
 use crate::scene::{BodyState, Scene};
+use crate::step::Iterates;
 
 /// In the hull and union formulations' warm start, a closed contact's closest-point unknowns
 /// follow the closest feature of the predicted pose when its `a1`, carried with the body, ends
@@ -301,13 +302,13 @@ impl Guess<'_> {
     /// Without it, a box rocking from one edge onto the opposite one, or landing flat on the face
     /// next to the edge it stood on, starts every backend with the ECP on the old edge, up to
     /// the width of the face from the solution's; Newton's merit function has a local minimiser
-    /// there (`docs/newton.md#smoothing-continuation`).
+    /// there (`docs/newton.md#smoothing-continuation`). Returns whether the unknowns moved.
     pub(crate) fn follow_closest_feature(
         &self,
         i: usize,
         (x1, r1): (&Vector3<f64>, &Matrix3<f64>),
         z: &mut [f64],
-    ) {
+    ) -> bool {
         let c = self.layout.contacts[i];
         let o = self.layout.origin;
         let s = self.states[c.body];
@@ -333,7 +334,8 @@ impl Guess<'_> {
                     &(r1.transpose() * (a1p - x1)),
                 )
         };
-        if finite && plane.value(&carried) > gap + FEATURE_SWITCH && !lifted_and_tilted() {
+        let moved = finite && plane.value(&carried) > gap + FEATURE_SWITCH && !lifted_and_tilted();
+        if moved {
             let a2 = plane.project(&a1p);
             z[mcp.range(c.a1)].copy_from_slice((a1p - o).as_slice());
             z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
@@ -341,6 +343,7 @@ impl Guess<'_> {
             z[mcp.range(c.l)].copy_from_slice(&l);
         }
         self.faces.set(l);
+        moved
     }
 
     /// [`Guess::contact_at`] at the body's state.
@@ -348,6 +351,28 @@ impl Guess<'_> {
         let s = self.states[self.layout.contacts[i].body];
         let r = crate::rotation::rotation_matrix(&s.q);
         self.contact_at(i, force_active, (&s.x, &r), z);
+    }
+}
+
+/// The unknowns `range` of `z` extrapolated from the last steps' iterates: at constant rate,
+/// `2 z_k − z_{k−1}`, or, with `z_{k−2}`, at constant change of rate,
+/// `3 z_k − 3 z_{k−1} + z_{k−2}` (clamped at 0 when `nonnegative`). On a smooth step the last
+/// step's values miss the solution by O(h), the extrapolations by O(h²) and O(h³): fewer Newton
+/// iterations where the convergence is quadratic
+/// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
+pub(crate) fn extrapolate(
+    z: &mut [f64],
+    range: std::ops::Range<usize>,
+    it: &Iterates<'_>,
+    nonnegative: bool,
+) {
+    let (before, last) = (it.before, it.last);
+    for j in range {
+        let v = match it.older {
+            Some(older) => 3.0 * (last[j] - before[j]) + older[j],
+            None => 2.0 * last[j] - before[j],
+        };
+        z[j] = if nonnegative { v.max(0.0) } else { v };
     }
 }
 

@@ -14,6 +14,7 @@ use nalgebra::Vector3;
 use ecp_model::{BlockMcp, Problem, StepStructure};
 
 use super::handles::StepHandles;
+use super::history::Iterates;
 use crate::record::{ContactRecord, PairRecord};
 use crate::scene::{BodyState, Scene, SceneError};
 
@@ -65,6 +66,13 @@ pub struct StepContext<'a> {
     pub h: f64,
     /// The step the span belongs to, from 1.
     pub step: usize,
+    /// The iterates after the read-out of the two (or three) steps before this span, when the
+    /// span is a whole step and they were solved directly, in one piece, from their warm start
+    /// in 1–5 iterations (no retry, no fallback), in the same origin, with no state, parameter or
+    /// data set since.
+    /// What a warm start may extrapolate from
+    /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`); `None` otherwise.
+    pub history: Option<Iterates<'a>>,
 }
 
 /// Whether the step problem built last still fits ([`StepFormulation::begin_step`]).

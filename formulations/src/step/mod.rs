@@ -4,20 +4,22 @@
 //! state components ([`Param`], [`StateComponent`]), the fallbacks ([`Fallbacks`]) and the one
 //! driver every formulation runs in ([`Simulation`]).
 //!
-//! Inside the layer, each file imports only those listed before it: `handles`, `formulation`,
-//! `params`, `terms`, `body`, `fallback`, then `driver` (`docs/architecture.md`).
+//! Inside the layer, each file imports only those listed before it: `handles`, `history`,
+//! `formulation`, `params`, `terms`, `body`, `fallback`, then `driver` (`docs/architecture.md`).
 
 pub mod body;
 pub mod driver;
 pub mod fallback;
 pub mod formulation;
 pub mod handles;
+pub mod history;
 pub mod params;
 pub mod terms;
 
-pub use driver::{LastStep, Simulation, SimulationBuilder, StepProblem};
+pub use driver::{LastStep, Simulation, SimulationBuilder, StepProblem, WarmStart};
 pub use fallback::Fallbacks;
 pub use formulation::{Capabilities, Prepared, SensitivitySupport, StepContext, StepFormulation};
 pub use handles::{BodyHandles, ContactHandles, StepHandles};
+pub use history::Iterates;
 pub use params::{InertiaEntry, Param, ParamError, STATE_SIZE, StateComponent};
 pub use terms::{Force, ForceHandles, Term};
