@@ -207,6 +207,18 @@ impl EcpContacts {
 }
 
 impl EcpContacts {
+    /// The closest-point guesses of this step's start ([`Guess`]), on the formulation's layout
+    /// and kept face-multiplier storage.
+    fn guess<'g>(&'g self, ctx: &StepContext<'g>, mcp: &'g BlockMcp) -> Guess<'g> {
+        Guess {
+            layout: &self.layout,
+            scene: ctx.scene,
+            states: ctx.states,
+            mcp,
+            faces: &self.faces.0,
+        }
+    }
+
     /// Whether every contact has the same mode in the iterates `a` and `b`: open in both (`p_n`
     /// at most the open threshold of [`StepFormulation::warm_start`]), or closed in both with
     /// `p_n` changed by at most [`IMPULSE_CHANGE`] of the larger, the same friction mode
@@ -279,13 +291,7 @@ impl EcpContacts {
                 .zip(ctx.states)
                 .map(|(body, s)| predict_pose(mcp, z, (body.nu, body.q), s, &o, ctx.h)),
         );
-        let guess = Guess {
-            layout: l,
-            scene: ctx.scene,
-            states: ctx.states,
-            mcp,
-            faces: &self.faces.0,
-        };
+        let guess = self.guess(ctx, mcp);
         let scene = ctx.scene;
         for i in 0..l.contacts.len() {
             let c = l.contacts[i];
@@ -596,13 +602,7 @@ impl StepFormulation for EcpContacts {
         for (body, s) in self.layout.bodies.iter().zip(ctx.states) {
             z[mcp.range(body.nu)].copy_from_slice(&[s.v.x, s.v.y, s.v.z, s.w.x, s.w.y, s.w.z]);
         }
-        let guess = Guess {
-            layout: &self.layout,
-            scene: ctx.scene,
-            states: ctx.states,
-            mcp,
-            faces: &self.faces.0,
-        };
+        let guess = self.guess(ctx, mcp);
         for i in 0..self.layout.contacts.len() {
             guess.contact(i, false, z);
         }
@@ -712,13 +712,7 @@ impl StepFormulation for EcpContacts {
             return false;
         }
         let l = &self.layout;
-        let guess = Guess {
-            layout: l,
-            scene: ctx.scene,
-            states: ctx.states,
-            mcp,
-            faces: &self.faces.0,
-        };
+        let guess = self.guess(ctx, mcp);
         for i in 0..l.contacts.len() {
             let c = l.contacts[i];
             let s = ctx.states[c.body];
