@@ -387,7 +387,7 @@ pub fn fischer_burmeister(a: f64, b: f64) -> f64 {
 /// Component `i` of the Fischer–Burmeister reformulation `Φ`
 /// (`docs/backends.md#semismooth-newton`): free `F`; lower `φ(z − l, F)`; upper `−φ(u − z, −F)`;
 /// box (Billups) `φ(z − l, φ(u − z, −F))`.
-#[inline]
+#[inline(always)]
 pub fn fb_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
     match classify(l, u) {
         BoundKind::Free => f,
