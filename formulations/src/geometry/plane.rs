@@ -170,23 +170,18 @@ fn mode_of_touching(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
     let Some(p0) = touching.first().copied() else {
         return ContactMode::None;
     };
-    // Generic, not `&dyn Fn`: each distance inlined into its fold.
-    fn far(
-        touching: &[Vector3<f64>],
-        p0: Vector3<f64>,
-        f: impl Fn(&Vector3<f64>) -> f64,
-    ) -> (Vector3<f64>, f64) {
+    let far = |f: &dyn Fn(&Vector3<f64>) -> f64| {
         touching.iter().map(|p| (*p, f(p))).fold(
             (p0, 0.0),
             |best, cur| if cur.1 > best.1 { cur } else { best },
         )
-    }
-    let (p1, spread) = far(touching, p0, |p| (p - p0).norm());
+    };
+    let (p1, spread) = far(&|p| (p - p0).norm());
     if spread <= tol {
         return ContactMode::Point;
     }
     let u = (p1 - p0) / spread;
-    let (_, off_line) = far(touching, p0, |p| {
+    let (_, off_line) = far(&|p| {
         let r = p - p0;
         (r - u * u.dot(&r)).norm()
     });
