@@ -202,19 +202,22 @@ pub fn natural_map_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
 /// The natural-map residual `‖z − mid(l, u, z − F(z))‖_∞` (`docs/model.md#mcp`): the one number
 /// every backend is judged by. Non-finite input gives `+∞`, never a misleading small value.
 pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
     let mut r: f64 = 0.0;
-    for i in 0..z.len() {
-        // `mid` (max/min) would silently drop a NaN in F: treat it as an infinite error.
-        if f[i].is_nan() || z[i].is_nan() {
-            return f64::INFINITY;
-        }
+    // `mid` (max/min) would silently drop a NaN in F: a NaN in `z` or `F`, or a component that
+    // is not finite, is an infinite error. Tested once after the loop (no exit per component):
+    // without one, `r` is the largest of finite numbers, whatever the order.
+    let mut non_finite = false;
+    for i in 0..n {
         let c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
-        if !c.is_finite() {
-            return f64::INFINITY;
+        non_finite |= f[i].is_nan() | z[i].is_nan() | !c.is_finite();
+        // `max` without its NaN case: a NaN `c` is counted in `non_finite` already.
+        if c > r {
+            r = c;
         }
-        r = r.max(c);
     }
-    r
+    if non_finite { f64::INFINITY } else { r }
 }
 
 /// Where the natural residual is worst: index, value, and the component's name.
@@ -387,9 +390,16 @@ pub fn fischer_burmeister(a: f64, b: f64) -> f64 {
 /// Component `i` of the Fischer–Burmeister reformulation `Φ`
 /// (`docs/backends.md#semismooth-newton`): free `F`; lower `φ(z − l, F)`; upper `−φ(u − z, −F)`;
 /// box (Billups) `φ(z − l, φ(u − z, −F))`.
-#[inline]
+#[inline(always)]
 pub fn fb_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
-    match classify(l, u) {
+    fb_component_of_kind(classify(l, u), z, f, l, u)
+}
+
+/// [`fb_component`] for a component whose bounds `(l, u)` are of kind `kind`
+/// (`classify(l, u)`).
+#[inline(always)]
+fn fb_component_of_kind(kind: BoundKind, z: f64, f: f64, l: f64, u: f64) -> f64 {
+    match kind {
         BoundKind::Free => f,
         BoundKind::Lower => fischer_burmeister(z - l, f),
         BoundKind::Upper => -fischer_burmeister(u - z, -f),
@@ -401,6 +411,29 @@ pub fn fb_component(z: f64, f: f64, l: f64, u: f64) -> f64 {
 pub fn fb_vector(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) {
     for i in 0..z.len() {
         phi[i] = fb_component(z[i], f[i], lower[i], upper[i]);
+    }
+}
+
+/// [`fb_vector`] with the bounds' kinds given (`kinds[i] = classify(lower[i], upper[i])`): a
+/// backend that evaluates `Φ` at every trial point of a solve classifies the bounds once.
+pub fn fb_vector_of_kinds(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    kinds: &[BoundKind],
+    phi: &mut [f64],
+) {
+    let n = z.len();
+    let (f, lower, upper, kinds, phi) = (
+        &f[..n],
+        &lower[..n],
+        &upper[..n],
+        &kinds[..n],
+        &mut phi[..n],
+    );
+    for i in 0..n {
+        phi[i] = fb_component_of_kind(kinds[i], z[i], f[i], lower[i], upper[i]);
     }
 }
 
@@ -467,5 +500,53 @@ mod tests {
         }
         let empty = final_residuals(&[], &[], &[], &[]);
         assert_eq!((empty.natural, empty.worst), (0.0, None));
+    }
+
+    /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at
+    /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`.
+    #[test]
+    fn natural_residual_and_classified_fb_match_the_plain_loops() {
+        fn natural_with_exits(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+            let mut r: f64 = 0.0;
+            for i in 0..z.len() {
+                if f[i].is_nan() || z[i].is_nan() {
+                    return f64::INFINITY;
+                }
+                let c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
+                if !c.is_finite() {
+                    return f64::INFINITY;
+                }
+                r = r.max(c);
+            }
+            r
+        }
+        let inf = f64::INFINITY;
+        let lower = [0.0, -inf, 0.0, -inf, -1.0, 0.0];
+        let upper = [inf, inf, 2.0, 3.0, 1.0, inf];
+        let kinds: Vec<BoundKind> = lower
+            .iter()
+            .zip(&upper)
+            .map(|(&l, &u)| classify(l, u))
+            .collect();
+        let z0 = [0.5, 1.0, 1.5, 2.0, 0.25, 0.0];
+        let f0 = [-0.25, 1e-3, 0.5, -2.0, 3.0, -0.0];
+        let mut cases = vec![(z0, f0), ([0.0; 6], [0.0; 6]), ([-0.0; 6], [1e-300; 6])];
+        for (k, bad) in [f64::NAN, inf, -inf, 1e308].into_iter().enumerate() {
+            let (mut z, mut f) = (z0, f0);
+            f[k % 6] = bad;
+            cases.push((z0, f));
+            z[(k + 3) % 6] = bad;
+            cases.push((z, f0));
+        }
+        for (z, f) in cases {
+            let got = natural_residual(&z, &f, &lower, &upper);
+            let want = natural_with_exits(&z, &f, &lower, &upper);
+            assert_eq!(got.to_bits(), want.to_bits(), "{z:?} {f:?}");
+            let (mut a, mut b) = ([0.0; 6], [0.0; 6]);
+            fb_vector(&z, &f, &lower, &upper, &mut a);
+            fb_vector_of_kinds(&z, &f, &lower, &upper, &kinds, &mut b);
+            assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{z:?} {f:?}");
+        }
+        assert_eq!(natural_residual(&z0, &f0, &lower, &upper), 1.25);
     }
 }

@@ -38,7 +38,7 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
-use ecp_model::mcp::{FinalResiduals, fb_vector, fischer_burmeister, worst_component};
+use ecp_model::mcp::{FinalResiduals, fb_vector_of_kinds, fischer_burmeister, worst_component};
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
     SolveReport, StepKind, Termination, finish_solve, finish_solve_with, natural_residual,
@@ -344,6 +344,9 @@ struct Workspace {
     d_alt: Vec<f64>,
     /// `(D_b, Φ)` of each row for [`assemble_h_and_gradient`].
     rows: Vec<(f64, f64)>,
+    /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
+    /// `D_a, D_b` read it at every trial point and iteration.
+    kinds: Vec<BoundKind>,
     /// The best natural residual after each iteration of a solve, for the stall test (kept
     /// here so that a solve allocates nothing once it has run as many iterations before).
     best_history: Vec<f64>,
@@ -579,6 +582,7 @@ fn generalized_jacobian_rows(
     f: &[f64],
     l: &[f64],
     u: &[f64],
+    kinds: &[BoundKind],
     pattern: &CscPattern,
     jac: &[f64],
     ws_da: &mut [f64],
@@ -592,7 +596,7 @@ fn generalized_jacobian_rows(
     let mut any = false;
     for i in 0..n {
         degenerate[i] = 0.0;
-        match classify(l[i], u[i]) {
+        match kinds[i] {
             BoundKind::Free => {
                 ws_da[i] = 0.0;
                 ws_db[i] = 1.0;
@@ -800,7 +804,7 @@ fn merit_at_trial(
 ) -> Option<f64> {
     mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
     *f_evals += 1;
-    fb_vector(&ws.z_trial, &ws.f_trial, l, u, &mut ws.phi_trial);
+    fb_vector_of_kinds(&ws.z_trial, &ws.f_trial, l, u, &ws.kinds, &mut ws.phi_trial);
     let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
     p.is_finite().then_some(p)
 }
@@ -1107,11 +1111,14 @@ impl NewtonSolver {
         let mut clock = Clock::new(self.profile.is_some());
 
         ws.z.copy_from_slice(z0);
+        ws.kinds.clear();
+        ws.kinds
+            .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
         mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
         f_evals += 1;
         jac_evals += 1;
         let mut have_jac = true;
-        fb_vector(&ws.z, &ws.f, l, u, &mut ws.phi);
+        fb_vector_of_kinds(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
@@ -1160,6 +1167,7 @@ impl NewtonSolver {
                 &ws.f,
                 l,
                 u,
+                &ws.kinds,
                 &pattern,
                 &ws.jac,
                 &mut ws.da,

@@ -192,14 +192,18 @@ impl BodyStepData {
         let w1 = v3(nu.as_slice(), 3);
         let r0 = rotation_matrix(&self.q_start);
         let r1 = rotation_matrix(q);
-        let iw1 = r1 * self.inertia * r1.transpose();
+        // `R1 I_body` and `I_body R0ᵀ ω^u` once, not per `k`: the same products, so the same
+        // numbers (`(R1 I_body) X` is how `R1 * I_body * X` associates).
+        let r1_inertia = r1 * self.inertia;
+        let iw1 = r1_inertia * r1.transpose();
         let l1 = iw1 * w1;
         let dw = -iw1 - (skew(&w1) * iw1 - skew(&l1)) * self.h;
         let omega0 = r0.transpose() * v3(self.nu_start.as_slice(), 3);
+        let inertia_omega0 = self.inertia * omega0;
         let dr = rotation_matrix_derivatives(q);
         let dq = dr.map(|d| {
-            let dl = (d * self.inertia * r1.transpose() + r1 * self.inertia * d.transpose()) * w1;
-            -dl + d * (self.inertia * omega0) - w1.cross(&dl) * self.h
+            let dl = (d * self.inertia * r1.transpose() + r1_inertia * d.transpose()) * w1;
+            -dl + d * inertia_omega0 - w1.cross(&dl) * self.h
         });
         (dw, dq)
     }
