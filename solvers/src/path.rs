@@ -515,16 +515,19 @@ impl PathSolver {
             if self.reduced.len() < ni * ni {
                 self.reduced.resize(ni * ni, 0.0);
             }
+            // The fields as local slices, so the loop keeps them in registers.
             let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+            let (slot, jac) = (&self.reduced_slot[..], &self.jac[..]);
             for (col, &j) in self.reduced[..ni * ni]
                 .chunks_exact_mut(ni)
                 .zip(&self.inactive)
             {
                 col.fill(0.0);
-                for p in cp[j]..cp[j + 1] {
-                    let kr = self.reduced_slot[ri[p]];
+                let range = cp[j]..cp[j + 1];
+                for (&i, &v) in ri[range.clone()].iter().zip(&jac[range]) {
+                    let kr = slot[i];
                     if kr != usize::MAX {
-                        col[kr] = self.jac[p];
+                        col[kr] = v;
                     }
                 }
             }
