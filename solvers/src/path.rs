@@ -510,14 +510,24 @@ impl PathSolver {
             for (k, &i) in self.inactive.iter().enumerate() {
                 self.reduced_slot[i] = k;
             }
-            self.reduced.clear();
-            self.reduced.resize(ni * ni, 0.0);
+            // Each column zeroed just before its scatter: one memset of all `ni²` entries
+            // is a `rep stosb` of several kB, counted per byte by callgrind.
+            if self.reduced.len() < ni * ni {
+                self.reduced.resize(ni * ni, 0.0);
+            }
+            // The fields as local slices, so the loop keeps them in registers.
             let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-            for (kc, &j) in self.inactive.iter().enumerate() {
-                for p in cp[j]..cp[j + 1] {
-                    let kr = self.reduced_slot[ri[p]];
+            let (slot, jac) = (&self.reduced_slot[..], &self.jac[..]);
+            for (col, &j) in self.reduced[..ni * ni]
+                .chunks_exact_mut(ni)
+                .zip(&self.inactive)
+            {
+                col.fill(0.0);
+                let range = cp[j]..cp[j + 1];
+                for (&i, &v) in ri[range.clone()].iter().zip(&jac[range]) {
+                    let kr = slot[i];
                     if kr != usize::MAX {
-                        self.reduced[kc * ni + kr] = self.jac[p];
+                        col[kr] = v;
                     }
                 }
             }

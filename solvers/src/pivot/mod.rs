@@ -174,8 +174,9 @@ impl AffineMatrix<'_> {
             AffineMatrix::Sparse { pattern, values } => {
                 out.fill(0.0);
                 let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-                for p in cp[j]..cp[j + 1] {
-                    out[ri[p]] = values[p];
+                let range = cp[j]..cp[j + 1];
+                for (&i, &v) in ri[range.clone()].iter().zip(&values[range]) {
+                    out[i] = v;
                 }
             }
         }
@@ -1289,8 +1290,10 @@ pub(crate) fn mul_vec_nonzero_columns(
     let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
     for (j, &xj) in x.iter().enumerate() {
         if xj != 0.0 {
-            for p in cp[j]..cp[j + 1] {
-                y[ri[p]] += values[p] * xj;
+            // Rows and values zipped: no bounds checks on them in the loop.
+            let range = cp[j]..cp[j + 1];
+            for (&i, &v) in ri[range.clone()].iter().zip(&values[range]) {
+                y[i] += v * xj;
             }
         }
     }
