@@ -109,9 +109,12 @@ fn main() -> ExitCode {
             .collect();
         let miss: Vec<String> = miss.iter().map(|(k, v)| format!("{k} {v:.1e}")).collect();
         println!(
-            "step {k:4} {} iters {} residuals [{}] -> {:.1e}; warm start off by: {}",
+            "step {k:4} {} iters {} retries {} residuals [{}] -> {:.1e}; warm start off by: {}",
             if rec.converged { "ok  " } else { "FAIL" },
             rec.summary.iterations,
+            (rec.summary.counters)
+                .get(ecp::model::Counter::Retries)
+                .unwrap_or(0),
             trace.join(" "),
             rec.summary.residual,
             miss.join(", ")
