@@ -319,7 +319,8 @@ pub trait McpSolver {
     }
     /// Caps the iterations of the next solves at `budget` until it is set again (`None`: the
     /// backend's own limits and restarts). A budgeted solve is the backend's first attempt
-    /// alone, stopped after `budget` iterations: for a caller that has a cheaper second start
+    /// alone, stopped after `budget` iterations (in each system of units it tries,
+    /// [`crate::scaling::solve_in_scales`], so at most twice `budget` in all): for a caller that has a cheaper second start
     /// when a cheap first one fails (the driver's extrapolated warm start,
     /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
     /// A solve that converges within the budget gives the same point as without it. Returns
