@@ -868,7 +868,7 @@ impl McpSolver for NewtonSolver {
     }
 
     /// Honoured: a budgeted solve is the plain iteration's first run, without the minimum-norm
-    /// restart and the other attempts of [`NewtonSolver::solve_restarted`], stopped after
+    /// restart and the other attempts of the full solve (`solve_restarted`), stopped after
     /// `budget` iterations (at most [`NewtonSettings::max_iterations`]).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
         self.budget = budget;
