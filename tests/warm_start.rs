@@ -218,3 +218,59 @@ fn a_missed_extrapolation_is_solved_again_from_the_plain_warm_start_and_counted(
         }
     }
 }
+
+#[test]
+fn newton_and_path_honour_an_iteration_budget() {
+    // The desk's step 100 from its plain warm start: Newton and PATH take 3 iterations.
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    sim.set_warm_start(WarmStart::Previous);
+    let mut newton = NewtonSolver::new(NewtonSettings::default());
+    for k in 1..100 {
+        let rec = sim
+            .step(&mut newton)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k}");
+    }
+    sim.prepare_step().expect("step 100");
+    let z0 = sim.z().to_vec();
+    let backends: Vec<Box<dyn McpSolver>> = vec![
+        Box::new(NewtonSolver::new(NewtonSettings::default())),
+        Box::new(PathSolver::new(PathSettings::default())),
+    ];
+    for mut solver in backends {
+        let name = solver.name().to_string();
+        let full = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(full.summary.iterations >= 2, "{name}");
+        assert!(solver.set_iteration_budget(Some(1)), "{name}");
+        match sim.solve_step_problem(solver.as_mut(), &z0) {
+            // One iteration in each system of units at most.
+            Err(SolveError::NotConverged { best }) => {
+                assert!(
+                    best.summary.iterations <= 2,
+                    "{name}: {}",
+                    best.summary.iterations
+                )
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+        // Within a budget it does not reach, the same point and iterations, bit for bit.
+        solver.set_iteration_budget(Some(full.summary.iterations + 5));
+        let within = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(within.z, full.z, "{name}");
+        assert_eq!(within.summary.iterations, full.summary.iterations, "{name}");
+        solver.set_iteration_budget(None);
+        let again = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(again.z, full.z, "{name}");
+    }
+    // A backend that does not honour budgets says so.
+    let mut conic =
+        ecp::solvers::conic::ConicSolver::new(ecp::solvers::conic::ConicSettings::default());
+    assert!(!conic.set_iteration_budget(Some(1)));
+    assert!(!conic.converges_to_round_off());
+}
