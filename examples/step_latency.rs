@@ -17,10 +17,12 @@
 //! without the set-up. `desk-steps` takes the desk's first `N` whole steps with Newton
 //! (`Simulation::step`: checkpoint, data, solve, read-out, record), so `(Ir(120) − Ir(20)) / 100`
 //! is the mean whole step over steps 21–120; `desk-steps-into` the same with
-//! `Simulation::step_into` and one kept record. Both print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
+//! `Simulation::step_into` and one kept record, `desk-steps-previous` with
+//! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
+//! All three print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator};
-use ecp::formulations::{Scene, Simulation, scenarios};
+use ecp::formulations::{Scene, Simulation, WarmStart, scenarios};
 use ecp::model::McpSolver;
 use ecp::solvers::conic::{ConicSettings, ConicSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
@@ -119,7 +121,7 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|\
-                 desk-conic|desk-conic-dense|desk-steps|desk-steps-into> N [lu|schur]"
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -183,6 +185,17 @@ fn main() {
                 digest.add(&sim.step(&mut solver).expect("desk step"));
             }
             println!("desk-steps x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-previous" => {
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            sim.set_warm_start(WarmStart::Previous);
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("desk step"));
+            }
+            println!("desk-steps-previous x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-steps-into" => {

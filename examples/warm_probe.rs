@@ -10,7 +10,12 @@
 //! each iteration and of the returned point, and the largest difference between the warm start
 //! and the solution per kind of unknown (the variable blocks' name suffixes: `nu`, `q`, `a1`,
 //! `pn`, …). Then the mean iterations over all steps. `--extrapolated` turns on
-//! [`WarmStart::Extrapolated`].
+//! [`WarmStart::Extrapolated`] (the default since
+//! `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`; without
+//! it the probe runs [`WarmStart::Previous`]). `--perturb EPS` also solves each printed step from
+//! its warm start with every entry moved by `±EPS` relative (8 fixed sign patterns, with a
+//! Newton solver of its own) and prints those solves' iterations: how sensitive the step is to
+//! round-off in its start.
 use std::collections::BTreeMap;
 use std::process::ExitCode;
 
@@ -22,6 +27,7 @@ fn main() -> ExitCode {
     let mut args = std::env::args().skip(1);
     let (mut path, mut from, mut to, mut formulation) = (None, 1usize, 0usize, None);
     let mut warm_start = WarmStart::Previous;
+    let mut perturb: Option<f64> = None;
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_default();
         match a.as_str() {
@@ -29,6 +35,7 @@ fn main() -> ExitCode {
             "--to" => to = value().parse().unwrap_or(0),
             "--formulation" => formulation = Some(value()),
             "--extrapolated" => warm_start = WarmStart::Extrapolated,
+            "--perturb" => perturb = value().parse().ok(),
             _ => path = Some(a),
         }
     }
@@ -81,6 +88,9 @@ fn main() -> ExitCode {
                 return ExitCode::FAILURE;
             }
         };
+        let perturbed = perturb
+            .filter(|_| (from..=to).contains(&k))
+            .map(|eps| perturbed_iterations(&sim, &z0, eps, &file.solver));
         let rec = match sim.step(&mut solver) {
             Ok(r) => r,
             Err(e) => {
@@ -108,10 +118,16 @@ fn main() -> ExitCode {
             .map(|t| format!("{:.1e}", t.residual))
             .collect();
         let miss: Vec<String> = miss.iter().map(|(k, v)| format!("{k} {v:.1e}")).collect();
+        if let Some(its) = perturbed {
+            println!("step {k:4} from perturbed starts: iterations {its:?}");
+        }
         println!(
-            "step {k:4} {} iters {} residuals [{}] -> {:.1e}; warm start off by: {}",
+            "step {k:4} {} iters {} retries {} residuals [{}] -> {:.1e}; warm start off by: {}",
             if rec.converged { "ok  " } else { "FAIL" },
             rec.summary.iterations,
+            (rec.summary.counters)
+                .get(ecp::model::Counter::Retries)
+                .unwrap_or(0),
             trace.join(" "),
             rec.summary.residual,
             miss.join(", ")
@@ -122,4 +138,38 @@ fn main() -> ExitCode {
         iterations as f64 / steps as f64
     );
     ExitCode::SUCCESS
+}
+
+/// The iterations of Newton (the scene's tolerance and limit) on the prepared step from `z0`
+/// with every entry scaled by `1 ± eps`, for 8 fixed sign patterns (`None`: not converged).
+fn perturbed_iterations(
+    sim: &ecp::formulations::Simulation,
+    z0: &[f64],
+    eps: f64,
+    settings: &ecp::backends::SolverConfig,
+) -> Vec<Option<usize>> {
+    let d = NewtonSettings::default();
+    let mut newton = NewtonSolver::new(NewtonSettings {
+        tolerance: settings.tolerance.unwrap_or(d.tolerance),
+        max_iterations: settings.max_iterations.unwrap_or(d.max_iterations),
+        ..d
+    });
+    let mut state: u64 = 0x9e37_79b9_7f4a_7c15;
+    (0..8)
+        .map(|_| {
+            let z: Vec<f64> = (z0.iter())
+                .map(|v| {
+                    // xorshift64: a fixed sequence of signs.
+                    state ^= state << 13;
+                    state ^= state >> 7;
+                    state ^= state << 17;
+                    let sign = if state & 1 == 0 { 1.0 } else { -1.0 };
+                    v * (1.0 + sign * eps)
+                })
+                .collect();
+            sim.solve_step_problem(&mut newton, &z)
+                .ok()
+                .map(|sol| sol.summary.iterations)
+        })
+        .collect()
 }

@@ -11,6 +11,7 @@ use std::process::ExitCode;
 use clap::{Parser, Subcommand};
 use ecp::backends::parse_formulation;
 use ecp::fit::{FitError, GradientMethod, Method};
+use ecp::formulations::WarmStart;
 use ecp::run::{RunError, RunOptions, compare_scene, run_scene};
 use ecp::scene::{SceneFile, load_scene};
 use indicatif::{ProgressBar, ProgressStyle};
@@ -59,6 +60,11 @@ enum Command {
         /// Also render the run in 3-D into animation.gif (as `ecp animate` with its defaults).
         #[arg(long)]
         animate: bool,
+        /// The steps' warm start: `extrapolated` from the last smooth steps (Newton only; PATH
+        /// and conic start from the last step), or `previous`, from the last step alone
+        /// (docs/input.md#warm-start).
+        #[arg(long, value_name = "previous|extrapolated", default_value = "extrapolated", value_parser = parse_warm_start)]
+        warm_start: WarmStart,
     },
     /// Render a run's motion in 3-D as an animated GIF, OUT_DIR/animation.gif: the bodies, the
     /// half-spaces, the ECPs of the active contacts and their normal impulses
@@ -223,6 +229,7 @@ fn main() -> ExitCode {
             keep_going,
             no_fallbacks,
             animate,
+            warm_start,
         } => load(&scene).and_then(|file| {
             let options = RunOptions {
                 out_dir: out.unwrap_or_else(|| RunOptions::default_out_dir(&file)),
@@ -232,6 +239,7 @@ fn main() -> ExitCode {
                 plots: !no_plots,
                 keep_going,
                 fallbacks: !no_fallbacks,
+                warm_start,
                 ..RunOptions::default()
             };
             let code = run(&file, &options, quiet)?;
@@ -375,6 +383,17 @@ fn main() -> ExitCode {
         eprintln!("error: {e}");
         ExitCode::from(2)
     })
+}
+
+/// `previous` or `extrapolated` ([`WarmStart`]).
+fn parse_warm_start(text: &str) -> Result<WarmStart, String> {
+    match text {
+        "previous" => Ok(WarmStart::Previous),
+        "extrapolated" => Ok(WarmStart::Extrapolated),
+        other => Err(format!(
+            "`{other}` is not a warm start: previous or extrapolated"
+        )),
+    }
 }
 
 /// `WIDTHxHEIGHT` in pixels.

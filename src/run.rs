@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use ecp_formulations::{Fallbacks, FormulationRegistry, SimulationBuilder, StepRecord};
+use ecp_formulations::{Fallbacks, FormulationRegistry, SimulationBuilder, StepRecord, WarmStart};
 use ecp_solvers::Registry;
 
 use crate::backends::{SolverConfig, Target, check_combination, make_solver_in};
@@ -46,6 +46,9 @@ pub struct RunOptions {
     pub fallbacks: bool,
     /// Stop the run once it has taken this long (checked between steps); the outcome says so.
     pub time_limit: Option<Duration>,
+    /// The steps' warm start ([`WarmStart`]): extrapolated from the last smooth steps by
+    /// default (for a backend that converges to round-off, Newton), or from the last step alone.
+    pub warm_start: WarmStart,
 }
 
 impl Default for RunOptions {
@@ -61,6 +64,7 @@ impl Default for RunOptions {
             keep_going: false,
             fallbacks: true,
             time_limit: None,
+            warm_start: WarmStart::default(),
         }
     }
 }
@@ -178,6 +182,7 @@ pub fn run_scene(
     let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
         .build()
         .map_err(|e| refused(e.to_string()))?;
+    sim.set_warm_start(options.warm_start);
     let planned = options
         .steps
         .map_or(file.scene.num_steps(), |n| n.min(file.scene.num_steps()));

@@ -6,7 +6,7 @@
 use std::ops::RangeBounds;
 use std::path::{Path, PathBuf};
 
-use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder};
+use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder, WarmStart};
 use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
 use ecp::scene::load_scene;
 use ecp::solvers::conic::{ConicSettings, ConicSolver};
@@ -35,7 +35,11 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
 }
 
 /// The scene file `path` (hull formulation) stepped by `driver` through step `step − 1` (every
-/// step must converge), with step `step` prepared; and the scene's tolerance.
+/// step must converge), with step `step` prepared; and the scene's tolerance. With the warm start
+/// from the last step alone ([`WarmStart::Previous`]): each step here was measured on that
+/// trajectory and from that start, which the extrapolated warm start (the default since
+/// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`)
+/// would move by round-off or more.
 fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
     let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let stepper = FormulationRegistry::builtin()
@@ -44,6 +48,7 @@ fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulati
     let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
         .build()
         .unwrap_or_else(|e| panic!("{e}"));
+    sim.set_warm_start(WarmStart::Previous);
     for k in 1..step {
         let rec = sim.step(driver).unwrap_or_else(|e| panic!("step {k}: {e}"));
         assert!(

@@ -1,26 +1,47 @@
-//! The extrapolated warm start (`Simulation::set_warm_start`,
-//! `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`): off by default; on,
-//! the desk takes fewer Newton iterations and ends where the plain warm start ends.
+//! The warm start of a step (`Simulation::set_warm_start`,
+//! `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`):
+//! `Previous` is main's before the extrapolation, bit for bit; `Extrapolated`, the default, takes
+//! fewer Newton iterations on the desk and ends where `Previous` ends, solves an extrapolated
+//! start within an iteration budget and, when that fails, again from the plain warm start, and
+//! leaves PATH's steps as `Previous` gives them.
 
-use ecp::formulations::{Simulation, WarmStart, scenarios};
+use ecp::formulations::{BodyState, Simulation, StepRecord, WarmStart, scenarios};
+use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
+use ecp::solvers::path::{PathSettings, PathSolver};
 
-/// The desk's first `steps` steps with Newton: total iterations and the final states.
-fn desk_run(warm_start: Option<WarmStart>, steps: usize) -> (usize, Vec<[f64; 13]>) {
+/// The desk's first `steps` steps with `solver`: every record (each step must converge).
+fn desk_records(
+    warm_start: Option<WarmStart>,
+    solver: &mut dyn McpSolver,
+    steps: usize,
+) -> Vec<StepRecord> {
     let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
     if let Some(w) = warm_start {
         sim.set_warm_start(w);
     }
+    (1..=steps)
+        .map(|k| {
+            let rec = sim.step(solver).unwrap_or_else(|e| panic!("step {k}: {e}"));
+            assert!(rec.converged, "step {k} did not converge");
+            rec
+        })
+        .collect()
+}
+
+/// The desk's first `steps` steps with Newton: total iterations and the final states.
+fn desk_run(warm_start: Option<WarmStart>, steps: usize) -> (usize, Vec<[f64; 13]>) {
     let mut solver = NewtonSolver::new(NewtonSettings::default());
-    let mut iterations = 0;
-    for k in 1..=steps {
-        let rec = sim
-            .step(&mut solver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(rec.converged, "step {k} did not converge");
-        iterations += rec.summary.iterations;
-    }
-    let states = (sim.states().iter())
+    let records = desk_records(warm_start, &mut solver, steps);
+    let iterations = records.iter().map(|r| r.summary.iterations).sum();
+    let last = records.last().expect("at least one step");
+    (iterations, states(&last.bodies))
+}
+
+/// Position, orientation, velocity and angular velocity of each body.
+fn states(bodies: &[BodyState]) -> Vec<[f64; 13]> {
+    bodies
+        .iter()
         .map(|s| {
             let mut v = [0.0; 13];
             v[..3].copy_from_slice(s.x.as_slice());
@@ -29,18 +50,57 @@ fn desk_run(warm_start: Option<WarmStart>, steps: usize) -> (usize, Vec<[f64; 13
             v[10..].copy_from_slice(s.w.as_slice());
             v
         })
-        .collect();
-    (iterations, states)
+        .collect()
+}
+
+/// FNV-1a over the bits of every number of the records (states, contacts, residual,
+/// iterations), as `examples/step_latency.rs desk-steps` computes it.
+fn digest(records: &[StepRecord]) -> u64 {
+    let mut h: u64 = 0xcbf2_9ce4_8422_2325;
+    let mut mix = |bits: u64| {
+        for b in bits.to_le_bytes() {
+            h = (h ^ u64::from(b)).wrapping_mul(0x0100_0000_01b3);
+        }
+    };
+    for rec in records {
+        for b in &rec.bodies {
+            for v in b.x.iter().chain(&b.q).chain(&b.v).chain(&b.w) {
+                mix(v.to_bits());
+            }
+        }
+        for c in &rec.contacts {
+            for v in c.a1.iter().chain(&c.a2) {
+                mix(v.to_bits());
+            }
+            for v in [c.lg, c.pn, c.pt, c.po, c.pr, c.sigma, c.min_gap] {
+                mix(v.to_bits());
+            }
+        }
+        mix(rec.summary.residual.to_bits());
+        mix(rec.summary.iterations as u64);
+    }
+    h
 }
 
 #[test]
-fn extrapolated_warm_start_is_off_by_default_and_saves_desk_iterations() {
+fn previous_warm_start_is_the_plain_warm_start_bit_for_bit() {
+    // The digest of main's (`4742ec5`) default, the plain warm start: `step_latency desk-steps
+    // 400` there.
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
+    assert_eq!(digest(&records), 0x32c9_b2ab_5ff7_3057);
+}
+
+#[test]
+fn extrapolated_warm_start_is_the_default_and_saves_desk_iterations() {
     const STEPS: usize = 60;
+    let sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    assert_eq!(sim.warm_start(), WarmStart::Extrapolated);
     let (default_its, default_states) = desk_run(None, STEPS);
-    let (plain_its, plain_states) = desk_run(Some(WarmStart::Previous), STEPS);
-    assert_eq!(default_its, plain_its);
-    assert_eq!(default_states, plain_states);
     let (extrapolated_its, extrapolated_states) = desk_run(Some(WarmStart::Extrapolated), STEPS);
+    assert_eq!(default_its, extrapolated_its);
+    assert_eq!(default_states, extrapolated_states);
+    let (plain_its, plain_states) = desk_run(Some(WarmStart::Previous), STEPS);
     // Measured: 3.0 → 2.0 mean iterations over 400 steps (warm_probe); demand a 20 % cut.
     assert!(
         (extrapolated_its as f64) < 0.8 * plain_its as f64,
@@ -51,4 +111,166 @@ fn extrapolated_warm_start_is_off_by_default_and_saves_desk_iterations() {
             assert!((x - y).abs() <= 1e-12, "state {x} vs {y}");
         }
     }
+}
+
+#[test]
+fn path_steps_are_the_plain_warm_starts_with_the_default() {
+    // PATH stops anywhere within its tolerance, so an extrapolated start would move its results
+    // (by up to 3.3e-9): the driver extrapolates only for a backend that converges to round-off.
+    const STEPS: usize = 60;
+    let mut path = PathSolver::new(PathSettings::default());
+    assert!(!path.converges_to_round_off());
+    let default = desk_records(None, &mut path, STEPS);
+    let mut path = PathSolver::new(PathSettings::default());
+    let previous = desk_records(Some(WarmStart::Previous), &mut path, STEPS);
+    assert_eq!(digest(&default), digest(&previous));
+}
+
+/// Newton whose budgeted solves ([`McpSolver::set_iteration_budget`]) are cut after one
+/// iteration, so that every extrapolated attempt on the desk (two iterations) fails; it logs the
+/// budget asked for and the iterations of every solve.
+struct OneIterationBudget {
+    newton: NewtonSolver,
+    budget: Option<usize>,
+    /// `(budget, iterations)` of each solve.
+    log: Vec<(Option<usize>, usize)>,
+}
+
+impl McpSolver for OneIterationBudget {
+    fn name(&self) -> &str {
+        "newton"
+    }
+    fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let result = self.newton.solve(mcp, z0);
+        let iterations = match &result {
+            Ok(sol) => sol.summary.iterations,
+            Err(SolveError::NotConverged { best }) => best.summary.iterations,
+            Err(SolveError::InvalidProblem(_)) => 0,
+        };
+        self.log.push((self.budget, iterations));
+        result
+    }
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        self.budget = budget;
+        self.newton.set_iteration_budget(budget.map(|_| 1))
+    }
+    fn converges_to_round_off(&self) -> bool {
+        true
+    }
+}
+
+#[test]
+fn a_missed_extrapolation_is_solved_again_from_the_plain_warm_start_and_counted() {
+    const STEPS: usize = 40;
+    let mut solver = OneIterationBudget {
+        newton: NewtonSolver::new(NewtonSettings::default()),
+        budget: None,
+        log: Vec::new(),
+    };
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    let (mut restarted, mut plain_its) = (0, 0);
+    // The iterations of the smooth steps since the last restart (the driver's history).
+    let mut recent: Vec<usize> = Vec::new();
+    for k in 1..=STEPS {
+        let before = solver.log.len();
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k} did not converge");
+        let solves = &solver.log[before..];
+        let retries = rec.summary.counter(Counter::Retries).unwrap_or(0);
+        match solves {
+            // Budgeted from the extrapolated start and cut (one iteration in each system of
+            // units), then solved from the plain warm start with the full limits.
+            [(Some(budget), cut), (None, plain)] => {
+                // max(8, 3 × the most iterations of the last (up to three) smooth steps).
+                let last3 = &recent[recent.len().saturating_sub(3)..];
+                let expected = (3 * last3.iter().max().copied().unwrap_or(0)).max(8);
+                assert_eq!(*budget, expected, "step {k}, recent {recent:?}");
+                assert!((1..=2).contains(cut), "step {k}: {cut}");
+                assert_eq!(retries, 1, "step {k}");
+                // Both attempts counted.
+                assert_eq!(rec.summary.iterations, cut + plain, "step {k}");
+                restarted += 1;
+                recent.clear();
+            }
+            [(None, its)] => {
+                assert_eq!(retries, 0, "step {k}");
+                assert_eq!(rec.summary.iterations, *its, "step {k}");
+                plain_its += its;
+                if (1..=5).contains(its) {
+                    recent.push(*its);
+                } else {
+                    recent.clear();
+                }
+            }
+            other => panic!("step {k}: solves {other:?}"),
+        }
+    }
+    // After a restart the history starts again: two plain steps, then an extrapolated attempt.
+    assert!(restarted >= 8, "{restarted} restarts in {STEPS} steps");
+    assert!(plain_its > 0);
+    // The restarts end where the plain warm start ends.
+    let (_, plain_states) = desk_run(Some(WarmStart::Previous), STEPS);
+    for (a, b) in states(sim.states()).iter().zip(&plain_states) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-12, "state {x} vs {y}");
+        }
+    }
+}
+
+#[test]
+fn newton_and_path_honour_an_iteration_budget() {
+    // The desk's step 100 from its plain warm start: Newton and PATH take 3 iterations.
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    sim.set_warm_start(WarmStart::Previous);
+    let mut newton = NewtonSolver::new(NewtonSettings::default());
+    for k in 1..100 {
+        let rec = sim
+            .step(&mut newton)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k}");
+    }
+    sim.prepare_step().expect("step 100");
+    let z0 = sim.z().to_vec();
+    let backends: Vec<Box<dyn McpSolver>> = vec![
+        Box::new(NewtonSolver::new(NewtonSettings::default())),
+        Box::new(PathSolver::new(PathSettings::default())),
+    ];
+    for mut solver in backends {
+        let name = solver.name().to_string();
+        let full = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(full.summary.iterations >= 2, "{name}");
+        assert!(solver.set_iteration_budget(Some(1)), "{name}");
+        match sim.solve_step_problem(solver.as_mut(), &z0) {
+            // One iteration in each system of units at most.
+            Err(SolveError::NotConverged { best }) => {
+                assert!(
+                    best.summary.iterations <= 2,
+                    "{name}: {}",
+                    best.summary.iterations
+                )
+            }
+            other => panic!("{name}: {other:?}"),
+        }
+        // Within a budget it does not reach, the same point and iterations, bit for bit.
+        solver.set_iteration_budget(Some(full.summary.iterations + 5));
+        let within = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(within.z, full.z, "{name}");
+        assert_eq!(within.summary.iterations, full.summary.iterations, "{name}");
+        solver.set_iteration_budget(None);
+        let again = sim
+            .solve_step_problem(solver.as_mut(), &z0)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert_eq!(again.z, full.z, "{name}");
+    }
+    // A backend that does not honour budgets says so.
+    let mut conic =
+        ecp::solvers::conic::ConicSolver::new(ecp::solvers::conic::ConicSettings::default());
+    assert!(!conic.set_iteration_budget(Some(1)));
+    assert!(!conic.converges_to_round_off());
 }

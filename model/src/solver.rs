@@ -317,6 +317,27 @@ pub trait McpSolver {
         *out = self.solve(mcp, z0)?;
         Ok(())
     }
+    /// Caps the iterations of the next solves at `budget` until it is set again (`None`: the
+    /// backend's own limits and restarts). A budgeted solve is the backend's first attempt
+    /// alone, stopped after `budget` iterations (in each system of units it tries,
+    /// [`crate::scaling::solve_in_scales`], so at most twice `budget` in all): for a caller that has a cheaper second start
+    /// when a cheap first one fails (the driver's extrapolated warm start,
+    /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
+    /// A solve that converges within the budget gives the same point as without it. Returns
+    /// whether the backend honours budgets; the default does not (and ignores `budget`).
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        let _ = budget;
+        false
+    }
+    /// Whether the backend's converged point does not depend on its starting point beyond
+    /// round-off: it converges fast enough near a solution to end far below its tolerance
+    /// (semismooth Newton: quadratically, to ~1e-16), so that two starts of one step give the
+    /// same answer within 1e-12. A backend that stops at its tolerance (PATH, conic) may end
+    /// anywhere within it. The driver extrapolates warm starts only for such backends. The
+    /// default is `false`.
+    fn converges_to_round_off(&self) -> bool {
+        false
+    }
 }
 
 /// Validates a starting point against a problem: dimension and finiteness.

@@ -444,6 +444,8 @@ pub struct NewtonSolver {
     /// A smoothing continuation is running (its stages and its final solve): the rate and
     /// flat-merit tests stay off there, where a stage cut early changes the continuation's path.
     in_continuation: bool,
+    /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
+    budget: Option<usize>,
 }
 
 impl NewtonSolver {
@@ -463,6 +465,7 @@ impl NewtonSolver {
             nonmonotone: false,
             min_norm_kept: 0,
             in_continuation: false,
+            budget: None,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -850,9 +853,9 @@ impl McpSolver for NewtonSolver {
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
         if !self.settings.scene_scales {
-            return self.solve_restarted(mcp, z0);
+            return self.solve_budgeted(mcp, z0);
         }
-        solve_in_scales(mcp, z0, |mcp, z0| self.solve_restarted(mcp, z0))
+        solve_in_scales(mcp, z0, |mcp, z0| self.solve_budgeted(mcp, z0))
     }
 
     /// [`McpSolver::solve`] with `out`'s storage: the first run writes its result there
@@ -866,6 +869,36 @@ impl McpSolver for NewtonSolver {
         self.ws.result = std::mem::take(out);
         *out = self.solve(mcp, z0)?;
         Ok(())
+    }
+
+    /// Honoured: a budgeted solve is the plain iteration's first run, without the minimum-norm
+    /// restart and the other attempts of the full solve (`solve_restarted`), stopped after
+    /// `budget` iterations (at most [`NewtonSettings::max_iterations`]).
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        self.budget = budget;
+        true
+    }
+
+    /// Near a solution the iteration converges quadratically, far below the tolerance.
+    fn converges_to_round_off(&self) -> bool {
+        true
+    }
+}
+
+impl NewtonSolver {
+    /// [`NewtonSolver::solve_restarted`], or within the iteration budget
+    /// ([`McpSolver::set_iteration_budget`]) its first run alone: the same point when that run
+    /// converges, since the first run of `solve_restarted` is that run.
+    fn solve_budgeted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let Some(budget) = self.budget else {
+            return self.solve_restarted(mcp, z0);
+        };
+        let limit = self.settings.max_iterations;
+        self.settings.max_iterations = budget.min(limit);
+        self.attempt = 0;
+        let result = self.solve_once(mcp, z0);
+        self.settings.max_iterations = limit;
+        result
     }
 }
 

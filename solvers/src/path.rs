@@ -290,6 +290,8 @@ pub struct PathSolver {
     /// The storage of the caller's result ([`McpSolver::solve_into`]), which the next run's
     /// result is written into (empty otherwise: `solve` allocates its result).
     result: Solution,
+    /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
+    iteration_budget: Option<usize>,
 }
 
 impl PathSolver {
@@ -342,6 +344,7 @@ impl PathSolver {
             deadline: None,
             pivot_budget: None,
             fischer: false,
+            iteration_budget: None,
         }
     }
     /// Whether the wall-clock budget of the current solve is spent.
@@ -966,6 +969,11 @@ impl McpSolver for PathSolver {
         let scaled = mcp
             .scales()
             .is_some_and(|s| !s.is_identity() && s.is_valid(mcp.dim()));
+        if self.iteration_budget.is_some() {
+            return solve_in_scales(mcp, z0, |mcp, z0| {
+                self.solve_unscaled(mcp, z0, Attempts::First)
+            });
+        }
         if !(scaled && self.settings.first_in_both_units) {
             return solve_in_scales(mcp, z0, |mcp, z0| {
                 self.solve_unscaled(mcp, z0, Attempts::All)
@@ -1013,6 +1021,13 @@ impl McpSolver for PathSolver {
         *out = self.solve(mcp, z0)?;
         Ok(())
     }
+
+    /// Honoured: a budgeted solve is the first attempt alone (in the problem's scene scales),
+    /// stopped after `budget` iterations (at most [`PathSettings::max_iterations`]).
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        self.iteration_budget = budget;
+        true
+    }
 }
 
 /// Which attempts of a solve [`PathSolver::solve_unscaled`] runs
@@ -1047,8 +1062,12 @@ impl PathSolver {
         self.pivot_budget = (which == Attempts::First && self.settings.first_attempt_pivots > 0)
             .then(|| self.settings.first_attempt_pivots.saturating_mul(mcp.dim()));
         self.lemke.set_pivot_cap(None);
+        let max_iterations = (self.iteration_budget).map_or(self.settings.max_iterations, |b| {
+            b.min(self.settings.max_iterations)
+        });
         let s = match which {
             Attempts::First => PathSettings {
+                max_iterations,
                 guarded_watchdog: false,
                 restarts: 0,
                 fischer_restart: false,

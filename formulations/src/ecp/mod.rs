@@ -687,6 +687,10 @@ impl StepFormulation for EcpContacts {
         self.f = f;
     }
 
+    fn warm_start_extrapolated(&self) -> bool {
+        self.extrapolated
+    }
+
     /// One retry from the active-contact guess of every contact that is closed or closing (a
     /// warm start from a separated step is a poor start for a landing step,
     /// `docs/decisions.md#retry-from-the-active-contact-guess`). After an extrapolated warm start, the

@@ -29,6 +29,14 @@ use crate::scene::{BodyState, Scene, SceneError, initial_states};
 /// iterations against 1, `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
 const SMOOTH_ITERATIONS: usize = 5;
 
+/// The iteration budget of a solve from an extrapolated warm start, from the most iterations
+/// `recent` of the smooth steps it extrapolates: `max(8, 3 recent)`. When the attempt does not
+/// converge within it, the step is solved again from the warm start without extrapolation
+/// with the backend's full limits (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
+fn extrapolation_budget(recent: usize) -> usize {
+    (3 * recent).max(8)
+}
+
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
 /// stay in [`Simulation::mcp`] until the next step is prepared, which clears this.
 #[derive(Clone, Debug, PartialEq)]
@@ -147,13 +155,16 @@ pub struct Simulation {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum WarmStart {
     /// The formulation's warm start from the last step's solution alone
-    /// ([`StepContext::history`] is `None`).
-    #[default]
+    /// ([`StepContext::history`] is `None`): every step as before the extrapolation.
     Previous,
-    /// The formulation may extrapolate from the iterates of the last smooth steps
-    /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`): fewer iterations
-    /// on smooth motion; off by default (the stress suite's 023_room_corner and 096_union_tip
-    /// took many more Newton iterations with it).
+    /// The default: the formulation may extrapolate from the iterates of the last smooth steps
+    /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`), for a backend
+    /// whose answer does not depend on its start ([`McpSolver::converges_to_round_off`]:
+    /// Newton; PATH and conic keep [`WarmStart::Previous`]'s steps), within an iteration budget
+    /// with a restart from the plain warm start
+    /// (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`):
+    /// fewer iterations on smooth motion.
+    #[default]
     Extrapolated,
 }
 
@@ -533,7 +544,7 @@ impl Simulation {
         Ok(())
     }
 
-    /// Chooses the warm start of the next steps ([`WarmStart`]; `Previous` by default).
+    /// Chooses the warm start of the next steps ([`WarmStart`]; `Extrapolated` by default).
     pub fn set_warm_start(&mut self, warm_start: WarmStart) {
         self.warm_start = warm_start;
     }
@@ -594,6 +605,15 @@ impl Simulation {
             reason: "the formulation asked for a rebuild of the step problem it had just built"
                 .into(),
         })
+    }
+
+    /// Whether a step solved by `solver` may start from an extrapolated warm start: the setting
+    /// ([`WarmStart::Extrapolated`]) and a backend whose answer does not depend on its start
+    /// beyond round-off ([`McpSolver::converges_to_round_off`]); with any other backend the
+    /// steps are main's, bit for bit (PATH stops anywhere within its tolerance, and a
+    /// different start moved its results by up to 3.3e-9).
+    fn extrapolates(&self, solver: &dyn McpSolver) -> bool {
+        self.warm_start == WarmStart::Extrapolated && solver.converges_to_round_off()
     }
 
     /// Sets the data of the span `[t0, t0 + h]` from `start` (the states at its start) and the
@@ -675,10 +695,25 @@ impl Simulation {
         solver: &mut dyn McpSolver,
         out: &mut Solution,
     ) -> Result<(), SolveError> {
+        // From an extrapolated warm start, within a budget: when the extrapolation misses (an
+        // event the last steps did not announce), the warm start without it (the first retry
+        // start) is cheaper than running on. The budgeted attempt's iterations are counted in
+        // the summary of the solve that follows, and the restart as a retry.
+        let budgeted = self.formulation.warm_start_extrapolated()
+            && solver.set_iteration_budget(Some(extrapolation_budget(
+                self.kept.history.recent_iterations(),
+            )));
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
+        if budgeted {
+            solver.set_iteration_budget(None);
+        }
         let mut failure = match first {
             Ok(()) => return Ok(()),
             Err(e) => e,
+        };
+        let spent = match (&failure, budgeted) {
+            (SolveError::NotConverged { best }, true) => best.summary.iterations,
+            _ => 0,
         };
         let warm = self.z.clone();
         let mut attempt = 0;
@@ -706,6 +741,7 @@ impl Simulation {
                     out.summary
                         .counters
                         .add(ecp_model::Counter::Retries, attempt);
+                    out.summary.iterations += spent;
                     return Ok(());
                 }
                 Err(e) => failure = better_failure(failure, e),
@@ -811,6 +847,9 @@ impl Simulation {
         solution: &mut Solution,
         record: &mut StepRecord,
     ) -> Result<(), SceneError> {
+        if !self.extrapolates(solver) {
+            self.kept.history.clear();
+        }
         self.prepare_span(&start.0, t0, h)?;
         let mut wrenches = std::mem::take(&mut self.kept.wrenches);
         wrenches.clear();
@@ -877,10 +916,10 @@ impl Simulation {
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
         let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
-        let extrapolated = self.warm_start == WarmStart::Extrapolated;
-        if extrapolated && whole && method == StepMethod::Direct && !retried && easy {
+        if self.extrapolates(solver) && whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
-            self.kept.history.push(&self.z, origin);
+            let iterations = solution.summary.iterations;
+            self.kept.history.push(&self.z, origin, iterations);
         } else {
             self.kept.history.clear();
         }
@@ -912,6 +951,9 @@ impl Simulation {
         let started = Instant::now();
         self.begin_step()?;
         let start = self.checkpoint();
+        if !self.extrapolates(solver) {
+            self.kept.history.clear();
+        }
         self.prepare_span(&start.0, t0, h)?;
         let (z, summary, method) = match self.solve_step_problem(solver, &self.z) {
             Ok(sol) => (sol.z, sol.summary, StepMethod::Direct),
@@ -1021,6 +1063,9 @@ impl Spans for Simulation {
         t0: f64,
         h: f64,
     ) -> Result<Option<Solution>, SceneError> {
+        if !self.extrapolates(solver) {
+            self.kept.history.clear();
+        }
         let start = self.states.clone();
         self.prepare_span(&start, t0, h)?;
         match self.solve_prepared(&start, t0, h, solver) {
@@ -1370,6 +1415,9 @@ mod tests {
         }
         fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]) {
             self.0.warm_start(ctx, mcp, z)
+        }
+        fn warm_start_extrapolated(&self) -> bool {
+            self.0.warm_start_extrapolated()
         }
         fn retry_start(
             &mut self,

@@ -138,6 +138,14 @@ pub trait StepFormulation: Any + Send {
     fn update_data(&mut self, ctx: &StepContext<'_>, mcp: &mut BlockMcp) -> Result<(), SceneError>;
     /// The warm start of the span, from the previous solution in `z`.
     fn warm_start(&mut self, ctx: &StepContext<'_>, mcp: &BlockMcp, z: &mut [f64]);
+    /// Whether the last [`StepFormulation::warm_start`] extrapolated from
+    /// [`StepContext::history`] (the driver then solves it within an iteration budget,
+    /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`,
+    /// and [`StepFormulation::retry_start`]'s first start should be the warm start without
+    /// extrapolation). The default is `false`.
+    fn warm_start_extrapolated(&self) -> bool {
+        false
+    }
     /// A deterministic second start after a failed solve: modify `z` (as the previous attempt
     /// left it) and return `true` to have the span solved again, `false` when there is no
     /// further start. `attempt` counts from 0.

@@ -27,6 +27,8 @@ pub(super) struct History {
     z: [Vec<f64>; KEPT],
     /// The step problem's origin (`StepFormulation::origin`) of each iterate.
     origins: [Vector3<f64>; KEPT],
+    /// The backend's iterations on each kept step.
+    iterations: [usize; KEPT],
     next: usize,
     streak: usize,
 }
@@ -38,15 +40,24 @@ impl History {
         self.streak = 0;
     }
 
-    /// Keeps `z`, the iterate after the read-out of a step solved directly from its warm start,
-    /// in coordinates relative to `origin`.
-    pub(super) fn push(&mut self, z: &[f64], origin: Vector3<f64>) {
+    /// Keeps `z`, the iterate after the read-out of a step solved directly from its warm start
+    /// in `iterations`, in coordinates relative to `origin`.
+    pub(super) fn push(&mut self, z: &[f64], origin: Vector3<f64>, iterations: usize) {
         let slot = self.next;
         self.z[slot].clear();
         self.z[slot].extend_from_slice(z);
         self.origins[slot] = origin;
+        self.iterations[slot] = iterations;
         self.next = (slot + 1) % KEPT;
         self.streak += 1;
+    }
+
+    /// The most iterations any of the last smooth steps kept took (0 when none is kept).
+    pub(super) fn recent_iterations(&self) -> usize {
+        (0..self.streak.min(KEPT))
+            .map(|back| self.iterations[(self.next + 2 * KEPT - 1 - back) % KEPT])
+            .max()
+            .unwrap_or(0)
     }
 
     /// The iterates of the last smooth steps (at least two) for a span that is a `whole_step`,
