@@ -327,11 +327,14 @@ impl FreeSystem {
         }
     }
 
-    /// Factorises `A_ff` with the values `jac` of `J(z*)` (lists built by [`FreeSystem::index`]).
+    /// Factorises `−A_ff` with the values `jac` of `J(z*)` (lists built by
+    /// [`FreeSystem::index`]): its solves give `−A_ff⁻¹ b` bit for bit but for the signs of
+    /// zeros (the same pivots; every operation of the elimination and the solves commutes
+    /// with negation), so `dz = −A⁻¹ P ∂F/∂θ` needs no negation pass.
     fn factor(&mut self, jac: &[f64]) -> Result<(), LinalgError> {
         self.values.resize(self.entries.len(), 0.0);
         for (v, &q) in self.values.iter_mut().zip(&self.entries) {
-            *v = jac[q];
+            *v = -jac[q];
         }
         let lu = self.lu.as_mut().ok_or(LinalgError::NotFactored)?;
         // The small kernel scatters into its own storage (`f ≤ n ≤ SMALL_DENSE_MAX`).
@@ -440,7 +443,7 @@ impl ReducedSystem {
         }
         self.jac.resize(pattern.nnz(), 0.0);
         mcp.jacobian(z, &mut self.jac);
-        if self.jac.iter().any(|v| !v.is_finite()) {
+        if !all_finite(&self.jac) {
             return Err(ImplicitError::NonFinite);
         }
         self.held.clear();
@@ -629,8 +632,9 @@ impl ReducedSystem {
         if transpose {
             b.fill(0.0);
         }
+        // The factors are −A_ff's.
         for (&i, &v) in fs.index.iter().zip(&fs.work) {
-            b[i] = v;
+            b[i] = -v;
         }
         Ok(())
     }
@@ -699,7 +703,7 @@ impl ReducedSystem {
         let n = self.held.len();
         // One contiguous pass for the finiteness test and the largest magnitude (the weak
         // slopes' scale); `a <= MAX` is false for NaN and ±∞.
-        let (max, finite) = largest_magnitude(rhs);
+        let (max, mut finite) = largest_magnitude(rhs);
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
@@ -711,8 +715,8 @@ impl ReducedSystem {
         transpose(rhs, n, p, rows);
         if self.free_factored {
             // The free rows moved up to the first `f` rows (in place: `index[r] ≥ r`), solved
-            // by A_ff, and moved back down negated (backwards: `index[r] ≥ r` again), the held
-            // rows 0.
+            // by −A_ff's factors (the sign is in them), and moved back down (backwards:
+            // `index[r] ≥ r` again), the held rows 0.
             let index = &self.free.index;
             let f = index.len();
             for (r, &i) in index.iter().enumerate() {
@@ -737,6 +741,7 @@ impl ReducedSystem {
                     rows[i * p..(i + 1) * p].fill(0.0);
                 }
             }
+            finite = all_finite(rows);
         } else {
             for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
                 if h {
@@ -747,8 +752,9 @@ impl ReducedSystem {
             if !linear.solve_rows_in_place(rows, p)? {
                 return Err(LinalgError::NotFactored.into());
             }
+            finite = negate(rows);
         }
-        if !negate(rows) {
+        if !finite {
             return Err(LinalgError::NonFinite.into());
         }
         transpose(rows, p, n, rhs);
@@ -991,6 +997,21 @@ fn largest_magnitude(v: &[f64]) -> (f64, bool) {
     }
     let largest = max.iter().fold(0.0f64, |m, &a| if a > m { a } else { m });
     (largest, nan.iter().all(|x| *x == 0.0))
+}
+
+/// True when every entry of `v` is finite (lanes as [`largest_magnitude`]).
+fn all_finite(v: &[f64]) -> bool {
+    let mut nan = [0.0f64; 4];
+    let mut chunks = v.chunks_exact(4);
+    for c in &mut chunks {
+        for k in 0..4 {
+            nan[k] += c[k] * 0.0;
+        }
+    }
+    for &x in chunks.remainder() {
+        nan[0] += x * 0.0;
+    }
+    nan.iter().all(|x| *x == 0.0)
 }
 
 /// Negates `v` in place; true when every entry is finite (lanes as [`largest_magnitude`]).
