@@ -24,6 +24,12 @@
 //! analysis is done once and reused for every step and every active set. Then
 //! `dz/dθ = −A⁻¹ P ∂F/∂θ` where `P` zeroes the held rows.
 //!
+//! **The free block.** Since `dz_h = 0` for the held components, that is `A_ff dz_f = −b_f` on
+//! the free rows and columns alone; with the small dense kernel (below) only `A_ff` is
+//! factorised, its entries gathered from `J` by a list built once per held mask, and the whole
+//! `A` is formed only for the regularised fallback
+//! (`docs/latency.md#the-desk-step-sensitivity-on-the-free-block-allocation-free-branch-wip-sensfast2-issue-18`).
+//!
 //! **Singular `A`** (non-unique multipliers, an ECP free to slide over a face parallel to the
 //! plane, impulses shared between pieces): the solve falls back to the minimum-norm solution by
 //! iterated Tikhonov regularisation, `x ← x + (AᵀA + λI)⁻¹ Aᵀ (b − A x)` eight times from 0
