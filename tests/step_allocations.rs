@@ -232,14 +232,14 @@ fn a_warm_conic_desk_solve_allocates_a_bounded_number_of_times() {
 }
 
 /// The most a repeated desk step sensitivity allocates (`StepDifferentiator::differentiate`
-/// after the 100th step, its workspace grown by two calls): the returned `StepSensitivity`
-/// (its `dz`, state derivatives, inputs, statuses, degeneracies and their component names) and
-/// the short lists of the classification and the data Jacobian's block bookkeeping; the
-/// workspace itself (the reduced system, the LU, the row-major solution, `∂F/∂θ`) allocates
-/// nothing once grown. `cargo test [--release] --test step_allocations -- --nocapture` prints
-/// the count; the bound leaves a margin for the profiles and fails if a per-column or per-entry
-/// allocation comes back (30 columns).
-const DESK_SENSITIVITY_ALLOCATIONS_MAX: usize = 30;
+/// after the 100th step, its workspace grown by two calls): the returned `StepSensitivity`'s
+/// vectors (its `dz`, state derivatives, inputs, statuses, degeneracies and their component
+/// names; 10 in all) — the workspace itself (the reduced system, the LU, the row-major solution,
+/// `∂F/∂θ`, the classification's and the data Jacobian's bookkeeping) allocates nothing once
+/// grown (`differentiate_into`, below, allocates nothing at all). `cargo test [--release] --test
+/// step_allocations -- --nocapture` prints the count; the bound fails if a per-column or
+/// per-entry allocation comes back (30 columns).
+const DESK_SENSITIVITY_ALLOCATIONS_MAX: usize = 15;
 
 #[test]
 fn a_repeated_desk_step_sensitivity_allocates_a_bounded_number_of_times() {
@@ -273,4 +273,35 @@ fn a_repeated_desk_step_sensitivity_allocates_a_bounded_number_of_times() {
         "{} allocations",
         counts[0]
     );
+}
+
+/// A repeated desk step sensitivity into one kept result
+/// (`StepDifferentiator::differentiate_into`) allocates nothing once the result and the
+/// workspace have grown (two calls), and gives the same result as `differentiate`.
+#[test]
+fn a_repeated_desk_step_sensitivity_into_a_kept_result_does_not_allocate() {
+    use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator, StepSensitivity};
+    let mut sim = Simulation::new(scenarios::desk()).unwrap_or_else(|e| panic!("{e}"));
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    for _ in 0..100 {
+        sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+    }
+    let mut differ = StepDifferentiator::new(SensitivityOptions::default());
+    let mut kept = StepSensitivity::empty();
+    let mut counts = Vec::new();
+    for call in 0..6 {
+        let before = allocations();
+        differ
+            .differentiate_into(&sim, &[], &mut kept)
+            .unwrap_or_else(|e| panic!("call {call}: {e}"));
+        let spent = allocations() - before;
+        assert_eq!(kept.dz.len(), kept.n * 30);
+        if call >= 2 {
+            counts.push(spent);
+        }
+    }
+    println!("repeated desk step sensitivity into a kept result: {counts:?} allocations per call");
+    assert_eq!(counts, vec![0; 4]);
+    let fresh = differ.differentiate(&sim).unwrap_or_else(|e| panic!("{e}"));
+    assert_eq!(fresh, kept);
 }

@@ -77,9 +77,10 @@
 use nalgebra::{Vector3, Vector4, Vector6};
 
 use ecp_model::sensitivity::{
-    ActiveSetOptions, ComponentStatus, ImplicitError, ReducedSystem, SolveKind, classify,
+    ActiveSetOptions, ComponentStatus, ImplicitDerivative, ImplicitError, ReducedSystem, SolveKind,
+    classify_into,
 };
-use ecp_model::{DataId, Mcp, McpSolver, ModelError};
+use ecp_model::{DataId, DataJacobianWork, Mcp, McpSolver, ModelError};
 
 use crate::record::StepRecord;
 use crate::scene::{BodyState, Scene, SceneError};
@@ -240,7 +241,15 @@ impl StepInput {
 
     /// Every step input of a scene with `bodies` bodies, in column order.
     pub fn all(bodies: usize) -> Vec<StepInput> {
-        let mut v = vec![StepInput::Mu, StepInput::Et, StepInput::Eo, StepInput::Er];
+        let mut v = Vec::with_capacity(FRICTION_INPUTS + BODY_INPUTS * bodies);
+        Self::all_into(bodies, &mut v);
+        v
+    }
+
+    /// [`StepInput::all`] into `v` (cleared first).
+    pub fn all_into(bodies: usize, v: &mut Vec<StepInput>) {
+        v.clear();
+        v.extend([StepInput::Mu, StepInput::Et, StepInput::Eo, StepInput::Er]);
         for body in 0..bodies {
             v.push(StepInput::Mass { body });
             v.extend(
@@ -255,7 +264,6 @@ impl StepInput {
             v.extend((0..3).map(|axis| StepInput::Force { body, axis }));
             v.extend((0..3).map(|axis| StepInput::Torque { body, axis }));
         }
-        v
     }
 }
 
@@ -418,6 +426,22 @@ impl StepSensitivity {
     }
 }
 
+impl StepSensitivity {
+    /// An empty result, for [`StepDifferentiator::differentiate_into`] to fill.
+    pub fn empty() -> Self {
+        StepSensitivity {
+            step: 0,
+            inputs: Vec::new(),
+            n: 0,
+            dz: Vec::new(),
+            state: Vec::new(),
+            status: Vec::new(),
+            degeneracies: Vec::new(),
+            solve: SolveKind::Direct,
+        }
+    }
+}
+
 /// Step-sensitivity workspace, reused from step to step (the reduced system keeps its
 /// symbolic analysis).
 #[derive(Debug, Default)]
@@ -427,6 +451,40 @@ pub struct StepDifferentiator {
     /// `∂F/∂θ` of the step inputs, kept so that its storage is not zeroed twice per call (the
     /// data Jacobian zeroes it itself).
     rhs: Vec<f64>,
+    /// The rest of the workspace, kept so that a repeated call allocates nothing.
+    work: Work,
+}
+
+/// The bookkeeping of [`input_columns`], kept between calls.
+#[derive(Debug, Default)]
+struct InputColumns {
+    /// The data blocks of the inputs, each once.
+    wrt: Vec<DataId>,
+    /// The column of each block's first component in the data Jacobian.
+    first: Vec<usize>,
+    /// Each input's column in the data Jacobian.
+    at: Vec<usize>,
+    /// The data Jacobian's own.
+    data: DataJacobianWork,
+}
+
+/// [`StepDifferentiator`]'s buffers besides the reduced system and `∂F/∂θ`.
+#[derive(Debug, Default)]
+struct Work {
+    /// `F(z*)`.
+    f: Vec<f64>,
+    /// The statuses of stage 1 (the held contacts' geometry held too).
+    first: Vec<ComponentStatus>,
+    /// The components of the held contacts' geometry.
+    geometry: Vec<usize>,
+    /// Stage 1's derivative.
+    stage: ImplicitDerivative,
+    /// Per body: ν's and q's offsets, `Q/|Q|` and `|Q|`.
+    frames: Vec<(usize, usize, Vector4<f64>, f64)>,
+    /// The bookkeeping of [`input_columns`].
+    columns: InputColumns,
+    /// Component names of earlier results' degeneracies, reused for the new ones.
+    names: Vec<String>,
 }
 
 impl StepDifferentiator {
@@ -438,6 +496,7 @@ impl StepDifferentiator {
                 .with_structured_solve(options.structured_solve)
                 .with_blocked_columns(options.blocked_columns),
             rhs: Vec::new(),
+            work: Work::default(),
         }
     }
 
@@ -454,38 +513,64 @@ impl StepDifferentiator {
         sim: &Simulation,
         extra: &[StepInput],
     ) -> Result<StepSensitivity, SensitivityError> {
+        let mut out = StepSensitivity::empty();
+        self.differentiate_into(sim, extra, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`StepDifferentiator::differentiate_with`] into `out`, whose vectors (and the component
+    /// names of its degeneracies) are reused: a repeated call allocates nothing once they and
+    /// the workspace have grown, unless a contact has `p_n` at 0 (the second stage). On an
+    /// error `out` holds no valid result.
+    pub fn differentiate_into(
+        &mut self,
+        sim: &Simulation,
+        extra: &[StepInput],
+        out: &mut StepSensitivity,
+    ) -> Result<(), SensitivityError> {
         let unsupported = || SensitivityError::Unsupported {
             formulation: sim.formulation_name().to_string(),
         };
         if sim.capabilities().sensitivities == SensitivitySupport::None {
             return Err(unsupported());
         }
-        let bodies_vars: Vec<_> = sim
+        if sim
             .handles()
             .bodies
             .iter()
-            .map(|b| b.nu.zip(b.q))
-            .collect::<Option<Vec<_>>>()
-            .ok_or_else(unsupported)?;
+            .any(|b| b.nu.is_none() || b.q.is_none())
+        {
+            return Err(unsupported());
+        }
         let last = sim.last_step().ok_or(SensitivityError::NoStep)?;
         let mcp = sim.mcp();
         let n = mcp.dim();
         let z = &last.z;
-        let mut f = vec![0.0; n];
-        mcp.evaluate(z, &mut f);
+        let work = &mut self.work;
+        let f = &mut work.f;
+        f.clear();
+        f.resize(n, 0.0);
+        mcp.evaluate(z, f);
         if !last.converged {
             return Err(SensitivityError::NotConverged {
                 step: last.step,
-                residual: ecp_model::natural_residual(z, &f, mcp.lower(), mcp.upper()),
+                residual: ecp_model::natural_residual(z, f, mcp.lower(), mcp.upper()),
             });
         }
         let opts = &self.options.active_set;
-        let mut status = classify(z, &f, mcp.lower(), mcp.upper(), opts);
-        let mut degeneracies = Vec::new();
+        let status = &mut out.status;
+        classify_into(z, f, mcp.lower(), mcp.upper(), opts, status);
+        for d in out.degeneracies.drain(..) {
+            if let Degeneracy::WeaklyActive { component, .. } = d {
+                work.names.push(component);
+            }
+        }
+        let degeneracies = &mut out.degeneracies;
         // Contacts with p_n at 0: friction held; their closest-point unknowns (a1, a2, l, l_g)
         // do not enter the motion rows while p_n = p_f = 0, so they are solved in a second
         // stage (below) and cannot spoil the motion derivatives when they are not unique.
-        let mut geometry = Vec::new();
+        let geometry = &mut work.geometry;
+        geometry.clear();
         for (i, c) in sim.handles().contacts.iter().enumerate() {
             let pn = mcp.offset(c.normal);
             if status[pn] != ComponentStatus::Free {
@@ -499,18 +584,23 @@ impl StepDifferentiator {
             }
         }
         let bodies = sim.scene().bodies.len();
-        let mut inputs = StepInput::all(bodies);
+        let inputs = &mut out.inputs;
+        StepInput::all_into(bodies, inputs);
         inputs.extend_from_slice(extra);
         let p = inputs.len();
-        input_columns(sim, z, &inputs, &mut self.rhs)?;
+        input_columns(sim, z, inputs, &mut self.rhs, &mut work.columns)?;
         let rhs = &self.rhs;
         // Stage 1: everything but the held-contact geometry.
-        let mut first = status.clone();
-        for &i in &geometry {
+        let first = &mut work.first;
+        first.clone_from(status);
+        for &i in geometry.iter() {
             first[i] = ComponentStatus::Held;
         }
-        let d = self.system.differentiate(mcp, z, &first, rhs, p, opts)?;
-        let mut dz = d.dz;
+        let d = &mut work.stage;
+        self.system
+            .differentiate_into(mcp, z, first, rhs, p, opts, d)?;
+        let dz = &mut out.dz;
+        dz.clone_from(&d.dz);
         if let SolveKind::Regularised { consistency } = d.solve {
             degeneracies.push(Degeneracy::Singular { consistency });
         }
@@ -520,7 +610,7 @@ impl StepDifferentiator {
             let pattern = mcp.jacobian_pattern().clone();
             let jac = self.system.jacobian_values().to_vec();
             let mut second = vec![ComponentStatus::Held; n];
-            for &i in &geometry {
+            for &i in geometry.iter() {
                 second[i] = status[i];
             }
             let mut rhs2 = rhs.clone();
@@ -538,17 +628,16 @@ impl StepDifferentiator {
             if let SolveKind::Regularised { consistency } = d2.solve {
                 degeneracies.push(Degeneracy::SeparatedGeometry { consistency });
             }
+            // Slopes along the combined derivative (stage 1 alone holds the contact geometry).
+            d.weak = self.system.weak_slopes(mcp, status, dz, rhs, p, opts);
         }
-        // Slopes along the combined derivative (stage 1 alone holds the contact geometry);
-        // without a second stage stage 1's are those (same status, same derivative).
-        let weak = if geometry.is_empty() {
-            d.weak
-        } else {
-            self.system.weak_slopes(mcp, &status, &dz, rhs, p, opts)
-        };
-        for w in &weak {
+        // Without a second stage stage 1's slopes are those (same status, same derivative).
+        for w in &d.weak {
+            let mut component = work.names.pop().unwrap_or_default();
+            component.clear();
+            mcp.write_component_name(w.index, &mut component);
             degeneracies.push(Degeneracy::WeaklyActive {
-                component: mcp.component_name(w.index),
+                component,
                 index: w.index,
                 slope: w.slope,
                 two_sided: w.two_sided,
@@ -557,18 +646,22 @@ impl StepDifferentiator {
         // The stored state: x, Q/|Q|, v, ω.
         // Written column by column, body by body: every entry once, no zeroing first.
         let m = STATE_SIZE * bodies;
-        let frames: Vec<_> = bodies_vars
-            .iter()
-            .map(|&(nu_id, q_id)| {
-                let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
-                let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
-                let norm = qraw.norm();
-                (nu0, q0, qraw / norm, norm)
-            })
-            .collect();
-        let mut state = Vec::with_capacity(m * p);
+        let frames = &mut work.frames;
+        frames.clear();
+        for b in &sim.handles().bodies {
+            let (Some(nu_id), Some(q_id)) = (b.nu, b.q) else {
+                return Err(unsupported());
+            };
+            let (nu0, q0) = (mcp.offset(nu_id), mcp.offset(q_id));
+            let qraw = Vector4::new(z[q0 + 3], z[q0 + 4], z[q0 + 5], z[q0 + 6]);
+            let norm = qraw.norm();
+            frames.push((nu0, q0, qraw / norm, norm));
+        }
+        let state = &mut out.state;
+        state.clear();
+        state.reserve(m * p);
         for col in dz.chunks_exact(n.max(1)).take(p) {
-            for &(nu0, q0, qn, norm) in &frames {
+            for &(nu0, q0, qn, norm) in frames.iter() {
                 state.extend_from_slice(&col[q0..q0 + 3]);
                 let dq = Vector4::new(col[q0 + 3], col[q0 + 4], col[q0 + 5], col[q0 + 6]);
                 let dqn = (dq - qn * qn.dot(&dq)) / norm;
@@ -576,7 +669,7 @@ impl StepDifferentiator {
                 state.extend_from_slice(&col[nu0..nu0 + 6]);
             }
         }
-        let solve = degeneracies
+        out.solve = degeneracies
             .iter()
             .find_map(|d| match d {
                 Degeneracy::Singular { consistency } => Some(SolveKind::Regularised {
@@ -585,16 +678,9 @@ impl StepDifferentiator {
                 _ => None,
             })
             .unwrap_or(SolveKind::Direct);
-        Ok(StepSensitivity {
-            step: last.step,
-            inputs,
-            n,
-            dz,
-            state,
-            status,
-            degeneracies,
-            solve,
-        })
+        out.step = last.step;
+        out.n = n;
+        Ok(())
     }
 }
 
@@ -606,14 +692,21 @@ fn input_columns(
     z: &[f64],
     inputs: &[StepInput],
     out: &mut Vec<f64>,
+    work: &mut InputColumns,
 ) -> Result<(), SensitivityError> {
     let mcp = sim.mcp();
     let n = mcp.dim();
     // The data blocks the inputs live in, each once, and the column of each block's first
     // component in the data Jacobian.
-    let mut wrt: Vec<DataId> = Vec::new();
-    let mut first: Vec<usize> = Vec::new();
-    let mut at = Vec::with_capacity(inputs.len());
+    let InputColumns {
+        wrt,
+        first,
+        at,
+        data,
+    } = work;
+    wrt.clear();
+    first.clear();
+    at.clear();
     let mut p = 0;
     for input in inputs {
         let (d, k) = input.data(sim).ok_or_else(|| {
@@ -634,7 +727,7 @@ fn input_columns(
     }
     // The data Jacobian zeroes its output itself: `resize` only keeps the length right.
     out.resize(n * p, 0.0);
-    mcp.data_jacobian(z, &wrt, out)?;
+    mcp.data_jacobian_with(z, wrt, out, data)?;
     // The step inputs are laid out as their data blocks ([`StepInput::all`]): no reordering.
     if at.iter().copied().eq(0..p) {
         return Ok(());

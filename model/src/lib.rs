@@ -72,7 +72,7 @@ pub use mcp::{
     natural_residual, residual_of, worst_component, write_worst_component,
 };
 pub use pattern::CscPattern;
-pub use problem::{BlockMcp, Problem, ResId, VarId};
+pub use problem::{BlockMcp, DataJacobianWork, Problem, ResId, VarId};
 pub use residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 pub use scaling::{McpScales, ScaledMcp, far_from_si, solve_in_scales};
 pub use solver::{

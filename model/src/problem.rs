@@ -463,6 +463,19 @@ impl AssembledBlock {
     }
 }
 
+/// The bookkeeping of [`BlockMcp::data_jacobian_with`], kept between calls.
+#[derive(Clone, Debug, Default)]
+pub struct DataJacobianWork {
+    /// Column of the first entry of each data block, if wanted.
+    column: Vec<Option<usize>>,
+    /// A term's local dense rows.
+    local: Vec<f64>,
+    /// A block's column positions.
+    positions: Vec<usize>,
+    /// A term's local columns' columns of θ.
+    scatter: Vec<usize>,
+}
+
 /// An MCP assembled from blocks: one flat layout, bounds, `F` and a sparse `J`, and the data
 /// blocks its residual blocks read.
 pub struct BlockMcp {
@@ -584,8 +597,27 @@ impl BlockMcp {
         wrt: &[DataId],
         out: &mut [f64],
     ) -> Result<(), ModelError> {
+        self.data_jacobian_with(z, wrt, out, &mut DataJacobianWork::default())
+    }
+
+    /// [`BlockMcp::data_jacobian`] with its bookkeeping in `work`, kept by the caller: no
+    /// allocation once it has grown (the step sensitivities, `docs/latency.md`).
+    pub fn data_jacobian_with(
+        &self,
+        z: &[f64],
+        wrt: &[DataId],
+        out: &mut [f64],
+        work: &mut DataJacobianWork,
+    ) -> Result<(), ModelError> {
+        let DataJacobianWork {
+            column,
+            local,
+            positions,
+            scatter,
+        } = work;
         // Column of the first entry of each data block, if wanted.
-        let mut column = vec![None; self.data.len()];
+        column.clear();
+        column.resize(self.data.len(), None);
         let mut p = 0;
         for d in wrt {
             let slot = column.get_mut(d.0).ok_or_else(|| {
@@ -615,15 +647,6 @@ impl BlockMcp {
             )));
         }
         out.fill(0.0);
-        let width = self
-            .blocks
-            .iter()
-            .map(|b| b.col_pos.len())
-            .max()
-            .unwrap_or(0);
-        let mut local = Vec::new();
-        let mut positions = Vec::with_capacity(width);
-        let mut scatter = Vec::with_capacity(width);
         let wanted = |i: &Input| matches!(i, Input::Data(d) if column[d.0].is_some());
         // Paired blocks own their rows and write straight into `out` (entry (i, j) of a data
         // input at column c of θ lives at c·n + row0 + i); the terms, after them, add theirs
@@ -645,7 +668,7 @@ impl BlockMcp {
                 );
             }
             let mut jac =
-                JacobianBlocks::with_discards(out, &positions, &b.block_start, b.rows, true);
+                JacobianBlocks::with_discards(out, positions, &b.block_start, b.rows, true);
             b.block
                 .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
         }
@@ -674,7 +697,7 @@ impl BlockMcp {
             local.clear();
             local.resize(scatter.len() * b.rows, 0.0);
             {
-                let mut jac = JacobianBlocks::new(&mut local, &positions, &b.block_start, b.rows);
+                let mut jac = JacobianBlocks::new(local, positions, &b.block_start, b.rows);
                 b.block
                     .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
             }

@@ -24,6 +24,12 @@
 //! analysis is done once and reused for every step and every active set. Then
 //! `dz/dθ = −A⁻¹ P ∂F/∂θ` where `P` zeroes the held rows.
 //!
+//! **The free block.** Since `dz_h = 0` for the held components, that is `A_ff dz_f = −b_f` on
+//! the free rows and columns alone; with the small dense kernel (below) only `A_ff` is
+//! factorised, its entries gathered from `J` by a list built once per held mask, and the whole
+//! `A` is formed only for the regularised fallback
+//! (`docs/latency.md#the-desk-step-sensitivity-on-the-free-block-allocation-free-branch-wip-sensfast2-issue-18`).
+//!
 //! **Singular `A`** (non-unique multipliers, an ECP free to slide over a face parallel to the
 //! plane, impulses shared between pieces): the solve falls back to the minimum-norm solution by
 //! iterated Tikhonov regularisation, `x ← x + (AᵀA + λI)⁻¹ Aᵀ (b − A x)` eight times from 0
@@ -124,32 +130,45 @@ pub fn classify(
     upper: &[f64],
     opts: &ActiveSetOptions,
 ) -> Vec<ComponentStatus> {
+    let mut status = Vec::with_capacity(z.len());
+    classify_into(z, f, lower, upper, opts, &mut status);
+    status
+}
+
+/// [`classify`] into `status` (cleared first; no allocation once it has the capacity).
+pub fn classify_into(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    opts: &ActiveSetOptions,
+    status: &mut Vec<ComponentStatus>,
+) {
     let tol = opts.tolerance;
-    (0..z.len())
-        .map(|i| {
-            let (l, u) = (lower[i], upper[i]);
-            if l == u {
-                return ComponentStatus::Active;
-            }
-            let at_lower = l.is_finite() && z[i] - l <= tol;
-            let at_upper = u.is_finite() && u - z[i] <= tol;
-            if at_lower {
-                if f[i] > tol {
-                    ComponentStatus::Active
-                } else {
-                    ComponentStatus::WeaklyActive
-                }
-            } else if at_upper {
-                if -f[i] > tol {
-                    ComponentStatus::Active
-                } else {
-                    ComponentStatus::WeaklyActive
-                }
+    status.clear();
+    status.extend((0..z.len()).map(|i| {
+        let (l, u) = (lower[i], upper[i]);
+        if l == u {
+            return ComponentStatus::Active;
+        }
+        let at_lower = l.is_finite() && z[i] - l <= tol;
+        let at_upper = u.is_finite() && u - z[i] <= tol;
+        if at_lower {
+            if f[i] > tol {
+                ComponentStatus::Active
             } else {
-                ComponentStatus::Free
+                ComponentStatus::WeaklyActive
             }
-        })
-        .collect()
+        } else if at_upper {
+            if -f[i] > tol {
+                ComponentStatus::Active
+            } else {
+                ComponentStatus::WeaklyActive
+            }
+        } else {
+            ComponentStatus::Free
+        }
+    }));
 }
 
 /// How the reduced system was solved.
@@ -189,6 +208,18 @@ pub struct ImplicitDerivative {
     pub weak: Vec<WeakComponent>,
     /// How the reduced system was solved.
     pub solve: SolveKind,
+}
+
+impl Default for ImplicitDerivative {
+    /// No columns, solved directly: storage for [`ReducedSystem::differentiate_into`].
+    fn default() -> Self {
+        ImplicitDerivative {
+            dz: Vec::new(),
+            columns: 0,
+            weak: Vec::new(),
+            solve: SolveKind::Direct,
+        }
+    }
 }
 
 /// Failure of a sensitivity computation.
@@ -235,6 +266,86 @@ pub struct ReducedSystem {
     row_entries: Vec<(usize, usize)>,
     /// One row of `p` residual slopes per weak component.
     slope_rows: Vec<f64>,
+    /// The free block `A_ff` of the reduced matrix and its LU (module documentation).
+    free: FreeSystem,
+    /// The last factorisation is the free block's ([`ReducedSystem::factor`]).
+    free_factored: bool,
+}
+
+/// The free block `A_ff` of the reduced matrix, the rows and columns of the free components:
+/// the held rows are unit rows and the held components' derivatives are 0, so `A dz = −P b`
+/// is `A_ff dz_f = −b_f`, `dz_h = 0`. Its entries are gathered from `J(z*)` through the
+/// pattern, by a list built once per held mask (the active set changes seldom).
+#[derive(Default)]
+struct FreeSystem {
+    /// The held mask the lists are built for, when `built`.
+    held: Vec<bool>,
+    built: bool,
+    /// The free components, ascending: row and column `r` of `A_ff` is component `index[r]`.
+    index: Vec<usize>,
+    /// The stored entries of `J` inside `A_ff` (positions in the pattern's values) and their
+    /// positions in the dense column-major `f × f` matrix.
+    entries: Vec<usize>,
+    positions: Vec<usize>,
+    /// The values of `entries` at the current `z*`.
+    values: Vec<f64>,
+    /// The small kernel's LU of `A_ff`.
+    lu: Option<DenseLu>,
+    /// A gathered right-hand side.
+    work: Vec<f64>,
+}
+
+impl FreeSystem {
+    /// Builds the lists for `held` (nothing to do when they are built for it already).
+    fn index(&mut self, pattern: &CscPattern, held: &[bool]) {
+        if self.built && self.held == held {
+            return;
+        }
+        self.built = true;
+        self.held.clear();
+        self.held.extend_from_slice(held);
+        let n = held.len();
+        self.index.clear();
+        self.index.extend((0..n).filter(|&i| !held[i]));
+        let f = self.index.len();
+        // The row (and column) of each component in A_ff, `usize::MAX` for a held one.
+        let mut compact = vec![usize::MAX; n];
+        for (r, &i) in self.index.iter().enumerate() {
+            compact[i] = r;
+        }
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        self.entries.clear();
+        self.positions.clear();
+        for (j, &c) in compact.iter().enumerate() {
+            if c == usize::MAX {
+                continue;
+            }
+            for q in cp[j]..cp[j + 1] {
+                let r = compact[ri[q]];
+                if r != usize::MAX {
+                    self.entries.push(q);
+                    self.positions.push(c * f + r);
+                }
+            }
+        }
+        if self.lu.as_ref().is_none_or(|lu| lu.dim() != f) {
+            self.lu = Some(DenseLu::new(f));
+        }
+    }
+
+    /// Factorises `−A_ff` with the values `jac` of `J(z*)` (lists built by
+    /// [`FreeSystem::index`]): its solves give `−A_ff⁻¹ b` bit for bit but for the signs of
+    /// zeros (the same pivots; every operation of the elimination and the solves commutes
+    /// with negation), so `dz = −A⁻¹ P ∂F/∂θ` needs no negation pass.
+    fn factor(&mut self, jac: &[f64]) -> Result<(), LinalgError> {
+        self.values.resize(self.entries.len(), 0.0);
+        for (v, &q) in self.values.iter_mut().zip(&self.entries) {
+            *v = -jac[q];
+        }
+        let lu = self.lu.as_mut().ok_or(LinalgError::NotFactored)?;
+        // The small kernel scatters into its own storage (`f ≤ n ≤ SMALL_DENSE_MAX`).
+        lu.factor_scattered(&self.positions, &self.values, &mut [])
+    }
 }
 
 /// The fallback of a singular reduced matrix: `A` dense and an LU of `AᵀA + λI`.
@@ -334,15 +445,48 @@ impl ReducedSystem {
             self.linear = Some(LinearSolver::structured(pattern, self.dense_max, groups)?);
             self.pattern = Some(pattern.clone());
             self.index_rows(pattern);
+            self.free.built = false;
         }
         self.jac.resize(pattern.nnz(), 0.0);
         mcp.jacobian(z, &mut self.jac);
-        if self.jac.iter().any(|v| !v.is_finite()) {
+        if !all_finite(&self.jac) {
             return Err(ImplicitError::NonFinite);
         }
         self.held.clear();
         self.held
             .extend(status.iter().map(ComponentStatus::is_held));
+        self.regularised = None;
+        self.free_factored = false;
+        let linear = self.linear.as_ref().ok_or(LinalgError::NotFactored)?;
+        if !self.blocked_columns && linear.solves_rows() {
+            // The free block alone (module documentation); the whole reduced matrix is formed
+            // only for the regularised fallback.
+            self.free.index(pattern, &self.held);
+            return match self.free.factor(&self.jac) {
+                Ok(()) => {
+                    self.free_factored = true;
+                    Ok(())
+                }
+                Err(LinalgError::Singular { .. }) => {
+                    self.form_reduced(pattern);
+                    self.regularise()
+                }
+                Err(e) => Err(e.into()),
+            };
+        }
+        self.form_reduced(pattern);
+        let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+        match linear.factor(&self.reduced) {
+            Ok(()) => Ok(()),
+            Err(LinalgError::Singular { .. }) => self.regularise(),
+            Err(e) => Err(e.into()),
+        }
+    }
+
+    /// The reduced matrix `A` in the pattern's order: the rows of `J(z*)`, unit rows for the
+    /// held components.
+    fn form_reduced(&mut self, pattern: &CscPattern) {
+        let n = pattern.dim();
         self.reduced.clone_from(&self.jac);
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         for j in 0..n {
@@ -356,13 +500,6 @@ impl ReducedSystem {
             if self.held[i] {
                 self.reduced[p] = 1.0;
             }
-        }
-        self.regularised = None;
-        let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
-        match linear.factor(&self.reduced) {
-            Ok(()) => Ok(()),
-            Err(LinalgError::Singular { .. }) => self.regularise(),
-            Err(e) => Err(e.into()),
         }
     }
 
@@ -392,6 +529,7 @@ impl ReducedSystem {
 
     /// Builds the regularised fallback from the current reduced matrix.
     fn regularise(&mut self) -> Result<(), ImplicitError> {
+        self.free_factored = false;
         let pattern = self.pattern.as_ref().ok_or(LinalgError::NotFactored)?;
         let n = pattern.dim();
         let mut a = vec![0.0; n * n];
@@ -427,6 +565,10 @@ impl ReducedSystem {
     /// Solves `A x = b` in place (regularised when `A` is singular); returns the relative
     /// residual of the regularised solve (0 for a direct one).
     fn solve_one(&mut self, b: &mut [f64]) -> Result<f64, ImplicitError> {
+        if self.free_factored {
+            self.solve_free(b, false)?;
+            return Ok(0.0);
+        }
         if self.regularised.is_none() {
             let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
             self.work.clear();
@@ -464,6 +606,45 @@ impl ReducedSystem {
         Ok(if bnorm > 0.0 { rnorm / bnorm } else { rnorm })
     }
 
+    /// With the free block's factors: `A x = b` (`x_h = b_h`, `A_ff x_f = b_f − A_fh b_h`), or
+    /// when `transpose`, `P A⁻ᵀ b` (`A_ffᵀ x_f = b_f`, `x_h = 0`), in place.
+    fn solve_free(&mut self, b: &mut [f64], transpose: bool) -> Result<(), ImplicitError> {
+        let pattern = self.pattern.as_ref().ok_or(LinalgError::NotFactored)?;
+        let fs = &mut self.free;
+        if !transpose {
+            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+            for j in 0..b.len() {
+                let bj = b[j];
+                if !self.held[j] || bj == 0.0 {
+                    continue;
+                }
+                for q in cp[j]..cp[j + 1] {
+                    if !self.held[ri[q]] {
+                        b[ri[q]] -= self.jac[q] * bj;
+                    }
+                }
+            }
+        }
+        fs.work.clear();
+        fs.work.extend(fs.index.iter().map(|&i| b[i]));
+        if !fs.index.is_empty() {
+            let lu = fs.lu.as_mut().ok_or(LinalgError::NotFactored)?;
+            if transpose {
+                lu.solve_transpose_in_place(&mut fs.work)?;
+            } else {
+                lu.solve_in_place(&mut fs.work)?;
+            }
+        }
+        if transpose {
+            b.fill(0.0);
+        }
+        // The factors are −A_ff's.
+        for (&i, &v) in fs.index.iter().zip(&fs.work) {
+            b[i] = -v;
+        }
+        Ok(())
+    }
+
     /// `dz/dθ = −A⁻¹ P ∂F/∂θ` for the `p` columns of `rhs` (`∂F/∂θ`, `n × p` column-major),
     /// overwritten by the result; returns how the system was solved. Call after
     /// [`ReducedSystem::factor`].
@@ -476,11 +657,14 @@ impl ReducedSystem {
             )));
         }
         self.rows_for = None;
+        if self.free_factored && (n == 0 || p == 0) {
+            return Ok(SolveKind::Direct);
+        }
         let by_rows = self.regularised.is_none()
             && !self.blocked_columns
             && n > 0
             && p > 0
-            && self.linear.as_ref().is_some_and(LinearSolver::solves_rows);
+            && (self.free_factored || self.linear.as_ref().is_some_and(LinearSolver::solves_rows));
         if by_rows {
             return self.solve_columns_by_rows(rhs, p);
         }
@@ -525,12 +709,7 @@ impl ReducedSystem {
         let n = self.held.len();
         // One contiguous pass for the finiteness test and the largest magnitude (the weak
         // slopes' scale); `a <= MAX` is false for NaN and ±∞.
-        let (mut finite, mut max) = (true, 0.0f64);
-        for v in rhs.iter() {
-            let a = v.abs();
-            finite &= a <= f64::MAX;
-            max = if a > max { a } else { max };
-        }
+        let (max, mut finite) = largest_magnitude(rhs);
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
@@ -540,18 +719,46 @@ impl ReducedSystem {
         self.rows.resize(n * p, 0.0);
         let rows = &mut self.rows[..n * p];
         transpose(rhs, n, p, rows);
-        for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
-            if h {
-                dst.fill(0.0);
+        if self.free_factored {
+            // The free rows moved up to the first `f` rows (in place: `index[r] ≥ r`), solved
+            // by −A_ff's factors (the sign is in them), and moved back down (backwards:
+            // `index[r] ≥ r` again), the held rows 0.
+            let index = &self.free.index;
+            let f = index.len();
+            for (r, &i) in index.iter().enumerate() {
+                if i != r {
+                    rows.copy_within(i * p..(i + 1) * p, r * p);
+                }
             }
-        }
-        let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
-        if !linear.solve_rows_in_place(rows, p)? {
-            return Err(LinalgError::NotFactored.into());
-        }
-        for v in rows.iter_mut() {
-            *v = -*v;
-            finite &= v.abs() <= f64::MAX;
+            if f > 0 {
+                let lu = self.free.lu.as_mut().ok_or(LinalgError::NotFactored)?;
+                if !lu.solve_rows_in_place(&mut rows[..f * p], p)? {
+                    return Err(LinalgError::NotFactored.into());
+                }
+            }
+            let mut r = f;
+            for i in (0..n).rev() {
+                if r > 0 && index[r - 1] == i {
+                    r -= 1;
+                    if r != i {
+                        rows.copy_within(r * p..(r + 1) * p, i * p);
+                    }
+                } else {
+                    rows[i * p..(i + 1) * p].fill(0.0);
+                }
+            }
+            finite = all_finite(rows);
+        } else {
+            for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
+                if h {
+                    dst.fill(0.0);
+                }
+            }
+            let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
+            if !linear.solve_rows_in_place(rows, p)? {
+                return Err(LinalgError::NotFactored.into());
+            }
+            finite = negate(rows);
         }
         if !finite {
             return Err(LinalgError::NonFinite.into());
@@ -576,6 +783,10 @@ impl ReducedSystem {
         }
         if g.iter().any(|v| !v.is_finite()) {
             return Err(ImplicitError::NonFinite);
+        }
+        if self.free_factored {
+            self.solve_free(g, true)?;
+            return Ok(SolveKind::Direct);
         }
         if self.regularised.is_none() {
             let linear = self.linear.as_mut().ok_or(LinalgError::NotFactored)?;
@@ -643,20 +854,35 @@ impl ReducedSystem {
         p: usize,
         opts: &ActiveSetOptions,
     ) -> Result<ImplicitDerivative, ImplicitError> {
+        let mut out = ImplicitDerivative::default();
+        self.differentiate_into(mcp, z, status, dfdtheta, p, opts, &mut out)?;
+        Ok(out)
+    }
+
+    /// [`ReducedSystem::differentiate`] into `out`, whose vectors are reused: no allocation
+    /// once they and the workspace have grown (with the small kernel).
+    #[allow(clippy::too_many_arguments)]
+    pub fn differentiate_into(
+        &mut self,
+        mcp: &dyn Mcp,
+        z: &[f64],
+        status: &[ComponentStatus],
+        dfdtheta: &[f64],
+        p: usize,
+        opts: &ActiveSetOptions,
+        out: &mut ImplicitDerivative,
+    ) -> Result<(), ImplicitError> {
         self.factor(mcp, z, status)?;
-        let mut dz = dfdtheta.to_vec();
-        let solve = self.solve_columns(&mut dz, p)?;
-        let weak = if self.rows_for == Some(p) {
-            self.weak_slopes_by_rows(mcp, status, dfdtheta, p, opts)
+        out.dz.clear();
+        out.dz.extend_from_slice(dfdtheta);
+        out.columns = p;
+        out.solve = self.solve_columns(&mut out.dz, p)?;
+        if self.rows_for == Some(p) {
+            self.weak_slopes_by_rows(mcp, status, dfdtheta, p, opts, &mut out.weak);
         } else {
-            self.weak_slopes(mcp, status, &dz, dfdtheta, p, opts)
-        };
-        Ok(ImplicitDerivative {
-            dz,
-            columns: p,
-            weak,
-            solve,
-        })
+            out.weak = self.weak_slopes(mcp, status, &out.dz, dfdtheta, p, opts);
+        }
+        Ok(())
     }
 }
 
@@ -732,14 +958,15 @@ impl ReducedSystem {
         dfdtheta: &[f64],
         p: usize,
         opts: &ActiveSetOptions,
-    ) -> Vec<WeakComponent> {
+        weak: &mut Vec<WeakComponent>,
+    ) {
         let n = mcp.dim();
-        let mut weak = weak_components(status);
+        weak_components_into(status, weak);
         if weak.is_empty()
             || self.jac.len() != mcp.jacobian_pattern().nnz()
             || self.row_ptr.len() != n + 1
         {
-            return weak;
+            return;
         }
         let scale = self.rhs_max.max(1.0);
         self.slope_rows.resize(weak.len() * p, 0.0);
@@ -754,8 +981,60 @@ impl ReducedSystem {
             w.slope = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
             w.two_sided = w.slope <= opts.two_sided_tolerance * scale;
         }
-        weak
     }
+}
+
+/// The largest magnitude in `v` and whether every entry is finite, in four independent lanes
+/// (vector loops): `x · 0` is ±0 for a finite `x` and NaN otherwise.
+fn largest_magnitude(v: &[f64]) -> (f64, bool) {
+    let (mut max, mut nan) = ([0.0f64; 4], [0.0f64; 4]);
+    let mut chunks = v.chunks_exact(4);
+    for c in &mut chunks {
+        for k in 0..4 {
+            let a = c[k].abs();
+            max[k] = if a > max[k] { a } else { max[k] };
+            nan[k] += c[k] * 0.0;
+        }
+    }
+    for &x in chunks.remainder() {
+        let a = x.abs();
+        max[0] = if a > max[0] { a } else { max[0] };
+        nan[0] += x * 0.0;
+    }
+    let largest = max.iter().fold(0.0f64, |m, &a| if a > m { a } else { m });
+    (largest, nan.iter().all(|x| *x == 0.0))
+}
+
+/// True when every entry of `v` is finite (lanes as [`largest_magnitude`]).
+fn all_finite(v: &[f64]) -> bool {
+    let mut nan = [0.0f64; 4];
+    let mut chunks = v.chunks_exact(4);
+    for c in &mut chunks {
+        for k in 0..4 {
+            nan[k] += c[k] * 0.0;
+        }
+    }
+    for &x in chunks.remainder() {
+        nan[0] += x * 0.0;
+    }
+    nan.iter().all(|x| *x == 0.0)
+}
+
+/// Negates `v` in place; true when every entry is finite (lanes as [`largest_magnitude`]).
+fn negate(v: &mut [f64]) -> bool {
+    let mut nan = [0.0f64; 4];
+    let mut chunks = v.chunks_exact_mut(4);
+    for c in &mut chunks {
+        for k in 0..4 {
+            c[k] = -c[k];
+            nan[k] += c[k] * 0.0;
+        }
+    }
+    for x in chunks.into_remainder() {
+        *x = -*x;
+        nan[0] += *x * 0.0;
+    }
+    nan.iter().all(|x| *x == 0.0)
 }
 
 /// `r = b − A x` for a dense column-major `A`.
@@ -774,16 +1053,25 @@ fn residual(a: &[f64], x: &[f64], b: &[f64], r: &mut [f64]) {
 /// The weakly active components of `status`, each with slope 0 and two-sided until
 /// [`ReducedSystem::weak_slopes`] (or its row-major twin) measures them.
 fn weak_components(status: &[ComponentStatus]) -> Vec<WeakComponent> {
-    status
-        .iter()
-        .enumerate()
-        .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
-        .map(|(index, _)| WeakComponent {
-            index,
-            slope: 0.0,
-            two_sided: true,
-        })
-        .collect()
+    let mut weak = Vec::new();
+    weak_components_into(status, &mut weak);
+    weak
+}
+
+/// [`weak_components`] into `weak` (cleared first).
+fn weak_components_into(status: &[ComponentStatus], weak: &mut Vec<WeakComponent>) {
+    weak.clear();
+    weak.extend(
+        status
+            .iter()
+            .enumerate()
+            .filter(|(_, s)| **s == ComponentStatus::WeaklyActive)
+            .map(|(index, _)| WeakComponent {
+                index,
+                slope: 0.0,
+                two_sided: true,
+            }),
+    );
 }
 #[cfg(test)]
 mod tests {
@@ -985,6 +1273,92 @@ mod tests {
         for (u, v) in a.weak.iter().zip(&by_columns) {
             assert_eq!((u.index, u.two_sided), (v.index, v.two_sided));
             assert_eq!(u.slope.to_bits(), v.slope.to_bits());
+        }
+    }
+
+    /// The free block alone against the whole reduced matrix (faer's route) where the whole
+    /// matrix's partial pivoting takes free rows into held columns (entries of magnitude 2 to 6
+    /// there, above the unit rows' 1): the same derivative to round-off, the held rows exactly
+    /// 0, and the adjoint through the free block the transpose of the forward solve.
+    #[test]
+    fn the_free_block_gives_the_whole_reduced_systems_derivative() {
+        let (n, p) = (11, 7);
+        let mut s = 11u64;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        use ComponentStatus::*;
+        let status: Vec<ComponentStatus> = (0..n)
+            .map(|i| [Free, Active, Free, Held, Free, Free, WeaklyActive][i % 7])
+            .collect();
+        let jac: Vec<f64> = (0..n * n)
+            .map(|q| {
+                let (i, j) = (q % n, q / n);
+                let v = next();
+                if i == j {
+                    3.0 + v
+                } else if status[j].is_held() {
+                    4.0 * v + 2.0f64.copysign(v)
+                } else {
+                    v
+                }
+            })
+            .collect();
+        let dfdtheta: Vec<f64> = (0..n * p).map(|_| next()).collect();
+        let j2 = jac.clone();
+        let mcp = FnMcp::dense(
+            vec![0.0; n],
+            vec![f64::INFINITY; n],
+            |_z: &[f64], f: &mut [f64]| f.fill(0.0),
+            move |_z: &[f64], out: &mut [f64]| out.copy_from_slice(&j2),
+        )
+        .unwrap();
+        let opts = ActiveSetOptions::default();
+        let z = vec![0.0; n];
+        let mut free = ReducedSystem::new();
+        let a = free
+            .differentiate(&mcp, &z, &status, &dfdtheta, p, &opts)
+            .unwrap();
+        assert!(free.free_factored);
+        let mut whole = ReducedSystem::new().with_blocked_columns(true);
+        let b = whole
+            .differentiate(&mcp, &z, &status, &dfdtheta, p, &opts)
+            .unwrap();
+        assert!(!whole.free_factored);
+        assert_eq!((a.solve, b.solve), (SolveKind::Direct, SolveKind::Direct));
+        for (x, y) in a.dz.chunks(n).zip(b.dz.chunks(n)) {
+            let scale = x.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+            assert!(scale > 0.1);
+            for (i, (u, v)) in x.iter().zip(y).enumerate() {
+                assert!((u - v).abs() <= 1e-14 * scale, "{u} against {v}");
+                if status[i].is_held() {
+                    assert_eq!(*u, 0.0);
+                }
+            }
+        }
+        for (u, v) in a.weak.iter().zip(&b.weak) {
+            assert_eq!(u.index, v.index);
+            assert!((u.slope - v.slope).abs() <= 1e-13 * v.slope.max(1.0));
+        }
+        // gᵀ dz/dθ_k = −μᵀ ∂F/∂θ_k with μ from the free block's transpose solve.
+        let g: Vec<f64> = (0..n).map(|i| 1.0 + 0.1 * i as f64).collect();
+        let mut mu = g.clone();
+        free.solve_transpose(&mut mu).unwrap();
+        let mut mu_whole = g.clone();
+        whole.solve_transpose(&mut mu_whole).unwrap();
+        for k in 0..p {
+            let fwd: f64 = (0..n).map(|i| g[i] * a.dz[k * n + i]).sum();
+            let adj: f64 = -(0..n).map(|i| mu[i] * dfdtheta[k * n + i]).sum::<f64>();
+            assert!(
+                (fwd - adj).abs() < 1e-13 * fwd.abs().max(1.0),
+                "{fwd} vs {adj}"
+            );
+        }
+        for (u, v) in mu.iter().zip(&mu_whole) {
+            assert!((u - v).abs() < 1e-13 * v.abs().max(1.0), "{u} vs {v}");
         }
     }
 
