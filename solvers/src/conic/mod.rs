@@ -601,7 +601,7 @@ impl McpSolver for ConicSolver {
             let (new_residual, mut point) = match reused {
                 Some(answer) => {
                     run.qp_reuses += 1;
-                    *qp_storage = sub.qp;
+                    *qp_storage = sub;
                     iterations = it + 1;
                     answer
                 }
@@ -650,7 +650,7 @@ impl McpSolver for ConicSolver {
                         sub.layout_into(layout);
                     }
                     have_answer = true;
-                    *qp_storage = sub.qp;
+                    *qp_storage = sub;
                     structure.assemble(&point, z_new);
                     mcp.evaluate(z_new, f);
                     run.f_evals += 1;
@@ -927,8 +927,8 @@ struct OuterWorkspace {
     mixed: Vec<f64>,
     /// The mixed point with the last impulses, assembled into `z_in`.
     seed: ecp_model::ConicPoint,
-    /// The QP's storage, handed to `step::build` and taken back.
-    qp: qp::ConicQp,
+    /// The QP's storage and its contact rows', handed to `step::build` and taken back.
+    qp: step::StepQp,
     /// The QP's answer.
     result: qp::QpResult,
     /// The shape of the QP `result` answers, and of the current one ([`step::StepQp::layout_into`]).

@@ -120,11 +120,20 @@ struct ContactRows {
 }
 
 /// The QP of one outer iteration and how to read its solution.
+#[derive(Default)]
 pub(crate) struct StepQp {
     pub qp: ConicQp,
     contacts: Vec<Option<ContactRows>>,
     /// Number of patch vertices in the QP.
     pub patch_vertices: usize,
+    /// [`build`]'s storage, kept with the QP so that a warm build grows no vector: the previous
+    /// QP's contact rows (their vectors refilled), each contact's friction sides, the anchor
+    /// weights and columns, one row's coefficients.
+    spare: Vec<ContactRows>,
+    friction_sides: Vec<BodyFriction>,
+    weights: Vec<Option<(f64, f64)>>,
+    anchor_cols: Vec<Option<usize>>,
+    coeffs: Vec<(usize, f64)>,
 }
 
 /// Storage of the polish ([`StepQp::extract`]), kept by the solver across outer iterations and
@@ -391,8 +400,9 @@ pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize)
 /// Builds the subproblem at the trial point (geometry from `geometry`, trial velocities
 /// `trial`) with the normal shift `shifts[c]` of every contact: the De Saxcé shift (exact
 /// mode) or zero (Anitescu's relaxation); with `anchor`, the contacts of bodies with several
-/// contacts get the proximal anchor of the module doc. The QP is built in `storage` (emptied
-/// first; the solver hands back the last iteration's, so that its vectors are not grown anew).
+/// contacts get the proximal anchor of the module doc. The QP and its contact rows are built in
+/// `storage` (emptied first; the solver hands back the last iteration's, so that its vectors,
+/// the rows' among them, are refilled instead of allocated anew: same values, same order).
 pub(crate) fn build(
     structure: &dyn StepStructure,
     bodies: &[BodyDynamics],
@@ -400,7 +410,7 @@ pub(crate) fn build(
     geometry: &[ContactGeometry],
     shifts: &[f64],
     anchor: Option<Anchor<'_>>,
-    storage: ConicQp,
+    storage: StepQp,
 ) -> StepQp {
     let h = structure.step_length();
     let nb = bodies.len();
@@ -411,36 +421,47 @@ pub(crate) fn build(
     let mut friction_seen = 0;
     // Columns of the anchor variables (ξ_c, ζ_c) of each anchored contact.
     let anchor = anchor.filter(|a| a.moment > 0.0 && a.load > 0.0);
-    let weights: Vec<Option<(f64, f64)>> = match anchor {
-        Some(a) => anchored_contacts(geometry, nb)
-            .into_iter()
-            .zip(geometry)
-            .map(|(anchored, g)| {
-                if !anchored {
-                    return None;
-                }
-                let m = &bodies[g.body].mass;
-                let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
-                let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
-                let normal = dot6(&we, &solve6(m, &we));
-                let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
-                (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
-                    .then_some((rho_m, rho_n))
-            })
-            .collect(),
-        None => vec![None; geometry.len()],
-    };
+    let StepQp {
+        mut qp,
+        mut contacts,
+        patch_vertices: _,
+        mut spare,
+        friction_sides: mut sides_of,
+        mut weights,
+        mut anchor_cols,
+        mut coeffs,
+    } = storage;
+    // The previous QP's rows, whose vectors the new ones refill.
+    spare.extend(contacts.drain(..).flatten());
+    weights.clear();
+    match anchor {
+        Some(a) => weights.extend(
+            anchored_contacts(geometry, nb)
+                .into_iter()
+                .zip(geometry)
+                .map(|(anchored, g)| {
+                    if !anchored {
+                        return None;
+                    }
+                    let m = &bodies[g.body].mass;
+                    let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
+                    let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
+                    let normal = dot6(&we, &solve6(m, &we));
+                    let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
+                    (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
+                        .then_some((rho_m, rho_n))
+                }),
+        ),
+        None => weights.resize(geometry.len(), None),
+    }
     let mut next_col = 6 * nb + friction_vars;
-    let anchor_cols: Vec<Option<usize>> = weights
-        .iter()
-        .map(|w| {
-            w.map(|_| {
-                next_col += 3;
-                next_col - 3
-            })
+    anchor_cols.clear();
+    anchor_cols.extend(weights.iter().map(|w| {
+        w.map(|_| {
+            next_col += 3;
+            next_col - 3
         })
-        .collect();
-    let mut qp = storage;
+    }));
     qp.reset(next_col);
     for (b, body) in bodies.iter().enumerate() {
         for i in 0..6 {
@@ -453,10 +474,7 @@ pub(crate) fn build(
             qp.q[6 * b + i] = -mv;
         }
     }
-    let mut contacts = Vec::with_capacity(geometry.len());
     let mut patch_vertices = 0;
-    // One row's coefficients, refilled for every row.
-    let mut coeffs: Vec<(usize, f64)> = Vec::with_capacity(16);
     for (c, g) in geometry.iter().enumerate() {
         let a_col = has_friction_var(g).then(|| {
             friction_seen += 1;
@@ -468,14 +486,32 @@ pub(crate) fn build(
         }
         let f = g.friction;
         let axes = [f.e_t, f.e_o, f.e_r];
-        let (friction_sides, slip_offset) = friction_sides(g);
+        let slip_offset = friction_sides_into(g, &mut sides_of);
+        let friction_sides = &sides_of;
         let s = shifts.get(c).copied().unwrap_or(0.0);
         let first_row = qp.rows();
-        let mut vertices = Vec::with_capacity(g.patch.len());
-        let mut positions = Vec::with_capacity(g.patch.len());
-        let mut gap_rates = Vec::with_capacity(g.patch.len());
-        let mut normal_wrenches: Vec<Vec<[f64; 6]>> =
-            vec![Vec::with_capacity(g.patch.len()); friction_sides.len()];
+        let (mut vertices, mut positions, mut gap_rates, mut sides) = match spare.pop() {
+            Some(r) => (r.vertices, r.positions, r.gap_rates, r.sides),
+            None => Default::default(),
+        };
+        vertices.clear();
+        positions.clear();
+        gap_rates.clear();
+        // Each side's normal wrenches refilled below; its body and friction wrenches set here.
+        sides.truncate(friction_sides.len());
+        for (k, &(body, friction_wrenches)) in friction_sides.iter().enumerate() {
+            if k == sides.len() {
+                sides.push(Side {
+                    body,
+                    normal_wrenches: Vec::with_capacity(g.patch.len()),
+                    friction_wrenches,
+                });
+            }
+            let side = &mut sides[k];
+            side.body = body;
+            side.friction_wrenches = friction_wrenches;
+            side.normal_wrenches.clear();
+        }
         for v in &g.patch {
             let ws = normal_sides(g, v);
             coeffs.clear();
@@ -501,8 +537,8 @@ pub(crate) fn build(
             gap_rates.push(rate);
             vertices.push(v.index);
             positions.push(v.position);
-            for (k, (_, w)) in ws.iter().enumerate() {
-                normal_wrenches[k].push(*w);
+            for (side, (_, w)) in sides.iter_mut().zip(ws.iter()) {
+                side.normal_wrenches.push(*w);
             }
         }
         if let (Some(col), Some((rho_m, rho_n)), Some(a)) = (anchor_cols[c], weights[c], anchor) {
@@ -533,15 +569,7 @@ pub(crate) fn build(
             r0
         });
         contacts.push(Some(ContactRows {
-            sides: friction_sides
-                .into_iter()
-                .zip(normal_wrenches)
-                .map(|((body, friction_wrenches), normal_wrenches)| Side {
-                    body,
-                    normal_wrenches,
-                    friction_wrenches,
-                })
-                .collect(),
+            sides,
             vertices,
             first_row,
             gap_rates,
@@ -577,6 +605,11 @@ pub(crate) fn build(
         qp,
         contacts,
         patch_vertices,
+        spare,
+        friction_sides: sides_of,
+        weights,
+        anchor_cols,
+        coeffs,
     }
 }
 
