@@ -29,16 +29,17 @@ use crate::scene::{BodyState, Scene, SceneError, initial_states};
 /// iterations against 1, `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
 const SMOOTH_ITERATIONS: usize = 5;
 
-/// The iteration budget of the first solve from each start of a step other than an
-/// extrapolated warm start ([`Simulation::solve_prepared`]): a start that has not solved the
+/// The default iteration budget of the first solve from each start of a step other than an
+/// extrapolated warm start ([`Simulation::set_start_budget`]): a start that has not solved the
 /// step within it is left for the next start, and taken again with the backend's full limits
 /// only when no start solves the step within its budget.
 const START_BUDGET: usize = 20;
 
 /// The iteration budget of a solve from an extrapolated warm start, from the most iterations
 /// `recent` of the smooth steps it extrapolates: `max(8, 3 recent)`. When the attempt does not
-/// converge within it, the step is solved again from the warm start without extrapolation
-/// with the backend's full limits (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
+/// converge within it, the step is solved again from the warm start without extrapolation,
+/// first within the start budget ([`Simulation::set_start_budget`]), then with the backend's
+/// full limits (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
 fn extrapolation_budget(recent: usize) -> usize {
     (3 * recent).max(8)
 }
@@ -126,6 +127,7 @@ impl SimulationBuilder {
             t: 0.0,
             last: None,
             warm_start: WarmStart::default(),
+            start_budget: Some(START_BUDGET),
             kept: Kept::default(),
         };
         sim.start()?;
@@ -153,6 +155,8 @@ pub struct Simulation {
     last: Option<LastStep>,
     /// Whether a step's warm start may extrapolate from the last steps ([`WarmStart`]).
     warm_start: WarmStart,
+    /// The iteration budget of each start's first solve ([`Simulation::set_start_budget`]).
+    start_budget: Option<usize>,
     /// Storage reused from step to step.
     kept: Kept,
 }
@@ -572,6 +576,17 @@ impl Simulation {
         self.warm_start = warm_start;
     }
 
+    /// Sets the iteration budget within which each start of a step (the warm start, then the
+    /// formulation's retry starts) is first solved, before each is solved again with the
+    /// backend's full limits when none solved the step within it (`Some(20)` by default,
+    /// `docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`). `None`: each start
+    /// is solved with the full limits at once, as before the budgets (an extrapolated warm
+    /// start keeps its own budget). Backends that do not honour budgets
+    /// ([`McpSolver::set_iteration_budget`]) always solve each start once, fully.
+    pub fn set_start_budget(&mut self, budget: Option<usize>) {
+        self.start_budget = budget;
+    }
+
     /// The warm start of the next steps ([`Simulation::set_warm_start`]).
     pub fn warm_start(&self) -> WarmStart {
         self.warm_start
@@ -727,19 +742,17 @@ impl Simulation {
         // and every attempt after the first as a retry.
         let extrapolated = self.formulation.warm_start_extrapolated();
         let first_budget = if extrapolated {
-            extrapolation_budget(self.kept.history.recent_iterations())
+            Some(extrapolation_budget(self.kept.history.recent_iterations()))
         } else {
-            START_BUDGET
+            self.start_budget
         };
-        let budgeted = solver.set_iteration_budget(Some(first_budget));
+        let budgeted = first_budget.is_some() && solver.set_iteration_budget(first_budget);
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
+        if budgeted {
+            solver.set_iteration_budget(None);
+        }
         let mut failure = match first {
-            Ok(()) => {
-                if budgeted {
-                    solver.set_iteration_budget(None);
-                }
-                return Ok(());
-            }
+            Ok(()) => return Ok(()),
             Err(e) => e,
         };
         let mut spent = attempt_iterations(&failure);
@@ -749,21 +762,21 @@ impl Simulation {
         // The budgeted pass (when the backend honours budgets), then the full one; the first
         // start is taken again with the full limits unless it was extrapolated (whose full
         // solve the plain warm start, the first retry start, replaces).
-        let passes: &[Option<usize>] = if budgeted {
-            &[Some(START_BUDGET), None]
-        } else {
-            &[None]
+        let both = [self.start_budget, None];
+        let passes = match self.start_budget {
+            Some(_) if budgeted => &both[..],
+            _ => &both[1..],
         };
         // A first start that stopped short of its budget (stagnated, or failed its line search)
         // is solved at once with the full limits, as before the budgets: its later attempts
         // (the minimum-norm, non-monotone and smoothing restarts) are cheap there and find
         // the solution to round-off, where another start may stop at the tolerance (D5 step 24:
         // 1.8e-15 from the warm start in 11 iterations, 4.4e-11 from the active-contact guess).
-        let early = budgeted && !extrapolated && spent < START_BUDGET;
+        let early = budgeted && !extrapolated && first_budget.is_some_and(|b| spent < b);
         for (pass, &budget) in passes.iter().enumerate() {
             solver.set_iteration_budget(budget);
             let retake = if early { pass == 0 } else { pass == 1 };
-            if retake && !extrapolated {
+            if retake && budgeted && !extrapolated {
                 self.z.copy_from_slice(&warm);
                 retries += 1;
                 solver.set_iteration_budget(None);
