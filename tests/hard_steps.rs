@@ -39,7 +39,10 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
 /// from the last step alone ([`WarmStart::Previous`]): each step here was measured on that
 /// trajectory and from that start, which the extrapolated warm start (the default since
 /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`)
-/// would move by round-off or more.
+/// would move by round-off or more; and each start solved with the full limits at once (the
+/// driver before the start budgets of
+/// `docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`, which solve some steps from
+/// another start, at another point within the tolerance).
 fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
     let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let stepper = FormulationRegistry::builtin()
@@ -49,6 +52,7 @@ fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulati
         .build()
         .unwrap_or_else(|e| panic!("{e}"));
     sim.set_warm_start(WarmStart::Previous);
+    sim.set_start_budget(None);
     for k in 1..step {
         let rec = sim.step(driver).unwrap_or_else(|e| panic!("step {k}: {e}"));
         assert!(
@@ -672,4 +676,39 @@ fn newton_multi_body_025_step_30_cheap_damping_trials() {
             );
         }
     }
+}
+
+/// `087_v_trough` with Newton as `ecp run` steps it (extrapolated warm start, no fallbacks):
+/// every step converges, and with every start first within its budget
+/// (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`) no step takes the
+/// hundreds of iterations of main before the budgets (213 at its hardest step, 448 in all;
+/// 29 at step 2 and 101 with them, as in the stress suite).
+#[test]
+fn newton_v_trough_087_budgeted_starts() {
+    let path = regression_scene("087_v_trough");
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let out = std::env::temp_dir().join(format!("ecp_hard_steps_087_{}", std::process::id()));
+    let options = ecp::run::RunOptions {
+        out_dir: out.clone(),
+        solver: Some("newton".to_string()),
+        formulation: Some("hull".to_string()),
+        plots: false,
+        fallbacks: false,
+        ..Default::default()
+    };
+    let (mut total, mut worst) = (0usize, (0usize, 0usize));
+    let outcome = ecp::run::run_scene(&file, &options, |rec| {
+        assert!(rec.converged, "step {} did not converge", rec.step);
+        let iterations = rec.summary.iterations;
+        total += iterations;
+        if iterations > worst.0 {
+            worst = (iterations, rec.step);
+        }
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let _ = std::fs::remove_dir_all(&out);
+    assert_eq!(outcome.records.len(), file.scene.num_steps());
+    let (iterations, step) = worst;
+    assert!(iterations <= 60, "step {step}: {iterations} iterations");
+    assert!(total <= 200, "{total} iterations in all");
 }

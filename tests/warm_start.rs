@@ -168,6 +168,10 @@ fn a_missed_extrapolation_is_solved_again_from_the_plain_warm_start_and_counted(
         log: Vec::new(),
     };
     let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    // The extrapolated attempt's protocol alone: without the start budgets, which would also
+    // cut every other start at this wrapper's one iteration
+    // (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`).
+    sim.set_start_budget(None);
     let (mut restarted, mut plain_its) = (0, 0);
     // The iterations of the smooth steps since the last restart (the driver's history).
     let mut recent: Vec<usize> = Vec::new();
@@ -273,4 +277,28 @@ fn newton_and_path_honour_an_iteration_budget() {
         ecp::solvers::conic::ConicSolver::new(ecp::solvers::conic::ConicSettings::default());
     assert!(!conic.set_iteration_budget(Some(1)));
     assert!(!conic.converges_to_round_off());
+}
+
+/// The start budgets (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`): the
+/// first step's warm start is first solved within the start budget (20), and, cut short of it
+/// (this wrapper's one iteration in each system of units), solved again at once with the full
+/// limits from the same start, both attempts counted, as one retry.
+#[test]
+fn a_start_cut_short_of_its_budget_is_solved_again_with_the_full_limits() {
+    let mut solver = OneIterationBudget {
+        newton: NewtonSolver::new(NewtonSettings::default()),
+        budget: None,
+        log: Vec::new(),
+    };
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    let rec = sim.step(&mut solver).expect("step 1");
+    assert!(rec.converged);
+    match solver.log[..] {
+        [(Some(20), cut), (None, full)] => {
+            assert!((1..=2).contains(&cut), "{cut}");
+            assert_eq!(rec.summary.iterations, cut + full);
+            assert_eq!(rec.summary.counter(Counter::Retries), Some(1));
+        }
+        ref other => panic!("solves {other:?}"),
+    }
 }

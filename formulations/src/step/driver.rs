@@ -29,10 +29,17 @@ use crate::scene::{BodyState, Scene, SceneError, initial_states};
 /// iterations against 1, `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
 const SMOOTH_ITERATIONS: usize = 5;
 
+/// The default iteration budget of the first solve from each start of a step other than an
+/// extrapolated warm start ([`Simulation::set_start_budget`]): a start that has not solved the
+/// step within it is left for the next start, and taken again with the backend's full limits
+/// only when no start solves the step within its budget.
+const START_BUDGET: usize = 20;
+
 /// The iteration budget of a solve from an extrapolated warm start, from the most iterations
 /// `recent` of the smooth steps it extrapolates: `max(8, 3 recent)`. When the attempt does not
-/// converge within it, the step is solved again from the warm start without extrapolation
-/// with the backend's full limits (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
+/// converge within it, the step is solved again from the warm start without extrapolation,
+/// first within the start budget ([`Simulation::set_start_budget`]), then with the backend's
+/// full limits (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
 fn extrapolation_budget(recent: usize) -> usize {
     (3 * recent).max(8)
 }
@@ -120,6 +127,7 @@ impl SimulationBuilder {
             t: 0.0,
             last: None,
             warm_start: WarmStart::default(),
+            start_budget: Some(START_BUDGET),
             kept: Kept::default(),
         };
         sim.start()?;
@@ -147,6 +155,8 @@ pub struct Simulation {
     last: Option<LastStep>,
     /// Whether a step's warm start may extrapolate from the last steps ([`WarmStart`]).
     warm_start: WarmStart,
+    /// The iteration budget of each start's first solve ([`Simulation::set_start_budget`]).
+    start_budget: Option<usize>,
     /// Storage reused from step to step.
     kept: Kept,
 }
@@ -270,6 +280,23 @@ impl Mcp for StepProblem<'_> {
     fn elimination_groups(&self) -> &[Vec<usize>] {
         self.mcp.elimination_groups()
     }
+}
+
+/// The iterations an attempt that did not converge spent (0 for other errors).
+fn attempt_iterations(e: &SolveError) -> usize {
+    match e {
+        SolveError::NotConverged { best } => best.summary.iterations,
+        _ => 0,
+    }
+}
+
+/// `out`, solved after `retries` attempts that spent `spent` iterations, with them counted.
+fn finish(out: &mut Solution, retries: usize, spent: usize) -> Result<(), SolveError> {
+    out.summary
+        .counters
+        .add(ecp_model::Counter::Retries, retries);
+    out.summary.iterations += spent;
+    Ok(())
 }
 
 /// Keeps the better of two failed solves (the smaller natural residual, the first on a tie).
@@ -549,6 +576,17 @@ impl Simulation {
         self.warm_start = warm_start;
     }
 
+    /// Sets the iteration budget within which each start of a step (the warm start, then the
+    /// formulation's retry starts) is first solved, before each is solved again with the
+    /// backend's full limits when none solved the step within it (`Some(20)` by default,
+    /// `docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`). `None`: each start
+    /// is solved with the full limits at once, as before the budgets (an extrapolated warm
+    /// start keeps its own budget). Backends that do not honour budgets
+    /// ([`McpSolver::set_iteration_budget`]) always solve each start once, fully.
+    pub fn set_start_budget(&mut self, budget: Option<usize>) {
+        self.start_budget = budget;
+    }
+
     /// The warm start of the next steps ([`Simulation::set_warm_start`]).
     pub fn warm_start(&self) -> WarmStart {
         self.warm_start
@@ -695,14 +733,20 @@ impl Simulation {
         solver: &mut dyn McpSolver,
         out: &mut Solution,
     ) -> Result<(), SolveError> {
-        // From an extrapolated warm start, within a budget: when the extrapolation misses (an
-        // event the last steps did not announce), the warm start without it (the first retry
-        // start) is cheaper than running on. The budgeted attempt's iterations are counted in
-        // the summary of the solve that follows, and the restart as a retry.
-        let budgeted = self.formulation.warm_start_extrapolated()
-            && solver.set_iteration_budget(Some(extrapolation_budget(
-                self.kept.history.recent_iterations(),
-            )));
+        // Two passes over the starts: each first within a budget, since a start that misses
+        // (an extrapolation past an event the last steps did not announce, a warm start on the
+        // wrong side of a kink) costs hundreds of iterations where another start costs a few;
+        // then each with the backend's full limits, so that every step solved before the
+        // budgets is still solved (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`).
+        // Every attempt's iterations are counted in the summary of the solve that succeeds,
+        // and every attempt after the first as a retry.
+        let extrapolated = self.formulation.warm_start_extrapolated();
+        let first_budget = if extrapolated {
+            Some(extrapolation_budget(self.kept.history.recent_iterations()))
+        } else {
+            self.start_budget
+        };
+        let budgeted = first_budget.is_some() && solver.set_iteration_budget(first_budget);
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
         if budgeted {
             solver.set_iteration_budget(None);
@@ -711,41 +755,85 @@ impl Simulation {
             Ok(()) => return Ok(()),
             Err(e) => e,
         };
-        let spent = match (&failure, budgeted) {
-            (SolveError::NotConverged { best }, true) => best.summary.iterations,
-            _ => 0,
-        };
+        let mut spent = attempt_iterations(&failure);
         let warm = self.z.clone();
-        let mut attempt = 0;
-        loop {
-            let (origin, dim) = (self.formulation.origin(), self.z.len());
-            let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
-            let history = (self.kept.history).iterates(whole_step, &origin, dim);
-            let ctx = StepContext {
-                scene: &self.scene,
-                states: start,
-                t0,
-                h,
-                step: self.step + 1,
-                history,
-            };
-            if !self
-                .formulation
-                .retry_start(attempt, &ctx, &self.mcp, &mut self.z)
-            {
-                break;
-            }
-            attempt += 1;
-            match solver.solve_into(&self.step_problem(), &self.z, out) {
-                Ok(()) => {
-                    out.summary
-                        .counters
-                        .add(ecp_model::Counter::Retries, attempt);
-                    out.summary.iterations += spent;
-                    return Ok(());
+        let mut retries = 0;
+        let mut tried: Vec<Vec<f64>> = Vec::new();
+        // The budgeted pass (when the backend honours budgets), then the full one; the first
+        // start is taken again with the full limits unless it was extrapolated (whose full
+        // solve the plain warm start, the first retry start, replaces).
+        let both = [self.start_budget, None];
+        let passes = match self.start_budget {
+            Some(_) if budgeted => &both[..],
+            _ => &both[1..],
+        };
+        // A first start that stopped short of its budget (stagnated, or failed its line search)
+        // is solved at once with the full limits, as before the budgets: its later attempts
+        // (the minimum-norm, non-monotone and smoothing restarts) are cheap there and find
+        // the solution to round-off, where another start may stop at the tolerance (D5 step 24:
+        // 1.8e-15 from the warm start in 11 iterations, 4.4e-11 from the active-contact guess).
+        let early = budgeted && !extrapolated && first_budget.is_some_and(|b| spent < b);
+        for (pass, &budget) in passes.iter().enumerate() {
+            solver.set_iteration_budget(budget);
+            let retake = if early { pass == 0 } else { pass == 1 };
+            if retake && budgeted && !extrapolated {
+                self.z.copy_from_slice(&warm);
+                retries += 1;
+                solver.set_iteration_budget(None);
+                match solver.solve_into(&self.step_problem(), &self.z, out) {
+                    Ok(()) => return finish(out, retries, spent),
+                    Err(e) => {
+                        solver.set_iteration_budget(budget);
+                        spent += attempt_iterations(&e);
+                        failure = better_failure(failure, e);
+                    }
                 }
-                Err(e) => failure = better_failure(failure, e),
             }
+            let mut attempt = 0;
+            tried.clear();
+            tried.push(warm.clone());
+            loop {
+                let (origin, dim) = (self.formulation.origin(), self.z.len());
+                let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
+                let history = (self.kept.history).iterates(whole_step, &origin, dim);
+                let ctx = StepContext {
+                    scene: &self.scene,
+                    states: start,
+                    t0,
+                    h,
+                    step: self.step + 1,
+                    history,
+                };
+                if !self
+                    .formulation
+                    .retry_start(attempt, &ctx, &self.mcp, &mut self.z)
+                {
+                    break;
+                }
+                attempt += 1;
+                // A start already taken in this pass fails again the same way (the solve is
+                // deterministic): before the first step has history the active-contact guess
+                // can be the warm start itself.
+                if tried.iter().any(|t| t[..] == self.z[..]) {
+                    continue;
+                }
+                tried.push(self.z.clone());
+                retries += 1;
+                match solver.solve_into(&self.step_problem(), &self.z, out) {
+                    Ok(()) => {
+                        solver.set_iteration_budget(None);
+                        return finish(out, retries, spent);
+                    }
+                    Err(e) => {
+                        spent += attempt_iterations(&e);
+                        failure = better_failure(failure, e);
+                    }
+                }
+            }
+        }
+        solver.set_iteration_budget(None);
+        if let SolveError::NotConverged { best } = &mut failure {
+            best.summary.iterations = spent;
         }
         self.z.copy_from_slice(&warm);
         Err(failure)
