@@ -1078,6 +1078,18 @@ mod tests {
     use super::*;
     use crate::mcp::FnMcp;
 
+    /// A deterministic stream of numbers in `[-0.5, 0.5)` (a 64-bit LCG), for the random matrices
+    /// of the tests below.
+    fn uniform_in_half(seed: u64) -> impl FnMut() -> f64 {
+        let mut s = seed;
+        move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     /// F(z; θ) = M z + q(θ) with q = (θ₀, θ₁ − 1, 2): a 3-component LCP whose first component
     /// is free-solved, the second at its bound and the third strongly active.
     fn lcp(m: [[f64; 3]; 3]) -> FnMcp {
@@ -1215,13 +1227,7 @@ mod tests {
     #[test]
     fn columns_by_rows_agree_with_the_blocked_solves() {
         let (n, p) = (13, 9);
-        let mut s = 3u64;
-        let mut next = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform_in_half(3);
         // J: a third of the off-diagonal entries zero, a dominant diagonal.
         let jac: Vec<f64> = (0..n * n)
             .map(|q| {
@@ -1283,13 +1289,7 @@ mod tests {
     #[test]
     fn the_free_block_gives_the_whole_reduced_systems_derivative() {
         let (n, p) = (11, 7);
-        let mut s = 11u64;
-        let mut next = move || {
-            s = s
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (s >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform_in_half(11);
         use ComponentStatus::*;
         let status: Vec<ComponentStatus> = (0..n)
             .map(|i| [Free, Active, Free, Held, Free, Free, WeaklyActive][i % 7])
