@@ -41,7 +41,7 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
 /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`)
 /// would move by round-off or more; and each start solved with the full limits at once (the
 /// driver before the start budgets of
-/// `docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`, which solve some steps from
+/// `docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`, which solve some steps from
 /// another start, at another point within the tolerance).
 fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
     let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
@@ -680,7 +680,7 @@ fn newton_multi_body_025_step_30_cheap_damping_trials() {
 
 /// `087_v_trough` with Newton as `ecp run` steps it (extrapolated warm start, no fallbacks):
 /// every step converges, and with every start first within its budget
-/// (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`) no step takes the
+/// (`docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`) no step takes the
 /// hundreds of iterations of main before the budgets (213 at its hardest step, 448 in all;
 /// 29 at step 2 and 101 with them, as in the stress suite).
 #[test]

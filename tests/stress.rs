@@ -261,7 +261,9 @@ fn regressions(solver: &str) {
     );
 }
 
-/// Passes since the damped restart of docs/newton.md (about 30 s: heavy, so ignored). Run with
+/// Passed since the damped restart of docs/newton.md until `s20261128_061_v_trough` (a scene of
+/// the held-out seed 20261128, docs/stress.md) was added: Newton alone stagnates on it from step
+/// 12 (about 30 s: heavy, so ignored). Run with
 /// `cargo test --release --test stress regressions_newton -- --ignored`.
 #[test]
 #[ignore]

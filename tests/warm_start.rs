@@ -170,7 +170,7 @@ fn a_missed_extrapolation_is_solved_again_from_the_plain_warm_start_and_counted(
     let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
     // The extrapolated attempt's protocol alone: without the start budgets, which would also
     // cut every other start at this wrapper's one iteration
-    // (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`).
+    // (`docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`).
     sim.set_start_budget(None);
     let (mut restarted, mut plain_its) = (0, 0);
     // The iterations of the smooth steps since the last restart (the driver's history).
@@ -279,7 +279,7 @@ fn newton_and_path_honour_an_iteration_budget() {
     assert!(!conic.converges_to_round_off());
 }
 
-/// The start budgets (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`): the
+/// The start budgets (`docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`): the
 /// first step's warm start is first solved within the start budget (20), and, cut short of it
 /// (this wrapper's one iteration in each system of units), solved again at once with the full
 /// limits from the same start, both attempts counted, as one retry.

@@ -579,7 +579,7 @@ impl Simulation {
     /// Sets the iteration budget within which each start of a step (the warm start, then the
     /// formulation's retry starts) is first solved, before each is solved again with the
     /// backend's full limits when none solved the step within it (`Some(20)` by default,
-    /// `docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`). `None`: each start
+    /// `docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`). `None`: each start
     /// is solved with the full limits at once, as before the budgets (an extrapolated warm
     /// start keeps its own budget). Backends that do not honour budgets
     /// ([`McpSolver::set_iteration_budget`]) always solve each start once, fully.
@@ -737,7 +737,7 @@ impl Simulation {
         // (an extrapolation past an event the last steps did not announce, a warm start on the
         // wrong side of a kink) costs hundreds of iterations where another start costs a few;
         // then each with the backend's full limits, so that every step solved before the
-        // budgets is still solved (`docs/latency.md#budgeted-starts-branch-wip-hardsteps-issue-18`).
+        // budgets is still solved (`docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`).
         // Every attempt's iterations are counted in the summary of the solve that succeeds,
         // and every attempt after the first as a retry.
         let extrapolated = self.formulation.warm_start_extrapolated();
