@@ -813,8 +813,9 @@ impl Simulation {
                 attempt += 1;
                 // A start already taken in this pass fails again the same way (the solve is
                 // deterministic): before the first step has history the active-contact guess
-                // can be the warm start itself.
-                if tried.iter().any(|t| t[..] == self.z[..]) {
+                // can be the warm start itself. Only with budgets: a backend without them keeps
+                // the driver's earlier sequence, every start solved once.
+                if budgeted && tried.iter().any(|t| t[..] == self.z[..]) {
                     continue;
                 }
                 tried.push(self.z.clone());
