@@ -1090,6 +1090,20 @@ mod tests {
         }
     }
 
+    /// An `n`-component MCP on `[0, ∞)ⁿ` with `F = 0` and the constant column-major Jacobian
+    /// `jac`: the reduced systems of the tests below, built from a given matrix.
+    fn constant_jacobian(jac: &[f64]) -> FnMcp {
+        let n = (jac.len() as f64).sqrt() as usize;
+        let j = jac.to_vec();
+        FnMcp::dense(
+            vec![0.0; n],
+            vec![f64::INFINITY; n],
+            |_z: &[f64], f: &mut [f64]| f.fill(0.0),
+            move |_z: &[f64], out: &mut [f64]| out.copy_from_slice(&j),
+        )
+        .unwrap()
+    }
+
     /// F(z; θ) = M z + q(θ) with q = (θ₀, θ₁ − 1, 2): a 3-component LCP whose first component
     /// is free-solved, the second at its bound and the third strongly active.
     fn lcp(m: [[f64; 3]; 3]) -> FnMcp {
@@ -1244,14 +1258,7 @@ mod tests {
         let dfdtheta: Vec<f64> = (0..n * p)
             .map(|q| if q % 4 == 1 { 0.0 } else { next() * 3.0 })
             .collect();
-        let j2 = jac.clone();
-        let mcp = FnMcp::dense(
-            vec![0.0; n],
-            vec![f64::INFINITY; n],
-            |_z: &[f64], f: &mut [f64]| f.fill(0.0),
-            move |_z: &[f64], out: &mut [f64]| out.copy_from_slice(&j2),
-        )
-        .unwrap();
+        let mcp = constant_jacobian(&jac);
         use ComponentStatus::*;
         let status: Vec<ComponentStatus> = (0..n)
             .map(|i| [Free, WeaklyActive, Free, Active, Held][i % 5])
@@ -1308,14 +1315,7 @@ mod tests {
             })
             .collect();
         let dfdtheta: Vec<f64> = (0..n * p).map(|_| next()).collect();
-        let j2 = jac.clone();
-        let mcp = FnMcp::dense(
-            vec![0.0; n],
-            vec![f64::INFINITY; n],
-            |_z: &[f64], f: &mut [f64]| f.fill(0.0),
-            move |_z: &[f64], out: &mut [f64]| out.copy_from_slice(&j2),
-        )
-        .unwrap();
+        let mcp = constant_jacobian(&jac);
         let opts = ActiveSetOptions::default();
         let z = vec![0.0; n];
         let mut free = ReducedSystem::new();
