@@ -994,11 +994,15 @@ impl PathSolver {
                     while lambda <= s.proximal_max * scale {
                         match self.newton_path(pattern, l, u, lambda, counters) {
                             Ok(t) => {
-                                stepped = t == 1.0 && self.path.point_at(1.0, &mut self.trial.x) == 1.0;
+                                stepped =
+                                    t == 1.0 && self.path.point_at(1.0, &mut self.trial.x) == 1.0;
                                 break;
                             }
                             Err(_) if self.out_of_time() => break,
-                            Err(_) => lambda = next_lambda(lambda, s, scale),
+                            // From a proximal term far smaller than the main loop's: it
+                            // scales the polished point's error (λ / (σ + λ) per step).
+                            Err(_) if lambda == 0.0 => lambda = 1e-10 * scale,
+                            Err(_) => lambda *= s.proximal_growth,
                         }
                     }
                 }
