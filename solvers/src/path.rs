@@ -1396,6 +1396,35 @@ mod tests {
     use std::sync::Mutex;
 
     #[test]
+    fn path_polish_ends_every_start_at_the_same_point() {
+        // Off by default (main's PATH); with it on, every start of the Kojima–Shindo problem
+        // ends within 1e-12 of the first start's point, and the backend says so.
+        assert!(!PathSolver::new(PathSettings::default()).converges_to_round_off());
+        let p = kojima_shindo();
+        let mut solver = PathSolver::new(PathSettings {
+            polish_below: 1e-3,
+            ..PathSettings::default()
+        });
+        assert!(solver.converges_to_round_off());
+        let first = solver.solve(&p.mcp, &p.starts[0].1).unwrap();
+        for (label, z0) in &p.starts {
+            let sol = solver.solve(&p.mcp, z0).unwrap();
+            assert!(sol.summary.residual <= 1e-10, "{label}");
+            // Kojima–Shindo has two solutions: compare the starts that end at the first's.
+            if sol
+                .z
+                .iter()
+                .zip(&first.z)
+                .all(|(a, b)| (a - b).abs() < 1e-6)
+            {
+                for (a, b) in sol.z.iter().zip(&first.z) {
+                    assert!((a - b).abs() <= 1e-12, "{label}: {a} vs {b}");
+                }
+            }
+        }
+    }
+
+    #[test]
     fn path_normal_point_projects_back_and_measures_the_merit() {
         let l = [0.0, 0.0, f64::NEG_INFINITY];
         let u = [1.0, f64::INFINITY, f64::INFINITY];
