@@ -19,7 +19,10 @@
 //! is the mean whole step over steps 21–120; `desk-steps-into` the same with
 //! `Simulation::step_into` and one kept record, `desk-steps-previous` with
 //! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
-//! All three print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
+//! `desk-steps-path` takes the desk's whole steps with PATH's defaults (the plain warm start),
+//! `desk-steps-path-polished` with `PathSettings::polish_below = 1e-3` (so extrapolated warm
+//! starts), `desk-steps-path-polished-previous` polished from the plain warm start.
+//! All of them print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator, StepSensitivity};
 use ecp::formulations::{Scene, Simulation, WarmStart, scenarios};
@@ -121,7 +124,8 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|\
-                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into> N [lu|schur]"
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into|desk-steps-path|\
+                 desk-steps-path-polished|desk-steps-path-polished-previous> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -208,6 +212,30 @@ fn main() {
                 digest.add(&record);
             }
             println!("desk-steps-into x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-path" | "desk-steps-path-polished" | "desk-steps-path-polished-previous" => {
+            // The default PATH (no polish, so the plain warm start); polished
+            // (`PathSettings::polish_below = 1e-3`), so with extrapolated warm starts; polished
+            // with the plain warm start.
+            let polished = case != "desk-steps-path";
+            let mut solver = PathSolver::new(PathSettings {
+                polish_below: if polished {
+                    1e-3
+                } else {
+                    PathSettings::default().polish_below
+                },
+                ..PathSettings::default()
+            });
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            if case == "desk-steps-path-polished-previous" {
+                sim.set_warm_start(WarmStart::Previous);
+            }
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("desk step"));
+            }
+            println!("{case} x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-sensitivity" => {
