@@ -1476,6 +1476,43 @@ mod tests {
     }
 
     #[test]
+    fn path_polish_shifts_a_singular_reduced_jacobian() {
+        // `z0² + z0 = 2` and an idle free unknown `z1` (F₁ ≡ 0, J singular), from a start that
+        // meets the tolerance (residual 3e-11): the crash target's `J_II` is singular, so the
+        // polish solves it with the proximal shift; `z0` ends at round-off, `z1` where it was.
+        let p = FnMcp::dense(
+            vec![f64::NEG_INFINITY; 2],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = z[0] * z[0] + z[0] - 2.0;
+                f[1] = 0.0;
+            },
+            |z, j| {
+                j.fill(0.0);
+                j[0] = 2.0 * z[0] + 1.0;
+            },
+        )
+        .unwrap();
+        let z0 = [1.0 + 1e-11, 0.25];
+        let sol = PathSolver::new(PathSettings::default())
+            .solve(&p, &z0)
+            .unwrap();
+        assert!((sol.z[0] - 1.0).abs() <= 4.0 * f64::EPSILON, "{}", sol.z[0]);
+        assert_eq!(sol.z[1], 0.25);
+        assert!(sol.summary.residual <= 1e-15, "{}", sol.summary.residual);
+        assert_eq!(sol.summary.iterations, 1);
+        // Without the polish the start is the answer.
+        let unpolished = PathSolver::new(PathSettings {
+            polish_below: 1.0,
+            ..PathSettings::default()
+        })
+        .solve(&p, &z0)
+        .unwrap();
+        assert_eq!(unpolished.z, z0.to_vec());
+        assert_eq!(unpolished.summary.iterations, 0);
+    }
+
+    #[test]
     fn path_proximal_perturbation_handles_a_singular_jacobian() {
         let settings = PathSettings {
             crash_iterations: 0,
