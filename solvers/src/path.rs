@@ -153,7 +153,7 @@ pub struct PathSettings {
     /// after a first that gained a digit (no more at the residual's round-off floor), as
     /// `NewtonSettings::polish_below` does for Newton. Below `1.0` the backend reports
     /// [`McpSolver::converges_to_round_off`], so the driver extrapolates its warm starts: the
-    /// 21 reference scenes end within 6.8e-13 of the plain warm start's answer but the T-bar
+    /// 21 reference scenes end within 6.4e-13 of the plain warm start's answer but the T-bar
     /// (2.25e-12, Newton's own 2.66e-12), and the stress suite takes 3.7 % fewer iterations
     /// (`docs/latency.md`, branch wip-pathwarm2). `1.0` turns it off (main's PATH before it,
     /// which stops anywhere within the tolerance). Default `1e-3`.
