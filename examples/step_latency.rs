@@ -19,7 +19,11 @@
 //! is the mean whole step over steps 21–120; `desk-steps-into` the same with
 //! `Simulation::step_into` and one kept record, `desk-steps-previous` with
 //! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
-//! All three print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
+//! `desk-steps-path` takes the desk's whole steps with PATH's defaults (polished, so
+//! extrapolated warm starts), `desk-steps-path-previous` from the plain warm start,
+//! `desk-steps-path-unpolished` with `PathSettings::polish_below = 1` (main's PATH before the
+//! polish: the plain warm start).
+//! All of them print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator, StepSensitivity};
 use ecp::formulations::{Scene, Simulation, WarmStart, scenarios};
@@ -121,7 +125,8 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|\
-                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into> N [lu|schur]"
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into|desk-steps-path|\
+                 desk-steps-path-previous|desk-steps-path-unpolished> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -208,6 +213,28 @@ fn main() {
                 digest.add(&record);
             }
             println!("desk-steps-into x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-path" | "desk-steps-path-previous" | "desk-steps-path-unpolished" => {
+            // PATH's defaults (polished, so extrapolated warm starts), from the plain warm
+            // start, and without the polish (`polish_below = 1`: the plain warm start).
+            let mut solver = PathSolver::new(PathSettings {
+                polish_below: if case == "desk-steps-path-unpolished" {
+                    1.0
+                } else {
+                    PathSettings::default().polish_below
+                },
+                ..PathSettings::default()
+            });
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            if case == "desk-steps-path-previous" {
+                sim.set_warm_start(WarmStart::Previous);
+            }
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("desk step"));
+            }
+            println!("{case} x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-sensitivity" => {

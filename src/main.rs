@@ -60,8 +60,8 @@ enum Command {
         /// Also render the run in 3-D into animation.gif (as `ecp animate` with its defaults).
         #[arg(long)]
         animate: bool,
-        /// The steps' warm start: `extrapolated` from the last smooth steps (Newton only; PATH
-        /// and conic start from the last step), or `previous`, from the last step alone
+        /// The steps' warm start: `extrapolated` from the last smooth steps (Newton and PATH;
+        /// conic starts from the last step), or `previous`, from the last step alone
         /// (docs/input.md#warm-start).
         #[arg(long, value_name = "previous|extrapolated", default_value = "extrapolated", value_parser = parse_warm_start)]
         warm_start: WarmStart,

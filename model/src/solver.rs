@@ -332,7 +332,8 @@ pub trait McpSolver {
     /// Whether the backend's converged point does not depend on its starting point beyond
     /// round-off: it converges fast enough near a solution to end far below its tolerance
     /// (semismooth Newton: quadratically, to ~1e-16), so that two starts of one step give the
-    /// same answer within 1e-12. A backend that stops at its tolerance (PATH, conic) may end
+    /// same answer within 1e-12 (PATH with its polish likewise). A backend that stops at its
+    /// tolerance (conic, PATH without its polish) may end
     /// anywhere within it. The driver extrapolates warm starts only for such backends. The
     /// default is `false`.
     fn converges_to_round_off(&self) -> bool {

@@ -170,7 +170,8 @@ pub enum WarmStart {
     /// The default: the formulation may extrapolate from the iterates of the last smooth steps
     /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`), for a backend
     /// whose answer does not depend on its start ([`McpSolver::converges_to_round_off`]:
-    /// Newton; PATH and conic keep [`WarmStart::Previous`]'s steps), within an iteration budget
+    /// Newton, PATH with its polish; conic keeps [`WarmStart::Previous`]'s steps), within an
+    /// iteration budget
     /// with a restart from the plain warm start
     /// (`docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`):
     /// fewer iterations on smooth motion.
@@ -648,8 +649,8 @@ impl Simulation {
     /// Whether a step solved by `solver` may start from an extrapolated warm start: the setting
     /// ([`WarmStart::Extrapolated`]) and a backend whose answer does not depend on its start
     /// beyond round-off ([`McpSolver::converges_to_round_off`]); with any other backend the
-    /// steps are main's, bit for bit (PATH stops anywhere within its tolerance, and a
-    /// different start moved its results by up to 3.3e-9).
+    /// steps are main's, bit for bit (PATH without its polish stops anywhere within its
+    /// tolerance, and a different start moved its results by up to 3.3e-9).
     fn extrapolates(&self, solver: &dyn McpSolver) -> bool {
         self.warm_start == WarmStart::Extrapolated && solver.converges_to_round_off()
     }
