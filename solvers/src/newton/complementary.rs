@@ -62,8 +62,8 @@ mod tests {
     #[test]
     fn each_bounded_component_goes_to_the_bound_its_f_points_to() {
         let mcp = three();
-        // F = (1, −1, 5): z_0 to its lower bound 0, z_1 to its upper bound 3, the free z_2 stays.
-        let z = complementary_start(&mcp, &[2.0, 1.0, 5.0]).expect("two components move");
+        // F = (1, −0.5, 5): z_0 to its lower bound 0, z_1 to its upper bound 3, the free z_2 stays.
+        let z = complementary_start(&mcp, &[2.0, 2.5, 5.0]).expect("two components move");
         assert_eq!(z, vec![0.0, 3.0, 5.0]);
         // F = (−0.5, 1, 5): neither sign points to a bound, nothing moves.
         assert!(complementary_start(&mcp, &[0.5, 1.0, 5.0]).is_none());
