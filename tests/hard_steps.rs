@@ -7,7 +7,7 @@ use std::ops::RangeBounds;
 use std::path::{Path, PathBuf};
 
 use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder, WarmStart};
-use ecp::model::{Counter, Mcp, McpSolver, Solution, SolveError};
+use ecp::model::{Counter, Mcp, McpSolver, ScaledMcp, Solution, SolveError, natural_residual};
 use ecp::scene::load_scene;
 use ecp::solvers::conic::{ConicSettings, ConicSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
@@ -711,4 +711,90 @@ fn newton_v_trough_087_budgeted_starts() {
     let (iterations, step) = worst;
     assert!(iterations <= 60, "step {step}: {iterations} iterations");
     assert!(total <= 200, "{total} iterations in all");
+}
+
+/// `s20261128_061_v_trough` step 17 (the held-out seed 20261128, `docs/stress.md`; h = 1.5 ms,
+/// μ = 0.78, a point body coming to rest in a V trough; 77 unknowns), on the trajectory of the
+/// default simulation (extrapolated warm start, budgeted starts) driven by Newton before the
+/// complementary restart. At the warm start the second contact carries `p_n` = 5e-10 and slides
+/// (`σ` = 8e-4, its friction cone row positive by round-off); every attempt from there stays on
+/// that branch and stagnates at a natural residual 1.3 times the tolerance in the scene's scales,
+/// the contact unloaded and the body sliding. The solution (PATH's, in 2 936 iterations) loads
+/// that contact (`p_n` ≈ 0.2) and sticks. From the complementary start (`σ` and the first
+/// contact's `p_n` put on their bound, where `F` is positive) the plain iteration converges in
+/// 10 iterations (`docs/newton.md#the-complementary-start`), to a solution with the second
+/// contact loaded and sticking.
+#[test]
+fn newton_v_trough_061_step_17_complementary_restart() {
+    let path = regression_scene("s20261128_061_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = NewtonSettings {
+        tolerance,
+        ..NewtonSettings::default()
+    };
+    let before = NewtonSettings {
+        complementary_restart: None,
+        ..settings.clone()
+    };
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut driver = NewtonSolver::new(before.clone());
+    for k in 1..17 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k} did not converge");
+    }
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let z0 = sim.z().to_vec();
+    match sim.solve_step_problem(&mut NewtonSolver::new(before), &z0) {
+        Err(SolveError::NotConverged { best }) => assert!(
+            best.summary.residual > tolerance,
+            "residual {:e}",
+            best.summary.residual
+        ),
+        Ok(sol) => panic!(
+            "converged without the complementary restart in {} iterations",
+            sol.summary.iterations
+        ),
+        Err(e) => panic!("{e}"),
+    }
+    let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    assert_eq!(
+        mended
+            .summary
+            .counter(Counter::Custom("complementary_restarts")),
+        Some(1)
+    );
+    let problem = sim.step_problem();
+    // A solution by a check of its own: the natural residual in the scene's scales.
+    let scales = problem
+        .scales()
+        .expect("a step problem has scene scales")
+        .clone();
+    let scaled = ScaledMcp::new(&problem, &scales).expect("valid scales");
+    let zs = scaled.to_scaled(&mended.z);
+    let mut f = vec![0.0; zs.len()];
+    scaled.evaluate(&zs, &mut f);
+    let residual = natural_residual(&zs, &f, scaled.lower(), scaled.upper());
+    assert!(
+        residual <= tolerance,
+        "natural residual {residual:e} in the scene's scales"
+    );
+    let index = |name: &str| {
+        (0..problem.dim())
+            .find(|&i| problem.component_name(i) == name)
+            .unwrap_or_else(|| panic!("no component {name}"))
+    };
+    // The second contact is loaded and sticks (before: p_n 4e-7, σ 8e-4). The step has more
+    // than one solution: PATH's loads both contacts (p_n 0.20 and 0.20, both sticking); this one
+    // leaves the first contact touching without load (p_n ≈ 1e-9) and holds the body by the
+    // second (p_n 0.245), which friction allows (μ = 0.78 against slopes of 22.5° and 20.5°).
+    assert!(mended.z[index("body.c1.pn[0]")] > 0.1);
+    assert!(mended.z[index("body.c1.sigma[0]")].abs() < 1e-8);
 }

@@ -261,9 +261,10 @@ fn regressions(solver: &str) {
     );
 }
 
-/// Passed since the damped restart of docs/newton.md until `s20261128_061_v_trough` (a scene of
-/// the held-out seed 20261128, docs/stress.md) was added: Newton alone stagnates on it from step
-/// 12 (about 30 s: heavy, so ignored). Run with
+/// Passes since the damped restart of docs/newton.md; `s20261128_061_v_trough` (a scene of the
+/// held-out seed 20261128, docs/stress.md), on which Newton alone stagnated from step 12, since
+/// the complementary restart (`docs/newton.md#the-complementary-start`). About 30 s: heavy, so
+/// ignored. Run with
 /// `cargo test --release --test stress regressions_newton -- --ignored`.
 #[test]
 #[ignore]

@@ -47,10 +47,12 @@ use ecp_model::{
 
 use crate::normal_equations::NormalEquations;
 
+mod complementary;
 mod min_norm;
 mod profile;
 mod ratio;
 use crate::smoothing::{SmoothingSettings, continuation};
+use complementary::complementary_start;
 use min_norm::MinNorm;
 use profile::Clock;
 pub use profile::{NewtonProfile, Phase};
@@ -251,6 +253,20 @@ pub struct NewtonSettings {
     /// test had cut the first run 4 iterations before it would have converged
     /// (`docs/newton.md#linearly-converging-steps`). Default `true`.
     pub forget_undone_steps: bool,
+    /// After every other attempt from `z0` failed with a best natural residual of at most this
+    /// times [`NewtonSettings::tolerance`], the plain iteration once more from the complementary
+    /// start: `z0` with every bounded component put on the bound that the sign of `F(z0)` points
+    /// to (`z_i = l_i` where `F_i > 0`, `z_i = u_i` where `F_i < 0`). Where a pair is slack on
+    /// both sides at `z0` (a slip rate `σ > 0` while the friction cone row is positive by
+    /// round-off), every attempt from `z0` stays on that branch of the pair and can end at a
+    /// point that is not a solution (`061_v_trough` of seed 20261128, step 17: a box coming to
+    /// rest in a V trough, every attempt stagnating at 1.3 times the tolerance; from this start
+    /// the plain iteration converges in 10 iterations, `docs/newton.md#the-complementary-start`).
+    /// The attempts that ended far from a solution (3.5e4 times the tolerance and more on the
+    /// stress scenes) have other causes, and there the start did not help. Only after every
+    /// other attempt failed, so every step they solve is unchanged. `None` turns it off.
+    /// Default `Some(1e3)`.
+    pub complementary_restart: Option<f64>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -297,6 +313,7 @@ impl Default for NewtonSettings {
             ratio_test: true,
             nonmonotone_restart: true,
             forget_undone_steps: true,
+            complementary_restart: Some(1e3),
             scene_scales: true,
             trace: false,
         }
@@ -908,8 +925,9 @@ impl NewtonSolver {
     /// continuation; the plain iteration with the damped restart's initial damping (these two
     /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
     /// that damping. On problems above `dense_max` the damped plain iteration comes before the
-    /// non-monotone one. The first that converges is returned (its iterations counting the failed
-    /// attempts'), else the best end point.
+    /// non-monotone one. Then, when those ended near a solution, the plain iteration from the
+    /// complementary start ([`NewtonSettings::complementary_restart`]). The first that converges is returned (its
+    /// iterations counting the failed attempts'), else the best end point.
     fn solve_restarted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let damping = self.settings.damped_restart;
         let smoothing = self.settings.smoothing.is_some();
@@ -979,6 +997,30 @@ impl NewtonSolver {
             match result {
                 Ok(mut sol) => {
                     sol.summary.iterations += spent;
+                    return Ok(sol);
+                }
+                Err(SolveError::NotConverged { best: other }) => {
+                    spent += other.summary.iterations;
+                    if other.summary.residual < best.summary.residual {
+                        best = other;
+                    }
+                }
+                Err(e) => return Err(e),
+            }
+        }
+        if let Some(near) = self.settings.complementary_restart
+            && best.summary.residual <= near * self.settings.tolerance
+            && let Some(start) = complementary_start(mcp, z0)
+        {
+            // The plain iteration with the first attempt's settings (the ratio test and the
+            // residual damping are those of attempt 0; its iterations count there in a profile).
+            self.attempt = 0;
+            match self.solve_plain(mcp, &start) {
+                Ok(mut sol) => {
+                    sol.summary.iterations += spent;
+                    sol.summary
+                        .counters
+                        .add(Counter::Custom("complementary_restarts"), 1);
                     return Ok(sol);
                 }
                 Err(SolveError::NotConverged { best: other }) => {

@@ -130,6 +130,9 @@ impl NewtonSettings {
         if let Some(damping) = self.damped_restart {
             c.positive("damped_restart", damping)?;
         }
+        if let Some(near) = self.complementary_restart {
+            c.positive("complementary_restart", near)?;
+        }
         c.fraction("stall_reduction", self.stall_reduction)?;
         smoothing(&c, &self.smoothing)
     }
@@ -294,6 +297,16 @@ mod tests {
             },
             v,
         );
+        for near in [0.0, -1.0, f64::NAN] {
+            refused(
+                "complementary_restart",
+                NewtonSettings {
+                    complementary_restart: Some(near),
+                    ..d()
+                },
+                v,
+            );
+        }
         refused("armijo", NewtonSettings { armijo: 1.0, ..d() }, v);
         refused(
             "backtrack",
