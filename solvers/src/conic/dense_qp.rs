@@ -59,8 +59,8 @@ const STALL_SCORE: f64 = 1e6;
 /// Iterations at most (clarabel's limit applies when it is smaller); the method takes 6–12.
 const MAX_ITERATIONS: u32 = 40;
 
-/// The warm start's margin into the cones' interior, relative to the largest entry of `s` (of
-/// `z`). On the desk's QPs (400 steps), interior-point iterations per QP: standard start 10.8;
+/// The warm start's margin into the cones' interior, relative to the scale of `s` (the largest
+/// entry of `s` and `b`) and of `z` (its largest entry). On the desk's QPs (400 steps), interior-point iterations per QP: standard start 10.8;
 /// warm with 1e-1 5.6, 1e-2 5.4, 1e-3 6.0, 1e-4 5.6, 1e-6 6.4 (`docs/latency.md`). Too small a
 /// margin leaves the start near the boundary, where the first steps are short; too large one
 /// starts far from the answer.
@@ -546,7 +546,7 @@ impl DenseQp {
     }
 
     /// The warm start: the last QP's answer `(x, s, z)` (the same shape), with `s` and `z`
-    /// pushed into the interior of K by a margin `θ` times their size, so that the first
+    /// pushed into the interior of K by [`WARM_MARGIN`] times their scale, so that the first
     /// scaling is finite and the iterate is centred at a small `μ` (Yildirim & Wright, SIAM J.
     /// Optim. 2002; Gondzio & Grothey 2008: a point on the boundary makes the first steps tiny).
     /// `false` (nothing changed) when the last answer's `s` and `b`, or its `z`, are all zero:
