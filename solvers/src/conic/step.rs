@@ -397,6 +397,22 @@ pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize)
         .collect()
 }
 
+/// Whether no body takes part in two of the contacts (as F, or as a dynamic G): then each
+/// body's contact wrench is the QP's unique answer, and where a body has several contacts their
+/// share of it need not be (a T-bar squeezed between the ground and a gripper's pad).
+pub(crate) fn one_contact_per_body(geometry: &[ContactGeometry]) -> bool {
+    let bodies = |g: &ContactGeometry| [Some(g.body), dynamic_partner(g).map(|(b, _)| b)];
+    geometry.iter().enumerate().all(|(i, a)| {
+        let ba = bodies(a);
+        geometry[i + 1..].iter().all(|b| {
+            let bb = bodies(b);
+            !ba.iter()
+                .flatten()
+                .any(|x| bb.iter().flatten().any(|y| x == y))
+        })
+    })
+}
+
 /// Builds the subproblem at the trial point (geometry from `geometry`, trial velocities
 /// `trial`) with the normal shift `shifts[c]` of every contact: the De Saxcé shift (exact
 /// mode) or zero (Anitescu's relaxation); with `anchor`, the contacts of bodies with several
