@@ -309,7 +309,7 @@ impl DenseLu {
         };
         check_many_rhs(b.len(), self.n, k)?;
         if k > 0 {
-            small.solve_rows(b, k);
+            small.solve_rows_accumulated(b, k);
         }
         Ok(true)
     }
