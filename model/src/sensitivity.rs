@@ -60,7 +60,9 @@
 
 use std::sync::Arc;
 
-use crate::linalg::{DenseLu, LinalgError, LinearSolver, add_row_combination, transpose};
+use crate::linalg::{
+    DenseLu, LinalgError, LinearSolver, add_row_combination, transpose, transpose_checked,
+};
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 
@@ -707,47 +709,54 @@ impl ReducedSystem {
         p: usize,
     ) -> Result<SolveKind, ImplicitError> {
         let n = self.held.len();
-        // One contiguous pass for the finiteness test and the largest magnitude (the weak
-        // slopes' scale); `a <= MAX` is false for NaN and ±∞.
-        let (max, mut finite) = largest_magnitude(rhs);
+        // Transposed without the sign change: solving `A x = −b` gives `−x` of `A x = b` bit
+        // for bit but for the signs of zeros (every operation of the solve commutes with
+        // negation), so the sign goes on the way back. The same pass tests finiteness and
+        // finds the largest magnitude (the weak slopes' scale).
+        self.rows.resize(n * p, 0.0);
+        let rows = &mut self.rows[..n * p];
+        let (max, finite) = transpose_checked(rhs, n, p, rows);
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
-        // Transposed without the sign change: solving `A x = −b` gives `−x` of `A x = b` bit
-        // for bit but for the signs of zeros (every operation of the solve commutes with
-        // negation), so the sign goes on the way back.
-        self.rows.resize(n * p, 0.0);
-        let rows = &mut self.rows[..n * p];
-        transpose(rhs, n, p, rows);
+        let checked_back;
         if self.free_factored {
-            // The free rows moved up to the first `f` rows (in place: `index[r] ≥ r`), solved
-            // by −A_ff's factors (the sign is in them), and moved back down (backwards:
-            // `index[r] ≥ r` again), the held rows 0.
+            // The free rows solved where they lie, by −A_ff's factors (the sign is in them),
+            // the held rows then 0; without the mapped kernel (no AVX2) the free rows are
+            // moved up to the first `f` rows (in place: `index[r] ≥ r`), solved, and moved
+            // back down (backwards: `index[r] ≥ r` again).
             let index = &self.free.index;
             let f = index.len();
-            for (r, &i) in index.iter().enumerate() {
-                if i != r {
-                    rows.copy_within(i * p..(i + 1) * p, r * p);
+            let lu = self.free.lu.as_mut().ok_or(LinalgError::NotFactored)?;
+            if f > 0 && lu.solve_mapped_rows_in_place(rows, p, index)? {
+                for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
+                    if h {
+                        dst.fill(0.0);
+                    }
                 }
-            }
-            if f > 0 {
-                let lu = self.free.lu.as_mut().ok_or(LinalgError::NotFactored)?;
-                if !lu.solve_rows_in_place(&mut rows[..f * p], p)? {
+            } else {
+                for (r, &i) in index.iter().enumerate() {
+                    if i != r {
+                        rows.copy_within(i * p..(i + 1) * p, r * p);
+                    }
+                }
+                if f > 0 && !lu.solve_rows_in_place(&mut rows[..f * p], p)? {
                     return Err(LinalgError::NotFactored.into());
                 }
-            }
-            let mut r = f;
-            for i in (0..n).rev() {
-                if r > 0 && index[r - 1] == i {
-                    r -= 1;
-                    if r != i {
-                        rows.copy_within(r * p..(r + 1) * p, i * p);
+                let mut r = f;
+                for i in (0..n).rev() {
+                    if r > 0 && index[r - 1] == i {
+                        r -= 1;
+                        if r != i {
+                            rows.copy_within(r * p..(r + 1) * p, i * p);
+                        }
+                    } else {
+                        rows[i * p..(i + 1) * p].fill(0.0);
                     }
-                } else {
-                    rows[i * p..(i + 1) * p].fill(0.0);
                 }
             }
-            finite = all_finite(rows);
+            // Finiteness tested in the transpose back.
+            checked_back = true;
         } else {
             for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
                 if h {
@@ -758,12 +767,18 @@ impl ReducedSystem {
             if !linear.solve_rows_in_place(rows, p)? {
                 return Err(LinalgError::NotFactored.into());
             }
-            finite = negate(rows);
+            if !negate(rows) {
+                return Err(LinalgError::NonFinite.into());
+            }
+            checked_back = false;
         }
-        if !finite {
-            return Err(LinalgError::NonFinite.into());
+        if checked_back {
+            if !transpose_checked(rows, p, n, rhs).1 {
+                return Err(LinalgError::NonFinite.into());
+            }
+        } else {
+            transpose(rows, p, n, rhs);
         }
-        transpose(rows, p, n, rhs);
         self.rhs_max = max;
         self.rows_for = Some(p);
         Ok(SolveKind::Direct)
@@ -984,28 +999,8 @@ impl ReducedSystem {
     }
 }
 
-/// The largest magnitude in `v` and whether every entry is finite, in four independent lanes
-/// (vector loops): `x · 0` is ±0 for a finite `x` and NaN otherwise.
-fn largest_magnitude(v: &[f64]) -> (f64, bool) {
-    let (mut max, mut nan) = ([0.0f64; 4], [0.0f64; 4]);
-    let mut chunks = v.chunks_exact(4);
-    for c in &mut chunks {
-        for k in 0..4 {
-            let a = c[k].abs();
-            max[k] = if a > max[k] { a } else { max[k] };
-            nan[k] += c[k] * 0.0;
-        }
-    }
-    for &x in chunks.remainder() {
-        let a = x.abs();
-        max[0] = if a > max[0] { a } else { max[0] };
-        nan[0] += x * 0.0;
-    }
-    let largest = max.iter().fold(0.0f64, |m, &a| if a > m { a } else { m });
-    (largest, nan.iter().all(|x| *x == 0.0))
-}
-
-/// True when every entry of `v` is finite (lanes as [`largest_magnitude`]).
+/// True when every entry of `v` is finite, in four independent lanes (vector loops): `x · 0` is
+/// ±0 for a finite `x` and NaN otherwise.
 fn all_finite(v: &[f64]) -> bool {
     let mut nan = [0.0f64; 4];
     let mut chunks = v.chunks_exact(4);
@@ -1020,7 +1015,7 @@ fn all_finite(v: &[f64]) -> bool {
     nan.iter().all(|x| *x == 0.0)
 }
 
-/// Negates `v` in place; true when every entry is finite (lanes as [`largest_magnitude`]).
+/// Negates `v` in place; true when every entry is finite (lanes as [`all_finite`]).
 fn negate(v: &mut [f64]) -> bool {
     let mut nan = [0.0f64; 4];
     let mut chunks = v.chunks_exact_mut(4);

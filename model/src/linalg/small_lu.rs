@@ -126,11 +126,39 @@ impl SmallLu {
     pub(crate) fn solve_rows_accumulated(&self, b: &mut [f64], k: usize) {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 && self.n <= 64 && b.len() >= self.n * k {
-            // SAFETY: `avx2` is set only when the processor has AVX2; `b` holds `n × k` entries.
-            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k) };
+            let mut map = [0usize; 64];
+            for (r, m) in map.iter_mut().enumerate() {
+                *m = r;
+            }
+            // SAFETY: `avx2` is set only when the processor has AVX2; `b` holds `n × k` entries
+            // and the map is the identity.
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, &map) };
             return;
         }
         self.solve_rows(b, k);
+    }
+
+    /// [`SmallLu::solve_rows_accumulated`] on the rows `rows[0] < rows[1] < …` (`n` of them)
+    /// of the row-major `b` with `k` columns, the other rows untouched: the sensitivities' free
+    /// rows solved where they lie, without moving them together first. False (nothing done)
+    /// without AVX2, above 64 unknowns, or when `rows` is not `n` ascending rows of `b`.
+    pub(crate) fn solve_mapped_rows_accumulated(
+        &self,
+        b: &mut [f64],
+        k: usize,
+        rows: &[usize],
+    ) -> bool {
+        let ascending = rows.windows(2).all(|w| w[0] < w[1]);
+        let within = rows.last().is_none_or(|&r| (r + 1) * k <= b.len());
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 && self.n <= 64 && rows.len() == self.n && ascending && within {
+            // SAFETY: `avx2` is set only when the processor has AVX2; every mapped row is a
+            // distinct row of `b`.
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, rows) };
+            return true;
+        }
+        let _ = (ascending, within);
+        false
     }
 
     /// Solves `Aᵀ x = b` in place: `Uᵀ y = b`, `Lᵀ w = y`, `x = Pᵀ w`.
@@ -269,11 +297,13 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
     solve_rows_with::<Avx2>(n, a, piv, b, k);
 }
 
-/// [`SmallLu::solve_rows_accumulated`] with AVX2: the row interchanges, then strips of up to
-/// 32 columns (eight registers, the last one masked to the strip's width).
+/// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
+/// interchanges, then strips of up to 32 columns (eight registers, the last one masked to the
+/// strip's width).
 ///
 /// # Safety
-/// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries and `b` at least `n × k`.
+/// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
+/// ascending rows and `b` at least `(map[n − 1] + 1) × k` entries.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn solve_rows_accumulated_avx2(
@@ -282,12 +312,14 @@ unsafe fn solve_rows_accumulated_avx2(
     piv: &[usize],
     b: &mut [f64],
     k: usize,
+    map: &[usize],
 ) {
     for (r, &p) in piv.iter().enumerate() {
         if p != r {
-            // `p > r`: row `r` is in the first half, row `p` starts the second.
-            let (head, tail) = b.split_at_mut(p * k);
-            head[r * k..(r + 1) * k].swap_with_slice(&mut tail[..k]);
+            // `p > r`, so `map[p] > map[r]`: row `map[r]` is in the first half, row `map[p]`
+            // starts the second.
+            let (head, tail) = b.split_at_mut(map[p] * k);
+            head[map[r] * k..(map[r] + 1) * k].swap_with_slice(&mut tail[..k]);
         }
     }
     let mut c0 = 0;
@@ -296,14 +328,14 @@ unsafe fn solve_rows_accumulated_avx2(
         // SAFETY: as the caller's; columns `c0..c0 + width` are within every row.
         unsafe {
             match width.div_ceil(4) {
-                8 => accumulated_strip::<8>(n, a, b, k, c0, width),
-                7 => accumulated_strip::<7>(n, a, b, k, c0, width),
-                6 => accumulated_strip::<6>(n, a, b, k, c0, width),
-                5 => accumulated_strip::<5>(n, a, b, k, c0, width),
-                4 => accumulated_strip::<4>(n, a, b, k, c0, width),
-                3 => accumulated_strip::<3>(n, a, b, k, c0, width),
-                2 => accumulated_strip::<2>(n, a, b, k, c0, width),
-                _ => accumulated_strip::<1>(n, a, b, k, c0, width),
+                8 => accumulated_strip::<8>(n, a, b, k, map, c0, width),
+                7 => accumulated_strip::<7>(n, a, b, k, map, c0, width),
+                6 => accumulated_strip::<6>(n, a, b, k, map, c0, width),
+                5 => accumulated_strip::<5>(n, a, b, k, map, c0, width),
+                4 => accumulated_strip::<4>(n, a, b, k, map, c0, width),
+                3 => accumulated_strip::<3>(n, a, b, k, map, c0, width),
+                2 => accumulated_strip::<2>(n, a, b, k, map, c0, width),
+                _ => accumulated_strip::<1>(n, a, b, k, map, c0, width),
             }
         }
         c0 += width;
@@ -323,6 +355,7 @@ unsafe fn accumulated_strip<const W: usize>(
     a: &[f64],
     b: &mut [f64],
     k: usize,
+    map: &[usize],
     c0: usize,
     width: usize,
 ) {
@@ -335,7 +368,7 @@ unsafe fn accumulated_strip<const W: usize>(
         -1,
     );
     let (ap, bp) = (a.as_ptr(), b.as_mut_ptr());
-    // SAFETY: rows `r < n` of `b` (`n × k`), columns `c0 + 4v + lane < c0 + width ≤ k` (the
+    // SAFETY: rows `map[r]`, `r < n`, of `b`, columns `c0 + 4v + lane < c0 + width ≤ k` (the
     // masked lanes are neither read nor written); factor entries `j n + r < n²`.
     unsafe {
         let load = |row: *const f64, acc: &mut [__m256d; W]| {
@@ -363,12 +396,12 @@ unsafe fn accumulated_strip<const W: usize>(
         // Bit `j`: row `j` of `L⁻¹ P b` has a nonzero (or NaN) entry in the strip.
         let mut nonzero = 0u64;
         for r in 0..n {
-            let row = bp.add(r * k + c0);
+            let row = bp.add(map[r] * k + c0);
             load(row, &mut acc);
             for j in 0..r {
                 let l = *ap.add(j * n + r);
                 if l != 0.0 && (nonzero >> j) & 1 != 0 {
-                    sub_scaled(&mut acc, bp.add(j * k + c0), l);
+                    sub_scaled(&mut acc, bp.add(map[j] * k + c0), l);
                 }
             }
             store(row, &acc);
@@ -382,12 +415,12 @@ unsafe fn accumulated_strip<const W: usize>(
             }
         }
         for r in (0..n).rev() {
-            let row = bp.add(r * k + c0);
+            let row = bp.add(map[r] * k + c0);
             load(row, &mut acc);
             for j in (r + 1..n).rev() {
                 let u = *ap.add(j * n + r);
                 if u != 0.0 {
-                    sub_scaled(&mut acc, bp.add(j * k + c0), u);
+                    sub_scaled(&mut acc, bp.add(map[j] * k + c0), u);
                 }
             }
             let d4 = _mm256_set1_pd(*ap.add(r * n + r));
@@ -640,6 +673,20 @@ mod tests {
                     fast.solve_rows_accumulated(&mut z, k);
                     assert_eq!(bits(&x), bits(&y), "rows, n = {n}, k = {k}, seed {seed}");
                     assert_eq!(bits(&z), bits(&y), "accumulated, n = {n}, k = {k}, seed {seed}");
+                    // The same rows spread out (every third row of a taller matrix, the
+                    // others marked with NaN): the same bits there, the others untouched.
+                    let map: Vec<usize> = (0..n).map(|r| 3 * r + 1).collect();
+                    let mut spread = vec![f64::NAN; (3 * n + 1) * k];
+                    for (r, &m) in map.iter().enumerate() {
+                        spread[m * k..(m + 1) * k].copy_from_slice(&rows[r * k..(r + 1) * k]);
+                    }
+                    assert!(fast.solve_mapped_rows_accumulated(&mut spread, k, &map));
+                    for (i, row) in spread.chunks_exact(k).enumerate() {
+                        match map.iter().position(|&m| m == i) {
+                            Some(r) => assert_eq!(bits(row), bits(&y[r * k..(r + 1) * k])),
+                            None => assert!(row.iter().all(|v| v.is_nan())),
+                        }
+                    }
                 }
                 cases += 1;
             }
