@@ -662,13 +662,8 @@ impl ReducedSystem {
         if self.free_factored && (n == 0 || p == 0) {
             return Ok(SolveKind::Direct);
         }
-        let by_rows = self.regularised.is_none()
-            && !self.blocked_columns
-            && n > 0
-            && p > 0
-            && (self.free_factored || self.linear.as_ref().is_some_and(LinearSolver::solves_rows));
-        if by_rows {
-            return self.solve_columns_by_rows(rhs, p);
+        if self.by_rows(p) {
+            return self.solve_columns_by_rows(None, rhs, p);
         }
         if rhs.iter().any(|v| !v.is_finite()) {
             return Err(ImplicitError::NonFinite);
@@ -700,11 +695,23 @@ impl ReducedSystem {
         Ok(self.kind(worst))
     }
 
+    /// True when [`ReducedSystem::solve_columns`] of `p` columns goes by rows (the small
+    /// kernel's factors, not regularised, not `blocked_columns`).
+    fn by_rows(&self, p: usize) -> bool {
+        self.regularised.is_none()
+            && !self.blocked_columns
+            && !self.held.is_empty()
+            && p > 0
+            && (self.free_factored || self.linear.as_ref().is_some_and(LinearSolver::solves_rows))
+    }
+
     /// [`ReducedSystem::solve_columns`] by the small kernel's row-oriented solve: the columns
     /// (held rows zeroed) transposed into the row-major `rows`, solved there, negated and
-    /// copied back; `rows` keeps the solution for the weak slopes.
+    /// copied back; `rows` keeps the solution for the weak slopes. The columns are read from
+    /// `src` when given (`n × p`, then `rhs` is only written), else from `rhs`.
     fn solve_columns_by_rows(
         &mut self,
+        src: Option<&[f64]>,
         rhs: &mut [f64],
         p: usize,
     ) -> Result<SolveKind, ImplicitError> {
@@ -715,7 +722,7 @@ impl ReducedSystem {
         // finds the largest magnitude (the weak slopes' scale).
         self.rows.resize(n * p, 0.0);
         let rows = &mut self.rows[..n * p];
-        let (max, finite) = transpose_checked(rhs, n, p, rows);
+        let (max, finite) = transpose_checked(src.unwrap_or(rhs), n, p, rows);
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
@@ -888,10 +895,17 @@ impl ReducedSystem {
         out: &mut ImplicitDerivative,
     ) -> Result<(), ImplicitError> {
         self.factor(mcp, z, status)?;
-        out.dz.clear();
-        out.dz.extend_from_slice(dfdtheta);
         out.columns = p;
-        out.solve = self.solve_columns(&mut out.dz, p)?;
+        if self.by_rows(p) && dfdtheta.len() == self.held.len() * p {
+            // Read straight from `dfdtheta`: every entry of `dz` is written by the solve.
+            self.rows_for = None;
+            out.dz.resize(dfdtheta.len(), 0.0);
+            out.solve = self.solve_columns_by_rows(Some(dfdtheta), &mut out.dz, p)?;
+        } else {
+            out.dz.clear();
+            out.dz.extend_from_slice(dfdtheta);
+            out.solve = self.solve_columns(&mut out.dz, p)?;
+        }
         if self.rows_for == Some(p) {
             self.weak_slopes_by_rows(mcp, status, dfdtheta, p, opts, &mut out.weak);
         } else {
