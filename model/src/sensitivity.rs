@@ -51,11 +51,12 @@
 //!
 //! **The θ columns together.** With the small dense kernel (up to
 //! [`crate::linalg::SMALL_DENSE_MAX`] unknowns) the `p` columns are solved as the rows of one
-//! row-major `n × p` matrix by the kernel's row-oriented triangular solves (each factor entry
-//! updates all `p` columns in one vector loop), and the weak components' slopes are formed from
-//! that row-major solution, one vector loop per stored entry of a weak row
-//! (`docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`). The
-//! results differ from faer's blocked solves, kept behind
+//! row-major `n × p` matrix by the kernel's row-oriented triangular solves (each solution row
+//! accumulated across up to 32 columns in vector registers, the free rows solved where they
+//! lie), and the weak components' slopes are formed from that row-major solution, one vector
+//! loop per stored entry of a weak row
+//! (`docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`, and the
+//! section of branch wip-sens3). The results differ from faer's blocked solves, kept behind
 //! [`ReducedSystem::with_blocked_columns`], by round-off only.
 
 use std::sync::Arc;

@@ -224,7 +224,12 @@ fn transpose_tail(
 /// (else `(0, true)`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn transpose_avx2<const CHECK: bool>(src: &[f64], m: usize, c: usize, dst: &mut [f64]) -> (f64, bool) {
+fn transpose_avx2<const CHECK: bool>(
+    src: &[f64],
+    m: usize,
+    c: usize,
+    dst: &mut [f64],
+) -> (f64, bool) {
     use std::arch::x86_64::*;
     let (m4, c4) = (m / 4 * 4, c / 4 * 4);
     let (s, d) = (src.as_ptr(), dst.as_mut_ptr());

@@ -672,7 +672,11 @@ mod tests {
                     plain.solve_rows(&mut y, k);
                     fast.solve_rows_accumulated(&mut z, k);
                     assert_eq!(bits(&x), bits(&y), "rows, n = {n}, k = {k}, seed {seed}");
-                    assert_eq!(bits(&z), bits(&y), "accumulated, n = {n}, k = {k}, seed {seed}");
+                    assert_eq!(
+                        bits(&z),
+                        bits(&y),
+                        "accumulated, n = {n}, k = {k}, seed {seed}"
+                    );
                     // The same rows spread out (every third row of a taller matrix, the
                     // others marked with NaN): the same bits there, the others untouched.
                     let map: Vec<usize> = (0..n).map(|r| 3 * r + 1).collect();
