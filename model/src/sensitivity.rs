@@ -727,7 +727,6 @@ impl ReducedSystem {
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
-        let checked_back;
         if self.free_factored {
             // The free rows solved where they lie, by −A_ff's factors (the sign is in them),
             // the held rows then 0; without the mapped kernel (no AVX2) the free rows are
@@ -763,8 +762,7 @@ impl ReducedSystem {
                     }
                 }
             }
-            // Finiteness tested in the transpose back.
-            checked_back = true;
+            // Finiteness tested in the transpose back (below).
         } else {
             for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
                 if h {
@@ -778,9 +776,8 @@ impl ReducedSystem {
             if !negate(rows) {
                 return Err(LinalgError::NonFinite.into());
             }
-            checked_back = false;
         }
-        if checked_back {
+        if self.free_factored {
             if !transpose_checked(rows, p, n, rhs).1 {
                 return Err(LinalgError::NonFinite.into());
             }
