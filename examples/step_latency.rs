@@ -10,7 +10,7 @@
 //! elimination, `docs/latency.md#structured-linear-solve`), `lu` (the default) with it off.
 //!
 //! The cases are those of the benchmarks: `desk-newton`, `desk-path`, `a1-newton`,
-//! `tbar-newton`, `a1-path`, `tbar-path` (PATH on A1's 20th and the T-bar's 340th step), `desk-sensitivity` (the 100th desk step's sensitivities into one kept result, `StepDifferentiator::differentiate_into`), and
+//! `tbar-newton`, `a1-path`, `tbar-path` (PATH on A1's 20th and the T-bar's 340th step), `desk-sensitivity` (the 100th desk step's sensitivities into one kept result, `StepDifferentiator::differentiate_into`; `desk-sensitivity-time` times each call and prints the median and a digest of `dz`), and
 //! `desk-conic` (the conic backend's defaults: every QP by clarabel), `desk-conic-dense` (the
 //! QPs by the dense method first, `ConicSettings::dense_qp`). The
 //! difference of two runs' totals over the difference of their `N` is the cost of one solve,
@@ -124,7 +124,7 @@ fn main() {
         },
         _ => {
             eprintln!(
-                "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|\
+                "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|desk-sensitivity-time|\
                  desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into|desk-steps-path|\
                  desk-steps-path-previous|desk-steps-path-unpolished> N [lu|schur]"
             );
@@ -254,6 +254,40 @@ fn main() {
                     .differentiate_into(&sim, &[], &mut sens)
                     .expect("sensitivity");
             }
+            sens.dz.len()
+        }
+        "desk-sensitivity-time" => {
+            // The same calls, each timed: the median in microseconds, and a digest of the
+            // last result's `dz` bits, to compare builds by.
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            for _ in 0..100 {
+                sim.step(&mut solver).expect("desk step");
+            }
+            let mut differ = StepDifferentiator::new(SensitivityOptions {
+                structured_solve,
+                ..SensitivityOptions::default()
+            });
+            let mut sens = StepSensitivity::empty();
+            let mut times = Vec::with_capacity(n);
+            for _ in 0..n {
+                let start = std::time::Instant::now();
+                differ
+                    .differentiate_into(&sim, &[], &mut sens)
+                    .expect("sensitivity");
+                times.push(start.elapsed().as_secs_f64() * 1e6);
+            }
+            times.sort_by(f64::total_cmp);
+            let mut digest = Digest::default();
+            for v in &sens.dz {
+                digest.mix(v.to_bits());
+            }
+            println!(
+                "desk-sensitivity-time x{n}: median {:.3} us, fastest {:.3} us, digest {:016x}",
+                times.get(n / 2).copied().unwrap_or(f64::NAN),
+                times.first().copied().unwrap_or(f64::NAN),
+                digest.0
+            );
             sens.dz.len()
         }
         other => {

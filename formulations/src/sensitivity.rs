@@ -600,7 +600,8 @@ impl StepDifferentiator {
         self.system
             .differentiate_into(mcp, z, first, rhs, p, opts, d)?;
         let dz = &mut out.dz;
-        dz.clone_from(&d.dz);
+        // Taken, not copied: `d.dz` gets the kept result's old storage to fill next time.
+        std::mem::swap(dz, &mut d.dz);
         if let SolveKind::Regularised { consistency } = d.solve {
             degeneracies.push(Degeneracy::Singular { consistency });
         }

@@ -20,7 +20,7 @@ mod simd;
 mod small_lu;
 mod sparse_cholesky;
 pub use schur::SchurLu;
-pub(crate) use simd::{add_row_combination, transpose};
+pub(crate) use simd::{add_row_combination, transpose, transpose_checked};
 use small_lu::SmallLu;
 pub use sparse_cholesky::{SparseCholesky, cholesky_flops};
 
@@ -309,9 +309,37 @@ impl DenseLu {
         };
         check_many_rhs(b.len(), self.n, k)?;
         if k > 0 {
-            small.solve_rows(b, k);
+            small.solve_rows_accumulated(b, k);
         }
         Ok(true)
+    }
+
+    /// [`DenseLu::solve_rows_in_place`] on the rows `rows` (`n` of them, ascending) of the
+    /// row-major `b` with `k` columns, the other rows untouched (the step sensitivities' free
+    /// block solved where its rows lie, `docs/latency.md`). Returns `Ok(false)` and leaves `b`
+    /// alone when the factors are faer's or the processor lacks AVX2 (then move the rows
+    /// together and call [`DenseLu::solve_rows_in_place`]).
+    pub fn solve_mapped_rows_in_place(
+        &mut self,
+        b: &mut [f64],
+        k: usize,
+        rows: &[usize],
+    ) -> Result<bool, LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        let Some(small) = &self.small else {
+            return Ok(false);
+        };
+        if rows.len() != self.n || rows.last().is_some_and(|&r| (r + 1) * k > b.len()) {
+            return Err(LinalgError::Factorization(format!(
+                "{} mapped rows of a {}-row right-hand side, expected {} rows",
+                rows.len(),
+                b.len() / k.max(1),
+                self.n
+            )));
+        }
+        Ok(k == 0 || small.solve_mapped_rows_accumulated(b, k, rows))
     }
 
     fn solve_impl(&mut self, b: &mut [f64], transpose: bool) -> Result<(), LinalgError> {

@@ -51,16 +51,19 @@
 //!
 //! **The θ columns together.** With the small dense kernel (up to
 //! [`crate::linalg::SMALL_DENSE_MAX`] unknowns) the `p` columns are solved as the rows of one
-//! row-major `n × p` matrix by the kernel's row-oriented triangular solves (each factor entry
-//! updates all `p` columns in one vector loop), and the weak components' slopes are formed from
-//! that row-major solution, one vector loop per stored entry of a weak row
-//! (`docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`). The
-//! results differ from faer's blocked solves, kept behind
+//! row-major `n × p` matrix by the kernel's row-oriented triangular solves (each solution row
+//! accumulated across up to 32 columns in vector registers, the free rows solved where they
+//! lie), and the weak components' slopes are formed from that row-major solution, one vector
+//! loop per stored entry of a weak row
+//! (`docs/latency.md#the-desk-step-sensitivity-by-rows-branch-wip-sensfast-issue-18`, and the
+//! section of branch wip-sens3). The results differ from faer's blocked solves, kept behind
 //! [`ReducedSystem::with_blocked_columns`], by round-off only.
 
 use std::sync::Arc;
 
-use crate::linalg::{DenseLu, LinalgError, LinearSolver, add_row_combination, transpose};
+use crate::linalg::{
+    DenseLu, LinalgError, LinearSolver, add_row_combination, transpose, transpose_checked,
+};
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
 
@@ -660,13 +663,8 @@ impl ReducedSystem {
         if self.free_factored && (n == 0 || p == 0) {
             return Ok(SolveKind::Direct);
         }
-        let by_rows = self.regularised.is_none()
-            && !self.blocked_columns
-            && n > 0
-            && p > 0
-            && (self.free_factored || self.linear.as_ref().is_some_and(LinearSolver::solves_rows));
-        if by_rows {
-            return self.solve_columns_by_rows(rhs, p);
+        if self.by_rows(p) {
+            return self.solve_columns_by_rows(None, rhs, p);
         }
         if rhs.iter().any(|v| !v.is_finite()) {
             return Err(ImplicitError::NonFinite);
@@ -698,56 +696,73 @@ impl ReducedSystem {
         Ok(self.kind(worst))
     }
 
+    /// True when [`ReducedSystem::solve_columns`] of `p` columns goes by rows (the small
+    /// kernel's factors, not regularised, not `blocked_columns`).
+    fn by_rows(&self, p: usize) -> bool {
+        self.regularised.is_none()
+            && !self.blocked_columns
+            && !self.held.is_empty()
+            && p > 0
+            && (self.free_factored || self.linear.as_ref().is_some_and(LinearSolver::solves_rows))
+    }
+
     /// [`ReducedSystem::solve_columns`] by the small kernel's row-oriented solve: the columns
     /// (held rows zeroed) transposed into the row-major `rows`, solved there, negated and
-    /// copied back; `rows` keeps the solution for the weak slopes.
+    /// copied back; `rows` keeps the solution for the weak slopes. The columns are read from
+    /// `src` when given (`n × p`, then `rhs` is only written), else from `rhs`.
     fn solve_columns_by_rows(
         &mut self,
+        src: Option<&[f64]>,
         rhs: &mut [f64],
         p: usize,
     ) -> Result<SolveKind, ImplicitError> {
         let n = self.held.len();
-        // One contiguous pass for the finiteness test and the largest magnitude (the weak
-        // slopes' scale); `a <= MAX` is false for NaN and ±∞.
-        let (max, mut finite) = largest_magnitude(rhs);
+        // Transposed without the sign change: solving `A x = −b` gives `−x` of `A x = b` bit
+        // for bit but for the signs of zeros (every operation of the solve commutes with
+        // negation), so the sign goes on the way back. The same pass tests finiteness and
+        // finds the largest magnitude (the weak slopes' scale).
+        self.rows.resize(n * p, 0.0);
+        let rows = &mut self.rows[..n * p];
+        let (max, finite) = transpose_checked(src.unwrap_or(rhs), n, p, rows);
         if !finite {
             return Err(ImplicitError::NonFinite);
         }
-        // Transposed without the sign change: solving `A x = −b` gives `−x` of `A x = b` bit
-        // for bit but for the signs of zeros (every operation of the solve commutes with
-        // negation), so the sign goes on the way back.
-        self.rows.resize(n * p, 0.0);
-        let rows = &mut self.rows[..n * p];
-        transpose(rhs, n, p, rows);
         if self.free_factored {
-            // The free rows moved up to the first `f` rows (in place: `index[r] ≥ r`), solved
-            // by −A_ff's factors (the sign is in them), and moved back down (backwards:
-            // `index[r] ≥ r` again), the held rows 0.
+            // The free rows solved where they lie, by −A_ff's factors (the sign is in them),
+            // the held rows then 0; without the mapped kernel (no AVX2) the free rows are
+            // moved up to the first `f` rows (in place: `index[r] ≥ r`), solved, and moved
+            // back down (backwards: `index[r] ≥ r` again).
             let index = &self.free.index;
             let f = index.len();
-            for (r, &i) in index.iter().enumerate() {
-                if i != r {
-                    rows.copy_within(i * p..(i + 1) * p, r * p);
+            let lu = self.free.lu.as_mut().ok_or(LinalgError::NotFactored)?;
+            if f > 0 && lu.solve_mapped_rows_in_place(rows, p, index)? {
+                for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
+                    if h {
+                        dst.fill(0.0);
+                    }
                 }
-            }
-            if f > 0 {
-                let lu = self.free.lu.as_mut().ok_or(LinalgError::NotFactored)?;
-                if !lu.solve_rows_in_place(&mut rows[..f * p], p)? {
+            } else {
+                for (r, &i) in index.iter().enumerate() {
+                    if i != r {
+                        rows.copy_within(i * p..(i + 1) * p, r * p);
+                    }
+                }
+                if f > 0 && !lu.solve_rows_in_place(&mut rows[..f * p], p)? {
                     return Err(LinalgError::NotFactored.into());
                 }
-            }
-            let mut r = f;
-            for i in (0..n).rev() {
-                if r > 0 && index[r - 1] == i {
-                    r -= 1;
-                    if r != i {
-                        rows.copy_within(r * p..(r + 1) * p, i * p);
+                let mut r = f;
+                for i in (0..n).rev() {
+                    if r > 0 && index[r - 1] == i {
+                        r -= 1;
+                        if r != i {
+                            rows.copy_within(r * p..(r + 1) * p, i * p);
+                        }
+                    } else {
+                        rows[i * p..(i + 1) * p].fill(0.0);
                     }
-                } else {
-                    rows[i * p..(i + 1) * p].fill(0.0);
                 }
             }
-            finite = all_finite(rows);
+            // Finiteness tested in the transpose back (below).
         } else {
             for (dst, &h) in rows.chunks_exact_mut(p).zip(&self.held) {
                 if h {
@@ -758,12 +773,17 @@ impl ReducedSystem {
             if !linear.solve_rows_in_place(rows, p)? {
                 return Err(LinalgError::NotFactored.into());
             }
-            finite = negate(rows);
+            if !negate(rows) {
+                return Err(LinalgError::NonFinite.into());
+            }
         }
-        if !finite {
-            return Err(LinalgError::NonFinite.into());
+        if self.free_factored {
+            if !transpose_checked(rows, p, n, rhs).1 {
+                return Err(LinalgError::NonFinite.into());
+            }
+        } else {
+            transpose(rows, p, n, rhs);
         }
-        transpose(rows, p, n, rhs);
         self.rhs_max = max;
         self.rows_for = Some(p);
         Ok(SolveKind::Direct)
@@ -873,10 +893,17 @@ impl ReducedSystem {
         out: &mut ImplicitDerivative,
     ) -> Result<(), ImplicitError> {
         self.factor(mcp, z, status)?;
-        out.dz.clear();
-        out.dz.extend_from_slice(dfdtheta);
         out.columns = p;
-        out.solve = self.solve_columns(&mut out.dz, p)?;
+        if self.by_rows(p) && dfdtheta.len() == self.held.len() * p {
+            // Read straight from `dfdtheta`: every entry of `dz` is written by the solve.
+            self.rows_for = None;
+            out.dz.resize(dfdtheta.len(), 0.0);
+            out.solve = self.solve_columns_by_rows(Some(dfdtheta), &mut out.dz, p)?;
+        } else {
+            out.dz.clear();
+            out.dz.extend_from_slice(dfdtheta);
+            out.solve = self.solve_columns(&mut out.dz, p)?;
+        }
         if self.rows_for == Some(p) {
             self.weak_slopes_by_rows(mcp, status, dfdtheta, p, opts, &mut out.weak);
         } else {
@@ -984,28 +1011,8 @@ impl ReducedSystem {
     }
 }
 
-/// The largest magnitude in `v` and whether every entry is finite, in four independent lanes
-/// (vector loops): `x · 0` is ±0 for a finite `x` and NaN otherwise.
-fn largest_magnitude(v: &[f64]) -> (f64, bool) {
-    let (mut max, mut nan) = ([0.0f64; 4], [0.0f64; 4]);
-    let mut chunks = v.chunks_exact(4);
-    for c in &mut chunks {
-        for k in 0..4 {
-            let a = c[k].abs();
-            max[k] = if a > max[k] { a } else { max[k] };
-            nan[k] += c[k] * 0.0;
-        }
-    }
-    for &x in chunks.remainder() {
-        let a = x.abs();
-        max[0] = if a > max[0] { a } else { max[0] };
-        nan[0] += x * 0.0;
-    }
-    let largest = max.iter().fold(0.0f64, |m, &a| if a > m { a } else { m });
-    (largest, nan.iter().all(|x| *x == 0.0))
-}
-
-/// True when every entry of `v` is finite (lanes as [`largest_magnitude`]).
+/// True when every entry of `v` is finite, in four independent lanes (vector loops): `x · 0` is
+/// ±0 for a finite `x` and NaN otherwise.
 fn all_finite(v: &[f64]) -> bool {
     let mut nan = [0.0f64; 4];
     let mut chunks = v.chunks_exact(4);
@@ -1020,7 +1027,7 @@ fn all_finite(v: &[f64]) -> bool {
     nan.iter().all(|x| *x == 0.0)
 }
 
-/// Negates `v` in place; true when every entry is finite (lanes as [`largest_magnitude`]).
+/// Negates `v` in place; true when every entry is finite (lanes as [`all_finite`]).
 fn negate(v: &mut [f64]) -> bool {
     let mut nan = [0.0f64; 4];
     let mut chunks = v.chunks_exact_mut(4);

@@ -171,28 +171,71 @@ pub(crate) fn transpose(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
     #[cfg(target_arch = "x86_64")]
     if avx2_available() {
         // SAFETY: the processor has AVX2; the lengths are checked above.
-        unsafe { transpose_avx2(src, m, c, dst) };
+        unsafe { transpose_avx2::<false>(src, m, c, dst) };
         return;
     }
     transpose_tail(src, m, c, dst, 0, 0);
 }
 
-/// The entries of [`transpose`] with row `j ≥ j0` or column `k ≥ k0`.
-fn transpose_tail(src: &[f64], m: usize, c: usize, dst: &mut [f64], j0: usize, k0: usize) {
+/// [`transpose`], also returning the largest magnitude of the moved entries and whether every
+/// one is finite (the sensitivities' right-hand side scale and their checks, in the pass that
+/// moves the entries anyway). The magnitude is exact whatever the order; with a NaN it is
+/// unspecified (the caller rejects the matrix).
+pub(crate) fn transpose_checked(src: &[f64], m: usize, c: usize, dst: &mut [f64]) -> (f64, bool) {
+    assert!(src.len() >= m * c && dst.len() >= m * c);
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the processor has AVX2; the lengths are checked above.
+        return unsafe { transpose_avx2::<true>(src, m, c, dst) };
+    }
+    transpose_tail(src, m, c, dst, 0, 0);
+    let (mut max, mut nan) = (0.0f64, 0.0f64);
+    for &x in &dst[..m * c] {
+        max = if x.abs() > max { x.abs() } else { max };
+        nan += x * 0.0;
+    }
+    (max, nan == 0.0)
+}
+
+/// The entries of [`transpose`] with row `j ≥ j0` or column `k ≥ k0`; their largest magnitude
+/// and `Σ x · 0` (0 when all are finite, NaN otherwise).
+fn transpose_tail(
+    src: &[f64],
+    m: usize,
+    c: usize,
+    dst: &mut [f64],
+    j0: usize,
+    k0: usize,
+) -> (f64, f64) {
+    let (mut max, mut nan) = (0.0f64, 0.0f64);
     for k in 0..c {
         let from = if k < k0 { j0 } else { 0 };
         for j in from..m {
-            dst[j * c + k] = src[k * m + j];
+            let x = src[k * m + j];
+            dst[j * c + k] = x;
+            max = if x.abs() > max { x.abs() } else { max };
+            nan += x * 0.0;
         }
     }
+    (max, nan)
 }
 
+/// [`transpose`] with AVX2; with `CHECK`, [`transpose_checked`]'s magnitude and finiteness
+/// (else `(0, true)`).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn transpose_avx2(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
+fn transpose_avx2<const CHECK: bool>(
+    src: &[f64],
+    m: usize,
+    c: usize,
+    dst: &mut [f64],
+) -> (f64, bool) {
     use std::arch::x86_64::*;
     let (m4, c4) = (m / 4 * 4, c / 4 * 4);
     let (s, d) = (src.as_ptr(), dst.as_mut_ptr());
+    let (mut max, mut nan) = (_mm256_setzero_pd(), _mm256_setzero_pd());
+    let sign = _mm256_set1_pd(-0.0);
+    let zero = _mm256_setzero_pd();
     for k in (0..c4).step_by(4) {
         for j in (0..m4).step_by(4) {
             // SAFETY: rows j..j + 4 < m of columns k..k + 4 < c, within `m · c` entries of
@@ -202,6 +245,12 @@ fn transpose_avx2(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
                 let a1 = _mm256_loadu_pd(s.add((k + 1) * m + j));
                 let a2 = _mm256_loadu_pd(s.add((k + 2) * m + j));
                 let a3 = _mm256_loadu_pd(s.add((k + 3) * m + j));
+                if CHECK {
+                    for a in [a0, a1, a2, a3] {
+                        max = _mm256_max_pd(max, _mm256_andnot_pd(sign, a));
+                        nan = _mm256_add_pd(nan, _mm256_mul_pd(a, zero));
+                    }
+                }
                 let t0 = _mm256_unpacklo_pd(a0, a1);
                 let t1 = _mm256_unpackhi_pd(a0, a1);
                 let t2 = _mm256_unpacklo_pd(a2, a3);
@@ -213,7 +262,21 @@ fn transpose_avx2(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
             }
         }
     }
-    transpose_tail(src, m, c, dst, m4, c4);
+    let (tail_max, tail_nan) = transpose_tail(src, m, c, dst, m4, c4);
+    if !CHECK {
+        return (0.0, true);
+    }
+    let (mut lanes_max, mut lanes_nan) = ([0.0f64; 4], [0.0f64; 4]);
+    // SAFETY: four lanes into four entries.
+    unsafe {
+        _mm256_storeu_pd(lanes_max.as_mut_ptr(), max);
+        _mm256_storeu_pd(lanes_nan.as_mut_ptr(), nan);
+    }
+    let largest = lanes_max
+        .iter()
+        .fold(tail_max, |acc, &a| if a > acc { a } else { acc });
+    let finite = tail_nan == 0.0 && lanes_nan.iter().all(|x| *x == 0.0);
+    (largest, finite)
 }
 
 #[cfg(test)]
@@ -264,6 +327,25 @@ mod tests {
                 for j in 0..m {
                     for k in 0..c {
                         assert_eq!(dst[j * c + k], src[k * m + j], "m = {m}, c = {c}");
+                    }
+                }
+                // The checked transpose: the same entries, their largest magnitude exactly,
+                // and a NaN or an infinity anywhere seen.
+                let signed: Vec<f64> = src.iter().map(|v| -v).collect();
+                let mut checked = vec![f64::NAN; m * c];
+                let (max, finite) = transpose_checked(&signed, m, c, &mut checked);
+                assert_eq!(checked, dst.iter().map(|v| -v).collect::<Vec<_>>());
+                assert!(finite);
+                assert_eq!(max, if m * c > 0 { (m * c) as f64 - 0.5 } else { 0.0 });
+                for bad in [f64::NAN, f64::INFINITY] {
+                    for at in [0, m * c / 2, (m * c).max(1) - 1] {
+                        if m * c == 0 {
+                            continue;
+                        }
+                        let mut s2 = signed.clone();
+                        s2[at] = bad;
+                        let (_, finite) = transpose_checked(&s2, m, c, &mut checked);
+                        assert!(!finite, "m = {m}, c = {c}, {bad} at {at}");
                     }
                 }
             }

@@ -113,6 +113,54 @@ impl SmallLu {
         solve_rows_with::<Portable>(self.n, &self.a, &self.piv, b, k);
     }
 
+    /// [`SmallLu::solve_rows`] with each row's sum kept in registers: row `r` of the solution
+    /// is its right-hand side minus the factor-weighted earlier (forward) or later (backward)
+    /// solution rows, accumulated across up to 32 columns in AVX2 registers and stored once
+    /// ("left-looking"), instead of every factor entry loading and storing a whole row.
+    /// Bitwise [`SmallLu::solve_rows`]' results: every entry gets the same products, each
+    /// rounded before its subtraction, in the same order (forward ascending, backward
+    /// descending), and the same skips (a zero factor entry; in the forward pass a solution row
+    /// that is zero), but for the signs of zeros when `k > 32` (the zero-row skip is judged per
+    /// strip of 32 columns). The step sensitivities' many right-hand sides
+    /// (`docs/latency.md`); without AVX2 or above 64 unknowns it is [`SmallLu::solve_rows`].
+    pub(crate) fn solve_rows_accumulated(&self, b: &mut [f64], k: usize) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 && self.n <= 64 && b.len() >= self.n * k {
+            let mut map = [0usize; 64];
+            for (r, m) in map.iter_mut().enumerate() {
+                *m = r;
+            }
+            // SAFETY: `avx2` is set only when the processor has AVX2; `b` holds `n × k` entries
+            // and the map is the identity.
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, &map) };
+            return;
+        }
+        self.solve_rows(b, k);
+    }
+
+    /// [`SmallLu::solve_rows_accumulated`] on the rows `rows[0] < rows[1] < …` (`n` of them)
+    /// of the row-major `b` with `k` columns, the other rows untouched: the sensitivities' free
+    /// rows solved where they lie, without moving them together first. False (nothing done)
+    /// without AVX2, above 64 unknowns, or when `rows` is not `n` ascending rows of `b`.
+    pub(crate) fn solve_mapped_rows_accumulated(
+        &self,
+        b: &mut [f64],
+        k: usize,
+        rows: &[usize],
+    ) -> bool {
+        let ascending = rows.windows(2).all(|w| w[0] < w[1]);
+        let within = rows.last().is_none_or(|&r| (r + 1) * k <= b.len());
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 && self.n <= 64 && rows.len() == self.n && ascending && within {
+            // SAFETY: `avx2` is set only when the processor has AVX2; every mapped row is a
+            // distinct row of `b`.
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, rows) };
+            return true;
+        }
+        let _ = (ascending, within);
+        false
+    }
+
     /// Solves `Aᵀ x = b` in place: `Uᵀ y = b`, `Lᵀ w = y`, `x = Pᵀ w`.
     pub(crate) fn solve_transpose(&self, b: &mut [f64]) {
         let n = self.n;
@@ -247,6 +295,141 @@ fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
 #[target_feature(enable = "avx2")]
 fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     solve_rows_with::<Avx2>(n, a, piv, b, k);
+}
+
+/// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
+/// interchanges, then strips of up to 32 columns (eight registers, the last one masked to the
+/// strip's width).
+///
+/// # Safety
+/// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
+/// ascending rows and `b` at least `(map[n − 1] + 1) × k` entries.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn solve_rows_accumulated_avx2(
+    n: usize,
+    a: &[f64],
+    piv: &[usize],
+    b: &mut [f64],
+    k: usize,
+    map: &[usize],
+) {
+    for (r, &p) in piv.iter().enumerate() {
+        if p != r {
+            // `p > r`, so `map[p] > map[r]`: row `map[r]` is in the first half, row `map[p]`
+            // starts the second.
+            let (head, tail) = b.split_at_mut(map[p] * k);
+            head[map[r] * k..(map[r] + 1) * k].swap_with_slice(&mut tail[..k]);
+        }
+    }
+    let mut c0 = 0;
+    while c0 < k {
+        let width = (k - c0).min(32);
+        // SAFETY: as the caller's; columns `c0..c0 + width` are within every row.
+        unsafe {
+            match width.div_ceil(4) {
+                8 => accumulated_strip::<8>(n, a, b, k, map, c0, width),
+                7 => accumulated_strip::<7>(n, a, b, k, map, c0, width),
+                6 => accumulated_strip::<6>(n, a, b, k, map, c0, width),
+                5 => accumulated_strip::<5>(n, a, b, k, map, c0, width),
+                4 => accumulated_strip::<4>(n, a, b, k, map, c0, width),
+                3 => accumulated_strip::<3>(n, a, b, k, map, c0, width),
+                2 => accumulated_strip::<2>(n, a, b, k, map, c0, width),
+                _ => accumulated_strip::<1>(n, a, b, k, map, c0, width),
+            }
+        }
+        c0 += width;
+    }
+}
+
+/// The forward and backward solves of the columns `c0..c0 + width` (`W` registers, the last
+/// one holding `width − 4 (W − 1)` lanes) of the row-major `b`, interchanged already.
+///
+/// # Safety
+/// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W` and `c0 + width ≤ k`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn accumulated_strip<const W: usize>(
+    n: usize,
+    a: &[f64],
+    b: &mut [f64],
+    k: usize,
+    map: &[usize],
+    c0: usize,
+    width: usize,
+) {
+    use std::arch::x86_64::*;
+    let lanes = (width - 4 * (W - 1)) as i64;
+    let last = _mm256_set_epi64x(
+        -((lanes > 3) as i64),
+        -((lanes > 2) as i64),
+        -((lanes > 1) as i64),
+        -1,
+    );
+    let (ap, bp) = (a.as_ptr(), b.as_mut_ptr());
+    // SAFETY: rows `map[r]`, `r < n`, of `b`, columns `c0 + 4v + lane < c0 + width ≤ k` (the
+    // masked lanes are neither read nor written); factor entries `j n + r < n²`.
+    unsafe {
+        let load = |row: *const f64, acc: &mut [__m256d; W]| {
+            for (v, x) in acc.iter_mut().enumerate().take(W - 1) {
+                *x = _mm256_loadu_pd(row.add(4 * v));
+            }
+            acc[W - 1] = _mm256_maskload_pd(row.add(4 * (W - 1)), last);
+        };
+        // acc −= row · s, each product rounded before the subtraction (as `Lanes::sub_scaled`).
+        let sub_scaled = |acc: &mut [__m256d; W], row: *const f64, s: f64| {
+            let s4 = _mm256_set1_pd(s);
+            for (v, x) in acc.iter_mut().enumerate().take(W - 1) {
+                *x = _mm256_sub_pd(*x, _mm256_mul_pd(_mm256_loadu_pd(row.add(4 * v)), s4));
+            }
+            let y = _mm256_maskload_pd(row.add(4 * (W - 1)), last);
+            acc[W - 1] = _mm256_sub_pd(acc[W - 1], _mm256_mul_pd(y, s4));
+        };
+        let store = |row: *mut f64, acc: &[__m256d; W]| {
+            for (v, x) in acc.iter().enumerate().take(W - 1) {
+                _mm256_storeu_pd(row.add(4 * v), *x);
+            }
+            _mm256_maskstore_pd(row.add(4 * (W - 1)), last, acc[W - 1]);
+        };
+        let mut acc = [_mm256_setzero_pd(); W];
+        // Bit `j`: row `j` of `L⁻¹ P b` has a nonzero (or NaN) entry in the strip.
+        let mut nonzero = 0u64;
+        for r in 0..n {
+            let row = bp.add(map[r] * k + c0);
+            load(row, &mut acc);
+            for j in 0..r {
+                let l = *ap.add(j * n + r);
+                if l != 0.0 && (nonzero >> j) & 1 != 0 {
+                    sub_scaled(&mut acc, bp.add(map[j] * k + c0), l);
+                }
+            }
+            store(row, &acc);
+            let zero = _mm256_setzero_pd();
+            let mut any = _mm256_cmp_pd::<_CMP_NEQ_UQ>(acc[0], zero);
+            for x in acc.iter().skip(1) {
+                any = _mm256_or_pd(any, _mm256_cmp_pd::<_CMP_NEQ_UQ>(*x, zero));
+            }
+            if _mm256_movemask_pd(any) != 0 {
+                nonzero |= 1 << r;
+            }
+        }
+        for r in (0..n).rev() {
+            let row = bp.add(map[r] * k + c0);
+            load(row, &mut acc);
+            for j in (r + 1..n).rev() {
+                let u = *ap.add(j * n + r);
+                if u != 0.0 {
+                    sub_scaled(&mut acc, bp.add(map[j] * k + c0), u);
+                }
+            }
+            let d4 = _mm256_set1_pd(*ap.add(r * n + r));
+            for x in acc.iter_mut() {
+                *x = _mm256_div_pd(*x, d4);
+            }
+            store(row, &acc);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -473,7 +656,7 @@ mod tests {
                 fast.solve(&mut x);
                 plain.solve(&mut y);
                 assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
-                for k in [1, 3, 5, 30] {
+                for k in [1, 3, 4, 5, 8, 9, 16, 30, 32] {
                     let rows: Vec<f64> = (0..n * k)
                         .map(|i| {
                             if i % 7 == 2 {
@@ -484,9 +667,30 @@ mod tests {
                         })
                         .collect();
                     let (mut x, mut y) = (rows.clone(), rows.clone());
+                    let mut z = rows.clone();
                     fast.solve_rows(&mut x, k);
                     plain.solve_rows(&mut y, k);
+                    fast.solve_rows_accumulated(&mut z, k);
                     assert_eq!(bits(&x), bits(&y), "rows, n = {n}, k = {k}, seed {seed}");
+                    assert_eq!(
+                        bits(&z),
+                        bits(&y),
+                        "accumulated, n = {n}, k = {k}, seed {seed}"
+                    );
+                    // The same rows spread out (every third row of a taller matrix, the
+                    // others marked with NaN): the same bits there, the others untouched.
+                    let map: Vec<usize> = (0..n).map(|r| 3 * r + 1).collect();
+                    let mut spread = vec![f64::NAN; (3 * n + 1) * k];
+                    for (r, &m) in map.iter().enumerate() {
+                        spread[m * k..(m + 1) * k].copy_from_slice(&rows[r * k..(r + 1) * k]);
+                    }
+                    assert!(fast.solve_mapped_rows_accumulated(&mut spread, k, &map));
+                    for (i, row) in spread.chunks_exact(k).enumerate() {
+                        match map.iter().position(|&m| m == i) {
+                            Some(r) => assert_eq!(bits(row), bits(&y[r * k..(r + 1) * k])),
+                            None => assert!(row.iter().all(|v| v.is_nan())),
+                        }
+                    }
                 }
                 cases += 1;
             }
