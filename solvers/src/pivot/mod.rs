@@ -183,6 +183,36 @@ impl AffineMatrix<'_> {
         out[j] += shift;
     }
 
+    /// `out = (M + shift·I) z`, bitwise as [`AffineMatrix::mul`], for a `z` with many zeros
+    /// (a solution, whose nonbasic components are 0): a dense row-major row is summed over the
+    /// nonzero `z_j` only (listed in `nonzero`). Leaving out the exact ±0 products changes a
+    /// sum at most in the sign of a zero result (a nonzero partial sum plus ±0 is itself; a
+    /// zero one plus `t` is `t`), so a row whose sum is 0 is summed again in full.
+    fn mul_solution(&self, z: &[f64], shift: f64, out: &mut [f64], nonzero: &mut Vec<usize>) {
+        let AffineMatrix::DenseRowMajor { n, values } = *self else {
+            return self.mul(z, shift, out);
+        };
+        nonzero.clear();
+        nonzero.extend((0..n).filter(|&j| z[j] != 0.0));
+        if nonzero.is_empty() || 2 * nonzero.len() > n {
+            return self.mul(z, shift, out);
+        }
+        for (i, o) in out[..n].iter_mut().enumerate() {
+            let row = &values[i * n..(i + 1) * n];
+            let s: f64 = nonzero.iter().map(|&j| row[j] * z[j]).sum();
+            *o = if s == 0.0 {
+                row.iter().zip(z).map(|(a, b)| a * b).sum()
+            } else {
+                s
+            };
+        }
+        if shift != 0.0 {
+            for (o, zi) in out.iter_mut().zip(z) {
+                *o += shift * zi;
+            }
+        }
+    }
+
     /// `out = (M + shift·I) z`.
     fn mul(&self, z: &[f64], shift: f64, out: &mut [f64]) {
         if z.iter().all(|&v| v == 0.0) {
@@ -420,6 +450,8 @@ pub struct Lemke {
     r: Vec<f64>,
     ties: Vec<usize>,
     ratios: Vec<f64>,
+    /// Indices of the nonzero components of the solution (`AffineMatrix::mul_solution`).
+    nonzero: Vec<usize>,
     /// Bounds of the basic variable at each position.
     lo_b: Vec<f64>,
     hi_b: Vec<f64>,
@@ -471,6 +503,7 @@ impl Lemke {
             r: Vec::new(),
             ties: Vec::new(),
             ratios: Vec::new(),
+            nonzero: Vec::new(),
             lo_b: Vec::new(),
             hi_b: Vec::new(),
             lcp_bounds: (Vec::new(), Vec::new()),
@@ -509,13 +542,50 @@ impl Lemke {
         m_row_major: &[f64],
         q: &[f64],
     ) -> Result<PivotSolution, PivotError> {
+        self.lcp(m_row_major, q, true)
+    }
+
+    /// As [`Lemke::solve_lcp`], with `z` and `w = M z + q` written into the caller's slices
+    /// (length `n`) instead of new vectors: a warm solver allocates nothing, as a C solver that
+    /// writes into its caller's arrays. The returned [`PivotSolution`] has empty `z` and `w`;
+    /// the slices are written only when the LCP is solved.
+    pub fn solve_lcp_into(
+        &mut self,
+        m_row_major: &[f64],
+        q: &[f64],
+        z: &mut [f64],
+        w: &mut [f64],
+    ) -> Result<PivotSolution, PivotError> {
         let n = q.len();
-        // The bounds of an LCP, kept between solves (no allocation once warm).
+        if z.len() != n || w.len() != n {
+            return Err(PivotError::InvalidInput(format!(
+                "z has {} and w {} entries, q has {n}",
+                z.len(),
+                w.len()
+            )));
+        }
+        let sol = self.lcp(m_row_major, q, false)?;
+        // `run` leaves the solution in the workspace (`self.z`, `self.r`).
+        z.copy_from_slice(&self.z[..n]);
+        w.copy_from_slice(&self.r[..n]);
+        Ok(sol)
+    }
+
+    fn lcp(
+        &mut self,
+        m_row_major: &[f64],
+        q: &[f64],
+        want_solution: bool,
+    ) -> Result<PivotSolution, PivotError> {
+        let n = q.len();
+        // The bounds of an LCP (0 and +∞), kept between solves: written only when n changes.
         let (mut lower, mut upper) = std::mem::take(&mut self.lcp_bounds);
-        lower.clear();
-        lower.resize(n, 0.0);
-        upper.clear();
-        upper.resize(n, f64::INFINITY);
+        if lower.len() != n {
+            lower.clear();
+            lower.resize(n, 0.0);
+            upper.clear();
+            upper.resize(n, f64::INFINITY);
+        }
         let problem = AffineMcp {
             m: AffineMatrix::DenseRowMajor {
                 n,
@@ -526,7 +596,12 @@ impl Lemke {
             upper: &upper,
             diagonal_shift: 0.0,
         };
-        let result = self.solve_affine(&problem, &AffineStart::Classical { free_values: None });
+        let result = self.run(
+            &problem,
+            &AffineStart::Classical { free_values: None },
+            None,
+            want_solution,
+        );
         self.lcp_bounds = (lower, upper);
         result
     }
@@ -778,7 +853,7 @@ impl Lemke {
     }
 
     /// Bounds `[lo, hi]` of the basic variable `v`.
-    #[inline]
+    #[inline(always)]
     fn var_bounds(&self, problem: &AffineMcp<'_>, v: usize) -> (f64, f64) {
         let n = problem.q.len();
         if v < n {
@@ -930,7 +1005,9 @@ impl Lemke {
         for i in 0..n {
             z[i] = mid(l[i], u[i], z[i]);
         }
-        problem.m.mul(&z, problem.diagonal_shift, &mut w);
+        problem
+            .m
+            .mul_solution(&z, problem.diagonal_shift, &mut w, &mut self.nonzero);
         for i in 0..n {
             w[i] += problem.q[i];
         }
@@ -1008,8 +1085,12 @@ impl Lemke {
                     detail: "a basis solve produced a non-finite value".into(),
                 });
             }
-            for p in 0..n {
-                self.delta[p] = -dir * alpha[p];
+            // The largest rate `max |δ_p|` (the scale of the ratio test's tolerances) in the same
+            // pass: `|δ_p| = |α_p|` as `dir = ±1`, and a maximum does not depend on the order.
+            let mut dmax = 0.0f64;
+            for (d, &a) in self.delta[..n].iter_mut().zip(&alpha[..n]) {
+                *d = -dir * a;
+                dmax = dmax.max(d.abs());
             }
             self.alpha = alpha;
             let column = match column {
@@ -1032,7 +1113,7 @@ impl Lemke {
             } else {
                 f64::INFINITY
             };
-            let (theta, block) = self.ratio_test(problem, own, pivots)?;
+            let (theta, block) = self.ratio_test(problem, own, dmax, pivots)?;
 
             // Move to the breakpoint.
             for p in 0..n {
@@ -1144,17 +1225,17 @@ impl Lemke {
         }
     }
 
-    /// The ratio test: the step `θ` and what blocks. Ties go to the artificial variable, then
-    /// to the anti-cycling rule.
+    /// The ratio test: the step `θ` and what blocks, `dmax = max_p |δ_p|`. Ties go to the
+    /// artificial variable, then to the anti-cycling rule.
     fn ratio_test(
         &mut self,
         problem: &AffineMcp<'_>,
         own: f64,
+        dmax: f64,
         pivots: &usize,
     ) -> Result<(f64, Block), PivotError> {
         let n = problem.q.len();
         let s_var = 2 * n;
-        let dmax = self.delta.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         // Rates below `noise` are round-off of zero and never block; rates below `tol` block
         // only when no larger pivot ties with them (a small pivot is still better than letting a
         // variable leave its bounds). The artificial variable blocks at any negative rate, so
@@ -1164,10 +1245,10 @@ impl Lemke {
         // Each basic variable's ratio, once; infinite when it does not block (an infinite
         // bound gives an infinite ratio by itself).
         let mut theta_min = own;
-        let s_position = self.position[s_var];
+        let s_position = self.position[s_var].unwrap_or(usize::MAX);
         for p in 0..n {
             let dp = self.delta[p];
-            let cutoff = if Some(p) == s_position { 0.0 } else { noise };
+            let cutoff = if p == s_position { 0.0 } else { noise };
             let t = if dp < -cutoff {
                 (self.xb[p] - self.lo_b[p]).max(0.0) / -dp
             } else if dp > cutoff {
@@ -1200,7 +1281,12 @@ impl Lemke {
             }
         }
         let own_tied = own <= cut;
-        if self.ties.iter().any(|&p| self.delta[p].abs() >= tol) {
+        // When a tie has a pivot of at least `tol`, the ties with smaller pivots (other than
+        // the artificial variable) are dropped; usually there are none to drop.
+        let keep = |p: usize| self.delta[p].abs() >= tol || self.basis[p] == s_var;
+        if self.ties.iter().any(|&p| self.delta[p].abs() >= tol)
+            && !self.ties.iter().all(|&p| keep(p))
+        {
             let delta = &self.delta;
             let basis = &self.basis;
             self.ties
