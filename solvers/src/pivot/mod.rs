@@ -164,8 +164,9 @@ impl AffineMatrix<'_> {
     fn column(&self, j: usize, shift: f64, out: &mut [f64]) {
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = values[i * n + j];
+                // Entry j of each row (rows of length n > j: the check leaves the loop).
+                for (o, row) in out.iter_mut().zip(values.chunks_exact(n)) {
+                    *o = row[j];
                 }
             }
             AffineMatrix::DenseColumnMajor { n, values } => {
@@ -702,10 +703,16 @@ impl Lemke {
 
     fn resize(&mut self, n: usize) {
         self.basis.resize(n, 0);
-        self.position.clear();
-        self.position.resize(2 * n + 1, None);
-        self.state.clear();
-        self.state.resize(n, State::Lower);
+        // A warm solver of the same size refills in place (cheaper than clear and resize).
+        if self.position.len() == 2 * n + 1 {
+            self.position.fill(None);
+            self.state.fill(State::Lower);
+        } else {
+            self.position.clear();
+            self.position.resize(2 * n + 1, None);
+            self.state.clear();
+            self.state.resize(n, State::Lower);
+        }
         // Every entry of these is written before it is read: only their length matters.
         for v in [
             &mut self.xb,
@@ -733,7 +740,7 @@ impl Lemke {
     }
 
     /// Column of variable `v` (`z_i`, `r_i` or `s`) into `out`.
-    #[inline]
+    #[inline(always)]
     fn var_column(&self, problem: &AffineMcp<'_>, v: usize, out: &mut [f64]) {
         let n = problem.q.len();
         if v < n {
@@ -795,17 +802,17 @@ impl Lemke {
     /// `rhs = −q − Σ_{z_i nonbasic} M e_i z̄_i − s d` (with `s` when it is nonbasic).
     fn compute_rhs(&mut self, problem: &AffineMcp<'_>, s_nonbasic: f64) {
         let n = problem.q.len();
-        for i in 0..n {
-            self.z[i] = if self.state[i] == State::Basic {
-                0.0
-            } else {
-                self.zbar[i]
-            };
+        for ((z, st), zbar) in self.z[..n]
+            .iter_mut()
+            .zip(&self.state[..n])
+            .zip(&self.zbar[..n])
+        {
+            *z = if *st == State::Basic { 0.0 } else { *zbar };
         }
         let mut mz = std::mem::take(&mut self.rhs);
         problem.m.mul(&self.z, problem.diagonal_shift, &mut mz);
-        for i in 0..n {
-            mz[i] = -problem.q[i] - mz[i] - s_nonbasic * self.d[i];
+        for ((r, q), d) in mz[..n].iter_mut().zip(&problem.q[..n]).zip(&self.d[..n]) {
+            *r = -q - *r - s_nonbasic * d;
         }
         self.rhs = mz;
     }
@@ -875,17 +882,17 @@ impl Lemke {
 
     /// Normal-map point `x = z + r` of the current basic solution.
     fn current_x(&mut self, n: usize) {
+        let (state, zbar, xb) = (&self.state[..n], &self.zbar[..n], &self.xb[..n]);
+        let (z, r, x) = (&mut self.z[..n], &mut self.r[..n], &mut self.x[..n]);
+        let position = &self.position[..2 * n];
         for i in 0..n {
-            let (zi, ri) = match self.state[i] {
-                State::Basic => (self.position[i].map_or(self.zbar[i], |p| self.xb[p]), 0.0),
-                _ => (
-                    self.zbar[i],
-                    self.position[n + i].map_or(0.0, |p| self.xb[p]),
-                ),
+            let (zi, ri) = match state[i] {
+                State::Basic => (position[i].map_or(zbar[i], |p| xb[p]), 0.0),
+                _ => (zbar[i], position[n + i].map_or(0.0, |p| xb[p])),
             };
-            self.z[i] = zi;
-            self.r[i] = ri;
-            self.x[i] = zi + ri;
+            z[i] = zi;
+            r[i] = ri;
+            x[i] = zi + ri;
         }
     }
 
@@ -944,30 +951,33 @@ impl Lemke {
                 let mut g = std::mem::take(&mut self.d);
                 problem.m.mul(&self.z, problem.diagonal_shift, &mut g);
                 let mut c: f64 = 1.0;
+                let (state, q) = (&self.state[..n], &problem.q[..n]);
+                let (l, u) = (&l[..n], &u[..n]);
                 for i in 0..n {
-                    g[i] += problem.q[i];
-                    match self.state[i] {
+                    g[i] += q[i];
+                    match state[i] {
                         State::Lower if l[i] != u[i] => c = c.max(1.0 - g[i]),
                         State::Upper => c = c.max(1.0 + g[i]),
                         _ => {}
                     }
                 }
-                for i in 0..n {
-                    let (ri, di) = match self.state[i] {
-                        State::Basic => (0.0, -g[i]),
-                        State::Lower => (-g[i] - c, c),
-                        State::Upper => (-g[i] + c, -c),
+                for ((r, g), st) in self.r[..n].iter_mut().zip(&mut g[..n]).zip(state) {
+                    let (ri, di) = match st {
+                        State::Basic => (0.0, -*g),
+                        State::Lower => (-*g - c, c),
+                        State::Upper => (-*g + c, -c),
                     };
-                    self.r[i] = ri;
-                    g[i] = di;
+                    *r = ri;
+                    *g = di;
                 }
                 self.d = g;
             }
         }
-        for i in 0..n {
-            self.x[i] = self.z[i] + self.r[i];
-        }
         if let Some(p) = path.as_deref_mut() {
+            // x is read only for the path until `current_x` rewrites it.
+            for i in 0..n {
+                self.x[i] = self.z[i] + self.r[i];
+            }
             p.push(&self.x, 1.0);
         }
 
@@ -1116,8 +1126,8 @@ impl Lemke {
             let (theta, block) = self.ratio_test(problem, own, dmax, pivots)?;
 
             // Move to the breakpoint.
-            for p in 0..n {
-                self.xb[p] += theta * self.delta[p];
+            for (x, d) in self.xb[..n].iter_mut().zip(&self.delta[..n]) {
+                *x += theta * d;
             }
             let entering_value = if entering < n {
                 self.zbar[entering] + dir * theta
@@ -1246,17 +1256,19 @@ impl Lemke {
         // bound gives an infinite ratio by itself).
         let mut theta_min = own;
         let s_position = self.position[s_var].unwrap_or(usize::MAX);
-        for p in 0..n {
-            let dp = self.delta[p];
+        let (delta, xb) = (&self.delta[..n], &self.xb[..n]);
+        let (lo_b, hi_b) = (&self.lo_b[..n], &self.hi_b[..n]);
+        for (p, r) in self.ratios[..n].iter_mut().enumerate() {
+            let dp = delta[p];
             let cutoff = if p == s_position { 0.0 } else { noise };
             let t = if dp < -cutoff {
-                (self.xb[p] - self.lo_b[p]).max(0.0) / -dp
+                (xb[p] - lo_b[p]).max(0.0) / -dp
             } else if dp > cutoff {
-                (self.hi_b[p] - self.xb[p]).max(0.0) / dp
+                (hi_b[p] - xb[p]).max(0.0) / dp
             } else {
                 f64::INFINITY
             };
-            self.ratios[p] = t;
+            *r = t;
             theta_min = theta_min.min(t);
         }
         let ratio = |me: &Self, p: usize| -> Option<f64> {
@@ -1275,8 +1287,8 @@ impl Lemke {
         }
         let cut = theta_min + self.settings.degeneracy_tolerance * (1.0 + theta_min);
         self.ties.clear();
-        for p in 0..n {
-            if ratio(self, p).is_some_and(|t| t <= cut) {
+        for (p, &t) in self.ratios[..n].iter().enumerate() {
+            if t.is_finite() && t <= cut {
                 self.ties.push(p);
             }
         }
