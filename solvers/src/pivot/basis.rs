@@ -709,7 +709,7 @@ fn eliminate_trailing_avx2(right: &mut [f64], lcol: &[f64], k: usize, m: usize) 
 /// `max_i |v_i|` (0 for an empty slice; NaNs skipped), as `fold(0.0, |a, v| a.max(v.abs()))`
 /// but in four independent lanes so that it vectorises. The maximum does not depend on the
 /// order of the comparisons, so the result is the fold's exactly.
-fn max_abs(values: &[f64]) -> f64 {
+pub(crate) fn max_abs(values: &[f64]) -> f64 {
     let mut acc = [0.0f64; 4];
     let mut chunks = values.chunks_exact(4);
     for c in &mut chunks {

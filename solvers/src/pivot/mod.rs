@@ -43,7 +43,7 @@ use ecp_model::{
     finish_solve, mid, natural_residual, validate_start,
 };
 
-use basis::{BasisFactor, Column};
+use basis::{BasisFactor, Column, max_abs};
 
 /// How ties in Lemke's ratio test are broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -671,11 +671,18 @@ impl Lemke {
         if !problem.diagonal_shift.is_finite() {
             return bad("the diagonal shift is not finite".into());
         }
-        for i in 0..n {
-            let (l, u) = (problem.lower[i], problem.upper[i]);
-            if l.is_nan() || u.is_nan() || l > u || l == f64::INFINITY || u == f64::NEG_INFINITY {
-                return bad(format!("bounds of z[{i}] are [{l}, {u}]: empty or NaN"));
-            }
+        // An empty or NaN box: `!(l ≤ u)` (false for NaN), or l = +∞, or u = −∞. A
+        // branch-free scan first; the index only for the message.
+        let empty = |l: f64, u: f64| !(l <= u) | (l == f64::INFINITY) | (u == f64::NEG_INFINITY);
+        let (lower, upper) = (&problem.lower[..n], &problem.upper[..n]);
+        if lower
+            .iter()
+            .zip(upper)
+            .fold(false, |acc, (&l, &u)| acc | empty(l, u))
+            && let Some(i) = (0..n).find(|&i| empty(lower[i], upper[i]))
+        {
+            let (l, u) = (lower[i], upper[i]);
+            return bad(format!("bounds of z[{i}] are [{l}, {u}]: empty or NaN"));
         }
         match start {
             AffineStart::Classical {
@@ -847,8 +854,10 @@ impl Lemke {
             let (mut dmax, mut xmax) = (0.0f64, 0.0f64);
             for (xi, d) in x.iter_mut().zip(&res) {
                 *xi += d;
-                dmax = dmax.max(d.abs());
-                xmax = xmax.max(xi.abs());
+                // Maxima of absolute values (no NaN here): a compare and select is `f64::max`.
+                let (da, xa) = (d.abs(), xi.abs());
+                dmax = if da > dmax { da } else { dmax };
+                xmax = if xa > xmax { xa } else { xmax };
             }
             if dmax <= 1e-14 * xmax {
                 break;
@@ -993,7 +1002,7 @@ impl Lemke {
             self.xb[i] = if v < n { self.z[i] } else { self.r[i] };
             (self.lo_b[i], self.hi_b[i]) = self.var_bounds(problem, v);
         }
-        let dnorm = self.d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let dnorm = max_abs(&self.d);
         let mut pivots = 0usize;
         // When d = 0 the start solves the problem already.
         if dnorm > 0.0 {
@@ -1100,7 +1109,9 @@ impl Lemke {
             let mut dmax = 0.0f64;
             for (d, &a) in self.delta[..n].iter_mut().zip(&alpha[..n]) {
                 *d = -dir * a;
-                dmax = dmax.max(d.abs());
+                // A compare and select: `f64::max` exactly on absolute values (`alpha` is finite).
+                let a = d.abs();
+                dmax = if a > dmax { a } else { dmax };
             }
             self.alpha = alpha;
             let column = match column {
