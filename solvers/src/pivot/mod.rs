@@ -711,7 +711,7 @@ impl Lemke {
     fn resize(&mut self, n: usize) {
         self.basis.resize(n, 0);
         // A warm solver of the same size refills in place (cheaper than clear and resize).
-        if self.position.len() == 2 * n + 1 {
+        if self.position.len() == 2 * n + 1 && self.state.len() == n {
             self.position.fill(None);
             self.state.fill(State::Lower);
         } else {
