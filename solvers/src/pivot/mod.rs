@@ -671,9 +671,11 @@ impl Lemke {
         if !problem.diagonal_shift.is_finite() {
             return bad("the diagonal shift is not finite".into());
         }
-        // An empty or NaN box: `!(l ≤ u)` (false for NaN), or l = +∞, or u = −∞. A
-        // branch-free scan first; the index only for the message.
-        let empty = |l: f64, u: f64| !(l <= u) | (l == f64::INFINITY) | (u == f64::NEG_INFINITY);
+        // An empty or NaN box (l > u, a NaN, l = +∞ or u = −∞): a branch-free scan first (`|`,
+        // not `||`); the index only for the message.
+        let empty = |l: f64, u: f64| {
+            l.is_nan() | u.is_nan() | (l > u) | (l == f64::INFINITY) | (u == f64::NEG_INFINITY)
+        };
         let (lower, upper) = (&problem.lower[..n], &problem.upper[..n]);
         if lower
             .iter()

@@ -337,7 +337,7 @@ fn mixed_lcp(n: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
     let mut m: Vec<f64> = (0..n * n).map(|_| next()).collect();
     for i in 0..n {
         // Mostly dominant diagonals, one in three weak (longer, sometimes failing paths).
-        m[i * n + i] += if (i as u64 + seed) % 3 == 0 {
+        m[i * n + i] += if (i as u64 + seed).is_multiple_of(3) {
             0.2
         } else {
             n as f64
