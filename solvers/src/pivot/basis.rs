@@ -120,8 +120,12 @@ impl BasisFactor {
             &mut self.row_slot,
             &mut self.unit_position,
         ] {
-            v.clear();
-            v.resize(n, NONE);
+            if v.len() == n {
+                v.fill(NONE);
+            } else {
+                v.clear();
+                v.resize(n, NONE);
+            }
         }
         for v in [&mut self.slot_position, &mut self.slot_row] {
             if v.len() < n {
@@ -326,11 +330,14 @@ impl BasisFactor {
     /// `x ← E_k⁻¹ ⋯ E_1⁻¹ x`, the eta file oldest first.
     fn apply_etas(&self, x: &mut [f64]) {
         let n = self.n;
-        for (j, &p) in self.eta_pos.iter().enumerate() {
-            let eta = &self.eta_val[j * n..(j + 1) * n];
+        if self.eta_pos.is_empty() || n == 0 {
+            return;
+        }
+        let x = &mut x[..n];
+        for (&p, eta) in self.eta_pos.iter().zip(self.eta_val.chunks_exact(n)) {
             let xp = x[p] / eta[p];
             if xp != 0.0 {
-                for (xi, e) in x[..n].iter_mut().zip(eta) {
+                for (xi, e) in x.iter_mut().zip(eta) {
                     *xi -= e * xp;
                 }
             }
@@ -702,7 +709,7 @@ fn eliminate_trailing_avx2(right: &mut [f64], lcol: &[f64], k: usize, m: usize) 
 /// `max_i |v_i|` (0 for an empty slice; NaNs skipped), as `fold(0.0, |a, v| a.max(v.abs()))`
 /// but in four independent lanes so that it vectorises. The maximum does not depend on the
 /// order of the comparisons, so the result is the fold's exactly.
-fn max_abs(values: &[f64]) -> f64 {
+pub(crate) fn max_abs(values: &[f64]) -> f64 {
     let mut acc = [0.0f64; 4];
     let mut chunks = values.chunks_exact(4);
     for c in &mut chunks {

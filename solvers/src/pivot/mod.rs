@@ -43,7 +43,7 @@ use ecp_model::{
     finish_solve, mid, natural_residual, validate_start,
 };
 
-use basis::{BasisFactor, Column};
+use basis::{BasisFactor, Column, max_abs};
 
 /// How ties in Lemke's ratio test are broken.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -164,8 +164,9 @@ impl AffineMatrix<'_> {
     fn column(&self, j: usize, shift: f64, out: &mut [f64]) {
         match *self {
             AffineMatrix::DenseRowMajor { n, values } => {
-                for (i, o) in out.iter_mut().enumerate() {
-                    *o = values[i * n + j];
+                // Entry j of each row (rows of length n > j: the check leaves the loop).
+                for (o, row) in out.iter_mut().zip(values.chunks_exact(n)) {
+                    *o = row[j];
                 }
             }
             AffineMatrix::DenseColumnMajor { n, values } => {
@@ -181,6 +182,36 @@ impl AffineMatrix<'_> {
             }
         }
         out[j] += shift;
+    }
+
+    /// `out = (M + shift·I) z`, bitwise as [`AffineMatrix::mul`], for a `z` with many zeros
+    /// (a solution, whose nonbasic components are 0): a dense row-major row is summed over the
+    /// nonzero `z_j` only (listed in `nonzero`). Leaving out the exact ±0 products changes a
+    /// sum at most in the sign of a zero result (a nonzero partial sum plus ±0 is itself; a
+    /// zero one plus `t` is `t`), so a row whose sum is 0 is summed again in full.
+    fn mul_solution(&self, z: &[f64], shift: f64, out: &mut [f64], nonzero: &mut Vec<usize>) {
+        let AffineMatrix::DenseRowMajor { n, values } = *self else {
+            return self.mul(z, shift, out);
+        };
+        nonzero.clear();
+        nonzero.extend((0..n).filter(|&j| z[j] != 0.0));
+        if nonzero.is_empty() || 2 * nonzero.len() > n {
+            return self.mul(z, shift, out);
+        }
+        for (i, o) in out[..n].iter_mut().enumerate() {
+            let row = &values[i * n..(i + 1) * n];
+            let s: f64 = nonzero.iter().map(|&j| row[j] * z[j]).sum();
+            *o = if s == 0.0 {
+                row.iter().zip(z).map(|(a, b)| a * b).sum()
+            } else {
+                s
+            };
+        }
+        if shift != 0.0 {
+            for (o, zi) in out.iter_mut().zip(z) {
+                *o += shift * zi;
+            }
+        }
     }
 
     /// `out = (M + shift·I) z`.
@@ -420,6 +451,8 @@ pub struct Lemke {
     r: Vec<f64>,
     ties: Vec<usize>,
     ratios: Vec<f64>,
+    /// Indices of the nonzero components of the solution (`AffineMatrix::mul_solution`).
+    nonzero: Vec<usize>,
     /// Bounds of the basic variable at each position.
     lo_b: Vec<f64>,
     hi_b: Vec<f64>,
@@ -471,6 +504,7 @@ impl Lemke {
             r: Vec::new(),
             ties: Vec::new(),
             ratios: Vec::new(),
+            nonzero: Vec::new(),
             lo_b: Vec::new(),
             hi_b: Vec::new(),
             lcp_bounds: (Vec::new(), Vec::new()),
@@ -509,13 +543,50 @@ impl Lemke {
         m_row_major: &[f64],
         q: &[f64],
     ) -> Result<PivotSolution, PivotError> {
+        self.lcp(m_row_major, q, true)
+    }
+
+    /// As [`Lemke::solve_lcp`], with `z` and `w = M z + q` written into the caller's slices
+    /// (length `n`) instead of new vectors: a warm solver allocates nothing, as a C solver that
+    /// writes into its caller's arrays. The returned [`PivotSolution`] has empty `z` and `w`;
+    /// the slices are written only when the LCP is solved.
+    pub fn solve_lcp_into(
+        &mut self,
+        m_row_major: &[f64],
+        q: &[f64],
+        z: &mut [f64],
+        w: &mut [f64],
+    ) -> Result<PivotSolution, PivotError> {
         let n = q.len();
-        // The bounds of an LCP, kept between solves (no allocation once warm).
+        if z.len() != n || w.len() != n {
+            return Err(PivotError::InvalidInput(format!(
+                "z has {} and w {} entries, q has {n}",
+                z.len(),
+                w.len()
+            )));
+        }
+        let sol = self.lcp(m_row_major, q, false)?;
+        // `run` leaves the solution in the workspace (`self.z`, `self.r`).
+        z.copy_from_slice(&self.z[..n]);
+        w.copy_from_slice(&self.r[..n]);
+        Ok(sol)
+    }
+
+    fn lcp(
+        &mut self,
+        m_row_major: &[f64],
+        q: &[f64],
+        want_solution: bool,
+    ) -> Result<PivotSolution, PivotError> {
+        let n = q.len();
+        // The bounds of an LCP (0 and +∞), kept between solves: written only when n changes.
         let (mut lower, mut upper) = std::mem::take(&mut self.lcp_bounds);
-        lower.clear();
-        lower.resize(n, 0.0);
-        upper.clear();
-        upper.resize(n, f64::INFINITY);
+        if lower.len() != n {
+            lower.clear();
+            lower.resize(n, 0.0);
+            upper.clear();
+            upper.resize(n, f64::INFINITY);
+        }
         let problem = AffineMcp {
             m: AffineMatrix::DenseRowMajor {
                 n,
@@ -526,7 +597,12 @@ impl Lemke {
             upper: &upper,
             diagonal_shift: 0.0,
         };
-        let result = self.solve_affine(&problem, &AffineStart::Classical { free_values: None });
+        let result = self.run(
+            &problem,
+            &AffineStart::Classical { free_values: None },
+            None,
+            want_solution,
+        );
         self.lcp_bounds = (lower, upper);
         result
     }
@@ -595,11 +671,20 @@ impl Lemke {
         if !problem.diagonal_shift.is_finite() {
             return bad("the diagonal shift is not finite".into());
         }
-        for i in 0..n {
-            let (l, u) = (problem.lower[i], problem.upper[i]);
-            if l.is_nan() || u.is_nan() || l > u || l == f64::INFINITY || u == f64::NEG_INFINITY {
-                return bad(format!("bounds of z[{i}] are [{l}, {u}]: empty or NaN"));
-            }
+        // An empty or NaN box (l > u, a NaN, l = +∞ or u = −∞): a branch-free scan first (`|`,
+        // not `||`); the index only for the message.
+        let empty = |l: f64, u: f64| {
+            l.is_nan() | u.is_nan() | (l > u) | (l == f64::INFINITY) | (u == f64::NEG_INFINITY)
+        };
+        let (lower, upper) = (&problem.lower[..n], &problem.upper[..n]);
+        if lower
+            .iter()
+            .zip(upper)
+            .fold(false, |acc, (&l, &u)| acc | empty(l, u))
+            && let Some(i) = (0..n).find(|&i| empty(lower[i], upper[i]))
+        {
+            let (l, u) = (lower[i], upper[i]);
+            return bad(format!("bounds of z[{i}] are [{l}, {u}]: empty or NaN"));
         }
         match start {
             AffineStart::Classical {
@@ -627,10 +712,16 @@ impl Lemke {
 
     fn resize(&mut self, n: usize) {
         self.basis.resize(n, 0);
-        self.position.clear();
-        self.position.resize(2 * n + 1, None);
-        self.state.clear();
-        self.state.resize(n, State::Lower);
+        // A warm solver of the same size refills in place (cheaper than clear and resize).
+        if self.position.len() == 2 * n + 1 && self.state.len() == n {
+            self.position.fill(None);
+            self.state.fill(State::Lower);
+        } else {
+            self.position.clear();
+            self.position.resize(2 * n + 1, None);
+            self.state.clear();
+            self.state.resize(n, State::Lower);
+        }
         // Every entry of these is written before it is read: only their length matters.
         for v in [
             &mut self.xb,
@@ -658,7 +749,7 @@ impl Lemke {
     }
 
     /// Column of variable `v` (`z_i`, `r_i` or `s`) into `out`.
-    #[inline]
+    #[inline(always)]
     fn var_column(&self, problem: &AffineMcp<'_>, v: usize, out: &mut [f64]) {
         let n = problem.q.len();
         if v < n {
@@ -720,17 +811,17 @@ impl Lemke {
     /// `rhs = −q − Σ_{z_i nonbasic} M e_i z̄_i − s d` (with `s` when it is nonbasic).
     fn compute_rhs(&mut self, problem: &AffineMcp<'_>, s_nonbasic: f64) {
         let n = problem.q.len();
-        for i in 0..n {
-            self.z[i] = if self.state[i] == State::Basic {
-                0.0
-            } else {
-                self.zbar[i]
-            };
+        for ((z, st), zbar) in self.z[..n]
+            .iter_mut()
+            .zip(&self.state[..n])
+            .zip(&self.zbar[..n])
+        {
+            *z = if *st == State::Basic { 0.0 } else { *zbar };
         }
         let mut mz = std::mem::take(&mut self.rhs);
         problem.m.mul(&self.z, problem.diagonal_shift, &mut mz);
-        for i in 0..n {
-            mz[i] = -problem.q[i] - mz[i] - s_nonbasic * self.d[i];
+        for ((r, q), d) in mz[..n].iter_mut().zip(&problem.q[..n]).zip(&self.d[..n]) {
+            *r = -q - *r - s_nonbasic * d;
         }
         self.rhs = mz;
     }
@@ -765,8 +856,10 @@ impl Lemke {
             let (mut dmax, mut xmax) = (0.0f64, 0.0f64);
             for (xi, d) in x.iter_mut().zip(&res) {
                 *xi += d;
-                dmax = dmax.max(d.abs());
-                xmax = xmax.max(xi.abs());
+                // Maxima of absolute values (no NaN here): a compare and select is `f64::max`.
+                let (da, xa) = (d.abs(), xi.abs());
+                dmax = if da > dmax { da } else { dmax };
+                xmax = if xa > xmax { xa } else { xmax };
             }
             if dmax <= 1e-14 * xmax {
                 break;
@@ -778,7 +871,7 @@ impl Lemke {
     }
 
     /// Bounds `[lo, hi]` of the basic variable `v`.
-    #[inline]
+    #[inline(always)]
     fn var_bounds(&self, problem: &AffineMcp<'_>, v: usize) -> (f64, f64) {
         let n = problem.q.len();
         if v < n {
@@ -800,17 +893,17 @@ impl Lemke {
 
     /// Normal-map point `x = z + r` of the current basic solution.
     fn current_x(&mut self, n: usize) {
+        let (state, zbar, xb) = (&self.state[..n], &self.zbar[..n], &self.xb[..n]);
+        let (z, r, x) = (&mut self.z[..n], &mut self.r[..n], &mut self.x[..n]);
+        let position = &self.position[..2 * n];
         for i in 0..n {
-            let (zi, ri) = match self.state[i] {
-                State::Basic => (self.position[i].map_or(self.zbar[i], |p| self.xb[p]), 0.0),
-                _ => (
-                    self.zbar[i],
-                    self.position[n + i].map_or(0.0, |p| self.xb[p]),
-                ),
+            let (zi, ri) = match state[i] {
+                State::Basic => (position[i].map_or(zbar[i], |p| xb[p]), 0.0),
+                _ => (zbar[i], position[n + i].map_or(0.0, |p| xb[p])),
             };
-            self.z[i] = zi;
-            self.r[i] = ri;
-            self.x[i] = zi + ri;
+            z[i] = zi;
+            r[i] = ri;
+            x[i] = zi + ri;
         }
     }
 
@@ -869,30 +962,33 @@ impl Lemke {
                 let mut g = std::mem::take(&mut self.d);
                 problem.m.mul(&self.z, problem.diagonal_shift, &mut g);
                 let mut c: f64 = 1.0;
+                let (state, q) = (&self.state[..n], &problem.q[..n]);
+                let (l, u) = (&l[..n], &u[..n]);
                 for i in 0..n {
-                    g[i] += problem.q[i];
-                    match self.state[i] {
+                    g[i] += q[i];
+                    match state[i] {
                         State::Lower if l[i] != u[i] => c = c.max(1.0 - g[i]),
                         State::Upper => c = c.max(1.0 + g[i]),
                         _ => {}
                     }
                 }
-                for i in 0..n {
-                    let (ri, di) = match self.state[i] {
-                        State::Basic => (0.0, -g[i]),
-                        State::Lower => (-g[i] - c, c),
-                        State::Upper => (-g[i] + c, -c),
+                for ((r, g), st) in self.r[..n].iter_mut().zip(&mut g[..n]).zip(state) {
+                    let (ri, di) = match st {
+                        State::Basic => (0.0, -*g),
+                        State::Lower => (-*g - c, c),
+                        State::Upper => (-*g + c, -c),
                     };
-                    self.r[i] = ri;
-                    g[i] = di;
+                    *r = ri;
+                    *g = di;
                 }
                 self.d = g;
             }
         }
-        for i in 0..n {
-            self.x[i] = self.z[i] + self.r[i];
-        }
         if let Some(p) = path.as_deref_mut() {
+            // x is read only for the path until `current_x` rewrites it.
+            for i in 0..n {
+                self.x[i] = self.z[i] + self.r[i];
+            }
             p.push(&self.x, 1.0);
         }
 
@@ -908,7 +1004,7 @@ impl Lemke {
             self.xb[i] = if v < n { self.z[i] } else { self.r[i] };
             (self.lo_b[i], self.hi_b[i]) = self.var_bounds(problem, v);
         }
-        let dnorm = self.d.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        let dnorm = max_abs(&self.d);
         let mut pivots = 0usize;
         // When d = 0 the start solves the problem already.
         if dnorm > 0.0 {
@@ -930,7 +1026,9 @@ impl Lemke {
         for i in 0..n {
             z[i] = mid(l[i], u[i], z[i]);
         }
-        problem.m.mul(&z, problem.diagonal_shift, &mut w);
+        problem
+            .m
+            .mul_solution(&z, problem.diagonal_shift, &mut w, &mut self.nonzero);
         for i in 0..n {
             w[i] += problem.q[i];
         }
@@ -1008,8 +1106,14 @@ impl Lemke {
                     detail: "a basis solve produced a non-finite value".into(),
                 });
             }
-            for p in 0..n {
-                self.delta[p] = -dir * alpha[p];
+            // The largest rate `max |δ_p|` (the scale of the ratio test's tolerances) in the same
+            // pass: `|δ_p| = |α_p|` as `dir = ±1`, and a maximum does not depend on the order.
+            let mut dmax = 0.0f64;
+            for (d, &a) in self.delta[..n].iter_mut().zip(&alpha[..n]) {
+                *d = -dir * a;
+                // A compare and select: `f64::max` exactly on absolute values (`alpha` is finite).
+                let a = d.abs();
+                dmax = if a > dmax { a } else { dmax };
             }
             self.alpha = alpha;
             let column = match column {
@@ -1032,11 +1136,11 @@ impl Lemke {
             } else {
                 f64::INFINITY
             };
-            let (theta, block) = self.ratio_test(problem, own, pivots)?;
+            let (theta, block) = self.ratio_test(problem, own, dmax, pivots)?;
 
             // Move to the breakpoint.
-            for p in 0..n {
-                self.xb[p] += theta * self.delta[p];
+            for (x, d) in self.xb[..n].iter_mut().zip(&self.delta[..n]) {
+                *x += theta * d;
             }
             let entering_value = if entering < n {
                 self.zbar[entering] + dir * theta
@@ -1144,17 +1248,17 @@ impl Lemke {
         }
     }
 
-    /// The ratio test: the step `θ` and what blocks. Ties go to the artificial variable, then
-    /// to the anti-cycling rule.
+    /// The ratio test: the step `θ` and what blocks, `dmax = max_p |δ_p|`. Ties go to the
+    /// artificial variable, then to the anti-cycling rule.
     fn ratio_test(
         &mut self,
         problem: &AffineMcp<'_>,
         own: f64,
+        dmax: f64,
         pivots: &usize,
     ) -> Result<(f64, Block), PivotError> {
         let n = problem.q.len();
         let s_var = 2 * n;
-        let dmax = self.delta.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         // Rates below `noise` are round-off of zero and never block; rates below `tol` block
         // only when no larger pivot ties with them (a small pivot is still better than letting a
         // variable leave its bounds). The artificial variable blocks at any negative rate, so
@@ -1164,18 +1268,20 @@ impl Lemke {
         // Each basic variable's ratio, once; infinite when it does not block (an infinite
         // bound gives an infinite ratio by itself).
         let mut theta_min = own;
-        let s_position = self.position[s_var];
-        for p in 0..n {
-            let dp = self.delta[p];
-            let cutoff = if Some(p) == s_position { 0.0 } else { noise };
+        let s_position = self.position[s_var].unwrap_or(usize::MAX);
+        let (delta, xb) = (&self.delta[..n], &self.xb[..n]);
+        let (lo_b, hi_b) = (&self.lo_b[..n], &self.hi_b[..n]);
+        for (p, r) in self.ratios[..n].iter_mut().enumerate() {
+            let dp = delta[p];
+            let cutoff = if p == s_position { 0.0 } else { noise };
             let t = if dp < -cutoff {
-                (self.xb[p] - self.lo_b[p]).max(0.0) / -dp
+                (xb[p] - lo_b[p]).max(0.0) / -dp
             } else if dp > cutoff {
-                (self.hi_b[p] - self.xb[p]).max(0.0) / dp
+                (hi_b[p] - xb[p]).max(0.0) / dp
             } else {
                 f64::INFINITY
             };
-            self.ratios[p] = t;
+            *r = t;
             theta_min = theta_min.min(t);
         }
         let ratio = |me: &Self, p: usize| -> Option<f64> {
@@ -1194,13 +1300,18 @@ impl Lemke {
         }
         let cut = theta_min + self.settings.degeneracy_tolerance * (1.0 + theta_min);
         self.ties.clear();
-        for p in 0..n {
-            if ratio(self, p).is_some_and(|t| t <= cut) {
+        for (p, &t) in self.ratios[..n].iter().enumerate() {
+            if t.is_finite() && t <= cut {
                 self.ties.push(p);
             }
         }
         let own_tied = own <= cut;
-        if self.ties.iter().any(|&p| self.delta[p].abs() >= tol) {
+        // When a tie has a pivot of at least `tol`, the ties with smaller pivots (other than
+        // the artificial variable) are dropped; usually there are none to drop.
+        let keep = |p: usize| self.delta[p].abs() >= tol || self.basis[p] == s_var;
+        if self.ties.iter().any(|&p| self.delta[p].abs() >= tol)
+            && !self.ties.iter().all(|&p| keep(p))
+        {
             let delta = &self.delta;
             let basis = &self.basis;
             self.ties

@@ -323,3 +323,127 @@ fn lemke_pivot_cap_stops_the_path_and_clears() {
         again.z
     );
 }
+
+/// A deterministic LCP of size `n` with an `M` of mixed signs (not a P-matrix: some solves end
+/// on a ray) and a `q` of mixed signs, from `seed`.
+fn mixed_lcp(n: usize, seed: u64) -> (Vec<f64>, Vec<f64>) {
+    let mut state = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+    let mut next = move || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+    };
+    let mut m: Vec<f64> = (0..n * n).map(|_| next()).collect();
+    for i in 0..n {
+        // Mostly dominant diagonals, one in three weak (longer, sometimes failing paths).
+        m[i * n + i] += if (i as u64 + seed).is_multiple_of(3) {
+            0.2
+        } else {
+            n as f64
+        };
+    }
+    let q: Vec<f64> = (0..n).map(|_| next()).collect();
+    (m, q)
+}
+
+/// `solve_lcp_into` writes bitwise the `z` and `w` of `solve_lcp` (and the same pivots and
+/// residual), on one warm solver whose size changes between solves (n = 1 … 12, up and down),
+/// and fails exactly when `solve_lcp` does, leaving the caller's slices untouched.
+#[test]
+fn solve_lcp_into_writes_the_solution_of_solve_lcp_bitwise() {
+    let mut warm = Lemke::new(LemkeSettings::default());
+    let (mut solved, mut failed) = (0, 0);
+    for (k, n) in [1usize, 3, 10, 12, 10, 2, 7, 12, 5, 10]
+        .into_iter()
+        .enumerate()
+    {
+        for seed in 0..6u64 {
+            let (m, q) = mixed_lcp(n, 100 * k as u64 + seed);
+            let fresh = Lemke::new(LemkeSettings::default()).solve_lcp(&m, &q);
+            let (mut z, mut w) = (vec![7.0; n], vec![7.0; n]);
+            match (fresh, warm.solve_lcp_into(&m, &q, &mut z, &mut w)) {
+                (Ok(a), Ok(b)) => {
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&a.z), bits(&z), "n = {n}, seed {seed}: z");
+                    assert_eq!(bits(&a.w), bits(&w), "n = {n}, seed {seed}: w");
+                    assert_eq!(
+                        (a.pivots, a.residual.to_bits()),
+                        (b.pivots, b.residual.to_bits())
+                    );
+                    assert!(b.z.is_empty() && b.w.is_empty());
+                    assert!(a.residual <= 1e-9, "n = {n}: residual {}", a.residual);
+                    solved += 1;
+                }
+                (Err(a), Err(b)) => {
+                    assert_eq!(a, b, "n = {n}, seed {seed}");
+                    assert!(z.iter().chain(&w).all(|&v| v == 7.0), "slices written");
+                    failed += 1;
+                }
+                (a, b) => panic!("n = {n}, seed {seed}: {a:?} vs {b:?}"),
+            }
+        }
+    }
+    // A warm failure too: M = [−1], q = −1 has no solution (ray termination).
+    let (mut z, mut w) = (vec![7.0; 1], vec![7.0; 1]);
+    let err = warm.solve_lcp_into(&[-1.0], &[-1.0], &mut z, &mut w);
+    assert!(
+        matches!(err, Err(PivotError::RayTermination { .. })),
+        "{err:?}"
+    );
+    assert_eq!((z[0], w[0]), (7.0, 7.0));
+    assert!(solved >= 1, "{solved} solved, {failed} failed");
+}
+
+#[test]
+fn solve_lcp_into_rejects_slices_of_the_wrong_length() {
+    let mut lemke = Lemke::new(LemkeSettings::default());
+    let (mut z, mut w) = (vec![0.0; 1], vec![0.0; 2]);
+    let err = lemke.solve_lcp_into(&[2.0, 1.0, 1.0, 2.0], &[-1.0, 1.0], &mut z, &mut w);
+    assert!(matches!(err, Err(PivotError::InvalidInput(_))), "{err:?}");
+    // The solver is still usable, and the answer is M = [[2, 1], [1, 2]], q = (−1, 1): z = (½, 0).
+    let mut z = vec![0.0; 2];
+    lemke
+        .solve_lcp_into(&[2.0, 1.0, 1.0, 2.0], &[-1.0, 1.0], &mut z, &mut w)
+        .unwrap();
+    assert_eq!(z, vec![0.5, 0.0]);
+    assert_eq!(w, vec![0.0, 1.5]);
+}
+
+/// `mul_solution` (sums over the nonzero `z_j` only) is bitwise `mul`, also where a row's sum
+/// cancels to zero, where `z` has −0 entries, and with a diagonal shift.
+#[test]
+fn mul_solution_is_mul_bitwise() {
+    let n = 6;
+    #[rustfmt::skip]
+    let m = vec![
+        1.0, 5.0, -1.0, 0.0, 2.0, -0.0,
+        -0.0, 0.0, 0.0, -0.0, 0.0, 0.0,
+        3.0, -2.0, -3.0, 1.0, 0.5, 4.0,
+        1e-300, 0.0, 1e-300, 0.0, 0.0, 0.0,
+        -1.0, 2.0, 1.0, 7.0, -2.0, 1.0,
+        0.25, 0.0, -0.25, 0.0, 0.0, 9.0,
+    ];
+    let zs: [[f64; 6]; 5] = [
+        [1.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        [1.0, -0.0, 1.0, -0.0, 0.0, -0.0],
+        [1e-300, 0.0, -1e-300, 0.0, 0.0, 0.0],
+        [0.0, 0.0, 0.0, 0.0, 0.0, -0.0],
+        [1.0, 2.0, 3.0, 4.0, 0.0, 6.0],
+    ];
+    let a = AffineMatrix::DenseRowMajor { n, values: &m };
+    let mut nonzero = Vec::new();
+    for z in &zs {
+        for shift in [0.0, 0.5] {
+            let (mut full, mut sparse) = (vec![0.0; n], vec![0.0; n]);
+            a.mul(z, shift, &mut full);
+            a.mul_solution(z, shift, &mut sparse, &mut nonzero);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&full), bits(&sparse), "z = {z:?}, shift {shift}");
+        }
+    }
+    // Row 0 at z = (1, 0, 1, 0, 0, 0) cancels to +0 either way.
+    let mut out = vec![1.0; n];
+    a.mul_solution(&zs[0], 0.0, &mut out, &mut nonzero);
+    assert_eq!(out[0].to_bits(), 0.0f64.to_bits());
+}
