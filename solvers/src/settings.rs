@@ -131,6 +131,9 @@ impl NewtonSettings {
             c.positive("damped_restart", damping)?;
         }
         c.fraction("stall_reduction", self.stall_reduction)?;
+        if let Some(contraction) = self.chord_contraction {
+            c.fraction("chord_contraction", contraction)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
@@ -363,6 +366,14 @@ mod tests {
             "polish_below",
             NewtonSettings {
                 polish_below: -0.1,
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "chord_contraction",
+            NewtonSettings {
+                chord_contraction: Some(1.0),
                 ..d()
             },
             v,
