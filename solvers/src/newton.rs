@@ -360,9 +360,10 @@ struct Workspace {
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
-    /// The branch of each pair ([`pair_branch`]) where the kept LU's `H` was formed, for the
-    /// chord steps ([`NewtonSettings::chord_contraction`]).
-    branches: Vec<u8>,
+    /// The point and `F` where the kept LU's `H` was formed, for the chord steps' test of the
+    /// pairs' branches ([`pair_branch`], [`NewtonSettings::chord_contraction`]).
+    z_lu: Vec<f64>,
+    f_lu: Vec<f64>,
     /// The best natural residual after each iteration of a solve, for the stall test (kept
     /// here so that a solve allocates nothing once it has run as many iterations before).
     best_history: Vec<f64>,
@@ -422,6 +423,8 @@ impl Workspace {
             &mut self.f_alt,
             &mut self.phi_alt,
             &mut self.d_alt,
+            &mut self.z_lu,
+            &mut self.f_lu,
         ] {
             v.resize(n, 0.0);
         }
@@ -820,30 +823,18 @@ fn pair_branch(z: f64, f: f64, l: f64, u: f64, kind: BoundKind) -> u8 {
     }
 }
 
-/// Writes the branch of every pair ([`pair_branch`]) into `out`.
-fn pair_branches(
-    z: &[f64],
-    f: &[f64],
-    l: &[f64],
-    u: &[f64],
-    kinds: &[BoundKind],
-    out: &mut Vec<u8>,
-) {
-    out.clear();
-    out.extend((0..z.len()).map(|i| pair_branch(z[i], f[i], l[i], u[i], kinds[i])));
-}
-
-/// Whether every pair is on the branch `branches` holds for it.
+/// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`.
 fn same_branches(
-    z: &[f64],
-    f: &[f64],
+    (z, f): (&[f64], &[f64]),
+    (z0, f0): (&[f64], &[f64]),
     l: &[f64],
     u: &[f64],
     kinds: &[BoundKind],
-    branches: &[u8],
 ) -> bool {
-    branches.len() == z.len()
-        && (0..z.len()).all(|i| pair_branch(z[i], f[i], l[i], u[i], kinds[i]) == branches[i])
+    (0..z.len()).all(|i| {
+        pair_branch(z[i], f[i], l[i], u[i], kinds[i])
+            == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
+    })
 }
 
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
@@ -1273,7 +1264,7 @@ impl NewtonSolver {
             let mut chord_residual = None;
             if let Some(kappa) = s.chord_contraction
                 && chord_ready
-                && same_branches(&ws.z, &ws.f, l, u, &ws.kinds, &ws.branches)
+                && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
                 && let Some(linear) = self.linear.as_mut()
             {
                 for i in 0..n {
@@ -1364,7 +1355,8 @@ impl NewtonSolver {
                     prof.structured_factorizations += 1;
                 }
                 if newton_ok && s.chord_contraction.is_some() {
-                    pair_branches(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.branches);
+                    ws.z_lu.copy_from_slice(&ws.z);
+                    ws.f_lu.copy_from_slice(&ws.f);
                 }
                 if newton_ok {
                     for i in 0..n {
