@@ -257,15 +257,18 @@ pub struct NewtonSettings {
     pub scene_scales: bool,
     /// Chord (simplified Newton) steps: near a solution, the next step solves `H₀ d = −Φ(z)`
     /// with the LU of `H₀` kept from an earlier iterate of the run instead of forming and
-    /// factorising `H` at `z` (`docs/latency.md`, section "Chord steps"). Taken only after a
-    /// step by that LU that lowered the natural residual by this factor at least, into
-    /// [`NewtonSettings::min_norm_radius`], while the branch of every complementarity pair
-    /// (`z` at a bound or `F` zero, as the natural residual's `mid` selects it) is the one it had
-    /// where `H₀` was formed; the step is kept only when it lowers `Ψ` and the natural residual
-    /// by this factor again, otherwise the iteration forms and factorises `H` at `z` at once.
-    /// A chord step counts as an iteration and a Newton step; it is never the final polish
-    /// ([`NewtonSettings::polish_below`]), so a run stops by the same test as without it.
-    /// `None` turns it off. Default `Some(1e-3)`.
+    /// factorising `H` at `z` (`docs/latency.md`, section "Chord steps: Newton's desk step with
+    /// one factorisation fewer"). Taken only after a step by that LU that lowered the natural
+    /// residual by this factor at least, into [`NewtonSettings::min_norm_radius`], when `H₀`
+    /// had no pinned columns ([`NewtonSettings::pin_zero_columns`]) and every complementarity
+    /// pair is on the branch (`z` at a bound or `F` zero, as the natural residual's `mid`
+    /// selects it) it had where `H₀` was formed; the step is kept only when it lowers `Ψ` and
+    /// the natural residual by this factor again, otherwise the iteration forms and factorises
+    /// `H` at `z` at once. A chord step counts as an iteration and a Newton step. It is never
+    /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
+    /// without it; a run whose last step was a chord step then takes one more (the chord's
+    /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
+    /// the iteration limit. `None` turns it off. Default `Some(1e-3)`.
     pub chord_contraction: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
