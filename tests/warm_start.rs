@@ -85,10 +85,22 @@ fn digest(records: &[StepRecord]) -> u64 {
 #[test]
 fn previous_warm_start_is_the_plain_warm_start_bit_for_bit() {
     // The digest of main's (`4742ec5`) default, the plain warm start: `step_latency desk-steps
-    // 400` there.
-    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    // 400` there, with Newton's iteration of then (no chord steps, which move the iterates by
+    // round-off: `docs/latency.md`, "Chord steps").
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        chord_contraction: None,
+        ..NewtonSettings::default()
+    });
     let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
     assert_eq!(digest(&records), 0x32c9_b2ab_5ff7_3057);
+    // With chord steps (`chord_contraction: Some(1e-3)`, the default of a trial on wip-chord:
+    // `step_latency desk-steps-previous 400` there).
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        chord_contraction: Some(1e-3),
+        ..NewtonSettings::default()
+    });
+    let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
+    assert_eq!(digest(&records), 0x8f68_6621_54ea_b684);
 }
 
 #[test]

@@ -271,6 +271,24 @@ pub struct NewtonSettings {
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
     pub scene_scales: bool,
+    /// Chord (simplified Newton) steps: near a solution, the next step solves `H₀ d = −Φ(z)`
+    /// with the LU of `H₀` kept from an earlier iterate of the run instead of forming and
+    /// factorising `H` at `z` (`docs/latency.md`, section "Chord steps: Newton's desk step with
+    /// one factorisation fewer"). Taken only after a step by that LU that lowered the natural
+    /// residual by this factor at least, into [`NewtonSettings::min_norm_radius`], when `H₀`
+    /// had no pinned columns ([`NewtonSettings::pin_zero_columns`]) and every complementarity
+    /// pair is on the branch (`z` at a bound or `F` zero, as the natural residual's `mid`
+    /// selects it) it had where `H₀` was formed; the step is kept only when it lowers `Ψ` and
+    /// the natural residual by this factor again, otherwise the iteration forms and factorises
+    /// `H` at `z` at once. A chord step counts as an iteration and a Newton step. It is never
+    /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
+    /// without it; a run whose last step was a chord step then takes one more (the chord's
+    /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
+    /// the iteration limit. `None` turns it off. Default `None` (measured with `Some(1e-3)`:
+    /// −23.5 % instructions per warm desk solve; off until a kept record's worst-component name
+    /// no longer grows when a later step's worst component has a longer name, which the chord's
+    /// round-off triggers on desk step 29 and `tests/step_allocations.rs` counts).
+    pub chord_contraction: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -315,6 +333,7 @@ impl Default for NewtonSettings {
             forget_undone_steps: true,
             complementary_restart: Some(1e3),
             scene_scales: true,
+            chord_contraction: None,
             trace: false,
         }
     }
@@ -364,6 +383,10 @@ struct Workspace {
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
+    /// The point and `F` where the kept LU's `H` was formed, for the chord steps' test of the
+    /// pairs' branches ([`pair_branch`], [`NewtonSettings::chord_contraction`]).
+    z_lu: Vec<f64>,
+    f_lu: Vec<f64>,
     /// The best natural residual after each iteration of a solve, for the stall test (kept
     /// here so that a solve allocates nothing once it has run as many iterations before).
     best_history: Vec<f64>,
@@ -423,6 +446,8 @@ impl Workspace {
             &mut self.f_alt,
             &mut self.phi_alt,
             &mut self.d_alt,
+            &mut self.z_lu,
+            &mut self.f_lu,
         ] {
             v.resize(n, 0.0);
         }
@@ -797,6 +822,43 @@ fn pin_zero_columns(
 /// A column of `H` whose entries are all below this fraction of `H`'s largest entry counts as
 /// zero in [`pin_zero_columns`].
 const ZERO_COLUMN: f64 = 1e-13;
+
+/// The branch of a complementarity pair that the natural residual's `mid(l, u, z − F)` selects:
+/// 0 when `z` is at (or beyond) its lower bound's side (`z − l ≤ F`), 2 at the upper bound's,
+/// 1 where `F` is the residual (free components, strictly inside). The element `D_a + D_b J`
+/// of a pair changes continuously while its branch stays the same, and jumps when it changes.
+#[inline]
+fn pair_branch(z: f64, f: f64, l: f64, u: f64, kind: BoundKind) -> u8 {
+    match kind {
+        BoundKind::Free => 1,
+        BoundKind::Lower => u8::from(z - l > f),
+        BoundKind::Upper => 1 + u8::from(u - z <= -f),
+        BoundKind::Box => {
+            let x = z - f;
+            if x <= l {
+                0
+            } else if x >= u {
+                2
+            } else {
+                1
+            }
+        }
+    }
+}
+
+/// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`.
+fn same_branches(
+    (z, f): (&[f64], &[f64]),
+    (z0, f0): (&[f64], &[f64]),
+    l: &[f64],
+    u: &[f64],
+    kinds: &[BoundKind],
+) -> bool {
+    (0..z.len()).all(|i| {
+        pair_branch(z[i], f[i], l[i], u[i], kinds[i])
+            == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
+    })
+}
 
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
 /// or `None` when `F` is not finite.
@@ -1182,6 +1244,12 @@ impl NewtonSolver {
         let mut polishing = false;
         // Steps of this run cut by the ratio test (`NewtonSettings::ratio_test`).
         let mut ratio_steps = 0usize;
+        // The next iteration may try a chord step (`NewtonSettings::chord_contraction`); the
+        // last step was one; the chord's polish was taken.
+        let mut chord_ready = false;
+        let (mut last_chord, mut chord_polished) = (false, false);
+        // The LU held is of an `H` without pins whose step passed the descent test.
+        let mut chord_lu = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1220,87 +1288,152 @@ impl NewtonSolver {
         clock.lap(&mut prof, Phase::Jacobian);
 
         while termination == Termination::MaxIterations {
+            // The chord's polish: one more chord step after a run converged by a chord step.
+            let mut chord_polish = false;
             if residual <= s.tolerance {
                 // Converged; one more full Newton step when the residual is just below the
-                // tolerance (see `NewtonSettings::polish_below`).
+                // tolerance (see `NewtonSettings::polish_below`), one more chord step when the
+                // last step was one (its rate is linear: it ends a factor above round-off).
                 if polishing || residual <= s.polish_below * s.tolerance {
-                    termination = Termination::Converged;
-                    break;
+                    if !last_chord || chord_polished || iterations >= s.max_iterations {
+                        termination = Termination::Converged;
+                        break;
+                    }
+                    chord_polish = true;
                 }
                 polishing = true;
             }
             if iterations >= s.max_iterations {
                 break;
             }
-            if !have_jac {
-                mcp.jacobian(&ws.z, &mut ws.jac);
-                jac_evals += 1;
-            }
-            // H = D_a + D_b J in J's pattern (the diagonal is always stored).
-            generalized_jacobian_rows(
-                &ws.z,
-                &ws.f,
-                l,
-                u,
-                &ws.kinds,
-                &pattern,
-                &ws.jac,
-                &mut ws.da,
-                &mut ws.db,
-                &mut ws.degenerate,
-                &mut ws.jv,
-            );
-            // H and ∇Ψ = HᵀΦ; `pin` gets the column maxima for the pinning test below.
-            let largest = assemble_h_and_gradient(
-                &pattern,
-                &ws.jac,
-                &ws.da,
-                &ws.db,
-                &ws.phi,
-                &mut ws.rows,
-                &mut ws.h,
-                &mut ws.grad,
-                &mut ws.pin,
-            );
-            clock.lap(&mut prof, Phase::Jacobian);
-
-            // Newton direction, with the DFK descent test.
-            let linear = self
-                .linear
-                .as_mut()
-                .ok_or_else(|| SolveError::InvalidProblem("linear solver not prepared".into()))?;
-            // Variables that do not enter the linearisation (a zero column of H: the slip rate
-            // σ of an open contact, where p_n = p_f = 0) get a unit of their row's scale on the
-            // diagonal for the factorisation, so the step leaves them where their (consistent)
-            // row puts them instead of failing the LU over the whole system.
-            let pinned = s.pin_zero_columns
-                && pin_zero_columns(&pattern, &mut ws.h, largest, &mut ws.pin, &mut ws.row_scale);
-            let mut newton_ok = linear.factor(&ws.h).is_ok();
-            if newton_ok && linear.factored_by_elimination() {
-                prof.structured_factorizations += 1;
-            }
-            if newton_ok {
+            let mut accepted = None;
+            // A chord step on the kept LU (`NewtonSettings::chord_contraction`): kept when it
+            // contracts the natural residual enough, else the iteration goes on as without it.
+            let mut chord_residual = None;
+            if let Some(kappa) = s.chord_contraction
+                && chord_ready
+                && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
+                && let Some(linear) = self.linear.as_mut()
+            {
                 for i in 0..n {
                     ws.d[i] = -ws.phi[i];
                 }
-                newton_ok = linear.solve_in_place(&mut ws.d).is_ok();
-            }
-            if pinned {
-                for (j, &p) in pattern.diag_pos().iter().enumerate() {
-                    ws.h[p] -= ws.pin[j];
+                if linear.solve_in_place(&mut ws.d).is_ok()
+                    && let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
+                    && (chord_polish || p < psi)
+                {
+                    // The polish is kept when it lowers the residual, as the full step's is.
+                    let r = natural_residual(&ws.z_trial, &ws.f_trial, l, u);
+                    let kept = if chord_polish {
+                        r < residual
+                    } else {
+                        r <= kappa * residual
+                    };
+                    if kept {
+                        accepted = Some((1.0, p));
+                        chord_residual = Some(r);
+                    }
+                }
+                if chord_residual.is_some() {
+                    prof.chord_steps += 1;
+                    chord_polished = chord_polish;
+                } else if chord_polish {
+                    // Converged already; the polish gained nothing.
+                    termination = Termination::Converged;
+                    break;
+                } else {
+                    prof.chord_rejections += 1;
                 }
             }
-            let descent_ok = |d: &[f64], g: &[f64]| {
-                let nd = norm2(d);
-                let gd = dot(g, d);
-                gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
-            };
-            newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
-            prof.lu_factorizations += 1;
-            clock.lap(&mut prof, Phase::NewtonDirection);
+            let chord = chord_residual.is_some();
+            // Whether the step taken is the kept LU's full step (a chord step may follow it).
+            let mut lu_step = chord;
+            let mut newton_ok = false;
+            if !chord {
+                if !have_jac {
+                    mcp.jacobian(&ws.z, &mut ws.jac);
+                    jac_evals += 1;
+                }
+                // H = D_a + D_b J in J's pattern (the diagonal is always stored).
+                generalized_jacobian_rows(
+                    &ws.z,
+                    &ws.f,
+                    l,
+                    u,
+                    &ws.kinds,
+                    &pattern,
+                    &ws.jac,
+                    &mut ws.da,
+                    &mut ws.db,
+                    &mut ws.degenerate,
+                    &mut ws.jv,
+                );
+                // H and ∇Ψ = HᵀΦ; `pin` gets the column maxima for the pinning test below.
+                let largest = assemble_h_and_gradient(
+                    &pattern,
+                    &ws.jac,
+                    &ws.da,
+                    &ws.db,
+                    &ws.phi,
+                    &mut ws.rows,
+                    &mut ws.h,
+                    &mut ws.grad,
+                    &mut ws.pin,
+                );
+                clock.lap(&mut prof, Phase::Jacobian);
+
+                // Newton direction, with the DFK descent test.
+                let linear = self.linear.as_mut().ok_or_else(|| {
+                    SolveError::InvalidProblem("linear solver not prepared".into())
+                })?;
+                // Variables that do not enter the linearisation (a zero column of H: the slip rate
+                // σ of an open contact, where p_n = p_f = 0) get a unit of their row's scale on the
+                // diagonal for the factorisation, so the step leaves them where their (consistent)
+                // row puts them instead of failing the LU over the whole system.
+                let pinned = s.pin_zero_columns
+                    && pin_zero_columns(
+                        &pattern,
+                        &mut ws.h,
+                        largest,
+                        &mut ws.pin,
+                        &mut ws.row_scale,
+                    );
+                newton_ok = linear.factor(&ws.h).is_ok();
+                if newton_ok && linear.factored_by_elimination() {
+                    prof.structured_factorizations += 1;
+                }
+                if newton_ok && s.chord_contraction.is_some() {
+                    ws.z_lu.copy_from_slice(&ws.z);
+                    ws.f_lu.copy_from_slice(&ws.f);
+                }
+                if newton_ok {
+                    for i in 0..n {
+                        ws.d[i] = -ws.phi[i];
+                    }
+                    newton_ok = linear.solve_in_place(&mut ws.d).is_ok();
+                }
+                if pinned {
+                    for (j, &p) in pattern.diag_pos().iter().enumerate() {
+                        ws.h[p] -= ws.pin[j];
+                    }
+                }
+                let descent_ok = |d: &[f64], g: &[f64]| {
+                    let nd = norm2(d);
+                    let gd = dot(g, d);
+                    gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
+                };
+                newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
+                // A pinned `H` is singular but for the pins (D5's collision): its chord steps
+                // end where the next `H`'s LU fails, so its LU is not kept for them.
+                chord_lu = newton_ok && !pinned;
+                prof.lu_factorizations += 1;
+                clock.lap(&mut prof, Phase::NewtonDirection);
+            }
             let mut kind = StepKind::Newton;
-            let mut accepted = None;
-            if polishing {
+            if polishing && chord {
+                // A chord step is no polish: the run stops by the test it stops by without them.
+                polishing = false;
+            } else if polishing {
                 // At a singular `H` (a solution set that is not isolated: the B–C contact height
                 // of D5's collision) there is no LU step; the minimum-norm step solves `H d = −Φ`
                 // as well where `Φ` is in the range of `H`, so it gains the same digits. Only in
@@ -1325,7 +1458,10 @@ impl NewtonSolver {
                     None
                 };
                 match better {
-                    Some(p) => accepted = Some((1.0, p)),
+                    Some(p) => {
+                        accepted = Some((1.0, p));
+                        lu_step = newton_ok;
+                    }
                     None => {
                         termination = Termination::Converged;
                         break;
@@ -1341,6 +1477,7 @@ impl NewtonSolver {
                         || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance
                     {
                         accepted = Some((1.0, p));
+                        lu_step = true;
                     } else if self.nonmonotone && s.watchdog_steps > 0 && psi < watchdog_ceiling {
                         // The non-monotone restart: the full step, under the watchdog.
                         ws.open_watchdog(&mut checkpoint, &mut watchdog_count, psi);
@@ -1646,8 +1783,18 @@ impl NewtonSolver {
             std::mem::swap(&mut ws.f, &mut ws.f_trial);
             std::mem::swap(&mut ws.phi, &mut ws.phi_trial);
             psi = psi_new;
-            residual = natural_residual(&ws.z, &ws.f, l, u);
+            let previous = residual;
+            residual = chord_residual.unwrap_or_else(|| natural_residual(&ws.z, &ws.f, l, u));
+            last_chord = chord;
             have_jac = false;
+            // A step by the kept LU that contracted the residual fast, near the solution.
+            chord_ready = s.chord_contraction.is_some_and(|kappa| {
+                lu_step
+                    && chord_lu
+                    && checkpoint.is_none()
+                    && residual <= kappa * previous
+                    && residual <= s.min_norm_radius
+            });
             if residual < best_residual {
                 best_residual = residual;
                 ws.z_best.copy_from_slice(&ws.z);
@@ -1719,6 +1866,7 @@ impl NewtonSolver {
                     watchdog_ceiling = 0.5 * psi_check;
                     watchdog_restores += 1;
                     checkpoint = None;
+                    (chord_ready, last_chord) = (false, false);
                     continue;
                 }
             }
@@ -1817,6 +1965,128 @@ mod tests {
             },
         )
         .unwrap_or_else(|e| panic!("valid problem: {e}"))
+    }
+
+    /// A smooth MCP with a free component, an inactive lower bound (`z₁ > 0`, `F₁ = 0`) and an
+    /// active one (`z₂ = 0`, `F₂ > 0`): from 1e-4 off its solution the first Newton step lands
+    /// at a natural residual of ~1e-8, where chord steps take over.
+    fn smooth_three() -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY, 0.0, 0.0],
+            vec![f64::INFINITY; 3],
+            |z, f| {
+                f[0] = z[0] + 0.5 * z[0].sin() + 0.2 * z[1] - 1.0;
+                f[1] = z[1] + 0.3 * z[0] * z[0] - 0.8;
+                f[2] = 1.0 + z[2] + 0.1 * z[0];
+            },
+            |z, j| {
+                // Column-major 3 × 3.
+                j[0] = 1.0 + 0.5 * z[0].cos();
+                j[1] = 0.6 * z[0];
+                j[2] = 0.1;
+                j[3] = 0.2;
+                j[4] = 1.0;
+                j[8] = 1.0;
+            },
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"))
+    }
+
+    /// `smooth_three`'s solution by full Newton steps, and a start 1e-4 away from it.
+    fn smooth_three_start() -> (Vec<f64>, Vec<f64>) {
+        let exact = NewtonSolver::new(NewtonSettings {
+            chord_contraction: None,
+            ..NewtonSettings::default()
+        })
+        .solve(&smooth_three(), &[0.5, 0.5, 0.5])
+        .unwrap_or_else(|e| panic!("{e}"))
+        .z;
+        let start = vec![exact[0] + 1e-4, exact[1] - 1e-4, 1e-4];
+        (exact, start)
+    }
+
+    #[test]
+    fn chord_steps_replace_a_factorisation_and_end_at_round_off() {
+        let (exact, start) = smooth_three_start();
+        assert!(exact[1] > 0.1 && exact[2].abs() <= 1e-15, "{exact:?}");
+        let solve = |chord| {
+            let mut solver = NewtonSolver::new(NewtonSettings {
+                chord_contraction: chord,
+                ..NewtonSettings::default()
+            })
+            .with_profile();
+            let sol = solver
+                .solve(&smooth_three(), &start)
+                .unwrap_or_else(|e| panic!("{e}"));
+            (sol, solver.take_profile())
+        };
+        let (plain, plain_profile) = solve(None);
+        let (chord, chord_profile) = solve(Some(1e-3));
+        assert_eq!(plain_profile.chord_steps, 0);
+        assert_eq!(plain_profile.lu_factorizations, 2, "{plain_profile:?}");
+        // One factorisation, then chord steps, each an iteration and a Newton step.
+        assert_eq!(chord_profile.lu_factorizations, 1, "{chord_profile:?}");
+        assert!(chord_profile.chord_steps >= 2, "{chord_profile:?}");
+        assert_eq!(chord_profile.chord_rejections, 0, "{chord_profile:?}");
+        assert_eq!(
+            chord.summary.iterations,
+            chord_profile.lu_factorizations + chord_profile.chord_steps
+        );
+        assert_eq!(
+            chord.summary.counter(Counter::NewtonSteps),
+            Some(chord.summary.iterations)
+        );
+        // Both at round-off, at the same point within 1e-15.
+        for sol in [&plain, &chord] {
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
+        }
+        for (a, b) in exact.iter().zip(&chord.z) {
+            assert!((a - b).abs() <= 1e-15, "{exact:?} against {:?}", chord.z);
+        }
+        for (a, b) in plain.z.iter().zip(&chord.z) {
+            assert!(
+                (a - b).abs() <= 1e-15,
+                "{:?} against {:?}",
+                plain.z,
+                chord.z
+            );
+        }
+    }
+
+    #[test]
+    fn a_budget_counts_chord_steps_as_iterations() {
+        let (_, start) = smooth_three_start();
+        let mut solver = NewtonSolver::new(NewtonSettings {
+            chord_contraction: Some(1e-3),
+            ..NewtonSettings::default()
+        });
+        let full = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(full.summary.iterations >= 3, "{:?}", full.summary);
+        for budget in 1..full.summary.iterations {
+            assert!(solver.set_iteration_budget(Some(budget)));
+            match solver.solve(&smooth_three(), &start) {
+                // Within the tolerance at the limit (without the polishes, as without chord
+                // steps).
+                Ok(sol) => {
+                    assert!(sol.summary.iterations <= budget, "{:?}", sol.summary);
+                    assert!(sol.summary.residual <= 1e-10, "{:?}", sol.summary);
+                }
+                Err(SolveError::NotConverged { best }) => {
+                    assert!(best.summary.iterations <= budget, "{:?}", best.summary);
+                }
+                Err(e) => panic!("{e}"),
+            }
+        }
+        // Within a budget it does not exceed, the unbudgeted point bit for bit.
+        assert!(solver.set_iteration_budget(Some(full.summary.iterations)));
+        let within = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(within.z, full.z);
+        assert_eq!(within.summary.iterations, full.summary.iterations);
     }
 
     #[test]

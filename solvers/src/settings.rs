@@ -134,6 +134,9 @@ impl NewtonSettings {
             c.positive("complementary_restart", near)?;
         }
         c.fraction("stall_reduction", self.stall_reduction)?;
+        if let Some(contraction) = self.chord_contraction {
+            c.fraction("chord_contraction", contraction)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
@@ -376,6 +379,14 @@ mod tests {
             "polish_below",
             NewtonSettings {
                 polish_below: -0.1,
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "chord_contraction",
+            NewtonSettings {
+                chord_contraction: Some(1.0),
                 ..d()
             },
             v,

@@ -79,6 +79,10 @@ pub struct NewtonProfile {
     /// Multiplications of the damping trials' sparse Cholesky factorisations of `HᵀH + λI`, by
     /// their symbolic count (`docs/newton.md#cheap-levenberg-marquardt-trials`).
     pub lm_cholesky_flops: f64,
+    /// Chord steps taken on a kept LU ([`crate::newton::NewtonSettings::chord_contraction`]).
+    pub chord_steps: usize,
+    /// Chord steps tried and not kept (the iteration then factorised `H` as without them).
+    pub chord_rejections: usize,
     /// Nanoseconds per phase, in the order of [`Phase::ALL`].
     pub ns: [u64; 7],
 }
@@ -103,6 +107,8 @@ impl NewtonProfile {
         self.lm_iterations += other.lm_iterations;
         self.lm_augmented_factorizations += other.lm_augmented_factorizations;
         self.lm_cholesky_flops += other.lm_cholesky_flops;
+        self.chord_steps += other.chord_steps;
+        self.chord_rejections += other.chord_rejections;
         for (a, b) in self.ns.iter_mut().zip(other.ns) {
             *a += b;
         }
