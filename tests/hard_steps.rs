@@ -139,6 +139,8 @@ fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
         lm_residual_damping_after: None,
         forget_undone_steps: false,
         ratio_test: false,
+        // Nor the chord steps, which came later and move the trajectory by round-off.
+        chord_contraction: None,
         ..NewtonSettings::default()
     }
 }

@@ -93,12 +93,8 @@ fn previous_warm_start_is_the_plain_warm_start_bit_for_bit() {
     });
     let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
     assert_eq!(digest(&records), 0x32c9_b2ab_5ff7_3057);
-    // With chord steps (`chord_contraction: Some(1e-3)`, the default of a trial on wip-chord:
-    // `step_latency desk-steps-previous 400` there).
-    let mut solver = NewtonSolver::new(NewtonSettings {
-        chord_contraction: Some(1e-3),
-        ..NewtonSettings::default()
-    });
+    // With the default's chord steps: `step_latency desk-steps-previous 400` on wip-chord.
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
     let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
     assert_eq!(digest(&records), 0x8f68_6621_54ea_b684);
 }

@@ -231,19 +231,32 @@ pub struct WorstComponent {
     pub name: String,
 }
 
+/// Bytes a worst component's name is given room for when it is first stored: a kept record's
+/// name then takes a later step's longer one (`contact.sigma[0]` after `desk.nu.vx`) in place,
+/// so a step loop into kept storage allocates nothing after its first step.
+const NAME_CAPACITY: usize = 64;
+
+/// A name in storage of at least [`NAME_CAPACITY`] bytes.
+fn name_storage(name: &str) -> String {
+    let mut s = String::with_capacity(name.len().max(NAME_CAPACITY));
+    s.push_str(name);
+    s
+}
+
 /// `clone_from` reuses the name's storage.
 impl Clone for WorstComponent {
     fn clone(&self) -> Self {
         WorstComponent {
             index: self.index,
             value: self.value,
-            name: self.name.clone(),
+            name: name_storage(&self.name),
         }
     }
     fn clone_from(&mut self, source: &Self) {
         self.index = source.index;
         self.value = source.value;
-        self.name.clone_from(&source.name);
+        self.name.clear();
+        self.name.push_str(&source.name);
     }
 }
 
@@ -367,7 +380,7 @@ pub fn write_worst_component(
             mcp.write_component_name(index, &mut w.name);
         }
         (Some((index, value)), None) => {
-            let mut name = String::new();
+            let mut name = String::with_capacity(NAME_CAPACITY);
             mcp.write_component_name(index, &mut name);
             *worst = Some(WorstComponent { index, value, name });
         }
@@ -461,6 +474,35 @@ pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A kept worst component takes a longer name in place (the step loop's zero allocations:
+    /// desk step 29's `contact.sigma[0]` after `desk.nu.vx`), and the copy is the source's.
+    #[test]
+    fn a_kept_worst_component_takes_a_longer_name_in_place() {
+        let short = WorstComponent {
+            index: 0,
+            value: 1e-15,
+            name: "desk.nu.vx".to_string(),
+        };
+        let long = WorstComponent {
+            index: 9,
+            value: 2e-14,
+            name: "contact.sigma[0]".to_string(),
+        };
+        let mut kept = short.clone();
+        let (capacity, storage) = (kept.name.capacity(), kept.name.as_ptr());
+        assert!(capacity >= NAME_CAPACITY, "{capacity}");
+        kept.clone_from(&long);
+        assert_eq!(kept, long);
+        assert_eq!((kept.name.capacity(), kept.name.as_ptr()), (capacity, storage));
+        // A name longer than the reserve is still copied whole.
+        let longer = WorstComponent {
+            name: "x".repeat(2 * NAME_CAPACITY),
+            ..long
+        };
+        kept.clone_from(&longer);
+        assert_eq!(kept, longer);
+    }
 
     /// `final_residuals` and `worst_component` give the bits of the three separate passes they
     /// replace, NaN and infinite components included.

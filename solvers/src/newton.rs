@@ -284,10 +284,7 @@ pub struct NewtonSettings {
     /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
     /// without it; a run whose last step was a chord step then takes one more (the chord's
     /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
-    /// the iteration limit. `None` turns it off. Default `None` (measured with `Some(1e-3)`:
-    /// −23.5 % instructions per warm desk solve; off until a kept record's worst-component name
-    /// no longer grows when a later step's worst component has a longer name, which the chord's
-    /// round-off triggers on desk step 29 and `tests/step_allocations.rs` counts).
+    /// the iteration limit. `None` turns it off. Default `Some(1e-3)`.
     pub chord_contraction: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
@@ -333,7 +330,7 @@ impl Default for NewtonSettings {
             forget_undone_steps: true,
             complementary_restart: Some(1e3),
             scene_scales: true,
-            chord_contraction: None,
+            chord_contraction: Some(1e-3),
             trace: false,
         }
     }
@@ -2057,10 +2054,7 @@ mod tests {
     #[test]
     fn a_budget_counts_chord_steps_as_iterations() {
         let (_, start) = smooth_three_start();
-        let mut solver = NewtonSolver::new(NewtonSettings {
-            chord_contraction: Some(1e-3),
-            ..NewtonSettings::default()
-        });
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
         let full = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));

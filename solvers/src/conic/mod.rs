@@ -343,6 +343,8 @@ impl ConicSolver {
             max_iterations,
             // Judged by the caller in the problem's own units, so solved in them.
             scene_scales: false,
+            // The polish as measured with the conic backend (chord steps are Newton's desk lever).
+            chord_contraction: None,
             // The handoff is a local finish: the plain iteration only. Its safeguards for hard
             // steps (the smoothing continuation, the damped restart) would run on every step
             // whose few local iterations fall short, at many times a QP's cost; the fixed point
