@@ -494,7 +494,10 @@ mod tests {
         assert!(capacity >= NAME_CAPACITY, "{capacity}");
         kept.clone_from(&long);
         assert_eq!(kept, long);
-        assert_eq!((kept.name.capacity(), kept.name.as_ptr()), (capacity, storage));
+        assert_eq!(
+            (kept.name.capacity(), kept.name.as_ptr()),
+            (capacity, storage)
+        );
         // A name longer than the reserve is still copied whole.
         let longer = WorstComponent {
             name: "x".repeat(2 * NAME_CAPACITY),
