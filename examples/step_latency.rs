@@ -112,6 +112,24 @@ impl Digest {
     }
 }
 
+/// The desk after 100 steps with Newton, and a differentiator for its step (both with
+/// `structured_solve` as given).
+fn desk_sensitivity_at_step_100(structured_solve: bool) -> (Simulation, StepDifferentiator) {
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        structured_solve,
+        ..NewtonSettings::default()
+    });
+    let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+    for _ in 0..100 {
+        sim.step(&mut solver).expect("desk step");
+    }
+    let differ = StepDifferentiator::new(SensitivityOptions {
+        structured_solve,
+        ..SensitivityOptions::default()
+    });
+    (sim, differ)
+}
+
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let (case, n, linear) = match args.as_slice() {
@@ -238,15 +256,7 @@ fn main() {
             digest.1
         }
         "desk-sensitivity" => {
-            let mut solver = newton();
-            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
-            for _ in 0..100 {
-                sim.step(&mut solver).expect("desk step");
-            }
-            let mut differ = StepDifferentiator::new(SensitivityOptions {
-                structured_solve,
-                ..SensitivityOptions::default()
-            });
+            let (sim, mut differ) = desk_sensitivity_at_step_100(structured_solve);
             // Into one kept result, as a caller differentiating every step would.
             let mut sens = StepSensitivity::empty();
             for _ in 0..n {
@@ -259,15 +269,7 @@ fn main() {
         "desk-sensitivity-time" => {
             // The same calls, each timed: the median in microseconds, and a digest of the
             // last result's `dz` bits, to compare builds by.
-            let mut solver = newton();
-            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
-            for _ in 0..100 {
-                sim.step(&mut solver).expect("desk step");
-            }
-            let mut differ = StepDifferentiator::new(SensitivityOptions {
-                structured_solve,
-                ..SensitivityOptions::default()
-            });
+            let (sim, mut differ) = desk_sensitivity_at_step_100(structured_solve);
             let mut sens = StepSensitivity::empty();
             let mut times = Vec::with_capacity(n);
             for _ in 0..n {
