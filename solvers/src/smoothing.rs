@@ -51,9 +51,13 @@ pub struct SmoothingSettings {
     /// own limits. The registry sets it to a user's `max_iterations`, so that a backend built
     /// with an iteration limit keeps to it in the continuation too.
     pub max_iterations: Option<usize>,
-    /// Give up after this many stages in a row that did not converge and were kept (no cut of
-    /// the reduction left): the continuation has lost the path, and its remaining stages would
-    /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`).
+    /// Give up after this many stages that did not converge (cut back or kept) since the last
+    /// stage that converged with the set [`SmoothingSettings::reduction`]: the continuation has
+    /// lost the path, and its remaining stages would each run to
+    /// [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`). A stage that
+    /// converges only after cuts does not reset the count: a continuation that alternates
+    /// failed stages and converged short ones crawls along the path
+    /// (`docs/newton.md#a-crawling-continuation`).
     /// `None` (default): go on to the last stage. The Newton backend sets it.
     pub max_failed_stages: Option<usize>,
 }
@@ -137,8 +141,8 @@ pub fn continuation(
     let mut good: Option<(f64, Vec<f64>)> = None;
     let mut theta = settings.reduction;
     let mut cuts = 0usize;
-    // Unconverged stages kept in a row.
-    let mut failed_in_a_row = 0usize;
+    // Unconverged stages since the last stage converged with the set reduction.
+    let mut failed = 0usize;
     let within_budget = |iterations: usize| settings.max_iterations.is_none_or(|m| iterations < m);
     while mu.is_finite()
         && mu > tolerance
@@ -161,10 +165,23 @@ pub fn continuation(
             }
             Err(e) => return Err(e),
         };
+        // A stage that converged only after cuts (θ above its setting) does not reset the count.
+        if converged && theta <= settings.reduction {
+            failed = 0;
+        } else if !converged {
+            failed += 1;
+        }
+        let lost = settings
+            .max_failed_stages
+            .is_some_and(|m| failed >= m.max(1));
         match &good {
             Some((mu_good, _))
                 if !converged && cuts < settings.max_cuts && theta.sqrt() <= MAX_REDUCTION =>
             {
+                if lost {
+                    // `end.z` is the last converged stage's point.
+                    break;
+                }
                 // Back to the last converged stage, a shorter step along the path.
                 cuts += 1;
                 theta = theta.sqrt();
@@ -175,19 +192,14 @@ pub fn continuation(
         }
         if converged {
             cuts = 0;
-            failed_in_a_row = 0;
             theta = (theta * theta).max(settings.reduction);
             good = Some((mu, z.clone()));
         } else {
             good = None;
-            failed_in_a_row += 1;
         }
         end.z = z;
         mu *= theta;
-        if settings
-            .max_failed_stages
-            .is_some_and(|m| failed_in_a_row > 0 && failed_in_a_row >= m)
-        {
+        if lost {
             break;
         }
     }
@@ -356,6 +368,70 @@ mod tests {
         let cut = run(Some(4));
         assert_eq!(cut.stages, 4);
         assert_eq!(cut.iterations, 12);
+    }
+
+    /// A continuation that crawls — every stage at the set reduction fails, every shorter one
+    /// after a cut converges — goes on to its last stage without `max_failed_stages` (the cut
+    /// stages reset nothing there: no unconverged stage is ever kept), and stops after that
+    /// many failed stages with it, at the last converged stage's point
+    /// (`docs/newton.md#a-crawling-continuation`).
+    #[test]
+    fn a_crawling_continuation_stops_after_max_failed_stages() {
+        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
+        use std::cell::Cell;
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] - 1.0,
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let run = |max_failed_stages| {
+            // Stage k (from 1) takes 3 iterations, converges when k is odd and fails when k is
+            // even; each converged stage's point is its number, a failed one's the start.
+            let calls = Cell::new(0usize);
+            let crawling = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
+                calls.set(calls.get() + 1);
+                let k = calls.get();
+                let report = SolveReport {
+                    solver: "test",
+                    termination: Termination::MaxIterations,
+                    tolerance: 0.0,
+                    iterations: 3,
+                    f_evals: 0,
+                    jac_evals: 0,
+                    started: std::time::Instant::now(),
+                    trace: Vec::new(),
+                    counters: Counters::new(),
+                };
+                let point = if k % 2 == 1 {
+                    vec![k as f64]
+                } else {
+                    z.to_vec()
+                };
+                match finish_solve(problem, point, report) {
+                    Ok(sol) => Ok(sol),
+                    Err(SolveError::NotConverged { best }) if k % 2 == 1 => Ok(*best),
+                    e => e,
+                }
+            };
+            let settings = SmoothingSettings {
+                max_failed_stages,
+                ..SmoothingSettings::default()
+            };
+            continuation(&mcp, &[5.0], &settings, 1e-10, crawling, || false)
+                .unwrap_or_else(|e| panic!("{e}"))
+        };
+        // μ₀ = 4; a pair of stages (failed at θ = 0.5, converged at θ = √0.5) multiplies μ by
+        // √0.5, so μ reaches 1e-10 after 70 pairs of stages, more than the 100 stages allowed.
+        let all = run(None);
+        assert_eq!(all.stages, 100);
+        assert_eq!(all.iterations, 300);
+        // Stages 2, 4, 6 and 8 fail: it stops at stage 8, at stage 7's point.
+        let cut = run(Some(4));
+        assert_eq!(cut.stages, 8);
+        assert_eq!(cut.iterations, 24);
+        assert_eq!(cut.z, vec![7.0]);
     }
 
     /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0` smoothed: `G_μ = 0` at `z (z − 1) = μ²`, i.e.
