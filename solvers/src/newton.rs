@@ -166,7 +166,8 @@ pub struct NewtonSettings {
     /// (`(z_i − l_i) F_i = μ²`), for `μ = μ₀, θμ₀, θ²μ₀, …` down to the tolerance, each stage
     /// from the last one's point, then on the MCP from there. It gets across the local
     /// minimisers of the Fischer–Burmeister merit where a contact changes its active faces
-    /// within a step. `None` turns it off. Default: `SmoothingSettings::default()` with `max_failed_stages = Some(FAILED_STAGES)`.
+    /// within a step. `None` turns it off. Default: `SmoothingSettings::default()` with `max_failed_stages = Some(FAILED_STAGES)`
+    /// and `count_cut_stages = true`.
     pub smoothing: Option<SmoothingSettings>,
     /// Initial Levenberg–Marquardt damping of the restarts (instead of
     /// [`NewtonSettings::lm_initial_damping`]): after a failed plain iteration, the plain
@@ -317,6 +318,7 @@ impl Default for NewtonSettings {
             polish_below: 1e-3,
             smoothing: Some(SmoothingSettings {
                 max_failed_stages: Some(FAILED_STAGES),
+                count_cut_stages: true,
                 ..SmoothingSettings::default()
             }),
             damped_restart: Some(0.1),
@@ -336,8 +338,9 @@ impl Default for NewtonSettings {
     }
 }
 
-/// The Newton backend's [`SmoothingSettings::max_failed_stages`]: a continuation that has kept
-/// this many unconverged stages in a row stops (`docs/newton.md#wall-time`).
+/// The Newton backend's [`SmoothingSettings::max_failed_stages`]: a continuation that has had
+/// this many unconverged stages since its last stage converged at the set reduction stops
+/// (`docs/newton.md#wall-time`, `docs/newton.md#a-crawling-continuation`).
 pub const FAILED_STAGES: usize = 4;
 
 /// Buffers reused across iterations and solves (no allocation per iteration).

@@ -53,9 +53,17 @@ pub struct SmoothingSettings {
     pub max_iterations: Option<usize>,
     /// Give up after this many stages in a row that did not converge and were kept (no cut of
     /// the reduction left): the continuation has lost the path, and its remaining stages would
-    /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`).
+    /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`); with
+    /// [`SmoothingSettings::count_cut_stages`], this many unconverged stages of any kind.
     /// `None` (default): go on to the last stage. The Newton backend sets it.
     pub max_failed_stages: Option<usize>,
+    /// With [`SmoothingSettings::max_failed_stages`]: count every stage that did not converge,
+    /// cut back or kept, since the last stage that converged with the set
+    /// [`SmoothingSettings::reduction`] (a stage that converged only after cuts does not reset
+    /// the count). A continuation that alternates failed stages and short converged ones
+    /// crawls along the path at 30 iterations a stage (`035_v_trough` step 27,
+    /// `docs/newton.md#a-crawling-continuation`). Default `false`; the Newton backend sets it.
+    pub count_cut_stages: bool,
 }
 
 impl Default for SmoothingSettings {
@@ -68,6 +76,7 @@ impl Default for SmoothingSettings {
             max_cuts: 4,
             max_iterations: None,
             max_failed_stages: None,
+            count_cut_stages: false,
         }
     }
 }
@@ -137,8 +146,9 @@ pub fn continuation(
     let mut good: Option<(f64, Vec<f64>)> = None;
     let mut theta = settings.reduction;
     let mut cuts = 0usize;
-    // Unconverged stages kept in a row.
-    let mut failed_in_a_row = 0usize;
+    // Unconverged stages kept in a row, or with `count_cut_stages` all unconverged stages since
+    // the last stage converged with the set reduction.
+    let mut failed = 0usize;
     let within_budget = |iterations: usize| settings.max_iterations.is_none_or(|m| iterations < m);
     while mu.is_finite()
         && mu > tolerance
@@ -161,10 +171,31 @@ pub fn continuation(
             }
             Err(e) => return Err(e),
         };
+        let cut_back = !converged
+            && good.is_some()
+            && cuts < settings.max_cuts
+            && theta.sqrt() <= MAX_REDUCTION;
+        if settings.count_cut_stages {
+            // A stage that converged only after cuts (θ above its setting) does not reset it.
+            if converged && theta <= settings.reduction {
+                failed = 0;
+            } else if !converged {
+                failed += 1;
+            }
+        } else if converged {
+            failed = 0;
+        } else if !cut_back {
+            failed += 1;
+        }
+        let lost = settings
+            .max_failed_stages
+            .is_some_and(|m| failed >= m.max(1));
         match &good {
-            Some((mu_good, _))
-                if !converged && cuts < settings.max_cuts && theta.sqrt() <= MAX_REDUCTION =>
-            {
+            Some((mu_good, _)) if cut_back => {
+                if lost {
+                    // `end.z` is the last converged stage's point.
+                    break;
+                }
                 // Back to the last converged stage, a shorter step along the path.
                 cuts += 1;
                 theta = theta.sqrt();
@@ -175,19 +206,14 @@ pub fn continuation(
         }
         if converged {
             cuts = 0;
-            failed_in_a_row = 0;
             theta = (theta * theta).max(settings.reduction);
             good = Some((mu, z.clone()));
         } else {
             good = None;
-            failed_in_a_row += 1;
         }
         end.z = z;
         mu *= theta;
-        if settings
-            .max_failed_stages
-            .is_some_and(|m| failed_in_a_row > 0 && failed_in_a_row >= m)
-        {
+        if lost {
             break;
         }
     }
@@ -356,6 +382,74 @@ mod tests {
         let cut = run(Some(4));
         assert_eq!(cut.stages, 4);
         assert_eq!(cut.iterations, 12);
+    }
+
+    /// A continuation that crawls — every stage at the set reduction fails, every shorter one
+    /// after a cut converges — goes on to its last stage without `max_failed_stages` or without
+    /// `count_cut_stages` (no unconverged stage is ever kept), and with both stops after that
+    /// many failed stages, at the last converged stage's point
+    /// (`docs/newton.md#a-crawling-continuation`).
+    #[test]
+    fn a_crawling_continuation_stops_after_max_failed_stages() {
+        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
+        use std::cell::Cell;
+        let mcp = FnMcp::dense(
+            vec![0.0],
+            vec![f64::INFINITY],
+            |z, f| f[0] = z[0] - 1.0,
+            |_z, j| j[0] = 1.0,
+        )
+        .unwrap_or_else(|e| panic!("{e}"));
+        let run = |max_failed_stages, count_cut_stages| {
+            // Stage k (from 1) takes 3 iterations, converges when k is odd and fails when k is
+            // even; each converged stage's point is its number, a failed one's the start.
+            let calls = Cell::new(0usize);
+            let crawling = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
+                calls.set(calls.get() + 1);
+                let k = calls.get();
+                let report = SolveReport {
+                    solver: "test",
+                    termination: Termination::MaxIterations,
+                    tolerance: 0.0,
+                    iterations: 3,
+                    f_evals: 0,
+                    jac_evals: 0,
+                    started: std::time::Instant::now(),
+                    trace: Vec::new(),
+                    counters: Counters::new(),
+                };
+                let point = if k % 2 == 1 {
+                    vec![k as f64]
+                } else {
+                    z.to_vec()
+                };
+                match finish_solve(problem, point, report) {
+                    Ok(sol) => Ok(sol),
+                    Err(SolveError::NotConverged { best }) if k % 2 == 1 => Ok(*best),
+                    e => e,
+                }
+            };
+            let settings = SmoothingSettings {
+                max_failed_stages,
+                count_cut_stages,
+                ..SmoothingSettings::default()
+            };
+            continuation(&mcp, &[5.0], &settings, 1e-10, crawling, || false)
+                .unwrap_or_else(|e| panic!("{e}"))
+        };
+        // μ₀ = 4; a pair of stages (failed at θ = 0.5, converged at θ = √0.5) multiplies μ by
+        // √0.5, so μ reaches 1e-10 after 70 pairs of stages, more than the 100 stages allowed.
+        let all = run(None, true);
+        assert_eq!(all.stages, 100);
+        assert_eq!(all.iterations, 300);
+        // Counting kept stages only, no failed stage is ever kept: to the last stage as well.
+        let kept = run(Some(4), false);
+        assert_eq!(kept.stages, 100);
+        // Stages 2, 4, 6 and 8 fail: it stops at stage 8, at stage 7's point.
+        let cut = run(Some(4), true);
+        assert_eq!(cut.stages, 8);
+        assert_eq!(cut.iterations, 24);
+        assert_eq!(cut.z, vec![7.0]);
     }
 
     /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0` smoothed: `G_μ = 0` at `z (z − 1) = μ²`, i.e.
