@@ -12,7 +12,9 @@
 //! `Counter::Custom("logged_solves")`. Any [`McpSolver`] fits the same way: implement
 //! [`Backend`] (name, description, `build` from [`BackendOptions`] with validated settings),
 //! register it in a [`Registry`], and name it in [`RunOptions::solver`]
-//! (`docs/backends.md#your-own-backend`).
+//! (`docs/backends.md#your-own-backend`). A wrapper forwards what the driver asks of a
+//! backend (`set_iteration_budget`, `converges_to_round_off`), or the driver treats it as a
+//! backend without budgets that stops at its tolerance (the plain warm start).
 
 use std::error::Error;
 use std::path::{Path, PathBuf};
@@ -66,6 +68,16 @@ impl McpSolver for LoggedPath {
             }
             Err(e) => Err(e),
         }
+    }
+
+    // What the driver asks of a backend before a step, forwarded, so that the run is PATH's:
+    // budgeted starts and, since PATH ends at round-off, the extrapolated warm start.
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        self.inner.set_iteration_budget(budget)
+    }
+
+    fn converges_to_round_off(&self) -> bool {
+        self.inner.converges_to_round_off()
     }
 }
 
