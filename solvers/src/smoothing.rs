@@ -335,31 +335,41 @@ mod tests {
     use super::*;
     use ecp_model::FnMcp;
 
-    /// A continuation whose stages never converge runs to its last stage without
-    /// `max_failed_stages`, and stops after that many stages with it.
-    #[test]
-    fn a_continuation_that_lost_the_path_stops_after_max_failed_stages() {
-        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
-        let mcp = FnMcp::dense(
+    /// The LCP `0 ≤ z ⊥ z − 1 ≥ 0`.
+    fn one_dimensional_lcp() -> FnMcp {
+        FnMcp::dense(
             vec![0.0],
             vec![f64::INFINITY],
             |z, f| f[0] = z[0] - 1.0,
             |_z, j| j[0] = 1.0,
         )
-        .unwrap_or_else(|e| panic!("{e}"));
+        .unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// A stage's report: 3 iterations, stopped at the limit (`finish_solve` judges the point).
+    fn three_iterations() -> ecp_model::SolveReport {
+        ecp_model::SolveReport {
+            solver: "test",
+            termination: ecp_model::Termination::MaxIterations,
+            tolerance: 0.0,
+            iterations: 3,
+            f_evals: 0,
+            jac_evals: 0,
+            started: std::time::Instant::now(),
+            trace: Vec::new(),
+            counters: ecp_model::Counters::new(),
+        }
+    }
+
+    /// A continuation whose stages never converge runs to its last stage without
+    /// `max_failed_stages`, and stops after that many stages with it.
+    #[test]
+    fn a_continuation_that_lost_the_path_stops_after_max_failed_stages() {
+        use ecp_model::finish_solve;
+        let mcp = one_dimensional_lcp();
         // A stage that takes 3 iterations and fails (its point: the start).
         let failing = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
-            let report = SolveReport {
-                solver: "test",
-                termination: Termination::MaxIterations,
-                tolerance: 0.0,
-                iterations: 3,
-                f_evals: 0,
-                jac_evals: 0,
-                started: std::time::Instant::now(),
-                trace: Vec::new(),
-                counters: Counters::new(),
-            };
+            let report = three_iterations();
             match finish_solve(problem, z.to_vec(), report) {
                 Ok(sol) => Err(SolveError::NotConverged {
                     best: Box::new(sol),
@@ -391,15 +401,9 @@ mod tests {
     /// (`docs/newton.md#a-crawling-continuation`).
     #[test]
     fn a_crawling_continuation_stops_after_max_failed_stages() {
-        use ecp_model::{Counters, SolveReport, Termination, finish_solve};
+        use ecp_model::finish_solve;
         use std::cell::Cell;
-        let mcp = FnMcp::dense(
-            vec![0.0],
-            vec![f64::INFINITY],
-            |z, f| f[0] = z[0] - 1.0,
-            |_z, j| j[0] = 1.0,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        let mcp = one_dimensional_lcp();
         let run = |max_failed_stages, count_cut_stages| {
             // Stage k (from 1) takes 3 iterations, converges when k is odd and fails when k is
             // even; each converged stage's point is its number, a failed one's the start.
@@ -407,17 +411,7 @@ mod tests {
             let crawling = |problem: &dyn Mcp, z: &[f64], _tol: f64| {
                 calls.set(calls.get() + 1);
                 let k = calls.get();
-                let report = SolveReport {
-                    solver: "test",
-                    termination: Termination::MaxIterations,
-                    tolerance: 0.0,
-                    iterations: 3,
-                    f_evals: 0,
-                    jac_evals: 0,
-                    started: std::time::Instant::now(),
-                    trace: Vec::new(),
-                    counters: Counters::new(),
-                };
+                let report = three_iterations();
                 let point = if k % 2 == 1 {
                     vec![k as f64]
                 } else {
@@ -456,13 +450,7 @@ mod tests {
     /// `z = (1 + √(1 + 4μ²)) / 2`, and the Jacobian matches a central difference.
     #[test]
     fn smoothed_natural_map_of_a_one_dimensional_lcp() {
-        let mcp = FnMcp::dense(
-            vec![0.0],
-            vec![f64::INFINITY],
-            |z, f| f[0] = z[0] - 1.0,
-            |_z, j| j[0] = 1.0,
-        )
-        .unwrap_or_else(|e| panic!("{e}"));
+        let mcp = one_dimensional_lcp();
         let mu = 0.3;
         let s = Smoothed::new(&mcp, mu);
         let root = 0.5 * (1.0 + (1.0 + 4.0 * mu * mu).sqrt());
