@@ -924,6 +924,30 @@ fn norm2(a: &[f64]) -> f64 {
     dot(a, a).sqrt()
 }
 
+/// One attempt of [`NewtonSolver::solve_restarted`] folded into the run: a solution ends it with
+/// every earlier attempt's iterations counted; an attempt that did not converge adds its
+/// iterations and is kept as `best` when its residual is lower; any other error ends the run.
+fn fold_attempt(
+    result: Result<Solution, SolveError>,
+    spent: &mut usize,
+    best: &mut Box<Solution>,
+) -> Option<Result<Solution, SolveError>> {
+    match result {
+        Ok(mut sol) => {
+            sol.summary.iterations += *spent;
+            Some(Ok(sol))
+        }
+        Err(SolveError::NotConverged { best: other }) => {
+            *spent += other.summary.iterations;
+            if other.summary.residual < best.summary.residual {
+                *best = other;
+            }
+            None
+        }
+        Err(e) => Some(Err(e)),
+    }
+}
+
 impl McpSolver for NewtonSolver {
     fn name(&self) -> &str {
         "newton"
@@ -1056,18 +1080,8 @@ impl NewtonSolver {
                 AttemptKind::Plain => self.solve_plain(mcp, z0),
             };
             self.settings.lm_initial_damping = saved;
-            match result {
-                Ok(mut sol) => {
-                    sol.summary.iterations += spent;
-                    return Ok(sol);
-                }
-                Err(SolveError::NotConverged { best: other }) => {
-                    spent += other.summary.iterations;
-                    if other.summary.residual < best.summary.residual {
-                        best = other;
-                    }
-                }
-                Err(e) => return Err(e),
+            if let Some(done) = fold_attempt(result, &mut spent, &mut best) {
+                return done;
             }
         }
         if let Some(near) = self.settings.complementary_restart
@@ -1077,21 +1091,14 @@ impl NewtonSolver {
             // The plain iteration with the first attempt's settings (the ratio test and the
             // residual damping are those of attempt 0; its iterations count there in a profile).
             self.attempt = 0;
-            match self.solve_plain(mcp, &start) {
-                Ok(mut sol) => {
-                    sol.summary.iterations += spent;
-                    sol.summary
-                        .counters
-                        .add(Counter::Custom("complementary_restarts"), 1);
-                    return Ok(sol);
-                }
-                Err(SolveError::NotConverged { best: other }) => {
-                    spent += other.summary.iterations;
-                    if other.summary.residual < best.summary.residual {
-                        best = other;
-                    }
-                }
-                Err(e) => return Err(e),
+            let result = self.solve_plain(mcp, &start).map(|mut sol| {
+                sol.summary
+                    .counters
+                    .add(Counter::Custom("complementary_restarts"), 1);
+                sol
+            });
+            if let Some(done) = fold_attempt(result, &mut spent, &mut best) {
+                return done;
             }
         }
         best.summary.iterations = spent;
