@@ -23,6 +23,7 @@
 //! extrapolated warm starts), `desk-steps-path-previous` from the plain warm start,
 //! `desk-steps-path-unpolished` with `PathSettings::polish_below = 1` (main's PATH before the
 //! polish: the plain warm start).
+//! `a1-steps` takes A1's first `N` whole steps with Newton, as `desk-steps`.
 //! All of them print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator, StepSensitivity};
@@ -144,7 +145,7 @@ fn main() {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|desk-sensitivity-time|\
                  desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into|desk-steps-path|\
-                 desk-steps-path-previous|desk-steps-path-unpolished> N [lu|schur]"
+                 desk-steps-path-previous|desk-steps-path-unpolished|a1-steps> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -253,6 +254,18 @@ fn main() {
                 digest.add(&sim.step(&mut solver).expect("desk step"));
             }
             println!("{case} x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "a1-steps" => {
+            // A1's first `N` whole steps with Newton (sliding to about step 36, then at rest;
+            // past its 50 steps the box stays at rest), as `desk-steps`.
+            let mut solver = newton();
+            let mut sim = Simulation::new(scenarios::a1_sliding()).expect("A1 scene");
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("A1 step"));
+            }
+            println!("a1-steps x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-sensitivity" => {

@@ -463,7 +463,7 @@ fn run(file: &SceneFile, options: &RunOptions, quiet: bool) -> Result<ExitCode, 
     let s = &outcome.summary;
     if !quiet {
         sayln!(
-            "{}: {} steps ({} converged, {} failed) with {} / {} in {:.2} s; step solve median {:.1} µs, \
+            "{}: {} steps ({} converged, {} failed) with {} / {} in {:.2} s; median step {:.1} µs, \
              mean {:.1} iterations, max residual {:.2e}, max penetration {:.2e} m",
             s.scene,
             s.steps,

@@ -336,7 +336,8 @@ pub struct RunSummary {
     pub failed_steps: usize,
     /// Wall time of the whole run (s), output included.
     pub wall_s: f64,
-    /// Solve time per step (µs).
+    /// Wall time per step (µs): the records' `solve_us` (the step without its record, the CSV
+    /// rows and the progress output; `docs/outputs.md#summaryjson`).
     pub step_us: TimeStats,
     /// Solver iterations per step.
     pub iterations: IterationStats,

@@ -147,7 +147,11 @@ pub struct StepRecord {
     /// Whether the step was solved (by its backend or a fallback). A step that was not keeps
     /// the bodies' state at its start (`docs/fallbacks.md`).
     pub converged: bool,
-    /// Wall time of the solve in microseconds (every attempt, fallbacks included).
+    /// Wall time of the step in microseconds: from the formulation's `begin_step` through the
+    /// checkpoint, the span's data and warm start, every solve attempt (retry starts, fallback
+    /// backends, substeps), the read-out of the states and the driver's bookkeeping for the
+    /// next step (the last step kept, the warm start's history); not this record itself (the
+    /// contact records, the energy) nor what the caller does with it (`docs/outputs.md`).
     pub solve_us: f64,
     /// How the step was solved: directly, by a fallback backend, in substeps, or not at all.
     pub method: StepMethod,

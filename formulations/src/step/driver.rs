@@ -44,6 +44,28 @@ fn extrapolation_budget(recent: usize) -> usize {
     (3 * recent).max(8)
 }
 
+/// The context of the span `[t0, t0 + h]` of `step` from the states `start`, for a step problem
+/// of dimension `dim` whose origin is `origin`: with the kept `history` of smooth steps when the
+/// span is a whole step of `scene` and `warm_start` extrapolates ([`History::iterates`]). The
+/// one construction of a span's context for its data, warm start and retry starts.
+fn span_context<'a>(
+    (scene, warm_start, history): (&'a Scene, WarmStart, &'a History),
+    origin: Vector3<f64>,
+    step: usize,
+    (start, t0, h): (&'a [BodyState], f64, f64),
+    dim: usize,
+) -> StepContext<'a> {
+    let whole_step = h == scene.h && warm_start == WarmStart::Extrapolated;
+    StepContext {
+        scene,
+        states: start,
+        t0,
+        h,
+        step,
+        history: history.iterates(whole_step, &origin, dim),
+    }
+}
+
 /// The last step a [`Simulation`] took, as the step sensitivities need it: the step's data
 /// stay in [`Simulation::mcp`] until the next step is prepared, which clears this.
 #[derive(Clone, Debug, PartialEq)]
@@ -662,17 +684,13 @@ impl Simulation {
         if let Some(last) = self.last.take() {
             self.kept.last = Some(last);
         }
-        let (origin, dim) = (self.formulation.origin(), self.z.len());
-        let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
-        let history = (self.kept.history).iterates(whole_step, &origin, dim);
-        let ctx = StepContext {
-            scene: &self.scene,
-            states: start,
-            t0,
-            h,
-            step: self.step + 1,
-            history,
-        };
+        let ctx = span_context(
+            (&self.scene, self.warm_start, &self.kept.history),
+            self.formulation.origin(),
+            self.step + 1,
+            (start, t0, h),
+            self.z.len(),
+        );
         self.formulation.update_data(&ctx, &mut self.mcp)?;
         self.formulation.warm_start(&ctx, &self.mcp, &mut self.z);
         Ok(())
@@ -794,17 +812,13 @@ impl Simulation {
             tried.clear();
             tried.push(warm.clone());
             loop {
-                let (origin, dim) = (self.formulation.origin(), self.z.len());
-                let whole_step = h == self.scene.h && self.warm_start == WarmStart::Extrapolated;
-                let history = (self.kept.history).iterates(whole_step, &origin, dim);
-                let ctx = StepContext {
-                    scene: &self.scene,
-                    states: start,
-                    t0,
-                    h,
-                    step: self.step + 1,
-                    history,
-                };
+                let ctx = span_context(
+                    (&self.scene, self.warm_start, &self.kept.history),
+                    self.formulation.origin(),
+                    self.step + 1,
+                    (start, t0, h),
+                    self.z.len(),
+                );
                 if !self
                     .formulation
                     .retry_start(attempt, &ctx, &self.mcp, &mut self.z)
@@ -974,7 +988,6 @@ impl Simulation {
                     }
                 }
             };
-        let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let converged = method.solved();
         self.step += 1;
         self.t = self.step as f64 * self.scene.h;
@@ -1013,6 +1026,9 @@ impl Simulation {
         } else {
             self.kept.history.clear();
         }
+        // The step's time: all of it but its record (the contact records and the energy are
+        // outputs, `docs/outputs.md#summaryjson`).
+        let solve_us = started.elapsed().as_secs_f64() * 1e6;
         let summary = summary.as_ref().unwrap_or(&solution.summary);
         self.record_into(summary, converged, solve_us, method, record);
         Ok(())
