@@ -212,6 +212,33 @@ impl DenseLu {
         self.eliminate()
     }
 
+    /// Factorises the `n × n` matrix whose column-major entry `k` is `−values[map[k]]`
+    /// (`map` has `n²` entries; the values are finite: the caller checks): every entry of
+    /// the small kernel's storage written once, gathered and negated, instead of zeroing it
+    /// and scattering the stored entries (the step sensitivities' free block, whose entries
+    /// outside the pattern point at a `−0` after the values, [`crate::sensitivity`]).
+    pub(crate) fn factor_gathered_negated(
+        &mut self,
+        map: &[usize],
+        values: &[f64],
+    ) -> Result<(), LinalgError> {
+        self.factored = false;
+        let n = self.n;
+        assert_eq!(map.len(), n * n, "one position per entry of the matrix");
+        match &mut self.small {
+            Some(small) => {
+                for (a, &q) in small.storage_mut().iter_mut().zip(map) {
+                    *a = -values[q];
+                }
+                self.eliminate()
+            }
+            None => {
+                let dense: Vec<f64> = map.iter().map(|&q| -values[q]).collect();
+                self.factor(&dense)
+            }
+        }
+    }
+
     /// Factorises the loaded matrix in place and judges its pivots.
     fn eliminate(&mut self) -> Result<(), LinalgError> {
         let n = self.n;
@@ -762,6 +789,61 @@ mod tests {
 
     /// The small-matrix kernel and faer's blocked LU give the same solutions to round-off, the
     /// same singularity verdicts, and the same errors.
+    /// The gathered, negated factorisation writes the kernel's storage bitwise as zeroing it
+    /// and scattering the negated stored entries does, so the factors, interchanges and
+    /// solutions are the same bits; entries outside the pattern point at a `−0` slot.
+    #[test]
+    fn gathered_negated_factors_are_the_scattered_ones() {
+        for n in [1, 4, 13, 31] {
+            // A pattern of about half the entries, the diagonal stored; values after it, then
+            // the `−0` slot.
+            let mut values = Vec::new();
+            let mut positions = Vec::new();
+            let mut map = vec![usize::MAX; n * n];
+            for k in 0..n * n {
+                let (i, j) = (k % n, k / n);
+                if i == j || (i * 5 + j * 3) % 4 < 2 {
+                    map[k] = values.len();
+                    positions.push(k);
+                    let v = ((i * 7 + j * 13) % 11) as f64 - 5.0;
+                    values.push(if i == j { v + 20.0 } else { v * 0.37 });
+                }
+            }
+            let slot = values.len();
+            values.push(-0.0);
+            for m in map.iter_mut().filter(|m| **m == usize::MAX) {
+                *m = slot;
+            }
+            let negated: Vec<f64> = values[..slot].iter().map(|v| -v).collect();
+            let (mut gathered, mut scattered) = (DenseLu::new(n), DenseLu::new(n));
+            gathered
+                .factor_gathered_negated(&map, &values)
+                .expect("regular");
+            scattered
+                .factor_scattered(&positions, &negated, &mut [])
+                .expect("regular");
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            let (g, s) = (gathered.small.as_ref(), scattered.small.as_ref());
+            let (g, s) = (g.expect("small kernel"), s.expect("small kernel"));
+            assert_eq!(bits(g.factors()), bits(s.factors()), "n = {n}");
+            let b: Vec<f64> = (0..n).map(|i| 1.0 + i as f64).collect();
+            let (mut x, mut y) = (b.clone(), b.clone());
+            gathered.solve_in_place(&mut x).expect("solved");
+            scattered.solve_in_place(&mut y).expect("solved");
+            assert_eq!(bits(&x), bits(&y), "n = {n}");
+            // And the factors are −A's: A x = −b.
+            for i in 0..n {
+                let ax: f64 = (0..n)
+                    .map(|j| match map[j * n + i] {
+                        q if q == slot => 0.0,
+                        q => values[q] * x[j],
+                    })
+                    .sum();
+                assert!((ax + b[i]).abs() < 1e-12 * b[i].abs().max(1.0), "n = {n}");
+            }
+        }
+    }
+
     #[test]
     fn small_kernel_agrees_with_the_blocked_lu() {
         for n in [1, 5, 31, SMALL_DENSE_MAX] {

@@ -247,6 +247,8 @@ pub enum ImplicitError {
 pub struct ReducedSystem {
     linear: Option<LinearSolver>,
     pattern: Option<Arc<CscPattern>>,
+    /// `J(z*)` in the pattern's order, then one `−0`: the zero slot of the free block's
+    /// gather ([`FreeSystem::dense`]).
     jac: Vec<f64>,
     reduced: Vec<f64>,
     held: Vec<bool>,
@@ -286,12 +288,10 @@ struct FreeSystem {
     built: bool,
     /// The free components, ascending: row and column `r` of `A_ff` is component `index[r]`.
     index: Vec<usize>,
-    /// The stored entries of `J` inside `A_ff` (positions in the pattern's values) and their
-    /// positions in the dense column-major `f × f` matrix.
-    entries: Vec<usize>,
-    positions: Vec<usize>,
-    /// The values of `entries` at the current `z*`.
-    values: Vec<f64>,
+    /// Every entry of the dense column-major `f × f` matrix `A_ff` as a position in the values
+    /// of `J` ([`ReducedSystem`]'s `jac`), the entries outside the pattern as its zero slot
+    /// `nnz`: the kernel's storage is written entry by entry, without zeroing it first.
+    dense: Vec<usize>,
     /// The small kernel's LU of `A_ff`.
     lu: Option<DenseLu>,
     /// A gathered right-hand side.
@@ -317,8 +317,8 @@ impl FreeSystem {
             compact[i] = r;
         }
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-        self.entries.clear();
-        self.positions.clear();
+        self.dense.clear();
+        self.dense.resize(f * f, pattern.nnz());
         for (j, &c) in compact.iter().enumerate() {
             if c == usize::MAX {
                 continue;
@@ -326,8 +326,7 @@ impl FreeSystem {
             for q in cp[j]..cp[j + 1] {
                 let r = compact[ri[q]];
                 if r != usize::MAX {
-                    self.entries.push(q);
-                    self.positions.push(c * f + r);
+                    self.dense[c * f + r] = q;
                 }
             }
         }
@@ -336,18 +335,15 @@ impl FreeSystem {
         }
     }
 
-    /// Factorises `−A_ff` with the values `jac` of `J(z*)` (lists built by
-    /// [`FreeSystem::index`]): its solves give `−A_ff⁻¹ b` bit for bit but for the signs of
-    /// zeros (the same pivots; every operation of the elimination and the solves commutes
-    /// with negation), so `dz = −A⁻¹ P ∂F/∂θ` needs no negation pass.
+    /// Factorises `−A_ff` with the values `jac` of `J(z*)` followed by its zero slot `−0`
+    /// (finite: the caller checks; map built by [`FreeSystem::index`]): its solves give
+    /// `−A_ff⁻¹ b` bit for bit but for the signs of zeros (the same pivots; every operation
+    /// of the elimination and the solves commutes with negation), so `dz = −A⁻¹ P ∂F/∂θ`
+    /// needs no negation pass. The slot's `−0` lands as `+0`, so the kernel's storage is
+    /// bitwise what zeroing it and scattering the entries gave.
     fn factor(&mut self, jac: &[f64]) -> Result<(), LinalgError> {
-        self.values.resize(self.entries.len(), 0.0);
-        for (v, &q) in self.values.iter_mut().zip(&self.entries) {
-            *v = -jac[q];
-        }
         let lu = self.lu.as_mut().ok_or(LinalgError::NotFactored)?;
-        // The small kernel scatters into its own storage (`f ≤ n ≤ SMALL_DENSE_MAX`).
-        lu.factor_scattered(&self.positions, &self.values, &mut [])
+        lu.factor_gathered_negated(&self.dense, jac)
     }
 }
 
@@ -409,7 +405,7 @@ impl ReducedSystem {
 
     /// The Jacobian values `J(z*)` of the last [`ReducedSystem::factor`], in the pattern's order.
     pub fn jacobian_values(&self) -> &[f64] {
-        &self.jac
+        &self.jac[..self.jac.len().saturating_sub(1)]
     }
 
     /// True when the last factorisation fell back to the regularised solve.
@@ -450,9 +446,11 @@ impl ReducedSystem {
             self.index_rows(pattern);
             self.free.built = false;
         }
-        self.jac.resize(pattern.nnz(), 0.0);
-        mcp.jacobian(z, &mut self.jac);
-        if !all_finite(&self.jac) {
+        let nnz = pattern.nnz();
+        self.jac.resize(nnz + 1, 0.0);
+        self.jac[nnz] = -0.0;
+        mcp.jacobian(z, &mut self.jac[..nnz]);
+        if !all_finite(&self.jac[..nnz]) {
             return Err(ImplicitError::NonFinite);
         }
         self.held.clear();
@@ -490,7 +488,8 @@ impl ReducedSystem {
     /// held components.
     fn form_reduced(&mut self, pattern: &CscPattern) {
         let n = pattern.dim();
-        self.reduced.clone_from(&self.jac);
+        self.reduced.clear();
+        self.reduced.extend_from_slice(&self.jac[..pattern.nnz()]);
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         for j in 0..n {
             for p in cp[j]..cp[j + 1] {
@@ -929,7 +928,7 @@ impl ReducedSystem {
     ) -> Vec<WeakComponent> {
         let n = mcp.dim();
         let mut weak = weak_components(status);
-        if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() {
+        if weak.is_empty() || self.jac.len() != mcp.jacobian_pattern().nnz() + 1 {
             return weak;
         }
         // The weak rows of J(z*), gathered once: (which weak component, column, value).
@@ -990,7 +989,7 @@ impl ReducedSystem {
         let n = mcp.dim();
         weak_components_into(status, weak);
         if weak.is_empty()
-            || self.jac.len() != mcp.jacobian_pattern().nnz()
+            || self.jac.len() != mcp.jacobian_pattern().nnz() + 1
             || self.row_ptr.len() != n + 1
         {
             return;

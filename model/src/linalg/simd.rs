@@ -15,6 +15,24 @@ pub(super) trait Lanes {
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64);
     /// `x_i /= d` for every `i`.
     fn div(x: &mut [f64], d: f64);
+    /// The partial pivot of a column `x` (not empty): the first entry of largest magnitude,
+    /// NaN entries passed over, 0 when `x_0` is NaN — what the scalar search
+    /// `if |x_i| > best { best = |x_i|; p = i }` from `best = |x_0|` finds.
+    fn first_largest_magnitude(x: &[f64]) -> usize;
+}
+
+/// [`Lanes::first_largest_magnitude`] by the scalar search.
+#[inline(always)]
+fn first_largest_magnitude_scalar(x: &[f64]) -> usize {
+    let mut p = 0;
+    let mut best = x[0].abs();
+    for (i, v) in x.iter().enumerate().skip(1) {
+        if v.abs() > best {
+            best = v.abs();
+            p = i;
+        }
+    }
+    p
 }
 
 /// Plain loops (what the compiler makes of them for the build's target).
@@ -32,6 +50,10 @@ impl Lanes for Portable {
         for x in x.iter_mut() {
             *x /= d;
         }
+    }
+    #[inline(always)]
+    fn first_largest_magnitude(x: &[f64]) -> usize {
+        first_largest_magnitude_scalar(x)
     }
 }
 
@@ -64,6 +86,11 @@ impl Lanes for Avx2 {
     fn div(x: &mut [f64], d: f64) {
         // SAFETY: as in `sub_scaled`.
         unsafe { div_avx2(x, d) }
+    }
+    #[inline(always)]
+    fn first_largest_magnitude(x: &[f64]) -> usize {
+        // SAFETY: as in `sub_scaled`.
+        unsafe { first_largest_magnitude_avx2(x) }
     }
 }
 
@@ -114,6 +141,58 @@ fn div_avx2(x: &mut [f64], d: f64) {
             *xp.add(i) /= d;
             i += 1;
         }
+    }
+}
+
+/// [`Lanes::first_largest_magnitude`] in two vector passes: the largest magnitude `m` (NaN
+/// passed over: `max_pd` returns its second operand, the running maximum, when either is
+/// NaN, and that maximum starts at the finite or infinite `|x_0|`), then the first entry
+/// whose magnitude equals `m` (a NaN equals nothing). That entry is the scalar search's: it
+/// beats every earlier one and no later one beats it.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
+    use std::arch::x86_64::*;
+    let len = x.len();
+    let first = x[0].abs();
+    if first.is_nan() || len < 8 {
+        return first_largest_magnitude_scalar(x);
+    }
+    let xp = x.as_ptr();
+    let sign = _mm256_set1_pd(-0.0);
+    let mut i = 0;
+    let mut m = first;
+    // SAFETY: every access is at an index below `len`.
+    unsafe {
+        let mut m4 = _mm256_set1_pd(first);
+        while i + 4 <= len {
+            m4 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(xp.add(i))), m4);
+            i += 4;
+        }
+        let mut lanes = [0.0f64; 4];
+        _mm256_storeu_pd(lanes.as_mut_ptr(), m4);
+        m = lanes.iter().fold(m, |a, &b| if b > a { b } else { a });
+        for v in &x[i..] {
+            if v.abs() > m {
+                m = v.abs();
+            }
+        }
+        let m4 = _mm256_set1_pd(m);
+        i = 0;
+        while i + 4 <= len {
+            let v = _mm256_andnot_pd(sign, _mm256_loadu_pd(xp.add(i)));
+            let hit = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(v, m4));
+            if hit != 0 {
+                return i + hit.trailing_zeros() as usize;
+            }
+            i += 4;
+        }
+    }
+    match x[i..].iter().position(|v| v.abs() == m) {
+        Some(j) => i + j,
+        // Not reached: `m` is the magnitude of an entry.
+        None => first_largest_magnitude_scalar(x),
     }
 }
 
@@ -174,7 +253,7 @@ pub(crate) fn transpose(src: &[f64], m: usize, c: usize, dst: &mut [f64]) {
         unsafe { transpose_avx2::<false>(src, m, c, dst) };
         return;
     }
-    transpose_tail(src, m, c, dst, 0, 0);
+    transpose_scalar(src, m, c, dst);
 }
 
 /// [`transpose`], also returning the largest magnitude of the moved entries and whether every
@@ -188,29 +267,16 @@ pub(crate) fn transpose_checked(src: &[f64], m: usize, c: usize, dst: &mut [f64]
         // SAFETY: the processor has AVX2; the lengths are checked above.
         return unsafe { transpose_avx2::<true>(src, m, c, dst) };
     }
-    transpose_tail(src, m, c, dst, 0, 0);
-    let (mut max, mut nan) = (0.0f64, 0.0f64);
-    for &x in &dst[..m * c] {
-        max = if x.abs() > max { x.abs() } else { max };
-        nan += x * 0.0;
-    }
+    let (max, nan) = transpose_scalar(src, m, c, dst);
     (max, nan == 0.0)
 }
 
-/// The entries of [`transpose`] with row `j ≥ j0` or column `k ≥ k0`; their largest magnitude
-/// and `Σ x · 0` (0 when all are finite, NaN otherwise).
-fn transpose_tail(
-    src: &[f64],
-    m: usize,
-    c: usize,
-    dst: &mut [f64],
-    j0: usize,
-    k0: usize,
-) -> (f64, f64) {
+/// [`transpose`] by a scalar loop; the largest magnitude of the entries and `Σ x · 0` (0 when
+/// all are finite, NaN otherwise).
+fn transpose_scalar(src: &[f64], m: usize, c: usize, dst: &mut [f64]) -> (f64, f64) {
     let (mut max, mut nan) = (0.0f64, 0.0f64);
     for k in 0..c {
-        let from = if k < k0 { j0 } else { 0 };
-        for j in from..m {
+        for j in 0..m {
             let x = src[k * m + j];
             dst[j * c + k] = x;
             max = if x.abs() > max { x.abs() } else { max };
@@ -221,7 +287,12 @@ fn transpose_tail(
 }
 
 /// [`transpose`] with AVX2; with `CHECK`, [`transpose_checked`]'s magnitude and finiteness
-/// (else `(0, true)`).
+/// (else `(0, true)`). With `m, c ≥ 4` every entry goes through a 4 × 4 block in registers:
+/// the last block row and column start at `m − 4` and `c − 4` when 4 does not divide the
+/// sizes, overlapping the blocks before them (an entry moved twice is the same value written
+/// twice, and seen twice by the checks, which changes neither the largest magnitude nor the
+/// finiteness), instead of a scalar loop over the remainders (`docs/latency.md`, branch
+/// wip-sens4).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn transpose_avx2<const CHECK: bool>(
@@ -231,14 +302,19 @@ fn transpose_avx2<const CHECK: bool>(
     dst: &mut [f64],
 ) -> (f64, bool) {
     use std::arch::x86_64::*;
-    let (m4, c4) = (m / 4 * 4, c / 4 * 4);
+    if m < 4 || c < 4 {
+        let (tail_max, tail_nan) = transpose_scalar(src, m, c, dst);
+        return (tail_max, tail_nan == 0.0);
+    }
+    // The blocks' first rows and columns: 0, 4, … and `m − 4` (`c − 4`) when 4 does not divide.
+    let last = |size: usize, at: usize| if at + 4 > size { size - 4 } else { at };
     let (s, d) = (src.as_ptr(), dst.as_mut_ptr());
     let (mut max, mut nan) = (_mm256_setzero_pd(), _mm256_setzero_pd());
     let sign = _mm256_set1_pd(-0.0);
     let zero = _mm256_setzero_pd();
-    for k in (0..c4).step_by(4) {
-        for j in (0..m4).step_by(4) {
-            // SAFETY: rows j..j + 4 < m of columns k..k + 4 < c, within `m · c` entries of
+    for k in (0..c).step_by(4).map(|k| last(c, k)) {
+        for j in (0..m).step_by(4).map(|j| last(m, j)) {
+            // SAFETY: rows j..j + 4 ≤ m of columns k..k + 4 ≤ c, within `m · c` entries of
             // both slices (checked by the caller).
             unsafe {
                 let a0 = _mm256_loadu_pd(s.add(k * m + j));
@@ -262,7 +338,6 @@ fn transpose_avx2<const CHECK: bool>(
             }
         }
     }
-    let (tail_max, tail_nan) = transpose_tail(src, m, c, dst, m4, c4);
     if !CHECK {
         return (0.0, true);
     }
@@ -272,10 +347,12 @@ fn transpose_avx2<const CHECK: bool>(
         _mm256_storeu_pd(lanes_max.as_mut_ptr(), max);
         _mm256_storeu_pd(lanes_nan.as_mut_ptr(), nan);
     }
+    // With a NaN the magnitude is unspecified (`max_pd` returns its second operand when either
+    // is NaN; the caller rejects the matrix); the finiteness sum is NaN.
     let largest = lanes_max
         .iter()
-        .fold(tail_max, |acc, &a| if a > acc { a } else { acc });
-    let finite = tail_nan == 0.0 && lanes_nan.iter().all(|x| *x == 0.0);
+        .fold(0.0f64, |acc, &a| if a > acc { a } else { acc });
+    let finite = lanes_nan.iter().all(|x| *x == 0.0);
     (largest, finite)
 }
 
@@ -315,6 +392,61 @@ mod tests {
             }
         }
     }
+    /// The vector pivot search finds the scalar search's entry: small integers (ties
+    /// everywhere, both signs, ±0), NaN at the first, a middle and the last entry, and
+    /// infinities, for lengths around the lane widths.
+    #[test]
+    fn pivot_search_is_the_scalar_search() {
+        let reference = |x: &[f64]| {
+            let (mut p, mut best) = (0, x[0].abs());
+            for (i, v) in x.iter().enumerate() {
+                if v.abs() > best {
+                    best = v.abs();
+                    p = i;
+                }
+            }
+            p
+        };
+        let mut s = 11u64;
+        let mut next = || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s >> 33
+        };
+        let mut cases = 0;
+        for len in 1..=40 {
+            for round in 0..40 {
+                let mut x: Vec<f64> = (0..len)
+                    .map(|_| {
+                        let v = (next() % 7) as f64 - 3.0;
+                        if v == 0.0 && next() % 2 == 0 { -0.0 } else { v }
+                    })
+                    .collect();
+                match round % 5 {
+                    1 => x[0] = f64::NAN,
+                    2 => x[len / 2] = f64::NAN,
+                    3 => {
+                        x[len - 1] = f64::NAN;
+                        x[(next() as usize) % len] = f64::NEG_INFINITY;
+                    }
+                    4 => x.iter_mut().for_each(|v| *v *= 0.0),
+                    _ => {}
+                }
+                let expected = reference(&x);
+                assert_eq!(Portable::first_largest_magnitude(&x), expected, "{x:?}");
+                #[cfg(target_arch = "x86_64")]
+                if avx2_available() {
+                    // SAFETY: the processor has AVX2.
+                    let fast = unsafe { first_largest_magnitude_avx2(&x) };
+                    assert_eq!(fast, expected, "{x:?}");
+                }
+                cases += 1;
+            }
+        }
+        assert_eq!(cases, 1600);
+    }
+
     /// The transpose puts every entry where the index formula says, for sizes around the
     /// block width.
     #[test]

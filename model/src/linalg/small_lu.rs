@@ -186,19 +186,11 @@ impl SmallLu {
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
     for k in 0..n {
-        let mut p = k;
-        let mut best = a[k * n + k].abs();
-        for i in k + 1..n {
-            let v = a[k * n + i].abs();
-            if v > best {
-                best = v;
-                p = i;
-            }
-        }
+        let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
         if p != k {
-            for j in 0..n {
-                a.swap(j * n + k, j * n + p);
+            for col in a.chunks_exact_mut(n) {
+                col.swap(k, p);
             }
         }
         let pivot = a[k * n + k];
