@@ -745,6 +745,7 @@ fn newton_v_trough_061_step_17_complementary_restart() {
     };
     let before = NewtonSettings {
         complementary_restart: None,
+        early_complementary_restart: None,
         ..settings.clone()
     };
     let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
