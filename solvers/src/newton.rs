@@ -274,7 +274,7 @@ pub struct NewtonSettings {
     /// complementary restart is not repeated: it is the same run). On a step where the undamped
     /// attempts stay on one branch of a pair that is slack on both sides, this cuts the
     /// continuations' hundreds of iterations (`docs/newton.md#the-complementary-start-earlier`).
-    /// `None` keeps the complementary restart last. Default `Some(1e5)`.
+    /// `None` keeps the complementary restart last. Default `Some(3e4)`.
     pub early_complementary_restart: Option<f64>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
@@ -339,7 +339,7 @@ impl Default for NewtonSettings {
             nonmonotone_restart: true,
             forget_undone_steps: true,
             complementary_restart: Some(1e3),
-            early_complementary_restart: Some(1e5),
+            early_complementary_restart: Some(3e4),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             trace: false,
