@@ -263,15 +263,18 @@ pub struct NewtonSettings {
     /// rest in a V trough, every attempt stagnating at 1.3 times the tolerance; from this start
     /// the plain iteration converges in 10 iterations, `docs/newton.md#the-complementary-start`).
     /// The attempts that ended far from a solution (3.5e4 times the tolerance and more on the
-    /// stress scenes) have other causes, and there the start did not help. Only after every
-    /// other attempt failed, so every step they solve is unchanged. `None` turns it off.
+    /// stress scenes) have other causes, and there the start did not help. After every other
+    /// attempt failed, so every step they solve is unchanged — unless
+    /// [`NewtonSettings::early_complementary_restart`] ran it before the continuations already.
+    /// `None` turns it off (the early restart has its own setting).
     /// Default `Some(1e3)`.
     pub complementary_restart: Option<f64>,
     /// The complementary restart ([`NewtonSettings::complementary_restart`]) tried earlier:
-    /// when the plain and non-monotone attempts from `z0` failed with a best natural residual
-    /// of at most this times [`NewtonSettings::tolerance`], before the smoothing continuations
-    /// and the damped plain iteration, which then run only if it fails too (and the late
-    /// complementary restart is not repeated: it is the same run). On a step where the undamped
+    /// when the attempts before the first smoothing continuation (by default the plain and the
+    /// non-monotone one) failed with a best natural residual of at most this times
+    /// [`NewtonSettings::tolerance`], it runs before that continuation; the later attempts run
+    /// only if it fails too, and the late complementary restart is not repeated (it is the same
+    /// run). On a step where the undamped
     /// attempts stay on one branch of a pair that is slack on both sides, this cuts the
     /// continuations' hundreds of iterations (`docs/newton.md#the-complementary-start-earlier`).
     /// `None` keeps the complementary restart last. Default `Some(3e4)`.
