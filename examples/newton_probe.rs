@@ -190,6 +190,7 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
         "forget_undone_steps" => s.forget_undone_steps = b()?,
         "complementary_restart" => s.complementary_restart = value.parse::<f64>().ok(),
+        "early_complementary_restart" => s.early_complementary_restart = value.parse::<f64>().ok(),
         "watchdog_steps" => s.watchdog_steps = n()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,

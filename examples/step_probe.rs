@@ -317,6 +317,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "nonmonotone_restart" => s.nonmonotone_restart = b()?,
         "forget_undone_steps" => s.forget_undone_steps = b()?,
         "complementary_restart" => s.complementary_restart = value.parse::<f64>().ok(),
+        "early_complementary_restart" => s.early_complementary_restart = value.parse::<f64>().ok(),
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),

@@ -755,6 +755,7 @@ fn newton_v_trough_061_step_17_complementary_restart() {
     };
     let before = NewtonSettings {
         complementary_restart: None,
+        early_complementary_restart: None,
         ..settings.clone()
     };
     let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
@@ -818,4 +819,64 @@ fn newton_v_trough_061_step_17_complementary_restart() {
     // second (p_n 0.245), which friction allows (μ = 0.78 against slopes of 22.5° and 20.5°).
     assert!(mended.z[index("body.c1.pn[0]")] > 0.1);
     assert!(mended.z[index("body.c1.sigma[0]")].abs() < 1e-8);
+}
+
+/// `035_v_trough` step 27 (a T of two boxes sliding into a V trough, 53 unknowns;
+/// `docs/newton.md#a-crawling-continuation`): the plain and non-monotone attempts end at a
+/// natural residual of 1.1e-6 (1.1e4 times the tolerance), the undamped smoothing continuation
+/// then crawls, and the damped attempts solve the step after about 750 iterations in all; the
+/// plain iteration from the complementary start solves it in 47. With the complementary restart
+/// tried before the continuations (`NewtonSettings::early_complementary_restart`,
+/// `docs/newton.md#the-complementary-start-earlier`) the step takes about 300 iterations.
+#[test]
+fn newton_v_trough_035_step_27_early_complementary_restart() {
+    let path = regression_scene("035_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = NewtonSettings {
+        tolerance,
+        ..NewtonSettings::default()
+    };
+    let late = NewtonSettings {
+        early_complementary_restart: None,
+        ..settings.clone()
+    };
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut driver = NewtonSolver::new(late.clone());
+    for k in 1..27 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k} did not converge");
+    }
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let z0 = sim.z().to_vec();
+    let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(late), &z0));
+    let early = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    println!(
+        "035_v_trough step 27: {} iterations with the late complementary restart, {} with the early one",
+        before.summary.iterations, early.summary.iterations
+    );
+    // Measured: 757 and 294.
+    assert_iterations(&before, 600..);
+    assert_iterations(&early, ..=400);
+    assert_eq!(
+        early
+            .summary
+            .counter(Counter::Custom("complementary_restarts")),
+        Some(1)
+    );
+    assert!(early.summary.residual <= tolerance);
+    // The late order never reaches the complementary start: a continuation solves the step.
+    assert_eq!(
+        before
+            .summary
+            .counter(Counter::Custom("complementary_restarts")),
+        None
+    );
 }

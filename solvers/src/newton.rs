@@ -52,7 +52,6 @@ mod min_norm;
 mod profile;
 mod ratio;
 use crate::smoothing::{SmoothingSettings, continuation};
-use complementary::complementary_start;
 use min_norm::MinNorm;
 use profile::Clock;
 pub use profile::{NewtonProfile, Phase};
@@ -264,10 +263,22 @@ pub struct NewtonSettings {
     /// rest in a V trough, every attempt stagnating at 1.3 times the tolerance; from this start
     /// the plain iteration converges in 10 iterations, `docs/newton.md#the-complementary-start`).
     /// The attempts that ended far from a solution (3.5e4 times the tolerance and more on the
-    /// stress scenes) have other causes, and there the start did not help. Only after every
-    /// other attempt failed, so every step they solve is unchanged. `None` turns it off.
+    /// stress scenes) have other causes, and there the start did not help. After every other
+    /// attempt failed, so every step they solve is unchanged — unless
+    /// [`NewtonSettings::early_complementary_restart`] ran it before the continuations already.
+    /// `None` turns it off (the early restart has its own setting).
     /// Default `Some(1e3)`.
     pub complementary_restart: Option<f64>,
+    /// The complementary restart ([`NewtonSettings::complementary_restart`]) tried earlier:
+    /// when the attempts before the first smoothing continuation (by default the plain and the
+    /// non-monotone one) failed with a best natural residual of at most this times
+    /// [`NewtonSettings::tolerance`], it runs before that continuation; the later attempts run
+    /// only if it fails too, and the late complementary restart is not repeated (it is the same
+    /// run). On a step where the undamped
+    /// attempts stay on one branch of a pair that is slack on both sides, this cuts the
+    /// continuations' hundreds of iterations (`docs/newton.md#the-complementary-start-earlier`).
+    /// `None` keeps the complementary restart last. Default `Some(3e4)`.
+    pub early_complementary_restart: Option<f64>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -331,6 +342,7 @@ impl Default for NewtonSettings {
             nonmonotone_restart: true,
             forget_undone_steps: true,
             complementary_restart: Some(1e3),
+            early_complementary_restart: Some(3e4),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             trace: false,
@@ -1012,8 +1024,10 @@ impl NewtonSolver {
     /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
     /// that damping. On problems above `dense_max` the damped plain iteration comes before the
     /// non-monotone one. Then, when those ended near a solution, the plain iteration from the
-    /// complementary start ([`NewtonSettings::complementary_restart`]). The first that converges is returned (its
-    /// iterations counting the failed attempts'), else the best end point.
+    /// complementary start ([`NewtonSettings::complementary_restart`]; before the first
+    /// continuation when the attempts before it ended nearer,
+    /// [`NewtonSettings::early_complementary_restart`]). The first that converges is returned
+    /// (its iterations counting the failed attempts'), else the best end point.
     fn solve_restarted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let damping = self.settings.damped_restart;
         let smoothing = self.settings.smoothing.is_some();
@@ -1058,9 +1072,19 @@ impl NewtonSolver {
             // non-monotone restart first failed in 79 (`docs/newton.md#hard-steps`).
             attempts[..2].swap(0, 1);
         }
+        let mut complementary_tried = false;
         for a in attempts {
             if !a.runs {
                 continue;
+            }
+            if a.kind == AttemptKind::Smoothed
+                && !complementary_tried
+                && self.near_enough(&best, self.settings.early_complementary_restart)
+            {
+                complementary_tried = true;
+                if let Some(done) = self.complementary_attempt(mcp, z0, &mut spent, &mut best) {
+                    return done;
+                }
             }
             self.attempt = a.profile;
             let saved = self.settings.lm_initial_damping;
@@ -1084,22 +1108,11 @@ impl NewtonSolver {
                 return done;
             }
         }
-        if let Some(near) = self.settings.complementary_restart
-            && best.summary.residual <= near * self.settings.tolerance
-            && let Some(start) = complementary_start(mcp, z0)
+        if !complementary_tried
+            && self.near_enough(&best, self.settings.complementary_restart)
+            && let Some(done) = self.complementary_attempt(mcp, z0, &mut spent, &mut best)
         {
-            // The plain iteration with the first attempt's settings (the ratio test and the
-            // residual damping are those of attempt 0; its iterations count there in a profile).
-            self.attempt = 0;
-            let result = self.solve_plain(mcp, &start).map(|mut sol| {
-                sol.summary
-                    .counters
-                    .add(Counter::Custom("complementary_restarts"), 1);
-                sol
-            });
-            if let Some(done) = fold_attempt(result, &mut spent, &mut best) {
-                return done;
-            }
+            return done;
         }
         best.summary.iterations = spent;
         Err(SolveError::NotConverged { best })

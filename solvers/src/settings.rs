@@ -133,6 +133,9 @@ impl NewtonSettings {
         if let Some(near) = self.complementary_restart {
             c.positive("complementary_restart", near)?;
         }
+        if let Some(near) = self.early_complementary_restart {
+            c.positive("early_complementary_restart", near)?;
+        }
         c.fraction("stall_reduction", self.stall_reduction)?;
         if let Some(contraction) = self.chord_contraction {
             c.fraction("chord_contraction", contraction)?;
@@ -305,6 +308,14 @@ mod tests {
                 "complementary_restart",
                 NewtonSettings {
                     complementary_restart: Some(near),
+                    ..d()
+                },
+                v,
+            );
+            refused(
+                "early_complementary_restart",
+                NewtonSettings {
+                    early_complementary_restart: Some(near),
                     ..d()
                 },
                 v,

@@ -1,7 +1,42 @@
 //! The complementary start of Newton's last restart
 //! ([`super::NewtonSettings::complementary_restart`], `docs/newton.md#the-complementary-start`).
 
-use ecp_model::Mcp;
+use ecp_model::{Counter, Mcp, Solution, SolveError};
+
+use super::{NewtonSolver, fold_attempt};
+
+impl NewtonSolver {
+    /// Whether the failed attempts' best end point lies within `near` times the tolerance (the
+    /// gate of [`super::NewtonSettings::complementary_restart`] and of
+    /// [`super::NewtonSettings::early_complementary_restart`]; `None`: never).
+    pub(super) fn near_enough(&self, best: &Solution, near: Option<f64>) -> bool {
+        near.is_some_and(|near| best.summary.residual <= near * self.settings.tolerance)
+    }
+
+    /// The plain iteration from the complementary start of `z0` ([`complementary_start`]),
+    /// folded into the failed attempts' count and best point as
+    /// [`NewtonSolver::solve_restarted`]'s other attempts (`Some` when it ends the solve). Run
+    /// with the first attempt's settings (the ratio test and the residual damping are those of
+    /// attempt 0; its iterations count there in a profile) and counted as
+    /// `complementary_restarts`.
+    pub(super) fn complementary_attempt(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        spent: &mut usize,
+        best: &mut Box<Solution>,
+    ) -> Option<Result<Solution, SolveError>> {
+        let start = complementary_start(mcp, z0)?;
+        self.attempt = 0;
+        let result = self.solve_plain(mcp, &start).map(|mut sol| {
+            sol.summary
+                .counters
+                .add(Counter::Custom("complementary_restarts"), 1);
+            sol
+        });
+        fold_attempt(result, spent, best)
+    }
+}
 
 /// The start `z0` with every component that has a finite bound put on the bound that the sign of
 /// `F(z0)` points to: `z_i = l_i` where `F_i(z0) > 0` and `z_i > l_i`, `z_i = u_i` where
