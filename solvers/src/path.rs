@@ -1159,7 +1159,7 @@ impl PathSolver {
             // The chord's polish only above a floor: a chord step that ended far below the
             // bound is at round-off already (the desk: 2e-16).
             if !above
-                && !(chord_last && residual > POLISH_CHORD_FLOOR * s.polish_below * s.tolerance)
+                && (!chord_last || residual <= POLISH_CHORD_FLOOR * s.polish_below * s.tolerance)
             {
                 break;
             }
