@@ -151,7 +151,9 @@ pub struct PathSettings {
     /// step; where its reduced Jacobian is singular, the same with a proximal shift from
     /// `1e-10 · max|J|`), each kept when its point meets the tolerance too, the second only
     /// after a first that gained a digit (no more at the residual's round-off floor), as
-    /// `NewtonSettings::polish_below` does for Newton. Below `1.0` the backend reports
+    /// `NewtonSettings::polish_below` does for Newton; where the LU of the last crash step or
+    /// polish is kept, chord steps on it come first (`docs/latency.md`, branch wip-pathdesk).
+    /// Below `1.0` the backend reports
     /// [`McpSolver::converges_to_round_off`], so the driver extrapolates its warm starts: the
     /// 21 reference scenes end within 6.4e-13 of the plain warm start's answer but the T-bar
     /// (2.25e-12, Newton's own 2.66e-12), and the stress suite takes 3.7 % fewer iterations
@@ -206,6 +208,24 @@ const POLISH_SHIFT_MAX: f64 = 1e-8;
 /// unknown). On `038_multi_body` the first attempt's paths end within 109 pivots (153
 /// unknowns) or cycle to that limit (`docs/path.md`, 038).
 const FIRST_ATTEMPT_PATH_PIVOTS: usize = 10;
+
+/// A chord step of the polish (a step on a kept LU) is kept when it lowers the natural residual
+/// by at least this factor (below `polish_below · tolerance`: when it lowers it at all).
+const POLISH_CHORD_CONTRACTION: f64 = 1e-2;
+
+/// Chord steps per polish at most (the chord's polish included); then full steps.
+const POLISH_CHORD_STEPS: usize = 4;
+
+/// The chord's polish (one more chord step after one that ended below `polish_below ·
+/// tolerance`) is taken only above this fraction of that bound: below it the point is at
+/// round-off (a chord step contracts by its rate, so the next one moves it by less).
+const POLISH_CHORD_FLOOR: f64 = 1e-2;
+
+/// A full crash step that lowers the natural residual by this factor is followed by a chord
+/// step on its LU (as Newton's `chord_contraction`): close enough to the solution that the
+/// Jacobian's change over the step is small. A step that gains less (far from the solution, or
+/// across a kink) keeps the full steps.
+const CRASH_CHORD_CONTRACTION: f64 = 1e-3;
 
 /// A point of the iteration: normal-map point `x`, `z = π(x)`, `F(z)`, merit `‖F_N(x)‖₂`.
 #[derive(Clone, Debug, Default)]
@@ -299,7 +319,16 @@ pub struct PathSolver {
     active_prev: Vec<i8>,
     active: Vec<i8>,
     order: Vec<usize>,
+    /// The LU of the last crash target's reduced matrix (`J_II + shift·I`, rows and columns in
+    /// `inactive`'s order, for the active set in `active`).
     factor: BasisFactor,
+    /// `factor` holds the LU of the reduced matrix of a crash target that was taken as a full
+    /// step (`t = 1`) in this attempt, with no path step since: the polish may take chord steps
+    /// on it ([`PathSolver::chord_target`]).
+    kept_lu: bool,
+    /// The last crash step was accepted without the Jacobian at its point: a chord step is to
+    /// follow ([`PathSolver::crash_step`]).
+    jac_deferred: bool,
     observer: Option<Box<dyn Observer>>,
     /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
     deadline: Option<Instant>,
@@ -361,6 +390,8 @@ impl PathSolver {
             order: Vec::new(),
             result: Solution::default(),
             factor: BasisFactor::default(),
+            kept_lu: false,
+            jac_deferred: false,
             observer: None,
             deadline: None,
             pivot_budget: None,
@@ -494,9 +525,11 @@ impl PathSolver {
         mcp: &dyn Mcp,
         pattern: &CscPattern,
         tolerance: f64,
+        residual: f64,
         f_evals: &mut usize,
         jac_evals: &mut usize,
     ) -> Option<f64> {
+        self.jac_deferred = false;
         if !self.crash_target(mcp, pattern, 0.0) {
             return None;
         }
@@ -509,10 +542,31 @@ impl PathSolver {
                 self.trial.x[i] = self.current.z[i] + t * (self.step_x[i] - self.current.z[i]);
             }
             evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-            if self.trial.merit <= (1.0 - sigma * t) * self.current.merit
-                && self.trial_usable(mcp, tolerance, jac_evals)
-            {
-                return Some(t);
+            if self.trial.merit <= (1.0 - sigma * t) * self.current.merit {
+                // A full step that contracted the residual fast: the next step is a chord step
+                // on this LU, which needs no Jacobian at the trial. The current point (whose
+                // Jacobian is finite) is kept in `checkpoint` in case that Jacobian, evaluated
+                // only when the chord step is refused, is not finite.
+                // Only with the polish on: `polish_below = 1` is PATH before it, bit for bit.
+                if t == 1.0
+                    && self.kept_lu
+                    && self.settings.polish_below < 1.0
+                    && self.trial.merit.is_finite()
+                {
+                    let (l, u) = (mcp.lower(), mcp.upper());
+                    let r = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                    if r > tolerance && r <= CRASH_CHORD_CONTRACTION * residual {
+                        self.trial_has_jac = false;
+                        self.jac_deferred = true;
+                        self.checkpoint.copy_from(&self.current);
+                        return Some(t);
+                    }
+                }
+                if self.trial_usable(mcp, tolerance, jac_evals) {
+                    // A shortened step leaves the kept LU's point far behind: no chord steps.
+                    self.kept_lu &= t == 1.0;
+                    return Some(t);
+                }
             }
             t *= 0.5;
         }
@@ -524,6 +578,7 @@ impl PathSolver {
     /// equations with `J_II + shift·I` (a proximal term; `0` for Newton's own), the others at
     /// their bounds. `false` when that reduced matrix is singular or the step is not finite.
     fn crash_target(&mut self, mcp: &dyn Mcp, pattern: &CscPattern, shift: f64) -> bool {
+        self.kept_lu = false;
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let cur = &self.current;
@@ -607,7 +662,51 @@ impl PathSolver {
                 return false;
             }
         }
+        self.kept_lu = true;
         true
+    }
+
+    /// The target of a chord step from `self.current` into `self.step_x`: the crash target's
+    /// equations `J_II Δ_I = −F_I` with the kept LU of an earlier point's `J_II`
+    /// (`self.factor`, [`PathSolver::kept_lu`]) instead of the current one, so no Jacobian and
+    /// no factorisation. Taken only where it is that target's own system: the projection
+    /// `π(z − F)` leaves the same variables inside as where the LU was formed, and every other
+    /// one is at its bound already (so `J_IA (b_A − z_A) = 0`). `false` otherwise, or when the
+    /// step is not finite. Its convergence is linear (rate `‖J₀⁻¹(J − J₀)‖`), so the polish
+    /// keeps a chord step only on a test of its own residual.
+    fn chord_target(&mut self, mcp: &dyn Mcp) -> bool {
+        if !self.kept_lu {
+            return false;
+        }
+        let n = mcp.dim();
+        let (l, u) = (mcp.lower(), mcp.upper());
+        let cur = &self.current;
+        for i in 0..n {
+            let y = cur.z[i] - cur.f[i];
+            let same = match self.active[i] {
+                -1 => y <= l[i] && cur.z[i] == l[i],
+                1 => y >= u[i] && cur.z[i] == u[i],
+                _ => y > l[i] && y < u[i],
+            };
+            if !same {
+                return false;
+            }
+        }
+        self.step_x.copy_from_slice(&cur.z);
+        let mut b = std::mem::take(&mut self.crash_rhs);
+        b.clear();
+        b.extend(self.inactive.iter().map(|&i| -cur.f[i]));
+        if !b.is_empty() {
+            self.factor.solve(&mut b);
+        }
+        let finite = b.iter().all(|v| v.is_finite());
+        if finite {
+            for (k, &i) in self.inactive.iter().enumerate() {
+                self.step_x[i] = cur.z[i] + b[k];
+            }
+        }
+        self.crash_rhs = b;
+        finite
     }
 
     /// Solves the linearised problem at `self.current` with proximal term `lambda` and records
@@ -696,6 +795,7 @@ impl PathSolver {
         } = run;
         let iterations_at_start = *iterations;
         let pivots_at_start = counters.pivots;
+        self.kept_lu = false;
 
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
@@ -735,13 +835,66 @@ impl PathSolver {
             }
         };
 
+        // A chord step ended the crash phase within the tolerance: the polish takes one more
+        // chord step even below `polish_below · tolerance` (see the polish).
+        let mut chord_landed = false;
         // Crash phase: projected Newton steps while they decrease the merit and the active set
         // keeps changing.
         if termination == Termination::MaxIterations && residual > s.tolerance && n > 0 {
             self.active_prev.fill(2);
+            // Set by a full crash step that contracted the residual by `CRASH_CHORD_CONTRACTION`
+            // (`crash_step`): the next step is a chord step on its LU, and the Jacobian at the
+            // new point is evaluated only if that chord step is refused.
+            let mut chord_next = false;
             for _ in 0..s.crash_iterations {
                 if *iterations - iterations_at_start >= s.max_iterations || self.out_of_time() {
                     break;
+                }
+                if chord_next {
+                    if self.chord_target(mcp) {
+                        self.trial.x.copy_from_slice(&self.step_x);
+                        evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
+                        let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                        let sigma = s.sufficient_decrease;
+                        if self.trial.merit <= (1.0 - sigma) * self.current.merit
+                            && chorded <= POLISH_CHORD_CONTRACTION * residual
+                        {
+                            let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+                            record(
+                                *iterations,
+                                residual,
+                                self.current.merit,
+                                StepKind::Crash,
+                                1.0,
+                                norm,
+                                &mut self.observer,
+                            );
+                            *iterations += 1;
+                            counters.crash_steps += 1;
+                            self.trial_has_jac = false;
+                            residual = self.accept_trial(l, u, best_residual);
+                            if residual <= s.tolerance {
+                                chord_landed = true;
+                                break;
+                            }
+                            continue;
+                        }
+                    }
+                    // Refused: a full crash step from here (which sets `chord_next` again),
+                    // with the Jacobian put off before.
+                    self.kept_lu = false;
+                    mcp.jacobian(&self.current.z, &mut self.jac);
+                    *jac_evals += 1;
+                    have_jac = true;
+                    if !all_finite(&self.jac) {
+                        // The acceptance test of the full step would have refused this point
+                        // (`trial_usable`): back to the last point with a finite Jacobian, kept
+                        // in `checkpoint`, and on to the Newton paths from there.
+                        self.current.copy_from(&self.checkpoint);
+                        residual = natural_residual(&self.current.z, &self.current.f, l, u);
+                        have_jac = false;
+                        break;
+                    }
                 }
                 if !have_jac {
                     mcp.jacobian(&self.current.z, &mut self.jac);
@@ -751,9 +904,12 @@ impl PathSolver {
                 if !all_finite(&self.jac) {
                     break;
                 }
-                let Some(t) = self.crash_step(mcp, pattern, s.tolerance, f_evals, jac_evals) else {
+                let Some(t) =
+                    self.crash_step(mcp, pattern, s.tolerance, residual, f_evals, jac_evals)
+                else {
                     break;
                 };
+                chord_next = self.jac_deferred;
                 let norm = norm_inf_diff(&self.trial.x, &self.current.x);
                 record(
                     *iterations,
@@ -770,6 +926,9 @@ impl PathSolver {
                 residual = self.accept_trial(l, u, best_residual);
                 if residual <= s.tolerance {
                     break;
+                }
+                if chord_next {
+                    continue;
                 }
                 let same = self.active == self.active_prev;
                 self.active_prev.copy_from_slice(&self.active);
@@ -797,6 +956,8 @@ impl PathSolver {
             if *iterations - iterations_at_start >= s.max_iterations {
                 break;
             }
+            // A path step moves the point by pivoting: the crash phase's LU is left behind.
+            self.kept_lu = false;
             if self
                 .pivot_budget
                 .is_some_and(|b| counters.pivots - pivots_at_start >= b)
@@ -982,13 +1143,62 @@ impl PathSolver {
         // the tolerance too, not only when the residual falls: near round-off (1e-12 on A5's
         // free fall) the residual no longer ranks points, and keeping the end point of one
         // start and the Newton point of another would leave the answer start-dependent.
+        //
+        // Chord steps first: while the crash phase's (or the last polish's) LU is kept and the
+        // active set is its own, a step on it (`chord_target`: one solve and one evaluation, no
+        // Jacobian, no factorisation) is kept when it lowers the residual by
+        // `POLISH_CHORD_CONTRACTION`; a chord step that ends below `polish_below · tolerance`
+        // is followed by one more (the chord's rate is linear: without it the polish would stop
+        // anywhere below that bound, not at round-off), kept when it lowers the residual. A
+        // refused chord step falls back to the full step.
         let mut polishes = 0;
-        while polishes < 2
-            && residual <= s.tolerance
-            && residual > s.polish_below * s.tolerance
-            && n > 0
-            && !self.out_of_time()
-        {
+        let mut chords = 0;
+        let mut chord_last = chord_landed;
+        while residual <= s.tolerance && n > 0 && !self.out_of_time() {
+            let above = residual > s.polish_below * s.tolerance;
+            // The chord's polish only above a floor: a chord step that ended far below the
+            // bound is at round-off already (the desk: 2e-16).
+            if !above
+                && (!chord_last || residual <= POLISH_CHORD_FLOOR * s.polish_below * s.tolerance)
+            {
+                break;
+            }
+            chord_last = false;
+            if chords < POLISH_CHORD_STEPS && self.chord_target(mcp) {
+                self.trial.x.copy_from_slice(&self.step_x);
+                evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
+                let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                let bound = if above {
+                    POLISH_CHORD_CONTRACTION * residual
+                } else {
+                    residual
+                };
+                if self.trial.merit.is_finite() && chorded <= s.tolerance && chorded <= bound {
+                    let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+                    record(
+                        *iterations,
+                        residual,
+                        self.current.merit,
+                        StepKind::Crash,
+                        1.0,
+                        norm,
+                        &mut self.observer,
+                    );
+                    *iterations += 1;
+                    counters.crash_steps += 1;
+                    chords += 1;
+                    self.trial_has_jac = false;
+                    residual = self.accept_trial(l, u, best_residual);
+                    have_jac = false;
+                    chord_last = above;
+                    continue;
+                }
+            }
+            // No chord step (or a refused one): the kept LU is done with.
+            self.kept_lu = false;
+            if !above || polishes == 2 {
+                break;
+            }
             polishes += 1;
             if !have_jac {
                 mcp.jacobian(&self.current.z, &mut self.jac);
@@ -1443,6 +1653,38 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn path_polish_takes_chord_steps_on_the_crash_steps_lu() {
+        // `z0² + z0 = 2` (free) and `z1 ≥ 0` with `F1 = z1 + 1 + z0/10 > 0` (at its bound), from
+        // `z0 = 1 + 1e-6`: the crash step lands at a residual of about 3e-13, within the
+        // tolerance but above `polish_below · tolerance`. The polish then steps on the crash
+        // step's LU (`J_II` at the start): one Jacobian in the whole solve, where a full polish
+        // takes a second; and it ends at round-off, at the root, as the full polish did.
+        let p = FnMcp::dense(
+            vec![f64::NEG_INFINITY, 0.0],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = z[0] * z[0] + z[0] - 2.0;
+                f[1] = z[1] + 1.0 + 0.1 * z[0];
+            },
+            |z, j| {
+                // Column-major: ∂F/∂z0, then ∂F/∂z1.
+                j[0] = 2.0 * z[0] + 1.0;
+                j[1] = 0.1;
+                j[2] = 0.0;
+                j[3] = 1.0;
+            },
+        )
+        .unwrap();
+        let mut solver = PathSolver::new(PathSettings::default());
+        let sol = solver.solve(&p, &[1.0 + 1e-6, 0.0]).unwrap();
+        assert_eq!(sol.summary.jac_evals, 1, "{:?}", sol.summary);
+        // Round-off of `F0`'s terms (of size 2): a few ulps of 2.
+        assert!(sol.summary.residual <= 2e-15, "{}", sol.summary.residual);
+        assert!((sol.z[0] - 1.0).abs() <= 1e-15, "{}", sol.z[0]);
+        assert_eq!(sol.z[1], 0.0);
     }
 
     #[test]
