@@ -303,41 +303,15 @@ fn face_multipliers_into(
     }
 }
 
-impl StepStructure for Layout {
-    fn step_length(&self) -> f64 {
-        // The span prepared last (a step or a substep), as the step's blocks read it.
-        self.span.h
-    }
-
-    fn num_bodies(&self) -> usize {
-        self.bodies.len()
-    }
-
-    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
-        let (r1, w_trial) = self.trial(b, z);
-        self.body_data(b).dynamics(&r1, &w_trial)
-    }
-
-    fn num_contacts(&self) -> usize {
-        self.contacts.len()
-    }
-
-    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
-        let cv = self.contacts.get(c)?;
-        z.get(self.range(cv.pn)).and_then(|p| p.first()).copied()
-    }
-
-    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
-        self.bodies
-            .iter()
-            .map(|body| {
-                let nu = &z[self.range(body.nu)];
-                [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
-            })
-            .collect()
-    }
-
-    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
+impl Layout {
+    /// [`StepStructure::contact`] with `patch` as the patch's storage (cleared first).
+    fn contact_with_patch(
+        &self,
+        c: usize,
+        z: &[f64],
+        band: f64,
+        mut patch: Vec<PatchVertex>,
+    ) -> ContactGeometry {
         let cv = &self.contacts[c];
         let body = &self.bodies[cv.body];
         let plane = &self.step_planes[cv.plane];
@@ -349,7 +323,7 @@ impl StepStructure for Layout {
         let (r1, w_trial) = self.trial(cv.body, z);
         let free = self.free_velocity(cv.body, &r1, &w_trial);
         let mut gap = f64::INFINITY;
-        let mut patch = Vec::new();
+        patch.clear();
         for (j, vb) in self.contact_hulls[c].vertices().iter().enumerate() {
             let p = x + r * vb;
             let g = plane.value(&p);
@@ -390,6 +364,54 @@ impl StepStructure for Layout {
             },
             partner: ContactPartner::HalfSpace,
         }
+    }
+}
+
+impl StepStructure for Layout {
+    fn step_length(&self) -> f64 {
+        // The span prepared last (a step or a substep), as the step's blocks read it.
+        self.span.h
+    }
+
+    fn num_bodies(&self) -> usize {
+        self.bodies.len()
+    }
+
+    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
+        let (r1, w_trial) = self.trial(b, z);
+        self.body_data(b).dynamics(&r1, &w_trial)
+    }
+
+    fn num_contacts(&self) -> usize {
+        self.contacts.len()
+    }
+
+    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
+        let cv = self.contacts.get(c)?;
+        z.get(self.range(cv.pn)).and_then(|p| p.first()).copied()
+    }
+
+    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
+        let mut out = Vec::with_capacity(self.bodies.len());
+        self.velocities_into(z, &mut out);
+        out
+    }
+
+    fn velocities_into(&self, z: &[f64], out: &mut Vec<[f64; 6]>) {
+        out.clear();
+        out.extend(self.bodies.iter().map(|body| {
+            let nu = &z[self.range(body.nu)];
+            [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
+        }));
+    }
+
+    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
+        self.contact_with_patch(c, z, band, Vec::new())
+    }
+
+    fn contact_into(&self, c: usize, z: &[f64], band: f64, out: &mut ContactGeometry) {
+        let patch = std::mem::take(&mut out.patch);
+        *out = self.contact_with_patch(c, z, band, patch);
     }
 
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]) {

@@ -553,11 +553,9 @@ impl McpSolver for ConicSolver {
             max_outer
         };
         for it in 0..outer {
-            geometry.clear();
-            geometry.extend((0..nc).map(|c| structure.contact(c, z_in, self.settings.patch_band)));
+            contacts_into(structure, z_in, self.settings.patch_band, geometry);
             if !have_state {
-                x.nu.clear();
-                x.nu.extend(structure.velocities(z_in));
+                structure.velocities_into(z_in, &mut x.nu);
                 x.shifts.clear();
                 x.shifts.extend(geometry.iter().map(|g| {
                     if exact {
@@ -762,9 +760,7 @@ impl McpSolver for ConicSolver {
             // anchored contact left without load keeps its ECP: the closest feature of a
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
-            new_geometry.clear();
-            new_geometry
-                .extend((0..nc).map(|c| structure.contact(c, z, self.settings.patch_band)));
+            contacts_into(structure, z, self.settings.patch_band, new_geometry);
             let anchors = self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
             if anchors {
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
@@ -914,6 +910,24 @@ impl McpSolver for ConicSolver {
 /// friction acting at each piece's centre of pressure) stays as it was; the stress suite's
 /// troughs and corners are at 1e-11–5e-3 (`docs/latency.md#conic-backend`).
 const WARM_LOADS_RESIDUAL: f64 = 1e-2;
+
+/// Every contact of `structure` at `z` into `out` (`StepStructure::contact_into`: the kept
+/// contacts' patches refilled, so a warm step allocates none).
+fn contacts_into(
+    structure: &dyn ecp_model::StepStructure,
+    z: &[f64],
+    band: f64,
+    out: &mut Vec<ecp_model::ContactGeometry>,
+) {
+    let nc = structure.num_contacts();
+    out.truncate(nc);
+    for c in 0..nc {
+        match out.get_mut(c) {
+            Some(g) => structure.contact_into(c, z, band, g),
+            None => out.push(structure.contact(c, z, band)),
+        }
+    }
+}
 
 /// The largest entry of `a − b`, in absolute value.
 fn max_change(a: &[f64], b: &[f64]) -> f64 {
