@@ -268,7 +268,10 @@ fn face_multipliers_into(
     match count {
         0 => {}
         1 => {
-            let sol = nnls_fixed(&SMatrix::<f64, 3, 1>::from_columns(&[column(active[0])]), &rhs);
+            let sol = nnls_fixed(
+                &SMatrix::<f64, 3, 1>::from_columns(&[column(active[0])]),
+                &rhs,
+            );
             l[active[0]] = sol[0];
         }
         2 => {
@@ -522,7 +525,11 @@ mod tests {
                     .to_vec(),
             };
             let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(bits(heap.as_slice()), bits(&stack), "case {case}: {cols:?}, {b}");
+            assert_eq!(
+                bits(heap.as_slice()),
+                bits(&stack),
+                "case {case}: {cols:?}, {b}"
+            );
             if heap.iter().any(|v| *v > 0.0) {
                 checked[k - 1] += 1;
             }

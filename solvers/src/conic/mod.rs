@@ -78,8 +78,8 @@ pub use clarabel::solver::SolverStatus as ClarabelStatus;
 pub use qp::status_code;
 
 use ecp_model::{
-    Counter, IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport,
-    StepKind, Termination, finish_solve_into, natural_residual, validate_start,
+    Counter, IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport, StepKind,
+    Termination, finish_solve_into, natural_residual, validate_start,
 };
 
 use crate::newton::{NewtonSettings, NewtonSolver};
@@ -811,7 +811,10 @@ impl McpSolver for ConicSolver {
         }
         if exact {
             // Return the best iterate; a later iterate may have been worse.
-            if z.iter().zip(best_z.iter()).any(|(a, b)| a.to_bits() != b.to_bits()) {
+            if z.iter()
+                .zip(best_z.iter())
+                .any(|(a, b)| a.to_bits() != b.to_bits())
+            {
                 z.copy_from_slice(best_z);
                 f_at_z = false;
             }

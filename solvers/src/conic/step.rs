@@ -471,19 +471,18 @@ pub(crate) fn build(
     match anchor {
         Some(a) => {
             anchored_contacts_into(geometry, nb, &mut per_body, &mut anchored);
-            weights.extend(anchored.iter().zip(geometry)
-                .map(|(&anchored, g)| {
-                    if !anchored {
-                        return None;
-                    }
-                    let m = &bodies[g.body].mass;
-                    let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
-                    let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
-                    let normal = dot6(&we, &solve6(m, &we));
-                    let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
-                    (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
-                        .then_some((rho_m, rho_n))
-                }));
+            weights.extend(anchored.iter().zip(geometry).map(|(&anchored, g)| {
+                if !anchored {
+                    return None;
+                }
+                let m = &bodies[g.body].mass;
+                let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
+                let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
+                let normal = dot6(&we, &solve6(m, &we));
+                let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
+                (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
+                    .then_some((rho_m, rho_n))
+            }));
         }
         None => weights.resize(geometry.len(), None),
     }
@@ -815,14 +814,7 @@ impl StepQp {
             for c in contacts.iter() {
                 before.extend(impulse_values(c));
             }
-            self.correct_normal_impulses(
-                bodies,
-                factors,
-                contacts,
-                wrench_sum,
-                normal,
-                sweep == 0,
-            );
+            self.correct_normal_impulses(bodies, factors, contacts, wrench_sum, normal, sweep == 0);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
