@@ -985,9 +985,9 @@ fn zeroed(v: &mut Vec<f64>, len: usize) {
 
 /// The outer fixed point's storage ([`ConicSolver`]'s `outer`), kept between outer iterations
 /// and solves so that a warm solve does not grow its vectors anew: each is cleared and
-/// refilled. What is left to allocate per outer iteration is outside this loop (the contact
-/// geometry's patches, the QP's row data in `step::build`, the polished point, the
-/// formulation's `assemble`).
+/// refilled, with the contacts' patches (`StepStructure::contact_into`), the QP's rows
+/// (`step::build`) and the polished point among them: a warm desk solve into kept storage
+/// allocates nothing (`tests/step_allocations.rs`).
 #[derive(Default)]
 struct OuterWorkspace {
     /// `F(z)` of the current point.

@@ -139,8 +139,8 @@ pub(crate) struct StepQp {
     per_body: Vec<usize>,
 }
 
-/// Storage of the polish ([`StepQp::extract_into`]), kept by the solver across outer iterations and
-/// solves so that a warm polish allocates only the point it returns (`docs/latency.md`): each
+/// Storage of the polish ([`StepQp::extract_into`]), kept by the solver across outer
+/// iterations and solves so that a warm polish allocates nothing (`docs/latency.md`): each
 /// vector is cleared and refilled, never dropped.
 #[derive(Default)]
 pub(crate) struct PolishWorkspace {
