@@ -22,7 +22,8 @@
 //! `desk-steps-path` takes the desk's whole steps with PATH's defaults (polished, so
 //! extrapolated warm starts), `desk-steps-path-previous` from the plain warm start,
 //! `desk-steps-path-unpolished` with `PathSettings::polish_below = 1` (main's PATH before the
-//! polish: the plain warm start).
+//! polish: the plain warm start). `desk-steps-conic` takes the desk's whole steps with the conic
+//! backend's defaults (`desk-steps-conic-into`: with `Simulation::step_into` and one kept record).
 //! `a1-steps` takes A1's first `N` whole steps with Newton, as `desk-steps`.
 //! All of them print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
@@ -144,7 +145,7 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|desk-sensitivity-time|\
-                 desk-conic|desk-conic-dense|desk-steps|desk-steps-previous|desk-steps-into|desk-steps-path|\
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-conic|desk-steps-conic-into|desk-steps-previous|desk-steps-into|desk-steps-path|\
                  desk-steps-path-previous|desk-steps-path-unpolished|a1-steps> N [lu|schur]"
             );
             std::process::exit(2);
@@ -209,6 +210,24 @@ fn main() {
                 digest.add(&sim.step(&mut solver).expect("desk step"));
             }
             println!("desk-steps x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-conic" | "desk-steps-conic-into" => {
+            // The conic backend's defaults, whole steps (its QPs warm-started across steps, so
+            // one solve repeated is not representative: `docs/latency.md`).
+            let mut solver = ConicSolver::new(ConicSettings::default());
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            let mut digest = Digest::default();
+            let mut record = ecp::formulations::StepRecord::default();
+            for _ in 0..n {
+                if case == "desk-steps-conic" {
+                    digest.add(&sim.step(&mut solver).expect("desk step"));
+                } else {
+                    sim.step_into(&mut solver, &mut record).expect("desk step");
+                    digest.add(&record);
+                }
+            }
+            println!("{case} x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-steps-previous" => {

@@ -157,6 +157,12 @@ pub trait StepStructure {
     fn num_contacts(&self) -> usize;
     /// The end-of-step velocities `ν` stored in the full MCP vector `z`.
     fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]>;
+    /// [`StepStructure::velocities`] into `out` (cleared first, its storage kept); the default
+    /// calls `velocities`.
+    fn velocities_into(&self, z: &[f64], out: &mut Vec<[f64; 6]>) {
+        out.clear();
+        out.extend(self.velocities(z));
+    }
     /// Contact `c` at the end-of-step configuration `q` stored in `z` (with the ECP `a1` of `z`).
     ///
     /// The patch holds every vertex `j` of Conv(F) whose gap is at most
@@ -164,6 +170,13 @@ pub trait StepStructure {
     /// of `z` or at the free-motion velocities, whichever approaches faster: vertices that may
     /// touch G within the step.
     fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry;
+    /// [`StepStructure::contact`] into `out`, whose storage (the patch's vector) an
+    /// implementation may refill instead of allocating anew: a backend that keeps its contacts
+    /// across iterations then allocates nothing (`docs/latency.md#allocations`). The same contact
+    /// as `contact`; the default calls it.
+    fn contact_into(&self, c: usize, z: &[f64], band: f64, out: &mut ContactGeometry) {
+        *out = self.contact(c, z, band);
+    }
     /// Maps a conic point back to the full MCP vector: `ν` as given; `q` by the kinematic map
     /// (`docs/model.md#kinematic-map`); per contact, with `p_n = Σ λ_j > 0`, `a1 = Σ λ_j v_j / p_n`
     /// at the new configuration, otherwise `a1` the point of Conv(F) nearest to G; `a2` the

@@ -4,7 +4,7 @@
 //! crate. The driver hands it to every backend with the step's MCP, so generic backends see the
 //! same problem as without it.
 
-use nalgebra::{DMatrix, DVector, Matrix3, Vector3, Vector4, Vector6};
+use nalgebra::{DMatrix, DVector, Matrix3, SMatrix, SVector, Vector3, Vector4, Vector6};
 
 use ecp_model::{
     BlockMcp, BodyDynamics, ConicPoint, ContactFriction, ContactGeometry, ContactPartner,
@@ -154,41 +154,167 @@ fn nnls(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
     x
 }
 
-impl StepStructure for Layout {
-    fn step_length(&self) -> f64 {
-        // The span prepared last (a step or a substep), as the step's blocks read it.
-        self.span.h
+/// [`nnls`] with `N` columns known at compile time: the same operations in the same order on
+/// matrices kept on the stack (the subproblem's SVD with one or two columns too; three, a corner,
+/// on the heap), so the same answer bit for bit without a heap allocation on a face or an edge
+/// (`face_multipliers_into`; the conic backend assembles a point three times per desk step).
+fn nnls_fixed<const N: usize>(a: &SMatrix<f64, 3, N>, b: &Vector3<f64>) -> SVector<f64, N> {
+    let n = N;
+    let mut x = SVector::<f64, N>::zeros();
+    let mut passive = [false; N];
+    let tol = 1e-14 * (1.0 + b.norm());
+    for _outer in 0..3 * n + 3 {
+        let w = a.transpose() * (b - a * x);
+        let candidate = (0..n)
+            .filter(|&j| !passive[j] && w[j] > tol)
+            .max_by(|&i, &j| w[i].total_cmp(&w[j]));
+        let Some(j) = candidate else { break };
+        passive[j] = true;
+        for _inner in 0..3 * n + 3 {
+            let mut idx = [0usize; N];
+            let mut m = 0;
+            for (j, _) in passive.iter().enumerate().filter(|(_, p)| **p) {
+                idx[m] = j;
+                m += 1;
+            }
+            let idx = &idx[..m];
+            // The least-squares solution on the passive columns by SVD, their count `M` a
+            // constant where it can be (nalgebra's SVD needs a concrete size), in `s[..M]`.
+            let mut s = [0.0; N];
+            macro_rules! svd_solve {
+                ($m:literal) => {{
+                    let sub = SMatrix::<f64, 3, $m>::from_fn(|r, c| a[(r, idx[c])]);
+                    match sub.svd(true, true).solve(b, 1e-13) {
+                        Ok(v) => {
+                            s[..$m].copy_from_slice(v.as_slice());
+                            true
+                        }
+                        Err(_) => false,
+                    }
+                }};
+            }
+            let solved = match m {
+                1 => svd_solve!(1),
+                2 => svd_solve!(2),
+                _ => {
+                    // Three columns (a corner) on the heap: nalgebra computes a 3 × 3 matrix of
+                    // static size by another method (`svd3`), whose answers differ in the last bits.
+                    let sub = DMatrix::from_fn(3, m, |r, c| a[(r, idx[c])]);
+                    match sub.svd(true, true).solve(b, 1e-13) {
+                        Ok(v) => {
+                            s[..m].copy_from_slice(v.as_slice());
+                            true
+                        }
+                        Err(_) => false,
+                    }
+                }
+            };
+            if !solved {
+                return x;
+            }
+            let s = &s[..m];
+            if s.iter().all(|v| *v > 0.0) {
+                for (k, &j) in idx.iter().enumerate() {
+                    x[j] = s[k];
+                }
+                break;
+            }
+            // Step towards s until a passive variable hits zero; drop it.
+            let mut alpha = 1.0f64;
+            for (k, &j) in idx.iter().enumerate() {
+                if s[k] <= 0.0 {
+                    let d = x[j] - s[k];
+                    if d > 0.0 {
+                        alpha = alpha.min(x[j] / d);
+                    }
+                }
+            }
+            for (k, &j) in idx.iter().enumerate() {
+                x[j] += alpha * (s[k] - x[j]);
+                if x[j] <= 1e-15 {
+                    x[j] = 0.0;
+                    passive[j] = false;
+                }
+            }
+        }
     }
+    x
+}
 
-    fn num_bodies(&self) -> usize {
-        self.bodies.len()
+/// The face multipliers of C2 into `l` (one per face of `faces`, zero where inactive):
+/// `−n_G` in the cone of the outward normals `r n_i` of the faces active at the local point
+/// `local` ([`nnls`]). Up to three active faces by [`nnls_fixed`] (a box's corner has three),
+/// more by [`nnls`]; the same numbers either way.
+fn face_multipliers_into(
+    faces: &[crate::geometry::Face],
+    r: &Matrix3<f64>,
+    local: &Vector3<f64>,
+    ng: &Vector3<f64>,
+    l: &mut [f64],
+) {
+    l.fill(0.0);
+    let mut active = [0usize; 3];
+    let mut count = 0;
+    for (i, face) in faces.iter().enumerate() {
+        if face.value(local) >= -FACE_ACTIVE {
+            if count < 3 {
+                active[count] = i;
+            }
+            count += 1;
+        }
     }
-
-    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
-        let (r1, w_trial) = self.trial(b, z);
-        self.body_data(b).dynamics(&r1, &w_trial)
+    let rhs = -ng;
+    let column = |i: usize| r * faces[i].normal;
+    match count {
+        0 => {}
+        1 => {
+            let sol = nnls_fixed(
+                &SMatrix::<f64, 3, 1>::from_columns(&[column(active[0])]),
+                &rhs,
+            );
+            l[active[0]] = sol[0];
+        }
+        2 => {
+            let a = SMatrix::<f64, 3, 2>::from_columns(&[column(active[0]), column(active[1])]);
+            let sol = nnls_fixed(&a, &rhs);
+            for (k, &i) in active[..2].iter().enumerate() {
+                l[i] = sol[k];
+            }
+        }
+        3 => {
+            let a = SMatrix::<f64, 3, 3>::from_columns(&[
+                column(active[0]),
+                column(active[1]),
+                column(active[2]),
+            ]);
+            let sol = nnls_fixed(&a, &rhs);
+            for (k, &i) in active.iter().enumerate() {
+                l[i] = sol[k];
+            }
+        }
+        _ => {
+            let active: Vec<usize> = (0..faces.len())
+                .filter(|&i| faces[i].value(local) >= -FACE_ACTIVE)
+                .collect();
+            let a = DMatrix::from_fn(3, active.len(), |row, col| column(active[col])[row]);
+            let rhs = DVector::from_column_slice((-ng).as_slice());
+            let sol = nnls(&a, &rhs);
+            for (k, &i) in active.iter().enumerate() {
+                l[i] = sol[k];
+            }
+        }
     }
+}
 
-    fn num_contacts(&self) -> usize {
-        self.contacts.len()
-    }
-
-    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
-        let cv = self.contacts.get(c)?;
-        z.get(self.range(cv.pn)).and_then(|p| p.first()).copied()
-    }
-
-    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
-        self.bodies
-            .iter()
-            .map(|body| {
-                let nu = &z[self.range(body.nu)];
-                [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
-            })
-            .collect()
-    }
-
-    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
+impl Layout {
+    /// [`StepStructure::contact`] with `patch` as the patch's storage (cleared first).
+    fn contact_with_patch(
+        &self,
+        c: usize,
+        z: &[f64],
+        band: f64,
+        mut patch: Vec<PatchVertex>,
+    ) -> ContactGeometry {
         let cv = &self.contacts[c];
         let body = &self.bodies[cv.body];
         let plane = &self.step_planes[cv.plane];
@@ -200,7 +326,7 @@ impl StepStructure for Layout {
         let (r1, w_trial) = self.trial(cv.body, z);
         let free = self.free_velocity(cv.body, &r1, &w_trial);
         let mut gap = f64::INFINITY;
-        let mut patch = Vec::new();
+        patch.clear();
         for (j, vb) in self.contact_hulls[c].vertices().iter().enumerate() {
             let p = x + r * vb;
             let g = plane.value(&p);
@@ -242,6 +368,54 @@ impl StepStructure for Layout {
             partner: ContactPartner::HalfSpace,
         }
     }
+}
+
+impl StepStructure for Layout {
+    fn step_length(&self) -> f64 {
+        // The span prepared last (a step or a substep), as the step's blocks read it.
+        self.span.h
+    }
+
+    fn num_bodies(&self) -> usize {
+        self.bodies.len()
+    }
+
+    fn body(&self, b: usize, z: &[f64]) -> BodyDynamics {
+        let (r1, w_trial) = self.trial(b, z);
+        self.body_data(b).dynamics(&r1, &w_trial)
+    }
+
+    fn num_contacts(&self) -> usize {
+        self.contacts.len()
+    }
+
+    fn normal_impulse(&self, c: usize, z: &[f64]) -> Option<f64> {
+        let cv = self.contacts.get(c)?;
+        z.get(self.range(cv.pn)).and_then(|p| p.first()).copied()
+    }
+
+    fn velocities(&self, z: &[f64]) -> Vec<[f64; 6]> {
+        let mut out = Vec::with_capacity(self.bodies.len());
+        self.velocities_into(z, &mut out);
+        out
+    }
+
+    fn velocities_into(&self, z: &[f64], out: &mut Vec<[f64; 6]>) {
+        out.clear();
+        out.extend(self.bodies.iter().map(|body| {
+            let nu = &z[self.range(body.nu)];
+            [nu[0], nu[1], nu[2], nu[3], nu[4], nu[5]]
+        }));
+    }
+
+    fn contact(&self, c: usize, z: &[f64], band: f64) -> ContactGeometry {
+        self.contact_with_patch(c, z, band, Vec::new())
+    }
+
+    fn contact_into(&self, c: usize, z: &[f64], band: f64, out: &mut ContactGeometry) {
+        let patch = std::mem::take(&mut out.patch);
+        *out = self.contact_with_patch(c, z, band, patch);
+    }
 
     fn assemble(&self, point: &ConicPoint, z: &mut [f64]) {
         let h = self.step_length();
@@ -261,7 +435,9 @@ impl StepStructure for Layout {
             let ng = plane.normal();
             let (x, r) = self.pose(cv.body, z);
             let set = &self.contact_hulls[c];
-            let world: Vec<Vector3<f64>> = set.vertices().iter().map(|vb| x + r * vb).collect();
+            // The hull's vertices at the end-of-step pose, computed where they are read (no list
+            // of them: `assemble` runs a few times per conic step, `docs/latency.md`).
+            let world = |vb: &Vector3<f64>| x + r * vb;
             let empty = ecp_model::ContactImpulses::default();
             let imp = point.contacts.get(c).unwrap_or(&empty);
             let pn: f64 = imp.vertex_impulses.iter().map(|(_, l)| l.max(0.0)).sum();
@@ -269,20 +445,24 @@ impl StepStructure for Layout {
                 // Centre of pressure of the vertex impulses at the end-of-step configuration.
                 let mut a = Vector3::zeros();
                 for &(j, l) in &imp.vertex_impulses {
-                    if let Some(p) = world.get(j) {
-                        a += p * (l.max(0.0) / pn);
+                    if let Some(vb) = set.vertices().get(j) {
+                        a += world(vb) * (l.max(0.0) / pn);
                     }
                 }
                 a
             } else {
                 // Separated: the closest feature of Conv(F) to G (a face, edge or vertex), at
                 // its centroid.
-                let gaps: Vec<f64> = world.iter().map(|p| plane.value(p)).collect();
-                let gmin = gaps.iter().copied().fold(f64::INFINITY, f64::min);
+                let gmin = set
+                    .vertices()
+                    .iter()
+                    .map(|vb| plane.value(&world(vb)))
+                    .fold(f64::INFINITY, f64::min);
                 let mut a = Vector3::zeros();
                 let mut k = 0.0;
-                for (p, g) in world.iter().zip(&gaps) {
-                    if *g <= gmin + SUPPORT_TIE {
+                for vb in set.vertices() {
+                    let p = world(vb);
+                    if plane.value(&p) <= gmin + SUPPORT_TIE {
                         a += p;
                         k += 1.0;
                     }
@@ -294,24 +474,9 @@ impl StepStructure for Layout {
             // Face multipliers (C2): −n_G in the cone of the outward normals of the faces
             // active at a1.
             let local = r.transpose() * (a1 - x);
-            let faces = set.faces();
-            let active: Vec<usize> = (0..faces.len())
-                .filter(|&i| faces[i].value(&local) >= -FACE_ACTIVE)
-                .collect();
-            let mut l = vec![0.0; faces.len()];
-            if !active.is_empty() {
-                let a = DMatrix::from_fn(3, active.len(), |row, col| {
-                    (r * faces[active[col]].normal)[row]
-                });
-                let rhs = DVector::from_column_slice((-ng).as_slice());
-                let sol = nnls(&a, &rhs);
-                for (k, &i) in active.iter().enumerate() {
-                    l[i] = sol[k];
-                }
-            }
+            face_multipliers_into(set.faces(), &r, &local, &ng, &mut z[self.range(cv.l)]);
             z[self.range(cv.a1)].copy_from_slice(a1.as_slice());
             z[self.range(cv.a2)].copy_from_slice(a2.as_slice());
-            z[self.range(cv.l)].copy_from_slice(&l);
             z[self.range(cv.lg)][0] = lg;
             z[self.range(cv.pn)][0] = pn;
             z[self.range(cv.pf)].copy_from_slice(&imp.friction);
@@ -323,6 +488,55 @@ impl StepStructure for Layout {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The stack version of the face multipliers gives the heap version's numbers bit for bit:
+    /// one, two and three columns (a face, an edge, a corner of a box, tilted), right-hand sides
+    /// inside and outside the cone, and a degenerate pair of parallel columns.
+    #[test]
+    fn nnls_fixed_matches_nnls_bit_for_bit() {
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut uniform = || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let mut checked = [0usize; 3];
+        for case in 0..3000 {
+            let k = case % 3 + 1;
+            let mut cols: Vec<Vector3<f64>> = (0..k)
+                .map(|_| Vector3::new(uniform(), uniform(), uniform()).normalize())
+                .collect();
+            if case % 7 == 0 && k >= 2 {
+                cols[1] = cols[0];
+            }
+            let b = Vector3::new(uniform(), uniform(), uniform());
+            let a = DMatrix::from_fn(3, k, |r, c| cols[c][r]);
+            let heap = nnls(&a, &DVector::from_column_slice(b.as_slice()));
+            let stack: Vec<f64> = match k {
+                1 => nnls_fixed(&SMatrix::<f64, 3, 1>::from_columns(&cols), &b)
+                    .as_slice()
+                    .to_vec(),
+                2 => nnls_fixed(&SMatrix::<f64, 3, 2>::from_columns(&cols), &b)
+                    .as_slice()
+                    .to_vec(),
+                _ => nnls_fixed(&SMatrix::<f64, 3, 3>::from_columns(&cols), &b)
+                    .as_slice()
+                    .to_vec(),
+            };
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(heap.as_slice()),
+                bits(&stack),
+                "case {case}: {cols:?}, {b}"
+            );
+            if heap.iter().any(|v| *v > 0.0) {
+                checked[k - 1] += 1;
+            }
+        }
+        // Every size had answers with active columns (not only the trivial zero).
+        assert!(checked.iter().all(|&c| c > 300), "{checked:?}");
+    }
 
     #[test]
     fn nnls_finds_the_cone_combination() {

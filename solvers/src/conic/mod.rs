@@ -78,8 +78,8 @@ pub use clarabel::solver::SolverStatus as ClarabelStatus;
 pub use qp::status_code;
 
 use ecp_model::{
-    Counter, Counters, IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport,
-    StepKind, Termination, finish_solve, natural_residual, validate_start,
+    Counter, IterationRecord, Mcp, McpSolver, Solution, SolveError, SolveReport, StepKind,
+    Termination, finish_solve_into, natural_residual, validate_start,
 };
 
 use crate::newton::{NewtonSettings, NewtonSolver};
@@ -393,6 +393,21 @@ impl McpSolver for ConicSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let mut out = Solution::default();
+        self.solve_into(mcp, z0, &mut out)?;
+        Ok(out)
+    }
+
+    /// The solve into `out`'s storage: with the outer loop's and the polish's storage kept in
+    /// the solver, a warm desk solve allocates nothing here (`tests/step_allocations.rs`; what
+    /// is left is the formulation's, `docs/latency.md`). The same point and summary as
+    /// [`McpSolver::solve`], which calls it.
+    fn solve_into(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
         validate_start(mcp, z0)?;
         self.last_status = None;
         self.last_error = None;
@@ -453,6 +468,7 @@ impl McpSolver for ConicSolver {
         };
         let OuterWorkspace {
             f,
+            z,
             z_new,
             best_z,
             z_in,
@@ -473,13 +489,20 @@ impl McpSolver for ConicSolver {
             layout,
             new_layout,
             anderson,
+            point,
+            anchored,
+            per_body,
+            sides,
         } = &mut ws;
         zeroed(f, n);
-        let mut z = z0.to_vec();
-        mcp.evaluate(&z, f);
+        z.clear();
+        z.extend_from_slice(z0);
+        mcp.evaluate(z, f);
         run.f_evals += 1;
-        let mut residual = natural_residual(&z, f, lower, upper);
-        best_z.clone_from(&z);
+        // Whether `f` holds `F(z)` (for the summary's judgement without evaluating again).
+        let mut f_at_z = true;
+        let mut residual = natural_residual(z, f, lower, upper);
+        best_z.clone_from(z);
         let mut best_residual = residual;
         let mut since_improvement = 0usize;
         let mut stall_reference = residual;
@@ -490,7 +513,7 @@ impl McpSolver for ConicSolver {
         // The fixed-point state: velocities, De Saxcé shifts and ECPs (the ECPs scaled by 1/h to
         // velocity units), in `x` once `have_state`. `z_in` is the full vector the geometry is
         // evaluated at.
-        z_in.clone_from(&z);
+        z_in.clone_from(z);
         let mut have_state = false;
         anderson.restart(if exact {
             self.settings.anderson_memory
@@ -530,15 +553,13 @@ impl McpSolver for ConicSolver {
             max_outer
         };
         for it in 0..outer {
-            geometry.clear();
-            geometry.extend((0..nc).map(|c| structure.contact(c, z_in, self.settings.patch_band)));
+            contacts_into(structure, z_in, self.settings.patch_band, geometry);
             if !have_state {
-                x.nu.clear();
-                x.nu.extend(structure.velocities(z_in));
+                structure.velocities_into(z_in, &mut x.nu);
                 x.shifts.clear();
                 x.shifts.extend(geometry.iter().map(|g| {
                     if exact {
-                        step::de_saxce_shift(g, &x.nu)
+                        step::de_saxce_shift_with(g, &x.nu, sides)
                     } else {
                         0.0
                     }
@@ -594,24 +615,26 @@ impl McpSolver for ConicSolver {
                     // From the previous QP's polished impulses (`seed`'s: the last iterate, that
                     // QP's point): the sweeps start settled and only follow the data's change
                     // (the desk: 12 sweeps from that QP's raw duals, `docs/latency.md`).
-                    let point = sub.extract(
+                    sub.extract_into(
                         step::PolishStart::Impulses(&seed.contacts),
                         bodies,
                         true,
                         &mut self.polish,
+                        point,
                     );
-                    structure.assemble(&point, z_new);
+                    structure.assemble(point, z_new);
                     mcp.evaluate(z_new, f);
+                    f_at_z = false;
                     run.f_evals += 1;
                     let reused_residual = natural_residual(z_new, f, lower, upper);
                     if reused_residual <= self.settings.tolerance {
-                        reused = Some((reused_residual, point));
+                        reused = Some(reused_residual);
                     }
                 }
             }
             // The new iterate: the reused answer (it solves the step, so the convergence test
             // below ends the solve) or this iteration's QP's.
-            let (new_residual, mut point) = match reused {
+            let new_residual = match reused {
                 Some(answer) => {
                     run.qp_reuses += 1;
                     *qp_storage = sub;
@@ -657,11 +680,12 @@ impl McpSolver for ConicSolver {
                         termination = Termination::SubproblemFailed;
                         break;
                     }
-                    let point = sub.extract(
+                    sub.extract_into(
                         step::PolishStart::Qp(result),
                         bodies,
                         polish,
                         &mut self.polish,
+                        point,
                     );
                     // The layout a later reuse compares against, only while one can be tried.
                     if !reuse_tried && polish && self.settings.reuse_qp {
@@ -669,10 +693,10 @@ impl McpSolver for ConicSolver {
                     }
                     have_answer = true;
                     *qp_storage = sub;
-                    structure.assemble(&point, z_new);
+                    structure.assemble(point, z_new);
                     mcp.evaluate(z_new, f);
                     run.f_evals += 1;
-                    (natural_residual(z_new, f, lower, upper), point)
+                    natural_residual(z_new, f, lower, upper)
                 }
             };
             if self.settings.trace {
@@ -682,15 +706,16 @@ impl McpSolver for ConicSolver {
                     merit: residual,
                     step: StepKind::Conic,
                     step_length: 1.0,
-                    direction_norm: max_change(z_new, &z),
+                    direction_norm: max_change(z_new, z),
                 });
             }
-            std::mem::swap(&mut z, z_new);
+            std::mem::swap(z, z_new);
+            f_at_z = true;
             let previous_residual = residual;
             residual = new_residual;
             if residual.is_finite() && (residual < best_residual || !best_residual.is_finite()) {
                 best_residual = residual;
-                best_z.copy_from_slice(&z);
+                best_z.copy_from_slice(z);
             }
             if !exact {
                 // The relaxation is one QP; the summary judges its point like any other.
@@ -710,10 +735,11 @@ impl McpSolver for ConicSolver {
                     .settings
                     .newton_handoff_iterations
                     .min(self.settings.newton_polish);
-                if let Some(sol) = self.newton_finish(mcp, &z, budget, true, &mut run)
+                if let Some(sol) = self.newton_finish(mcp, z, budget, true, &mut run)
                     && sol.summary.residual <= self.settings.tolerance
                 {
                     z.copy_from_slice(&sol.z);
+                    f_at_z = false;
                     best_z.copy_from_slice(&sol.z);
                     best_residual = sol.summary.residual;
                     termination = Termination::Converged;
@@ -734,11 +760,11 @@ impl McpSolver for ConicSolver {
             // anchored contact left without load keeps its ECP: the closest feature of a
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
-            new_geometry.clear();
-            new_geometry
-                .extend((0..nc).map(|c| structure.contact(c, &z, self.settings.patch_band)));
-            let anchored = (self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0)
-                .then(|| step::anchored_contacts(geometry, nb));
+            contacts_into(structure, z, self.settings.patch_band, new_geometry);
+            let anchors = self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
+            if anchors {
+                step::anchored_contacts_into(geometry, nb, per_body, anchored);
+            }
             g.nu.clone_from(&point.velocities);
             g.shifts.clear();
             g.shifts.extend(
@@ -753,7 +779,7 @@ impl McpSolver for ConicSolver {
                         .contacts
                         .get(c)
                         .is_none_or(|p| p.vertex_impulses.iter().all(|(_, l)| *l <= 0.0));
-                    let is_anchored = anchored.as_ref().is_some_and(|a| a[c]);
+                    let is_anchored = anchors && anchored[c];
                     match x.ecps.get(c) {
                         Some(e) if is_anchored && unloaded => *e,
                         _ => geo.ecp,
@@ -777,14 +803,21 @@ impl McpSolver for ConicSolver {
             );
             have_loads = !point.contacts.is_empty();
             seed.velocities.clone_from(&next.nu);
-            seed.contacts = std::mem::take(&mut point.contacts);
+            // Swapped, not moved: `point` keeps the old seed's vectors to refill.
+            std::mem::swap(&mut seed.contacts, &mut point.contacts);
             structure.assemble(seed, z_in);
             std::mem::swap(x, next);
             have_state = true;
         }
         if exact {
             // Return the best iterate; a later iterate may have been worse.
-            z.copy_from_slice(best_z);
+            if z.iter()
+                .zip(best_z.iter())
+                .any(|(a, b)| a.to_bits() != b.to_bits())
+            {
+                z.copy_from_slice(best_z);
+                f_at_z = false;
+            }
             // Only a fixed point that stagnated or ran out of iterations is finished by Newton;
             // a failed subproblem is reported as such.
             if matches!(
@@ -794,10 +827,11 @@ impl McpSolver for ConicSolver {
                 && best_residual.is_finite()
             {
                 let polished =
-                    self.newton_finish(mcp, &z, self.settings.newton_polish, false, &mut run);
+                    self.newton_finish(mcp, z, self.settings.newton_polish, false, &mut run);
                 if let Some(sol) = polished {
                     if sol.summary.residual < best_residual {
                         z.copy_from_slice(&sol.z);
+                        f_at_z = false;
                         best_residual = sol.summary.residual;
                     }
                     if best_residual <= self.settings.tolerance {
@@ -813,10 +847,40 @@ impl McpSolver for ConicSolver {
         } else {
             Termination::MaxIterations
         };
-        self.outer = ws;
-        finish_solve(
+        // The summary judges `z` by `F(z)`, evaluated again only when `f` is not at `z`.
+        if !f_at_z {
+            mcp.evaluate(z, f);
+        }
+        run.f_evals += usize::from(!f_at_z);
+        // The counters into `out`'s, in the order `Counters::from` would push them.
+        let mut counters = std::mem::take(&mut out.summary.counters);
+        counters.clear();
+        for (counter, value) in [
+            (Counter::ClarabelIterations, run.clarabel_iterations),
+            (Counter::ClarabelStatus, run.status.map_or(0, status_code)),
+            (Counter::PatchVertices, run.patch_vertices),
+            (
+                Counter::AnitescuRelaxation,
+                usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
+            ),
+            (Counter::NewtonPolish, run.newton_polish),
+            (Counter::NewtonHandoff, run.newton_handoff),
+            (
+                Counter::Custom("dense_qp_iterations"),
+                run.dense_qp_iterations,
+            ),
+            (
+                Counter::Custom("clarabel_fallbacks"),
+                run.clarabel_fallbacks,
+            ),
+            (Counter::Custom("qp_reuses"), run.qp_reuses),
+        ] {
+            counters.set(counter, value);
+        }
+        let converged = finish_solve_into(
             mcp,
             z,
+            f,
             SolveReport {
                 solver: self.label(),
                 termination,
@@ -826,28 +890,18 @@ impl McpSolver for ConicSolver {
                 jac_evals: 0,
                 started: run.started,
                 trace: run.trace,
-                counters: Counters::from([
-                    (Counter::ClarabelIterations, run.clarabel_iterations),
-                    (Counter::ClarabelStatus, run.status.map_or(0, status_code)),
-                    (Counter::PatchVertices, run.patch_vertices),
-                    (
-                        Counter::AnitescuRelaxation,
-                        usize::from(self.settings.mode == ConicMode::AnitescuRelaxation),
-                    ),
-                    (Counter::NewtonPolish, run.newton_polish),
-                    (Counter::NewtonHandoff, run.newton_handoff),
-                    (
-                        Counter::Custom("dense_qp_iterations"),
-                        run.dense_qp_iterations,
-                    ),
-                    (
-                        Counter::Custom("clarabel_fallbacks"),
-                        run.clarabel_fallbacks,
-                    ),
-                    (Counter::Custom("qp_reuses"), run.qp_reuses),
-                ]),
+                counters,
             },
-        )
+            out,
+        );
+        self.outer = ws;
+        if converged {
+            Ok(())
+        } else {
+            Err(SolveError::NotConverged {
+                best: Box::new(std::mem::take(out)),
+            })
+        }
     }
 }
 
@@ -859,6 +913,24 @@ impl McpSolver for ConicSolver {
 /// friction acting at each piece's centre of pressure) stays as it was; the stress suite's
 /// troughs and corners are at 1e-11–5e-3 (`docs/latency.md#conic-backend`).
 const WARM_LOADS_RESIDUAL: f64 = 1e-2;
+
+/// Every contact of `structure` at `z` into `out` (`StepStructure::contact_into`: the kept
+/// contacts' patches refilled, so a warm step allocates none).
+fn contacts_into(
+    structure: &dyn ecp_model::StepStructure,
+    z: &[f64],
+    band: f64,
+    out: &mut Vec<ecp_model::ContactGeometry>,
+) {
+    let nc = structure.num_contacts();
+    out.truncate(nc);
+    for c in 0..nc {
+        match out.get_mut(c) {
+            Some(g) => structure.contact_into(c, z, band, g),
+            None => out.push(structure.contact(c, z, band)),
+        }
+    }
+}
 
 /// The largest entry of `a − b`, in absolute value.
 fn max_change(a: &[f64], b: &[f64]) -> f64 {
@@ -913,9 +985,9 @@ fn zeroed(v: &mut Vec<f64>, len: usize) {
 
 /// The outer fixed point's storage ([`ConicSolver`]'s `outer`), kept between outer iterations
 /// and solves so that a warm solve does not grow its vectors anew: each is cleared and
-/// refilled. What is left to allocate per outer iteration is outside this loop (the contact
-/// geometry's patches, the QP's row data in `step::build`, the polished point, the
-/// formulation's `assemble`).
+/// refilled, with the contacts' patches (`StepStructure::contact_into`), the QP's rows
+/// (`step::build`) and the polished point among them: a warm desk solve into kept storage
+/// allocates nothing (`tests/step_allocations.rs`).
 #[derive(Default)]
 struct OuterWorkspace {
     /// `F(z)` of the current point.
@@ -953,4 +1025,13 @@ struct OuterWorkspace {
     layout: Vec<usize>,
     new_layout: Vec<usize>,
     anderson: anderson::Anderson,
+    /// The current point `z` (the returned one at the end).
+    z: Vec<f64>,
+    /// The polished point of the current QP (or of the reused answer).
+    point: ecp_model::ConicPoint,
+    /// Which contacts are anchored, and the patches per body that decide it.
+    anchored: Vec<bool>,
+    per_body: Vec<usize>,
+    /// A contact's friction sides for its first De Saxcé shift.
+    sides: Vec<step::BodyFriction>,
 }

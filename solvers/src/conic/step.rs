@@ -134,10 +134,13 @@ pub(crate) struct StepQp {
     weights: Vec<Option<(f64, f64)>>,
     anchor_cols: Vec<Option<usize>>,
     coeffs: Vec<(usize, f64)>,
+    /// [`anchored_contacts_into`]'s answer and its per-body counts.
+    anchored: Vec<bool>,
+    per_body: Vec<usize>,
 }
 
-/// Storage of the polish ([`StepQp::extract`]), kept by the solver across outer iterations and
-/// solves so that a warm polish allocates only the point it returns (`docs/latency.md`): each
+/// Storage of the polish ([`StepQp::extract_into`]), kept by the solver across outer
+/// iterations and solves so that a warm polish allocates nothing (`docs/latency.md`): each
 /// vector is cleared and refilled, never dropped.
 #[derive(Default)]
 pub(crate) struct PolishWorkspace {
@@ -295,18 +298,12 @@ fn normal_sides(g: &ContactGeometry, v: &PatchVertex) -> VertexWrenches {
 }
 
 /// A body and the friction wrenches `W_t, W_o, W_r` of a contact on it.
-type BodyFriction = (usize, [[f64; 6]; 3]);
+pub(crate) type BodyFriction = (usize, [[f64; 6]; 3]);
 
 /// The friction wrenches of contact `g` at its ECP on each body it acts on (F's, and G's
-/// opposite ones for a dynamic G), and the data part of the relative slip (a G with prescribed
-/// velocity, `docs/model.md#friction-on-the-relative-velocity`).
-fn friction_sides(g: &ContactGeometry) -> (Vec<BodyFriction>, [f64; 3]) {
-    let mut out = Vec::with_capacity(2);
-    let offset = friction_sides_into(g, &mut out);
-    (out, offset)
-}
-
-/// [`friction_sides`] into `out` (cleared first): the polish's storage, kept across sweeps.
+/// opposite ones for a dynamic G) into `out` (cleared first: storage kept by the caller), and
+/// the data part of the relative slip (a G with prescribed velocity,
+/// `docs/model.md#friction-on-the-relative-velocity`).
 fn friction_sides_into(g: &ContactGeometry, out: &mut Vec<BodyFriction>) -> [f64; 3] {
     out.clear();
     out.push((g.body, friction_wrenches(g)));
@@ -340,10 +337,16 @@ fn bodies_exist(g: &ContactGeometry, num_bodies: usize) -> bool {
 
 /// The De Saxcé shift `μ ‖E u_T‖` of contact `g` at the velocities `nu` of every body (the slip
 /// of F relative to G).
-pub(crate) fn de_saxce_shift(g: &ContactGeometry, nu: &[[f64; 6]]) -> f64 {
+/// `sides` is storage for the contact's friction sides (kept by the caller: a warm step
+/// allocates nothing here).
+pub(crate) fn de_saxce_shift_with(
+    g: &ContactGeometry,
+    nu: &[[f64; 6]],
+    sides: &mut Vec<BodyFriction>,
+) -> f64 {
     let f = g.friction;
     let axes = [f.e_t, f.e_o, f.e_r];
-    let (sides, offset) = friction_sides(g);
+    let offset = friction_sides_into(g, sides);
     let slip: f64 = (0..3)
         .map(|i| {
             let u = sides
@@ -376,8 +379,23 @@ pub(crate) struct Anchor<'a> {
 
 /// Which contacts are anchored: those with a patch on a body (F, or a dynamic G) that has at
 /// least two of them.
+#[cfg(test)]
 pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize) -> Vec<bool> {
-    let mut per_body = vec![0usize; num_bodies];
+    let mut out = Vec::new();
+    anchored_contacts_into(geometry, num_bodies, &mut Vec::new(), &mut out);
+    out
+}
+
+/// [`anchored_contacts`] into `out`, with `per_body` the count of patches per body (both
+/// cleared first: storage the caller keeps, so that a warm step allocates neither).
+pub(crate) fn anchored_contacts_into(
+    geometry: &[ContactGeometry],
+    num_bodies: usize,
+    per_body: &mut Vec<usize>,
+    out: &mut Vec<bool>,
+) {
+    per_body.clear();
+    per_body.resize(num_bodies, 0);
     for g in geometry {
         if !g.patch.is_empty() && g.body < num_bodies {
             per_body[g.body] += 1;
@@ -386,15 +404,13 @@ pub(crate) fn anchored_contacts(geometry: &[ContactGeometry], num_bodies: usize)
             }
         }
     }
-    geometry
-        .iter()
-        .map(|g| {
-            !g.patch.is_empty()
-                && g.body < num_bodies
-                && (per_body[g.body] >= 2
-                    || dynamic_partner(g).is_some_and(|(b, _)| b < num_bodies && per_body[b] >= 2))
-        })
-        .collect()
+    out.clear();
+    out.extend(geometry.iter().map(|g| {
+        !g.patch.is_empty()
+            && g.body < num_bodies
+            && (per_body[g.body] >= 2
+                || dynamic_partner(g).is_some_and(|(b, _)| b < num_bodies && per_body[b] >= 2))
+    }));
 }
 
 /// Whether no body takes part in two of the contacts (as F, or as a dynamic G): then each
@@ -446,28 +462,28 @@ pub(crate) fn build(
         mut weights,
         mut anchor_cols,
         mut coeffs,
+        mut anchored,
+        mut per_body,
     } = storage;
     // The previous QP's rows, whose vectors the new ones refill.
     spare.extend(contacts.drain(..).flatten());
     weights.clear();
     match anchor {
-        Some(a) => weights.extend(
-            anchored_contacts(geometry, nb)
-                .into_iter()
-                .zip(geometry)
-                .map(|(anchored, g)| {
-                    if !anchored {
-                        return None;
-                    }
-                    let m = &bodies[g.body].mass;
-                    let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
-                    let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
-                    let normal = dot6(&we, &solve6(m, &we));
-                    let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
-                    (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
-                        .then_some((rho_m, rho_n))
-                }),
-        ),
+        Some(a) => {
+            anchored_contacts_into(geometry, nb, &mut per_body, &mut anchored);
+            weights.extend(anchored.iter().zip(geometry).map(|(&anchored, g)| {
+                if !anchored {
+                    return None;
+                }
+                let m = &bodies[g.body].mass;
+                let angular = (3..6).map(|i| 1.0 / m[i][i]).sum::<f64>() / 3.0;
+                let we = wrench(&g.normal, &sub(&g.ecp, &g.center_of_mass));
+                let normal = dot6(&we, &solve6(m, &we));
+                let (rho_m, rho_n) = (a.moment * angular, a.load * normal);
+                (rho_m > 0.0 && rho_m.is_finite() && rho_n > 0.0 && rho_n.is_finite())
+                    .then_some((rho_m, rho_n))
+            }));
+        }
         None => weights.resize(geometry.len(), None),
     }
     let mut next_col = 6 * nb + friction_vars;
@@ -626,11 +642,13 @@ pub(crate) fn build(
         weights,
         anchor_cols,
         coeffs,
+        anchored,
+        per_body,
     }
 }
 
 impl StepQp {
-    /// The QP's shape as [`StepQp::extract`] reads an answer (variables, rows, and each
+    /// The QP's shape as [`StepQp::extract_into`] reads an answer (variables, rows, and each
     /// contact's vertex rows, their hull vertices and its cone), into `out`: an answer of a QP
     /// with the same layout can be read as if it were this QP's (the outer iteration's reuse of
     /// the previous QP's answer, `conic/mod.rs`).
@@ -686,14 +704,24 @@ impl StepQp {
     ///
     /// Without `polish` (Anitescu's relaxation, or to measure the plain fixed point) the
     /// impulses are clarabel's duals as they are (only the active-set identification of `λ`).
-    pub fn extract(
+    ///
+    /// The point is written into `out`, whose vectors (the velocities, the contacts and each
+    /// contact's vertex impulses) are refilled, not allocated anew.
+    pub fn extract_into(
         &self,
         start: PolishStart<'_>,
         bodies: &[BodyDynamics],
         polish: bool,
         work: &mut PolishWorkspace,
-    ) -> ConicPoint {
+        out: &mut ConicPoint,
+    ) {
         let nb = bodies.len();
+        let ConicPoint {
+            velocities,
+            contacts,
+        } = out;
+        // Each contact's kept vertex impulses, refilled below in contact order.
+        contacts.truncate(self.contacts.len());
         let PolishWorkspace {
             factors,
             wrench_sum,
@@ -707,14 +735,20 @@ impl StepQp {
         factors.extend(bodies.iter().map(|b| MassFactor::new(&b.mass)));
         wrench_sum.clear();
         wrench_sum.resize(nb, [0.0f64; 6]);
-        let mut contacts = Vec::with_capacity(self.contacts.len());
-        for rows in &self.contacts {
-            let Some(rows) = rows else {
+        for (c, rows) in self.contacts.iter().enumerate() {
+            if c == contacts.len() {
                 contacts.push(ContactImpulses::default());
+            }
+            let imp = &mut contacts[c];
+            let mut vertex_impulses = std::mem::take(&mut imp.vertex_impulses);
+            vertex_impulses.clear();
+            let Some(rows) = rows else {
+                *imp = ContactImpulses {
+                    vertex_impulses,
+                    ..ContactImpulses::default()
+                };
                 continue;
             };
-            let c = contacts.len();
-            let mut vertex_impulses = Vec::with_capacity(rows.vertices.len());
             for (k, &j) in rows.vertices.iter().enumerate() {
                 let l = match start {
                     PolishStart::Qp(result) => {
@@ -754,12 +788,12 @@ impl StepQp {
                     }
                 }
             }
-            contacts.push(ContactImpulses {
+            contacts[c] = ContactImpulses {
                 vertex_impulses,
                 friction,
                 sigma: 0.0,
                 normal: rows.frame.normal,
-            });
+            };
         }
         // The Gauss–Seidel sweeps go on until they settle (MAX_SWEEPS at most): a fixed number
         // leaves a remainder that depends on where they start, i.e. on which QP method produced
@@ -777,17 +811,10 @@ impl StepQp {
         }
         for sweep in 0..sweeps {
             before.clear();
-            for c in &contacts {
+            for c in contacts.iter() {
                 before.extend(impulse_values(c));
             }
-            self.correct_normal_impulses(
-                bodies,
-                factors,
-                &mut contacts,
-                wrench_sum,
-                normal,
-                sweep == 0,
-            );
+            self.correct_normal_impulses(bodies, factors, contacts, wrench_sum, normal, sweep == 0);
             for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
                 let Some(rows) = rows else { continue };
                 if rows.soc_row.is_none() {
@@ -849,28 +876,25 @@ impl StepQp {
                     }
                 }
             }
-            if sweep >= 2 && settled(before, &contacts) {
+            if sweep >= 2 && settled(before, contacts) {
                 break;
             }
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
             // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
             // problem by Newton's method on its active set, which the next sweeps confirm.
             if (sweep + 1) % JOINT_AFTER == 0 {
-                self.joint_step(bodies, factors, &mut contacts, wrench_sum, current, joint);
+                self.joint_step(bodies, factors, contacts, wrench_sum, current, joint);
             }
         }
-        let velocities: Vec<[f64; 6]> = bodies
-            .iter()
-            .enumerate()
-            .map(|(b, body)| {
-                let dv = factors[b].solve(&wrench_sum[b]);
-                let mut nu = body.free_velocity;
-                for i in 0..6 {
-                    nu[i] += dv[i];
-                }
-                nu
-            })
-            .collect();
+        velocities.clear();
+        velocities.extend(bodies.iter().enumerate().map(|(b, body)| {
+            let dv = factors[b].solve(&wrench_sum[b]);
+            let mut nu = body.free_velocity;
+            for i in 0..6 {
+                nu[i] += dv[i];
+            }
+            nu
+        }));
         if !polish {
             // σ = ‖E u_T‖ at the new velocities (the relaxation's slip).
             for (rows, imp) in self.contacts.iter().zip(contacts.iter_mut()) {
@@ -890,14 +914,10 @@ impl StepQp {
                 }
             }
         }
-        ConicPoint {
-            velocities,
-            contacts,
-        }
     }
 }
 
-/// Where [`StepQp::extract`] starts: a QP's answer, or the impulses of a point polished against a
+/// Where [`StepQp::extract_into`] starts: a QP's answer, or the impulses of a point polished against a
 /// QP of the same layout ([`StepQp::layout_into`]), in contact and vertex-row order.
 #[derive(Clone, Copy)]
 pub(crate) enum PolishStart<'a> {
