@@ -35,7 +35,12 @@ fn run() -> Result<(), String> {
     while let Some(a) = args.next() {
         match a.as_str() {
             "--trace" => trace_step = args.next().and_then(|v| v.parse::<usize>().ok()),
-            "--steps" => last_step = args.next().and_then(|v| v.parse().ok()).unwrap_or(usize::MAX),
+            "--steps" => {
+                last_step = args
+                    .next()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(usize::MAX)
+            }
             "--with" => with = args.next().unwrap_or_default(),
             "--top" => top = args.next().and_then(|v| v.parse().ok()).unwrap_or(10),
             "--all" => all = true,

@@ -32,7 +32,8 @@
 //!   its exact local maximum-dissipation problem), which removes the interior-point stopping
 //!   error, and the outer fixed point is Anderson-accelerated. Neither is a Newton step on the
 //!   MCP. Where the fixed point stagnates, a semismooth-Newton polish from its best iterate
-//!   finishes the step ([`ConicSettings::newton_polish`]).
+//!   (and, when that falls short, from the warm start) finishes the step
+//!   ([`ConicSettings::newton_polish`]).
 //! - [`ConicMode::AnitescuRelaxation`]: one QP without the shift, at the warm start's geometry
 //!   (Anitescu, Math. Prog. 2006). Convex and cheap, but it is a different model: a sliding
 //!   contact separates with normal velocity `μ ‖E u_T‖`, so sliding bodies drift off the
@@ -105,7 +106,10 @@ pub struct ConicSettings {
     /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
     pub max_iterations: usize,
     /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
-    /// iterations. Default 20 (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
+    /// iterations; an iteration that moves the anchored contacts' loads on in the direction of
+    /// the one before is not counted (a load walking under the load anchor while the residual
+    /// stays flat, `docs/latency.md`, wip-conicheld). Default 20
+    /// (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub stagnation_window: usize,
     /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
     /// twice the distance they may approach G within the step, enter the QP
@@ -138,9 +142,11 @@ pub struct ConicSettings {
     pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it stagnated or reached
     /// its iteration limit (exact mode only), from the fixed point's best iterate, with the Newton
-    /// backend's default safeguards (its smoothing continuation included); reported in the
-    /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
-    /// conic iteration alone must converge.
+    /// backend's default safeguards (its smoothing continuation included); when that does not
+    /// reach the tolerance, as many again from the warm start (the best iterate can lie on
+    /// another active set, `docs/latency.md`, wip-conicheld); reported in the counter
+    /// `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the conic
+    /// iteration alone must converge.
     pub newton_polish: usize,
     /// Hand the fixed point's iterate to the semismooth-Newton finish once its natural residual
     /// is at most this (exact mode, with [`ConicSettings::newton_polish`] > 0), with at most
