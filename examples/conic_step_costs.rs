@@ -1,12 +1,12 @@
 //! Per-step cost of a scene with one backend (`docs/latency.md#conic-backend`):
 //!
 //! ```text
-//! cargo run --release --example conic_step_costs -- SCENE.toml [--with conic] [--top N] [--all]
+//! cargo run --release --example conic_step_costs -- SCENE.toml [--with conic] [--top N] [--all] [--steps N]
 //! ```
 //!
 //! steps the scene as the stress suite does (hull formulation, the scene's tolerance, no
 //! fallbacks) and prints the total solve time, the outer iterations (QPs for conic), and the
-//! `--top` most expensive steps with their iterations and counters; `--all` prints every step.
+//! `--top` most expensive steps with their iterations and counters; `--all` prints every step; `--steps N` stops after step N.
 use std::process::ExitCode;
 
 use ecp::formulations::{FormulationRegistry, SimulationBuilder};
@@ -29,11 +29,18 @@ fn run() -> Result<(), String> {
     let mut args = std::env::args().skip(1);
     let (mut path, mut with, mut top, mut all) = (None, "conic".to_string(), 10usize, false);
     let mut trace_step = None;
+    let mut last_step = usize::MAX;
     let mut sets = Vec::new();
     let mut formulation = "hull".to_string();
     while let Some(a) = args.next() {
         match a.as_str() {
             "--trace" => trace_step = args.next().and_then(|v| v.parse::<usize>().ok()),
+            "--steps" => {
+                last_step = args
+                    .next()
+                    .and_then(|v| v.parse().ok())
+                    .unwrap_or(usize::MAX)
+            }
             "--with" => with = args.next().unwrap_or_default(),
             "--top" => top = args.next().and_then(|v| v.parse().ok()).unwrap_or(10),
             "--all" => all = true,
@@ -64,7 +71,7 @@ fn run() -> Result<(), String> {
     };
     let mut rows = Vec::new();
     let (mut total_us, mut total_it, mut failed) = (0.0, 0usize, 0usize);
-    for k in 1..=file.scene.num_steps() {
+    for k in 1..=file.scene.num_steps().min(last_step) {
         if trace_step == Some(k) {
             trace(&mut sim, &options, &sets)?;
         }
@@ -156,6 +163,9 @@ fn conic_settings(o: &BackendOptions, sets: &[String]) -> Result<ConicSettings, 
             "dense_qp" => s.dense_qp = b()?,
             "newton_polish" => s.newton_polish = n()?,
             "max_iterations" => s.max_iterations = n()?,
+            "stagnation_window" => s.stagnation_window = n()?,
+            "warm_qp" => s.warm_qp = b()?,
+            "reuse_qp" => s.reuse_qp = b()?,
             _ => return Err(format!("unknown conic setting {name}")),
         }
     }

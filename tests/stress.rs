@@ -280,7 +280,8 @@ fn regressions_path() {
     regressions("path");
 }
 
-/// Fails today on `088_room_corner` (docs/stress.md). Run with
+/// Passes since the held-out seed's two conic scenes were mended (`s20261201_061_v_trough`,
+/// `s20261201_153_room_corner`, docs/stress.md; about 15 s). Run with
 /// `cargo test --release --test stress regressions_conic -- --ignored`.
 #[test]
 #[ignore]

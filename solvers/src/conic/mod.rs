@@ -32,7 +32,8 @@
 //!   its exact local maximum-dissipation problem), which removes the interior-point stopping
 //!   error, and the outer fixed point is Anderson-accelerated. Neither is a Newton step on the
 //!   MCP. Where the fixed point stagnates, a semismooth-Newton polish from its best iterate
-//!   finishes the step ([`ConicSettings::newton_polish`]).
+//!   (and, when that falls short, from the warm start) finishes the step
+//!   ([`ConicSettings::newton_polish`]).
 //! - [`ConicMode::AnitescuRelaxation`]: one QP without the shift, at the warm start's geometry
 //!   (Anitescu, Math. Prog. 2006). Convex and cheap, but it is a different model: a sliding
 //!   contact separates with normal velocity `μ ‖E u_T‖`, so sliding bodies drift off the
@@ -105,7 +106,10 @@ pub struct ConicSettings {
     /// Limit on outer (fixed-point) iterations, one clarabel QP each. Default 50.
     pub max_iterations: usize,
     /// Stop (stagnated) when the best residual has not improved by 10 % for this many outer
-    /// iterations. Default 20 (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
+    /// iterations; an iteration that moves the anchored contacts' loads on in the direction of
+    /// the one before is not counted (a load walking under the load anchor while the residual
+    /// stays flat, `docs/latency.md`, wip-conicheld). Default 20
+    /// (`docs/decisions.md#conic-backend-stopping-and-clarabel-settings`).
     pub stagnation_window: usize,
     /// Tolerance band (m) of the contact patch: vertices of Conv(F) with gap at most this, plus
     /// twice the distance they may approach G within the step, enter the QP
@@ -138,9 +142,11 @@ pub struct ConicSettings {
     pub anchor_load: f64,
     /// Semismooth-Newton iterations allowed after the fixed point when it stagnated or reached
     /// its iteration limit (exact mode only), from the fixed point's best iterate, with the Newton
-    /// backend's default safeguards (its smoothing continuation included); reported in the
-    /// counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the
-    /// conic iteration alone must converge.
+    /// backend's default safeguards (its smoothing continuation included); when that does not
+    /// reach the tolerance, as many again from the warm start (the best iterate can lie on
+    /// another active set, `docs/latency.md`, wip-conicheld); reported in the counter
+    /// `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the conic
+    /// iteration alone must converge.
     pub newton_polish: usize,
     /// Hand the fixed point's iterate to the semismooth-Newton finish once its natural residual
     /// is at most this (exact mode, with [`ConicSettings::newton_polish`] > 0), with at most
@@ -493,6 +499,7 @@ impl McpSolver for ConicSolver {
             anchored,
             per_body,
             sides,
+            drift,
         } = &mut ws;
         zeroed(f, n);
         z.clear();
@@ -520,6 +527,7 @@ impl McpSolver for ConicSolver {
         } else {
             0
         });
+        drift.iteration = None;
         // Whether `previous_loads` holds the previous outer iterate's loads (else the first QP's
         // anchor is centred on `warm_loads`).
         let mut have_loads = false;
@@ -749,7 +757,15 @@ impl McpSolver for ConicSolver {
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
                 since_improvement = 0;
-            } else {
+            } else if !(have_loads
+                && loads_drifting(
+                    &step::anchored_contacts(geometry, nb),
+                    &point,
+                    previous_loads,
+                    drift,
+                    it,
+                ))
+            {
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
                     termination = Termination::Stagnated;
@@ -836,6 +852,26 @@ impl McpSolver for ConicSolver {
                     }
                     if best_residual <= self.settings.tolerance {
                         termination = Termination::Converged;
+                    }
+                }
+                // The fixed point's best iterate can lie on another active set than the step's
+                // solution, where Newton's local convergence fails; the warm start, the stepper's
+                // prediction, may be on the right one. `153_room_corner` of seed 20261201, step
+                // 186: an arch spinning flat on the floor on four coplanar vertices; the QPs tip
+                // it onto two or three of them and the fixed point cycles between such points
+                // (residuals 1.4e-3–7.4e-3); Newton from the best of them stops at 4.9e-6, from
+                // the warm start (face contact kept) it converges in 3 iterations.
+                if termination != Termination::Converged && z0 != best_z.as_slice() {
+                    let polished =
+                        self.newton_finish(mcp, z0, self.settings.newton_polish, false, &mut run);
+                    if let Some(sol) = polished
+                        && sol.summary.residual < best_residual
+                    {
+                        z.copy_from_slice(&sol.z);
+                        best_residual = sol.summary.residual;
+                        if best_residual <= self.settings.tolerance {
+                            termination = Termination::Converged;
+                        }
                     }
                 }
             }
@@ -1034,4 +1070,64 @@ struct OuterWorkspace {
     per_body: Vec<usize>,
     /// A contact's friction sides for its first De Saxcé shift.
     sides: Vec<step::BodyFriction>,
+    /// The anchored loads' last change, for the stagnation test ([`loads_drifting`]).
+    drift: LoadDrift,
 }
+
+/// The change of the anchored contacts' loads over one outer iteration, kept for the next
+/// ([`loads_drifting`]).
+#[derive(Default)]
+struct LoadDrift {
+    /// The outer iteration whose change `change` holds.
+    iteration: Option<usize>,
+    /// Per contact: its load minus the previous iterate's (0 for a contact not anchored).
+    change: Vec<f64>,
+}
+
+/// Whether outer iteration `it` moved the anchored contacts' loads (`anchored`) on in the
+/// direction of the iteration before (cosine at least [`DRIFT_COSINE`]) by more than
+/// [`DRIFT_SIZE`] of their size: progress the residual does not show. The load anchor (a
+/// proximal term, `step.rs`) lets a load that must go a long way, e.g. to 0 where a support
+/// of a body wedged in a trough unloads, move only a bounded amount per QP; while it does, the
+/// residual stays flat (the De Saxcé shift lags by the slip's change), and the stagnation window
+/// would stop the fixed point a few QPs before its end (`061_v_trough` of seed 20261201, step 68:
+/// 22 QPs at 2.2e-5 while one support's load walked from 0.30 to 0.007 N·s, converged at QP 29).
+/// Loads are not in Anderson's state, so it cannot shorten the walk. Records this iteration's
+/// change in `drift` for the next call.
+fn loads_drifting(
+    anchored: &[bool],
+    point: &ecp_model::ConicPoint,
+    previous_loads: &[f64],
+    drift: &mut LoadDrift,
+    it: usize,
+) -> bool {
+    let nc = point.contacts.len().min(previous_loads.len());
+    // The last change is comparable when it is the iteration before's, with the same contacts.
+    let follows = drift.iteration.is_some_and(|i| i + 1 == it) && drift.change.len() == nc;
+    drift.change.resize(nc, 0.0);
+    let (mut dot, mut last_norm, mut norm, mut size) = (0.0, 0.0, 0.0, 0.0f64);
+    for (c, (p, before)) in point.contacts.iter().zip(previous_loads).enumerate() {
+        let load: f64 = p.vertex_impulses.iter().map(|(_, l)| l).sum();
+        let d = if anchored.get(c).copied().unwrap_or(false) {
+            size = size.max(load.abs());
+            load - before
+        } else {
+            0.0
+        };
+        let e = if follows { drift.change[c] } else { 0.0 };
+        dot += d * e;
+        last_norm += e * e;
+        norm += d * d;
+        drift.change[c] = d;
+    }
+    drift.iteration = Some(it);
+    let (norm, last_norm) = (norm.sqrt(), last_norm.sqrt());
+    norm > DRIFT_SIZE * size && last_norm > 0.0 && dot >= DRIFT_COSINE * norm * last_norm
+}
+
+/// See [`loads_drifting`]: two successive load changes count as one drift when the angle between
+/// them has at least this cosine.
+const DRIFT_COSINE: f64 = 0.9;
+/// See [`loads_drifting`]: a load change counts when it exceeds this fraction of the largest
+/// anchored load.
+const DRIFT_SIZE: f64 = 1e-6;
