@@ -285,8 +285,31 @@ pub struct NewtonSettings {
     /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
     /// without it; a run whose last step was a chord step then takes one more (the chord's
     /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
-    /// the iteration limit. `None` turns it off. Default `Some(1e-3)`.
+    /// the iteration limit, nor at a round-off floor ([`NewtonSettings::chord_polish_floor`]).
+    /// `None` turns it off. Default `Some(1e-3)`.
     pub chord_contraction: Option<f64>,
+    /// Chord steps across solves: the first iteration of a solve first tries a chord step
+    /// ([`NewtonSettings::chord_contraction`]) on the LU kept from the solver's last solve
+    /// (the next time step's problem: the same Jacobian pattern and, on a steady contact, nearly
+    /// the same `H`), and the chord steps on that LU go on while each lowers the natural
+    /// residual by this factor (instead of `chord_contraction`: that `H` is a step old, so its
+    /// rate is slower than that of an `H` formed in the run, and a chord step costs a sixth of a
+    /// factorising iteration). Kept only from a solve that converged with that LU as its last
+    /// factorisation (no pinned columns, its step a descent step), and only for a problem with
+    /// the same Jacobian pattern and the same bound kinds; tried only by the first run of a
+    /// solve. The chord step's own tests decide it (every pair on the branch it had where that
+    /// `H` was formed, `Ψ` falls, the residual falls by this factor); refused, the iteration forms
+    /// and factorises `H` at once. Needs `chord_contraction`. `None`: every solve factorises
+    /// first, as before. Default `None` (measured: `docs/latency.md`, "Newton's desk step on the
+    /// LU kept from the step before").
+    pub chord_across_solves: Option<f64>,
+    /// The chord's polish ([`NewtonSettings::chord_contraction`]) is not taken when the natural
+    /// residual is at most this many units of round-off (`f64::EPSILON`) of `‖z‖∞`: the
+    /// residual `z − mid(l, u, z − F)` is a difference of numbers of that size, so a chord step
+    /// cannot lower it further (on the desk, `‖z‖∞` ≈ 1.5–2 in the scene scales: the floor is
+    /// 1.3e-15–1.8e-15, where the second chord step ends at 1e-16–9e-16 and the polish gained
+    /// nothing that counts). `None`: the polish is always taken. Default `Some(4.0)`.
+    pub chord_polish_floor: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -333,6 +356,8 @@ impl Default for NewtonSettings {
             complementary_restart: Some(1e3),
             scene_scales: true,
             chord_contraction: Some(1e-3),
+            chord_across_solves: None,
+            chord_polish_floor: Some(4.0),
             trace: false,
         }
     }
@@ -488,6 +513,11 @@ pub struct NewtonSolver {
     in_continuation: bool,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     budget: Option<usize>,
+    /// `linear` holds the LU of an `H` formed at `Workspace::z_lu` by the last solve, which
+    /// converged with it (no pinned columns, a descent step): the next solve's first iteration
+    /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
+    /// Jacobian pattern or the bound kinds change, and by every run until it ends converged.
+    kept_lu: bool,
 }
 
 impl NewtonSolver {
@@ -508,6 +538,7 @@ impl NewtonSolver {
             min_norm_kept: 0,
             in_continuation: false,
             budget: None,
+            kept_lu: false,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -557,6 +588,8 @@ impl NewtonSolver {
                 |e| SolveError::InvalidProblem(format!("cannot analyse the Jacobian pattern: {e}")),
             )?;
             self.linear = Some(lin);
+            // A new pattern: the LU kept from the last solve is of another problem.
+            self.kept_lu = false;
             self.linear_structured = self.settings.structured_solve;
             self.normal = None;
             self.pattern = Some(pattern.clone());
@@ -858,6 +891,15 @@ fn same_branches(
         pair_branch(z[i], f[i], l[i], u[i], kinds[i])
             == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
     })
+}
+
+/// `‖z‖∞`: the size of the numbers the natural residual `z − mid(l, u, z − F)` is a difference
+/// of, so its round-off bounds how far a step can lower it
+/// ([`NewtonSettings::chord_polish_floor`]). `‖F‖∞` is no such scale: a component at its
+/// bound with a large `F` (90 on the desk) has a residual of exactly zero. NaNs are left out
+/// (the residual is finite where it is asked for).
+fn round_off_scale(z: &[f64]) -> f64 {
+    z.iter().fold(0.0, |m: f64, v| m.max(v.abs()))
 }
 
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
@@ -1229,6 +1271,9 @@ impl NewtonSolver {
         let start = Instant::now();
         validate_start(mcp, z0)?;
         self.prepare(mcp)?;
+        // The last solve's LU (`NewtonSettings::chord_across_solves`), taken: only a run that
+        // ends converged on an LU of its own keeps one for the next.
+        let kept = std::mem::take(&mut self.kept_lu);
         let s = self.settings.clone();
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
@@ -1253,21 +1298,55 @@ impl NewtonSolver {
         let mut ratio_steps = 0usize;
         // The next iteration may try a chord step (`NewtonSettings::chord_contraction`); the
         // last step was one; the chord's polish was taken.
-        let mut chord_ready = false;
+        // (Both set below: true at the start when the last solve's LU is kept.)
+        let (mut chord_ready, mut chord_lu);
         let (mut last_chord, mut chord_polished) = (false, false);
-        // The LU held is of an `H` without pins whose step passed the descent test.
-        let mut chord_lu = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
         ws.z.copy_from_slice(z0);
-        ws.kinds.clear();
-        ws.kinds
-            .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
-        mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+        // The bound kinds, with the pattern the key of the kept LU: the same problem's next step
+        // has the same kinds.
+        let same_kinds = ws.kinds.len() == n
+            && (ws.kinds.iter())
+                .zip(l.iter().zip(u))
+                .all(|(k, (&l, &u))| *k == classify(l, u));
+        if !same_kinds {
+            ws.kinds.clear();
+            ws.kinds
+                .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
+        }
+        // The first iteration tries a chord step on the last solve's LU: only the plain
+        // iteration's first run (the restarts after a failed run start afresh).
+        let from_kept = kept
+            && same_kinds
+            && s.chord_across_solves.is_some()
+            && s.chord_contraction.is_some()
+            && self.attempt == 0
+            && !self.nonmonotone
+            && !self.in_continuation;
+        // `J` at the start only when the first iteration forms `H` (a refused chord step
+        // evaluates it then).
+        let mut have_jac = !from_kept;
+        if have_jac {
+            mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+            jac_evals += 1;
+        } else {
+            mcp.evaluate(&ws.z, &mut ws.f);
+        }
         f_evals += 1;
-        jac_evals += 1;
-        let mut have_jac = true;
+        // The LU held is of an `H` without pins whose step passed the descent test; it is the
+        // last solve's (its chord steps contract by `chord_across_solves`).
+        (chord_ready, chord_lu) = (from_kept, from_kept);
+        let mut lu_from_last = from_kept;
+        // The contraction a chord step on the LU held must give.
+        let chord_kappa = |from_last: bool| {
+            if from_last {
+                s.chord_across_solves
+            } else {
+                s.chord_contraction
+            }
+        };
         fb_vector_of_kinds(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
         let psi_start = psi;
@@ -1306,7 +1385,21 @@ impl NewtonSolver {
                         termination = Termination::Converged;
                         break;
                     }
-                    chord_polish = true;
+                    if s.chord_polish_floor.is_some_and(|ulps| {
+                        residual <= ulps * f64::EPSILON * round_off_scale(&ws.z)
+                    }) {
+                        // At round-off already: the chord's polish cannot lower it.
+                        prof.chord_polishes_skipped += 1;
+                        termination = Termination::Converged;
+                        break;
+                    }
+                    if lu_from_last {
+                        // The last solve's `H` is a step old: its chord steps are not polished
+                        // by another (their rate is slower), but by a full step (`polishing`).
+                        chord_ready = false;
+                    } else {
+                        chord_polish = true;
+                    }
                 }
                 polishing = true;
             }
@@ -1317,7 +1410,7 @@ impl NewtonSolver {
             // A chord step on the kept LU (`NewtonSettings::chord_contraction`): kept when it
             // contracts the natural residual enough, else the iteration goes on as without it.
             let mut chord_residual = None;
-            if let Some(kappa) = s.chord_contraction
+            if let Some(kappa) = chord_kappa(lu_from_last)
                 && chord_ready
                 && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
                 && let Some(linear) = self.linear.as_mut()
@@ -1353,6 +1446,14 @@ impl NewtonSolver {
                 }
             }
             let chord = chord_residual.is_some();
+            if chord_ready && iterations == 0 {
+                // The first iteration's chord step is on the last solve's LU.
+                if chord {
+                    prof.kept_lu_steps += 1;
+                } else {
+                    prof.kept_lu_refusals += 1;
+                }
+            }
             // Whether the step taken is the kept LU's full step (a chord step may follow it).
             let mut lu_step = chord;
             let mut newton_ok = false;
@@ -1433,6 +1534,7 @@ impl NewtonSolver {
                 // A pinned `H` is singular but for the pins (D5's collision): its chord steps
                 // end where the next `H`'s LU fails, so its LU is not kept for them.
                 chord_lu = newton_ok && !pinned;
+                lu_from_last = false;
                 prof.lu_factorizations += 1;
                 clock.lap(&mut prof, Phase::NewtonDirection);
             }
@@ -1795,7 +1897,7 @@ impl NewtonSolver {
             last_chord = chord;
             have_jac = false;
             // A step by the kept LU that contracted the residual fast, near the solution.
-            chord_ready = s.chord_contraction.is_some_and(|kappa| {
+            chord_ready = chord_kappa(lu_from_last).is_some_and(|kappa| {
                 lu_step
                     && chord_lu
                     && checkpoint.is_none()
@@ -1930,6 +2032,8 @@ impl NewtonSolver {
             dot(&ws.phi, &ws.phi),
         );
         if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
+            // Converged on its last LU: kept for the next solve's first iteration.
+            self.kept_lu = s.chord_across_solves.is_some() && chord_lu;
             Ok(result)
         } else {
             Err(SolveError::NotConverged {
