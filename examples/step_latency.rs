@@ -19,7 +19,7 @@
 //! is the mean whole step over steps 21–120; `desk-steps-into` the same with
 //! `Simulation::step_into` and one kept record, `desk-steps-profile` prints the Newton profile's counts over
 //! the steps (factorisations, chord steps, those on the last solve's LU), `desk-steps-main` takes
-//! them without `NewtonSettings::chord_across_solves` and `chord_polish_floor` (main's Newton
+//! them without `NewtonSettings::chord_across_solves` and `chord_round_off_floor` (main's Newton
 //! before branch wip-lukeep), `desk-steps-kept` with chord steps on the last solve's LU
 //! (`chord_across_solves: Some(1e-2)`), `desk-steps-previous` with
 //! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
@@ -222,7 +222,7 @@ fn main() {
                 NewtonSolver::new(NewtonSettings {
                     structured_solve,
                     chord_across_solves: None,
-                    chord_polish_floor: None,
+                    chord_round_off_floor: None,
                     ..NewtonSettings::default()
                 })
             } else if case == "desk-steps-kept" {

@@ -285,7 +285,7 @@ pub struct NewtonSettings {
     /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
     /// without it; a run whose last step was a chord step then takes one more (the chord's
     /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
-    /// the iteration limit, nor at a round-off floor ([`NewtonSettings::chord_polish_floor`]).
+    /// the iteration limit, nor at a round-off floor ([`NewtonSettings::chord_round_off_floor`]).
     /// `None` turns it off. Default `Some(1e-3)`.
     pub chord_contraction: Option<f64>,
     /// Chord steps across solves: the first iteration of a solve first tries a chord step
@@ -303,13 +303,16 @@ pub struct NewtonSettings {
     /// first, as before. Default `None` (measured: `docs/latency.md`, "Newton's desk step on the
     /// LU kept from the step before").
     pub chord_across_solves: Option<f64>,
-    /// The chord's polish ([`NewtonSettings::chord_contraction`]) is not taken when the natural
-    /// residual is at most this many units of round-off (`f64::EPSILON`) of `‖z‖∞`: the
-    /// residual `z − mid(l, u, z − F)` is a difference of numbers of that size, so a chord step
-    /// cannot lower it further (on the desk, `‖z‖∞` ≈ 1.5–2 in the scene scales: the floor is
-    /// 1.3e-15–1.8e-15, where the second chord step ends at 1e-16–9e-16 and the polish gained
-    /// nothing that counts). `None`: the polish is always taken. Default `Some(4.0)`.
-    pub chord_polish_floor: Option<f64>,
+    /// The round-off floor of the chord steps ([`NewtonSettings::chord_contraction`]), in units
+    /// of round-off (`f64::EPSILON`) of `‖z‖∞`: the natural residual `z − mid(l, u, z − F)` is a
+    /// difference of numbers of that size, so no step lowers it much below. A chord step that
+    /// reaches the floor is kept as one that contracts the residual by `chord_contraction` is
+    /// (near the floor none does: on the desk 92 of 400 steps refused such a chord step at
+    /// 1e-13 and factorised for a full step to the same 1e-16), and a run at the floor takes no
+    /// chord's polish. On the desk `‖z‖∞` ≈ 1.5–2 in the scene scales, so the floor is
+    /// 1.3e-15–1.8e-15; the second chord step ends at 1e-16–9e-16. `None`: neither. Default
+    /// `Some(4.0)`.
+    pub chord_round_off_floor: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -357,7 +360,7 @@ impl Default for NewtonSettings {
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: None,
-            chord_polish_floor: Some(4.0),
+            chord_round_off_floor: Some(4.0),
             trace: false,
         }
     }
@@ -895,7 +898,7 @@ fn same_branches(
 
 /// `‖z‖∞`: the size of the numbers the natural residual `z − mid(l, u, z − F)` is a difference
 /// of, so its round-off bounds how far a step can lower it
-/// ([`NewtonSettings::chord_polish_floor`]). `‖F‖∞` is no such scale: a component at its
+/// ([`NewtonSettings::chord_round_off_floor`]). `‖F‖∞` is no such scale: a component at its
 /// bound with a large `F` (90 on the desk) has a residual of exactly zero. NaNs are left out
 /// (the residual is finite where it is asked for).
 fn round_off_scale(z: &[f64]) -> f64 {
@@ -1339,6 +1342,12 @@ impl NewtonSolver {
         // last solve's (its chord steps contract by `chord_across_solves`).
         (chord_ready, chord_lu) = (from_kept, from_kept);
         let mut lu_from_last = from_kept;
+        // A natural residual at the round-off floor of the point `z`
+        // (`NewtonSettings::chord_round_off_floor`).
+        let at_round_off = |r: f64, z: &[f64]| {
+            s.chord_round_off_floor
+                .is_some_and(|ulps| r <= ulps * f64::EPSILON * round_off_scale(z))
+        };
         // The contraction a chord step on the LU held must give.
         let chord_kappa = |from_last: bool| {
             if from_last {
@@ -1385,9 +1394,7 @@ impl NewtonSolver {
                         termination = Termination::Converged;
                         break;
                     }
-                    if s.chord_polish_floor.is_some_and(|ulps| {
-                        residual <= ulps * f64::EPSILON * round_off_scale(&ws.z)
-                    }) {
+                    if at_round_off(residual, &ws.z) {
                         // At round-off already: the chord's polish cannot lower it.
                         prof.chord_polishes_skipped += 1;
                         termination = Termination::Converged;
@@ -1422,12 +1429,14 @@ impl NewtonSolver {
                     && let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
                     && (chord_polish || p < psi)
                 {
-                    // The polish is kept when it lowers the residual, as the full step's is.
+                    // The polish is kept when it lowers the residual, as the full step's is;
+                    // another chord step when it contracts it by `kappa`, or reaches the
+                    // round-off floor (near it no step contracts it by `kappa`).
                     let r = natural_residual(&ws.z_trial, &ws.f_trial, l, u);
                     let kept = if chord_polish {
                         r < residual
                     } else {
-                        r <= kappa * residual
+                        r <= kappa * residual || at_round_off(r, &ws.z_trial)
                     };
                     if kept {
                         accepted = Some((1.0, p));
@@ -2082,8 +2091,13 @@ mod tests {
     /// active one (`z₂ = 0`, `F₂ > 0`): from 1e-4 off its solution the first Newton step lands
     /// at a natural residual of ~1e-8, where chord steps take over.
     fn smooth_three() -> FnMcp {
+        smooth_three_bounded(0.0)
+    }
+
+    /// `smooth_three` with `lower` the last component's lower bound.
+    fn smooth_three_bounded(lower: f64) -> FnMcp {
         FnMcp::dense(
-            vec![f64::NEG_INFINITY, 0.0, 0.0],
+            vec![f64::NEG_INFINITY, 0.0, lower],
             vec![f64::INFINITY; 3],
             |z, f| {
                 f[0] = z[0] + 0.5 * z[0].sin() + 0.2 * z[1] - 1.0;
@@ -2195,6 +2209,121 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(within.z, full.z);
         assert_eq!(within.summary.iterations, full.summary.iterations);
+    }
+
+    #[test]
+    fn a_chord_step_at_the_round_off_floor_ends_the_run_without_the_polish() {
+        let (exact, start) = smooth_three_start();
+        let solve = |floor| {
+            let mut solver = NewtonSolver::new(NewtonSettings {
+                chord_round_off_floor: floor,
+                ..NewtonSettings::default()
+            })
+            .with_profile();
+            let sol = solver
+                .solve(&smooth_three(), &start)
+                .unwrap_or_else(|e| panic!("{e}"));
+            (sol, solver.take_profile())
+        };
+        let (polished, polished_profile) = solve(None);
+        let (floored, floored_profile) = solve(Some(4.0));
+        assert_eq!(polished_profile.chord_polishes_skipped, 0);
+        assert_eq!(floored_profile.chord_polishes_skipped, 1, "{floored_profile:?}");
+        // The chord's polish not tried: one evaluation fewer (here the polish did not lower the
+        // residual, so it was not kept and the iterations are the same), the same
+        // factorisations.
+        assert_eq!(
+            floored.summary.f_evals + 1,
+            polished.summary.f_evals,
+            "{floored_profile:?} against {polished_profile:?}"
+        );
+        assert_eq!(floored.summary.iterations, polished.summary.iterations);
+        assert_eq!(
+            floored_profile.lu_factorizations,
+            polished_profile.lu_factorizations
+        );
+        // The run ends at the floor, 4 units of round-off of ‖z‖∞, and where the polish ends
+        // within it.
+        let floor = 4.0 * f64::EPSILON * exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert_eq!(floored.summary.termination, Termination::Converged);
+        assert!(floored.summary.residual <= floor, "{:?}", floored.summary);
+        for (a, b) in polished.z.iter().zip(&floored.z) {
+            assert!((a - b).abs() <= floor, "{:?} against {:?}", polished.z, floored.z);
+        }
+    }
+
+    #[test]
+    fn a_chord_step_on_the_last_solves_lu_replaces_the_first_factorisation() {
+        let (exact, start) = smooth_three_start();
+        let other_start = vec![exact[0] - 1e-4, exact[1] + 1e-4, 2e-4];
+        let settings = NewtonSettings {
+            chord_across_solves: Some(1e-2),
+            ..NewtonSettings::default()
+        };
+        let mut solver = NewtonSolver::new(settings.clone()).with_profile();
+        let first = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let first_profile = solver.take_profile();
+        assert_eq!(first_profile.kept_lu_steps + first_profile.kept_lu_refusals, 0);
+        assert_eq!(first_profile.lu_factorizations, 1, "{first_profile:?}");
+        // The next solve of the same problem starts on the first one's LU: no factorisation.
+        let second = solver
+            .solve(&smooth_three(), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (1, 0), "{p:?}");
+        assert_eq!(p.lu_factorizations, 0, "{p:?}");
+        assert_eq!(second.summary.iterations, p.chord_steps, "{p:?}");
+        // At round-off, where a solver without the kept LU ends, within 1e-15.
+        let fresh = NewtonSolver::new(settings.clone())
+            .solve(&smooth_three(), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        for sol in [&first, &second, &fresh] {
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
+        }
+        for (a, b) in fresh.z.iter().zip(&second.z) {
+            assert!((a - b).abs() <= 1e-15, "{:?} against {:?}", fresh.z, second.z);
+        }
+        // Another pattern in between (a problem of dimension 2): the LU is not kept for it,
+        // and the next solve of the first problem factorises first.
+        let two = FnMcp::dense(
+            vec![f64::NEG_INFINITY; 2],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = 2.0 * z[0] - 1.0;
+                f[1] = z[1] + 0.1 * z[0];
+            },
+            |_, j| {
+                j[0] = 2.0;
+                j[1] = 0.1;
+                j[3] = 1.0;
+            },
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"));
+        for mcp in [&two, &smooth_three()] {
+            solver
+                .solve(mcp, &other_start[..mcp.dim()])
+                .unwrap_or_else(|e| panic!("{e}"));
+            let p = solver.take_profile();
+            assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+            assert!(p.lu_factorizations >= 1, "{p:?}");
+        }
+        // The same pattern with other bound kinds (the last component free): not kept either.
+        solver
+            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+        // Off (the default): every solve factorises first.
+        let mut off = NewtonSolver::new(NewtonSettings::default()).with_profile();
+        for z0 in [&start, &other_start] {
+            off.solve(&smooth_three(), z0)
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
+        let p = off.take_profile();
+        assert_eq!((p.kept_lu_steps, p.lu_factorizations), (0, 2), "{p:?}");
     }
 
     #[test]

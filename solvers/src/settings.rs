@@ -140,8 +140,8 @@ impl NewtonSettings {
         if let Some(contraction) = self.chord_across_solves {
             c.fraction("chord_across_solves", contraction)?;
         }
-        if let Some(ulps) = self.chord_polish_floor {
-            c.positive("chord_polish_floor", ulps)?;
+        if let Some(ulps) = self.chord_round_off_floor {
+            c.positive("chord_round_off_floor", ulps)?;
         }
         smoothing(&c, &self.smoothing)
     }
@@ -406,9 +406,9 @@ mod tests {
             v,
         );
         refused(
-            "chord_polish_floor",
+            "chord_round_off_floor",
             NewtonSettings {
-                chord_polish_floor: Some(-1.0),
+                chord_round_off_floor: Some(-1.0),
                 ..d()
             },
             v,

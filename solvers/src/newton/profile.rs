@@ -90,7 +90,7 @@ pub struct NewtonProfile {
     /// another branch, or the step's tests), then factorised.
     pub kept_lu_refusals: usize,
     /// Chord's polishes not taken at the round-off floor
-    /// ([`crate::newton::NewtonSettings::chord_polish_floor`]).
+    /// ([`crate::newton::NewtonSettings::chord_round_off_floor`]).
     pub chord_polishes_skipped: usize,
     /// Nanoseconds per phase, in the order of [`Phase::ALL`].
     pub ns: [u64; 7],
