@@ -280,7 +280,8 @@ pub struct NewtonSettings {
     /// had no pinned columns ([`NewtonSettings::pin_zero_columns`]) and every complementarity
     /// pair is on the branch (`z` at a bound or `F` zero, as the natural residual's `mid`
     /// selects it) it had where `H₀` was formed; the step is kept only when it lowers `Ψ` and
-    /// the natural residual by this factor again, otherwise the iteration forms and factorises
+    /// the natural residual by this factor again (or to the round-off floor,
+    /// [`NewtonSettings::chord_round_off_floor`]), otherwise the iteration forms and factorises
     /// `H` at `z` at once. A chord step counts as an iteration and a Newton step. It is never
     /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
     /// without it; a run whose last step was a chord step then takes one more (the chord's
@@ -2228,7 +2229,10 @@ mod tests {
         let (polished, polished_profile) = solve(None);
         let (floored, floored_profile) = solve(Some(4.0));
         assert_eq!(polished_profile.chord_polishes_skipped, 0);
-        assert_eq!(floored_profile.chord_polishes_skipped, 1, "{floored_profile:?}");
+        assert_eq!(
+            floored_profile.chord_polishes_skipped, 1,
+            "{floored_profile:?}"
+        );
         // The chord's polish not tried: one evaluation fewer (here the polish did not lower the
         // residual, so it was not kept and the iterations are the same), the same
         // factorisations.
@@ -2248,7 +2252,12 @@ mod tests {
         assert_eq!(floored.summary.termination, Termination::Converged);
         assert!(floored.summary.residual <= floor, "{:?}", floored.summary);
         for (a, b) in polished.z.iter().zip(&floored.z) {
-            assert!((a - b).abs() <= floor, "{:?} against {:?}", polished.z, floored.z);
+            assert!(
+                (a - b).abs() <= floor,
+                "{:?} against {:?}",
+                polished.z,
+                floored.z
+            );
         }
     }
 
@@ -2265,7 +2274,10 @@ mod tests {
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
         let first_profile = solver.take_profile();
-        assert_eq!(first_profile.kept_lu_steps + first_profile.kept_lu_refusals, 0);
+        assert_eq!(
+            first_profile.kept_lu_steps + first_profile.kept_lu_refusals,
+            0
+        );
         assert_eq!(first_profile.lu_factorizations, 1, "{first_profile:?}");
         // The next solve of the same problem starts on the first one's LU: no factorisation.
         let second = solver
@@ -2284,7 +2296,12 @@ mod tests {
             assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
         }
         for (a, b) in fresh.z.iter().zip(&second.z) {
-            assert!((a - b).abs() <= 1e-15, "{:?} against {:?}", fresh.z, second.z);
+            assert!(
+                (a - b).abs() <= 1e-15,
+                "{:?} against {:?}",
+                fresh.z,
+                second.z
+            );
         }
         // Another pattern in between (a problem of dimension 2): the LU is not kept for it,
         // and the next solve of the first problem factorises first.
