@@ -311,8 +311,9 @@ pub struct NewtonSettings {
     /// (near the floor none does: on the desk 92 of 400 steps refused such a chord step at
     /// 1e-13 and factorised for a full step to the same 1e-16), and a run at the floor takes no
     /// chord's polish. On the desk `‖z‖∞` ≈ 1.5–2 in the scene scales, so the floor is
-    /// 1.3e-15–1.8e-15; the second chord step ends at 1e-16–9e-16. `None`: neither. Default
-    /// `Some(4.0)`.
+    /// 1.3e-15–1.8e-15; the second chord step ends at 1e-16–9e-16. Only below
+    /// `polish_below · tolerance`, where a run of full steps stops unpolished. `None`: neither.
+    /// Default `Some(4.0)`.
     pub chord_round_off_floor: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
@@ -1344,10 +1345,13 @@ impl NewtonSolver {
         (chord_ready, chord_lu) = (from_kept, from_kept);
         let mut lu_from_last = from_kept;
         // A natural residual at the round-off floor of the point `z`
-        // (`NewtonSettings::chord_round_off_floor`).
+        // (`NewtonSettings::chord_round_off_floor`), and low enough that a full step's run
+        // would stop there unpolished (a floor above that, from a large `‖z‖∞`, is not taken:
+        // smaller components may still be resolved further).
         let at_round_off = |r: f64, z: &[f64]| {
-            s.chord_round_off_floor
-                .is_some_and(|ulps| r <= ulps * f64::EPSILON * round_off_scale(z))
+            r <= s.polish_below * s.tolerance
+                && s.chord_round_off_floor
+                    .is_some_and(|ulps| r <= ulps * f64::EPSILON * round_off_scale(z))
         };
         // The contraction a chord step on the LU held must give.
         let chord_kappa = |from_last: bool| {
@@ -2215,9 +2219,10 @@ mod tests {
     #[test]
     fn a_chord_step_at_the_round_off_floor_ends_the_run_without_the_polish() {
         let (exact, start) = smooth_three_start();
-        let solve = |floor| {
+        let solve = |floor, polish_below| {
             let mut solver = NewtonSolver::new(NewtonSettings {
                 chord_round_off_floor: floor,
+                polish_below,
                 ..NewtonSettings::default()
             })
             .with_profile();
@@ -2226,8 +2231,17 @@ mod tests {
                 .unwrap_or_else(|e| panic!("{e}"));
             (sol, solver.take_profile())
         };
-        let (polished, polished_profile) = solve(None);
-        let (floored, floored_profile) = solve(Some(4.0));
+        let (polished, polished_profile) = solve(None, 1e-3);
+        let (floored, floored_profile) = solve(Some(4.0), 1e-3);
+        // Not above `polish_below · tolerance` (here 0): no polish skipped.
+        let (unfloored, unfloored_profile) = solve(Some(4.0), 0.0);
+        assert_eq!(unfloored_profile.chord_polishes_skipped, 0);
+        assert_eq!(unfloored.summary.termination, Termination::Converged);
+        assert!(
+            unfloored.summary.residual <= 1e-15,
+            "{:?}",
+            unfloored.summary
+        );
         assert_eq!(polished_profile.chord_polishes_skipped, 0);
         assert_eq!(
             floored_profile.chord_polishes_skipped, 1,
