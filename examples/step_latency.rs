@@ -17,7 +17,11 @@
 //! without the set-up. `desk-steps` takes the desk's first `N` whole steps with Newton
 //! (`Simulation::step`: checkpoint, data, solve, read-out, record), so `(Ir(120) − Ir(20)) / 100`
 //! is the mean whole step over steps 21–120; `desk-steps-into` the same with
-//! `Simulation::step_into` and one kept record, `desk-steps-previous` with
+//! `Simulation::step_into` and one kept record, `desk-steps-profile` prints the Newton profile's counts over
+//! the steps (factorisations, chord steps, those on the last solve's LU), `desk-steps-main` takes
+//! them without `NewtonSettings::chord_across_solves` and `chord_round_off_floor` (main's Newton
+//! before branch wip-lukeep), `desk-steps-kept` with chord steps on the last solve's LU
+//! (`chord_across_solves: Some(1e-2)`), `desk-steps-previous` with
 //! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
 //! `desk-steps-path` takes the desk's whole steps with PATH's defaults (polished, so
 //! extrapolated warm starts), `desk-steps-path-previous` from the plain warm start,
@@ -145,7 +149,7 @@ fn main() {
         _ => {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|desk-sensitivity-time|\
-                 desk-conic|desk-conic-dense|desk-steps|desk-steps-conic|desk-steps-conic-into|desk-steps-previous|desk-steps-into|desk-steps-path|\
+                 desk-conic|desk-conic-dense|desk-steps|desk-steps-profile|desk-steps-main|desk-steps-kept|desk-steps-conic|desk-steps-conic-into|desk-steps-previous|desk-steps-into|desk-steps-path|\
                  desk-steps-path-previous|desk-steps-path-unpolished|a1-steps> N [lu|schur]"
             );
             std::process::exit(2);
@@ -228,6 +232,48 @@ fn main() {
                 }
             }
             println!("{case} x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "desk-steps-profile" | "desk-steps-main" | "desk-steps-kept" => {
+            // `-profile`: the defaults, with the Newton profile's counts over the N steps;
+            // `-main`: without chord steps across solves and the chord's polish always taken
+            // (main's Newton before branch wip-lukeep: its digest).
+            let mut solver = if case == "desk-steps-main" {
+                NewtonSolver::new(NewtonSettings {
+                    structured_solve,
+                    chord_across_solves: None,
+                    chord_round_off_floor: None,
+                    ..NewtonSettings::default()
+                })
+            } else if case == "desk-steps-kept" {
+                NewtonSolver::new(NewtonSettings {
+                    structured_solve,
+                    chord_across_solves: Some(1e-2),
+                    ..NewtonSettings::default()
+                })
+            } else {
+                newton().with_profile()
+            };
+            let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("desk step"));
+            }
+            println!("{case} x{n}: record digest {:016x}", digest.0);
+            let p = solver.take_profile();
+            if case == "desk-steps-profile" {
+                println!(
+                    "iterations {}, LU factorisations {}, chord steps {} (refused {}), \
+                     on the last solve's LU {} (refused {}), chord's polishes skipped {}",
+                    p.iterations,
+                    p.lu_factorizations,
+                    p.chord_steps,
+                    p.chord_rejections,
+                    p.kept_lu_steps,
+                    p.kept_lu_refusals,
+                    p.chord_polishes_skipped
+                );
+            }
             digest.1
         }
         "desk-steps-previous" => {

@@ -93,10 +93,19 @@ fn previous_warm_start_is_the_plain_warm_start_bit_for_bit() {
     });
     let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
     assert_eq!(digest(&records), 0x32c9_b2ab_5ff7_3057);
-    // With the default's chord steps: `step_latency desk-steps-previous 400` on wip-chord.
-    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    // With the default's chord steps, their polish always taken: `step_latency
+    // desk-steps-previous 400` on wip-chord.
+    let mut solver = NewtonSolver::new(NewtonSettings {
+        chord_round_off_floor: None,
+        ..NewtonSettings::default()
+    });
     let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
     assert_eq!(digest(&records), 0x8f68_6621_54ea_b684);
+    // The default (the chord steps' round-off floor, which moves the end points by round-off):
+    // `step_latency desk-steps-previous 400` on wip-lukeep.
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let records = desk_records(Some(WarmStart::Previous), &mut solver, 400);
+    assert_eq!(digest(&records), 0xe1af_b0f8_efa2_b565);
 }
 
 #[test]

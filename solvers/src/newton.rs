@@ -291,13 +291,41 @@ pub struct NewtonSettings {
     /// had no pinned columns ([`NewtonSettings::pin_zero_columns`]) and every complementarity
     /// pair is on the branch (`z` at a bound or `F` zero, as the natural residual's `mid`
     /// selects it) it had where `H₀` was formed; the step is kept only when it lowers `Ψ` and
-    /// the natural residual by this factor again, otherwise the iteration forms and factorises
+    /// the natural residual by this factor again (or to the round-off floor,
+    /// [`NewtonSettings::chord_round_off_floor`]), otherwise the iteration forms and factorises
     /// `H` at `z` at once. A chord step counts as an iteration and a Newton step. It is never
     /// the polish of [`NewtonSettings::polish_below`], so a run stops by the same test as
     /// without it; a run whose last step was a chord step then takes one more (the chord's
     /// polish, kept when it lowers the residual: the chord's rate is linear), but not beyond
-    /// the iteration limit. `None` turns it off. Default `Some(1e-3)`.
+    /// the iteration limit, nor at a round-off floor ([`NewtonSettings::chord_round_off_floor`]).
+    /// `None` turns it off. Default `Some(1e-3)`.
     pub chord_contraction: Option<f64>,
+    /// Chord steps across solves: the first iteration of a solve first tries a chord step
+    /// ([`NewtonSettings::chord_contraction`]) on the LU kept from the solver's last solve
+    /// (the next time step's problem: the same Jacobian pattern and, on a steady contact, nearly
+    /// the same `H`), and the chord steps on that LU go on while each lowers the natural
+    /// residual by this factor (instead of `chord_contraction`: that `H` is a step old, so its
+    /// rate is slower than that of an `H` formed in the run, and a chord step costs a sixth of a
+    /// factorising iteration). Kept only from a solve that converged with that LU as its last
+    /// factorisation (no pinned columns, its step a descent step), and only for a problem with
+    /// the same Jacobian pattern and the same bound kinds; tried only by the first run of a
+    /// solve. The chord step's own tests decide it (every pair on the branch it had where that
+    /// `H` was formed, `Ψ` falls, the residual falls by this factor); refused, the iteration forms
+    /// and factorises `H` at once. Needs `chord_contraction`. `None`: every solve factorises
+    /// first, as before. Default `None` (measured: `docs/latency.md`, "Newton's desk step on the
+    /// LU kept from the step before").
+    pub chord_across_solves: Option<f64>,
+    /// The round-off floor of the chord steps ([`NewtonSettings::chord_contraction`]), in units
+    /// of round-off (`f64::EPSILON`) of `‖z‖∞`: the natural residual `z − mid(l, u, z − F)` is a
+    /// difference of numbers of that size, so no step lowers it much below. A chord step that
+    /// reaches the floor is kept as one that contracts the residual by `chord_contraction` is
+    /// (near the floor none does: on the desk 92 of 400 steps refused such a chord step at
+    /// 1e-13 and factorised for a full step to the same 1e-16), and a run at the floor takes no
+    /// chord's polish. On the desk `‖z‖∞` ≈ 1.5–2 in the scene scales, so the floor is
+    /// 1.3e-15–1.8e-15; the second chord step ends at 1e-16–9e-16. Only below
+    /// `polish_below · tolerance`, where a run of full steps stops unpolished. `None`: neither.
+    /// Default `Some(4.0)`.
+    pub chord_round_off_floor: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -345,6 +373,8 @@ impl Default for NewtonSettings {
             early_complementary_restart: Some(3e4),
             scene_scales: true,
             chord_contraction: Some(1e-3),
+            chord_across_solves: None,
+            chord_round_off_floor: Some(4.0),
             trace: false,
         }
     }
@@ -500,6 +530,11 @@ pub struct NewtonSolver {
     in_continuation: bool,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     budget: Option<usize>,
+    /// `linear` holds the LU of an `H` formed at `Workspace::z_lu` by the last solve, which
+    /// converged with it (no pinned columns, a descent step): the next solve's first iteration
+    /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
+    /// Jacobian pattern or the bound kinds change, and by every run until it ends converged.
+    kept_lu: bool,
 }
 
 impl NewtonSolver {
@@ -520,6 +555,7 @@ impl NewtonSolver {
             min_norm_kept: 0,
             in_continuation: false,
             budget: None,
+            kept_lu: false,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -569,6 +605,8 @@ impl NewtonSolver {
                 |e| SolveError::InvalidProblem(format!("cannot analyse the Jacobian pattern: {e}")),
             )?;
             self.linear = Some(lin);
+            // A new pattern: the LU kept from the last solve is of another problem.
+            self.kept_lu = false;
             self.linear_structured = self.settings.structured_solve;
             self.normal = None;
             self.pattern = Some(pattern.clone());
@@ -870,6 +908,15 @@ fn same_branches(
         pair_branch(z[i], f[i], l[i], u[i], kinds[i])
             == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
     })
+}
+
+/// `‖z‖∞`: the size of the numbers the natural residual `z − mid(l, u, z − F)` is a difference
+/// of, so its round-off bounds how far a step can lower it
+/// ([`NewtonSettings::chord_round_off_floor`]). `‖F‖∞` is no such scale: a component at its
+/// bound with a large `F` (90 on the desk) has a residual of exactly zero. NaNs are left out
+/// (the residual is finite where it is asked for).
+fn round_off_scale(z: &[f64]) -> f64 {
+    z.iter().fold(0.0, |m: f64, v| m.max(v.abs()))
 }
 
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
@@ -1242,6 +1289,9 @@ impl NewtonSolver {
         let start = Instant::now();
         validate_start(mcp, z0)?;
         self.prepare(mcp)?;
+        // The last solve's LU (`NewtonSettings::chord_across_solves`), taken: only a run that
+        // ends converged on an LU of its own keeps one for the next.
+        let kept = std::mem::take(&mut self.kept_lu);
         let s = self.settings.clone();
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
@@ -1266,21 +1316,64 @@ impl NewtonSolver {
         let mut ratio_steps = 0usize;
         // The next iteration may try a chord step (`NewtonSettings::chord_contraction`); the
         // last step was one; the chord's polish was taken.
-        let mut chord_ready = false;
+        // (Both set below: true at the start when the last solve's LU is kept.)
+        let (mut chord_ready, mut chord_lu);
         let (mut last_chord, mut chord_polished) = (false, false);
-        // The LU held is of an `H` without pins whose step passed the descent test.
-        let mut chord_lu = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
         ws.z.copy_from_slice(z0);
-        ws.kinds.clear();
-        ws.kinds
-            .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
-        mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+        // The bound kinds, with the pattern the key of the kept LU: the same problem's next step
+        // has the same kinds.
+        let same_kinds = ws.kinds.len() == n
+            && (ws.kinds.iter())
+                .zip(l.iter().zip(u))
+                .all(|(k, (&l, &u))| *k == classify(l, u));
+        if !same_kinds {
+            ws.kinds.clear();
+            ws.kinds
+                .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
+        }
+        // The first iteration tries a chord step on the last solve's LU: only the plain
+        // iteration's first run (the restarts after a failed run start afresh).
+        let from_kept = kept
+            && same_kinds
+            && s.chord_across_solves.is_some()
+            && s.chord_contraction.is_some()
+            && self.attempt == 0
+            && !self.nonmonotone
+            && !self.in_continuation;
+        // `J` at the start only when the first iteration forms `H` (a refused chord step
+        // evaluates it then).
+        let mut have_jac = !from_kept;
+        if have_jac {
+            mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+            jac_evals += 1;
+        } else {
+            mcp.evaluate(&ws.z, &mut ws.f);
+        }
         f_evals += 1;
-        jac_evals += 1;
-        let mut have_jac = true;
+        // The LU held is of an `H` without pins whose step passed the descent test; it is the
+        // last solve's (its chord steps contract by `chord_across_solves`).
+        (chord_ready, chord_lu) = (from_kept, from_kept);
+        let mut lu_from_last = from_kept;
+        // A natural residual at the round-off floor of the point `z`
+        // (`NewtonSettings::chord_round_off_floor`), and low enough that a full step's run
+        // would stop there unpolished (a floor above that, from a large `‖z‖∞`, is not taken:
+        // smaller components may still be resolved further).
+        let at_round_off = |r: f64, z: &[f64]| {
+            r <= s.polish_below * s.tolerance
+                && s.chord_round_off_floor
+                    .is_some_and(|ulps| r <= ulps * f64::EPSILON * round_off_scale(z))
+        };
+        // The contraction a chord step on the LU held must give.
+        let chord_kappa = |from_last: bool| {
+            if from_last {
+                s.chord_across_solves
+            } else {
+                s.chord_contraction
+            }
+        };
         fb_vector_of_kinds(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
         let psi_start = psi;
@@ -1319,7 +1412,19 @@ impl NewtonSolver {
                         termination = Termination::Converged;
                         break;
                     }
-                    chord_polish = true;
+                    if at_round_off(residual, &ws.z) {
+                        // At round-off already: the chord's polish cannot lower it.
+                        prof.chord_polishes_skipped += 1;
+                        termination = Termination::Converged;
+                        break;
+                    }
+                    if lu_from_last {
+                        // The last solve's `H` is a step old: its chord steps are not polished
+                        // by another (their rate is slower), but by a full step (`polishing`).
+                        chord_ready = false;
+                    } else {
+                        chord_polish = true;
+                    }
                 }
                 polishing = true;
             }
@@ -1330,7 +1435,7 @@ impl NewtonSolver {
             // A chord step on the kept LU (`NewtonSettings::chord_contraction`): kept when it
             // contracts the natural residual enough, else the iteration goes on as without it.
             let mut chord_residual = None;
-            if let Some(kappa) = s.chord_contraction
+            if let Some(kappa) = chord_kappa(lu_from_last)
                 && chord_ready
                 && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
                 && let Some(linear) = self.linear.as_mut()
@@ -1342,12 +1447,14 @@ impl NewtonSolver {
                     && let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
                     && (chord_polish || p < psi)
                 {
-                    // The polish is kept when it lowers the residual, as the full step's is.
+                    // The polish is kept when it lowers the residual, as the full step's is;
+                    // another chord step when it contracts it by `kappa`, or reaches the
+                    // round-off floor (near it no step contracts it by `kappa`).
                     let r = natural_residual(&ws.z_trial, &ws.f_trial, l, u);
                     let kept = if chord_polish {
                         r < residual
                     } else {
-                        r <= kappa * residual
+                        r <= kappa * residual || at_round_off(r, &ws.z_trial)
                     };
                     if kept {
                         accepted = Some((1.0, p));
@@ -1366,6 +1473,14 @@ impl NewtonSolver {
                 }
             }
             let chord = chord_residual.is_some();
+            if chord_ready && iterations == 0 {
+                // The first iteration's chord step is on the last solve's LU.
+                if chord {
+                    prof.kept_lu_steps += 1;
+                } else {
+                    prof.kept_lu_refusals += 1;
+                }
+            }
             // Whether the step taken is the kept LU's full step (a chord step may follow it).
             let mut lu_step = chord;
             let mut newton_ok = false;
@@ -1446,6 +1561,7 @@ impl NewtonSolver {
                 // A pinned `H` is singular but for the pins (D5's collision): its chord steps
                 // end where the next `H`'s LU fails, so its LU is not kept for them.
                 chord_lu = newton_ok && !pinned;
+                lu_from_last = false;
                 prof.lu_factorizations += 1;
                 clock.lap(&mut prof, Phase::NewtonDirection);
             }
@@ -1808,7 +1924,7 @@ impl NewtonSolver {
             last_chord = chord;
             have_jac = false;
             // A step by the kept LU that contracted the residual fast, near the solution.
-            chord_ready = s.chord_contraction.is_some_and(|kappa| {
+            chord_ready = chord_kappa(lu_from_last).is_some_and(|kappa| {
                 lu_step
                     && chord_lu
                     && checkpoint.is_none()
@@ -1943,6 +2059,8 @@ impl NewtonSolver {
             dot(&ws.phi, &ws.phi),
         );
         if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
+            // Converged on its last LU: kept for the next solve's first iteration.
+            self.kept_lu = s.chord_across_solves.is_some() && chord_lu;
             Ok(result)
         } else {
             Err(SolveError::NotConverged {
@@ -1991,8 +2109,13 @@ mod tests {
     /// active one (`z₂ = 0`, `F₂ > 0`): from 1e-4 off its solution the first Newton step lands
     /// at a natural residual of ~1e-8, where chord steps take over.
     fn smooth_three() -> FnMcp {
+        smooth_three_bounded(0.0)
+    }
+
+    /// `smooth_three` with `lower` the last component's lower bound.
+    fn smooth_three_bounded(lower: f64) -> FnMcp {
         FnMcp::dense(
-            vec![f64::NEG_INFINITY, 0.0, 0.0],
+            vec![f64::NEG_INFINITY, 0.0, lower],
             vec![f64::INFINITY; 3],
             |z, f| {
                 f[0] = z[0] + 0.5 * z[0].sin() + 0.2 * z[1] - 1.0;
@@ -2104,6 +2227,147 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(within.z, full.z);
         assert_eq!(within.summary.iterations, full.summary.iterations);
+    }
+
+    #[test]
+    fn a_chord_step_at_the_round_off_floor_ends_the_run_without_the_polish() {
+        let (exact, start) = smooth_three_start();
+        let solve = |floor, polish_below| {
+            let mut solver = NewtonSolver::new(NewtonSettings {
+                chord_round_off_floor: floor,
+                polish_below,
+                ..NewtonSettings::default()
+            })
+            .with_profile();
+            let sol = solver
+                .solve(&smooth_three(), &start)
+                .unwrap_or_else(|e| panic!("{e}"));
+            (sol, solver.take_profile())
+        };
+        let (polished, polished_profile) = solve(None, 1e-3);
+        let (floored, floored_profile) = solve(Some(4.0), 1e-3);
+        // Not above `polish_below · tolerance` (here 0): no polish skipped.
+        let (unfloored, unfloored_profile) = solve(Some(4.0), 0.0);
+        assert_eq!(unfloored_profile.chord_polishes_skipped, 0);
+        assert_eq!(unfloored.summary.termination, Termination::Converged);
+        assert!(
+            unfloored.summary.residual <= 1e-15,
+            "{:?}",
+            unfloored.summary
+        );
+        assert_eq!(polished_profile.chord_polishes_skipped, 0);
+        assert_eq!(
+            floored_profile.chord_polishes_skipped, 1,
+            "{floored_profile:?}"
+        );
+        // The chord's polish not tried: one evaluation fewer (here the polish did not lower the
+        // residual, so it was not kept and the iterations are the same), the same
+        // factorisations.
+        assert_eq!(
+            floored.summary.f_evals + 1,
+            polished.summary.f_evals,
+            "{floored_profile:?} against {polished_profile:?}"
+        );
+        assert_eq!(floored.summary.iterations, polished.summary.iterations);
+        assert_eq!(
+            floored_profile.lu_factorizations,
+            polished_profile.lu_factorizations
+        );
+        // The run ends at the floor, 4 units of round-off of ‖z‖∞, and where the polish ends
+        // within it.
+        let floor = 4.0 * f64::EPSILON * exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+        assert_eq!(floored.summary.termination, Termination::Converged);
+        assert!(floored.summary.residual <= floor, "{:?}", floored.summary);
+        for (a, b) in polished.z.iter().zip(&floored.z) {
+            assert!(
+                (a - b).abs() <= floor,
+                "{:?} against {:?}",
+                polished.z,
+                floored.z
+            );
+        }
+    }
+
+    #[test]
+    fn a_chord_step_on_the_last_solves_lu_replaces_the_first_factorisation() {
+        let (exact, start) = smooth_three_start();
+        let other_start = vec![exact[0] - 1e-4, exact[1] + 1e-4, 2e-4];
+        let settings = NewtonSettings {
+            chord_across_solves: Some(1e-2),
+            ..NewtonSettings::default()
+        };
+        let mut solver = NewtonSolver::new(settings.clone()).with_profile();
+        let first = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let first_profile = solver.take_profile();
+        assert_eq!(
+            first_profile.kept_lu_steps + first_profile.kept_lu_refusals,
+            0
+        );
+        assert_eq!(first_profile.lu_factorizations, 1, "{first_profile:?}");
+        // The next solve of the same problem starts on the first one's LU: no factorisation.
+        let second = solver
+            .solve(&smooth_three(), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (1, 0), "{p:?}");
+        assert_eq!(p.lu_factorizations, 0, "{p:?}");
+        assert_eq!(second.summary.iterations, p.chord_steps, "{p:?}");
+        // At round-off, where a solver without the kept LU ends, within 1e-15.
+        let fresh = NewtonSolver::new(settings.clone())
+            .solve(&smooth_three(), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        for sol in [&first, &second, &fresh] {
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
+        }
+        for (a, b) in fresh.z.iter().zip(&second.z) {
+            assert!(
+                (a - b).abs() <= 1e-15,
+                "{:?} against {:?}",
+                fresh.z,
+                second.z
+            );
+        }
+        // Another pattern in between (a problem of dimension 2): the LU is not kept for it,
+        // and the next solve of the first problem factorises first.
+        let two = FnMcp::dense(
+            vec![f64::NEG_INFINITY; 2],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = 2.0 * z[0] - 1.0;
+                f[1] = z[1] + 0.1 * z[0];
+            },
+            |_, j| {
+                j[0] = 2.0;
+                j[1] = 0.1;
+                j[3] = 1.0;
+            },
+        )
+        .unwrap_or_else(|e| panic!("valid problem: {e}"));
+        for mcp in [&two, &smooth_three()] {
+            solver
+                .solve(mcp, &other_start[..mcp.dim()])
+                .unwrap_or_else(|e| panic!("{e}"));
+            let p = solver.take_profile();
+            assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+            assert!(p.lu_factorizations >= 1, "{p:?}");
+        }
+        // The same pattern with other bound kinds (the last component free): not kept either.
+        solver
+            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other_start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+        // Off (the default): every solve factorises first.
+        let mut off = NewtonSolver::new(NewtonSettings::default()).with_profile();
+        for z0 in [&start, &other_start] {
+            off.solve(&smooth_three(), z0)
+                .unwrap_or_else(|e| panic!("{e}"));
+        }
+        let p = off.take_profile();
+        assert_eq!((p.kept_lu_steps, p.lu_factorizations), (0, 2), "{p:?}");
     }
 
     #[test]

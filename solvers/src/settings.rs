@@ -140,6 +140,12 @@ impl NewtonSettings {
         if let Some(contraction) = self.chord_contraction {
             c.fraction("chord_contraction", contraction)?;
         }
+        if let Some(contraction) = self.chord_across_solves {
+            c.fraction("chord_across_solves", contraction)?;
+        }
+        if let Some(ulps) = self.chord_round_off_floor {
+            c.positive("chord_round_off_floor", ulps)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
@@ -398,6 +404,22 @@ mod tests {
             "chord_contraction",
             NewtonSettings {
                 chord_contraction: Some(1.0),
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "chord_across_solves",
+            NewtonSettings {
+                chord_across_solves: Some(0.0),
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "chord_round_off_floor",
+            NewtonSettings {
+                chord_round_off_floor: Some(-1.0),
                 ..d()
             },
             v,

@@ -83,6 +83,15 @@ pub struct NewtonProfile {
     pub chord_steps: usize,
     /// Chord steps tried and not kept (the iteration then factorised `H` as without them).
     pub chord_rejections: usize,
+    /// Chord steps on the LU kept from the last solve, taken at a solve's first iteration
+    /// ([`crate::newton::NewtonSettings::chord_across_solves`]; counted in `chord_steps` too).
+    pub kept_lu_steps: usize,
+    /// First iterations that had the last solve's LU and refused its chord step (a pair on
+    /// another branch, or the step's tests), then factorised.
+    pub kept_lu_refusals: usize,
+    /// Chord's polishes not taken at the round-off floor
+    /// ([`crate::newton::NewtonSettings::chord_round_off_floor`]).
+    pub chord_polishes_skipped: usize,
     /// Nanoseconds per phase, in the order of [`Phase::ALL`].
     pub ns: [u64; 7],
 }
@@ -109,6 +118,9 @@ impl NewtonProfile {
         self.lm_cholesky_flops += other.lm_cholesky_flops;
         self.chord_steps += other.chord_steps;
         self.chord_rejections += other.chord_rejections;
+        self.kept_lu_steps += other.kept_lu_steps;
+        self.kept_lu_refusals += other.kept_lu_refusals;
+        self.chord_polishes_skipped += other.chord_polishes_skipped;
         for (a, b) in self.ns.iter_mut().zip(other.ns) {
             *a += b;
         }
