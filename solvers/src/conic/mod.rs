@@ -757,15 +757,11 @@ impl McpSolver for ConicSolver {
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
                 since_improvement = 0;
-            } else if !(have_loads
-                && loads_drifting(
-                    &step::anchored_contacts(geometry, nb),
-                    &point,
-                    previous_loads,
-                    drift,
-                    it,
-                ))
-            {
+            } else if !(have_loads && {
+                // The same flags as the anchors' below (the same `geometry`), into kept storage.
+                step::anchored_contacts_into(geometry, nb, per_body, anchored);
+                loads_drifting(anchored, &point, previous_loads, drift, it)
+            }) {
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
                     termination = Termination::Stagnated;
