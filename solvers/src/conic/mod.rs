@@ -760,7 +760,7 @@ impl McpSolver for ConicSolver {
             } else if !(have_loads && {
                 // The same flags as the anchors' below (the same `geometry`), into kept storage.
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
-                loads_drifting(anchored, &point, previous_loads, drift, it)
+                loads_drifting(anchored, point, previous_loads, drift, it)
             }) {
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
