@@ -191,6 +191,9 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "forget_undone_steps" => s.forget_undone_steps = b()?,
         "complementary_restart" => s.complementary_restart = value.parse::<f64>().ok(),
         "early_complementary_restart" => s.early_complementary_restart = value.parse::<f64>().ok(),
+        "complementary_restart_from_best" => {
+            s.complementary_restart_from_best = value.parse::<f64>().ok()
+        }
         "watchdog_steps" => s.watchdog_steps = n()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,

@@ -318,6 +318,9 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "forget_undone_steps" => s.forget_undone_steps = b()?,
         "complementary_restart" => s.complementary_restart = value.parse::<f64>().ok(),
         "early_complementary_restart" => s.early_complementary_restart = value.parse::<f64>().ok(),
+        "complementary_restart_from_best" => {
+            s.complementary_restart_from_best = value.parse::<f64>().ok()
+        }
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),

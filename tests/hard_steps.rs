@@ -887,3 +887,66 @@ fn newton_v_trough_035_step_27_early_complementary_restart() {
         None
     );
 }
+
+/// `s20261201_061_v_trough` step 70 (the held-out seed 20261201; a box resting in a V trough,
+/// `docs/newton.md#the-complementary-start-from-the-best-point`): every attempt from `z0`, the
+/// complementary restarts from `z0` included, ends in a curved valley of the merit at a natural
+/// residual of about 1.3e3 times the tolerance (contact 0's point sliding along an edge that lies
+/// flat on the 32.5° plane). The complementary start of the failed attempts' best point leaves
+/// the valley and the step converges.
+#[test]
+fn newton_v_trough_s20261201_061_step_70_complementary_restart_from_the_best_point() {
+    let path = regression_scene("s20261201_061_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = NewtonSettings {
+        tolerance,
+        ..NewtonSettings::default()
+    };
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut driver = NewtonSolver::new(settings.clone());
+    for k in 1..70 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k} did not converge");
+    }
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let z0 = sim.z().to_vec();
+    let without = sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            complementary_restart_from_best: None,
+            ..settings.clone()
+        }),
+        &z0,
+    );
+    match without {
+        Err(SolveError::NotConverged { best }) => assert!(
+            best.summary.residual > 100.0 * tolerance,
+            "without the restart from the best point: stalls far above the tolerance, got {:e}",
+            best.summary.residual
+        ),
+        Ok(sol) => panic!(
+            "converged without the restart from the best point ({} iterations): the test's premise is gone",
+            sol.summary.iterations
+        ),
+        Err(e) => panic!("{e}"),
+    }
+    let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    println!(
+        "s20261201_061_v_trough step 70: {} iterations, residual {:e}",
+        mended.summary.iterations, mended.summary.residual
+    );
+    assert!(mended.summary.residual <= tolerance);
+    assert!(
+        mended
+            .summary
+            .counter(Counter::Custom("complementary_restarts"))
+            .is_some_and(|n| n >= 1)
+    );
+}

@@ -279,6 +279,17 @@ pub struct NewtonSettings {
     /// continuations' hundreds of iterations (`docs/newton.md#the-complementary-start-earlier`).
     /// `None` keeps the complementary restart last. Default `Some(3e4)`.
     pub early_complementary_restart: Option<f64>,
+    /// After every attempt failed (the complementary restart from `z0` too) with a best natural
+    /// residual of at most this times [`NewtonSettings::tolerance`], the plain iteration once
+    /// more from the complementary start of the failed attempts' **best point** rather than of
+    /// `z0`. On `061_v_trough` of the held-out seed 20261201, step 70, every attempt ends in a
+    /// curved valley of the merit (a contact point sliding along an edge that lies flat on a
+    /// plane, floor 1.3e3 times the tolerance) that the attempts from `z0` all enter; the
+    /// complementary start of the valley's point leaves it and converges
+    /// (`docs/newton.md#the-complementary-start-from-the-best-point`). Runs only where the solve
+    /// would otherwise fail, so every step solved without it is unchanged. `None` turns it off
+    /// (the conic backend's Newton finish). Default `Some(3e4)`.
+    pub complementary_restart_from_best: Option<f64>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -371,6 +382,7 @@ impl Default for NewtonSettings {
             forget_undone_steps: true,
             complementary_restart: Some(1e3),
             early_complementary_restart: Some(3e4),
+            complementary_restart_from_best: Some(3e4),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: None,
@@ -1160,6 +1172,13 @@ impl NewtonSolver {
             && let Some(done) = self.complementary_attempt(mcp, z0, &mut spent, &mut best)
         {
             return done;
+        }
+        if self.near_enough(&best, self.settings.complementary_restart_from_best) {
+            // A failed solve only, so the copy's allocation does not touch the steady step.
+            let from = best.z.clone();
+            if let Some(done) = self.complementary_attempt(mcp, &from, &mut spent, &mut best) {
+                return done;
+            }
         }
         best.summary.iterations = spent;
         Err(SolveError::NotConverged { best })

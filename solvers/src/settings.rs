@@ -136,6 +136,9 @@ impl NewtonSettings {
         if let Some(near) = self.early_complementary_restart {
             c.positive("early_complementary_restart", near)?;
         }
+        if let Some(near) = self.complementary_restart_from_best {
+            c.positive("complementary_restart_from_best", near)?;
+        }
         c.fraction("stall_reduction", self.stall_reduction)?;
         if let Some(contraction) = self.chord_contraction {
             c.fraction("chord_contraction", contraction)?;
@@ -322,6 +325,14 @@ mod tests {
                 "early_complementary_restart",
                 NewtonSettings {
                     early_complementary_restart: Some(near),
+                    ..d()
+                },
+                v,
+            );
+            refused(
+                "complementary_restart_from_best",
+                NewtonSettings {
+                    complementary_restart_from_best: Some(near),
                     ..d()
                 },
                 v,

@@ -351,6 +351,8 @@ impl ConicSolver {
             scene_scales: false,
             // The polish as measured with the conic backend (chord steps are Newton's desk lever).
             chord_contraction: None,
+            // A failed polish falls back on the fixed point's own answer: no last restart.
+            complementary_restart_from_best: None,
             // The handoff is a local finish: the plain iteration only. Its safeguards for hard
             // steps (the smoothing continuation, the damped restart) would run on every step
             // whose few local iterations fall short, at many times a QP's cost; the fixed point
