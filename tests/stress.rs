@@ -263,10 +263,11 @@ fn regressions(solver: &str) {
 
 /// Passes since the damped restart of docs/newton.md; `s20261128_061_v_trough` (a scene of the
 /// held-out seed 20261128, docs/stress.md), on which Newton alone stagnated from step 12, since
-/// the complementary restart (`docs/newton.md#the-complementary-start`). **Fails on
-/// `s20261201_061_v_trough`** (held-out seed 20261201): Newton alone stagnates there from step 70
-/// at a natural residual of about 1e-7 (docs/stress.md, "A second held-out seed"); the open Newton
-/// regression. `ECP_STRESS_ONLY` runs the others. About 30 s: heavy, so ignored. Run with
+/// the complementary restart (`docs/newton.md#the-complementary-start`);
+/// `s20261201_061_v_trough` (held-out seed 20261201), on which Newton alone stagnated from step
+/// 70, since the complementary restart from the best point
+/// (`docs/newton.md#the-complementary-start-from-the-best-point`). About 30 s: heavy, so
+/// ignored. Run with
 /// `cargo test --release --test stress regressions_newton -- --ignored`.
 #[test]
 #[ignore]
