@@ -45,6 +45,22 @@ fn at_step(name: &str, driver: &mut dyn McpSolver, step: usize) -> (Simulation, 
 /// `docs/latency.md#budgeted-starts-newtons-long-steps-branch-wip-hardsteps-issue-18`, which solve some steps from
 /// another start, at another point within the tolerance).
 fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulation, Option<f64>) {
+    stepped(path, driver, step, true)
+}
+
+/// The scene file `path` on the default simulation's trajectory (extrapolated warm start, start
+/// budgets), stepped by `driver` through step `step − 1`, with step `step` prepared.
+fn at_default_step(path: &Path, driver: &mut dyn McpSolver, step: usize) -> Simulation {
+    stepped(path, driver, step, false).0
+}
+
+/// [`at_step_of`] (`recorded`: the plain warm start, no start budgets) or [`at_default_step`].
+fn stepped(
+    path: &Path,
+    driver: &mut dyn McpSolver,
+    step: usize,
+    recorded: bool,
+) -> (Simulation, Option<f64>) {
     let file = load_scene(path).unwrap_or_else(|e| panic!("{}: {e}", path.display()));
     let stepper = FormulationRegistry::builtin()
         .create("hull")
@@ -52,8 +68,10 @@ fn at_step_of(path: &Path, driver: &mut dyn McpSolver, step: usize) -> (Simulati
     let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
         .build()
         .unwrap_or_else(|e| panic!("{e}"));
-    sim.set_warm_start(WarmStart::Previous);
-    sim.set_start_budget(None);
+    if recorded {
+        sim.set_warm_start(WarmStart::Previous);
+        sim.set_start_budget(None);
+    }
     for k in 1..step {
         let rec = sim.step(driver).unwrap_or_else(|e| panic!("step {k}: {e}"));
         assert!(
@@ -756,23 +774,10 @@ fn newton_v_trough_061_step_17_complementary_restart() {
     let before = NewtonSettings {
         complementary_restart: None,
         early_complementary_restart: None,
+        complementary_restart_from_best: None,
         ..settings.clone()
     };
-    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
-    let stepper = FormulationRegistry::builtin()
-        .create("hull")
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
-        .build()
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut driver = NewtonSolver::new(before.clone());
-    for k in 1..17 {
-        let rec = sim
-            .step(&mut driver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(rec.converged, "step {k} did not converge");
-    }
-    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let sim = at_default_step(&path, &mut NewtonSolver::new(before.clone()), 17);
     let z0 = sim.z().to_vec();
     match sim.solve_step_problem(&mut NewtonSolver::new(before), &z0) {
         Err(SolveError::NotConverged { best }) => assert!(
@@ -840,28 +845,18 @@ fn newton_v_trough_035_step_27_early_complementary_restart() {
         early_complementary_restart: None,
         ..settings.clone()
     };
-    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
-    let stepper = FormulationRegistry::builtin()
-        .create("hull")
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
-        .build()
-        .unwrap_or_else(|e| panic!("{e}"));
     // The start as recorded: steps 1–26 without the chord steps' round-off floor, which came
     // later and moves the trajectory by round-off; the complementary start's sign tests make
     // this step's restart sensitive to that (from the merged code's own step 26 the early
     // restart is tried and fails: 697 iterations either way, docs/newton.md).
-    let mut driver = NewtonSolver::new(NewtonSettings {
-        chord_round_off_floor: None,
-        ..late.clone()
-    });
-    for k in 1..27 {
-        let rec = sim
-            .step(&mut driver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(rec.converged, "step {k} did not converge");
-    }
-    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let sim = at_default_step(
+        &path,
+        &mut NewtonSolver::new(NewtonSettings {
+            chord_round_off_floor: None,
+            ..late.clone()
+        }),
+        27,
+    );
     let z0 = sim.z().to_vec();
     let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(late), &z0));
     let early = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
@@ -902,21 +897,7 @@ fn newton_v_trough_s20261201_061_step_70_complementary_restart_from_the_best_poi
         tolerance,
         ..NewtonSettings::default()
     };
-    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
-    let stepper = FormulationRegistry::builtin()
-        .create("hull")
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
-        .build()
-        .unwrap_or_else(|e| panic!("{e}"));
-    let mut driver = NewtonSolver::new(settings.clone());
-    for k in 1..70 {
-        let rec = sim
-            .step(&mut driver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(rec.converged, "step {k} did not converge");
-    }
-    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let sim = at_default_step(&path, &mut NewtonSolver::new(settings.clone()), 70);
     let z0 = sim.z().to_vec();
     let without = sim.solve_step_problem(
         &mut NewtonSolver::new(NewtonSettings {
