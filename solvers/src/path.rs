@@ -362,6 +362,33 @@ impl PathSolver {
         residual
     }
 
+    /// Takes the trial point as a crash step of length `t` (a chord step has 1): recorded for
+    /// the observer and the trace, counted as an iteration and a crash step, and made current
+    /// ([`PathSolver::accept_trial`]); returns its natural residual.
+    fn take_crash_step(
+        &mut self,
+        t: f64,
+        residual: f64,
+        iterations: &mut usize,
+        counters: &mut Counters,
+        (l, u, best_residual): (&[f64], &[f64], &mut f64),
+        record: &mut impl FnMut(usize, f64, f64, StepKind, f64, f64, &mut Option<Box<dyn Observer>>),
+    ) -> f64 {
+        let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+        record(
+            *iterations,
+            residual,
+            self.current.merit,
+            StepKind::Crash,
+            t,
+            norm,
+            &mut self.observer,
+        );
+        *iterations += 1;
+        counters.crash_steps += 1;
+        self.accept_trial(l, u, best_residual)
+    }
+
     /// A solver with the given settings.
     pub fn new(settings: PathSettings) -> Self {
         let lemke = Lemke::new(settings.lemke.clone());
@@ -859,20 +886,15 @@ impl PathSolver {
                         if self.trial.merit <= (1.0 - sigma) * self.current.merit
                             && chorded <= POLISH_CHORD_CONTRACTION * residual
                         {
-                            let norm = norm_inf_diff(&self.trial.x, &self.current.x);
-                            record(
-                                *iterations,
-                                residual,
-                                self.current.merit,
-                                StepKind::Crash,
-                                1.0,
-                                norm,
-                                &mut self.observer,
-                            );
-                            *iterations += 1;
-                            counters.crash_steps += 1;
                             self.trial_has_jac = false;
-                            residual = self.accept_trial(l, u, best_residual);
+                            residual = self.take_crash_step(
+                                1.0,
+                                residual,
+                                iterations,
+                                counters,
+                                (l, u, best_residual),
+                                &mut record,
+                            );
                             if residual <= s.tolerance {
                                 chord_landed = true;
                                 break;
@@ -910,20 +932,15 @@ impl PathSolver {
                     break;
                 };
                 chord_next = self.jac_deferred;
-                let norm = norm_inf_diff(&self.trial.x, &self.current.x);
-                record(
-                    *iterations,
-                    residual,
-                    self.current.merit,
-                    StepKind::Crash,
-                    t,
-                    norm,
-                    &mut self.observer,
-                );
-                *iterations += 1;
-                counters.crash_steps += 1;
                 have_jac = self.trial_has_jac;
-                residual = self.accept_trial(l, u, best_residual);
+                residual = self.take_crash_step(
+                    t,
+                    residual,
+                    iterations,
+                    counters,
+                    (l, u, best_residual),
+                    &mut record,
+                );
                 if residual <= s.tolerance {
                     break;
                 }
@@ -1174,21 +1191,16 @@ impl PathSolver {
                     residual
                 };
                 if self.trial.merit.is_finite() && chorded <= s.tolerance && chorded <= bound {
-                    let norm = norm_inf_diff(&self.trial.x, &self.current.x);
-                    record(
-                        *iterations,
-                        residual,
-                        self.current.merit,
-                        StepKind::Crash,
-                        1.0,
-                        norm,
-                        &mut self.observer,
-                    );
-                    *iterations += 1;
-                    counters.crash_steps += 1;
                     chords += 1;
                     self.trial_has_jac = false;
-                    residual = self.accept_trial(l, u, best_residual);
+                    residual = self.take_crash_step(
+                        1.0,
+                        residual,
+                        iterations,
+                        counters,
+                        (l, u, best_residual),
+                        &mut record,
+                    );
                     have_jac = false;
                     chord_last = above;
                     continue;
@@ -1234,21 +1246,16 @@ impl PathSolver {
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
                 let polished = natural_residual(&self.trial.z, &self.trial.f, l, u);
                 if self.trial.merit.is_finite() && polished <= s.tolerance {
-                    let norm = norm_inf_diff(&self.trial.x, &self.current.x);
-                    record(
-                        *iterations,
-                        residual,
-                        self.current.merit,
-                        StepKind::Crash,
-                        1.0,
-                        norm,
-                        &mut self.observer,
-                    );
-                    *iterations += 1;
-                    counters.crash_steps += 1;
                     self.trial_has_jac = false;
                     let before = residual;
-                    residual = self.accept_trial(l, u, best_residual);
+                    residual = self.take_crash_step(
+                        1.0,
+                        residual,
+                        iterations,
+                        counters,
+                        (l, u, best_residual),
+                        &mut record,
+                    );
                     have_jac = false;
                     // A step that did not gain a digit ended at the residual's round-off floor
                     // (1.1e-13 on the stress suite's `138_ladder` at rest): another gains nothing.

@@ -106,6 +106,35 @@ fn arr(v: &Vector3<f64>) -> [f64; 3] {
     [v.x, v.y, v.z]
 }
 
+/// One inner step of the active-set NNLS ([`nnls`], [`nnls_fixed`]): `s` solves the least
+/// squares on the passive columns `idx`. All positive: `x` takes it and the step is done (`true`).
+/// Otherwise `x` moves towards `s` until a passive variable reaches zero, which is dropped.
+fn take_passive_solution(x: &mut [f64], passive: &mut [bool], idx: &[usize], s: &[f64]) -> bool {
+    if s.iter().all(|v| *v > 0.0) {
+        for (k, &j) in idx.iter().enumerate() {
+            x[j] = s[k];
+        }
+        return true;
+    }
+    let mut alpha = 1.0f64;
+    for (k, &j) in idx.iter().enumerate() {
+        if s[k] <= 0.0 {
+            let d = x[j] - s[k];
+            if d > 0.0 {
+                alpha = alpha.min(x[j] / d);
+            }
+        }
+    }
+    for (k, &j) in idx.iter().enumerate() {
+        x[j] += alpha * (s[k] - x[j]);
+        if x[j] <= 1e-15 {
+            x[j] = 0.0;
+            passive[j] = false;
+        }
+    }
+    false
+}
+
 /// Non-negative least squares `min ‖A l − b‖, l ≥ 0` (Lawson–Hanson active set), for the face
 /// multipliers of C2 (3 rows, a handful of columns).
 fn nnls(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
@@ -126,28 +155,8 @@ fn nnls(a: &DMatrix<f64>, b: &DVector<f64>) -> DVector<f64> {
             let Ok(s) = sub.clone().svd(true, true).solve(b, 1e-13) else {
                 return x;
             };
-            if s.iter().all(|v| *v > 0.0) {
-                for (k, &j) in idx.iter().enumerate() {
-                    x[j] = s[k];
-                }
+            if take_passive_solution(x.as_mut_slice(), &mut passive, &idx, s.as_slice()) {
                 break;
-            }
-            // Step towards s until a passive variable hits zero; drop it.
-            let mut alpha = 1.0f64;
-            for (k, &j) in idx.iter().enumerate() {
-                if s[k] <= 0.0 {
-                    let d = x[j] - s[k];
-                    if d > 0.0 {
-                        alpha = alpha.min(x[j] / d);
-                    }
-                }
-            }
-            for (k, &j) in idx.iter().enumerate() {
-                x[j] += alpha * (s[k] - x[j]);
-                if x[j] <= 1e-15 {
-                    x[j] = 0.0;
-                    passive[j] = false;
-                }
             }
         }
     }
@@ -213,28 +222,8 @@ fn nnls_fixed<const N: usize>(a: &SMatrix<f64, 3, N>, b: &Vector3<f64>) -> SVect
                 return x;
             }
             let s = &s[..m];
-            if s.iter().all(|v| *v > 0.0) {
-                for (k, &j) in idx.iter().enumerate() {
-                    x[j] = s[k];
-                }
+            if take_passive_solution(x.as_mut_slice(), &mut passive, idx, s) {
                 break;
-            }
-            // Step towards s until a passive variable hits zero; drop it.
-            let mut alpha = 1.0f64;
-            for (k, &j) in idx.iter().enumerate() {
-                if s[k] <= 0.0 {
-                    let d = x[j] - s[k];
-                    if d > 0.0 {
-                        alpha = alpha.min(x[j] / d);
-                    }
-                }
-            }
-            for (k, &j) in idx.iter().enumerate() {
-                x[j] += alpha * (s[k] - x[j]);
-                if x[j] <= 1e-15 {
-                    x[j] = 0.0;
-                    passive[j] = false;
-                }
             }
         }
     }
