@@ -2378,46 +2378,56 @@ mod tests {
         }
     }
 
+    /// `smooth_three`'s solution moved by `offset` in its first two components (the third at
+    /// its bound): a start one full Newton step solves to round-off when `offset` is small.
+    fn near(exact: &[f64], offset: f64) -> Vec<f64> {
+        vec![exact[0] + offset, exact[1] - offset, 0.0]
+    }
+
     #[test]
     fn a_chord_step_on_the_last_solves_lu_replaces_the_first_factorisation() {
         let (exact, start) = smooth_three_start();
-        let other_start = vec![exact[0] - 1e-4, exact[1] + 1e-4, 2e-4];
-        let settings = NewtonSettings {
-            chord_across_solves: Some(1e-2),
-            ..NewtonSettings::default()
-        };
+        let settings = NewtonSettings::default();
+        assert_eq!(settings.chord_across_solves, Some(1e-2));
         let mut solver = NewtonSolver::new(settings.clone()).with_profile();
+        // From 1e-4 off: a full step to ~1e-8, then chord steps; an LU that needed several
+        // steps is not kept, so the next solve factorises (one full step from 1e-9 off).
         let first = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
-        let first_profile = solver.take_profile();
-        assert_eq!(
-            first_profile.kept_lu_steps + first_profile.kept_lu_refusals,
-            0
-        );
-        assert_eq!(first_profile.lu_factorizations, 1, "{first_profile:?}");
-        // The next solve of the same problem starts on the first one's LU: no factorisation.
+        assert!(first.summary.iterations >= 2, "{:?}", first.summary);
+        solver.take_profile();
         let second = solver
-            .solve(&smooth_three(), &other_start)
+            .solve(&smooth_three(), &near(&exact, 1e-9))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+        assert_eq!(p.lu_factorizations, 1, "{p:?}");
+        assert_eq!(second.summary.iterations, 1, "{:?}", second.summary);
+        // That run was one step to the round-off floor: its LU is kept, and the next solve
+        // of the same problem takes one chord step on it, no factorisation.
+        let other = near(&exact, -2e-9);
+        let third = solver
+            .solve(&smooth_three(), &other)
             .unwrap_or_else(|e| panic!("{e}"));
         let p = solver.take_profile();
         assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (1, 0), "{p:?}");
         assert_eq!(p.lu_factorizations, 0, "{p:?}");
-        assert_eq!(second.summary.iterations, p.chord_steps, "{p:?}");
+        assert_eq!(third.summary.iterations, 1, "{p:?}");
         // At round-off, where a solver without the kept LU ends, within 1e-15.
         let fresh = NewtonSolver::new(settings.clone())
-            .solve(&smooth_three(), &other_start)
+            .solve(&smooth_three(), &other)
             .unwrap_or_else(|e| panic!("{e}"));
-        for sol in [&first, &second, &fresh] {
+        for sol in [&first, &second, &third, &fresh] {
             assert_eq!(sol.summary.termination, Termination::Converged);
             assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
         }
-        for (a, b) in fresh.z.iter().zip(&second.z) {
+        for (a, b) in fresh.z.iter().zip(&third.z) {
             assert!(
                 (a - b).abs() <= 1e-15,
                 "{:?} against {:?}",
                 fresh.z,
-                second.z
+                third.z
             );
         }
         // Another pattern in between (a problem of dimension 2): the LU is not kept for it,
@@ -2438,7 +2448,7 @@ mod tests {
         .unwrap_or_else(|e| panic!("valid problem: {e}"));
         for mcp in [&two, &smooth_three()] {
             solver
-                .solve(mcp, &other_start[..mcp.dim()])
+                .solve(mcp, &other[..mcp.dim()])
                 .unwrap_or_else(|e| panic!("{e}"));
             let p = solver.take_profile();
             assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
@@ -2446,18 +2456,71 @@ mod tests {
         }
         // The same pattern with other bound kinds (the last component free): not kept either.
         solver
-            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other_start)
+            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other)
             .unwrap_or_else(|e| panic!("{e}"));
         let p = solver.take_profile();
         assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
-        // Off (the default): every solve factorises first.
-        let mut off = NewtonSolver::new(NewtonSettings::default()).with_profile();
-        for z0 in [&start, &other_start] {
-            off.solve(&smooth_three(), z0)
+        // Off: every solve factorises first.
+        let mut off = NewtonSolver::new(NewtonSettings {
+            chord_across_solves: None,
+            ..NewtonSettings::default()
+        })
+        .with_profile();
+        for z0 in [near(&exact, 1e-9), other] {
+            off.solve(&smooth_three(), &z0)
                 .unwrap_or_else(|e| panic!("{e}"));
         }
         let p = off.take_profile();
         assert_eq!((p.kept_lu_steps, p.lu_factorizations), (0, 2), "{p:?}");
+    }
+
+    #[test]
+    fn a_kept_lu_that_did_not_pay_waits_one_two_four_solves() {
+        let mut gate = KeptLuGate::default();
+        assert!(gate.take_turn() && gate.take_turn());
+        // Tries that did not pay: the next 1, 2, 4 … solves skip it, at most KEPT_LU_MAX_WAIT.
+        let mut waits = Vec::new();
+        for _ in 0..9 {
+            gate.record(false);
+            let mut skipped = 0;
+            while !gate.take_turn() {
+                skipped += 1;
+            }
+            waits.push(skipped);
+        }
+        assert_eq!(waits, [1, 2, 4, 8, 16, 32, 64, 64, 64]);
+        // A try that paid: the next one is tried at once, and a miss after it waits 1 again.
+        gate.record(true);
+        assert!(gate.take_turn());
+        gate.record(false);
+        assert!(!gate.take_turn() && gate.take_turn());
+    }
+
+    #[test]
+    fn a_refused_try_of_the_kept_lu_makes_the_next_kept_lu_wait() {
+        let (exact, _) = smooth_three_start();
+        let mut solver = NewtonSolver::new(NewtonSettings::default()).with_profile();
+        let mut solve = |z0: &[f64]| {
+            let sol = solver
+                .solve(&smooth_three(), z0)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
+            let p = solver.take_profile();
+            (p.kept_lu_steps, p.kept_lu_refusals, p.lu_factorizations)
+        };
+        // One full step from 1e-9 off: its LU is kept.
+        assert_eq!(solve(&near(&exact, 1e-9)), (0, 0, 1));
+        // From 0.2 off (inside the bounds) the chord step on it contracts the residual by less than 1e-2: refused,
+        // the run factorises (and, several steps long, keeps no LU).
+        let (_, refused, lu) = solve(&near(&exact, -0.2));
+        assert_eq!(refused, 1);
+        assert!(lu >= 2, "{lu}");
+        // One full step again (its LU kept), but the next solve skips the kept LU once.
+        assert_eq!(solve(&near(&exact, 1e-9)), (0, 0, 1));
+        assert_eq!(solve(&near(&exact, -1e-9)), (0, 0, 1));
+        // Then tries it, and it pays: one chord step, no factorisation.
+        assert_eq!(solve(&near(&exact, 2e-9)), (1, 0, 0));
     }
 
     #[test]
