@@ -21,7 +21,8 @@
 //! the steps (factorisations, chord steps, those on the last solve's LU), `desk-steps-main` takes
 //! them without `NewtonSettings::chord_across_solves` and `chord_round_off_floor` (main's Newton
 //! before branch wip-lukeep), `desk-steps-kept` with chord steps on the last solve's LU
-//! (`chord_across_solves: Some(1e-2)`), `desk-steps-previous` with
+//! (`chord_across_solves: Some(1e-2)`, the default since branch wip-a1fast, whose rule keeps no
+//! LU from the desk's runs: the defaults' digest), `desk-steps-previous` with
 //! `WarmStart::Previous` (the plain warm start; main's digest before the extrapolated default).
 //! `desk-steps-path` takes the desk's whole steps with PATH's defaults (polished, so
 //! extrapolated warm starts), `desk-steps-path-previous` from the plain warm start,

@@ -117,6 +117,50 @@ fn a_whole_desk_step_into_kept_storage_allocates_nothing_with_newton() {
     assert_step_into_allocations("newton", &mut newton(), &mut newton(), 0);
 }
 
+/// A1's whole steps into kept storage with Newton allocate nothing either, once the first steps
+/// have grown the storage (from step 4; measured 2 allocations at step 2 and 3 at step 3, the
+/// first extrapolated warm start, whose guard grows its storage): the sliding steps solved by one chord step on the LU kept from the
+/// step before
+/// (`NewtonSettings::chord_across_solves`, `docs/latency.md`, branch wip-a1fast), the stop's
+/// factorising steps and the steps at rest (no iteration, no `J`). The same records as `step`.
+#[test]
+fn a_whole_a1_step_into_kept_storage_allocates_nothing_with_newton() {
+    let newton = || NewtonSolver::new(NewtonSettings::default());
+    let mut solver = newton();
+    let mut reference = newton().with_profile();
+    let mut sim = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+    let mut other = Simulation::new(scenarios::a1_sliding()).unwrap_or_else(|e| panic!("{e}"));
+    let mut record = StepRecord::default();
+    let mut spent = Vec::new();
+    for step in 1..=50 {
+        let before = allocations();
+        sim.step_into(&mut solver, &mut record)
+            .unwrap_or_else(|e| panic!("A1 step {step}: {e}"));
+        let count = allocations() - before;
+        let expected = other
+            .step(&mut reference)
+            .unwrap_or_else(|e| panic!("A1 step {step}: {e}"));
+        assert!(record.converged, "A1 step {step} did not converge");
+        assert_eq!(record.bodies, expected.bodies, "A1 step {step}");
+        assert_eq!(record.contacts, expected.contacts, "A1 step {step}");
+        assert_eq!(record.summary.iterations, expected.summary.iterations);
+        spent.push((step, count, record.summary.iterations));
+    }
+    println!("A1 (step, allocations, iterations): {spent:?}");
+    for &(step, count, iterations) in &spent[3..] {
+        assert_eq!(count, 0, "A1 step {step} ({iterations} iterations)");
+    }
+    // The count means something only when the kept LU served: measured 24 chord steps on it
+    // (1 refused) and 5 factorisations over the 50 steps (29 factorisations without it).
+    let p = reference.take_profile();
+    println!(
+        "A1 steps 1–50: {} chord steps on the kept LU ({} refused), {} factorisations",
+        p.kept_lu_steps, p.kept_lu_refusals, p.lu_factorizations
+    );
+    assert!(p.kept_lu_steps >= 20, "{p:?}");
+    assert!(p.lu_factorizations <= 6, "{p:?}");
+}
+
 /// What a whole PATH desk step allocates: measured 0 on steps 21–120 in release since the crash
 /// step's right-hand side and the pivoting core's `z`, `w` and path end point live in the
 /// workspaces (5 before, `docs/latency.md`, branch wip-pathlean). The margin of 2 is for the

@@ -318,13 +318,18 @@ pub struct NewtonSettings {
     /// residual by this factor (instead of `chord_contraction`: that `H` is a step old, so its
     /// rate is slower than that of an `H` formed in the run, and a chord step costs a sixth of a
     /// factorising iteration). Kept only from a solve that converged with that LU as its last
-    /// factorisation (no pinned columns, its step a descent step), and only for a problem with
-    /// the same Jacobian pattern and the same bound kinds; tried only by the first run of a
-    /// solve. The chord step's own tests decide it (every pair on the branch it had where that
-    /// `H` was formed, `Ψ` falls, the residual falls by this factor); refused, the iteration forms
-    /// and factorises `H` at once. Needs `chord_contraction`. `None`: every solve factorises
-    /// first, as before. Default `None` (measured: `docs/latency.md`, "Newton's desk step on the
-    /// LU kept from the step before").
+    /// factorisation (no pinned columns, its step a descent step) in one step on it that
+    /// reached the round-off floor ([`NewtonSettings::chord_round_off_floor`]), or in no step
+    /// on the LU it was given: a nearly linear step (A1's sliding box), whose next step one
+    /// chord step on it solves, unlike the desk's (several steps a solve, where chord steps on
+    /// a step-old `H` cost more than they save). Only for a problem with the same Jacobian
+    /// pattern and the same bound kinds; tried only by the first run of a solve, and after a
+    /// try that did not pay (the run factorised after all) not by the next 1, 2, 4, … (at most
+    /// 64) solves. The chord step's own tests decide it (every pair on the branch it had where
+    /// that `H` was formed, `Ψ` falls, the residual falls by this factor); refused, the
+    /// iteration forms and factorises `H` at once. Needs `chord_contraction`. `None`: every
+    /// solve factorises first, as before. Default `Some(1e-2)` (measured: `docs/latency.md`,
+    /// "Newton's desk step on the LU kept from the step before" and "The A1 step in 2 µs").
     pub chord_across_solves: Option<f64>,
     /// The round-off floor of the chord steps ([`NewtonSettings::chord_contraction`]), in units
     /// of round-off (`f64::EPSILON`) of `‖z‖∞`: the natural residual `z − mid(l, u, z − F)` is a
@@ -385,7 +390,7 @@ impl Default for NewtonSettings {
             complementary_restart_from_best: Some(3e4),
             scene_scales: true,
             chord_contraction: Some(1e-3),
-            chord_across_solves: None,
+            chord_across_solves: Some(1e-2),
             chord_round_off_floor: Some(4.0),
             trace: false,
         }
@@ -547,6 +552,48 @@ pub struct NewtonSolver {
     /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
     /// Jacobian pattern or the bound kinds change, and by every run until it ends converged.
     kept_lu: bool,
+    /// When the kept LU is tried ([`NewtonSettings::chord_across_solves`]).
+    kept_lu_gate: KeptLuGate,
+    /// The last run took an iteration: the next one evaluates `J` with `F` at its start.
+    last_iterated: bool,
+}
+
+/// Most solves the kept LU waits after tries that did not pay ([`KeptLuGate`]).
+const KEPT_LU_MAX_WAIT: u32 = 64;
+
+/// Whether a solve tries the LU kept from the last one ([`NewtonSettings::chord_across_solves`]):
+/// a try that did not pay (the run factorised after all, or failed) makes the next `1, 2, 4, …`
+/// (at most [`KEPT_LU_MAX_WAIT`]) solves with a kept LU skip it; a try that paid resets the
+/// wait. Only the acceptance tests of the chord step decide a result; this decides the cost of
+/// refused tries (a chord solve, `F` at its trial point, the residual: ≈ 5 k on A1).
+#[derive(Clone, Copy, Debug, Default)]
+struct KeptLuGate {
+    /// Solves with a kept LU left to skip.
+    wait: u32,
+    /// The wait set by the last try that did not pay (0 after one that paid).
+    backoff: u32,
+}
+
+impl KeptLuGate {
+    /// Whether this solve tries the kept LU (a skipped solve counts down the wait).
+    fn take_turn(&mut self) -> bool {
+        if self.wait > 0 {
+            self.wait -= 1;
+            false
+        } else {
+            true
+        }
+    }
+
+    /// The outcome of a try.
+    fn record(&mut self, paid: bool) {
+        if paid {
+            self.backoff = 0;
+        } else {
+            self.backoff = (2 * self.backoff).clamp(1, KEPT_LU_MAX_WAIT);
+            self.wait = self.backoff;
+        }
+    }
 }
 
 impl NewtonSolver {
@@ -568,6 +615,8 @@ impl NewtonSolver {
             in_continuation: false,
             budget: None,
             kept_lu: false,
+            kept_lu_gate: KeptLuGate::default(),
+            last_iterated: true,
         }
     }
     /// Turns on the profile of factorisations, damping trials and time per phase
@@ -1338,6 +1387,8 @@ impl NewtonSolver {
         // (Both set below: true at the start when the last solve's LU is kept.)
         let (mut chord_ready, mut chord_lu);
         let (mut last_chord, mut chord_polished) = (false, false);
+        // The last step taken was by the LU held (its full step, a chord step, the polish).
+        let mut last_lu_step = false;
         let mut prof = NewtonProfile::default();
         let mut clock = Clock::new(self.profile.is_some());
 
@@ -1355,16 +1406,21 @@ impl NewtonSolver {
         }
         // The first iteration tries a chord step on the last solve's LU: only the plain
         // iteration's first run (the restarts after a failed run start afresh).
+        // After tries that did not pay, the kept LU waits some solves (`KeptLuGate`).
         let from_kept = kept
             && same_kinds
             && s.chord_across_solves.is_some()
             && s.chord_contraction.is_some()
             && self.attempt == 0
             && !self.nonmonotone
-            && !self.in_continuation;
-        // `J` at the start only when the first iteration forms `H` (a refused chord step
-        // evaluates it then).
-        let mut have_jac = !from_kept;
+            && !self.in_continuation
+            && self.kept_lu_gate.take_turn();
+        // `J` at the start only when the first iteration is likely to form `H`: not on the kept
+        // LU (a refused chord step evaluates it then), and not after a solve that took no
+        // iteration (a step at rest: `J` would be dropped, ≈ 12.7 k of A1's 36.7 k
+        // instructions). Otherwise with `F` (`evaluate_with_jacobian` shares the blocks' pass);
+        // `F` alone computes the same `F`, and `J` later the same `J`: the points are the same.
+        let mut have_jac = !from_kept && self.last_iterated;
         if have_jac {
             mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
             jac_evals += 1;
@@ -1941,6 +1997,7 @@ impl NewtonSolver {
             let previous = residual;
             residual = chord_residual.unwrap_or_else(|| natural_residual(&ws.z, &ws.f, l, u));
             last_chord = chord;
+            last_lu_step = lu_step;
             have_jac = false;
             // A step by the kept LU that contracted the residual fast, near the solution.
             chord_ready = chord_kappa(lu_from_last).is_some_and(|kappa| {
@@ -2031,6 +2088,20 @@ impl NewtonSolver {
             clock.lap(&mut prof, Phase::Other);
         }
         self.min_norm_kept = min_norm_kept + min_norm_pending;
+        self.last_iterated = iterations > 0;
+        if from_kept {
+            // The try paid when the run converged without a factorisation of its own.
+            self.kept_lu_gate
+                .record(termination == Termination::Converged && prof.lu_factorizations == 0);
+        }
+        // The LU is worth keeping for the next solve when the run was one step on it that
+        // reached the round-off floor (or no step, on the kept LU): the step's problem is
+        // nearly linear there, so the next step's is likely solved by one chord step on it. A
+        // run that needed several steps (the desk: a full step to 1e-9, then chord steps)
+        // keeps none: the next step's residual would need several chord steps on an `H` a step
+        // old, which cost more than a factorisation (`docs/latency.md`, branch wip-a1fast).
+        let one_lu_step =
+            iterations == 0 || (iterations == 1 && last_lu_step && at_round_off(residual, &ws.z));
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;
@@ -2079,7 +2150,7 @@ impl NewtonSolver {
         );
         if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
             // Converged on its last LU: kept for the next solve's first iteration.
-            self.kept_lu = s.chord_across_solves.is_some() && chord_lu;
+            self.kept_lu = s.chord_across_solves.is_some() && chord_lu && one_lu_step;
             Ok(result)
         } else {
             Err(SolveError::NotConverged {
@@ -2307,46 +2378,56 @@ mod tests {
         }
     }
 
+    /// `smooth_three`'s solution moved by `offset` in its first two components (the third at
+    /// its bound): a start one full Newton step solves to round-off when `offset` is small.
+    fn near(exact: &[f64], offset: f64) -> Vec<f64> {
+        vec![exact[0] + offset, exact[1] - offset, 0.0]
+    }
+
     #[test]
     fn a_chord_step_on_the_last_solves_lu_replaces_the_first_factorisation() {
         let (exact, start) = smooth_three_start();
-        let other_start = vec![exact[0] - 1e-4, exact[1] + 1e-4, 2e-4];
-        let settings = NewtonSettings {
-            chord_across_solves: Some(1e-2),
-            ..NewtonSettings::default()
-        };
+        let settings = NewtonSettings::default();
+        assert_eq!(settings.chord_across_solves, Some(1e-2));
         let mut solver = NewtonSolver::new(settings.clone()).with_profile();
+        // From 1e-4 off: a full step to ~1e-8, then chord steps; an LU that needed several
+        // steps is not kept, so the next solve factorises (one full step from 1e-9 off).
         let first = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
-        let first_profile = solver.take_profile();
-        assert_eq!(
-            first_profile.kept_lu_steps + first_profile.kept_lu_refusals,
-            0
-        );
-        assert_eq!(first_profile.lu_factorizations, 1, "{first_profile:?}");
-        // The next solve of the same problem starts on the first one's LU: no factorisation.
+        assert!(first.summary.iterations >= 2, "{:?}", first.summary);
+        solver.take_profile();
         let second = solver
-            .solve(&smooth_three(), &other_start)
+            .solve(&smooth_three(), &near(&exact, 1e-9))
+            .unwrap_or_else(|e| panic!("{e}"));
+        let p = solver.take_profile();
+        assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
+        assert_eq!(p.lu_factorizations, 1, "{p:?}");
+        assert_eq!(second.summary.iterations, 1, "{:?}", second.summary);
+        // That run was one step to the round-off floor: its LU is kept, and the next solve
+        // of the same problem takes one chord step on it, no factorisation.
+        let other = near(&exact, -2e-9);
+        let third = solver
+            .solve(&smooth_three(), &other)
             .unwrap_or_else(|e| panic!("{e}"));
         let p = solver.take_profile();
         assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (1, 0), "{p:?}");
         assert_eq!(p.lu_factorizations, 0, "{p:?}");
-        assert_eq!(second.summary.iterations, p.chord_steps, "{p:?}");
+        assert_eq!(third.summary.iterations, 1, "{p:?}");
         // At round-off, where a solver without the kept LU ends, within 1e-15.
         let fresh = NewtonSolver::new(settings.clone())
-            .solve(&smooth_three(), &other_start)
+            .solve(&smooth_three(), &other)
             .unwrap_or_else(|e| panic!("{e}"));
-        for sol in [&first, &second, &fresh] {
+        for sol in [&first, &second, &third, &fresh] {
             assert_eq!(sol.summary.termination, Termination::Converged);
             assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
         }
-        for (a, b) in fresh.z.iter().zip(&second.z) {
+        for (a, b) in fresh.z.iter().zip(&third.z) {
             assert!(
                 (a - b).abs() <= 1e-15,
                 "{:?} against {:?}",
                 fresh.z,
-                second.z
+                third.z
             );
         }
         // Another pattern in between (a problem of dimension 2): the LU is not kept for it,
@@ -2367,7 +2448,7 @@ mod tests {
         .unwrap_or_else(|e| panic!("valid problem: {e}"));
         for mcp in [&two, &smooth_three()] {
             solver
-                .solve(mcp, &other_start[..mcp.dim()])
+                .solve(mcp, &other[..mcp.dim()])
                 .unwrap_or_else(|e| panic!("{e}"));
             let p = solver.take_profile();
             assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
@@ -2375,18 +2456,71 @@ mod tests {
         }
         // The same pattern with other bound kinds (the last component free): not kept either.
         solver
-            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other_start)
+            .solve(&smooth_three_bounded(f64::NEG_INFINITY), &other)
             .unwrap_or_else(|e| panic!("{e}"));
         let p = solver.take_profile();
         assert_eq!((p.kept_lu_steps, p.kept_lu_refusals), (0, 0), "{p:?}");
-        // Off (the default): every solve factorises first.
-        let mut off = NewtonSolver::new(NewtonSettings::default()).with_profile();
-        for z0 in [&start, &other_start] {
-            off.solve(&smooth_three(), z0)
+        // Off: every solve factorises first.
+        let mut off = NewtonSolver::new(NewtonSettings {
+            chord_across_solves: None,
+            ..NewtonSettings::default()
+        })
+        .with_profile();
+        for z0 in [near(&exact, 1e-9), other] {
+            off.solve(&smooth_three(), &z0)
                 .unwrap_or_else(|e| panic!("{e}"));
         }
         let p = off.take_profile();
         assert_eq!((p.kept_lu_steps, p.lu_factorizations), (0, 2), "{p:?}");
+    }
+
+    #[test]
+    fn a_kept_lu_that_did_not_pay_waits_one_two_four_solves() {
+        let mut gate = KeptLuGate::default();
+        assert!(gate.take_turn() && gate.take_turn());
+        // Tries that did not pay: the next 1, 2, 4 … solves skip it, at most KEPT_LU_MAX_WAIT.
+        let mut waits = Vec::new();
+        for _ in 0..9 {
+            gate.record(false);
+            let mut skipped = 0;
+            while !gate.take_turn() {
+                skipped += 1;
+            }
+            waits.push(skipped);
+        }
+        assert_eq!(waits, [1, 2, 4, 8, 16, 32, 64, 64, 64]);
+        // A try that paid: the next one is tried at once, and a miss after it waits 1 again.
+        gate.record(true);
+        assert!(gate.take_turn());
+        gate.record(false);
+        assert!(!gate.take_turn() && gate.take_turn());
+    }
+
+    #[test]
+    fn a_refused_try_of_the_kept_lu_makes_the_next_kept_lu_wait() {
+        let (exact, _) = smooth_three_start();
+        let mut solver = NewtonSolver::new(NewtonSettings::default()).with_profile();
+        let mut solve = |z0: &[f64]| {
+            let sol = solver
+                .solve(&smooth_three(), z0)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert!(sol.summary.residual <= 1e-15, "{:?}", sol.summary);
+            let p = solver.take_profile();
+            (p.kept_lu_steps, p.kept_lu_refusals, p.lu_factorizations)
+        };
+        // One full step from 1e-9 off: its LU is kept.
+        assert_eq!(solve(&near(&exact, 1e-9)), (0, 0, 1));
+        // From 0.2 off (inside the bounds) the chord step on it contracts the residual by less than 1e-2: refused,
+        // the run factorises (and, several steps long, keeps no LU).
+        let (_, refused, lu) = solve(&near(&exact, -0.2));
+        assert_eq!(refused, 1);
+        assert!(lu >= 2, "{lu}");
+        // One full step again (its LU kept), but the next solve skips the kept LU once.
+        assert_eq!(solve(&near(&exact, 1e-9)), (0, 0, 1));
+        assert_eq!(solve(&near(&exact, -1e-9)), (0, 0, 1));
+        // Then tries it, and it pays: one chord step, no factorisation.
+        assert_eq!(solve(&near(&exact, 2e-9)), (1, 0, 0));
     }
 
     #[test]
