@@ -347,6 +347,14 @@ fn set_path(s: &mut PathSettings, kv: &str) -> Result<(), String> {
         "guarded_watchdog" => s.guarded_watchdog = b()?,
         "fischer_restart" => s.fischer_restart = b()?,
         "best_point_restart" => s.best_point_restart = b()?,
+        "stall_window" => s.stall_window = n()?,
+        "stall_ratio" => s.stall_ratio = f()?,
+        "smoothing_failed_stages" => {
+            if let Some(sm) = s.smoothing.as_mut() {
+                sm.max_failed_stages = Some(n()?);
+                sm.count_cut_stages = true;
+            }
+        }
         "smoothing" if !b()? => s.smoothing = None,
         "max_iterations" => s.max_iterations = n()?,
         "proximal_initial" => s.proximal_initial = f()?,

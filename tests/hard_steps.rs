@@ -931,3 +931,41 @@ fn newton_v_trough_s20261201_061_step_70_complementary_restart_from_the_best_poi
             .is_some_and(|n| n >= 1)
     );
 }
+
+/// `s20261212_022_v_trough` step 62 (the held-out seed 20261212; a box sliding to rest in a V
+/// trough of sides 58.5° and 36°, two loaded contacts, `docs/path.md#the-valley-of-the-v-troughs`):
+/// every PATH attempt stops on the floor of a valley of the merit (natural residual 5e-5 as
+/// given, 4e-6 in the scene scales: the split of the normal and friction impulses between the
+/// two contacts), and the smoothing continuation as given crawls along it for about 70 stages of
+/// 30 iterations before the one in the scales solves the step (2 783 iterations in all). With
+/// Newton's give-up of a crawling continuation (`max_failed_stages`, `count_cut_stages`) it stops
+/// after four failed stages, and the step costs about 700.
+#[test]
+fn path_v_trough_s20261212_022_step_62_continuation_give_up() {
+    let path = regression_scene("s20261212_022_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = PathSettings {
+        tolerance,
+        ..PathSettings::default()
+    };
+    // The settings before the mend (the state at step 62 does not depend on it).
+    let before = PathSettings {
+        smoothing: Some(SmoothingSettings::default()),
+        ..settings.clone()
+    };
+    let sim = at_default_step(&path, &mut PathSolver::new(before.clone()), 62);
+    let z0 = sim.z().to_vec();
+    let old = converged(sim.solve_step_problem(&mut PathSolver::new(before), &z0));
+    assert!(
+        old.summary.iterations > 1500,
+        "before the mend: {} iterations, the test's premise is gone",
+        old.summary.iterations
+    );
+    let mended = converged(sim.solve_step_problem(&mut PathSolver::new(settings), &z0));
+    println!(
+        "s20261212_022_v_trough step 62: {} iterations before, {} with the mend",
+        old.summary.iterations, mended.summary.iterations
+    );
+    assert!(mended.summary.residual <= tolerance);
+    assert_iterations(&mended, ..=1000);
+}

@@ -217,6 +217,7 @@ impl PathSettings {
             "must be finite and at least proximal_initial",
         )?;
         c.positive("restart_proximal", self.restart_proximal)?;
+        c.fraction("stall_ratio", self.stall_ratio)?;
         c.that(
             "watchdog_growth",
             self.watchdog_growth,
@@ -566,6 +567,16 @@ mod tests {
             },
             v,
         );
+        for bad in [0.0, 1.0, f64::NAN] {
+            refused(
+                "stall_ratio",
+                PathSettings {
+                    stall_ratio: bad,
+                    ..d()
+                },
+                v,
+            );
+        }
         refused(
             "proximal_initial",
             PathSettings {

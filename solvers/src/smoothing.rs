@@ -55,14 +55,15 @@ pub struct SmoothingSettings {
     /// the reduction left): the continuation has lost the path, and its remaining stages would
     /// each run to [`SmoothingSettings::stage_iterations`] (`docs/newton.md#wall-time`); with
     /// [`SmoothingSettings::count_cut_stages`], this many unconverged stages of any kind.
-    /// `None` (default): go on to the last stage. The Newton backend sets it.
+    /// `None` (default): go on to the last stage. The Newton and PATH-like backends set it.
     pub max_failed_stages: Option<usize>,
     /// With [`SmoothingSettings::max_failed_stages`]: count every stage that did not converge,
     /// cut back or kept, since the last stage that converged with the set
     /// [`SmoothingSettings::reduction`] (a stage that converged only after cuts does not reset
     /// the count). A continuation that alternates failed stages and short converged ones
     /// crawls along the path at 30 iterations a stage (`035_v_trough` step 27,
-    /// `docs/newton.md#a-crawling-continuation`). Default `false`; the Newton backend sets it.
+    /// `docs/newton.md#a-crawling-continuation`). Default `false`; the Newton and PATH-like
+    /// backends set it.
     pub count_cut_stages: bool,
 }
 
