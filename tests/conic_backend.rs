@@ -467,6 +467,20 @@ fn held_out_v_trough_061_load_drift_is_progress() {
     );
 }
 
+/// `s20261212_061_v_trough` (held-out seed 20261212): a point set in the crease of a V trough
+/// (μ = 1.17), one vertex loaded by both sides, one side sticking, the other spinning. The other
+/// side's gap row is a combination of the sticking side's rows, so the polish's joint step had a
+/// singular Jacobian and was refused; the sweeps then walked along the null direction to their
+/// cap at every polish, the fixed point stalled at 1.6e-8 to 4e-7 (a gap row), and from step 20
+/// every step failed (the Newton polishes stopped at 4.7e-10). With the damped least-squares
+/// joint step (`docs/latency.md`, wip-conicslow) steps 1–25 converge.
+#[test]
+fn held_out_v_trough_061_singular_joint_step() {
+    let name = "s20261212_061_v_trough";
+    let records = regression_steps(name, 25);
+    assert_every_step_converged(name, &records);
+}
+
 /// `s20261201_153_room_corner` (held-out seed 20261201), step 186: an arch spinning flat on the
 /// floor on four coplanar vertices. The QPs tip it onto two or three of them and the fixed point
 /// cycles (residuals 1.4e-3–7.4e-3); the Newton polish from its best iterate stops at 4.9e-6,
