@@ -1395,10 +1395,8 @@ impl StepQp {
     /// matrix of every loaded vertex and friction component). The point is taken only when
     /// Newton's method converges to round-off, every load stays positive, every sticking
     /// friction stays in its cone, and every sliding one keeps its slip; otherwise nothing
-    /// changes and the sweeps go on. More than three loaded vertices on a contact (four
-    /// coplanar vertices, the desk's legs) are refused before any work; another singular
-    /// Jacobian (two contacts on one vertex, one sticking) takes the damped least-squares step
-    /// of [`minimum_norm_step`] instead of Newton's. Returns whether
+    /// changes and the sweeps go on. Loads that are not unique (four coplanar vertices, the
+    /// union desk's legs) make the Jacobian singular: refused the same way. Returns whether
     /// the point was taken. Cold and out of line: most polishes settle before it, and the
     /// desk's that do not are refused at once by the loaded-vertex count.
     #[cold]
@@ -1532,8 +1530,6 @@ impl StepQp {
             };
         }
         let mut x = x0.clone();
-        let mut rhs = Vec::with_capacity(n);
-        let rhs = &mut rhs;
         let mut converged = false;
         for _ in 0..JOINT_ITERATIONS {
             // Rows' values at x (linear in x), then the residual and Jacobian.
@@ -1587,9 +1583,8 @@ impl StepQp {
             for d in delta.iter_mut() {
                 *d = -*d;
             }
-            rhs.clone_from(delta);
-            let newton = lu.factor(jac).is_ok() && lu.solve_in_place(delta).is_ok();
-            if (!newton && !minimum_norm_step(lu, jac, rhs, delta, n))
+            if lu.factor(jac).is_err()
+                || lu.solve_in_place(delta).is_err()
                 || delta.iter().any(|d| !d.is_finite())
             {
                 return false;
@@ -1642,48 +1637,6 @@ impl StepQp {
         true
     }
 }
-
-/// The joint step's Newton step when its Jacobian `jac` (column-major, `n × n`) is singular:
-/// the Levenberg–Marquardt step `(JᵀJ + εI) δ = Jᵀ rhs` (`rhs = −F`), ε = [`JOINT_DAMPING`] of
-/// the largest diagonal of `JᵀJ`, into `delta`; `false` when that fails too. The loads of
-/// contacts that share a vertex are not unique while one of them sticks (a point in the crease
-/// of a V trough: the other contact's normal row is a combination of the sticking one's rows),
-/// so the Jacobian is singular; the damped step moves only across the rows' common null space,
-/// to the nearest least-squares point of the conditions (their solution when they are
-/// consistent). The next sweeps go on from it as from any joint step, and the fixed point's
-/// convergence is still judged on the step's natural residual. Without it the sweeps walked
-/// along the null direction to their cap at every polish (`061_v_trough` of seed 20261212,
-/// `docs/latency.md#conic-backend`).
-fn minimum_norm_step(
-    lu: &mut linalg::DenseLu,
-    jac: &[f64],
-    rhs: &[f64],
-    delta: &mut [f64],
-    n: usize,
-) -> bool {
-    let column = |i: usize| &jac[i * n..(i + 1) * n];
-    let mut normal = vec![0.0; n * n];
-    for i in 0..n {
-        for j in 0..=i {
-            let v: f64 = column(i).iter().zip(column(j)).map(|(a, b)| a * b).sum();
-            normal[j * n + i] = v;
-            normal[i * n + j] = v;
-        }
-        delta[i] = column(i).iter().zip(rhs).map(|(a, b)| a * b).sum();
-    }
-    let largest = (0..n).fold(0.0f64, |m, i| m.max(normal[i * n + i]));
-    if !(largest > 0.0 && largest.is_finite()) {
-        return false;
-    }
-    for i in 0..n {
-        normal[i * n + i] += JOINT_DAMPING * largest;
-    }
-    lu.factor(&normal).is_ok() && lu.solve_in_place(delta).is_ok()
-}
-
-/// See [`minimum_norm_step`]: the damping of a singular joint step, relative to the largest
-/// diagonal of `JᵀJ` (above the LU's singular-pivot ratio, far below a well-posed step's scale).
-const JOINT_DAMPING: f64 = 1e-10;
 
 /// Eigen-decomposition of a symmetric matrix ([`linalg::symmetric_eigen`]): eigenvalues and
 /// the eigenvectors as the columns of the second matrix. `None` for a non-finite matrix.
