@@ -544,6 +544,29 @@ impl PathSolver {
         self.trial_has_jac
     }
 
+    /// The Jacobian at a point accepted without it (a crash step that put it off for a chord
+    /// step, [`PathSolver::crash_step`]), evaluated into `self.jac` once the chord steps are
+    /// over. Where it is finite, `true`. Where it is not, the full step's acceptance test
+    /// ([`PathSolver::trial_usable`]) would have refused the point: the iteration goes back to
+    /// the point before that step (kept in `checkpoint`, its Jacobian finite but no longer in
+    /// `self.jac`), `residual` becomes its natural residual, and `false` is returned. The best
+    /// point kept so far is left as it is (its `F` is finite, which is all it needs).
+    fn settle_deferred_jacobian(
+        &mut self,
+        mcp: &dyn Mcp,
+        residual: &mut f64,
+        jac_evals: &mut usize,
+    ) -> bool {
+        mcp.jacobian(&self.current.z, &mut self.jac);
+        *jac_evals += 1;
+        if all_finite(&self.jac) {
+            return true;
+        }
+        self.current.copy_from(&self.checkpoint);
+        *residual = natural_residual(&self.current.z, &self.current.f, mcp.lower(), mcp.upper());
+        false
+    }
+
     /// One projected Newton step of the crash phase from `self.current` (whose Jacobian is in
     /// `self.jac`): Newton on the variables left inside by `π(z − F)`, the others fixed at their
     /// bounds, then a projected backtracking search. Returns the accepted step length.
@@ -905,16 +928,11 @@ impl PathSolver {
                     // Refused: a full crash step from here (which sets `chord_next` again),
                     // with the Jacobian put off before.
                     self.kept_lu = false;
-                    mcp.jacobian(&self.current.z, &mut self.jac);
-                    *jac_evals += 1;
-                    have_jac = true;
-                    if !all_finite(&self.jac) {
-                        // The acceptance test of the full step would have refused this point
-                        // (`trial_usable`): back to the last point with a finite Jacobian, kept
-                        // in `checkpoint`, and on to the Newton paths from there.
-                        self.current.copy_from(&self.checkpoint);
-                        residual = natural_residual(&self.current.z, &self.current.f, l, u);
-                        have_jac = false;
+                    chord_next = false;
+                    have_jac = self.settle_deferred_jacobian(mcp, &mut residual, jac_evals);
+                    if !have_jac {
+                        // Back at the last point with a finite Jacobian: on to the Newton
+                        // paths from there.
                         break;
                     }
                 }
@@ -952,6 +970,19 @@ impl PathSolver {
                 if same && t == 1.0 {
                     break;
                 }
+            }
+            // The crash phase ended on its step limit (`crash_iterations`) right after a point
+            // accepted without its Jacobian: the main loop's first Newton path needs it, and a
+            // non-finite one is the acceptance test's refusal of that point, not a non-finite
+            // problem (which would end the solve without its restarts). When the iteration
+            // budget or the time limit ended it, the main loop stops before it needs `J`
+            // (`max_iterations`, `time_limit_reached`), so none is evaluated.
+            if chord_next
+                && residual > s.tolerance
+                && *iterations - iterations_at_start < s.max_iterations
+                && !self.out_of_time()
+            {
+                have_jac = self.settle_deferred_jacobian(mcp, &mut residual, jac_evals);
             }
         }
 
@@ -1882,6 +1913,102 @@ mod tests {
             .unwrap_err();
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
+    }
+
+    /// `F(z) = e + 10⁻³ e²`, `e = z − 1`, free (root `z = 1`), whose Jacobian is not finite
+    /// for `1e-9 < e < 2e-5` (a model outside its domain there); from `z = 1.1` the full crash
+    /// step lands at `e ≈ 1.0e-5` (residual 1e-4 of the start's, so the next step is a chord
+    /// step and the Jacobian is put off), the chord step at `e ≈ 2.0e-9`, the next at
+    /// `e ≈ 4e-13`, within the tolerance. When `pause` is set, `F` there sleeps that long.
+    fn deferred_jacobian_not_finite(pause: Option<std::time::Duration>) -> FnMcp {
+        let bad = |z: f64| (1e-9..2e-5).contains(&(z - 1.0));
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY],
+            vec![f64::INFINITY],
+            move |z, f| {
+                let e = z[0] - 1.0;
+                if let Some(p) = pause.filter(|_| bad(z[0])) {
+                    std::thread::sleep(p);
+                }
+                f[0] = e + 1e-3 * e * e;
+            },
+            move |z, j| {
+                j[0] = if bad(z[0]) {
+                    f64::NAN
+                } else {
+                    1.0 + 2e-3 * (z[0] - 1.0)
+                };
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn path_crash_limit_after_a_deferred_jacobian_goes_back_not_fails() {
+        let p = deferred_jacobian_not_finite(None);
+        // With the crash phase's default limit the chord steps end within the tolerance: one
+        // Jacobian (at the start) in the whole solve.
+        let sol = PathSolver::new(PathSettings::default())
+            .solve(&p, &[1.1])
+            .unwrap();
+        assert_eq!(sol.summary.jac_evals, 1, "{:?}", sol.summary);
+        assert_eq!(sol.summary.counter(Counter::PathSteps).unwrap(), 0);
+        // The crash phase's limit ends it after the deferred crash step (1) or after its chord
+        // step (2): the Jacobian there is not finite, so the iteration goes back to the start
+        // and the Newton paths solve it (their path search backs off the bad points). Before,
+        // the main loop met that Jacobian and the solve ended with `NonFiniteFunction`.
+        for crash_iterations in [1, 2] {
+            let sol = PathSolver::new(PathSettings {
+                crash_iterations,
+                ..PathSettings::default()
+            })
+            .solve(&p, &[1.1])
+            .unwrap_or_else(|e| panic!("crash {crash_iterations}: {e}"));
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert_eq!(
+                sol.summary.counter(Counter::CrashSteps).unwrap(),
+                crash_iterations
+            );
+            assert!(sol.summary.counter(Counter::PathSteps).unwrap() > 0);
+            assert_eq!(sol.summary.counter(Counter::Restarts).unwrap(), 0);
+            // Polished: the root to a few ulps.
+            assert!((sol.z[0] - 1.0).abs() <= 4.0 * f64::EPSILON, "{}", sol.z[0]);
+        }
+    }
+
+    #[test]
+    fn path_budget_or_time_limit_mid_chord_is_reported_as_such() {
+        // An iteration budget that ends the solve after the deferred crash step (1) or its
+        // chord step (2): `max_iterations`, at the chord sequence's last point (its `F` is
+        // finite), and no Jacobian evaluated where it was put off.
+        let p = deferred_jacobian_not_finite(None);
+        for (budget, error) in [(1, 1e-5), (2, 2e-9)] {
+            let mut solver = PathSolver::new(PathSettings::default());
+            solver.set_iteration_budget(Some(budget));
+            let err = solver.solve(&p, &[1.1]).unwrap_err();
+            let best = err.best().unwrap();
+            assert_eq!(best.summary.termination, Termination::MaxIterations);
+            assert_eq!(best.summary.iterations, budget);
+            assert_eq!(best.summary.jac_evals, 1);
+            // Where the chord sequence stood: e ≈ 1.0e-5, then ≈ 2.0e-9 (within 1 %).
+            let e = best.z[0] - 1.0;
+            assert!((e - error).abs() <= 0.01 * error, "{budget}: {e}");
+        }
+        // A time limit that runs out during the deferred crash step's evaluation (`F` sleeps
+        // 0.2 s there, the limit is 0.05 s): `max_iterations` with the time limit counted, no
+        // Jacobian where it was put off, no restarts.
+        let p = deferred_jacobian_not_finite(Some(std::time::Duration::from_millis(200)));
+        let err = PathSolver::new(PathSettings {
+            time_limit: 0.05,
+            ..PathSettings::default()
+        })
+        .solve(&p, &[1.1])
+        .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::MaxIterations);
+        assert_eq!(best.summary.counter(Counter::TimeLimitReached).unwrap(), 1);
+        assert_eq!(best.summary.counter(Counter::Restarts).unwrap(), 0);
+        assert!(best.summary.jac_evals <= 1, "{:?}", best.summary);
     }
 
     #[test]
