@@ -234,6 +234,9 @@ struct Point {
     z: Vec<f64>,
     f: Vec<f64>,
     merit: f64,
+    /// The natural residual of `z` and `f` once taken ([`Point::natural_residual`]; `None`
+    /// after each evaluation): the step tests and the acceptance of a point share it.
+    residual: Option<f64>,
 }
 
 impl Point {
@@ -247,6 +250,13 @@ impl Point {
         self.z.copy_from_slice(&other.z);
         self.f.copy_from_slice(&other.f);
         self.merit = other.merit;
+        self.residual = other.residual;
+    }
+    /// `‖z − mid(l, u, z − F)‖∞`, taken once per evaluation.
+    fn natural_residual(&mut self, l: &[f64], u: &[f64]) -> f64 {
+        *self
+            .residual
+            .get_or_insert_with(|| natural_residual(&self.z, &self.f, l, u))
     }
 }
 
@@ -353,7 +363,7 @@ impl PathSolver {
         if self.trial_has_jac {
             std::mem::swap(&mut self.jac, &mut self.trial_jac);
         }
-        let residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        let residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
@@ -499,6 +509,7 @@ fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool)
         p.z[i] = mid(l[i], u[i], p.x[i]);
     }
     mcp.evaluate(&p.z, &mut p.f);
+    p.residual = None;
     *f_evals += 1;
     if p.f.iter().all(|v| v.is_finite()) {
         normal_point(p, l, u);
@@ -535,7 +546,7 @@ impl PathSolver {
             return false;
         }
         let (l, u) = (mcp.lower(), mcp.upper());
-        if natural_residual(&self.trial.z, &self.trial.f, l, u) <= tolerance {
+        if self.trial.natural_residual(l, u) <= tolerance {
             return true;
         }
         mcp.jacobian(&self.trial.z, &mut self.trial_jac);
@@ -563,7 +574,7 @@ impl PathSolver {
             return true;
         }
         self.current.copy_from(&self.checkpoint);
-        *residual = natural_residual(&self.current.z, &self.current.f, mcp.lower(), mcp.upper());
+        *residual = self.current.natural_residual(mcp.lower(), mcp.upper());
         false
     }
 
@@ -604,7 +615,7 @@ impl PathSolver {
                     && self.trial.merit.is_finite()
                 {
                     let (l, u) = (mcp.lower(), mcp.upper());
-                    let r = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                    let r = self.trial.natural_residual(l, u);
                     if r > tolerance && r <= CRASH_CHORD_CONTRACTION * residual {
                         self.trial_has_jac = false;
                         self.jac_deferred = true;
@@ -850,7 +861,7 @@ impl PathSolver {
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
         evaluate_at(mcp, &mut self.current, f_evals, self.fischer);
-        let mut residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
@@ -904,7 +915,7 @@ impl PathSolver {
                     if self.chord_target(mcp) {
                         self.trial.x.copy_from_slice(&self.step_x);
                         evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                        let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                        let chorded = self.trial.natural_residual(l, u);
                         let sigma = s.sufficient_decrease;
                         if self.trial.merit <= (1.0 - sigma) * self.current.merit
                             && chorded <= POLISH_CHORD_CONTRACTION * residual
@@ -1215,7 +1226,7 @@ impl PathSolver {
             if chords < POLISH_CHORD_STEPS && self.chord_target(mcp) {
                 self.trial.x.copy_from_slice(&self.step_x);
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                let chorded = self.trial.natural_residual(l, u);
                 let bound = if above {
                     POLISH_CHORD_CONTRACTION * residual
                 } else {
@@ -1275,7 +1286,7 @@ impl PathSolver {
             }
             if stepped {
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                let polished = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                let polished = self.trial.natural_residual(l, u);
                 if self.trial.merit.is_finite() && polished <= s.tolerance {
                     self.trial_has_jac = false;
                     let before = residual;
