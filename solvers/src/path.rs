@@ -42,9 +42,9 @@ use std::time::Instant;
 
 use ecp_model::mcp::fb_component;
 use ecp_model::{
-    Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid, natural_residual,
-    solve_in_scales, validate_start,
+    Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, Solution,
+    SolveError, SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid,
+    natural_residual, solve_in_scales, validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -160,6 +160,14 @@ pub struct PathSettings {
     /// (`docs/latency.md`, branch wip-pathwarm2). `1.0` turns it off (main's PATH before it,
     /// which stops anywhere within the tolerance). Default `1e-3`.
     pub polish_below: f64,
+    /// Chord steps on the LU kept from the last solve: a solve that converged with the LU of
+    /// its last crash step or polish (`J_II` and its active set) keeps it, keyed by the
+    /// problem's dimension, Jacobian pattern and system of units (as given or in the scene
+    /// scales, with the scales' values); the next solve's first attempt on the same key takes
+    /// chord steps on it before any Jacobian ([`PathSolver::chord_target`]: the same active
+    /// set, the crash phase's decrease and contraction tests, or the polish's). Default `false`
+    /// (`docs/latency.md`, branch wip-pathfast of issue 18).
+    pub chord_across_solves: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -190,6 +198,7 @@ impl Default for PathSettings {
             first_in_both_units: true,
             first_attempt_pivots: 100,
             polish_below: 1e-3,
+            chord_across_solves: false,
             trace: false,
         }
     }
@@ -258,6 +267,13 @@ impl Point {
             .residual
             .get_or_insert_with(|| natural_residual(&self.z, &self.f, l, u))
     }
+}
+
+/// What an LU kept across solves was formed for ([`PathSettings::chord_across_solves`]).
+struct KeptKey {
+    /// Solved as given (not in the scene scales).
+    as_given: bool,
+    pattern: Arc<CscPattern>,
 }
 
 /// Counters reported in the summary.
@@ -339,6 +355,13 @@ pub struct PathSolver {
     /// The last crash step was accepted without the Jacobian at its point: a chord step is to
     /// follow ([`PathSolver::crash_step`]).
     jac_deferred: bool,
+    /// The key of the LU kept from the last solve ([`PathSettings::chord_across_solves`]):
+    /// `factor`, `active` and `inactive` are its crash target's when `Some`.
+    kept_key: Option<KeptKey>,
+    /// The scales of the kept LU's system (`d_x` then `d_f`; empty as given).
+    kept_scales: Vec<f64>,
+    /// The next attempt may start on the LU kept from the last solve.
+    lu_from_last_solve: bool,
     observer: Option<Box<dyn Observer>>,
     /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
     deadline: Option<Instant>,
@@ -429,6 +452,9 @@ impl PathSolver {
             factor: BasisFactor::default(),
             kept_lu: false,
             jac_deferred: false,
+            kept_key: None,
+            kept_scales: Vec::new(),
+            lu_from_last_solve: false,
             observer: None,
             deadline: None,
             pivot_budget: None,
@@ -856,7 +882,12 @@ impl PathSolver {
         } = run;
         let iterations_at_start = *iterations;
         let pivots_at_start = counters.pivots;
-        self.kept_lu = false;
+        // The LU kept from the last solve, for the first attempt only.
+        self.kept_lu = std::mem::take(&mut self.lu_from_last_solve)
+            && initial_lambda == 0.0
+            && !guarded
+            && !self.fischer
+            && s.polish_below < 1.0;
 
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
@@ -905,8 +936,12 @@ impl PathSolver {
             self.active_prev.fill(2);
             // Set by a full crash step that contracted the residual by `CRASH_CHORD_CONTRACTION`
             // (`crash_step`): the next step is a chord step on its LU, and the Jacobian at the
-            // new point is evaluated only if that chord step is refused.
-            let mut chord_next = false;
+            // new point is evaluated only if that chord step is refused. On the LU kept from the
+            // last solve the first step is a chord step, from the start (kept in `checkpoint`).
+            let mut chord_next = self.kept_lu;
+            if chord_next {
+                self.checkpoint.copy_from(&self.current);
+            }
             for _ in 0..s.crash_iterations {
                 if *iterations - iterations_at_start >= s.max_iterations || self.out_of_time() {
                     break;
@@ -1339,26 +1374,34 @@ impl McpSolver for PathSolver {
         let scaled = mcp
             .scales()
             .is_some_and(|s| !s.is_identity() && s.is_valid(mcp.dim()));
+        // The system of units `solve_in_scales` hands over: the problem itself (as given) or
+        // its scaled form, whose scales are the problem's (the key of a kept LU).
+        let outer = mcp;
+        let units = |inner: &dyn Mcp| {
+            (!std::ptr::addr_eq(inner, outer))
+                .then(|| outer.scales())
+                .flatten()
+        };
         if self.iteration_budget.is_some() {
             return solve_in_scales(mcp, z0, |mcp, z0| {
-                self.solve_unscaled(mcp, z0, Attempts::First)
+                self.solve_unscaled(mcp, z0, Attempts::First, units(mcp))
             });
         }
         if !(scaled && self.settings.first_in_both_units) {
             return solve_in_scales(mcp, z0, |mcp, z0| {
-                self.solve_unscaled(mcp, z0, Attempts::All)
+                self.solve_unscaled(mcp, z0, Attempts::All, units(mcp))
             });
         }
         // The first attempt in both systems of units (`PathSettings::first_in_both_units`),
         // then the other attempts in both.
         let first = solve_in_scales(mcp, z0, |mcp, z0| {
-            self.solve_unscaled(mcp, z0, Attempts::First)
+            self.solve_unscaled(mcp, z0, Attempts::First, units(mcp))
         });
         let Err(SolveError::NotConverged { best: first }) = first else {
             return first;
         };
         let rest = solve_in_scales(mcp, z0, |mcp, z0| {
-            self.solve_unscaled(mcp, z0, Attempts::Rest)
+            self.solve_unscaled(mcp, z0, Attempts::Rest, units(mcp))
         });
         match rest {
             Ok(mut sol) => {
@@ -1422,6 +1465,55 @@ impl PathSolver {
     /// [`McpSolver::solve`] on `mcp` as given: the `which` attempts, within a budget of
     /// [`PathSettings::time_limit`] of their own.
     fn solve_unscaled(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        which: Attempts,
+        scales: Option<&McpScales>,
+    ) -> Result<Solution, SolveError> {
+        // The LU kept from the last solve (`PathSettings::chord_across_solves`), for this
+        // solve's first attempt when it was formed for the same problem in the same units.
+        let kept = self.kept_key.take();
+        self.lu_from_last_solve = self.settings.chord_across_solves
+            && which != Attempts::Rest
+            && kept.is_some_and(|k| self.same_key(&k, mcp, scales));
+        let result = self.solve_attempts_and_continuation(mcp, z0, which);
+        self.lu_from_last_solve = false;
+        if self.settings.chord_across_solves && self.kept_lu && result.is_ok() {
+            self.kept_scales.clear();
+            if let Some(sc) = scales {
+                self.kept_scales.extend_from_slice(&sc.variables);
+                self.kept_scales.extend_from_slice(&sc.rows);
+            }
+            self.kept_key = Some(KeptKey {
+                as_given: scales.is_none(),
+                pattern: mcp.jacobian_pattern().clone(),
+            });
+        }
+        result
+    }
+
+    /// Whether the LU kept under `key` was formed for `mcp` in the same units: the same
+    /// Jacobian pattern (so the same dimension) and system (as given, or scaled by the same
+    /// scales).
+    fn same_key(&self, key: &KeptKey, mcp: &dyn Mcp, scales: Option<&McpScales>) -> bool {
+        let p = mcp.jacobian_pattern();
+        let same_pattern = Arc::ptr_eq(&key.pattern, p)
+            || (key.pattern.col_ptr() == p.col_ptr() && key.pattern.row_idx() == p.row_idx());
+        same_pattern
+            && match scales {
+                None => key.as_given,
+                Some(sc) => {
+                    !key.as_given
+                        && self.kept_scales.len() == sc.variables.len() + sc.rows.len()
+                        && self.kept_scales[..sc.variables.len()] == sc.variables[..]
+                        && self.kept_scales[sc.variables.len()..] == sc.rows[..]
+                }
+            }
+    }
+
+    /// [`PathSolver::solve_unscaled`]'s attempts and smoothing continuation.
+    fn solve_attempts_and_continuation(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
@@ -1734,6 +1826,104 @@ mod tests {
         assert!(sol.summary.residual <= 2e-15, "{}", sol.summary.residual);
         assert!((sol.z[0] - 1.0).abs() <= 1e-15, "{}", sol.z[0]);
         assert_eq!(sol.z[1], 0.0);
+    }
+
+    /// `z0² + z0 = 2 + p` (free) and `z1 ≥ 0` with `F1 = z1 + 1 + z0/10 > 0` (at its bound).
+    fn shifted_root(p: f64) -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY, 0.0],
+            vec![f64::INFINITY; 2],
+            move |z, f| {
+                f[0] = z[0] * z[0] + z[0] - 2.0 - p;
+                f[1] = z[1] + 1.0 + 0.1 * z[0];
+            },
+            |z, j| {
+                j[0] = 2.0 * z[0] + 1.0;
+                j[1] = 0.1;
+                j[2] = 0.0;
+                j[3] = 1.0;
+            },
+        )
+        .unwrap()
+    }
+
+    /// A problem with scene scales (`Mcp::scales`), so that it is solved in them.
+    struct WithScales(FnMcp, ecp_model::McpScales);
+    impl Mcp for WithScales {
+        fn dim(&self) -> usize {
+            self.0.dim()
+        }
+        fn lower(&self) -> &[f64] {
+            self.0.lower()
+        }
+        fn upper(&self) -> &[f64] {
+            self.0.upper()
+        }
+        fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+            self.0.evaluate(z, f)
+        }
+        fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+            self.0.jacobian_pattern()
+        }
+        fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+            self.0.jacobian(z, values)
+        }
+        fn scales(&self) -> Option<&ecp_model::McpScales> {
+            Some(&self.1)
+        }
+    }
+
+    #[test]
+    fn path_chord_steps_on_the_last_solves_lu_in_the_same_units_only() {
+        let root = |p: f64| (-1.0 + (9.0f64 + 4.0 * p).sqrt()) / 2.0;
+        let settings = PathSettings {
+            chord_across_solves: true,
+            ..PathSettings::default()
+        };
+        // As given: the second solve (the root moved by 3e-4) takes chord steps on the first
+        // solve's LU and no Jacobian; it ends at the root to round-off all the same.
+        let mut solver = PathSolver::new(settings.clone());
+        let first = solver.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        assert!(first.summary.jac_evals >= 1);
+        let second = solver.solve(&shifted_root(1e-3), &first.z).unwrap();
+        assert_eq!(second.summary.jac_evals, 0, "{:?}", second.summary);
+        assert!(second.summary.iterations >= 2);
+        assert!((second.z[0] - root(1e-3)).abs() <= 4.0 * f64::EPSILON);
+        assert!(
+            second.summary.residual <= 2e-15,
+            "{}",
+            second.summary.residual
+        );
+        // Off (the default), the same solve evaluates the Jacobian and ends at the same root.
+        let mut plain = PathSolver::new(PathSettings::default());
+        plain.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        let again = plain.solve(&shifted_root(1e-3), &first.z).unwrap();
+        assert!(again.summary.jac_evals >= 1);
+        assert!((again.z[0] - second.z[0]).abs() <= 4.0 * f64::EPSILON);
+        // In scene scales far from SI (`2²¹`, solved in them) whose scaled `J_II` is the same
+        // number as the one given (`d_x = d_f` on `z0`): the LU of the system as given is not
+        // used there (it would pass the chord's tests), but that of an earlier scaled solve is.
+        let scaled = |p: f64| {
+            let d = 2_097_152.0;
+            WithScales(
+                shifted_root(p),
+                ecp_model::McpScales {
+                    variables: vec![d, 1.0],
+                    rows: vec![d, 1.0],
+                },
+            )
+        };
+        let mut solver = PathSolver::new(settings);
+        let first = solver.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        let in_scales = solver.solve(&scaled(1e-3), &first.z).unwrap();
+        assert!(in_scales.summary.jac_evals >= 1, "{:?}", in_scales.summary);
+        // The tolerance is judged in the scales (`F / 2²¹`): 1e-10 there is 2e-4 here.
+        assert!(in_scales.summary.converged());
+        assert!((in_scales.z[0] - root(1e-3)).abs() <= 1e-6);
+        let next = solver.solve(&scaled(2e-3), &in_scales.z).unwrap();
+        assert_eq!(next.summary.jac_evals, 0, "{:?}", next.summary);
+        assert!(next.summary.converged());
+        assert!((next.z[0] - root(2e-3)).abs() <= 1e-6);
     }
 
     #[test]
