@@ -164,7 +164,7 @@ pub struct PathSettings {
     /// its last crash step or polish (`J_II` and its active set) keeps it, keyed by the
     /// problem's dimension, Jacobian pattern and system of units (as given or in the scene
     /// scales, with the scales' values); the next solve's first attempt on the same key takes
-    /// chord steps on it before any Jacobian ([`PathSolver::chord_target`]: the same active
+    /// chord steps on it before any Jacobian (`PathSolver::chord_target`: the same active
     /// set, the crash phase's decrease and contraction tests, or the polish's). Default `false`
     /// (`docs/latency.md`, branch wip-pathfast of issue 18).
     pub chord_across_solves: bool,
