@@ -29,7 +29,9 @@
 //! `desk-steps-path-unpolished` with `PathSettings::polish_below = 1` (main's PATH before the
 //! polish: the plain warm start). `desk-steps-conic` takes the desk's whole steps with the conic
 //! backend's defaults (`desk-steps-conic-into`: with `Simulation::step_into` and one kept record).
-//! `a1-steps` takes A1's first `N` whole steps with Newton, as `desk-steps`.
+//! `desk-steps-path-kept` with `PathSettings::chord_across_solves`.
+//! `a1-steps` takes A1's first `N` whole steps with Newton, as `desk-steps`; `a1-steps-path`
+//! and `tbar-steps-path` A1's and the T-bar's with PATH (`-kept`: with `chord_across_solves`).
 //! All of them print a digest of the records' bits. Prints the last solve's iterations so the work cannot be optimised away.
 
 use ecp::formulations::sensitivity::{SensitivityOptions, StepDifferentiator, StepSensitivity};
@@ -151,7 +153,7 @@ fn main() {
             eprintln!(
                 "usage: step_latency <desk-newton|desk-path|a1-newton|a1-path|tbar-newton|tbar-path|desk-sensitivity|desk-sensitivity-time|\
                  desk-conic|desk-conic-dense|desk-steps|desk-steps-profile|desk-steps-main|desk-steps-kept|desk-steps-conic|desk-steps-conic-into|desk-steps-previous|desk-steps-into|desk-steps-path|\
-                 desk-steps-path-previous|desk-steps-path-unpolished|a1-steps> N [lu|schur]"
+                 desk-steps-path-previous|desk-steps-path-unpolished|desk-steps-path-kept|a1-steps|a1-steps-path[-kept]|tbar-steps-path[-kept]> N [lu|schur]"
             );
             std::process::exit(2);
         }
@@ -300,7 +302,10 @@ fn main() {
             println!("desk-steps-into x{n}: record digest {:016x}", digest.0);
             digest.1
         }
-        "desk-steps-path" | "desk-steps-path-previous" | "desk-steps-path-unpolished" => {
+        "desk-steps-path"
+        | "desk-steps-path-previous"
+        | "desk-steps-path-unpolished"
+        | "desk-steps-path-kept" => {
             // PATH's defaults (polished, so extrapolated warm starts), from the plain warm
             // start, and without the polish (`polish_below = 1`: the plain warm start).
             let mut solver = PathSolver::new(PathSettings {
@@ -309,6 +314,7 @@ fn main() {
                 } else {
                     PathSettings::default().polish_below
                 },
+                chord_across_solves: case == "desk-steps-path-kept",
                 ..PathSettings::default()
             });
             let mut sim = Simulation::new(scenarios::desk()).expect("desk scene");
@@ -332,6 +338,26 @@ fn main() {
                 digest.add(&sim.step(&mut solver).expect("A1 step"));
             }
             println!("a1-steps x{n}: record digest {:016x}", digest.0);
+            digest.1
+        }
+        "a1-steps-path" | "a1-steps-path-kept" | "tbar-steps-path" | "tbar-steps-path-kept" => {
+            // A1's or the T-bar's first `N` whole steps with PATH's defaults, and with chord
+            // steps on the LU kept from the last solve (`-kept`), as `desk-steps-path`.
+            let mut solver = PathSolver::new(PathSettings {
+                chord_across_solves: case.ends_with("-kept"),
+                ..PathSettings::default()
+            });
+            let scene = if case.starts_with("a1") {
+                scenarios::a1_sliding()
+            } else {
+                scenarios::t_bar()
+            };
+            let mut sim = Simulation::new(scene).expect("scene");
+            let mut digest = Digest::default();
+            for _ in 0..n {
+                digest.add(&sim.step(&mut solver).expect("step"));
+            }
+            println!("{case} x{n}: record digest {:016x}", digest.0);
             digest.1
         }
         "desk-sensitivity" => {

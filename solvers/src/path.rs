@@ -42,9 +42,9 @@ use std::time::Instant;
 
 use ecp_model::mcp::fb_component;
 use ecp_model::{
-    Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
-    SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid, natural_residual,
-    solve_in_scales, validate_start,
+    Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, Solution,
+    SolveError, SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid,
+    natural_residual, solve_in_scales, validate_start,
 };
 
 use crate::pivot::basis::BasisFactor;
@@ -182,6 +182,14 @@ pub struct PathSettings {
     /// (`docs/latency.md`, branch wip-pathwarm2). `1.0` turns it off (main's PATH before it,
     /// which stops anywhere within the tolerance). Default `1e-3`.
     pub polish_below: f64,
+    /// Chord steps on the LU kept from the last solve: a solve that converged with the LU of
+    /// its last crash step or polish (`J_II` and its active set) keeps it, keyed by the
+    /// problem's dimension, Jacobian pattern and system of units (as given or in the scene
+    /// scales, with the scales' values); the next solve's first attempt on the same key takes
+    /// chord steps on it before any Jacobian (`PathSolver::chord_target`: the same active
+    /// set, the crash phase's decrease and contraction tests, or the polish's). Default `false`
+    /// (`docs/latency.md`, branch wip-pathfast of issue 18).
+    pub chord_across_solves: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -219,6 +227,7 @@ impl Default for PathSettings {
             first_in_both_units: true,
             first_attempt_pivots: 100,
             polish_below: 1e-3,
+            chord_across_solves: false,
             trace: false,
         }
     }
@@ -263,6 +272,9 @@ struct Point {
     z: Vec<f64>,
     f: Vec<f64>,
     merit: f64,
+    /// The natural residual of `z` and `f` once taken ([`Point::natural_residual`]; `None`
+    /// after each evaluation): the step tests and the acceptance of a point share it.
+    residual: Option<f64>,
 }
 
 impl Point {
@@ -276,7 +288,21 @@ impl Point {
         self.z.copy_from_slice(&other.z);
         self.f.copy_from_slice(&other.f);
         self.merit = other.merit;
+        self.residual = other.residual;
     }
+    /// `‖z − mid(l, u, z − F)‖∞`, taken once per evaluation.
+    fn natural_residual(&mut self, l: &[f64], u: &[f64]) -> f64 {
+        *self
+            .residual
+            .get_or_insert_with(|| natural_residual(&self.z, &self.f, l, u))
+    }
+}
+
+/// What an LU kept across solves was formed for ([`PathSettings::chord_across_solves`]).
+struct KeptKey {
+    /// Solved as given (not in the scene scales).
+    as_given: bool,
+    pattern: Arc<CscPattern>,
 }
 
 /// Counters reported in the summary.
@@ -358,6 +384,13 @@ pub struct PathSolver {
     /// The last crash step was accepted without the Jacobian at its point: a chord step is to
     /// follow ([`PathSolver::crash_step`]).
     jac_deferred: bool,
+    /// The key of the LU kept from the last solve ([`PathSettings::chord_across_solves`]):
+    /// `factor`, `active` and `inactive` are its crash target's when `Some`.
+    kept_key: Option<KeptKey>,
+    /// The scales of the kept LU's system (`d_x` then `d_f`; empty as given).
+    kept_scales: Vec<f64>,
+    /// The next attempt may start on the LU kept from the last solve.
+    lu_from_last_solve: bool,
     observer: Option<Box<dyn Observer>>,
     /// End of the current solve's wall-clock budget (`PathSettings::time_limit`).
     deadline: Option<Instant>,
@@ -382,7 +415,7 @@ impl PathSolver {
         if self.trial_has_jac {
             std::mem::swap(&mut self.jac, &mut self.trial_jac);
         }
-        let residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        let residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
@@ -448,6 +481,9 @@ impl PathSolver {
             factor: BasisFactor::default(),
             kept_lu: false,
             jac_deferred: false,
+            kept_key: None,
+            kept_scales: Vec::new(),
+            lu_from_last_solve: false,
             observer: None,
             deadline: None,
             pivot_budget: None,
@@ -528,6 +564,7 @@ fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool)
         p.z[i] = mid(l[i], u[i], p.x[i]);
     }
     mcp.evaluate(&p.z, &mut p.f);
+    p.residual = None;
     *f_evals += 1;
     if p.f.iter().all(|v| v.is_finite()) {
         normal_point(p, l, u);
@@ -564,13 +601,36 @@ impl PathSolver {
             return false;
         }
         let (l, u) = (mcp.lower(), mcp.upper());
-        if natural_residual(&self.trial.z, &self.trial.f, l, u) <= tolerance {
+        if self.trial.natural_residual(l, u) <= tolerance {
             return true;
         }
         mcp.jacobian(&self.trial.z, &mut self.trial_jac);
         *jac_evals += 1;
         self.trial_has_jac = all_finite(&self.trial_jac);
         self.trial_has_jac
+    }
+
+    /// The Jacobian at a point accepted without it (a crash step that put it off for a chord
+    /// step, [`PathSolver::crash_step`]), evaluated into `self.jac` once the chord steps are
+    /// over. Where it is finite, `true`. Where it is not, the full step's acceptance test
+    /// ([`PathSolver::trial_usable`]) would have refused the point: the iteration goes back to
+    /// the point before that step (kept in `checkpoint`, its Jacobian finite but no longer in
+    /// `self.jac`), `residual` becomes its natural residual, and `false` is returned. The best
+    /// point kept so far is left as it is (its `F` is finite, which is all it needs).
+    fn settle_deferred_jacobian(
+        &mut self,
+        mcp: &dyn Mcp,
+        residual: &mut f64,
+        jac_evals: &mut usize,
+    ) -> bool {
+        mcp.jacobian(&self.current.z, &mut self.jac);
+        *jac_evals += 1;
+        if all_finite(&self.jac) {
+            return true;
+        }
+        self.current.copy_from(&self.checkpoint);
+        *residual = self.current.natural_residual(mcp.lower(), mcp.upper());
+        false
     }
 
     /// One projected Newton step of the crash phase from `self.current` (whose Jacobian is in
@@ -610,7 +670,7 @@ impl PathSolver {
                     && self.trial.merit.is_finite()
                 {
                     let (l, u) = (mcp.lower(), mcp.upper());
-                    let r = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                    let r = self.trial.natural_residual(l, u);
                     if r > tolerance && r <= CRASH_CHORD_CONTRACTION * residual {
                         self.trial_has_jac = false;
                         self.jac_deferred = true;
@@ -851,12 +911,17 @@ impl PathSolver {
         } = run;
         let iterations_at_start = *iterations;
         let pivots_at_start = counters.pivots;
-        self.kept_lu = false;
+        // The LU kept from the last solve, for the first attempt only.
+        self.kept_lu = std::mem::take(&mut self.lu_from_last_solve)
+            && initial_lambda == 0.0
+            && !guarded
+            && !self.fischer
+            && s.polish_below < 1.0;
 
         // Start: z = π(z0), x its normal-map point.
         self.current.x.copy_from_slice(z0);
         evaluate_at(mcp, &mut self.current, f_evals, self.fischer);
-        let mut residual = natural_residual(&self.current.z, &self.current.f, l, u);
+        let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
             self.best_z.copy_from_slice(&self.current.z);
@@ -900,8 +965,12 @@ impl PathSolver {
             self.active_prev.fill(2);
             // Set by a full crash step that contracted the residual by `CRASH_CHORD_CONTRACTION`
             // (`crash_step`): the next step is a chord step on its LU, and the Jacobian at the
-            // new point is evaluated only if that chord step is refused.
-            let mut chord_next = false;
+            // new point is evaluated only if that chord step is refused. On the LU kept from the
+            // last solve the first step is a chord step, from the start (kept in `checkpoint`).
+            let mut chord_next = self.kept_lu;
+            if chord_next {
+                self.checkpoint.copy_from(&self.current);
+            }
             for _ in 0..s.crash_iterations {
                 if *iterations - iterations_at_start >= s.max_iterations || self.out_of_time() {
                     break;
@@ -910,7 +979,7 @@ impl PathSolver {
                     if self.chord_target(mcp) {
                         self.trial.x.copy_from_slice(&self.step_x);
                         evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                        let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                        let chorded = self.trial.natural_residual(l, u);
                         let sigma = s.sufficient_decrease;
                         if self.trial.merit <= (1.0 - sigma) * self.current.merit
                             && chorded <= POLISH_CHORD_CONTRACTION * residual
@@ -934,16 +1003,11 @@ impl PathSolver {
                     // Refused: a full crash step from here (which sets `chord_next` again),
                     // with the Jacobian put off before.
                     self.kept_lu = false;
-                    mcp.jacobian(&self.current.z, &mut self.jac);
-                    *jac_evals += 1;
-                    have_jac = true;
-                    if !all_finite(&self.jac) {
-                        // The acceptance test of the full step would have refused this point
-                        // (`trial_usable`): back to the last point with a finite Jacobian, kept
-                        // in `checkpoint`, and on to the Newton paths from there.
-                        self.current.copy_from(&self.checkpoint);
-                        residual = natural_residual(&self.current.z, &self.current.f, l, u);
-                        have_jac = false;
+                    chord_next = false;
+                    have_jac = self.settle_deferred_jacobian(mcp, &mut residual, jac_evals);
+                    if !have_jac {
+                        // Back at the last point with a finite Jacobian: on to the Newton
+                        // paths from there.
                         break;
                     }
                 }
@@ -981,6 +1045,19 @@ impl PathSolver {
                 if same && t == 1.0 {
                     break;
                 }
+            }
+            // The crash phase ended on its step limit (`crash_iterations`) right after a point
+            // accepted without its Jacobian: the main loop's first Newton path needs it, and a
+            // non-finite one is the acceptance test's refusal of that point, not a non-finite
+            // problem (which would end the solve without its restarts). When the iteration
+            // budget or the time limit ended it, the main loop stops before it needs `J`
+            // (`max_iterations`, `time_limit_reached`), so none is evaluated.
+            if chord_next
+                && residual > s.tolerance
+                && *iterations - iterations_at_start < s.max_iterations
+                && !self.out_of_time()
+            {
+                have_jac = self.settle_deferred_jacobian(mcp, &mut residual, jac_evals);
             }
         }
 
@@ -1218,7 +1295,7 @@ impl PathSolver {
             if chords < POLISH_CHORD_STEPS && self.chord_target(mcp) {
                 self.trial.x.copy_from_slice(&self.step_x);
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                let chorded = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                let chorded = self.trial.natural_residual(l, u);
                 let bound = if above {
                     POLISH_CHORD_CONTRACTION * residual
                 } else {
@@ -1278,7 +1355,7 @@ impl PathSolver {
             }
             if stepped {
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
-                let polished = natural_residual(&self.trial.z, &self.trial.f, l, u);
+                let polished = self.trial.natural_residual(l, u);
                 if self.trial.merit.is_finite() && polished <= s.tolerance {
                     self.trial_has_jac = false;
                     let before = residual;
@@ -1331,26 +1408,34 @@ impl McpSolver for PathSolver {
         let scaled = mcp
             .scales()
             .is_some_and(|s| !s.is_identity() && s.is_valid(mcp.dim()));
+        // The system of units `solve_in_scales` hands over: the problem itself (as given) or
+        // its scaled form, whose scales are the problem's (the key of a kept LU).
+        let outer = mcp;
+        let units = |inner: &dyn Mcp| {
+            (!std::ptr::addr_eq(inner, outer))
+                .then(|| outer.scales())
+                .flatten()
+        };
         if self.iteration_budget.is_some() {
             return solve_in_scales(mcp, z0, |mcp, z0| {
-                self.solve_unscaled(mcp, z0, Attempts::First)
+                self.solve_unscaled(mcp, z0, Attempts::First, units(mcp))
             });
         }
         if !(scaled && self.settings.first_in_both_units) {
             return solve_in_scales(mcp, z0, |mcp, z0| {
-                self.solve_unscaled(mcp, z0, Attempts::All)
+                self.solve_unscaled(mcp, z0, Attempts::All, units(mcp))
             });
         }
         // The first attempt in both systems of units (`PathSettings::first_in_both_units`),
         // then the other attempts in both.
         let first = solve_in_scales(mcp, z0, |mcp, z0| {
-            self.solve_unscaled(mcp, z0, Attempts::First)
+            self.solve_unscaled(mcp, z0, Attempts::First, units(mcp))
         });
         let Err(SolveError::NotConverged { best: first }) = first else {
             return first;
         };
         let rest = solve_in_scales(mcp, z0, |mcp, z0| {
-            self.solve_unscaled(mcp, z0, Attempts::Rest)
+            self.solve_unscaled(mcp, z0, Attempts::Rest, units(mcp))
         });
         match rest {
             Ok(mut sol) => {
@@ -1414,6 +1499,55 @@ impl PathSolver {
     /// [`McpSolver::solve`] on `mcp` as given: the `which` attempts, within a budget of
     /// [`PathSettings::time_limit`] of their own.
     fn solve_unscaled(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        which: Attempts,
+        scales: Option<&McpScales>,
+    ) -> Result<Solution, SolveError> {
+        // The LU kept from the last solve (`PathSettings::chord_across_solves`), for this
+        // solve's first attempt when it was formed for the same problem in the same units.
+        let kept = self.kept_key.take();
+        self.lu_from_last_solve = self.settings.chord_across_solves
+            && which != Attempts::Rest
+            && kept.is_some_and(|k| self.same_key(&k, mcp, scales));
+        let result = self.solve_attempts_and_continuation(mcp, z0, which);
+        self.lu_from_last_solve = false;
+        if self.settings.chord_across_solves && self.kept_lu && result.is_ok() {
+            self.kept_scales.clear();
+            if let Some(sc) = scales {
+                self.kept_scales.extend_from_slice(&sc.variables);
+                self.kept_scales.extend_from_slice(&sc.rows);
+            }
+            self.kept_key = Some(KeptKey {
+                as_given: scales.is_none(),
+                pattern: mcp.jacobian_pattern().clone(),
+            });
+        }
+        result
+    }
+
+    /// Whether the LU kept under `key` was formed for `mcp` in the same units: the same
+    /// Jacobian pattern (so the same dimension) and system (as given, or scaled by the same
+    /// scales).
+    fn same_key(&self, key: &KeptKey, mcp: &dyn Mcp, scales: Option<&McpScales>) -> bool {
+        let p = mcp.jacobian_pattern();
+        let same_pattern = Arc::ptr_eq(&key.pattern, p)
+            || (key.pattern.col_ptr() == p.col_ptr() && key.pattern.row_idx() == p.row_idx());
+        same_pattern
+            && match scales {
+                None => key.as_given,
+                Some(sc) => {
+                    !key.as_given
+                        && self.kept_scales.len() == sc.variables.len() + sc.rows.len()
+                        && self.kept_scales[..sc.variables.len()] == sc.variables[..]
+                        && self.kept_scales[sc.variables.len()..] == sc.rows[..]
+                }
+            }
+    }
+
+    /// [`PathSolver::solve_unscaled`]'s attempts and smoothing continuation.
+    fn solve_attempts_and_continuation(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
@@ -1728,6 +1862,104 @@ mod tests {
         assert_eq!(sol.z[1], 0.0);
     }
 
+    /// `z0² + z0 = 2 + p` (free) and `z1 ≥ 0` with `F1 = z1 + 1 + z0/10 > 0` (at its bound).
+    fn shifted_root(p: f64) -> FnMcp {
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY, 0.0],
+            vec![f64::INFINITY; 2],
+            move |z, f| {
+                f[0] = z[0] * z[0] + z[0] - 2.0 - p;
+                f[1] = z[1] + 1.0 + 0.1 * z[0];
+            },
+            |z, j| {
+                j[0] = 2.0 * z[0] + 1.0;
+                j[1] = 0.1;
+                j[2] = 0.0;
+                j[3] = 1.0;
+            },
+        )
+        .unwrap()
+    }
+
+    /// A problem with scene scales (`Mcp::scales`), so that it is solved in them.
+    struct WithScales(FnMcp, ecp_model::McpScales);
+    impl Mcp for WithScales {
+        fn dim(&self) -> usize {
+            self.0.dim()
+        }
+        fn lower(&self) -> &[f64] {
+            self.0.lower()
+        }
+        fn upper(&self) -> &[f64] {
+            self.0.upper()
+        }
+        fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+            self.0.evaluate(z, f)
+        }
+        fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+            self.0.jacobian_pattern()
+        }
+        fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+            self.0.jacobian(z, values)
+        }
+        fn scales(&self) -> Option<&ecp_model::McpScales> {
+            Some(&self.1)
+        }
+    }
+
+    #[test]
+    fn path_chord_steps_on_the_last_solves_lu_in_the_same_units_only() {
+        let root = |p: f64| (-1.0 + (9.0f64 + 4.0 * p).sqrt()) / 2.0;
+        let settings = PathSettings {
+            chord_across_solves: true,
+            ..PathSettings::default()
+        };
+        // As given: the second solve (the root moved by 3e-4) takes chord steps on the first
+        // solve's LU and no Jacobian; it ends at the root to round-off all the same.
+        let mut solver = PathSolver::new(settings.clone());
+        let first = solver.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        assert!(first.summary.jac_evals >= 1);
+        let second = solver.solve(&shifted_root(1e-3), &first.z).unwrap();
+        assert_eq!(second.summary.jac_evals, 0, "{:?}", second.summary);
+        assert!(second.summary.iterations >= 2);
+        assert!((second.z[0] - root(1e-3)).abs() <= 4.0 * f64::EPSILON);
+        assert!(
+            second.summary.residual <= 2e-15,
+            "{}",
+            second.summary.residual
+        );
+        // Off (the default), the same solve evaluates the Jacobian and ends at the same root.
+        let mut plain = PathSolver::new(PathSettings::default());
+        plain.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        let again = plain.solve(&shifted_root(1e-3), &first.z).unwrap();
+        assert!(again.summary.jac_evals >= 1);
+        assert!((again.z[0] - second.z[0]).abs() <= 4.0 * f64::EPSILON);
+        // In scene scales far from SI (`2²¹`, solved in them) whose scaled `J_II` is the same
+        // number as the one given (`d_x = d_f` on `z0`): the LU of the system as given is not
+        // used there (it would pass the chord's tests), but that of an earlier scaled solve is.
+        let scaled = |p: f64| {
+            let d = 2_097_152.0;
+            WithScales(
+                shifted_root(p),
+                ecp_model::McpScales {
+                    variables: vec![d, 1.0],
+                    rows: vec![d, 1.0],
+                },
+            )
+        };
+        let mut solver = PathSolver::new(settings);
+        let first = solver.solve(&shifted_root(0.0), &[1.1, 0.0]).unwrap();
+        let in_scales = solver.solve(&scaled(1e-3), &first.z).unwrap();
+        assert!(in_scales.summary.jac_evals >= 1, "{:?}", in_scales.summary);
+        // The tolerance is judged in the scales (`F / 2²¹`): 1e-10 there is 2e-4 here.
+        assert!(in_scales.summary.converged());
+        assert!((in_scales.z[0] - root(1e-3)).abs() <= 1e-6);
+        let next = solver.solve(&scaled(2e-3), &in_scales.z).unwrap();
+        assert_eq!(next.summary.jac_evals, 0, "{:?}", next.summary);
+        assert!(next.summary.converged());
+        assert!((next.z[0] - root(2e-3)).abs() <= 1e-6);
+    }
+
     #[test]
     fn path_normal_point_projects_back_and_measures_the_merit() {
         let l = [0.0, 0.0, f64::NEG_INFINITY];
@@ -1916,6 +2148,102 @@ mod tests {
             .unwrap_err();
         let best = err.best().unwrap();
         assert_eq!(best.summary.termination, Termination::NonFiniteFunction);
+    }
+
+    /// `F(z) = e + 10⁻³ e²`, `e = z − 1`, free (root `z = 1`), whose Jacobian is not finite
+    /// for `1e-9 < e < 2e-5` (a model outside its domain there); from `z = 1.1` the full crash
+    /// step lands at `e ≈ 1.0e-5` (residual 1e-4 of the start's, so the next step is a chord
+    /// step and the Jacobian is put off), the chord step at `e ≈ 2.0e-9`, the next at
+    /// `e ≈ 4e-13`, within the tolerance. When `pause` is set, `F` there sleeps that long.
+    fn deferred_jacobian_not_finite(pause: Option<std::time::Duration>) -> FnMcp {
+        let bad = |z: f64| (1e-9..2e-5).contains(&(z - 1.0));
+        FnMcp::dense(
+            vec![f64::NEG_INFINITY],
+            vec![f64::INFINITY],
+            move |z, f| {
+                let e = z[0] - 1.0;
+                if let Some(p) = pause.filter(|_| bad(z[0])) {
+                    std::thread::sleep(p);
+                }
+                f[0] = e + 1e-3 * e * e;
+            },
+            move |z, j| {
+                j[0] = if bad(z[0]) {
+                    f64::NAN
+                } else {
+                    1.0 + 2e-3 * (z[0] - 1.0)
+                };
+            },
+        )
+        .unwrap()
+    }
+
+    #[test]
+    fn path_crash_limit_after_a_deferred_jacobian_goes_back_not_fails() {
+        let p = deferred_jacobian_not_finite(None);
+        // With the crash phase's default limit the chord steps end within the tolerance: one
+        // Jacobian (at the start) in the whole solve.
+        let sol = PathSolver::new(PathSettings::default())
+            .solve(&p, &[1.1])
+            .unwrap();
+        assert_eq!(sol.summary.jac_evals, 1, "{:?}", sol.summary);
+        assert_eq!(sol.summary.counter(Counter::PathSteps).unwrap(), 0);
+        // The crash phase's limit ends it after the deferred crash step (1) or after its chord
+        // step (2): the Jacobian there is not finite, so the iteration goes back to the start
+        // and the Newton paths solve it (their path search backs off the bad points). Before,
+        // the main loop met that Jacobian and the solve ended with `NonFiniteFunction`.
+        for crash_iterations in [1, 2] {
+            let sol = PathSolver::new(PathSettings {
+                crash_iterations,
+                ..PathSettings::default()
+            })
+            .solve(&p, &[1.1])
+            .unwrap_or_else(|e| panic!("crash {crash_iterations}: {e}"));
+            assert_eq!(sol.summary.termination, Termination::Converged);
+            assert_eq!(
+                sol.summary.counter(Counter::CrashSteps).unwrap(),
+                crash_iterations
+            );
+            assert!(sol.summary.counter(Counter::PathSteps).unwrap() > 0);
+            assert_eq!(sol.summary.counter(Counter::Restarts).unwrap(), 0);
+            // Polished: the root to a few ulps.
+            assert!((sol.z[0] - 1.0).abs() <= 4.0 * f64::EPSILON, "{}", sol.z[0]);
+        }
+    }
+
+    #[test]
+    fn path_budget_or_time_limit_mid_chord_is_reported_as_such() {
+        // An iteration budget that ends the solve after the deferred crash step (1) or its
+        // chord step (2): `max_iterations`, at the chord sequence's last point (its `F` is
+        // finite), and no Jacobian evaluated where it was put off.
+        let p = deferred_jacobian_not_finite(None);
+        for (budget, error) in [(1, 1e-5), (2, 2e-9)] {
+            let mut solver = PathSolver::new(PathSettings::default());
+            solver.set_iteration_budget(Some(budget));
+            let err = solver.solve(&p, &[1.1]).unwrap_err();
+            let best = err.best().unwrap();
+            assert_eq!(best.summary.termination, Termination::MaxIterations);
+            assert_eq!(best.summary.iterations, budget);
+            assert_eq!(best.summary.jac_evals, 1);
+            // Where the chord sequence stood: e ≈ 1.0e-5, then ≈ 2.0e-9 (within 1 %).
+            let e = best.z[0] - 1.0;
+            assert!((e - error).abs() <= 0.01 * error, "{budget}: {e}");
+        }
+        // A time limit that runs out during the deferred crash step's evaluation (`F` sleeps
+        // 0.2 s there, the limit is 0.05 s): `max_iterations` with the time limit counted, no
+        // Jacobian where it was put off, no restarts.
+        let p = deferred_jacobian_not_finite(Some(std::time::Duration::from_millis(200)));
+        let err = PathSolver::new(PathSettings {
+            time_limit: 0.05,
+            ..PathSettings::default()
+        })
+        .solve(&p, &[1.1])
+        .unwrap_err();
+        let best = err.best().unwrap();
+        assert_eq!(best.summary.termination, Termination::MaxIterations);
+        assert_eq!(best.summary.counter(Counter::TimeLimitReached).unwrap(), 1);
+        assert_eq!(best.summary.counter(Counter::Restarts).unwrap(), 0);
+        assert!(best.summary.jac_evals <= 1, "{:?}", best.summary);
     }
 
     #[test]
