@@ -885,7 +885,9 @@ impl StepQp {
                     }
                 }
             }
-            if sweep >= 2 && settled(before, contacts) {
+            // Two sweeps at least: the first from a QP's duals moves the friction to the
+            // centre of pressure, and a sweep that changes nothing is a fixed point of the next.
+            if sweep >= 1 && settled(before, contacts) {
                 break;
             }
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
@@ -954,7 +956,7 @@ const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
 /// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
 /// sweep; its four loaded vertices refuse the joint step; 7 or 8 with [`StepQp::extrapolate`])
-/// and in 3 from the previous polish's impulses.
+/// and in 2 from the previous polish's impulses.
 const JOINT_AFTER: usize = 10;
 
 /// Newton iterations of a joint step at most.
