@@ -671,6 +671,20 @@ impl StepQp {
         }
     }
 
+    /// Whether no body takes part in two of the QP's contacts (the polish's loads are then
+    /// unique but for coplanar vertices of one contact; [`one_contact_per_body`] on the rows).
+    fn one_contact_per_body(&self) -> bool {
+        let rows: &[Option<ContactRows>] = &self.contacts;
+        rows.iter().enumerate().all(|(i, a)| {
+            let Some(a) = a else { return true };
+            rows[i + 1..].iter().flatten().all(|b| {
+                !a.sides
+                    .iter()
+                    .any(|sa| b.sides.iter().any(|sb| sa.body == sb.body))
+            })
+        })
+    }
+
     /// Whether some contact has the proximal anchor (a body with several loaded contacts).
     pub fn anchored(&self) -> bool {
         self.contacts
@@ -813,10 +827,12 @@ impl StepQp {
             }
         }
         // Plain sweeps since the start or the last extrapolation (`previous` holds the impulses
-        // before the sweep before when it is at least 2). Not with anchored contacts: their
-        // loads are not unique, and which member the sweeps reach depends on their path.
+        // before the sweep before when it is at least 2). Only where every body has one
+        // contact, as the desk: with several the loads need not be unique, and which member
+        // the sweeps reach depends on their path (`tbar_gripper`: 8e-3 apart with the sweeps
+        // settled from the second on).
         let mut plain = 0;
-        let extrapolating = !self.anchored();
+        let extrapolating = self.one_contact_per_body();
         let first_settled = if extrapolating { 1 } else { 2 };
         for sweep in 0..sweeps {
             std::mem::swap(previous, before);
@@ -886,10 +902,8 @@ impl StepQp {
                     }
                 }
             }
-            // Two sweeps at least (a sweep that changes nothing settles the next too); three
-            // with anchored contacts, whose loads are not unique: the member the outer fixed
-            // point reaches depends on where each polish stops (`tbar_gripper`: 8e-3 apart
-            // with two).
+            // Two sweeps at least (a sweep that changes nothing settles the next too), three
+            // where a body has several contacts (above).
             if sweep >= first_settled && settled(before, contacts) {
                 break;
             }
@@ -959,7 +973,7 @@ const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
 /// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
 /// sweep; its four loaded vertices refuse the joint step; 7 or 8 with [`StepQp::extrapolate`])
-/// and in 2 from the previous polish's impulses (3 with anchored contacts).
+/// and in 2 from the previous polish's impulses (3 where a body has several contacts).
 const JOINT_AFTER: usize = 10;
 
 /// Newton iterations of a joint step at most.
@@ -1036,7 +1050,8 @@ impl StepQp {
     /// pressure of the corrected loads, `docs/latency.md`), 12 sweeps to [`SETTLED`]. The
     /// impulses and their wrench sums move to the limit; the sweeps after it decide, by the
     /// same [`settled`] test, when the polish has settled. Not taken when a load would change
-    /// sign or an unloaded vertex would take load (the active set stays the sweeps').
+    /// sign or an unloaded vertex would take load (the active set stays the sweeps'), nor where
+    /// a body has several contacts.
     /// Returns whether it moved the impulses.
     fn extrapolate(
         &self,
