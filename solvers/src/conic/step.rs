@@ -829,11 +829,9 @@ impl StepQp {
         // Plain sweeps since the start or the last extrapolation (`previous` holds the impulses
         // before the sweep before when it is at least 2). Only where every body has one
         // contact, as the desk: with several the loads need not be unique, and which member
-        // the sweeps reach depends on their path (`tbar_gripper`: 8e-3 apart with the sweeps
-        // settled from the second on).
+        // the sweeps reach depends on their path.
         let mut plain = 0;
         let extrapolating = self.one_contact_per_body();
-        let first_settled = if extrapolating { 1 } else { 2 };
         for sweep in 0..sweeps {
             std::mem::swap(previous, before);
             before.clear();
@@ -902,9 +900,7 @@ impl StepQp {
                     }
                 }
             }
-            // Two sweeps at least (a sweep that changes nothing settles the next too), three
-            // where a body has several contacts (above).
-            if sweep >= first_settled && settled(before, contacts) {
+            if sweep >= 2 && settled(before, contacts) {
                 break;
             }
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
@@ -973,7 +969,7 @@ const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
 /// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
 /// sweep; its four loaded vertices refuse the joint step; 7 or 8 with [`StepQp::extrapolate`])
-/// and in 2 from the previous polish's impulses (3 where a body has several contacts).
+/// and in 3 from the previous polish's impulses.
 const JOINT_AFTER: usize = 10;
 
 /// Newton iterations of a joint step at most.
