@@ -906,8 +906,10 @@ impl StepQp {
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
             // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
             // problem by Newton's method on its active set, which the next sweeps confirm.
+            // The joint step after JOINT_AFTER sweeps in a row neither extrapolated nor joint
+            // (without extrapolation: after sweeps 10, 20, ...).
             plain += 1;
-            if (sweep + 1) % JOINT_AFTER == 0 {
+            if plain >= JOINT_AFTER {
                 self.joint_step(bodies, factors, contacts, wrench_sum, current, joint);
                 plain = 0;
             } else if extrapolating
@@ -966,7 +968,7 @@ const EXTRAPOLATE_RATE: f64 = 0.5;
 /// its size, for the polish to extrapolate: the sweeps then follow one mode.
 const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
 
-/// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
+/// Unsettled sweeps in a row, none extrapolated, after which the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
 /// sweep; its four loaded vertices refuse the joint step; 7 or 8 with [`StepQp::extrapolate`])
 /// and in 3 from the previous polish's impulses.
