@@ -152,7 +152,7 @@ pub(crate) struct PolishWorkspace {
     current: Vec<Vec<BodyFriction>>,
     /// The impulses before a sweep, in the order [`settled`] reads them.
     before: Vec<f64>,
-    /// The impulses before the sweep before, in the same order ([`extrapolate`]).
+    /// The impulses before the sweep before, in the same order ([`StepQp::extrapolate`]).
     previous: Vec<f64>,
     normal: NormalWorkspace,
     joint: JointWorkspace,
@@ -961,7 +961,7 @@ pub(crate) enum PolishStart<'a> {
 /// Gauss–Seidel sweeps of the polish at most.
 const MAX_SWEEPS: usize = 50;
 
-/// Largest contraction per sweep at which the polish extrapolates its sweeps ([`extrapolate`]).
+/// Largest contraction per sweep at which the polish extrapolates its sweeps ([`StepQp::extrapolate`]).
 const EXTRAPOLATE_RATE: f64 = 0.5;
 
 /// How far the last sweep's change may lie off the line of the change before it, relative to
