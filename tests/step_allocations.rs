@@ -277,8 +277,10 @@ fn a_whole_desk_step_allocates_a_bounded_number_of_times() {
 /// vectors, 221 before the outer loop kept its storage, 697 to 809 before the polish did):
 /// `cargo test [--release] --test step_allocations -- --nocapture` prints it. One allocation
 /// per outer iteration would exceed it only with two more iterations; the whole step into kept
-/// storage (above) is the strict test.
-const CONIC_DESK_SOLVE_ALLOCATIONS_MAX: usize = NEWTON_SOLVE_ALLOCATIONS_MAX;
+/// storage (above) is the strict test. One more than Newton's since the polish's extrapolation
+/// (branch wip-conic5): 6 at 59 of the 60 solves, 8 at one (step 62), the source of the two
+/// not pinned down (a kept vector's first growth, bounded per run, not per step).
+const CONIC_DESK_SOLVE_ALLOCATIONS_MAX: usize = NEWTON_SOLVE_ALLOCATIONS_MAX + 1;
 
 #[test]
 fn a_warm_conic_desk_solve_allocates_a_bounded_number_of_times() {

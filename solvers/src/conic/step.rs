@@ -152,6 +152,8 @@ pub(crate) struct PolishWorkspace {
     current: Vec<Vec<BodyFriction>>,
     /// The impulses before a sweep, in the order [`settled`] reads them.
     before: Vec<f64>,
+    /// The impulses before the sweep before, in the same order ([`StepQp::extrapolate`]).
+    previous: Vec<f64>,
     normal: NormalWorkspace,
     joint: JointWorkspace,
 }
@@ -669,6 +671,20 @@ impl StepQp {
         }
     }
 
+    /// Whether no body takes part in two of the QP's contacts (the polish's loads are then
+    /// unique but for coplanar vertices of one contact; [`one_contact_per_body`] on the rows).
+    fn one_contact_per_body(&self) -> bool {
+        let rows: &[Option<ContactRows>] = &self.contacts;
+        rows.iter().enumerate().all(|(i, a)| {
+            let Some(a) = a else { return true };
+            rows[i + 1..].iter().flatten().all(|b| {
+                !a.sides
+                    .iter()
+                    .any(|sa| b.sides.iter().any(|sb| sa.body == sb.body))
+            })
+        })
+    }
+
     /// Whether some contact has the proximal anchor (a body with several loaded contacts).
     pub fn anchored(&self) -> bool {
         self.contacts
@@ -727,6 +743,7 @@ impl StepQp {
             wrench_sum,
             current,
             before,
+            previous,
             normal,
             joint,
         } = work;
@@ -809,7 +826,14 @@ impl StepQp {
                 sides.extend(r.sides.iter().map(|s| (s.body, s.friction_wrenches)));
             }
         }
+        // Plain sweeps since the start or the last extrapolation (`previous` holds the impulses
+        // before the sweep before when it is at least 2). Only where every body has one
+        // contact, as the desk: with several the loads need not be unique, and which member
+        // the sweeps reach depends on their path.
+        let mut plain = 0;
+        let extrapolating = self.one_contact_per_body();
         for sweep in 0..sweeps {
+            std::mem::swap(previous, before);
             before.clear();
             for c in contacts.iter() {
                 before.extend(impulse_values(c));
@@ -882,8 +906,17 @@ impl StepQp {
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
             // μ = 1.18: about 0.85 per sweep, `docs/latency.md#conic-backend`): settle the coupled
             // problem by Newton's method on its active set, which the next sweeps confirm.
-            if (sweep + 1) % JOINT_AFTER == 0 {
+            // The joint step after JOINT_AFTER sweeps in a row neither extrapolated nor joint
+            // (without extrapolation: after sweeps 10, 20, ...).
+            plain += 1;
+            if plain >= JOINT_AFTER {
                 self.joint_step(bodies, factors, contacts, wrench_sum, current, joint);
+                plain = 0;
+            } else if extrapolating
+                && plain >= 2
+                && self.extrapolate(previous, before, contacts, wrench_sum, current)
+            {
+                plain = 0;
             }
         }
         velocities.clear();
@@ -928,10 +961,17 @@ pub(crate) enum PolishStart<'a> {
 /// Gauss–Seidel sweeps of the polish at most.
 const MAX_SWEEPS: usize = 50;
 
-/// Unsettled sweeps after which (and every as many after) the polish tries a joint Newton step
+/// Largest contraction per sweep at which the polish extrapolates its sweeps ([`StepQp::extrapolate`]).
+const EXTRAPOLATE_RATE: f64 = 0.5;
+
+/// How far the last sweep's change may lie off the line of the change before it, relative to
+/// its size, for the polish to extrapolate: the sweeps then follow one mode.
+const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
+
+/// Unsettled sweeps in a row, none extrapolated, after which the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
-/// sweep; its four loaded vertices refuse the joint step) and in 3 from the previous polish's
-/// impulses.
+/// sweep; its four loaded vertices refuse the joint step; 7 or 8 with [`StepQp::extrapolate`])
+/// and in 3 from the previous polish's impulses.
 const JOINT_AFTER: usize = 10;
 
 /// Newton iterations of a joint step at most.
@@ -963,6 +1003,105 @@ fn settled(before: &[f64], after: &[ContactImpulses]) -> bool {
         change = change.max((x - y).abs());
     }
     change <= SETTLED * scale
+}
+
+/// The factor `ρ/(1 − ρ)` of Aitken's extrapolation `x_{k+1} + ρ/(1 − ρ) d₂` of three
+/// iterates `x_{k-1}, x_k, x_{k+1}` (`previous`, `before`, `after`), `d₁ = x_k − x_{k-1}`,
+/// `d₂ = x_{k+1} − x_k`, when they contract along one mode: `ρ = ⟨d₁, d₂⟩/‖d₁‖²` in
+/// `(0, `[`EXTRAPOLATE_RATE`]`]` and `‖d₂ − ρ d₁‖ ≤ `[`EXTRAPOLATE_ALIGNMENT`]` ‖d₂‖`; `None`
+/// otherwise (or when the lengths differ).
+fn one_mode_factor(
+    previous: &[f64],
+    before: &[f64],
+    after: impl Iterator<Item = f64>,
+) -> Option<f64> {
+    let (mut d11, mut d12, mut d22) = (0.0, 0.0, 0.0);
+    let mut count = 0;
+    for ((&a, &b), y) in previous.iter().zip(before).zip(after) {
+        let (d1, d2) = (b - a, y - b);
+        d11 += d1 * d1;
+        d12 += d1 * d2;
+        d22 += d2 * d2;
+        count += 1;
+    }
+    if count != before.len() || previous.len() != before.len() || d11 == 0.0 || d22 == 0.0 {
+        return None;
+    }
+    let rate = d12 / d11;
+    // ‖d₂ − ρ d₁‖² = ‖d₂‖² − ρ ⟨d₁, d₂⟩ at the least-squares ρ.
+    let off = (d22 - rate * d12).max(0.0);
+    (rate > 0.0
+        && rate <= EXTRAPOLATE_RATE
+        && off <= EXTRAPOLATE_ALIGNMENT * EXTRAPOLATE_ALIGNMENT * d22)
+        .then(|| rate / (1.0 - rate))
+}
+
+impl StepQp {
+    /// Aitken's extrapolation of the polish's sweeps to the limit of their slowest mode.
+    ///
+    /// After sweeps `x_{k-1} → x_k → x_{k+1}` (`previous`, `before`, `contacts`) with changes
+    /// `d₁ = x_k − x_{k-1}` and `d₂ = x_{k+1} − x_k`: when `d₂ = ρ d₁` up to
+    /// [`EXTRAPOLATE_ALIGNMENT`] of `‖d₂‖`, with `0 < ρ ≤` [`EXTRAPOLATE_RATE`], the sweeps are
+    /// contracting along one mode by `ρ` per sweep, and their limit is
+    /// `x_{k+1} + ρ/(1 − ρ) d₂`. The desk's first polish of a step contracts so by about 0.1 per
+    /// sweep from its third sweep on (the normal correction and the friction at the centre of
+    /// pressure of the corrected loads, `docs/latency.md`), 12 sweeps to [`SETTLED`]. The
+    /// impulses and their wrench sums move to the limit; the sweeps after it decide, by the
+    /// same [`settled`] test, when the polish has settled. Not taken when a load would change
+    /// sign or an unloaded vertex would take load (the active set stays the sweeps'), nor where
+    /// a body has several contacts.
+    /// Returns whether it moved the impulses.
+    fn extrapolate(
+        &self,
+        previous: &[f64],
+        before: &[f64],
+        contacts: &mut [ContactImpulses],
+        wrench_sum: &mut [[f64; 6]],
+        current: &[Vec<BodyFriction>],
+    ) -> bool {
+        let after = contacts.iter().flat_map(impulse_values);
+        let Some(factor) = one_mode_factor(previous, before, after) else {
+            return false;
+        };
+        // The active set stays: every load keeps its sign (zero stays zero).
+        let mut i = 0;
+        for c in contacts.iter() {
+            for &(_, l) in &c.vertex_impulses {
+                let next = l + factor * (l - before[i]);
+                if (l > 0.0) != (next > 0.0) || (l == 0.0) != (before[i] == 0.0) {
+                    return false;
+                }
+                i += 1;
+            }
+            i += 3;
+        }
+        let mut i = 0;
+        for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
+            for (k, entry) in imp.vertex_impulses.iter_mut().enumerate() {
+                let step = factor * (entry.1 - before[i]);
+                i += 1;
+                let Some(rows) = rows else { continue };
+                entry.1 += step;
+                for side in &rows.sides {
+                    let w = &side.normal_wrenches[k];
+                    for j in 0..6 {
+                        wrench_sum[side.body][j] += step * w[j];
+                    }
+                }
+            }
+            for f in 0..3 {
+                let step = factor * (imp.friction[f] - before[i]);
+                i += 1;
+                imp.friction[f] += step;
+                for (b, wf) in &current[c] {
+                    for j in 0..6 {
+                        wrench_sum[*b][j] += step * wf[f][j];
+                    }
+                }
+            }
+        }
+        true
+    }
 }
 
 impl ContactRows {
@@ -1794,6 +1933,46 @@ pub(crate) fn local_friction(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn one_mode_extrapolation_reaches_the_limit_and_refuses_other_sequences() {
+        // Three iterates of x_k = x* + ρᵏ v + (ρ/10)ᵏ u (a slow mode and a fast one), ρ = 0.1,
+        // from k = 3: the extrapolation lands within 1e-8 of x* while the iterates are 1e-4
+        // off (about the desk's first polish from its fourth sweep).
+        let limit = [0.3, 0.0, 1.2, -0.4];
+        let v = [1.0, 0.0, -0.5, 0.25];
+        let u = [0.0, 0.0, 1.0, 1.0];
+        let iterate = |rho: f64, k: i32| -> Vec<f64> {
+            (0..4)
+                .map(|i| limit[i] + rho.powi(k) * v[i] + (rho / 10.0).powi(k) * u[i])
+                .collect()
+        };
+        let (a, b, c) = (iterate(0.1, 3), iterate(0.1, 4), iterate(0.1, 5));
+        let factor = one_mode_factor(&a, &b, c.iter().copied()).expect("one mode");
+        // ρ estimated 0.10002 (the fast mode's share of d₁, d₂).
+        assert!((factor - 0.1 / 0.9).abs() < 1e-4, "factor {factor}");
+        for i in 0..4 {
+            let x = c[i] + factor * (c[i] - b[i]);
+            assert!((x - limit[i]).abs() < 1e-8, "{i}: {x} against {}", limit[i]);
+            assert!((c[i] - limit[i]).abs() > 1e-6 || v[i] == 0.0);
+        }
+        // Too slow (ρ = 0.8 > EXTRAPOLATE_RATE), no contraction (changes of alternating sign),
+        // two modes of the same size, and no change at all: refused.
+        let (a, b, c) = (iterate(0.8, 3), iterate(0.8, 4), iterate(0.8, 5));
+        assert_eq!(one_mode_factor(&a, &b, c.iter().copied()), None);
+        let (a, b, c) = (iterate(-0.1, 3), iterate(-0.1, 4), iterate(-0.1, 5));
+        assert_eq!(one_mode_factor(&a, &b, c.iter().copied()), None);
+        let mixed = |k: i32| -> Vec<f64> {
+            (0..4)
+                .map(|i| limit[i] + 0.1f64.powi(k) * v[i] + 0.4f64.powi(k) * u[i])
+                .collect()
+        };
+        let (a, b, c) = (mixed(1), mixed(2), mixed(3));
+        assert_eq!(one_mode_factor(&a, &b, c.iter().copied()), None);
+        assert_eq!(one_mode_factor(&limit, &limit, limit.iter().copied()), None);
+        // Lengths that differ: refused.
+        assert_eq!(one_mode_factor(&a[..3], &b, c.iter().copied()), None);
+    }
 
     #[test]
     fn local_friction_sticks_or_slides_exactly() {
