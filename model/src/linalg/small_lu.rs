@@ -282,7 +282,10 @@ fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
-    assert!(a.len() >= n * n && b.len() >= n, "an n × n factor and n entries");
+    assert!(
+        a.len() >= n * n && b.len() >= n,
+        "an n × n factor and n entries"
+    );
     for (k, &p) in piv.iter().enumerate() {
         b.swap(k, p);
     }
