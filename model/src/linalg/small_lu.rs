@@ -277,84 +277,10 @@ fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
     eliminate_with::<Avx2>(n, a, piv);
 }
 
-/// [`solve_with`] with AVX2, the forward substitution `L y = P b` by blocks of four rows
-/// ([`forward_accumulated_avx2`]); the back substitution by columns as there.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
-    assert!(
-        a.len() >= n * n && b.len() >= n,
-        "an n × n factor and n entries"
-    );
-    for (k, &p) in piv.iter().enumerate() {
-        b.swap(k, p);
-    }
-    // SAFETY: the processor has AVX2 (this function's feature); the lengths are asserted.
-    unsafe { forward_accumulated_avx2(n, a, b) };
-    for k in (0..n).rev() {
-        b[k] /= a[k * n + k];
-        let bk = b[k];
-        if bk != 0.0 {
-            Avx2::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
-        }
-    }
-}
-
-/// `L y = b` in place (`L` the unit lower triangle of the column-major `a`), four rows at a
-/// time: each block's entries gather the earlier rows' products in one register and are
-/// stored once ("left-looking"). Bitwise [`solve_with`]'s forward substitution: every entry
-/// gets the same products `l_ik y_k`, each rounded before its subtraction, in ascending `k`,
-/// with the same skips (a `y_k` that is zero). Why: by columns, each step's unaligned vector
-/// load of `b[k + 1..]` straddles two vector stores of the step before, which the processor
-/// cannot forward, so every step waited for them to reach the cache (`docs/latency.md`).
-///
-/// # Safety
-/// The processor has AVX2, `a` holds `n × n` entries and `b` at least `n`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn forward_accumulated_avx2(n: usize, a: &[f64], b: &mut [f64]) {
-    use std::arch::x86_64::*;
-    let (ap, bp) = (a.as_ptr(), b.as_mut_ptr());
-    let mut i0 = 0;
-    // SAFETY: rows `i0..i0 + 4 ≤ n` of column `k < n` are the entries `k n + i0 .. k n + i0 + 4
-    // ≤ n²` of `a`; entries of `b` below `n`.
-    unsafe {
-        while i0 + 4 <= n {
-            let mut acc = _mm256_loadu_pd(bp.add(i0));
-            for k in 0..i0 {
-                let yk = *bp.add(k);
-                if yk != 0.0 {
-                    let l = _mm256_loadu_pd(ap.add(k * n + i0));
-                    acc = _mm256_sub_pd(acc, _mm256_mul_pd(l, _mm256_set1_pd(yk)));
-                }
-            }
-            // The block's own triangle, row by row.
-            let mut t = [0.0f64; 4];
-            _mm256_storeu_pd(t.as_mut_ptr(), acc);
-            for r in 0..3 {
-                let yk = t[r];
-                if yk != 0.0 {
-                    let col = ap.add((i0 + r) * n + i0);
-                    for (q, x) in t.iter_mut().enumerate().skip(r + 1) {
-                        *x -= *col.add(q) * yk;
-                    }
-                }
-            }
-            _mm256_storeu_pd(bp.add(i0), _mm256_loadu_pd(t.as_ptr()));
-            i0 += 4;
-        }
-        // The last rows (fewer than four) one at a time.
-        for i in i0..n {
-            let mut x = *bp.add(i);
-            for k in 0..i {
-                let yk = *bp.add(k);
-                if yk != 0.0 {
-                    x -= *ap.add(k * n + i) * yk;
-                }
-            }
-            *bp.add(i) = x;
-        }
-    }
+    solve_with::<Avx2>(n, a, piv, b);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -718,8 +644,8 @@ mod tests {
                         }
                     })
                     .collect();
-                // Zeros spread, a unit vector, zeros at the start (the forward substitution
-                // skips zero entries; its blocks of four must skip the same ones).
+                // Zeros spread, a unit vector, zeros at the start (the substitutions skip the
+                // columns of zero entries).
                 let unit: Vec<f64> = (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect();
                 let late: Vec<f64> = (0..n)
                     .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
