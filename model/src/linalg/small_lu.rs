@@ -644,10 +644,18 @@ mod tests {
                         }
                     })
                     .collect();
-                let (mut x, mut y) = (rhs.clone(), rhs.clone());
-                fast.solve(&mut x);
-                plain.solve(&mut y);
-                assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
+                // Zeros spread, a unit vector, zeros at the start (the substitutions skip the
+                // columns of zero entries).
+                let unit: Vec<f64> = (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect();
+                let late: Vec<f64> = (0..n)
+                    .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
+                    .collect();
+                for b in [&rhs, &unit, &late] {
+                    let (mut x, mut y) = (b.clone(), b.clone());
+                    fast.solve(&mut x);
+                    plain.solve(&mut y);
+                    assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
+                }
                 for k in [1, 3, 4, 5, 8, 9, 16, 30, 32] {
                     let rows: Vec<f64> = (0..n * k)
                         .map(|i| {
