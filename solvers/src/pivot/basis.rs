@@ -254,23 +254,8 @@ impl BasisFactor {
             let y = &mut self.inv[k * n..k * n + m];
             y.fill(0.0);
             y[r] = 1.0;
-            for c in r..m {
-                let yc = y[c];
-                if yc != 0.0 {
-                    for (yi, l) in y[c + 1..].iter_mut().zip(&lu[c * m + c + 1..(c + 1) * m]) {
-                        *yi -= yc * l;
-                    }
-                }
-            }
-            for c in (0..m).rev() {
-                y[c] /= lu[c * m + c];
-                let yc = y[c];
-                if yc != 0.0 {
-                    for (yi, u) in y[..c].iter_mut().zip(&lu[c * m..c * m + c]) {
-                        *yi -= yc * u;
-                    }
-                }
-            }
+            // Columns before `r` are zero and skipped: the same work as starting at `r`.
+            substitute(y, lu, m);
         }
         self.inverse_ready = true;
     }
