@@ -763,18 +763,7 @@ impl PathSolver {
             if self.factor.factor(ni, &self.reduced, &self.order).is_err() {
                 return false;
             }
-            let mut b = std::mem::take(&mut self.crash_rhs);
-            b.clear();
-            b.extend(self.inactive.iter().map(|&i| -cur.f[i] - self.rhs[i]));
-            self.factor.solve(&mut b);
-            let finite = b.iter().all(|v| v.is_finite());
-            if finite {
-                for (k, &i) in self.inactive.iter().enumerate() {
-                    self.step_x[i] = cur.z[i] + b[k];
-                }
-            }
-            self.crash_rhs = b;
-            if !finite {
+            if !self.reduced_newton_step(true) {
                 return false;
             }
         }
@@ -809,9 +798,22 @@ impl PathSolver {
             }
         }
         self.step_x.copy_from_slice(&cur.z);
+        self.reduced_newton_step(false)
+    }
+
+    /// The inactive components of a crash or chord target: `step_x_I = z_I + Δ_I` with
+    /// `J_II Δ_I = −F_I − r_I` on the LU in `self.factor`, where `r = self.rhs` (`J (b − z)`)
+    /// when `with_rhs`, else 0 (a chord step: every active component is at its bound already).
+    /// `false`, leaving `step_x_I` as it was, when `Δ` is not finite.
+    fn reduced_newton_step(&mut self, with_rhs: bool) -> bool {
+        let cur = &self.current;
         let mut b = std::mem::take(&mut self.crash_rhs);
         b.clear();
-        b.extend(self.inactive.iter().map(|&i| -cur.f[i]));
+        if with_rhs {
+            b.extend(self.inactive.iter().map(|&i| -cur.f[i] - self.rhs[i]));
+        } else {
+            b.extend(self.inactive.iter().map(|&i| -cur.f[i]));
+        }
         if !b.is_empty() {
             self.factor.solve(&mut b);
         }
