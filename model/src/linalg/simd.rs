@@ -488,6 +488,15 @@ mod tests {
                 assert_eq!(checked, dst.iter().map(|v| -v).collect::<Vec<_>>());
                 assert!(finite);
                 assert_eq!(max, if m * c > 0 { (m * c) as f64 - 0.5 } else { 0.0 });
+                // The largest magnitude wherever it lies (every block, both accumulators the
+                // checks alternate between).
+                for at in 0..m * c {
+                    let mut s2 = signed.clone();
+                    s2[at] = -1e6;
+                    let (max, finite) = transpose_checked(&s2, m, c, &mut checked);
+                    assert!(finite);
+                    assert_eq!(max, 1e6, "m = {m}, c = {c}, largest at {at}");
+                }
                 for bad in [f64::NAN, f64::INFINITY] {
                     for at in [0, m * c / 2, (m * c).max(1) - 1] {
                         if m * c == 0 {

@@ -290,8 +290,8 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
 }
 
 /// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
-/// interchanges, then strips of up to 32 columns (eight registers, the last one masked to the
-/// strip's width).
+/// interchanges, then strips of up to 32 columns (eight registers, the last one holding the
+/// strip's remaining columns).
 ///
 /// # Safety
 /// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
@@ -343,10 +343,15 @@ unsafe fn solve_rows_accumulated_avx2(
 }
 
 /// The forward and backward solves of the columns `c0..c0 + width` (`W` registers, the last
-/// one holding `width − 4 (W − 1)` lanes) of the row-major `b`, interchanged already.
+/// one holding `width − 4 (W − 1)` lanes) of the row-major `b`, interchanged already. The last
+/// register moves by whole loads and stores when `T = 4`, by 128-bit ones when `T = 2`, by
+/// scalar ones when `T = 1` (its other lanes 0), masked when `T = 0` (a masked store does not
+/// forward to the next row's loads; `docs/latency.md`, branch wip-sens5): the same lanes get
+/// the same operations whichever way.
 ///
 /// # Safety
-/// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W` and `c0 + width ≤ k`.
+/// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W`, `c0 + width ≤ k`, and
+/// `T` 0 or `width − 4 (W − 1)`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
