@@ -290,8 +290,8 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
 }
 
 /// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
-/// interchanges, then strips of up to 32 columns (eight registers, the last one masked to the
-/// strip's width).
+/// interchanges, then strips of up to 32 columns (eight registers, the last one holding the
+/// strip's remaining columns).
 ///
 /// # Safety
 /// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
@@ -319,30 +319,43 @@ unsafe fn solve_rows_accumulated_avx2(
         let width = (k - c0).min(32);
         // SAFETY: as the caller's; columns `c0..c0 + width` are within every row.
         unsafe {
-            match width.div_ceil(4) {
-                8 => accumulated_strip::<8>(n, a, b, k, map, c0, width),
-                7 => accumulated_strip::<7>(n, a, b, k, map, c0, width),
-                6 => accumulated_strip::<6>(n, a, b, k, map, c0, width),
-                5 => accumulated_strip::<5>(n, a, b, k, map, c0, width),
-                4 => accumulated_strip::<4>(n, a, b, k, map, c0, width),
-                3 => accumulated_strip::<3>(n, a, b, k, map, c0, width),
-                2 => accumulated_strip::<2>(n, a, b, k, map, c0, width),
-                _ => accumulated_strip::<1>(n, a, b, k, map, c0, width),
+            // The last register's lanes as a constant: two or one of them by 128-bit or
+            // scalar loads and stores, which forward to the next row's loads (a masked
+            // store does not), four by whole ones; three masked.
+            let tail = width - 4 * (width.div_ceil(4) - 1);
+            macro_rules! strip {
+                ($($w:literal)*) => {
+                    match (width.div_ceil(4), tail) {
+                        $(
+                            ($w, 4) => accumulated_strip::<$w, 4>(n, a, b, k, map, c0, width),
+                            ($w, 2) => accumulated_strip::<$w, 2>(n, a, b, k, map, c0, width),
+                            ($w, 1) => accumulated_strip::<$w, 1>(n, a, b, k, map, c0, width),
+                            ($w, _) => accumulated_strip::<$w, 0>(n, a, b, k, map, c0, width),
+                        )*
+                        _ => accumulated_strip::<1, 0>(n, a, b, k, map, c0, width),
+                    }
+                };
             }
+            strip!(8 7 6 5 4 3 2);
         }
         c0 += width;
     }
 }
 
 /// The forward and backward solves of the columns `c0..c0 + width` (`W` registers, the last
-/// one holding `width − 4 (W − 1)` lanes) of the row-major `b`, interchanged already.
+/// one holding `width − 4 (W − 1)` lanes) of the row-major `b`, interchanged already. The last
+/// register moves by whole loads and stores when `T = 4`, by 128-bit ones when `T = 2`, by
+/// scalar ones when `T = 1` (its other lanes 0), masked when `T = 0` (a masked store does not
+/// forward to the next row's loads; `docs/latency.md`, branch wip-sens5): the same lanes get
+/// the same operations whichever way.
 ///
 /// # Safety
-/// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W` and `c0 + width ≤ k`.
+/// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W`, `c0 + width ≤ k`, and
+/// `T` 0 or `width − 4 (W − 1)`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn accumulated_strip<const W: usize>(
+unsafe fn accumulated_strip<const W: usize, const T: usize>(
     n: usize,
     a: &[f64],
     b: &mut [f64],
@@ -363,11 +376,24 @@ unsafe fn accumulated_strip<const W: usize>(
     // SAFETY: rows `map[r]`, `r < n`, of `b`, columns `c0 + 4v + lane < c0 + width ≤ k` (the
     // masked lanes are neither read nor written); factor entries `j n + r < n²`.
     unsafe {
+        // The last register: `T` lanes (0: masked, whatever the width), the others 0.
+        let tail_load = |p: *const f64| match T {
+            4 => _mm256_loadu_pd(p),
+            2 => _mm256_zextpd128_pd256(_mm_loadu_pd(p)),
+            1 => _mm256_zextpd128_pd256(_mm_load_sd(p)),
+            _ => _mm256_maskload_pd(p, last),
+        };
+        let tail_store = |p: *mut f64, x: __m256d| match T {
+            4 => _mm256_storeu_pd(p, x),
+            2 => _mm_storeu_pd(p, _mm256_castpd256_pd128(x)),
+            1 => _mm_store_sd(p, _mm256_castpd256_pd128(x)),
+            _ => _mm256_maskstore_pd(p, last, x),
+        };
         let load = |row: *const f64, acc: &mut [__m256d; W]| {
             for (v, x) in acc.iter_mut().enumerate().take(W - 1) {
                 *x = _mm256_loadu_pd(row.add(4 * v));
             }
-            acc[W - 1] = _mm256_maskload_pd(row.add(4 * (W - 1)), last);
+            acc[W - 1] = tail_load(row.add(4 * (W - 1)));
         };
         // acc −= row · s, each product rounded before the subtraction (as `Lanes::sub_scaled`).
         let sub_scaled = |acc: &mut [__m256d; W], row: *const f64, s: f64| {
@@ -375,14 +401,14 @@ unsafe fn accumulated_strip<const W: usize>(
             for (v, x) in acc.iter_mut().enumerate().take(W - 1) {
                 *x = _mm256_sub_pd(*x, _mm256_mul_pd(_mm256_loadu_pd(row.add(4 * v)), s4));
             }
-            let y = _mm256_maskload_pd(row.add(4 * (W - 1)), last);
+            let y = tail_load(row.add(4 * (W - 1)));
             acc[W - 1] = _mm256_sub_pd(acc[W - 1], _mm256_mul_pd(y, s4));
         };
         let store = |row: *mut f64, acc: &[__m256d; W]| {
             for (v, x) in acc.iter().enumerate().take(W - 1) {
                 _mm256_storeu_pd(row.add(4 * v), *x);
             }
-            _mm256_maskstore_pd(row.add(4 * (W - 1)), last, acc[W - 1]);
+            tail_store(row.add(4 * (W - 1)), acc[W - 1]);
         };
         let mut acc = [_mm256_setzero_pd(); W];
         // Bit `j`: row `j` of `L⁻¹ P b` has a nonzero (or NaN) entry in the strip.
