@@ -139,6 +139,9 @@ impl NewtonSettings {
         if let Some(near) = self.complementary_restart_from_best {
             c.positive("complementary_restart_from_best", near)?;
         }
+        if let Some(steps) = self.friction_continuation {
+            c.iterations("friction_continuation", steps)?;
+        }
         c.fraction("stall_reduction", self.stall_reduction)?;
         if let Some(contraction) = self.chord_contraction {
             c.fraction("chord_contraction", contraction)?;
