@@ -342,6 +342,14 @@ mod tests {
                 v,
             );
         }
+        refused(
+            "friction_continuation",
+            NewtonSettings {
+                friction_continuation: Some(0),
+                ..d()
+            },
+            v,
+        );
         refused("armijo", NewtonSettings { armijo: 1.0, ..d() }, v);
         refused(
             "backtrack",

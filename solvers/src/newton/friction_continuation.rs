@@ -300,8 +300,8 @@ fn follow(
             *tj -= aj;
         }
         let norm = t.iter().map(|v| v * v).sum::<f64>().sqrt();
-        if !(norm > 1e-3) {
-            // The null space turned away from the curve's direction: lost.
+        if norm.is_nan() || norm <= 1e-3 {
+            // The null space turned away from the curve's direction (or a NaN): lost.
             return (None, iterations);
         }
         t.iter_mut().for_each(|v| *v /= norm);
