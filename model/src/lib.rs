@@ -43,6 +43,7 @@ pub mod checker;
 pub mod counters;
 pub mod data;
 pub mod error;
+pub mod family;
 pub mod linalg;
 pub mod mcp;
 /// Standard MCP test problems (MCPLIB, LCPs, friction NCPs) for judging backends: enabled by
@@ -66,6 +67,7 @@ pub use checker::{
 pub use counters::{Counter, Counters};
 pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use error::ModelError;
+pub use family::McpFamily;
 pub use mcp::{
     FinalResiduals, FnMcp, Mcp, WorstComponent, diagnose, diagnose_values, diagnose_values_into,
     fb_component, fb_residual, fb_vector, final_residuals, fischer_burmeister, mid,

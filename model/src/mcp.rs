@@ -5,6 +5,7 @@ use std::sync::Arc;
 
 use crate::bounds::{BoundKind, Bounds, classify};
 use crate::error::ModelError;
+use crate::family::McpFamily;
 use crate::pattern::CscPattern;
 use crate::scaling::McpScales;
 use crate::structure::StepStructure;
@@ -59,6 +60,13 @@ pub trait Mcp {
     /// lists; empty (the default) for a problem without that structure.
     fn elimination_groups(&self) -> &[Vec<usize>] {
         &[]
+    }
+    /// The family `F(z; s)` with every friction coefficient scaled by `s` (`s = 1`: this
+    /// problem), when the problem has friction and can vary it: a backend may follow its
+    /// solutions from a step it solves to this one (`docs/newton.md#a-continuation-in-the-friction-coefficient`).
+    /// `None` (the default) for a problem without it.
+    fn friction_family(&self) -> Option<&dyn McpFamily> {
+        None
     }
 }
 

@@ -710,6 +710,52 @@ impl BlockMcp {
         }
         Ok(())
     }
+    /// [`Mcp::evaluate`] with the data blocks' values `data` in place of the problem's own
+    /// ([`BlockMcp::data_values`] layout): `F(z; θ)` at other data without changing the problem
+    /// (a backend's continuation in a parameter, [`Mcp::friction_family`]).
+    #[inline(always)]
+    pub fn evaluate_with_data(&self, data: &[f64], z: &[f64], f: &mut [f64]) {
+        // Paired blocks first (they own their rows), then the terms add to them.
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            b.block.evaluate(
+                Params::new(z, data, &b.ranges),
+                &mut f[b.row0..b.row0 + b.rows],
+            );
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term) {
+                b.add_term_rows(Params::new(z, data, &b.ranges), f);
+            }
+        }
+    }
+
+    /// [`Mcp::evaluate_with_jacobian`] with the data blocks' values `data` in place of the
+    /// problem's own, as [`BlockMcp::evaluate_with_data`].
+    #[inline(always)]
+    pub fn evaluate_with_jacobian_with_data(
+        &self,
+        data: &[f64],
+        z: &[f64],
+        f: &mut [f64],
+        values: &mut [f64],
+    ) {
+        values.fill(0.0);
+        for b in self.blocks.iter().filter(|b| !b.term) {
+            let mut jac = b.sparse(values);
+            b.block.evaluate_with_jacobian(
+                Params::new(z, data, &b.ranges),
+                &mut f[b.row0..b.row0 + b.rows],
+                &mut jac,
+            );
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term) {
+                let params = Params::new(z, data, &b.ranges);
+                b.add_term_rows(params, f);
+                b.add_term_jacobian(params, values);
+            }
+        }
+    }
 
     /// Input slices of residual block `r` at `z` (variables from `z`, data from the problem).
     pub fn residual_block_params<'a>(&'a self, r: ResId, z: &'a [f64]) -> Params<'a> {
@@ -728,18 +774,7 @@ impl Mcp for BlockMcp {
         &self.upper
     }
     fn evaluate(&self, z: &[f64], f: &mut [f64]) {
-        // Paired blocks first (they own their rows), then the terms add to them.
-        for b in self.blocks.iter().filter(|b| !b.term) {
-            b.block.evaluate(
-                Params::new(z, &self.data_values, &b.ranges),
-                &mut f[b.row0..b.row0 + b.rows],
-            );
-        }
-        if self.has_terms {
-            for b in self.blocks.iter().filter(|b| b.term) {
-                b.add_term_rows(Params::new(z, &self.data_values, &b.ranges), f);
-            }
-        }
+        self.evaluate_with_data(&self.data_values, z, f)
     }
     fn jacobian_pattern(&self) -> &Arc<CscPattern> {
         &self.pattern
@@ -758,22 +793,7 @@ impl Mcp for BlockMcp {
         }
     }
     fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
-        values.fill(0.0);
-        for b in self.blocks.iter().filter(|b| !b.term) {
-            let mut jac = b.sparse(values);
-            b.block.evaluate_with_jacobian(
-                Params::new(z, &self.data_values, &b.ranges),
-                &mut f[b.row0..b.row0 + b.rows],
-                &mut jac,
-            );
-        }
-        if self.has_terms {
-            for b in self.blocks.iter().filter(|b| b.term) {
-                let params = Params::new(z, &self.data_values, &b.ranges);
-                b.add_term_rows(params, f);
-                b.add_term_jacobian(params, values);
-            }
-        }
+        self.evaluate_with_jacobian_with_data(&self.data_values, z, f, values)
     }
     fn component_name(&self, i: usize) -> String {
         let mut name = String::new();

@@ -10,6 +10,7 @@
 
 use std::sync::Arc;
 
+use crate::family::McpFamily;
 use crate::mcp::{Mcp, diagnose_values, fb_residual};
 use crate::pattern::CscPattern;
 use crate::solver::{Solution, SolveError};
@@ -229,6 +230,29 @@ impl Mcp for ScaledMcp<'_> {
     fn elimination_groups(&self) -> &[Vec<usize>] {
         // A diagonal scaling keeps every block of the Jacobian where it was.
         self.inner.elimination_groups()
+    }
+    fn friction_family(&self) -> Option<&dyn McpFamily> {
+        // The family in the same scales (the inner one's, evaluated through this view).
+        self.inner.friction_family().map(|_| self as &dyn McpFamily)
+    }
+}
+
+/// The inner problem's friction family ([`Mcp::friction_family`]) in the scaled unknowns and rows.
+impl McpFamily for ScaledMcp<'_> {
+    fn evaluate_at(&self, s: f64, z: &[f64], f: &mut [f64]) {
+        if let Some(family) = self.inner.friction_family() {
+            let zu = self.unscale_into(z);
+            family.evaluate_at(s, &zu, f);
+            self.scale_rows(f);
+        }
+    }
+    fn evaluate_with_jacobian_at(&self, s: f64, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        if let Some(family) = self.inner.friction_family() {
+            let zu = self.unscale_into(z);
+            family.evaluate_with_jacobian_at(s, &zu, f, values);
+            self.scale_rows(f);
+            self.scale_jacobian(values);
+        }
     }
 }
 

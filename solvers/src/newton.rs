@@ -48,6 +48,7 @@ use ecp_model::{
 use crate::normal_equations::NormalEquations;
 
 mod complementary;
+mod friction_continuation;
 mod min_norm;
 mod profile;
 mod ratio;
@@ -290,6 +291,19 @@ pub struct NewtonSettings {
     /// would otherwise fail, so every step solved without it is unchanged. `None` turns it off
     /// (the conic backend's Newton finish). Default `Some(3e4)`.
     pub complementary_restart_from_best: Option<f64>,
+    /// After every other attempt failed, a continuation in the friction coefficient: the plain
+    /// iteration from `z0` on the step with `μ` halved (or quartered), then the curve
+    /// of the solutions of the family `F(z; s)` with `s μ` ([`ecp_model::Mcp::friction_family`])
+    /// followed by arc length to `s = 1`, round the folds where the warm start's branch ends, and
+    /// the plain iteration on the step from there (`docs/newton.md#a-continuation-in-the-friction-coefficient`).
+    /// The value is the most iterations of the curve (decompositions of `[H Φ_s]`; the crease
+    /// step below takes 300). On `022_v_trough` of the held-out seed 20261212,
+    /// step 62, a vertex in the trough's crease: the warm start's branch (the body sliding)
+    /// ends at `s = 0.82`, the curve turns back to `s = 0.77` and reaches `s = 1` on the branch
+    /// that wedges the body, where every other attempt stalls. Runs only where the solve would
+    /// otherwise fail, on problems with a friction family of at most
+    /// [`NewtonSettings::dense_max`] unknowns. `None` turns it off. Default `Some(400)`.
+    pub friction_continuation: Option<usize>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -388,6 +402,7 @@ impl Default for NewtonSettings {
             complementary_restart: Some(1e3),
             early_complementary_restart: Some(3e4),
             complementary_restart_from_best: Some(3e4),
+            friction_continuation: Some(400),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
@@ -1228,6 +1243,9 @@ impl NewtonSolver {
             if let Some(done) = self.complementary_attempt(mcp, &from, &mut spent, &mut best) {
                 return done;
             }
+        }
+        if let Some(done) = self.friction_continuation_attempt(mcp, z0, &mut spent, &mut best) {
+            return done;
         }
         best.summary.iterations = spent;
         Err(SolveError::NotConverged { best })

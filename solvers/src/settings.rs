@@ -139,6 +139,9 @@ impl NewtonSettings {
         if let Some(near) = self.complementary_restart_from_best {
             c.positive("complementary_restart_from_best", near)?;
         }
+        if let Some(steps) = self.friction_continuation {
+            c.iterations("friction_continuation", steps)?;
+        }
         c.fraction("stall_reduction", self.stall_reduction)?;
         if let Some(contraction) = self.chord_contraction {
             c.fraction("chord_contraction", contraction)?;
@@ -339,6 +342,14 @@ mod tests {
                 v,
             );
         }
+        refused(
+            "friction_continuation",
+            NewtonSettings {
+                friction_continuation: Some(0),
+                ..d()
+            },
+            v,
+        );
         refused("armijo", NewtonSettings { armijo: 1.0, ..d() }, v);
         refused(
             "backtrack",

@@ -11,8 +11,8 @@ use std::time::Instant;
 use nalgebra::{Vector3, Vector6};
 
 use ecp_model::{
-    BlockMcp, CscPattern, DataId, Mcp, McpSolver, ModelError, Problem, Solution, SolveError,
-    StepStructure, Summary,
+    BlockMcp, CscPattern, DataId, Mcp, McpFamily, McpSolver, ModelError, Problem, Solution,
+    SolveError, StepStructure, Summary,
 };
 
 use super::fallback::{Fallbacks, Spans, rescue};
@@ -264,6 +264,43 @@ pub struct StepProblem<'a> {
     mcp: &'a BlockMcp,
     structure: Option<&'a dyn StepStructure>,
     scales: Option<&'a ecp_model::McpScales>,
+    /// The scene's `friction` data block (μ first), when the problem reads it: the friction
+    /// family ([`Mcp::friction_family`]) scales that μ.
+    friction: Option<DataId>,
+}
+
+impl StepProblem<'_> {
+    /// The problem's data with the scene's μ scaled by `s` (allocated: only a backend's
+    /// continuation, after a failed solve, asks for it).
+    fn data_at(&self, s: f64, friction: DataId) -> Vec<f64> {
+        let mut data = self.mcp.data_values().to_vec();
+        data[self.mcp.data_offset(friction)] *= s;
+        data
+    }
+}
+
+/// `F(z; s)`: the step with the scene's friction coefficient `s μ`
+/// (`docs/newton.md#a-continuation-in-the-friction-coefficient`); `s = 1` is the step itself,
+/// bit for bit. Friction given per pair of bodies keeps its own μ.
+impl McpFamily for StepProblem<'_> {
+    fn evaluate_at(&self, s: f64, z: &[f64], f: &mut [f64]) {
+        match self.friction {
+            Some(friction) if s != 1.0 => {
+                self.mcp
+                    .evaluate_with_data(&self.data_at(s, friction), z, f)
+            }
+            _ => self.mcp.evaluate(z, f),
+        }
+    }
+    fn evaluate_with_jacobian_at(&self, s: f64, z: &[f64], f: &mut [f64], values: &mut [f64]) {
+        match self.friction {
+            Some(friction) if s != 1.0 => {
+                self.mcp
+                    .evaluate_with_jacobian_with_data(&self.data_at(s, friction), z, f, values)
+            }
+            _ => self.mcp.evaluate_with_jacobian(z, f, values),
+        }
+    }
 }
 
 impl Mcp for StepProblem<'_> {
@@ -302,6 +339,9 @@ impl Mcp for StepProblem<'_> {
     }
     fn elimination_groups(&self) -> &[Vec<usize>] {
         self.mcp.elimination_groups()
+    }
+    fn friction_family(&self) -> Option<&dyn McpFamily> {
+        self.friction.map(|_| self as &dyn McpFamily)
     }
 }
 
@@ -723,6 +763,7 @@ impl Simulation {
             mcp: &self.mcp,
             structure: self.formulation.structure(),
             scales: self.formulation.scales(),
+            friction: self.handles.friction,
         }
     }
 

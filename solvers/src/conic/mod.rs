@@ -353,6 +353,7 @@ impl ConicSolver {
             chord_contraction: None,
             // A failed polish falls back on the fixed point's own answer: no last restart.
             complementary_restart_from_best: None,
+            friction_continuation: None,
             // The handoff is a local finish: the plain iteration only. Its safeguards for hard
             // steps (the smoothing continuation, the damped restart) would run on every step
             // whose few local iterations fall short, at many times a QP's cost; the fixed point
