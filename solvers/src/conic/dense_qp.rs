@@ -187,6 +187,7 @@ fn with_size<R>(n: usize, f: impl FnOnce(usize) -> R) -> R {
 /// Whether every entry of `v` is finite, without a branch per entry (`x − x` is 0 for a finite
 /// `x`, NaN otherwise): the early exits of `iter().all(..)` over the QP's short vectors were a
 /// fiftieth of the conic desk step's time (`docs/latency.md`, branch wip-conic3x).
+#[allow(clippy::eq_op)] // `x − x` is the test itself: 0, or NaN for an infinite or NaN `x`.
 fn all_finite(v: &[f64]) -> bool {
     v.iter().fold(0.0, |acc, &x| acc + (x - x)) == 0.0
 }

@@ -144,7 +144,7 @@ pub(crate) struct StepQp {
 /// vector is cleared and refilled, never dropped.
 #[derive(Default)]
 pub(crate) struct PolishWorkspace {
-    /// Each body's factored mass matrix.
+    /// Each body's mass matrix inverted once per polish ([`MassFactor`]).
     factors: Vec<MassFactor>,
     /// `Σ W p` per body.
     wrench_sum: Vec<[f64; 6]>,
@@ -752,7 +752,7 @@ impl StepQp {
             normal,
             joint,
         } = work;
-        // Each body's mass matrix factored once for the whole polish.
+        // Each body's mass matrix inverted once for the whole polish.
         factors.clear();
         factors.extend(bodies.iter().map(|b| MassFactor::new(&b.mass)));
         wrench_sum.clear();
