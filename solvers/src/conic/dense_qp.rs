@@ -110,6 +110,9 @@ pub(crate) struct DenseQp {
     /// The lower Cholesky factor of the Schur complement `P + ÃᵀÃ` (`n × n`, row-major) by
     /// which the scaled KKT system is solved.
     chol: Vec<f64>,
+    /// The reciprocals of `chol`'s diagonal: the substitutions multiply by them
+    /// ([`schur_solve`]).
+    chol_inv_diag: Vec<f64>,
     /// Right-hand side, solution, residual and correction of the scaled KKT system, `n + m`
     /// each (the `x` rows first).
     rhs: Vec<f64>,
@@ -179,6 +182,14 @@ fn with_size<R>(n: usize, f: impl FnOnce(usize) -> R) -> R {
         8 => f(8),
         _ => f(n),
     }
+}
+
+/// Whether every entry of `v` is finite, without a branch per entry (`x − x` is 0 for a finite
+/// `x`, NaN otherwise): the early exits of `iter().all(..)` over the QP's short vectors were a
+/// fiftieth of the conic desk step's time (`docs/latency.md`, branch wip-conic3x).
+#[allow(clippy::eq_op)] // `x − x` is the test itself: 0, or NaN for an infinite or NaN `x`.
+fn all_finite(v: &[f64]) -> bool {
+    v.iter().fold(0.0, |acc, &x| acc + (x - x)) == 0.0
 }
 
 /// `v` set to `len` zeros (allocates only when it must grow).
@@ -377,6 +388,7 @@ impl DenseQp {
             self.direction(false)?;
             let alpha_max = self.scaled_step_length(false);
             let alpha = (STEP_FRACTION * alpha_max).min(1.0);
+
             if !(alpha.is_finite() && alpha > 0.0) {
                 return None;
             }
@@ -484,6 +496,7 @@ impl DenseQp {
             zeroed(v, k);
         }
         zeroed(&mut self.chol, n * n);
+        zeroed(&mut self.chol_inv_diag, n);
         self.use_lu = false;
         true
     }
@@ -670,7 +683,7 @@ impl DenseQp {
                 *x *= scale;
             }
             self.eta[o] *= (a / b).sqrt();
-            if !(self.eta[o].is_finite() && v.iter().all(|x| x.is_finite())) {
+            if !(self.eta[o].is_finite() && all_finite(v)) {
                 return false;
             }
         }
@@ -773,7 +786,9 @@ impl DenseQp {
         if self.use_lu {
             lu_solve(&self.lu, &self.pivots, self.n + self.m, v);
         } else {
-            with_size(self.n, |n| schur_solve(&self.chol, &self.scaled_a, n, v));
+            with_size(self.n, |n| {
+                schur_solve(&self.chol, &self.chol_inv_diag, &self.scaled_a, n, v)
+            });
         }
     }
 
@@ -782,9 +797,16 @@ impl DenseQp {
     /// `⅓n³` instead of `⅔(n + m)³`, and `ÃᵀÃ` skips the zeros of `A`.
     fn factor_schur(&mut self) -> bool {
         let m = self.m;
-        with_size(self.n, |n| {
+        let factored = with_size(self.n, |n| {
             schur_factor(&self.p, &self.scaled_a, n, m, &mut self.chol)
-        })
+        });
+        // Reciprocals once per factor, so that the substitutions' chains (each entry waits
+        // for the one before) multiply instead of divide.
+        let n = self.n;
+        for (i, inv) in self.chol_inv_diag.iter_mut().enumerate() {
+            *inv = 1.0 / self.chol[i * n + i];
+        }
+        factored
     }
 
     /// `sol` solving the scaled KKT system `K sol = rhs`, `K = [P Ãᵀ; Ã −I]`, refined on `K`
@@ -874,7 +896,7 @@ impl DenseQp {
         } else if !self.solve_refined() {
             return None;
         }
-        if !self.sol[..k].iter().all(|v| v.is_finite()) {
+        if !all_finite(&self.sol[..k]) {
             return None;
         }
         self.dx.copy_from_slice(&self.sol[..n]);
@@ -1022,9 +1044,16 @@ fn lu_solve(lu: &[f64], pivots: &[usize], k: usize, v: &mut [f64]) {
 
 /// Solves the scaled KKT system `[P Ãᵀ; Ã −I][x; y] = [f; g]` in place (`v = [f; g]`, length
 /// `n + m`) by the Schur complement's factor `L`: `LLᵀx = f + Ãᵀg`, `y = Ãx − g`.
+///
+/// The substitutions go by columns of `L` (an entry, once known, is subtracted from all those
+/// after it) and multiply by the diagonal's reciprocals `inv_diag`: each entry then waits for
+/// the one before by a product and a difference only, where the inner products by rows and the
+/// divisions made the solve a chain of 2n divisions (a tenth of the conic desk step's time,
+/// `docs/latency.md`, branch wip-conic3x).
 #[inline(always)]
-fn schur_solve(chol: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
+fn schur_solve(chol: &[f64], inv_diag: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
     let (x, y) = v.split_at_mut(n);
+    let inv_diag = &inv_diag[..n];
     // No test for zero `g`: a zero adds nothing (the same sums), and the test was a mispredicted
     // branch (with the residual's below, 300 per desk solve).
     for (&g, row) in y.iter().zip(scaled_a.chunks_exact(n)) {
@@ -1032,16 +1061,21 @@ fn schur_solve(chol: &[f64], scaled_a: &[f64], n: usize, v: &mut [f64]) {
             *xj += a * g;
         }
     }
-    for i in 0..n {
-        let row = &chol[i * n..i * n + i + 1];
-        x[i] = (x[i] - dot(&row[..i], &x[..i])) / row[i];
-    }
-    for i in (0..n).rev() {
-        let mut acc = x[i];
-        for j in i + 1..n {
-            acc -= chol[j * n + i] * x[j];
+    // L w = x, column by column of L.
+    for j in 0..n {
+        let xj = x[j] * inv_diag[j];
+        x[j] = xj;
+        for i in j + 1..n {
+            x[i] -= chol[i * n + j] * xj;
         }
-        x[i] = acc / chol[i * n + i];
+    }
+    // Lᵀ x = w, column by column of Lᵀ (rows of L, contiguous).
+    for i in (0..n).rev() {
+        let xi = x[i] * inv_diag[i];
+        x[i] = xi;
+        for (xj, &lij) in x[..i].iter_mut().zip(&chol[i * n..i * n + i]) {
+            *xj -= lij * xi;
+        }
     }
     for (g, row) in y.iter_mut().zip(scaled_a.chunks_exact(n)) {
         *g = dot(row, x) - *g;
@@ -1169,7 +1203,7 @@ fn jordan_divide(lambda: &[f64], r: &[f64], blocks: &[Block], t: &mut [f64]) -> 
             t[o + i] = (r[o + i] - t0 * l[i]) / l[0];
         }
     }
-    t.iter().all(|v| v.is_finite())
+    all_finite(t)
 }
 
 /// The largest `α ≥ 0` with `s + α ds` in K (infinite when the ray stays inside).
@@ -1476,6 +1510,34 @@ mod tests {
             "{:?}",
             out.x
         );
+    }
+
+    #[test]
+    fn all_finite_refuses_infinities_and_nan() {
+        assert!(all_finite(&[]));
+        assert!(all_finite(&[1.0, -0.0, f64::MAX, f64::MIN_POSITIVE]));
+        for bad in [f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
+            assert!(!all_finite(&[1.0, bad, 2.0]), "{bad}");
+        }
+    }
+
+    #[test]
+    fn schur_solve_by_columns_solves_the_kkt_system() {
+        // [P Ãᵀ; Ã −I][x; y] = [f; g] with P = diag(2, 3, 4) and Ã 2 × 3: the substitutions by
+        // columns with reciprocals against the residual of the system itself.
+        let n = 3;
+        let p = [2.0, 0.0, 0.0, 0.0, 3.0, 0.0, 0.0, 0.0, 4.0];
+        let a = [1.0, 2.0, 0.0, 0.0, -1.0, 3.0];
+        let mut chol = [0.0; 9];
+        assert!(schur_factor(&p, &a, n, 2, &mut chol));
+        let inv: Vec<f64> = (0..n).map(|i| 1.0 / chol[i * n + i]).collect();
+        let rhs = [1.0, -2.0, 0.5, 0.25, -1.0];
+        let mut v = rhs;
+        schur_solve(&chol, &inv, &a, n, &mut v);
+        let mut res = [0.0; 5];
+        let berr = kkt_residual(&p, &a, n, &v, &rhs, &mut res);
+        assert!(berr <= 1e-14, "{berr}");
+        assert!(res.iter().all(|r| r.abs() <= 1e-14), "{res:?}");
     }
 
     #[test]

@@ -144,7 +144,7 @@ pub(crate) struct StepQp {
 /// vector is cleared and refilled, never dropped.
 #[derive(Default)]
 pub(crate) struct PolishWorkspace {
-    /// Each body's factored mass matrix.
+    /// Each body's mass matrix inverted once per polish ([`MassFactor`]).
     factors: Vec<MassFactor>,
     /// `Σ W p` per body.
     wrench_sum: Vec<[f64; 6]>,
@@ -154,6 +154,10 @@ pub(crate) struct PolishWorkspace {
     before: Vec<f64>,
     /// The impulses before the sweep before, in the same order ([`StepQp::extrapolate`]).
     previous: Vec<f64>,
+    /// Each contact's multiplier `η` of its local friction problem at the last sweep (0 before
+    /// the first, or when it stuck): the next sweep's Newton iteration starts there
+    /// ([`local_friction`]).
+    etas: Vec<f64>,
     normal: NormalWorkspace,
     joint: JointWorkspace,
 }
@@ -744,10 +748,11 @@ impl StepQp {
             current,
             before,
             previous,
+            etas,
             normal,
             joint,
         } = work;
-        // Each body's mass matrix factored once for the whole polish.
+        // Each body's mass matrix inverted once for the whole polish.
         factors.clear();
         factors.extend(bodies.iter().map(|b| MassFactor::new(&b.mass)));
         wrench_sum.clear();
@@ -832,6 +837,8 @@ impl StepQp {
         // the sweeps reach depends on their path.
         let mut plain = 0;
         let extrapolating = self.one_contact_per_body();
+        etas.clear();
+        etas.resize(self.contacts.len(), 0.0);
         for sweep in 0..sweeps {
             std::mem::swap(previous, before);
             before.clear();
@@ -889,7 +896,8 @@ impl StepQp {
                     u0[i] += offset[i];
                 }
                 let pn: f64 = imp.vertex_impulses.iter().map(|(_, l)| l).sum();
-                let (p, sigma) = local_friction(&a, &u0, &rows.axes, rows.mu * pn);
+                let (p, sigma, eta) = local_friction(&a, &u0, &rows.axes, rows.mu * pn, etas[c]);
+                etas[c] = eta;
                 imp.friction = p;
                 imp.sigma = sigma;
                 for (b, wf) in &current[c] {
@@ -1827,19 +1835,29 @@ fn solve3(a: &[[f64; 3]; 3], b: &[f64; 3]) -> Option<[f64; 3]> {
 
 /// The local friction problem of one contact (maximum dissipation with the normal impulse
 /// fixed): `min ½ pᵀA p + u₀ᵀp` subject to `‖E⁻¹p‖ ≤ ρ`, `ρ = μ p_n`, `A` symmetric positive
-/// definite. Returns the impulse and the slip `σ = ‖E u‖`, `u = u₀ + A p`.
+/// definite. Returns the impulse, the slip `σ = ‖E u‖`, `u = u₀ + A p`, and the multiplier `η`
+/// below (0 when sticking).
 ///
 /// Sticking when the unconstrained minimiser `−A⁻¹u₀` is inside the ellipsoid (`u = 0`,
 /// `σ = 0`). Otherwise the KKT conditions `A p + u₀ + η E⁻² p = 0`, `‖E⁻¹p(η)‖ = ρ` give
 /// `p = −ρ E² u / ‖E u‖` with `η = σ/ρ`: the multiplier `η > 0` is found by Newton's method on
 /// the secular equation `1/‖E⁻¹p(η)‖ = 1/ρ` (as in Moré–Sorensen trust-region solvers),
 /// safeguarded by bisection.
+///
+/// Newton's iteration starts at `hint`, the multiplier `η` of a neighbouring problem (the same
+/// contact at the polish's last sweep), when it is positive. The polish's sweeps change a
+/// contact's problem less and less, so the root is near the last one: the bracket is found by
+/// a step of `HINT_STEP · hint` from it instead of by growing fourfold from `A`'s scale (three
+/// evaluations on the desk), and Newton starts at it instead of at the bracket's middle
+/// (`docs/latency.md`, branch wip-conic3x). The root is the same to round-off: the iteration
+/// stops on the same tests.
 pub(crate) fn local_friction(
     a: &[[f64; 3]; 3],
     u0: &[f64; 3],
     axes: &[f64; 3],
     rho: f64,
-) -> ([f64; 3], f64) {
+    hint: f64,
+) -> ([f64; 3], f64, f64) {
     let slip = |p: &[f64; 3]| -> f64 {
         (0..3)
             .map(|i| {
@@ -1850,7 +1868,7 @@ pub(crate) fn local_friction(
             .sqrt()
     };
     if rho.is_nan() || rho <= 0.0 {
-        return ([0.0; 3], slip(&[0.0; 3]));
+        return ([0.0; 3], slip(&[0.0; 3]), 0.0);
     }
     let scaled =
         |p: &[f64; 3]| -> f64 { (0..3).map(|i| (p[i] / axes[i]).powi(2)).sum::<f64>().sqrt() };
@@ -1862,27 +1880,52 @@ pub(crate) fn local_friction(
         solve3(&m, &[-u0[0], -u0[1], -u0[2]])
     };
     let Some(p0) = p_of(0.0) else {
-        return ([0.0; 3], slip(&[0.0; 3]));
+        return ([0.0; 3], slip(&[0.0; 3]), 0.0);
     };
     if scaled(&p0) <= rho {
-        return (p0, 0.0);
+        return (p0, 0.0, 0.0);
     }
     // ψ(η) = ‖E⁻¹p(η)‖ decreases from ψ(0) > ρ to 0: bracket the root, then Newton on 1/ψ.
+    let too_far = |eta: f64| p_of(eta).is_none_or(|p| scaled(&p) > rho);
     let mut lo = 0.0;
     let mut hi = 1.0f64;
-    let scale_a = (0..3)
-        .map(|i| a[i][i] * axes[i] * axes[i])
-        .fold(0.0, f64::max);
-    if scale_a > 0.0 && scale_a.is_finite() {
-        hi = scale_a;
+    let mut eta = f64::NAN;
+    if hint > 0.0 && hint.is_finite() {
+        // ψ decreases: the hint bounds the root from one side, a step beyond it (grown
+        // fourfold until it does) from the other.
+        if too_far(hint) {
+            let mut step = HINT_STEP * hint;
+            lo = hint;
+            hi = hint + step;
+            let mut guard = 0;
+            while too_far(hi) && guard < 200 {
+                lo = hi;
+                step *= 4.0;
+                hi = lo + step;
+                guard += 1;
+            }
+        } else {
+            hi = hint;
+        }
+        eta = hint.clamp(lo, hi);
     }
-    let mut guard = 0;
-    while p_of(hi).is_none_or(|p| scaled(&p) > rho) && guard < 200 {
-        lo = hi;
-        hi *= 4.0;
-        guard += 1;
+    if !(eta >= lo && eta <= hi) || hi <= lo {
+        lo = 0.0;
+        hi = 1.0;
+        let scale_a = (0..3)
+            .map(|i| a[i][i] * axes[i] * axes[i])
+            .fold(0.0, f64::max);
+        if scale_a > 0.0 && scale_a.is_finite() {
+            hi = scale_a;
+        }
+        let mut guard = 0;
+        while too_far(hi) && guard < 200 {
+            lo = hi;
+            hi *= 4.0;
+            guard += 1;
+        }
+        eta = 0.5 * (lo + hi);
     }
-    let mut eta = 0.5 * (lo + hi);
     for _ in 0..100 {
         let Some(p) = p_of(eta) else { break };
         let psi = scaled(&p);
@@ -1927,8 +1970,13 @@ pub(crate) fn local_friction(
     } else {
         p
     };
-    (p, slip(&p))
+    (p, slip(&p), eta)
 }
+
+/// The first step beyond a hinted multiplier, relative to it, when the root lies beyond the
+/// hint ([`local_friction`]): in a traced polish of the desk the root moved by 3e-7 of itself
+/// between sweeps (2.4747064 → 2.4747070 → …); a larger move costs a few more evaluations.
+const HINT_STEP: f64 = 1e-3;
 
 #[cfg(test)]
 mod tests {
@@ -1979,7 +2027,7 @@ mod tests {
         let a = [[0.2, 0.01, 0.0], [0.01, 0.3, 0.02], [0.0, 0.02, 0.5]];
         let axes = [1.0, 1.0, 0.1];
         // Small slip: sticks, u = 0.
-        let (p, sigma) = local_friction(&a, &[0.01, -0.02, 0.001], &axes, 1.0);
+        let (p, sigma, _) = local_friction(&a, &[0.01, -0.02, 0.001], &axes, 1.0, 0.0);
         assert_eq!(sigma, 0.0);
         for i in 0..3 {
             let u: f64 = 0.01 * [1.0, -2.0, 0.1][i] + (0..3).map(|j| a[i][j] * p[j]).sum::<f64>();
@@ -1988,13 +2036,49 @@ mod tests {
         // Large slip: slides, p = −ρ E² u / ‖E u‖.
         let u0 = [1.0, 0.5, 0.3];
         let rho = 0.4;
-        let (p, sigma) = local_friction(&a, &u0, &axes, rho);
+        let (p, sigma, _) = local_friction(&a, &u0, &axes, rho, 0.0);
         assert!(sigma > 0.0);
         for i in 0..3 {
             let u = u0[i] + (0..3).map(|j| a[i][j] * p[j]).sum::<f64>();
             let want = -rho * axes[i] * axes[i] * u / sigma;
             assert!((p[i] - want).abs() < 1e-14, "{i}: {} vs {want}", p[i]);
         }
+    }
+
+    #[test]
+    fn local_friction_from_a_hint_finds_the_same_root() {
+        let a = [[0.2, 0.01, 0.0], [0.01, 0.3, 0.02], [0.0, 0.02, 0.5]];
+        let axes = [1.0, 1.0, 0.1];
+        let u0 = [1.0, 0.5, 0.3];
+        let rho = 0.4;
+        let (p, sigma, eta) = local_friction(&a, &u0, &axes, rho, 0.0);
+        // η = σ/ρ at the root (the KKT conditions of the module doc).
+        assert!(
+            eta > 0.0 && (eta - sigma / rho).abs() <= 1e-13 * eta,
+            "{eta} {sigma}"
+        );
+        // Hints below the root, at it, just above, far above and far below (the bracket grows
+        // from the hint): the same impulse and slip to round-off, the same multiplier.
+        for hint in [0.5 * eta, eta, eta * (1.0 + 1e-9), 1e3 * eta, 1e-6 * eta] {
+            let (ph, sh, eh) = local_friction(&a, &u0, &axes, rho, hint);
+            for i in 0..3 {
+                assert!(
+                    (ph[i] - p[i]).abs() <= 1e-14,
+                    "hint {hint}: {ph:?} vs {p:?}"
+                );
+            }
+            assert!(
+                (sh - sigma).abs() <= 1e-14 * sigma,
+                "hint {hint}: {sh} vs {sigma}"
+            );
+            assert!(
+                (eh - eta).abs() <= 1e-12 * eta,
+                "hint {hint}: {eh} vs {eta}"
+            );
+        }
+        // A sticking problem ignores the hint: u = 0, multiplier 0.
+        let (_, sigma, eta) = local_friction(&a, &[0.01, -0.02, 0.001], &axes, 1.0, 3.0);
+        assert_eq!((sigma, eta), (0.0, 0.0));
     }
 
     fn contact(body: usize, patch: usize) -> ContactGeometry {
