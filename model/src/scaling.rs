@@ -69,6 +69,48 @@ impl McpScales {
     pub fn is_identity(&self) -> bool {
         self.variables.iter().all(|s| *s == 1.0) && self.rows.iter().all(|s| *s == 1.0)
     }
+
+    /// How [`solve_in_scales`] uses these scales for a problem of dimension `n`: not at all
+    /// when they are all 1 ([`McpScales::is_identity`]) or not valid ([`McpScales::is_valid`]),
+    /// else in the order [`far_from_si`] says. The same verdict as those three tests, from one
+    /// pass over the scales when every scale lies in `[2⁻¹⁹, 2¹⁹]` (valid and inside the band,
+    /// as a scene in SI units gives); the three tests decide the rest.
+    pub fn usage(&self, n: usize) -> ScalesUsage {
+        if self.variables.len() != n || self.rows.len() != n {
+            return ScalesUsage::Unscaled;
+        }
+        // Without an exit per entry (a loop the compiler can vectorise); a NaN is neither 1 nor
+        // inside.
+        let (mut identity, mut inside) = (true, true);
+        for v in [&self.variables, &self.rows] {
+            for &s in v.iter() {
+                identity &= s == 1.0;
+                inside &= (s >= SI_INNER.0) & (s <= SI_INNER.1);
+            }
+        }
+        if identity {
+            ScalesUsage::Unscaled
+        } else if inside {
+            ScalesUsage::WithinSi
+        } else if !self.is_valid(n) {
+            ScalesUsage::Unscaled
+        } else if far_from_si(self) {
+            ScalesUsage::FarFromSi
+        } else {
+            ScalesUsage::WithinSi
+        }
+    }
+}
+
+/// What [`solve_in_scales`] does with a problem's scales ([`McpScales::usage`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScalesUsage {
+    /// No scales to use (all 1, or not valid): the problem is solved as given only.
+    Unscaled,
+    /// Valid scales within [`SI_BAND_LOG2`]'s band: solved as given first, in scales second.
+    WithinSi,
+    /// Valid scales that leave the band somewhere: solved in scales first.
+    FarFromSi,
 }
 
 /// `√2 − 1` in units of the last place of a mantissa in `[1, 2)`: `s = (1 + f 2⁻⁵²) 2^e` lies
@@ -80,14 +122,15 @@ const SQRT_2_FRACTION: u64 = ((std::f64::consts::SQRT_2 - 1.0) * (1u64 << 52) as
 const SQRT_2_MARGIN: u64 = 1 << 30;
 
 /// The power of two nearest to `s` in the logarithm (1 for a scale that is not positive and
-/// finite, or whose power is outside the normal range).
+/// finite, or whose power is outside the normal range): what
+/// [`McpScales::round_to_powers_of_two`] makes of each scale.
 ///
 /// From the bits of `s` (`s = m 2^e`, `1 ≤ m < 2`: `2^e` when `m < √2`, else `2^(e+1)`), the
 /// same number as [`power_of_two_by_log2`] gives: where the two could differ — `m` near `√2`,
 /// where `log2`'s round-off may decide the rounding, subnormals, `|e|` near the clamp — the
 /// logarithm decides. A desk step rounds 62 scales; `log2`, `round` and `powi` were 7 k of
 /// its instructions.
-fn power_of_two(s: f64) -> f64 {
+pub fn power_of_two(s: f64) -> f64 {
     let bits = s.to_bits();
     // The biased exponent; at least 2048 for a negative `s` (the sign bit).
     let biased = bits >> 52;
@@ -265,6 +308,10 @@ type SolveFn<'f> = dyn FnMut(&dyn Mcp, &[f64]) -> Result<Solution, SolveError> +
 /// iterations as without scales (`docs/decisions.md#scene-scaled-convergence`).
 pub const SI_BAND_LOG2: f64 = 20.0;
 
+/// Scales in `[2⁻¹⁹, 2¹⁹]` (`SI_BAND_LOG2` − 1 in the logarithm) are inside the band whatever
+/// `log2`'s round-off.
+const SI_INNER: (f64, f64) = (1.0 / 524_288.0, 524_288.0);
+
 /// Whether `scales` leave [`SI_BAND_LOG2`]'s band anywhere.
 pub fn far_from_si(scales: &McpScales) -> bool {
     scales.variables.iter().any(|&s| outside_si_band(s))
@@ -275,10 +322,9 @@ pub fn far_from_si(scales: &McpScales) -> bool {
 /// by comparisons where `log2` cannot be near the band's edge: `s ∈ [2⁻¹⁹, 2¹⁹]` is inside,
 /// `s ≥ 2²¹` and `0 ≤ s ≤ 2⁻²¹` outside; the logarithm decides the rest.
 fn outside_si_band(s: f64) -> bool {
-    // 2^±19 and 2^±21 (`SI_BAND_LOG2` ∓ 1).
-    const INNER: (f64, f64) = (1.0 / 524_288.0, 524_288.0);
+    // 2^±21 (`SI_BAND_LOG2` + 1).
     const OUTER: (f64, f64) = (1.0 / 2_097_152.0, 2_097_152.0);
-    if (INNER.0..=INNER.1).contains(&s) {
+    if (SI_INNER.0..=SI_INNER.1).contains(&s) {
         false
     } else if s >= OUTER.1 || (0.0..=OUTER.0).contains(&s) {
         true
@@ -303,9 +349,10 @@ pub fn solve_in_scales(
 ) -> Result<Solution, SolveError> {
     // `ScaledMcp::new` accepts exactly the valid scales; it is only built when the scaled
     // attempt runs (a problem within the SI band that converges as given never needs it).
-    let Some(scales) = mcp
+    let Some((scales, usage)) = mcp
         .scales()
-        .filter(|s| !s.is_identity() && s.is_valid(mcp.dim()))
+        .map(|s| (s, s.usage(mcp.dim())))
+        .filter(|(_, usage)| *usage != ScalesUsage::Unscaled)
         .filter(|_| z0.len() == mcp.dim())
     else {
         return solve(mcp, z0);
@@ -336,7 +383,7 @@ pub fn solve_in_scales(
             Err(e) => Err(e),
         }
     };
-    let scaled_first = far_from_si(scales);
+    let scaled_first = usage == ScalesUsage::FarFromSi;
     let first = if scaled_first {
         in_scales(&mut solve)
     } else {
@@ -430,6 +477,61 @@ mod tests {
         assert!(McpScales::identity(3).is_valid(3) && !McpScales::identity(3).is_valid(2));
         assert_eq!(power_of_two(3.0), 4.0);
         assert_eq!(power_of_two(f64::NAN), 1.0);
+    }
+
+    /// `usage` is the verdict of `is_identity`, `is_valid` and `far_from_si` on every pair of
+    /// scales from a list that holds each case (1, inside the inner band, between the inner
+    /// band and the band's edge, outside, not positive, not finite), at either place.
+    #[test]
+    fn usage_is_the_verdict_of_the_three_tests() {
+        let values = [
+            1.0,
+            0.5,
+            2f64.powi(19),
+            2f64.powi(-19),
+            1.5 * 2f64.powi(19),
+            2f64.powi(20),
+            1.5 * 2f64.powi(20),
+            2f64.powi(-21),
+            2f64.powi(30),
+            0.0,
+            -0.0,
+            -1.0,
+            f64::NAN,
+            f64::INFINITY,
+        ];
+        let mut seen = [0usize; 3];
+        for a in values {
+            for b in values {
+                for scales in [
+                    McpScales {
+                        variables: vec![1.0, a, 1.0],
+                        rows: vec![b, 1.0, 1.0],
+                    },
+                    McpScales {
+                        variables: vec![b, 1.0, a],
+                        rows: vec![1.0, 1.0, 1.0],
+                    },
+                    McpScales {
+                        variables: vec![1.0, 1.0, 1.0],
+                        rows: vec![1.0, a, b],
+                    },
+                ] {
+                    let expected = if scales.is_identity() || !scales.is_valid(3) {
+                        ScalesUsage::Unscaled
+                    } else if far_from_si(&scales) {
+                        ScalesUsage::FarFromSi
+                    } else {
+                        ScalesUsage::WithinSi
+                    };
+                    assert_eq!(scales.usage(3), expected, "{scales:?}");
+                    assert_eq!(scales.usage(2), ScalesUsage::Unscaled);
+                    seen[expected as usize] += 1;
+                }
+            }
+        }
+        // Each verdict occurs.
+        assert!(seen.iter().all(|&n| n > 0), "{seen:?}");
     }
 
     /// The scales from their bits are those of the logarithm bit for bit: on a sweep of

@@ -8,6 +8,7 @@ use nalgebra::{Matrix3, Vector3};
 
 use ecp_model::BlockMcp;
 
+use super::Rotations;
 use super::layout::Layout;
 use crate::geometry::{ConvexHull, Face, HalfSpace};
 use crate::scene::{BodyState, Scene};
@@ -51,34 +52,65 @@ pub fn closest_point_guess_into(
     r: &Matrix3<f64>,
     l: &mut Vec<f64>,
 ) -> (Vector3<f64>, f64) {
-    let ng = plane.normal();
-    let dir_body = r.transpose() * (-ng);
+    let (a1_body, gmin) = lowest_feature(set, plane, x, r);
+    let a1 = x + r * a1_body;
+    face_multipliers_into(set, plane, r, &a1_body, l);
+    (a1, gmin)
+}
+
+/// The first half of [`closest_point_guess_into`]: `a1` in body coordinates (the centroid of
+/// the vertices nearest to G at pose `(x, r)`) and the gap.
+fn lowest_feature(
+    set: &ConvexHull,
+    plane: &HalfSpace,
+    x: &Vector3<f64>,
+    r: &Matrix3<f64>,
+) -> (Vector3<f64>, f64) {
     let verts = set.vertices();
-    // Each vertex's gap is computed twice (the same number) rather than stored.
     let gap = |v: &Vector3<f64>| plane.value(&(x + r * v));
-    let gmin = verts.iter().map(gap).fold(f64::INFINITY, f64::min);
+    // Each vertex's gap is read twice: kept on the stack for the hulls of up to `KEPT_GAPS`
+    // vertices, computed twice (the same number) for larger ones.
+    let mut kept = [0.0; KEPT_GAPS];
+    let gaps = &mut kept[..verts.len().min(KEPT_GAPS)];
+    let mut gmin = f64::INFINITY;
+    for (k, v) in verts.iter().enumerate() {
+        let g = gap(v);
+        if let Some(slot) = gaps.get_mut(k) {
+            *slot = g;
+        }
+        gmin = gmin.min(g);
+    }
     let mut a1_body = Vector3::zeros();
     let mut count: f64 = 0.0;
-    for v in verts {
-        if gap(v) <= gmin + 1e-6 {
+    for (k, v) in verts.iter().enumerate() {
+        let g = gaps.get(k).copied().unwrap_or_else(|| gap(v));
+        if g <= gmin + 1e-6 {
             a1_body += v;
             count += 1.0;
         }
     }
     a1_body /= f64::max(count, 1.0);
-    let a1 = x + r * a1_body;
+    (a1_body, gmin)
+}
+
+/// The second half of [`closest_point_guess_into`]: the face multipliers at `a1_body` (body
+/// coordinates) of the pose of rotation `r`, written into `l`.
+fn face_multipliers_into(
+    set: &ConvexHull,
+    plane: &HalfSpace,
+    r: &Matrix3<f64>,
+    a1_body: &Vector3<f64>,
+    l: &mut Vec<f64>,
+) {
+    let dir_body = r.transpose() * (-plane.normal());
     l.clear();
     l.resize(set.num_faces(), 0.0);
-    let size = verts
-        .iter()
-        .map(|v| v.norm())
-        .fold(0.0, f64::max)
-        .max(f64::MIN_POSITIVE);
+    let size = set.radius().max(f64::MIN_POSITIVE);
     // The faces through `a1`; more than `MAX_CONE_FACES` are not tried.
     let mut through = [0usize; MAX_CONE_FACES];
     let mut k = 0;
     for (i, f) in set.faces().iter().enumerate() {
-        if f.value(&a1_body).abs() <= 1e-9 * size {
+        if f.value(a1_body).abs() <= 1e-9 * size {
             if k < MAX_CONE_FACES {
                 through[k] = i;
             }
@@ -98,8 +130,11 @@ pub fn closest_point_guess_into(
         }
         None => l[set.most_aligned_face(&dir_body)] = 1.0,
     }
-    (a1, gmin)
 }
+
+/// The most vertices of a hull whose gaps [`closest_point_guess_into`] keeps rather than computes
+/// twice (the desk's and the T-bar's Conv(F) have fewer; tested).
+const KEPT_GAPS: usize = 32;
 
 /// The most faces through `a1` whose combinations [`face_cone_multipliers`] tries.
 const MAX_CONE_FACES: usize = 16;
@@ -192,6 +227,8 @@ pub(crate) struct Guess<'a> {
     /// Storage for the face multipliers of [`closest_point_guess_into`], kept by the
     /// formulation across steps (taken and put back around each use).
     pub(crate) faces: &'a Cell<Vec<f64>>,
+    /// The rotations of the bodies' states, kept by the formulation.
+    pub(crate) rotations: &'a Rotations,
 }
 
 impl Guess<'_> {
@@ -313,43 +350,42 @@ impl Guess<'_> {
         let o = self.layout.origin;
         let s = self.states[c.body];
         let plane = &self.scene.planes[c.plane];
-        let mut l = self.faces.take();
-        let (a1p, gap) =
-            closest_point_guess_into(&self.layout.contact_hulls[i], plane, x1, r1, &mut l);
+        let hull = &self.layout.contact_hulls[i];
+        // `closest_point_guess_into` in its two halves: the face multipliers only when the
+        // unknowns move.
+        let (a1p_body, gap) = lowest_feature(hull, plane, x1, r1);
+        let a1p = x1 + r1 * a1p_body;
         let mcp = self.mcp;
         let warm = &z[mcp.range(c.a1)];
         let warm = Vector3::new(warm[0], warm[1], warm[2]) + o;
-        let r0 = crate::rotation::rotation_matrix(&s.q);
+        let r0 = self.rotations.of(c.body, &s.q);
         // The warm `a1` in body coordinates, then carried rigidly to the predicted pose.
         let warm_in_body = r0.transpose() * (warm - s.x);
         let carried = x1 + r1 * warm_in_body;
         let finite = a1p.iter().all(|v| v.is_finite()) && gap.is_finite();
         // Not when the predicted pose lifts the contact's own feature off the support and only
         // tilts it (a body tipping over an edge): the contact stays on that feature.
-        let lifted_and_tilted = || {
-            gap >= 0.0
-                && lowest_on_feature(
-                    &self.layout.contact_hulls[i],
-                    &warm_in_body,
-                    &(r1.transpose() * (a1p - x1)),
-                )
-        };
+        let lifted_and_tilted =
+            || gap >= 0.0 && lowest_on_feature(hull, &warm_in_body, &(r1.transpose() * (a1p - x1)));
         let moved = finite && plane.value(&carried) > gap + FEATURE_SWITCH && !lifted_and_tilted();
         if moved {
+            let mut l = self.faces.take();
+            face_multipliers_into(hull, plane, r1, &a1p_body, &mut l);
             let a2 = plane.project(&a1p);
             z[mcp.range(c.a1)].copy_from_slice((a1p - o).as_slice());
             z[mcp.range(c.a2)].copy_from_slice((a2 - o).as_slice());
             z[mcp.range(c.lg)][0] = gap.max(0.0);
             z[mcp.range(c.l)].copy_from_slice(&l);
+            self.faces.set(l);
         }
-        self.faces.set(l);
         moved
     }
 
     /// [`Guess::contact_at`] at the body's state.
     pub(crate) fn contact(&self, i: usize, force_active: bool, z: &mut [f64]) {
-        let s = self.states[self.layout.contacts[i].body];
-        let r = crate::rotation::rotation_matrix(&s.q);
+        let b = self.layout.contacts[i].body;
+        let s = self.states[b];
+        let r = self.rotations.of(b, &s.q);
         self.contact_at(i, force_active, (&s.x, &r), z);
     }
 }
@@ -386,12 +422,7 @@ pub(crate) fn extrapolate(
 /// keeps the edge flat with `a1` inside it, up to 37 cm from its end
 /// (`docs/newton.md#a-tipping-edge-predicted-tilted-018_union_tip`).
 fn lowest_on_feature(hull: &ConvexHull, warm: &Vector3<f64>, low: &Vector3<f64>) -> bool {
-    let size = hull
-        .vertices()
-        .iter()
-        .map(|v| v.norm())
-        .fold(0.0, f64::max)
-        .max(f64::MIN_POSITIVE);
+    let size = hull.radius().max(f64::MIN_POSITIVE);
     let on = |f: &Face, p: &Vector3<f64>| f.value(p).abs() <= 1e-9 * size;
     let mut through = 0usize;
     for f in hull.faces() {
@@ -420,6 +451,75 @@ mod tests {
             }
         }
         ConvexHull::from_points(&v).unwrap_or_else(|e| panic!("{e}"))
+    }
+
+    /// `closest_point_guess_into` as it was, each vertex's gap computed twice and the size from
+    /// the vertices: the reference of the kept gaps and the hull's radius.
+    fn closest_point_guess_by_recomputing(
+        set: &ConvexHull,
+        plane: &HalfSpace,
+        x: &Vector3<f64>,
+        r: &Matrix3<f64>,
+    ) -> (Vector3<f64>, f64, Vec<f64>) {
+        let verts = set.vertices();
+        let gap = |v: &Vector3<f64>| plane.value(&(x + r * v));
+        let gmin = verts.iter().map(gap).fold(f64::INFINITY, f64::min);
+        let mut a1_body = Vector3::zeros();
+        let mut count: f64 = 0.0;
+        for v in verts {
+            if gap(v) <= gmin + 1e-6 {
+                a1_body += v;
+                count += 1.0;
+            }
+        }
+        a1_body /= f64::max(count, 1.0);
+        let size = verts
+            .iter()
+            .map(|v| v.norm())
+            .fold(0.0, f64::max)
+            .max(f64::MIN_POSITIVE);
+        assert_eq!(
+            size.to_bits(),
+            set.radius().max(f64::MIN_POSITIVE).to_bits()
+        );
+        let mut l = Vec::new();
+        face_multipliers_into(set, plane, r, &a1_body, &mut l);
+        (x + r * a1_body, gmin, l)
+    }
+
+    /// The kept gaps give the numbers of the gaps computed twice, bit for bit: the cube, the
+    /// desk and the T-bar (fewer vertices than `KEPT_GAPS`) and a 40-sided prism (more), at
+    /// poses resting on a face, on an edge and on a vertex.
+    #[test]
+    fn kept_gaps_give_the_guess_of_recomputed_ones() {
+        use crate::geometry::Shape;
+        use crate::rotation::{quat_from_rpy_deg, rotation_matrix};
+        let prism: Vec<Vector3<f64>> = (0..40)
+            .flat_map(|k| {
+                let a = k as f64 * std::f64::consts::TAU / 40.0;
+                [-0.1, 0.1].map(|z| Vector3::new(0.3 * a.cos(), 0.3 * a.sin(), z))
+            })
+            .collect();
+        let prism = ConvexHull::from_points(&prism).unwrap_or_else(|e| panic!("{e}"));
+        assert!(prism.vertices().len() > KEPT_GAPS);
+        let desk = Shape::desk().hull().unwrap_or_else(|e| panic!("{e}"));
+        let t_bar = Shape::t_bar().hull().unwrap_or_else(|e| panic!("{e}"));
+        assert!(desk.vertices().len() <= KEPT_GAPS && t_bar.vertices().len() <= KEPT_GAPS);
+        let ground = HalfSpace::ground();
+        for hull in [cube(), desk, t_bar, prism] {
+            for rpy in [(0.0, 0.0, 0.0), (30.0, 0.0, 10.0), (20.0, 10.0, 5.0)] {
+                let r = rotation_matrix(&quat_from_rpy_deg(rpy.0, rpy.1, rpy.2));
+                let x = Vector3::new(0.2, -0.1, 1.5);
+                let mut l = vec![7.0; 3];
+                let (a1, gap) = closest_point_guess_into(&hull, &ground, &x, &r, &mut l);
+                let (a1_ref, gap_ref, l_ref) =
+                    closest_point_guess_by_recomputing(&hull, &ground, &x, &r);
+                assert_eq!(a1.map(f64::to_bits), a1_ref.map(f64::to_bits), "{rpy:?}");
+                assert_eq!(gap.to_bits(), gap_ref.to_bits());
+                assert_eq!(l, l_ref);
+                assert!(l.iter().any(|&li| li > 0.0));
+            }
+        }
     }
 
     #[test]

@@ -8,6 +8,7 @@ use nalgebra::Vector3;
 
 use ecp_model::{BlockMcp, DataId, ResId, VarId};
 
+use super::scales::BodyUnits;
 use crate::blocks::{BodyDataIds, BodyStepData, ContactFrame, SceneDataIds};
 use crate::geometry::{ConvexHull, HalfSpace};
 use crate::scene::BodyState;
@@ -51,6 +52,9 @@ pub(crate) struct EcpBody {
     pub(crate) frames: Vec<ContactFrame>,
     /// The body's data blocks (`docs/model.md#data-blocks`).
     pub(crate) data: BodyDataIds,
+    /// The body's length unit `L` of its scene scales: the diagonal of the bounding box of
+    /// Conv(F) (`scales.rs`).
+    pub(crate) length: f64,
 }
 
 /// The data of the span prepared last, as the step's blocks read them.
@@ -68,8 +72,9 @@ pub(crate) struct SpanData {
     pub(crate) h: f64,
     /// The range in `z` of every variable block, by `VarId`.
     pub(crate) ranges: Vec<Range<usize>>,
-    /// Each body's length, velocity and impulse units (`scales.rs`; storage kept across spans).
-    pub(crate) units: Vec<(f64, f64, f64)>,
+    /// Each body's rounded units (`scales.rs`; storage kept across spans), those of the scales
+    /// in [`Layout::scales`].
+    pub(crate) units: Vec<BodyUnits>,
 }
 
 /// The layout of an ECP step problem (module documentation).

@@ -25,7 +25,7 @@ pub mod union;
 
 use std::cell::Cell;
 
-use nalgebra::{Matrix3, Vector3};
+use nalgebra::{Matrix3, Vector3, Vector4};
 
 use ecp_model::{
     BlockMcp, DataId, Input, Mcp, McpScales, Problem, ResId, StepStructure, VarBlock, fb_residual,
@@ -36,7 +36,7 @@ use crate::blocks::{
     HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, SceneDataIds, add_body_data,
     add_plane_data, add_scene_data,
 };
-use crate::geometry::{ConvexHull, HalfSpace, contact_mode_at, min_gap};
+use crate::geometry::{ConvexHull, HalfSpace, gap_and_mode_at, min_gap};
 use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
@@ -72,6 +72,8 @@ pub struct EcpContacts {
     motion: Vec<(Vector3<f64>, Matrix3<f64>)>,
     /// The touching vertices of the contact records' modes (storage kept across steps).
     touching: Kept<Vec<Vector3<f64>>>,
+    /// The rotations of the bodies' last states (the records', the next warm start's).
+    rotations: Rotations,
     /// The span's warm start was extrapolated from the last two steps (`guess::extrapolate`):
     /// the first retry is then today's warm start.
     extrapolated: bool,
@@ -79,6 +81,38 @@ pub struct EcpContacts {
     /// and `F` there.
     plain: Vec<f64>,
     f: Vec<f64>,
+}
+
+/// The rotation `R(Q)` of the orientation each body was last asked for, kept across calls: the
+/// contact records of a step and the warm start and retries of the next one read the rotation
+/// of the same state (the end of one step is the start of the next); computed again for any
+/// other orientation, so the same matrix either way.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Rotations(Kept<Vec<(Vector4<f64>, Matrix3<f64>)>>);
+
+impl Rotations {
+    /// `R(q)` for body `b`.
+    pub(crate) fn of(&self, b: usize, q: &Vector4<f64>) -> Matrix3<f64> {
+        let mut kept = self.0.0.take();
+        let same = |k: &Vector4<f64>| {
+            k.iter()
+                .zip(q.iter())
+                .all(|(a, c)| a.to_bits() == c.to_bits())
+        };
+        let r = match kept.get(b) {
+            Some((k, r)) if same(k) => *r,
+            _ => {
+                let r = rotation_matrix(q);
+                if kept.len() <= b {
+                    kept.resize(b + 1, (Vector4::repeat(f64::NAN), Matrix3::zeros()));
+                }
+                kept[b] = (*q, r);
+                r
+            }
+        };
+        self.0.0.set(kept);
+        r
+    }
 }
 
 /// Storage reused across steps by methods that take `&self`: a clone starts empty, and `Debug`
@@ -107,6 +141,7 @@ impl EcpContacts {
             faces: Kept::default(),
             motion: Vec::new(),
             touching: Kept::default(),
+            rotations: Rotations::default(),
             extrapolated: false,
             plain: Vec::new(),
             f: Vec::new(),
@@ -123,6 +158,7 @@ impl EcpContacts {
             faces: Kept::default(),
             motion: Vec::new(),
             touching: Kept::default(),
+            rotations: Rotations::default(),
             extrapolated: false,
             plain: Vec::new(),
             f: Vec::new(),
@@ -216,6 +252,7 @@ impl EcpContacts {
             states: ctx.states,
             mcp,
             faces: &self.faces.0,
+            rotations: &self.rotations,
         }
     }
 
@@ -450,6 +487,7 @@ impl StepFormulation for EcpContacts {
             }
             let data = add_body_data(problem, &spec.name, spec.mass.mass, &spec.mass.inertia);
             layout.bodies.push(EcpBody {
+                length: scales::bounding_diagonal(hull.vertices()),
                 hull,
                 nu,
                 q,
@@ -721,7 +759,7 @@ impl StepFormulation for EcpContacts {
             let c = l.contacts[i];
             let s = ctx.states[c.body];
             let plane = &ctx.scene.planes[c.plane];
-            let r = rotation_matrix(&s.q);
+            let r = self.rotations.of(c.body, &s.q);
             let gap = min_gap(l.contact_hulls[i].vertices(), &s.x, &r, plane);
             let n = plane.normal();
             if is_closing(gap, &s, &ctx.scene.gravity, &n, ctx.h, 1e-9) {
@@ -766,9 +804,9 @@ impl StepFormulation for EcpContacts {
             // `scene_gaps_and_modes`' entry of the contact's body and plane, without its table.
             let (s, plane) = (&states[c.body], &scene.planes[c.plane]);
             let vertices = scene.bodies[c.body].shape.vertices();
-            let r = rotation_matrix(&s.q);
-            let gap = min_gap(vertices, &s.x, &r, plane);
-            let mode = contact_mode_at(vertices, (&s.x, &r), plane, MODE_TOLERANCE, &mut touching);
+            let r = self.rotations.of(c.body, &s.q);
+            let (gap, mode) =
+                gap_and_mode_at(vertices, (&s.x, &r), plane, MODE_TOLERANCE, &mut touching);
             let (a1, a2, pf) = (get(c.a1), get(c.a2), get(c.pf));
             out.push(ContactRecord {
                 a1: Vector3::new(a1[0], a1[1], a1[2]) + o,

@@ -45,6 +45,8 @@ pub struct ConvexHull {
     vertices: Vec<Vector3<f64>>,
     faces: Vec<Face>,
     volume: f64,
+    /// The largest distance of a vertex from the body origin ([`ConvexHull::radius`]).
+    radius: f64,
 }
 
 fn to_parry(v: &Vector3<f64>) -> PVec {
@@ -377,10 +379,12 @@ impl ConvexHull {
             });
         }
 
+        let radius = vertices.iter().map(|v| v.norm()).fold(0.0, f64::max);
         Ok(ConvexHull {
             vertices,
             faces: merged,
             volume,
+            radius,
         })
     }
 
@@ -403,6 +407,12 @@ impl ConvexHull {
     /// Volume enclosed by the hull (m³).
     pub fn volume(&self) -> f64 {
         self.volume
+    }
+
+    /// The largest distance of a vertex from the body origin (m): the hull's size, the scale
+    /// of the tolerance of "on a face" in the warm start's closest-point guesses.
+    pub fn radius(&self) -> f64 {
+        self.radius
     }
 
     /// A vertex maximising `dir·p` (body frame). Used for the first-step

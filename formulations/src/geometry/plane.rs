@@ -149,20 +149,52 @@ pub fn contact_mode(world_vertices: &[Vector3<f64>], plane: &HalfSpace, tol: f64
 /// (allocation-free once it has grown: the records of every step). The same mode.
 pub fn contact_mode_at(
     body_vertices: &[Vector3<f64>],
-    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    pose: (&Vector3<f64>, &Matrix3<f64>),
     plane: &HalfSpace,
     tol: f64,
     touching: &mut Vec<Vector3<f64>>,
 ) -> ContactMode {
+    gap_and_mode_at(body_vertices, pose, plane, tol, touching).1
+}
+
+/// [`min_gap`] and [`contact_mode_at`] together, from one pass over the vertices' world
+/// positions (a contact record needs both): the same numbers as the two calls.
+pub fn gap_and_mode_at(
+    body_vertices: &[Vector3<f64>],
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
     touching.clear();
+    let mut gap = f64::INFINITY;
     for v in body_vertices {
         // The world vertex of `world_vertices`, merged as `dedupe_points` merges.
         let p = x + r * v;
-        if plane.value(&p) <= tol && !touching.iter().any(|q| (q - p).norm() <= VERTEX_MERGE_TOL) {
+        let g = plane.value(&p);
+        gap = gap.min(g);
+        if g <= tol && !touching.iter().any(|q| merges(q, &p)) {
             touching.push(p);
         }
     }
-    mode_of_touching(touching, tol)
+    (gap, mode_of_touching(touching, tol))
+}
+
+/// Whether `q` and `p` merge as one vertex: `|q − p| ≤ VERTEX_MERGE_TOL`. A coordinate more than
+/// twice the tolerance apart decides it without the norm (the first one tested alone, the
+/// cheapest test): the computed norm is at least that coordinate's difference to within a
+/// relative 2⁻⁵², so it could not be within the tolerance.
+#[inline]
+fn merges(q: &Vector3<f64>, p: &Vector3<f64>) -> bool {
+    const APART: f64 = 2.0 * VERTEX_MERGE_TOL;
+    if (q.x - p.x).abs() > APART {
+        return false;
+    }
+    let d = q - p;
+    if d.amax() > APART {
+        return false;
+    }
+    d.norm() <= VERTEX_MERGE_TOL
 }
 
 /// The mode of the touching vertices `touching` (merged, in order): see [`contact_mode`].
@@ -271,6 +303,55 @@ mod tests {
         assert_eq!(mode(&t, (0.0, 10.0, 0.0), 0.0), ContactMode::Line);
         assert_eq!(mode(&t, (0.0, -10.0, 0.0), 0.0), ContactMode::Line);
         assert_eq!(mode(&t, (5.0, 10.0, 0.0), 0.0), ContactMode::Point);
+    }
+
+    /// One pass gives `min_gap` and `contact_mode_at`'s numbers: the desk and the T-bar at
+    /// poses that touch (patch, line, point), that do not, and a body with coincident vertices
+    /// and vertices a merge tolerance apart.
+    #[test]
+    fn gap_and_mode_in_one_pass_are_those_of_the_two_queries() {
+        let ground = HalfSpace::ground();
+        let p = Vector3::new(0.1, 0.2, 0.0);
+        let merged = [
+            p,
+            p,
+            p + Vector3::new(1e-12, 0.0, 0.0),
+            p + Vector3::new(3e-12, 0.0, 0.0),
+            p + Vector3::new(0.0, 1.5e-12, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+        ];
+        let mut touching = Vec::new();
+        let (gap, mode) = gap_and_mode_at(
+            &merged,
+            (&Vector3::zeros(), &Matrix3::identity()),
+            &ground,
+            TOL,
+            &mut touching,
+        );
+        assert_eq!(gap.to_bits(), 0f64.to_bits());
+        let low: Vec<_> = merged.iter().filter(|v| v.z <= TOL).copied().collect();
+        assert_eq!(touching, dedupe_points(&low, VERTEX_MERGE_TOL));
+        assert!(touching.len() >= 2 && touching.len() < low.len());
+        assert_eq!(mode, contact_mode(&merged, &ground, TOL));
+        for shape in [Shape::desk(), Shape::t_bar()] {
+            for (rpy, lift) in [
+                ((0.0, 0.0, 0.0), 0.0),
+                ((5.0, 0.0, 0.0), 0.0),
+                ((5.0, 3.0, 0.0), 0.0),
+                ((5.0, 3.0, 0.0), 1e-3),
+                ((0.0, 10.0, 20.0), -1e-8),
+            ] {
+                let r = rotation_matrix(&quat_from_rpy_deg(rpy.0, rpy.1, rpy.2));
+                let lowest = min_gap(shape.vertices(), &Vector3::zeros(), &r, &ground);
+                let x = Vector3::new(0.3, -0.1, lift - lowest);
+                let (gap, mode) =
+                    gap_and_mode_at(shape.vertices(), (&x, &r), &ground, TOL, &mut touching);
+                let expected = min_gap(shape.vertices(), &x, &r, &ground);
+                assert_eq!(gap.to_bits(), expected.to_bits(), "{rpy:?}");
+                let world = world_vertices(shape.vertices(), &x, &r);
+                assert_eq!(mode, contact_mode(&world, &ground, TOL), "{rpy:?}");
+            }
+        }
     }
 
     #[test]

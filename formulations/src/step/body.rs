@@ -45,7 +45,9 @@ pub fn predict_pose(
     z[mcp.range(q)].copy_from_slice(&[
         x_pred.x, x_pred.y, x_pred.z, q_pred[0], q_pred[1], q_pred[2], q_pred[3],
     ]);
-    let r_pred = quat_normalize(&q_pred).map_or(rotation_matrix(&s.q), |q| rotation_matrix(&q));
+    // The start's rotation only for a zero predicted quaternion (not computed otherwise).
+    let r_pred =
+        quat_normalize(&q_pred).map_or_else(|| rotation_matrix(&s.q), |q| rotation_matrix(&q));
     (x_pred + origin, r_pred)
 }
 
