@@ -75,10 +75,13 @@ pub struct EcpContacts {
     /// The span's warm start was extrapolated from the last two steps (`guess::extrapolate`):
     /// the first retry is then today's warm start.
     extrapolated: bool,
-    /// Storage of the guard of the extrapolated warm start (`warm_start`): the plain warm start
-    /// and `F` there.
-    plain: Vec<f64>,
+    /// Storage of the guard of the extrapolated warm start (`warm_start`): the start chosen and
+    /// `F` there (`StepFormulation::warm_start_value`), and `F` at the other start.
+    start: Vec<f64>,
+    start_f: Vec<f64>,
     f: Vec<f64>,
+    /// `start` and `start_f` are the last warm start's.
+    start_known: bool,
 }
 
 /// Storage reused across steps by methods that take `&self`: a clone starts empty, and `Debug`
@@ -108,8 +111,10 @@ impl EcpContacts {
             motion: Vec::new(),
             touching: Kept::default(),
             extrapolated: false,
-            plain: Vec::new(),
+            start: Vec::new(),
+            start_f: Vec::new(),
             f: Vec::new(),
+            start_known: false,
         }
     }
 
@@ -124,8 +129,10 @@ impl EcpContacts {
             motion: Vec::new(),
             touching: Kept::default(),
             extrapolated: false,
-            plain: Vec::new(),
+            start: Vec::new(),
+            start_f: Vec::new(),
             f: Vec::new(),
+            start_known: false,
         }
     }
 
@@ -659,6 +666,7 @@ impl StepFormulation for EcpContacts {
                 .filter(|older| self.same_contact_modes(ctx, mcp, older, it.last));
             Some(it)
         });
+        self.start_known = false;
         let Some(it) = smooth else {
             self.extrapolated = false;
             self.warm_start_from(ctx, mcp, z, None);
@@ -667,28 +675,41 @@ impl StepFormulation for EcpContacts {
         // The guard: the extrapolated start only when its Fischer–Burmeister residual is below
         // that of the plain warm start (two evaluations of `F`): near an event the extrapolation
         // can land far from the solution (the stress suite's 023_room_corner, Newton: 670
-        // iterations without the guard, 133 with it, 131 with the plain start).
-        let mut plain = std::mem::take(&mut self.plain);
+        // iterations without the guard, 133 with it, 131 with the plain start). `F` at the start
+        // chosen is kept for the backend (`warm_start_value`).
+        let mut start = std::mem::take(&mut self.start);
+        let mut start_f = std::mem::take(&mut self.start_f);
         let mut f = std::mem::take(&mut self.f);
-        plain.clear();
-        plain.extend_from_slice(it.last);
-        self.warm_start_from(ctx, mcp, &mut plain, None);
-        f.resize(z.len(), 0.0);
-        mcp.evaluate(&plain, &mut f);
-        let plain_merit = fb_residual(&plain, &f, mcp.lower(), mcp.upper());
+        start.clear();
+        start.extend_from_slice(it.last);
+        self.warm_start_from(ctx, mcp, &mut start, None);
+        start_f.resize(z.len(), 0.0);
+        mcp.evaluate(&start, &mut start_f);
+        let plain_merit = fb_residual(&start, &start_f, mcp.lower(), mcp.upper());
         self.warm_start_from(ctx, mcp, z, Some(it));
+        f.resize(z.len(), 0.0);
         mcp.evaluate(z, &mut f);
         let merit = fb_residual(z, &f, mcp.lower(), mcp.upper());
         self.extrapolated = merit < plain_merit;
-        if !self.extrapolated {
-            z.copy_from_slice(&plain);
+        if self.extrapolated {
+            start.copy_from_slice(z);
+            std::mem::swap(&mut start_f, &mut f);
+        } else {
+            z.copy_from_slice(&start);
         }
-        self.plain = plain;
+        self.start = start;
+        self.start_f = start_f;
         self.f = f;
+        self.start_known = true;
     }
 
     fn warm_start_extrapolated(&self) -> bool {
         self.extrapolated
+    }
+
+    fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
+        self.start_known
+            .then_some((self.start.as_slice(), self.start_f.as_slice()))
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a
