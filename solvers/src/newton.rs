@@ -552,20 +552,11 @@ pub struct NewtonSolver {
     /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
     /// Jacobian pattern or the bound kinds change, and by every run until it ends converged.
     kept_lu: bool,
-    /// Solves in a row that kept the LU without a step (0 iterations, [`KEPT_LU_IDLE`]).
-    kept_lu_idle: u32,
     /// When the kept LU is tried ([`NewtonSettings::chord_across_solves`]).
     kept_lu_gate: KeptLuGate,
     /// The last run took an iteration: the next one evaluates `J` with `F` at its start.
     last_iterated: bool,
 }
-
-/// Most solves in a row without a step (0 iterations) that keep the LU: an LU kept through
-/// many unrefined steps is an old `H` (A1's sliding box, whose steps are returned as their
-/// extrapolated warm starts in 0 iterations up to its stop: a chord step there on the LU of 32
-/// steps before ended at 2.6e-11 after 8 iterations where a fresh one takes 1,
-/// `docs/latency.md#the-a1-step-under-2-µs-the-guards-f-handed-over-branch-wip-a1two-issue-18`).
-const KEPT_LU_IDLE: u32 = 2;
 
 /// Most solves the kept LU waits after tries that did not pay ([`KeptLuGate`]).
 const KEPT_LU_MAX_WAIT: u32 = 64;
@@ -624,7 +615,6 @@ impl NewtonSolver {
             in_continuation: false,
             budget: None,
             kept_lu: false,
-            kept_lu_idle: 0,
             kept_lu_gate: KeptLuGate::default(),
             last_iterated: true,
         }
@@ -2166,16 +2156,7 @@ impl NewtonSolver {
         );
         if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
             // Converged on its last LU: kept for the next solve's first iteration.
-            let idle = if iterations == 0 {
-                self.kept_lu_idle + 1
-            } else {
-                0
-            };
-            self.kept_lu = s.chord_across_solves.is_some()
-                && chord_lu
-                && one_lu_step
-                && idle <= KEPT_LU_IDLE;
-            self.kept_lu_idle = idle;
+            self.kept_lu = s.chord_across_solves.is_some() && chord_lu && one_lu_step;
             Ok(result)
         } else {
             Err(SolveError::NotConverged {

@@ -360,39 +360,19 @@ impl Guess<'_> {
 /// step's values miss the solution by O(h), the extrapolations by O(h²) and O(h³): fewer Newton
 /// iterations where the convergence is quadratic
 /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
-///
-/// `it.ahead = a` steps after `z_k` (after steps passed over, [`Iterates::ahead`]), the same
-/// polynomials at `k + a`: `z_k + a Δ` and `z_k + a Δ + a (a + 1) / 2 Δ²`, with `Δ = z_k − z_{k−1}`
-/// and `Δ² = z_k − 2 z_{k−1} + z_{k−2}` (`a = 1`: the two above, computed as written there).
 pub(crate) fn extrapolate(
     z: &mut [f64],
     range: std::ops::Range<usize>,
     it: &Iterates<'_>,
     nonnegative: bool,
 ) {
-    for j in range {
-        let v = extrapolated(it, j);
-        z[j] = if nonnegative { v.max(0.0) } else { v };
-    }
-}
-
-/// Component `j` of [`extrapolate`]'s polynomial, not clamped.
-pub(crate) fn extrapolated(it: &Iterates<'_>, j: usize) -> f64 {
     let (before, last) = (it.before, it.last);
-    if it.ahead <= 1 {
-        return match it.older {
+    for j in range {
+        let v = match it.older {
             Some(older) => 3.0 * (last[j] - before[j]) + older[j],
             None => 2.0 * last[j] - before[j],
         };
-    }
-    let a = it.ahead as f64;
-    let rate = last[j] - before[j];
-    match it.older {
-        Some(older) => {
-            let change = rate - (before[j] - older[j]);
-            last[j] + a * rate + 0.5 * a * (a + 1.0) * change
-        }
-        None => last[j] + a * rate,
+        z[j] = if nonnegative { v.max(0.0) } else { v };
     }
 }
 

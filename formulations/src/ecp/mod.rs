@@ -45,7 +45,7 @@ use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Iterates, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
 };
-use guess::{Guess, closest_point_guess_into, extrapolate, extrapolated};
+use guess::{Guess, closest_point_guess_into, extrapolate};
 pub use layout::ContactVars;
 use layout::{EcpBody, Layout};
 use union::union_pieces;
@@ -61,11 +61,10 @@ pub const GEOMETRY_SCALE: f64 = 1.0;
 /// See `docs/decisions.md#recentred-origin-for-far-scenes`.
 pub const RECENTRE_DISTANCE: f64 = 100.0;
 
-/// The Fischer–Burmeister residual, relative to `max(1, ‖z‖∞)`, below which an extrapolated
-/// warm start is taken without the guard's comparison with the plain one: a solution to
-/// round-off (Newton's 0-iteration test is a natural residual of `1e-3 × 1e-10`).
+/// The Fischer–Burmeister residual `‖Φ(z₀)‖₂`, relative to `max(1, ‖z₀‖∞)`, at or below which
+/// an extrapolated warm start is taken without the guard's comparison with the plain one: a
+/// solution to round-off (Newton returns a start of natural residual `1e-3 × 1e-10` as it is).
 const EXACT_START: f64 = 1e-13;
-const SIGMA_GUARD: bool = true;
 
 /// The hull and union formulations (module documentation).
 #[derive(Clone, Debug)]
@@ -278,29 +277,6 @@ impl EcpContacts {
         })
     }
 
-    /// Whether the extrapolation `it.ahead > 1` steps past the last smooth step keeps every
-    /// contact's mode: the steps passed over in the mode of the last smooth step
-    /// (`same_contact_modes`), and each closed contact's extrapolated `p_n` closed and σ in the
-    /// same friction mode (sliding or sticking). A friction mode change (the sliding box's stop,
-    /// σ → 0) is ill-conditioned: there a start from the last step's solution, not from steps
-    /// further back, keeps the run within 1e-12 of the refined one.
-    fn keeps_modes_ahead(&self, ctx: &StepContext<'_>, mcp: &BlockMcp, it: &Iterates<'_>) -> bool {
-        if it.ahead <= 1 {
-            return true;
-        }
-        if !self.same_contact_modes(ctx, mcp, it.last, it.current) {
-            return false;
-        }
-        let sliding = 1e-9 * ctx.scene.gravity.norm() * ctx.h;
-        self.layout.contacts.iter().all(|c| {
-            let open_pn = open_impulse(ctx.scene, c.body, ctx.h);
-            let (pn, sigma) = (mcp.range(c.pn).start, mcp.range(c.sigma).start);
-            it.last[pn] <= open_pn
-                || (extrapolated(it, pn) > open_pn
-                    && (!SIGMA_GUARD || (extrapolated(it, sigma) > sliding) == (it.last[sigma] > sliding)))
-        })
-    }
-
     /// The warm start of [`StepFormulation::warm_start`], extrapolated from the iterates
     /// `smooth` when given.
     fn warm_start_from(
@@ -314,7 +290,7 @@ impl EcpContacts {
         let o = l.origin;
         if let Some(it) = &smooth {
             // From the last step's iterate (the same start however often it is asked for).
-            z.copy_from_slice(it.current);
+            z.copy_from_slice(it.last);
             for body in &l.bodies {
                 extrapolate(z, mcp.range(body.nu), it, false);
             }
@@ -685,9 +661,7 @@ impl StepFormulation for EcpContacts {
         // left PATH short of the tolerance on the union desk's step 78 (tests/union.rs).
         let history = ctx.history.filter(|_| !self.union);
         let smooth = history.and_then(|mut it| {
-            if !self.same_contact_modes(ctx, mcp, it.before, it.last)
-                || !self.moving(ctx, mcp, &it)
-                || !self.keeps_modes_ahead(ctx, mcp, &it)
+            if !self.same_contact_modes(ctx, mcp, it.before, it.last) || !self.moving(ctx, mcp, &it)
             {
                 return None;
             }
@@ -710,7 +684,7 @@ impl StepFormulation for EcpContacts {
         // chosen is kept for the backend (`warm_start_value`).
         // An extrapolated start that solves the step to round-off (A1's constant deceleration)
         // is taken without the plain one (its warm start, `F` and residual, ≈ 6 k instructions
-        // on A1): the plain start, a step's change away, is not below it.
+        // on A1): the plain start, a step's change of `ν` away (`moving`), is not below it.
         let mut start = std::mem::take(&mut self.start);
         let mut start_f = std::mem::take(&mut self.start_f);
         let mut f = std::mem::take(&mut self.f);
@@ -719,10 +693,11 @@ impl StepFormulation for EcpContacts {
         self.warm_start_from(ctx, mcp, z, Some(it));
         mcp.evaluate(z, &mut f);
         let merit = fb_residual(z, &f, mcp.lower(), mcp.upper());
-        self.extrapolated = merit <= EXACT_START * z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
+        let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
+        self.extrapolated = merit <= EXACT_START * size;
         if !self.extrapolated {
             start.clear();
-            start.extend_from_slice(it.current);
+            start.extend_from_slice(it.last);
             self.warm_start_from(ctx, mcp, &mut start, None);
             mcp.evaluate(&start, &mut start_f);
             let plain_merit = fb_residual(&start, &start_f, mcp.lower(), mcp.upper());
@@ -764,7 +739,7 @@ impl StepFormulation for EcpContacts {
         // After an extrapolated warm start, first the warm start of a step that is not smooth.
         let attempt = match (self.extrapolated, ctx.history) {
             (true, Some(it)) if attempt == 0 => {
-                z.copy_from_slice(it.current);
+                z.copy_from_slice(it.last);
                 self.warm_start_from(ctx, mcp, z, None);
                 return true;
             }

@@ -29,12 +29,6 @@ use crate::scene::{BodyState, Scene, SceneError, initial_states};
 /// iterations against 1, `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
 const SMOOTH_ITERATIONS: usize = 5;
 
-/// The most steps ahead of the last smooth step kept that a warm start extrapolates
-/// ([`super::history::Iterates::ahead`]): steps returned as their extrapolated warm start in 0
-/// iterations are passed over, up to `MAX_AHEAD − 1` in a row
-/// (`docs/latency.md#the-a1-step-under-2-µs-the-guards-f-handed-over-branch-wip-a1two-issue-18`).
-const MAX_AHEAD: usize = 64;
-
 /// The default iteration budget of the first solve from each start of a step other than an
 /// extrapolated warm start ([`Simulation::set_start_budget`]): a start that has not solved the
 /// step within it is left for the next start, and taken again with the backend's full limits
@@ -1052,19 +1046,11 @@ impl Simulation {
         let retried = (solution.summary.counters)
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
-        // A step returned as its extrapolated warm start (0 iterations) is passed over: the
-        // next span extrapolates one step further from the steps kept.
-        let direct = self.extrapolates(solver) && whole && method == StepMethod::Direct && !retried;
-        let iterations = solution.summary.iterations;
-        if direct && (1..=SMOOTH_ITERATIONS).contains(&iterations) {
+        let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
+        if self.extrapolates(solver) && whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
+            let iterations = solution.summary.iterations;
             self.kept.history.push(&self.z, origin, iterations);
-        } else if direct
-            && iterations == 0
-            && self.formulation.warm_start_extrapolated()
-            && self.kept.history.gap() + 1 < MAX_AHEAD
-        {
-            self.kept.history.skip(&self.z);
         } else {
             self.kept.history.clear();
         }

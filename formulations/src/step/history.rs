@@ -11,14 +11,8 @@ pub struct Iterates<'a> {
     pub older: Option<&'a [f64]>,
     /// `z_{k−1}`.
     pub before: &'a [f64],
-    /// `z_k`: the last smooth step's.
+    /// `z_k`: what `z` holds when the span's warm start is first asked for.
     pub last: &'a [f64],
-    /// What `z` holds when the span's warm start is first asked for: the last step's iterate,
-    /// `last` itself unless steps were taken since `z_k` ([`Iterates::ahead`]).
-    pub current: &'a [f64],
-    /// How many steps after `z_k`'s this span is: 1, or more after steps returned as their
-    /// extrapolated warm start in 0 iterations, which are not kept (`History::skip`).
-    pub ahead: usize,
 }
 
 /// How many steps' iterates are kept.
@@ -37,10 +31,6 @@ pub(super) struct History {
     iterations: [usize; KEPT],
     next: usize,
     streak: usize,
-    /// Steps since the last kept one, each returned as its extrapolated warm start (`skip`),
-    /// and the last one's iterate.
-    gap: usize,
-    current: Vec<f64>,
 }
 
 impl History {
@@ -48,31 +38,11 @@ impl History {
     /// parameter or data block set, a reset, a rebuild.
     pub(super) fn clear(&mut self) {
         self.streak = 0;
-        self.gap = 0;
-    }
-
-    /// Steps past `z`, the iterate of a step returned as its extrapolated warm start in 0
-    /// iterations: not kept (an unrefined start extrapolated again carries its error into the
-    /// next, `docs/latency.md#the-a1-step-where-its-time-goes-branch-wip-a1step-issue-18`); the
-    /// next span extrapolates one step further from the steps kept.
-    pub(super) fn skip(&mut self, z: &[f64]) {
-        self.gap += 1;
-        self.current.clear();
-        self.current.extend_from_slice(z);
-    }
-
-    /// Steps taken since the last one kept ([`History::skip`]).
-    pub(super) fn gap(&self) -> usize {
-        self.gap
     }
 
     /// Keeps `z`, the iterate after the read-out of a step solved directly from its warm start
     /// in `iterations`, in coordinates relative to `origin`.
     pub(super) fn push(&mut self, z: &[f64], origin: Vector3<f64>, iterations: usize) {
-        // The kept iterates are a step apart: after skipped steps they start again.
-        if self.gap > 0 {
-            self.clear();
-        }
         let slot = self.next;
         self.z[slot].clear();
         self.z[slot].extend_from_slice(z);
@@ -108,18 +78,10 @@ impl History {
         if !whole_step {
             return None;
         }
-        let last = at(0)?;
-        let current = if self.gap > 0 {
-            (self.current.len() == dim).then_some(self.current.as_slice())?
-        } else {
-            last
-        };
         Some(Iterates {
             older: at(2),
             before: at(1)?,
-            last,
-            current,
-            ahead: self.gap + 1,
+            last: at(0)?,
         })
     }
 }
