@@ -33,6 +33,17 @@ pub trait Mcp {
         self.evaluate(z, f);
         self.jacobian(z, values);
     }
+    /// `F(z)` when the problem already holds it for this very `z` (the same bits), as
+    /// [`Mcp::evaluate`] would write it, so that a backend may take it instead of evaluating:
+    /// a time step's warm start evaluates `F` at the start it chooses (the extrapolated warm
+    /// start's guard), and the backend's first evaluation is at that start
+    /// (`docs/latency.md#the-a1-step-under-2-µs-the-guards-f-handed-over-branch-wip-a1two-issue-18`).
+    /// `None` (the default): evaluate. A wrapper that changes `F` (scaled rows) must not
+    /// forward it.
+    fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
+        let _ = z;
+        None
+    }
     /// Human-readable name of component `i`, for diagnostics.
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")

@@ -151,6 +151,7 @@ impl SimulationBuilder {
             warm_start: WarmStart::default(),
             start_budget: Some(START_BUDGET),
             kept: Kept::default(),
+            start_value: false,
         };
         sim.start()?;
         Ok(sim)
@@ -181,6 +182,9 @@ pub struct Simulation {
     start_budget: Option<usize>,
     /// Storage reused from step to step.
     kept: Kept,
+    /// The formulation's `F` at the warm start ([`StepFormulation::warm_start_value`]) still
+    /// holds: no data, parameter or state set and no step begun since the span was prepared.
+    start_value: bool,
 }
 
 /// The warm start of a step ([`Simulation::set_warm_start`]).
@@ -267,6 +271,9 @@ pub struct StepProblem<'a> {
     /// The scene's `friction` data block (μ first), when the problem reads it: the friction
     /// family ([`Mcp::friction_family`]) scales that μ.
     friction: Option<DataId>,
+    /// The warm start and `F` there, when the formulation evaluated it
+    /// ([`StepFormulation::warm_start_value`]) on the step problem as it still is.
+    start: Option<(&'a [f64], &'a [f64])>,
 }
 
 impl StepProblem<'_> {
@@ -324,6 +331,15 @@ impl Mcp for StepProblem<'_> {
     }
     fn evaluate_with_jacobian(&self, z: &[f64], f: &mut [f64], values: &mut [f64]) {
         self.mcp.evaluate_with_jacobian(z, f, values)
+    }
+    /// `F` at the warm start, for that start's bits only.
+    fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
+        let (start, f) = self.start?;
+        let same = start.len() == z.len()
+            && (start.iter())
+                .zip(z)
+                .fold(true, |same, (a, b)| same & (a.to_bits() == b.to_bits()));
+        same.then_some(f)
     }
     fn component_name(&self, i: usize) -> String {
         self.mcp.component_name(i)
@@ -412,6 +428,7 @@ impl Simulation {
     /// The starting point of the first step for the current states.
     fn start(&mut self) -> Result<(), SceneError> {
         self.kept.history.clear();
+        self.start_value = false;
         self.z.iter_mut().for_each(|v| *v = 0.0);
         let ctx = StepContext {
             scene: &self.scene,
@@ -433,6 +450,7 @@ impl Simulation {
     /// the initial state changed); data carry over by name, and, when `carry_z`, the iterate
     /// by variable-block name.
     fn rebuild(&mut self, carry_z: bool) -> Result<(), SceneError> {
+        self.start_value = false;
         let built = assemble(
             &self.scene,
             self.formulation.as_mut(),
@@ -597,6 +615,7 @@ impl Simulation {
             Some(q) if finite => {
                 self.states[b] = BodyState { q, ..state };
                 self.kept.history.clear();
+                self.start_value = false;
                 Ok(())
             }
             _ => Err(SceneError::Parameter {
@@ -631,6 +650,7 @@ impl Simulation {
         // The step problem no longer holds the last step's data.
         self.last = None;
         self.kept.history.clear();
+        self.start_value = false;
         Ok(())
     }
 
@@ -661,6 +681,7 @@ impl Simulation {
         self.mcp.set_data(d, values)?;
         self.last = None;
         self.kept.history.clear();
+        self.start_value = false;
         Ok(())
     }
 
@@ -682,6 +703,7 @@ impl Simulation {
     /// Once per step, before its checkpoint: the formulation's [`StepFormulation::begin_step`],
     /// with one rebuild when it asks for it.
     fn begin_step(&mut self) -> Result<(), SceneError> {
+        self.start_value = false;
         for pass in 0..2 {
             let ctx = StepContext {
                 scene: &self.scene,
@@ -731,8 +753,10 @@ impl Simulation {
             (start, t0, h),
             self.z.len(),
         );
+        self.start_value = false;
         self.formulation.update_data(&ctx, &mut self.mcp)?;
         self.formulation.warm_start(&ctx, &self.mcp, &mut self.z);
+        self.start_value = true;
         Ok(())
     }
 
@@ -764,6 +788,10 @@ impl Simulation {
             structure: self.formulation.structure(),
             scales: self.formulation.scales(),
             friction: self.handles.friction,
+            start: self
+                .start_value
+                .then(|| self.formulation.warm_start_value())
+                .flatten(),
         }
     }
 

@@ -146,6 +146,13 @@ pub trait StepFormulation: Any + Send {
     fn warm_start_extrapolated(&self) -> bool {
         false
     }
+    /// The start the last [`StepFormulation::warm_start`] wrote and `F` there, when it evaluated
+    /// `F` at that start on the step problem it was given (the extrapolated warm start's guard
+    /// does): the driver hands it to the backend ([`ecp_model::Mcp::known_value`]), which then
+    /// skips that evaluation. The default is `None`.
+    fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
+        None
+    }
     /// A deterministic second start after a failed solve: modify `z` (as the previous attempt
     /// left it) and return `true` to have the span solved again, `false` when there is no
     /// further start. `attempt` counts from 0.
