@@ -166,6 +166,8 @@ fn conic_settings(o: &BackendOptions, sets: &[String]) -> Result<ConicSettings, 
             "stagnation_window" => s.stagnation_window = n()?,
             "warm_qp" => s.warm_qp = b()?,
             "reuse_qp" => s.reuse_qp = b()?,
+            "early_finish_after" => s.early_finish_after = n()?,
+            "early_finish_iterations" => s.early_finish_iterations = n()?,
             _ => return Err(format!("unknown conic setting {name}")),
         }
     }

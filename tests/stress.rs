@@ -216,7 +216,6 @@ fn fast_subset_conic() {
 /// With the default fallbacks every one of them is solved (`regressions_with_default_settings_early`).
 const OPEN: &[(&str, &str)] = &[
     ("s20261212_022_v_trough", "conic"),
-    ("s20261212_061_v_trough", "conic"),
 ];
 
 /// The regression scenes of `tests/stress_regressions/` (every generated scene that ever

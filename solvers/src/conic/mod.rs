@@ -144,8 +144,9 @@ pub struct ConicSettings {
     /// its iteration limit (exact mode only), from the fixed point's best iterate, with the Newton
     /// backend's default safeguards (its smoothing continuation included); when that does not
     /// reach the tolerance, as many again from the warm start (the best iterate can lie on
-    /// another active set, `docs/latency.md`, wip-conicheld); reported in the counter
-    /// `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the conic
+    /// another active set, `docs/latency.md`, wip-conicheld); both starts are first tried with
+    /// the plain and non-monotone iterations alone (`docs/latency.md`, wip-conicslow2); reported
+    /// in the counter `"newton_polish"`. Default 50 (`docs/stress.md#after-the-robustness-work`); 0: the conic
     /// iteration alone must converge.
     pub newton_polish: usize,
     /// Hand the fixed point's iterate to the semismooth-Newton finish once its natural residual
@@ -160,6 +161,19 @@ pub struct ConicSettings {
     pub newton_handoff: f64,
     /// Newton iterations of one handoff attempt. Default 4.
     pub newton_handoff_iterations: usize,
+    /// Once this many outer iterations in a row have not improved the best residual by 10 %
+    /// (the stagnation test's count, [`ConicSettings::stagnation_window`]), try the local
+    /// Newton finish ([`NewtonFinish::Local`], at most
+    /// [`ConicSettings::early_finish_iterations`] iterations) once, from the fixed point's best
+    /// iterate and then from the warm start, and end the solve with the first that reaches the
+    /// tolerance; when neither does, the fixed point goes on as without it. A fixed point that
+    /// stalls this early rarely recovers: on the held-out seeds' union slides it sat at a point
+    /// of residual 1e-2 that is not the step's solution for the whole window of 20 QPs
+    /// (`docs/latency.md`, wip-conicslow2). Needs [`ConicSettings::newton_polish`] > 0; 0 turns
+    /// it off. Default 3.
+    pub early_finish_after: usize,
+    /// Newton iterations of each early finish ([`ConicSettings::early_finish_after`]). Default 10.
+    pub early_finish_iterations: usize,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -241,6 +255,8 @@ impl Default for ConicSettings {
             newton_polish: 50,
             newton_handoff: 0.0,
             newton_handoff_iterations: 4,
+            early_finish_after: 3,
+            early_finish_iterations: 10,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -330,20 +346,21 @@ impl ConicSolver {
         Cow::Owned(s)
     }
 
-    /// The semismooth-Newton finish from `z` with at most `max_iterations` iterations: with the
-    /// Newton backend's default safeguards after a stagnated fixed point, the plain iteration
-    /// alone for a handoff: its solution or best point (`None` when Newton
-    /// refuses the problem); its evaluations are added to `run`, its iterations to the handoff's
-    /// count (`handoff`) or the polish's.
+    /// The semismooth-Newton finish (`finish`) from `z` with at most `max_iterations`
+    /// iterations per run: its solution or best point (`None` when Newton refuses the
+    /// problem); its evaluations are added to `run`, its iterations to the handoff's count or
+    /// the polish's.
     fn newton_finish(
         &self,
         mcp: &dyn Mcp,
         z: &[f64],
         max_iterations: usize,
-        handoff: bool,
+        finish: NewtonFinish,
         run: &mut Run,
     ) -> Option<Solution> {
         let defaults = NewtonSettings::default();
+        let handoff = finish == NewtonFinish::Handoff;
+        let safeguarded = finish == NewtonFinish::Safeguarded;
         let mut newton = NewtonSolver::new(NewtonSettings {
             tolerance: self.settings.tolerance,
             max_iterations,
@@ -354,15 +371,30 @@ impl ConicSolver {
             // A failed polish falls back on the fixed point's own answer: no last restart.
             complementary_restart_from_best: None,
             friction_continuation: None,
-            // The handoff is a local finish: the plain iteration only. Its safeguards for hard
-            // steps (the smoothing continuation, the damped restart) would run on every step
-            // whose few local iterations fall short, at many times a QP's cost; the fixed point
-            // goes on instead.
-            smoothing: if handoff { None } else { defaults.smoothing },
-            damped_restart: if handoff {
-                None
+            // The handoff and the local finish are local: the plain iteration only. Its
+            // safeguards for hard steps (the smoothing continuation, the damped restart) would
+            // run on every step whose few local iterations fall short, at many times a QP's
+            // cost; the fixed point, or the next start, goes on instead.
+            smoothing: if safeguarded {
+                defaults.smoothing
             } else {
+                None
+            },
+            damped_restart: if safeguarded {
                 defaults.damped_restart
+            } else {
+                None
+            },
+            // The local finish is exactly the first attempts of the safeguarded one (the plain
+            // and the non-monotone iteration, the early complementary restart), so where it
+            // converges the safeguarded finish from the same start returns the same point.
+            // Without the continuations the complementary restart runs after the non-monotone
+            // iteration, where the safeguarded finish runs its early one (before the first
+            // continuation): at the early one's distance.
+            complementary_restart: if finish == NewtonFinish::Local {
+                defaults.early_complementary_restart
+            } else {
+                defaults.complementary_restart
             },
             ..defaults
         });
@@ -379,6 +411,23 @@ impl ConicSolver {
         run.f_evals += sol.summary.f_evals;
         Some(sol)
     }
+}
+
+/// Which semismooth-Newton finish [`ConicSolver::newton_finish`] runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum NewtonFinish {
+    /// [`ConicSettings::newton_handoff`]: the plain iteration with its restarts from the start,
+    /// no smoothing continuation, no damped restart.
+    Handoff,
+    /// The first attempts of the Newton backend's solve: the plain iteration (with its
+    /// minimum-norm restart), the non-monotone plain iteration and, near a solution, the early
+    /// complementary restart; where they converge, the same point as
+    /// [`NewtonFinish::Safeguarded`] from the same start, at a fraction of the cost where they
+    /// do not (a safeguarded finish that fails spends 200–600 iterations).
+    Local,
+    /// The Newton backend's default safeguards (its smoothing continuation and damped and
+    /// complementary restarts included).
+    Safeguarded,
 }
 
 /// Book-keeping of one solve.
@@ -535,6 +584,7 @@ impl McpSolver for ConicSolver {
         // anchor is centred on `warm_loads`).
         let mut have_loads = false;
         let mut handoff_tried = false;
+        let mut early_tried = false;
         // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
         let mut have_answer = false;
         // One reuse per solve at most: where the previous answer's active set is not the new
@@ -746,7 +796,8 @@ impl McpSolver for ConicSolver {
                     .settings
                     .newton_handoff_iterations
                     .min(self.settings.newton_polish);
-                if let Some(sol) = self.newton_finish(mcp, z, budget, true, &mut run)
+                if let Some(sol) =
+                    self.newton_finish(mcp, z, budget, NewtonFinish::Handoff, &mut run)
                     && sol.summary.residual <= self.settings.tolerance
                 {
                     z.copy_from_slice(&sol.z);
@@ -768,6 +819,39 @@ impl McpSolver for ConicSolver {
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
                     termination = Termination::Stagnated;
+                    break;
+                }
+            }
+            // The early finish (`ConicSettings::early_finish_after`): from the best iterate, then
+            // from the warm start, once per solve.
+            if !early_tried
+                && self.settings.early_finish_after > 0
+                && self.settings.newton_polish > 0
+                && since_improvement >= self.settings.early_finish_after
+            {
+                early_tried = true;
+                let budget = self
+                    .settings
+                    .early_finish_iterations
+                    .min(self.settings.newton_polish);
+                let from_warm = z0 != best_z.as_slice();
+                for start in [Some(&best_z[..]), from_warm.then_some(z0)]
+                    .into_iter()
+                    .flatten()
+                {
+                    if let Some(sol) =
+                        self.newton_finish(mcp, start, budget, NewtonFinish::Local, &mut run)
+                        && sol.summary.residual <= self.settings.tolerance
+                    {
+                        z.copy_from_slice(&sol.z);
+                        f_at_z = false;
+                        best_residual = sol.summary.residual;
+                        termination = Termination::Converged;
+                        break;
+                    }
+                }
+                if termination == Termination::Converged {
+                    best_z.copy_from_slice(z);
                     break;
                 }
             }
@@ -834,42 +918,50 @@ impl McpSolver for ConicSolver {
                 f_at_z = false;
             }
             // Only a fixed point that stagnated or ran out of iterations is finished by Newton;
-            // a failed subproblem is reported as such.
+            // a failed subproblem is reported as such. From the best iterate, and when that
+            // falls short from the warm start: the fixed point's best iterate can lie on another
+            // active set than the step's solution, where Newton's local convergence fails, and
+            // the warm start, the stepper's prediction, may be on the right one
+            // (`153_room_corner` of seed 20261201, step 186: an arch spinning flat on the floor on
+            // four coplanar vertices; the QPs tip it onto two or three of them and the fixed
+            // point cycles between such points, residuals 1.4e-3–7.4e-3; Newton from the best
+            // of them stops at 4.9e-6, from the warm start, face contact kept, it converges in 3
+            // iterations). Both starts first with the local finish, then both with the
+            // safeguarded one: a safeguarded finish from the best iterate that fails costs
+            // 200–600 Newton iterations where the warm start's local finish takes 4–10
+            // (`056_union_slide` of seed 20261219, `061_v_trough` of seed 20261226,
+            // `docs/latency.md`, wip-conicslow2). Where the local finish converges it returns
+            // the safeguarded finish's point, so a step changes only where the safeguards from
+            // the best iterate would have solved it and the warm start's local finish does.
             if matches!(
                 termination,
                 Termination::Stagnated | Termination::MaxIterations
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let polished =
-                    self.newton_finish(mcp, z, self.settings.newton_polish, false, &mut run);
-                if let Some(sol) = polished {
-                    if sol.summary.residual < best_residual {
-                        z.copy_from_slice(&sol.z);
-                        f_at_z = false;
-                        best_residual = sol.summary.residual;
-                    }
-                    if best_residual <= self.settings.tolerance {
-                        termination = Termination::Converged;
-                    }
-                }
-                // The fixed point's best iterate can lie on another active set than the step's
-                // solution, where Newton's local convergence fails; the warm start, the stepper's
-                // prediction, may be on the right one. `153_room_corner` of seed 20261201, step
-                // 186: an arch spinning flat on the floor on four coplanar vertices; the QPs tip
-                // it onto two or three of them and the fixed point cycles between such points
-                // (residuals 1.4e-3–7.4e-3); Newton from the best of them stops at 4.9e-6, from
-                // the warm start (face contact kept) it converges in 3 iterations.
-                if termination != Termination::Converged && z0 != best_z.as_slice() {
-                    let polished =
-                        self.newton_finish(mcp, z0, self.settings.newton_polish, false, &mut run);
-                    if let Some(sol) = polished
-                        && sol.summary.residual < best_residual
+                let from_warm = z0 != best_z.as_slice();
+                'finish: for finish in [NewtonFinish::Local, NewtonFinish::Safeguarded] {
+                    for start in [Some(&best_z[..]), from_warm.then_some(z0)]
+                        .into_iter()
+                        .flatten()
                     {
-                        z.copy_from_slice(&sol.z);
-                        best_residual = sol.summary.residual;
+                        let polished = self.newton_finish(
+                            mcp,
+                            start,
+                            self.settings.newton_polish,
+                            finish,
+                            &mut run,
+                        );
+                        if let Some(sol) = polished
+                            && sol.summary.residual < best_residual
+                        {
+                            z.copy_from_slice(&sol.z);
+                            f_at_z = false;
+                            best_residual = sol.summary.residual;
+                        }
                         if best_residual <= self.settings.tolerance {
                             termination = Termination::Converged;
+                            break 'finish;
                         }
                     }
                 }
