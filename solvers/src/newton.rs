@@ -47,6 +47,7 @@ use ecp_model::{
 
 use crate::normal_equations::NormalEquations;
 
+mod active_set;
 mod complementary;
 mod min_norm;
 mod profile;
@@ -290,6 +291,10 @@ pub struct NewtonSettings {
     /// would otherwise fail, so every step solved without it is unchanged. `None` turns it off
     /// (the conic backend's Newton finish). Default `Some(3e4)`.
     pub complementary_restart_from_best: Option<f64>,
+    /// After the plain iteration from `z0` failed, up to this many active-set Newton steps on
+    /// the natural map from `z0` (`newton/active_set.rs`), then the plain iteration from the
+    /// best point they met, before the other attempts. `None`: off.
+    pub active_set_restart: Option<usize>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -388,6 +393,7 @@ impl Default for NewtonSettings {
             complementary_restart: Some(1e3),
             early_complementary_restart: Some(3e4),
             complementary_restart_from_best: Some(3e4),
+            active_set_restart: Some(20),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
@@ -1119,7 +1125,22 @@ impl NewtonSolver {
         let limit = self.settings.max_iterations;
         self.settings.max_iterations = budget.min(limit);
         self.attempt = 0;
-        let result = self.solve_once(mcp, z0);
+        let mut result = self.solve_once(mcp, z0);
+        if let Err(SolveError::NotConverged { best }) = &result
+            && let Some(steps) = self.settings.active_set_restart
+        {
+            // Within the budget too: on a start whose branches the plain iteration cannot
+            // sort out, the active-set steps are the cheap way off it, before the driver
+            // moves on to its next start (`newton/active_set.rs`).
+            let mut spent = best.summary.iterations;
+            let mut best = best.clone();
+            if let Some(done) = self.active_set_attempt(mcp, z0, steps, &mut spent, &mut best) {
+                result = done;
+            } else {
+                best.summary.iterations = spent;
+                result = Err(SolveError::NotConverged { best });
+            }
+        }
         self.settings.max_iterations = limit;
         result
     }
@@ -1145,6 +1166,11 @@ impl NewtonSolver {
             r => return r,
         };
         let mut spent = best.summary.iterations;
+        if let Some(steps) = self.settings.active_set_restart
+            && let Some(done) = self.active_set_attempt(mcp, z0, steps, &mut spent, &mut best)
+        {
+            return done;
+        }
         let nonmonotone = Attempt {
             profile: 4,
             runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,

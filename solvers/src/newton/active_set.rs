@@ -1,0 +1,169 @@
+//! Active-set Newton steps on the natural map: the start of a restart of Newton's plain
+//! iteration ([`super::NewtonSettings::active_set_restart`],
+//! `docs/newton.md#active-set-steps-on-the-natural-map`).
+//!
+//! The natural map `Φ_N(z) = z − Π_[l,u](z − F(z))` is piecewise smooth; on the piece of the
+//! current point its Newton step puts every pair whose `z − F(z)` lies beyond a bound on that
+//! bound (`d_i = l_i − z_i`, or `u_i − z_i`) and solves the other rows of the linearisation
+//! (`J_i d = −F_i`) for the rest: the step of an active-set method, which picks each pair's branch
+//! outright instead of weighing both as the Fischer–Burmeister Jacobian does near a kink.
+
+use ecp_model::mcp::fb_vector;
+use ecp_model::{Mcp, natural_residual};
+
+use crate::pivot::{
+    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, mul_vec_nonzero_columns,
+};
+
+/// Where [`active_set_steps`] ended.
+pub(super) struct ActiveSetEnd {
+    /// The point of least natural residual met.
+    pub z: Vec<f64>,
+    /// Its natural residual.
+    pub residual: f64,
+    /// Active-set Newton steps taken (each one evaluation of `F` and `J` and one LU).
+    pub iterations: usize,
+}
+
+/// Backtracking halvings tried on a step that does not lower the merit.
+const HALVINGS: usize = 6;
+
+/// Proximal terms tried on a linearisation Lemke's method does not solve (1e-8 … 1e-2 of the
+/// largest Jacobian entry).
+const PROXIMAL_TRIES: usize = 4;
+
+/// The Fischer–Burmeister merit `½‖Φ(z)‖²`.
+fn merit(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) -> f64 {
+    fb_vector(z, f, lower, upper, phi);
+    0.5 * phi.iter().map(|v| v * v).sum::<f64>()
+}
+
+/// Up to `max_steps` Josephy–Newton steps from `z0`: each solves the MCP linearised at the
+/// current point (`F(z_k) + J(z_k)(z − z_k)`, same bounds) by Lemke's method from the normal-map
+/// point `z_k − F(z_k)`, and moves towards its solution with a backtracking search on the
+/// Fischer–Burmeister merit; when no length lowers it the step is taken whole (at most
+/// [`NO_PROGRESS`] steps in a row without a new best natural residual). Stops at a natural
+/// residual of `tolerance`. `None` when the first linearised problem has no solution found.
+pub(super) fn active_set_steps(
+    mcp: &dyn Mcp,
+    z0: &[f64],
+    max_steps: usize,
+    tolerance: f64,
+) -> Option<ActiveSetEnd> {
+    let n = mcp.dim();
+    let pattern = mcp.jacobian_pattern().clone();
+    let (lower, upper) = (mcp.lower(), mcp.upper());
+    let mut z = z0.to_vec();
+    let mut f = vec![0.0; n];
+    let mut values = vec![0.0; pattern.nnz()];
+    let mut jz = vec![0.0; n];
+    let mut q = vec![0.0; n];
+    let mut x = vec![0.0; n];
+    let mut trial = vec![0.0; n];
+    let mut f_trial = vec![0.0; n];
+    let mut phi = vec![0.0; n];
+    let mut lemke = Lemke::new(LemkeSettings::default());
+    mcp.evaluate_with_jacobian(&z, &mut f, &mut values);
+    let mut residual = natural_residual(&z, &f, lower, upper);
+    let mut psi = merit(&z, &f, lower, upper, &mut phi);
+    let mut best = ActiveSetEnd {
+        z: z.clone(),
+        residual,
+        iterations: 0,
+    };
+    for _ in 0..max_steps {
+        if !(residual > tolerance) {
+            break;
+        }
+        mul_vec_nonzero_columns(&pattern, &values, &z, &mut jz);
+        for i in 0..n {
+            x[i] = z[i] - f[i];
+        }
+        // A linearisation that Lemke's method does not solve, or whose solution is no descent
+        // direction of the merit, gets a proximal term `λ(z − z_k)`, grown until it serves
+        // (PATH's perturbation, `PathSettings::proximal_initial`): a shorter step, turned
+        // towards the merit's steepest descent.
+        let scale = values.iter().fold(1.0f64, |a, v| a.max(v.abs()));
+        let mut lambda = 0.0;
+        let mut taken = None;
+        for _ in 0..=PROXIMAL_TRIES {
+            for i in 0..n {
+                q[i] = f[i] - jz[i] - lambda * z[i];
+            }
+            let problem = AffineMcp {
+                m: AffineMatrix::Sparse {
+                    pattern: &pattern,
+                    values: &values,
+                },
+                q: &q,
+                lower,
+                upper,
+                diagonal_shift: lambda,
+            };
+            let solved = lemke.solve_affine(&problem, &AffineStart::NormalMap(&x));
+            lambda = if lambda == 0.0 { 1e-8 * scale } else { 100.0 * lambda };
+            let Ok(lin) = solved else {
+                continue;
+            };
+            best.iterations += 1;
+            let mut t = 1.0;
+            for _ in 0..=HALVINGS {
+                for i in 0..n {
+                    trial[i] = z[i] + t * (lin.z[i] - z[i]);
+                }
+                mcp.evaluate(&trial, &mut f_trial);
+                if merit(&trial, &f_trial, lower, upper, &mut phi) < (1.0 - 1e-4 * t) * psi {
+                    taken = Some(t);
+                    break;
+                }
+                t *= 0.5;
+            }
+            if taken.is_some() {
+                break;
+            }
+        }
+        let Some(t) = taken else {
+            break;
+        };
+        std::mem::swap(&mut z, &mut trial);
+        mcp.evaluate_with_jacobian(&z, &mut f, &mut values);
+        residual = natural_residual(&z, &f, lower, upper);
+        psi = merit(&z, &f, lower, upper, &mut phi);
+        if residual < best.residual {
+            best.z.copy_from_slice(&z);
+            best.residual = residual;
+        }
+    }
+    (best.iterations > 0).then_some(best)
+}
+
+impl super::NewtonSolver {
+    /// [`active_set_steps`] from `z0`, then the plain iteration from their best point, folded
+    /// into the failed attempts' count and best point as the other attempts of
+    /// [`super::NewtonSolver::solve_restarted`] (`Some` when it ends the solve).
+    pub(super) fn active_set_attempt(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        steps: usize,
+        spent: &mut usize,
+        best: &mut Box<ecp_model::Solution>,
+    ) -> Option<Result<ecp_model::Solution, ecp_model::SolveError>> {
+        let end = active_set_steps(mcp, z0, steps, self.settings.tolerance)?;
+        if self.settings.trace {
+            eprintln!(
+                "active set: {} steps, best natural residual {:.3e}",
+                end.iterations, end.residual
+            );
+        }
+        *spent += end.iterations;
+        self.attempt = 0;
+        let result = self.solve_plain(mcp, &end.z).map(|mut sol| {
+            sol.summary
+                .counters
+                .add(ecp_model::Counter::Custom("active_set_restarts"), 1);
+            sol
+        });
+        super::fold_attempt(result, spent, best)
+    }
+}
