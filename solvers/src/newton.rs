@@ -47,8 +47,8 @@ use ecp_model::{
 
 use crate::normal_equations::NormalEquations;
 
-mod active_set;
 mod complementary;
+mod josephy;
 mod min_norm;
 mod profile;
 mod ratio;
@@ -291,10 +291,16 @@ pub struct NewtonSettings {
     /// would otherwise fail, so every step solved without it is unchanged. `None` turns it off
     /// (the conic backend's Newton finish). Default `Some(3e4)`.
     pub complementary_restart_from_best: Option<f64>,
-    /// After the plain iteration from `z0` failed, up to this many active-set Newton steps on
-    /// the natural map from `z0` (`newton/active_set.rs`), then the plain iteration from the
-    /// best point they met, before the other attempts. `None`: off.
-    pub active_set_restart: Option<usize>,
+    /// After the plain iteration from `z0` failed (in a budgeted run too,
+    /// [`McpSolver::set_iteration_budget`]), up to this many Josephy–Newton steps from `z0`
+    /// (the MCP linearised at each point solved by Lemke's method, a search on the merit;
+    /// `newton/josephy.rs`), then the plain iteration from the best point they met, before the
+    /// other attempts. Cures the long steps where contacts load, unload or change their closest
+    /// feature: the plain iteration stalls at a local minimiser of the merit, the restarts after
+    /// it cost hundreds of iterations (`docs/newton.md#josephy-newton-steps`: the held-out seeds'
+    /// room corners 500–650 → under 80 iterations). Runs only after a failed plain run, so every
+    /// step that run solves is unchanged. `None`: off. Default `Some(20)`.
+    pub josephy_newton: Option<usize>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -393,7 +399,7 @@ impl Default for NewtonSettings {
             complementary_restart: Some(1e3),
             early_complementary_restart: Some(3e4),
             complementary_restart_from_best: Some(3e4),
-            active_set_restart: Some(20),
+            josephy_newton: Some(20),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
@@ -1116,8 +1122,9 @@ impl McpSolver for NewtonSolver {
 
 impl NewtonSolver {
     /// [`NewtonSolver::solve_restarted`], or within the iteration budget
-    /// ([`McpSolver::set_iteration_budget`]) its first run alone: the same point when that run
-    /// converges, since the first run of `solve_restarted` is that run.
+    /// ([`McpSolver::set_iteration_budget`]) its first run alone — followed, when it fails, by
+    /// the Josephy–Newton attempt ([`NewtonSettings::josephy_newton`]) — the same point when
+    /// that run converges, since the first run of `solve_restarted` is that run.
     fn solve_budgeted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let Some(budget) = self.budget else {
             return self.solve_restarted(mcp, z0);
@@ -1127,14 +1134,14 @@ impl NewtonSolver {
         self.attempt = 0;
         let mut result = self.solve_once(mcp, z0);
         if let Err(SolveError::NotConverged { best }) = &result
-            && let Some(steps) = self.settings.active_set_restart
+            && let Some(steps) = self.settings.josephy_newton
         {
             // Within the budget too: on a start whose branches the plain iteration cannot
-            // sort out, the active-set steps are the cheap way off it, before the driver
-            // moves on to its next start (`newton/active_set.rs`).
+            // sort out, the Josephy–Newton steps are the cheap way off it, before the driver
+            // moves on to its next start (`docs/newton.md#josephy-newton-steps`).
             let mut spent = best.summary.iterations;
             let mut best = best.clone();
-            if let Some(done) = self.active_set_attempt(mcp, z0, steps, &mut spent, &mut best) {
+            if let Some(done) = self.josephy_attempt(mcp, z0, steps, &mut spent, &mut best) {
                 result = done;
             } else {
                 best.summary.iterations = spent;
@@ -1148,6 +1155,7 @@ impl NewtonSolver {
 
 impl NewtonSolver {
     /// The attempts from `z0` (`docs/newton.md#wall-time`): the plain iteration; the
+    /// Josephy–Newton steps and the plain iteration from their end ([`NewtonSettings::josephy_newton`]); the
     /// non-monotone plain iteration ([`NewtonSettings::nonmonotone_restart`]); the smoothing
     /// continuation; the plain iteration with the damped restart's initial damping (these two
     /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
@@ -1166,8 +1174,8 @@ impl NewtonSolver {
             r => return r,
         };
         let mut spent = best.summary.iterations;
-        if let Some(steps) = self.settings.active_set_restart
-            && let Some(done) = self.active_set_attempt(mcp, z0, steps, &mut spent, &mut best)
+        if let Some(steps) = self.settings.josephy_newton
+            && let Some(done) = self.josephy_attempt(mcp, z0, steps, &mut spent, &mut best)
         {
             return done;
         }

@@ -1,12 +1,14 @@
-//! Active-set Newton steps on the natural map: the start of a restart of Newton's plain
-//! iteration ([`super::NewtonSettings::active_set_restart`],
-//! `docs/newton.md#active-set-steps-on-the-natural-map`).
+//! Josephy–Newton steps: a restart of Newton's plain iteration that sorts out the
+//! complementarity branches by pivoting ([`super::NewtonSettings::josephy_newton`],
+//! `docs/newton.md#josephy-newton-steps`).
 //!
-//! The natural map `Φ_N(z) = z − Π_[l,u](z − F(z))` is piecewise smooth; on the piece of the
-//! current point its Newton step puts every pair whose `z − F(z)` lies beyond a bound on that
-//! bound (`d_i = l_i − z_i`, or `u_i − z_i`) and solves the other rows of the linearisation
-//! (`J_i d = −F_i`) for the rest: the step of an active-set method, which picks each pair's branch
-//! outright instead of weighing both as the Fischer–Burmeister Jacobian does near a kink.
+//! Each step solves the MCP linearised at the current point, `F(z_k) + J(z_k)(z − z_k)` with
+//! the problem's bounds, by Lemke's method (the pivoting core of the PATH-like backend), and moves
+//! towards that solution under a backtracking search on the Fischer–Burmeister merit. The
+//! linearisation's solution carries every pair on the branch the linearisation chooses at once —
+//! where the semismooth Newton direction of the Fischer–Burmeister map weighs both branches of a
+//! pair near its kink and, on a step whose contacts load, unload or change feature, ends in a
+//! local minimiser of the merit after a few hundred iterations of restarts.
 
 use ecp_model::mcp::fb_vector;
 use ecp_model::{Mcp, natural_residual};
@@ -15,8 +17,8 @@ use crate::pivot::{
     AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, mul_vec_nonzero_columns,
 };
 
-/// Where [`active_set_steps`] ended.
-pub(super) struct ActiveSetEnd {
+/// Where [`josephy_newton_steps`] ended.
+pub(super) struct JosephyEnd {
     /// The point of least natural residual met.
     pub z: Vec<f64>,
     /// Its natural residual.
@@ -44,12 +46,12 @@ fn merit(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) ->
 /// Fischer–Burmeister merit; when no length lowers it the step is taken whole (at most
 /// [`NO_PROGRESS`] steps in a row without a new best natural residual). Stops at a natural
 /// residual of `tolerance`. `None` when the first linearised problem has no solution found.
-pub(super) fn active_set_steps(
+pub(super) fn josephy_newton_steps(
     mcp: &dyn Mcp,
     z0: &[f64],
     max_steps: usize,
     tolerance: f64,
-) -> Option<ActiveSetEnd> {
+) -> Option<JosephyEnd> {
     let n = mcp.dim();
     let pattern = mcp.jacobian_pattern().clone();
     let (lower, upper) = (mcp.lower(), mcp.upper());
@@ -66,7 +68,7 @@ pub(super) fn active_set_steps(
     mcp.evaluate_with_jacobian(&z, &mut f, &mut values);
     let mut residual = natural_residual(&z, &f, lower, upper);
     let mut psi = merit(&z, &f, lower, upper, &mut phi);
-    let mut best = ActiveSetEnd {
+    let mut best = JosephyEnd {
         z: z.clone(),
         residual,
         iterations: 0,
@@ -101,7 +103,11 @@ pub(super) fn active_set_steps(
                 diagonal_shift: lambda,
             };
             let solved = lemke.solve_affine(&problem, &AffineStart::NormalMap(&x));
-            lambda = if lambda == 0.0 { 1e-8 * scale } else { 100.0 * lambda };
+            lambda = if lambda == 0.0 {
+                1e-8 * scale
+            } else {
+                100.0 * lambda
+            };
             let Ok(lin) = solved else {
                 continue;
             };
@@ -122,7 +128,7 @@ pub(super) fn active_set_steps(
                 break;
             }
         }
-        let Some(t) = taken else {
+        let Some(_) = taken else {
             break;
         };
         std::mem::swap(&mut z, &mut trial);
@@ -138,10 +144,10 @@ pub(super) fn active_set_steps(
 }
 
 impl super::NewtonSolver {
-    /// [`active_set_steps`] from `z0`, then the plain iteration from their best point, folded
+    /// [`josephy_newton_steps`] from `z0`, then the plain iteration from their best point, folded
     /// into the failed attempts' count and best point as the other attempts of
     /// [`super::NewtonSolver::solve_restarted`] (`Some` when it ends the solve).
-    pub(super) fn active_set_attempt(
+    pub(super) fn josephy_attempt(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
@@ -149,10 +155,10 @@ impl super::NewtonSolver {
         spent: &mut usize,
         best: &mut Box<ecp_model::Solution>,
     ) -> Option<Result<ecp_model::Solution, ecp_model::SolveError>> {
-        let end = active_set_steps(mcp, z0, steps, self.settings.tolerance)?;
+        let end = josephy_newton_steps(mcp, z0, steps, self.settings.tolerance)?;
         if self.settings.trace {
             eprintln!(
-                "active set: {} steps, best natural residual {:.3e}",
+                "josephy-newton: {} steps, best natural residual {:.3e}",
                 end.iterations, end.residual
             );
         }
@@ -161,9 +167,47 @@ impl super::NewtonSolver {
         let result = self.solve_plain(mcp, &end.z).map(|mut sol| {
             sol.summary
                 .counters
-                .add(ecp_model::Counter::Custom("active_set_restarts"), 1);
+                .add(ecp_model::Counter::Custom("josephy_newton_restarts"), 1);
             sol
         });
         super::fold_attempt(result, spent, best)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ecp_model::FnMcp;
+
+    /// The LCP `0 ≤ z ⊥ M z + q ≥ 0` with `M = [[2, 1], [1, 2]]`, `q = (−1, 1)`: solution
+    /// `z = (0.5, 0)`, `w = (0, 1.5)`.
+    fn lcp() -> FnMcp {
+        FnMcp::dense(
+            vec![0.0; 2],
+            vec![f64::INFINITY; 2],
+            |z, f| {
+                f[0] = 2.0 * z[0] + z[1] - 1.0;
+                f[1] = z[0] + 2.0 * z[1] + 1.0;
+            },
+            |_z, j| {
+                j.copy_from_slice(&[2.0, 1.0, 1.0, 2.0]);
+            },
+        )
+        .expect("a valid MCP")
+    }
+
+    #[test]
+    fn an_affine_problem_is_solved_by_one_step_from_the_wrong_active_set() {
+        // Start on the other branch of both pairs: z₀ = (0, 1), w(z₀) = (0, 3).
+        let end = josephy_newton_steps(&lcp(), &[0.0, 1.0], 20, 1e-12).expect("a step");
+        assert_eq!(end.iterations, 1);
+        assert!((end.z[0] - 0.5).abs() <= 1e-14, "z = {:?}", end.z);
+        assert!(end.z[1].abs() <= 1e-14, "z = {:?}", end.z);
+        assert!(end.residual <= 1e-14);
+    }
+
+    #[test]
+    fn a_solution_takes_no_step() {
+        assert!(josephy_newton_steps(&lcp(), &[0.5, 0.0], 20, 1e-12).is_none());
     }
 }
