@@ -2324,7 +2324,11 @@ mod tests {
     #[test]
     fn a_budget_counts_chord_steps_as_iterations() {
         let (_, start) = smooth_three_start();
-        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        // Without the Josephy–Newton attempt after a failed budgeted run, which would solve it.
+        let mut solver = NewtonSolver::new(NewtonSettings {
+            josephy_newton: None,
+            ..NewtonSettings::default()
+        });
         let full = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
@@ -2601,9 +2605,11 @@ mod tests {
         let p = ecp_model::mcp_library::kojima_josephy();
         let (label, z0) = &p.starts[2];
         assert_eq!(label, "mcplib3");
-        // Without the non-monotone restart, which solves it too (below).
+        // Without the non-monotone restart, which solves it too (below), and the Josephy–Newton
+        // steps, which solve it first (`josephy::tests`).
         let monotone = NewtonSettings {
             nonmonotone_restart: false,
+            josephy_newton: None,
             ..NewtonSettings::default()
         };
         let plain = NewtonSolver::new(NewtonSettings {

@@ -206,6 +206,44 @@ mod tests {
         assert!(end.residual <= 1e-14);
     }
 
+    /// Kojima–Josephy from MCPLIB start 3, where the plain iteration stops at a point that is
+    /// not a solution: the Josephy–Newton attempt after it reaches a listed solution, with no
+    /// other restart.
+    #[test]
+    fn kojima_josephy_start_3_is_solved_by_the_steps_after_the_plain_iteration() {
+        use crate::newton::{NewtonSettings, NewtonSolver};
+        use ecp_model::{Counter, McpSolver};
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let (label, z0) = &p.starts[2];
+        assert_eq!(label, "mcplib3");
+        let only_plain = NewtonSettings {
+            nonmonotone_restart: false,
+            smoothing: None,
+            damped_restart: None,
+            complementary_restart: None,
+            early_complementary_restart: None,
+            complementary_restart_from_best: None,
+            ..NewtonSettings::default()
+        };
+        let without = NewtonSolver::new(NewtonSettings {
+            josephy_newton: None,
+            ..only_plain.clone()
+        })
+        .solve(&p.mcp, z0);
+        assert!(without.is_err(), "{without:?}");
+        let sol = NewtonSolver::new(only_plain)
+            .solve(&p.mcp, z0)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert!(sol.summary.residual <= 1e-10, "{:e}", sol.summary.residual);
+        assert_eq!(
+            sol.summary
+                .counter(Counter::Custom("josephy_newton_restarts")),
+            Some(1)
+        );
+        let d = p.distance_to_solutions(&sol.z, None);
+        assert!(d.is_some_and(|d| d < 1e-8), "{d:?}");
+    }
+
     #[test]
     fn a_solution_takes_no_step() {
         assert!(josephy_newton_steps(&lcp(), &[0.5, 0.0], 20, 1e-12).is_none());
