@@ -74,7 +74,8 @@ pub(super) fn josephy_newton_steps(
         iterations: 0,
     };
     for _ in 0..max_steps {
-        if !(residual > tolerance) {
+        // Converged, or a non-finite residual (no step to take from there).
+        if residual <= tolerance || residual.is_nan() {
             break;
         }
         mul_vec_nonzero_columns(&pattern, &values, &z, &mut jz);
