@@ -321,6 +321,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "complementary_restart_from_best" => {
             s.complementary_restart_from_best = value.parse::<f64>().ok()
         }
+        "josephy_newton" => s.josephy_newton = value.parse::<usize>().ok(),
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),

@@ -85,6 +85,16 @@ fn stepped(
     (sim, file.solver.tolerance)
 }
 
+/// Newton's defaults without the Josephy–Newton steps (`NewtonSettings::josephy_newton`): the
+/// order of attempts each step below was measured with; with the steps several of them are
+/// solved before the attempt a test is about runs (`docs/newton.md#josephy-newton-steps`).
+fn main_order() -> NewtonSettings {
+    NewtonSettings {
+        josephy_newton: None,
+        ..NewtonSettings::default()
+    }
+}
+
 /// Asserts that a solve took a number of iterations in `range`.
 fn assert_iterations(sol: &Solution, range: impl RangeBounds<usize> + std::fmt::Debug) {
     assert!(
@@ -120,7 +130,7 @@ fn newton_room_corner_step_12_nonmonotone_restart() {
     let z0 = sim.z().to_vec();
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let mended = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings.clone()), &z0));
     assert_iterations(&mended, ..=60);
@@ -160,7 +170,7 @@ fn newton_before_valley_mend(tolerance: Option<f64>) -> NewtonSettings {
         ratio_test: false,
         // Nor the chord steps, which came later and move the trajectory by round-off.
         chord_contraction: None,
-        ..NewtonSettings::default()
+        ..main_order()
     }
 }
 
@@ -189,7 +199,7 @@ fn newton_convex_push_step_74_residual_damping() {
     let mended = converged(sim.solve_step_problem(
         &mut NewtonSolver::new(NewtonSettings {
             tolerance: tolerance.unwrap_or(1e-10),
-            ..NewtonSettings::default()
+            ..main_order()
         }),
         &z0,
     ));
@@ -211,7 +221,7 @@ fn newton_convex_push_step_74_residual_damping() {
 /// with.
 fn room_corner_023_at(step: usize) -> (Simulation, NewtonSettings) {
     let tolerance = scene_tolerance(&regression_scene("023_room_corner"));
-    let defaults = NewtonSettings::default();
+    let defaults = main_order();
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
         ratio_test: false,
@@ -341,7 +351,7 @@ fn newton_room_corner_062_step_128_rate_test_lets_a_valley_finish() {
     let tolerance = scene_tolerance(&regression_scene("062_room_corner"));
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let mut driver = NewtonSolver::new(settings.clone());
     let (sim, _) = at_step("062_room_corner", &mut driver, 128);
@@ -373,7 +383,7 @@ fn newton_union_tip_018_tipping_edge_keeps_its_ecp() {
     let path = regression_scene("018_union_tip");
     let settings = NewtonSettings {
         tolerance: scene_tolerance(&path).unwrap_or(1e-10),
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let mut driver = NewtonSolver::new(settings.clone());
     let (mut sim, _) = at_step_of(&path, &mut driver, 27);
@@ -669,7 +679,7 @@ fn newton_multi_body_025_step_30_cheap_damping_trials() {
     let tolerance = scene_tolerance(&regression_scene("025_multi_body"));
     let settings = NewtonSettings {
         tolerance: tolerance.unwrap_or(1e-10),
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let mut driver = NewtonSolver::new(settings.clone());
     let (sim, _) = at_step("025_multi_body", &mut driver, 30);
@@ -769,7 +779,7 @@ fn newton_v_trough_061_step_17_complementary_restart() {
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let settings = NewtonSettings {
         tolerance,
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let before = NewtonSettings {
         complementary_restart: None,
@@ -839,7 +849,7 @@ fn newton_v_trough_035_step_27_early_complementary_restart() {
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let settings = NewtonSettings {
         tolerance,
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let late = NewtonSettings {
         early_complementary_restart: None,
@@ -895,7 +905,7 @@ fn newton_v_trough_s20261201_061_step_70_complementary_restart_from_the_best_poi
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let settings = NewtonSettings {
         tolerance,
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let sim = at_default_step(&path, &mut NewtonSolver::new(settings.clone()), 70);
     let z0 = sim.z().to_vec();
@@ -948,7 +958,7 @@ fn newton_v_trough_s20261212_022_step_62_jam_in_the_crease() {
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let settings = NewtonSettings {
         tolerance,
-        ..NewtonSettings::default()
+        ..main_order()
     };
     let sim = at_default_step(&path, &mut NewtonSolver::new(settings.clone()), 62);
     let z0 = sim.z().to_vec();
@@ -1010,4 +1020,44 @@ fn newton_v_trough_s20261212_022_step_62_jam_in_the_crease() {
             "p_n {before} -> {after}: not the wedging branch"
         );
     }
+}
+
+/// `s20261226_049_room_corner` step 16 (the held-out seed 20261226; a box tossed into a room
+/// corner, three contacts, 67 unknowns, `docs/newton.md#josephy-newton-steps`): the third
+/// contact's closest point moves 37 cm to another vertex and the wall contact's `p_n` rises
+/// 3.4 → 5.2. The plain iteration stalls at a local minimiser of the merit and the restarts after
+/// it (non-monotone, continuation, damped, damped continuation) cost about 430 iterations; the
+/// Josephy–Newton steps (the linearised MCP solved by pivoting) solve it in a few after the
+/// failed plain run.
+#[test]
+fn newton_room_corner_s20261226_049_step_16_josephy_newton() {
+    let path = regression_scene("s20261226_049_room_corner");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = NewtonSettings {
+        tolerance,
+        ..NewtonSettings::default()
+    };
+    let without = NewtonSettings {
+        josephy_newton: None,
+        ..settings.clone()
+    };
+    // Main's trajectory (without the steps) up to step 15, the step as the base run met it.
+    let sim = at_default_step(&path, &mut NewtonSolver::new(without.clone()), 16);
+    let z0 = sim.z().to_vec();
+    let before = converged(sim.solve_step_problem(&mut NewtonSolver::new(without), &z0));
+    let after = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    println!(
+        "s20261226_049_room_corner step 16: {} iterations without the Josephy-Newton steps, {} with",
+        before.summary.iterations, after.summary.iterations
+    );
+    // Measured: 431 and 58.
+    assert_iterations(&before, 300..);
+    assert_iterations(&after, ..=100);
+    assert!(after.summary.residual <= tolerance);
+    assert_eq!(
+        after
+            .summary
+            .counter(Counter::Custom("josephy_newton_restarts")),
+        Some(1)
+    );
 }

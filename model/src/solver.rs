@@ -323,8 +323,11 @@ pub trait McpSolver {
     /// [`crate::scaling::solve_in_scales`], so at most twice `budget` in all): for a caller that has a cheaper second start
     /// when a cheap first one fails (the driver's extrapolated warm start,
     /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
-    /// A solve that converges within the budget gives the same point as without it. Returns
-    /// whether the backend honours budgets; the default does not (and ignores `budget`).
+    /// A solve that converges within the budget gives the same point as without it. (The Newton
+    /// backend with `NewtonSettings::josephy_newton` on, its default, follows a failed budgeted
+    /// run with its Josephy–Newton steps and one more budgeted run from their end:
+    /// `docs/newton.md#josephy-newton-steps`.) Returns whether the backend honours budgets; the
+    /// default does not (and ignores `budget`).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
         let _ = budget;
         false

@@ -49,6 +49,8 @@ use crate::normal_equations::NormalEquations;
 
 mod complementary;
 mod friction_continuation;
+
+mod josephy;
 mod min_norm;
 mod profile;
 mod ratio;
@@ -304,6 +306,17 @@ pub struct NewtonSettings {
     /// otherwise fail, on problems with a friction family of at most
     /// [`NewtonSettings::dense_max`] unknowns. `None` turns it off. Default `Some(400)`.
     pub friction_continuation: Option<usize>,
+
+    /// After the plain iteration from `z0` failed (in a budgeted run too,
+    /// [`McpSolver::set_iteration_budget`]), up to this many Josephy–Newton steps from `z0`
+    /// (the MCP linearised at each point solved by Lemke's method, a search on the merit;
+    /// `newton/josephy.rs`), then the plain iteration from the best point they met, before the
+    /// other attempts. Cures the long steps where contacts load, unload or change their closest
+    /// feature: the plain iteration stalls at a local minimiser of the merit, the restarts after
+    /// it cost hundreds of iterations (`docs/newton.md#josephy-newton-steps`: the held-out seeds'
+    /// room corners 500–650 → under 80 iterations). Runs only after a failed plain run, so every
+    /// step that run solves is unchanged. `None`: off. Default `Some(20)`.
+    pub josephy_newton: Option<usize>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -403,6 +416,8 @@ impl Default for NewtonSettings {
             early_complementary_restart: Some(3e4),
             complementary_restart_from_best: Some(3e4),
             friction_continuation: Some(400),
+
+            josephy_newton: Some(20),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
@@ -1125,8 +1140,9 @@ impl McpSolver for NewtonSolver {
 
 impl NewtonSolver {
     /// [`NewtonSolver::solve_restarted`], or within the iteration budget
-    /// ([`McpSolver::set_iteration_budget`]) its first run alone: the same point when that run
-    /// converges, since the first run of `solve_restarted` is that run.
+    /// ([`McpSolver::set_iteration_budget`]) its first run alone — followed, when it fails, by
+    /// the Josephy–Newton attempt ([`NewtonSettings::josephy_newton`]) — the same point when
+    /// that run converges, since the first run of `solve_restarted` is that run.
     fn solve_budgeted(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let Some(budget) = self.budget else {
             return self.solve_restarted(mcp, z0);
@@ -1134,7 +1150,22 @@ impl NewtonSolver {
         let limit = self.settings.max_iterations;
         self.settings.max_iterations = budget.min(limit);
         self.attempt = 0;
-        let result = self.solve_once(mcp, z0);
+        let mut result = self.solve_once(mcp, z0);
+        if let Err(SolveError::NotConverged { best }) = &result
+            && let Some(steps) = self.settings.josephy_newton
+        {
+            // Within the budget too: on a start whose branches the plain iteration cannot
+            // sort out, the Josephy–Newton steps are the cheap way off it, before the driver
+            // moves on to its next start (`docs/newton.md#josephy-newton-steps`).
+            let mut spent = best.summary.iterations;
+            let mut best = best.clone();
+            if let Some(done) = self.josephy_attempt(mcp, z0, steps, &mut spent, &mut best) {
+                result = done;
+            } else {
+                best.summary.iterations = spent;
+                result = Err(SolveError::NotConverged { best });
+            }
+        }
         self.settings.max_iterations = limit;
         result
     }
@@ -1142,6 +1173,7 @@ impl NewtonSolver {
 
 impl NewtonSolver {
     /// The attempts from `z0` (`docs/newton.md#wall-time`): the plain iteration; the
+    /// Josephy–Newton steps and the plain iteration from their end ([`NewtonSettings::josephy_newton`]); the
     /// non-monotone plain iteration ([`NewtonSettings::nonmonotone_restart`]); the smoothing
     /// continuation; the plain iteration with the damped restart's initial damping (these two
     /// the other way round without [`NewtonSettings::smoothing_first`]); the continuation with
@@ -1160,6 +1192,11 @@ impl NewtonSolver {
             r => return r,
         };
         let mut spent = best.summary.iterations;
+        if let Some(steps) = self.settings.josephy_newton
+            && let Some(done) = self.josephy_attempt(mcp, z0, steps, &mut spent, &mut best)
+        {
+            return done;
+        }
         let nonmonotone = Attempt {
             profile: 4,
             runs: self.settings.nonmonotone_restart && self.settings.watchdog_steps > 0,
@@ -2380,7 +2417,11 @@ mod tests {
     #[test]
     fn a_budget_counts_chord_steps_as_iterations() {
         let (_, start) = smooth_three_start();
-        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        // Without the Josephy–Newton attempt after a failed budgeted run, which would solve it.
+        let mut solver = NewtonSolver::new(NewtonSettings {
+            josephy_newton: None,
+            ..NewtonSettings::default()
+        });
         let full = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
@@ -2657,9 +2698,11 @@ mod tests {
         let p = ecp_model::mcp_library::kojima_josephy();
         let (label, z0) = &p.starts[2];
         assert_eq!(label, "mcplib3");
-        // Without the non-monotone restart, which solves it too (below).
+        // Without the non-monotone restart, which solves it too (below), and the Josephy–Newton
+        // steps, which solve it first (`josephy::tests`).
         let monotone = NewtonSettings {
             nonmonotone_restart: false,
+            josephy_newton: None,
             ..NewtonSettings::default()
         };
         let plain = NewtonSolver::new(NewtonSettings {

@@ -371,6 +371,9 @@ impl ConicSolver {
             // A failed polish falls back on the fixed point's own answer: no last restart.
             complementary_restart_from_best: None,
             friction_continuation: None,
+            // Measured without it (wip-conicslow2): a failed local finish hands back to the
+            // fixed point, not to Josephy–Newton steps.
+            josephy_newton: None,
             // The handoff and the local finish are local: the plain iteration only. Its
             // safeguards for hard steps (the smoothing continuation, the damped restart) would
             // run on every step whose few local iterations fall short, at many times a QP's
