@@ -214,9 +214,7 @@ fn fast_subset_conic() {
 /// `docs/latency.md`, wip-conicslow); Newton's row of `s20261212_022_v_trough` is cured by its
 /// continuation in the friction coefficient (`docs/newton.md#a-continuation-in-the-friction-coefficient`).
 /// With the default fallbacks every one of them is solved (`regressions_with_default_settings_early`).
-const OPEN: &[(&str, &str)] = &[
-    ("s20261212_022_v_trough", "conic"),
-];
+const OPEN: &[(&str, &str)] = &[("s20261212_022_v_trough", "conic")];
 
 /// The regression scenes of `tests/stress_regressions/` (every generated scene that ever
 /// failed with some backend), each run to its end with the backends `manifest.csv` lists for it

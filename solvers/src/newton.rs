@@ -1315,6 +1315,20 @@ struct Attempt {
 impl NewtonSolver {
     /// The plain iteration from `z0`, restarted once without minimum-norm steps when it failed
     /// after taking some (see [`NewtonSettings::min_norm_step`]).
+    /// The plain iteration from `z0` as a named restart: a converged result counts one
+    /// `Counter::Custom(name)` in its summary, so the caller sees which attempt solved the step.
+    fn solve_plain_tallied(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        name: &'static str,
+    ) -> Result<Solution, SolveError> {
+        self.solve_plain(mcp, z0).map(|mut sol| {
+            sol.summary.counters.add(Counter::Custom(name), 1);
+            sol
+        })
+    }
+
     fn solve_plain(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         let first = self.solve_once(mcp, z0);
         let kept = self.min_norm_kept;

@@ -1,7 +1,7 @@
 //! The complementary start of Newton's last restart
 //! ([`super::NewtonSettings::complementary_restart`], `docs/newton.md#the-complementary-start`).
 
-use ecp_model::{Counter, Mcp, Solution, SolveError};
+use ecp_model::{Mcp, Solution, SolveError};
 
 use super::{NewtonSolver, fold_attempt};
 
@@ -28,12 +28,7 @@ impl NewtonSolver {
     ) -> Option<Result<Solution, SolveError>> {
         let start = complementary_start(mcp, z0)?;
         self.attempt = 0;
-        let result = self.solve_plain(mcp, &start).map(|mut sol| {
-            sol.summary
-                .counters
-                .add(Counter::Custom("complementary_restarts"), 1);
-            sol
-        });
+        let result = self.solve_plain_tallied(mcp, &start, "complementary_restarts");
         fold_attempt(result, spent, best)
     }
 }

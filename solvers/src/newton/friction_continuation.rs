@@ -25,7 +25,7 @@ use std::sync::Arc;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::mcp::fb_vector_of_kinds;
-use ecp_model::{Counter, CscPattern, Mcp, McpFamily, Solution, SolveError};
+use ecp_model::{CscPattern, Mcp, McpFamily, Solution, SolveError};
 
 use super::min_norm::MinNorm;
 use super::{NewtonSolver, fold_attempt, generalized_jacobian_rows};
@@ -149,12 +149,7 @@ impl NewtonSolver {
         let (end, curve_iterations) = follow(mcp, family, z, s, max_iterations, tolerance);
         *spent += curve_iterations;
         let end = end?;
-        let result = self.solve_plain(mcp, &end).map(|mut sol| {
-            sol.summary
-                .counters
-                .add(Counter::Custom("friction_continuations"), 1);
-            sol
-        });
+        let result = self.solve_plain_tallied(mcp, &end, "friction_continuations");
         fold_attempt(result, spent, best)
     }
 }

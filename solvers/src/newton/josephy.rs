@@ -165,12 +165,7 @@ impl super::NewtonSolver {
         }
         *spent += end.iterations;
         self.attempt = 0;
-        let result = self.solve_plain(mcp, &end.z).map(|mut sol| {
-            sol.summary
-                .counters
-                .add(ecp_model::Counter::Custom("josephy_newton_restarts"), 1);
-            sol
-        });
+        let result = self.solve_plain_tallied(mcp, &end.z, "josephy_newton_restarts");
         super::fold_attempt(result, spent, best)
     }
 }
