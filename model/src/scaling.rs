@@ -126,7 +126,7 @@ const SQRT_2_MARGIN: u64 = 1 << 30;
 /// [`McpScales::round_to_powers_of_two`] makes of each scale.
 ///
 /// From the bits of `s` (`s = m 2^e`, `1 ≤ m < 2`: `2^e` when `m < √2`, else `2^(e+1)`), the
-/// same number as [`power_of_two_by_log2`] gives: where the two could differ — `m` near `√2`,
+/// same number as `power_of_two_by_log2` gives: where the two could differ — `m` near `√2`,
 /// where `log2`'s round-off may decide the rounding, subnormals, `|e|` near the clamp — the
 /// logarithm decides. A desk step rounds 62 scales; `log2`, `round` and `powi` were 7 k of
 /// its instructions.

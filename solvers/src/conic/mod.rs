@@ -163,7 +163,7 @@ pub struct ConicSettings {
     pub newton_handoff_iterations: usize,
     /// Once this many outer iterations in a row have not improved the best residual by 10 %
     /// (the stagnation test's count, [`ConicSettings::stagnation_window`]), try the local
-    /// Newton finish ([`NewtonFinish::Local`], at most
+    /// Newton finish (`NewtonFinish::Local`, at most
     /// [`ConicSettings::early_finish_iterations`] iterations) once, from the fixed point's best
     /// iterate and then from the warm start, and end the solve with the first that reaches the
     /// tolerance; when neither does, the fixed point goes on as without it. A fixed point that
