@@ -226,18 +226,23 @@ fn run_writes_trajectory_summary_and_status_0() {
     let _ = std::fs::remove_dir_all(dir);
 }
 
-/// A1 with Newton limited to one iteration per step, written into `dir`: its first step cannot
-/// be solved by Newton alone.
-fn a1_with_one_newton_iteration(dir: &Path) -> std::path::PathBuf {
+/// A2 (pushed, sliding) with Newton limited to one iteration per step, written into `dir`: its
+/// first step cannot be solved by Newton alone. (A1's first step can: it is a linear LCP, which
+/// one Josephy–Newton step, the MCP linearised and solved by pivoting, solves exactly.)
+fn a2_with_one_newton_iteration(dir: &Path) -> std::path::PathBuf {
     let text = std::fs::read_to_string(
-        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a1_sliding.toml"),
+        Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/a2_push_slide.toml"),
     )
-    .expect("a1")
+    .expect("a2")
     .replace(
         "[solver]\nname = \"newton\"",
         "[solver]\nname = \"newton\"\nmax_iterations = 1",
     );
-    let scene = dir.join("a1_one_iteration.toml");
+    assert!(
+        text.contains("max_iterations = 1"),
+        "the scene's solver section changed"
+    );
+    let scene = dir.join("a2_one_iteration.toml");
     std::fs::write(&scene, text).expect("write");
     scene
 }
@@ -246,7 +251,7 @@ fn a1_with_one_newton_iteration(dir: &Path) -> std::path::PathBuf {
 fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
     let dir = temp_dir("fail");
     // Sliding needs several iterations; one is not enough, so the first step fails.
-    let scene = a1_with_one_newton_iteration(&dir);
+    let scene = a2_with_one_newton_iteration(&dir);
     let out = dir.join("out");
     let o = ecp(&[
         "run",
@@ -271,9 +276,9 @@ fn a_failed_step_gives_status_1_and_keeps_what_was_computed() {
 #[test]
 fn a_step_the_backend_cannot_solve_is_solved_by_a_fallback_and_marked() {
     let dir = temp_dir("fallback");
-    // One Newton iteration cannot solve A1's first step; the fallbacks (PATH, conic, then
+    // One Newton iteration cannot solve A2's first step; the fallbacks (PATH, conic, then
     // substeps, each with the same one-iteration limit) must, with the same physics.
-    let scene = a1_with_one_newton_iteration(&dir);
+    let scene = a2_with_one_newton_iteration(&dir);
     let out = dir.join("out");
     let o = ecp(&[
         "run",
@@ -293,9 +298,32 @@ fn a_step_the_backend_cannot_solve_is_solved_by_a_fallback_and_marked() {
         how.starts_with("backend:") || how.starts_with("substeps:"),
         "first step solved by {how:?}"
     );
-    // A1: v_x = 1 − μ g h after the first step, whoever solved it.
+    // The same first step as Newton's without the limit, whoever solved it.
+    let free = dir.join("free");
+    let o = ecp(&[
+        "run",
+        &Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("scenes/a2_push_slide.toml")
+            .to_string_lossy(),
+        "--out",
+        &free.to_string_lossy(),
+        "--no-plots",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", stderr(&o));
+    let free_csv = std::fs::read_to_string(free.join("trajectory.csv")).expect("csv");
+    let free_first: Vec<&str> = free_csv
+        .lines()
+        .nth(1)
+        .expect("a step")
+        .split(',')
+        .collect();
     let vx: f64 = first[8].parse().expect("vx");
-    assert!((vx - (1.0 - 0.3 * 9.8 * 0.01)).abs() < 1e-9, "v_x = {vx}");
+    let free_vx: f64 = free_first[8].parse().expect("vx");
+    assert!(
+        (vx - free_vx).abs() < 1e-9,
+        "v_x = {vx}, without the limit {free_vx}"
+    );
     let summary: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("summary.json")).expect("summary"))
             .expect("JSON");

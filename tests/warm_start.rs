@@ -337,23 +337,16 @@ fn newton_and_path_honour_an_iteration_budget() {
         assert_eq!(again.z, full.z, "{name}");
     }
     // With the Josephy–Newton attempt (the default) a failed budgeted run is followed by its
-    // steps and one more budgeted run: here the one-iteration run fails, and the steps solve
-    // the step (measured: 4 iterations in all, the same point within the tolerance).
+    // steps and one more budgeted run, each attempt within the budget: here one iteration each,
+    // which does not solve the step (one iteration in each system of units at most, per attempt).
     let mut newton = NewtonSolver::new(NewtonSettings::default());
     assert!(newton.set_iteration_budget(Some(1)));
-    let sol = sim
-        .solve_step_problem(&mut newton, &z0)
-        .unwrap_or_else(|e| panic!("newton with the Josephy-Newton attempt: {e}"));
-    assert_eq!(
-        sol.summary
-            .counter(Counter::Custom("josephy_newton_restarts")),
-        Some(1)
-    );
-    assert!(
-        sol.summary.iterations <= 1 + 20 + 1,
-        "{}",
-        sol.summary.iterations
-    );
+    match sim.solve_step_problem(&mut newton, &z0) {
+        Err(SolveError::NotConverged { best }) => {
+            assert!(best.summary.iterations <= 6, "{}", best.summary.iterations)
+        }
+        other => panic!("newton with the Josephy-Newton attempt: {other:?}"),
+    }
     // A backend that does not honour budgets says so.
     let mut conic =
         ecp::solvers::conic::ConicSolver::new(ecp::solvers::conic::ConicSettings::default());

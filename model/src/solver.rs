@@ -325,7 +325,7 @@ pub trait McpSolver {
     /// `docs/latency.md#the-extrapolated-warm-start-on-by-default-branch-wip-warmon-issue-18`).
     /// A solve that converges within the budget gives the same point as without it. (The Newton
     /// backend with `NewtonSettings::josephy_newton` on, its default, follows a failed budgeted
-    /// run with its Josephy–Newton steps and one more budgeted run from their end:
+    /// run with at most `budget` Josephy–Newton steps and one more budgeted run from their end:
     /// `docs/newton.md#josephy-newton-steps`.) Returns whether the backend honours budgets; the
     /// default does not (and ignores `budget`).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {

@@ -315,7 +315,8 @@ pub struct NewtonSettings {
     /// feature: the plain iteration stalls at a local minimiser of the merit, the restarts after
     /// it cost hundreds of iterations (`docs/newton.md#josephy-newton-steps`: the held-out seeds'
     /// room corners 500–650 → under 80 iterations). Runs only after a failed plain run, so every
-    /// step that run solves is unchanged. `None`: off. Default `Some(20)`.
+    /// step that run solves is unchanged. At most `max_iterations` steps, like every attempt.
+    /// `None`: off. Default `Some(20)`.
     pub josephy_newton: Option<usize>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result

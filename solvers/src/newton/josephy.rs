@@ -156,6 +156,9 @@ impl super::NewtonSolver {
         spent: &mut usize,
         best: &mut Box<ecp_model::Solution>,
     ) -> Option<Result<ecp_model::Solution, ecp_model::SolveError>> {
+        // An attempt like the others: at most `max_iterations` steps (a step is a Newton
+        // iteration on the linearisation), so `max_iterations` keeps bounding every attempt.
+        let steps = steps.min(self.settings.max_iterations);
         let end = josephy_newton_steps(mcp, z0, steps, self.settings.tolerance)?;
         if self.settings.trace {
             eprintln!(
