@@ -1839,22 +1839,7 @@ mod tests {
         // tolerance but above `polish_below · tolerance`. The polish then steps on the crash
         // step's LU (`J_II` at the start): one Jacobian in the whole solve, where a full polish
         // takes a second; and it ends at round-off, at the root, as the full polish did.
-        let p = FnMcp::dense(
-            vec![f64::NEG_INFINITY, 0.0],
-            vec![f64::INFINITY; 2],
-            |z, f| {
-                f[0] = z[0] * z[0] + z[0] - 2.0;
-                f[1] = z[1] + 1.0 + 0.1 * z[0];
-            },
-            |z, j| {
-                // Column-major: ∂F/∂z0, then ∂F/∂z1.
-                j[0] = 2.0 * z[0] + 1.0;
-                j[1] = 0.1;
-                j[2] = 0.0;
-                j[3] = 1.0;
-            },
-        )
-        .unwrap();
+        let p = shifted_root(0.0);
         let mut solver = PathSolver::new(PathSettings::default());
         let sol = solver.solve(&p, &[1.0 + 1e-6, 0.0]).unwrap();
         assert_eq!(sol.summary.jac_evals, 1, "{:?}", sol.summary);
