@@ -403,6 +403,7 @@ fn set_path(s: &mut PathSettings, kv: &str) -> Result<(), String> {
         "best_point_restart" => s.best_point_restart = b()?,
         "stall_window" => s.stall_window = n()?,
         "stall_ratio" => s.stall_ratio = f()?,
+        "frozen_steps" => s.frozen_steps = n()?,
         "smoothing_failed_stages" => {
             if let Some(sm) = s.smoothing.as_mut() {
                 sm.max_failed_stages = Some(n()?);
