@@ -3,7 +3,7 @@
 //!
 //! ```text
 //! cargo run --release --example step_probe -- SCENE.toml --step K [--with newton|path]
-//!     [--trace] [--compare] [--as-given] [--states] [--sweep] [--newton NAME=VALUE ..] [--path NAME=VALUE ..]
+//!     [--trace] [--compare] [--as-given] [--states] [--sweep] [--driver] [--previous] [--newton NAME=VALUE ..] [--path NAME=VALUE ..]
 //! ```
 //!
 //! runs the scene's steps 1 … K−1 with the backend `--with` (default `path`; hull formulation,
@@ -11,10 +11,14 @@
 //! step problem from its warm start with PATH and with Newton (each built as the registry builds
 //! it, then changed by the `--newton` / `--path` settings), printing the summary, the counters
 //! and, with `--trace`, every iteration (residual, merit, step kind, step length).
+//! `--driver` solves step K as a step does instead (the backend `--with` through the driver's
+//! budgeted starts and retry starts) and prints each solve it makes: its budget, result and
+//! iterations. `--previous` prepares step K from the plain warm start (the last step's
+//! solution; `WarmStart::Previous`) instead of the extrapolated one.
 use std::process::ExitCode;
 use std::time::Instant;
 
-use ecp::formulations::{FormulationRegistry, SimulationBuilder};
+use ecp::formulations::{FormulationRegistry, SimulationBuilder, WarmStart};
 use ecp::model::{IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError};
 use ecp::scene::load_scene;
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
@@ -35,6 +39,7 @@ fn run() -> Result<(), String> {
     let mut args = std::env::args().skip(1);
     let (mut path, mut step, mut with, mut trace) = (None, None, "path".to_string(), false);
     let (mut compare, mut as_given, mut states, mut sweep) = (false, false, false, false);
+    let (mut through_driver, mut previous) = (false, false);
     let (mut newton_sets, mut path_sets) = (Vec::new(), Vec::new());
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_default();
@@ -46,6 +51,8 @@ fn run() -> Result<(), String> {
             "--as-given" => as_given = true,
             "--states" => states = true,
             "--sweep" => sweep = true,
+            "--driver" => through_driver = true,
+            "--previous" => previous = true,
             "--newton" => newton_sets.push(value()),
             "--path" => path_sets.push(value()),
             _ => path = Some(a),
@@ -87,6 +94,21 @@ fn run() -> Result<(), String> {
         if !rec.converged {
             println!("step {k}: not converged with {with} (state kept)");
         }
+    }
+    if previous {
+        // Step K from the plain warm start (the last step's solution), the driver's first
+        // retry start after an extrapolated one.
+        sim.set_warm_start(WarmStart::Previous);
+    }
+    if through_driver {
+        // Step K as a step solves it, each solve of the driver logged.
+        let mut logged = Logged(driver.as_mut(), None);
+        let rec = sim.step(&mut logged).map_err(|e| e.to_string())?;
+        println!(
+            "step {step} by the driver: converged {}, {} iterations, {:?}, {:.1} us",
+            rec.converged, rec.summary.iterations, rec.method, rec.solve_us
+        );
+        return Ok(());
     }
     if states {
         // The bodies' states at the start of step K, as scene-file lines.
@@ -264,6 +286,37 @@ fn sweep_steps(path: &str, sets: &[String]) -> Result<(), String> {
     Ok(())
 }
 
+/// A backend that prints each solve the driver asks of it (budget, result, iterations).
+struct Logged<'a>(&'a mut dyn McpSolver, Option<usize>);
+
+impl McpSolver for Logged<'_> {
+    fn name(&self) -> &str {
+        self.0.name()
+    }
+    fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        let result = self.0.solve(mcp, z0);
+        let (what, s) = match &result {
+            Ok(s) => ("converged", Some(&s.summary)),
+            Err(SolveError::NotConverged { best }) => ("failed", Some(&best.summary)),
+            Err(_) => ("error", None),
+        };
+        println!(
+            "  solve (budget {:?}): {what}, {:?} iterations, residual {:?}",
+            self.1,
+            s.map(|s| s.iterations),
+            s.map(|s| s.residual)
+        );
+        result
+    }
+    fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
+        self.1 = budget;
+        self.0.set_iteration_budget(budget)
+    }
+    fn converges_to_round_off(&self) -> bool {
+        self.0.converges_to_round_off()
+    }
+}
+
 /// Prints every iteration it sees.
 struct Printer;
 
@@ -350,6 +403,7 @@ fn set_path(s: &mut PathSettings, kv: &str) -> Result<(), String> {
         "best_point_restart" => s.best_point_restart = b()?,
         "stall_window" => s.stall_window = n()?,
         "stall_ratio" => s.stall_ratio = f()?,
+        "frozen_steps" => s.frozen_steps = n()?,
         "smoothing_failed_stages" => {
             if let Some(sm) = s.smoothing.as_mut() {
                 sm.max_failed_stages = Some(n()?);

@@ -1061,3 +1061,63 @@ fn newton_room_corner_s20261226_049_step_16_josephy_newton() {
         Some(1)
     );
 }
+
+/// `s20270102_057_union_tip` step 188 (the held-out seed 20270102; a table, a union of five
+/// boxes, tipping on an edge of its hull while it spins; one contact, 31 unknowns) from the
+/// plain warm start, PATH's full solve in the driver's second pass (`docs/latency.md`,
+/// wip-tip057): the step lies past a fold of the branch the last steps followed, so every
+/// attempt from the warm start ends at the fold's local minimiser of the merit (natural
+/// residual ~4e-6, the ECP 8 cm short of the solution's along the edge and the friction's
+/// tangential component reversed) and the smoothing continuation solves the step. At that
+/// minimiser the path search accepts `t ≈ 7e-9` of a ~1e-13 path again and again until each
+/// attempt's limit; the frozen-iterate stop (`PathSettings::frozen_steps`) ends those attempts
+/// after 10 such steps.
+#[test]
+fn path_union_tip_s20270102_057_step_188_frozen_iterate() {
+    let path = regression_scene("s20270102_057_union_tip");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = PathSettings {
+        tolerance,
+        ..PathSettings::default()
+    };
+    let without = PathSettings {
+        frozen_steps: 0,
+        ..settings.clone()
+    };
+    // The default simulation's trajectory through step 187, then step 188 from the plain warm
+    // start (the driver's first retry start after the extrapolated one).
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let stepper = FormulationRegistry::builtin()
+        .create("hull")
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+        .build()
+        .unwrap_or_else(|e| panic!("{e}"));
+    let mut driver = PathSolver::new(settings.clone());
+    for k in 1..188 {
+        let rec = sim
+            .step(&mut driver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(rec.converged, "step {k} did not converge");
+    }
+    sim.set_warm_start(WarmStart::Previous);
+    sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+    let z0 = sim.z().to_vec();
+    let before = converged(sim.solve_step_problem(&mut PathSolver::new(without), &z0));
+    let after = converged(sim.solve_step_problem(&mut PathSolver::new(settings), &z0));
+    println!(
+        "s20270102_057_union_tip step 188: {} iterations without the frozen-iterate stop, {} with",
+        before.summary.iterations, after.summary.iterations
+    );
+    // Measured: 2 249 and 1 285; both solved by the smoothing continuation.
+    assert_iterations(&before, 2000..);
+    assert_iterations(&after, ..=1500);
+    assert!(after.summary.residual <= tolerance);
+    // The same solution (PATH polishes to round-off): the ECP at the fold's far side.
+    let diff = before
+        .z
+        .iter()
+        .zip(&after.z)
+        .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+    assert!(diff <= 1e-12, "solutions differ by {diff:e}");
+}

@@ -132,6 +132,15 @@ pub struct PathSettings {
     /// The factor by which an attempt's natural residual must fall within
     /// [`PathSettings::stall_window`] iterations, in `(0, 1)`. Default `0.5`.
     pub stall_ratio: f64,
+    /// An attempt stops (`Stagnated`) after this many consecutive accepted steps that each
+    /// moved the iterate by at most [`FROZEN_STEP`] of its size, above the tolerance, whatever
+    /// the proximal term (`docs/latency.md`, branch wip-tip057). At a local minimiser of the
+    /// merit that is no solution (a fold of the step's solution branch: `057_union_tip` of
+    /// seed 20270102, step 188) the path search accepts `t ≈ 7e-9` of a path that the
+    /// proximal term keeps ~1e-13 long, the iterate, its linearisation and `λ` stay the same,
+    /// and each attempt repeats that step until its iteration limit (1 091 of the step's
+    /// 2 249 iterations). `0` for no such stop. Default 10.
+    pub frozen_steps: usize,
     /// When every attempt failed, the smoothing continuation from the start point
     /// ([`crate::smoothing`], `docs/path.md`): one attempt of at most
     /// `stage_iterations` on each smoothed natural map `G_μ` for `μ = μ₀, θμ₀, …` down to the
@@ -216,6 +225,7 @@ impl Default for PathSettings {
             best_point_restart: true,
             stall_window: 0,
             stall_ratio: 0.5,
+            frozen_steps: 10,
             // Newton's give-up of a crawling continuation (`docs/newton.md#a-crawling-continuation`).
             smoothing: Some(SmoothingSettings {
                 max_failed_stages: Some(crate::newton::FAILED_STAGES),
@@ -240,6 +250,12 @@ const POLISH_SHIFT_MIN: f64 = 1e-10;
 
 /// The polish's largest relative shift: beyond it a step would gain next to nothing.
 const POLISH_SHIFT_MAX: f64 = 1e-8;
+
+/// A step that moves the normal-map point by at most this fraction of its size (at least 1)
+/// leaves the iterate where it was ([`PathSettings::frozen_steps`]): 4 500 ulps, far below any
+/// step that makes progress and above the ~1e-13 steps of a proximal path at a fold
+/// (`057_union_tip` of seed 20270102, step 188).
+pub const FROZEN_STEP: f64 = 1e-12;
 
 /// Pivots per unknown a Lemke path of the first attempt may make while it has a pivot budget
 /// (`PathSettings::first_attempt_pivots`); later attempts keep Lemke's own limit (50 per
@@ -1074,6 +1090,8 @@ impl PathSolver {
         // search there (no more non-monotone steps until one does).
         let mut monotone = false;
         let mut stall = Stall::new(s, residual, *iterations);
+        // Consecutive accepted steps that left the iterate where it was (`frozen_steps`).
+        let mut frozen = 0usize;
         while termination == Termination::MaxIterations {
             if residual <= s.tolerance {
                 termination = Termination::Converged;
@@ -1265,6 +1283,14 @@ impl PathSolver {
             }
             let xnorm = self.current.x.iter().fold(1.0f64, |m, v| m.max(v.abs()));
             if residual > s.tolerance && norm <= 4.0 * f64::EPSILON * xnorm && lambda == 0.0 {
+                termination = Termination::Stagnated;
+            }
+            frozen = if norm <= FROZEN_STEP * xnorm {
+                frozen + 1
+            } else {
+                0
+            };
+            if residual > s.tolerance && s.frozen_steps > 0 && frozen >= s.frozen_steps {
                 termination = Termination::Stagnated;
             }
         }
