@@ -174,6 +174,19 @@ pub struct ConicSettings {
     pub early_finish_after: usize,
     /// Newton iterations of each early finish ([`ConicSettings::early_finish_after`]). Default 10.
     pub early_finish_iterations: usize,
+    /// Once this many outer iterations in a row have moved the anchored loads on in one
+    /// direction without improving the best residual by 10 % (a load walk, which the stagnation
+    /// test counts as progress, `loads_drifting`), try the same early finish
+    /// ([`ConicSettings::early_finish_after`], once per solve), from the warm start first and
+    /// then from the best iterate. The load anchor lets a load move only a bounded amount per
+    /// QP, so a walk can take the fixed point to its iteration limit with a flat residual
+    /// (`061_v_trough` of seed 20261226, steps 53–67: 50 QPs each at a residual of 1.2e-5, then a
+    /// Newton finish from the best iterate of 24–102 iterations; the local finish from the warm
+    /// start converges in about 5). The warm start first: the walk's best iterate lies on the
+    /// anchored member the walk is leaving, where the local finish fails (wip-conic061,
+    /// `docs/latency.md`). Needs [`ConicSettings::early_finish_after`] > 0; 0 turns it off.
+    /// Default 5.
+    pub walk_finish_after: usize,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -257,6 +270,7 @@ impl Default for ConicSettings {
             newton_handoff_iterations: 4,
             early_finish_after: 3,
             early_finish_iterations: 10,
+            walk_finish_after: 5,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -567,6 +581,9 @@ impl McpSolver for ConicSolver {
         best_z.clone_from(z);
         let mut best_residual = residual;
         let mut since_improvement = 0usize;
+        // Outer iterations in a row that did not improve but walked the anchored loads on
+        // (`loads_drifting`), for `ConicSettings::walk_finish_after`.
+        let mut walk = 0usize;
         let mut stall_reference = residual;
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
@@ -814,23 +831,30 @@ impl McpSolver for ConicSolver {
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
                 since_improvement = 0;
-            } else if !(have_loads && {
+                walk = 0;
+            } else if have_loads && {
                 // The same flags as the anchors' below (the same `geometry`), into kept storage.
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
                 loads_drifting(anchored, point, previous_loads, drift, it)
-            }) {
+            } {
+                walk += 1;
+            } else {
+                walk = 0;
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
                     termination = Termination::Stagnated;
                     break;
                 }
             }
+            // A load walk long enough for the early finish (`ConicSettings::walk_finish_after`).
+            let walk_due =
+                self.settings.walk_finish_after > 0 && walk >= self.settings.walk_finish_after;
             // The early finish (`ConicSettings::early_finish_after`): from the best iterate, then
-            // from the warm start, once per solve.
+            // from the warm start (during a load walk the other way round), once per solve.
             if !early_tried
                 && self.settings.early_finish_after > 0
                 && self.settings.newton_polish > 0
-                && since_improvement >= self.settings.early_finish_after
+                && (since_improvement >= self.settings.early_finish_after || walk_due)
             {
                 early_tried = true;
                 let budget = self
@@ -838,10 +862,12 @@ impl McpSolver for ConicSolver {
                     .early_finish_iterations
                     .min(self.settings.newton_polish);
                 let from_warm = z0 != best_z.as_slice();
-                for start in [Some(&best_z[..]), from_warm.then_some(z0)]
-                    .into_iter()
-                    .flatten()
-                {
+                let starts = if walk_due {
+                    [from_warm.then_some(z0), Some(&best_z[..])]
+                } else {
+                    [Some(&best_z[..]), from_warm.then_some(z0)]
+                };
+                for start in starts.into_iter().flatten() {
                     if let Some(sol) =
                         self.newton_finish(mcp, start, budget, NewtonFinish::Local, &mut run)
                         && sol.summary.residual <= self.settings.tolerance
