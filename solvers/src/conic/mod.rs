@@ -176,9 +176,9 @@ pub struct ConicSettings {
     pub early_finish_iterations: usize,
     /// Once this many outer iterations in a row have moved the anchored loads on in one
     /// direction without improving the best residual by 10 % (a load walk, which the stagnation
-    /// test counts as progress, `loads_drifting`), try the same early finish
-    /// ([`ConicSettings::early_finish_after`], once per solve), from the warm start first and
-    /// then from the best iterate. The load anchor lets a load move only a bounded amount per
+    /// test counts as progress, `loads_drifting`), try the same local finish as
+    /// [`ConicSettings::early_finish_after`] (once per solve, besides that one), from the warm
+    /// start first and then from the best iterate. The load anchor lets a load move only a bounded amount per
     /// QP, so a walk can take the fixed point to its iteration limit with a flat residual
     /// (`061_v_trough` of seed 20261226, steps 53–67: 50 QPs each at a residual of 1.2e-5, then a
     /// Newton finish from the best iterate of 24–102 iterations; the local finish from the warm
@@ -605,6 +605,7 @@ impl McpSolver for ConicSolver {
         let mut have_loads = false;
         let mut handoff_tried = false;
         let mut early_tried = false;
+        let mut walk_tried = false;
         // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
         let mut have_answer = false;
         // One reuse per solve at most: where the previous answer's active set is not the new
@@ -846,17 +847,25 @@ impl McpSolver for ConicSolver {
                     break;
                 }
             }
-            // A load walk long enough for the early finish (`ConicSettings::walk_finish_after`).
-            let walk_due =
-                self.settings.walk_finish_after > 0 && walk >= self.settings.walk_finish_after;
             // The early finish (`ConicSettings::early_finish_after`): from the best iterate, then
-            // from the warm start (during a load walk the other way round), once per solve.
-            if !early_tried
-                && self.settings.early_finish_after > 0
+            // from the warm start, once per solve; after a load walk
+            // (`ConicSettings::walk_finish_after`) the other way round, also once per solve. Both
+            // leave the fixed point's iterates as they were when they fall short, so a stall
+            // after a walk is finished as without the walk's attempt.
+            let stall_due = !early_tried && since_improvement >= self.settings.early_finish_after;
+            let walk_due = !walk_tried
+                && self.settings.walk_finish_after > 0
+                && walk >= self.settings.walk_finish_after;
+            if self.settings.early_finish_after > 0
                 && self.settings.newton_polish > 0
-                && (since_improvement >= self.settings.early_finish_after || walk_due)
+                && (stall_due || walk_due)
             {
-                early_tried = true;
+                let walk_due = !stall_due;
+                if walk_due {
+                    walk_tried = true;
+                } else {
+                    early_tried = true;
+                }
                 let budget = self
                     .settings
                     .early_finish_iterations
