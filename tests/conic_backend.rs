@@ -504,6 +504,31 @@ fn held_out_union_slide_056_early_local_finish() {
     }
 }
 
+/// `s20261226_061_v_trough` (held-out seed 20261226), steps 54–61: a point set in a V trough,
+/// a vertex loaded by both sides. After 1–2 QPs the residual sits at about 1.2e-5 while the
+/// anchored loads walk on in one direction (`loads_drifting`), so the stagnation window never
+/// ends the fixed point: before the walk finish each of these steps took the 50-QP limit (step
+/// 56: 41) and then a Newton finish of 24–102 iterations from the best iterate (measured with
+/// `walk_finish_after = 0`, `docs/latency.md`, wip-conic061). With the local finish after 5
+/// walking QPs, from the warm start first, each converges in 6–8 QPs and 4–10 Newton iterations
+/// (measured); the bounds leave a margin and stay far below the old 50 QPs.
+#[test]
+fn held_out_v_trough_061_s20261226_walk_finish() {
+    let name = "s20261226_061_v_trough";
+    let records = regression_steps(name, 61);
+    assert_every_step_converged(name, &records);
+    for r in &records[53..] {
+        let polish = r.summary.counters.get(Counter::NewtonPolish).unwrap_or(0);
+        assert!(
+            r.summary.iterations <= 10 && polish <= 20,
+            "step {}: {} outer iterations, {} Newton polish iterations",
+            r.step,
+            r.summary.iterations,
+            polish
+        );
+    }
+}
+
 /// `s20261212_061_v_trough` (held-out seed 20261212): a point set in the crease of a V trough
 /// (μ = 1.17), one vertex loaded by both sides, one side sticking, the other spinning. The other
 /// side's gap row is a combination of the sticking side's rows, so the polish's joint step has a

@@ -174,6 +174,19 @@ pub struct ConicSettings {
     pub early_finish_after: usize,
     /// Newton iterations of each early finish ([`ConicSettings::early_finish_after`]). Default 10.
     pub early_finish_iterations: usize,
+    /// Once this many outer iterations in a row have moved the anchored loads on in one
+    /// direction without improving the best residual by 10 % (a load walk, which the stagnation
+    /// test counts as progress, `loads_drifting`), try the same local finish as
+    /// [`ConicSettings::early_finish_after`] (once per solve, besides that one), from the warm
+    /// start first and then from the best iterate. The load anchor lets a load move only a bounded amount per
+    /// QP, so a walk can take the fixed point to its iteration limit with a flat residual
+    /// (`061_v_trough` of seed 20261226, steps 53–67: 50 QPs each at a residual of 1.2e-5, then a
+    /// Newton finish from the best iterate of 24–102 iterations; the local finish from the warm
+    /// start converges in about 5). The warm start first: the walk's best iterate lies on the
+    /// anchored member the walk is leaving, where the local finish fails (wip-conic061,
+    /// `docs/latency.md`). Needs [`ConicSettings::early_finish_after`] > 0; 0 turns it off.
+    /// Default 5.
+    pub walk_finish_after: usize,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -257,6 +270,7 @@ impl Default for ConicSettings {
             newton_handoff_iterations: 4,
             early_finish_after: 3,
             early_finish_iterations: 10,
+            walk_finish_after: 5,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -567,6 +581,9 @@ impl McpSolver for ConicSolver {
         best_z.clone_from(z);
         let mut best_residual = residual;
         let mut since_improvement = 0usize;
+        // Outer iterations in a row that did not improve but walked the anchored loads on
+        // (`loads_drifting`), for `ConicSettings::walk_finish_after`.
+        let mut walk = 0usize;
         let mut stall_reference = residual;
         let mut termination = Termination::MaxIterations;
         let mut iterations = 0;
@@ -588,6 +605,7 @@ impl McpSolver for ConicSolver {
         let mut have_loads = false;
         let mut handoff_tried = false;
         let mut early_tried = false;
+        let mut walk_tried = false;
         // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
         let mut have_answer = false;
         // One reuse per solve at most: where the previous answer's active set is not the new
@@ -814,11 +832,15 @@ impl McpSolver for ConicSolver {
             if best_residual < 0.9 * stall_reference {
                 stall_reference = best_residual;
                 since_improvement = 0;
-            } else if !(have_loads && {
+                walk = 0;
+            } else if have_loads && {
                 // The same flags as the anchors' below (the same `geometry`), into kept storage.
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
                 loads_drifting(anchored, point, previous_loads, drift, it)
-            }) {
+            } {
+                walk += 1;
+            } else {
+                walk = 0;
                 since_improvement += 1;
                 if since_improvement >= self.settings.stagnation_window {
                     termination = Termination::Stagnated;
@@ -826,22 +848,35 @@ impl McpSolver for ConicSolver {
                 }
             }
             // The early finish (`ConicSettings::early_finish_after`): from the best iterate, then
-            // from the warm start, once per solve.
-            if !early_tried
-                && self.settings.early_finish_after > 0
+            // from the warm start, once per solve; after a load walk
+            // (`ConicSettings::walk_finish_after`) the other way round, also once per solve. Both
+            // leave the fixed point's iterates as they were when they fall short, so a stall
+            // after a walk is finished as without the walk's attempt.
+            let stall_due = !early_tried && since_improvement >= self.settings.early_finish_after;
+            let walk_due = !walk_tried
+                && self.settings.walk_finish_after > 0
+                && walk >= self.settings.walk_finish_after;
+            if self.settings.early_finish_after > 0
                 && self.settings.newton_polish > 0
-                && since_improvement >= self.settings.early_finish_after
+                && (stall_due || walk_due)
             {
-                early_tried = true;
+                let walk_due = !stall_due;
+                if walk_due {
+                    walk_tried = true;
+                } else {
+                    early_tried = true;
+                }
                 let budget = self
                     .settings
                     .early_finish_iterations
                     .min(self.settings.newton_polish);
                 let from_warm = z0 != best_z.as_slice();
-                for start in [Some(&best_z[..]), from_warm.then_some(z0)]
-                    .into_iter()
-                    .flatten()
-                {
+                let starts = if walk_due {
+                    [from_warm.then_some(z0), Some(&best_z[..])]
+                } else {
+                    [Some(&best_z[..]), from_warm.then_some(z0)]
+                };
+                for start in starts.into_iter().flatten() {
                     if let Some(sol) =
                         self.newton_finish(mcp, start, budget, NewtonFinish::Local, &mut run)
                         && sol.summary.residual <= self.settings.tolerance
