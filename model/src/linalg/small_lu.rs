@@ -182,30 +182,108 @@ impl SmallLu {
 }
 
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
-/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
+/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced. Two pivots
+/// per pass over the trailing matrix ([`eliminate_pair`]) where the first one is not zero and a
+/// second step follows; otherwise one ([`eliminate_one`]).
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    for k in 0..n {
+    let mut k = 0;
+    while k < n {
         let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
-        if p != k {
-            for col in a.chunks_exact_mut(n) {
-                col.swap(k, p);
-            }
+        // `a_pk` is the pivot once rows `k` and `p` are interchanged.
+        if k + 1 < n && a[k * n + p] != 0.0 {
+            eliminate_pair::<L>(n, a, piv, k, p);
+            k += 2;
+        } else {
+            eliminate_one::<L>(n, a, k, p);
+            k += 1;
         }
-        let pivot = a[k * n + k];
-        if pivot == 0.0 {
+    }
+}
+
+/// Elimination step `k` with pivot row `p`: rows `k` and `p` interchanged in every column,
+/// the multipliers `l_ik = a_ik / a_kk`, and every trailing column `j` with `a_kj ≠ 0` updated,
+/// `a_ij −= l_ik a_kj` (`i > k`); nothing but the interchange when the pivot is zero.
+#[inline(always)]
+fn eliminate_one<L: Lanes>(n: usize, a: &mut [f64], k: usize, p: usize) {
+    if p != k {
+        for col in a.chunks_exact_mut(n) {
+            col.swap(k, p);
+        }
+    }
+    let pivot = a[k * n + k];
+    if pivot == 0.0 {
+        return;
+    }
+    let (head, tail) = a.split_at_mut((k + 1) * n);
+    let lk = &mut head[k * n + k + 1..(k + 1) * n];
+    L::div(lk, pivot);
+    for col in tail.chunks_exact_mut(n) {
+        let akj = col[k];
+        if akj == 0.0 {
             continue;
         }
-        let (head, tail) = a.split_at_mut((k + 1) * n);
-        let lk = &mut head[k * n + k + 1..(k + 1) * n];
-        L::div(lk, pivot);
-        for col in tail.chunks_exact_mut(n) {
-            let akj = col[k];
-            if akj == 0.0 {
-                continue;
-            }
-            L::sub_scaled(&mut col[k + 1..], lk, akj);
+        L::sub_scaled(&mut col[k + 1..], lk, akj);
+    }
+}
+
+/// Elimination steps `k` and `k + 1` (pivot row `p` of step `k`, whose pivot is not zero) with
+/// one pass over the trailing columns `j > k + 1`, bitwise the two [`eliminate_one`] steps.
+/// Column `k + 1` is updated by step `k` first, so that step `k + 1`'s pivot row `q` is chosen
+/// from the same numbers. In each trailing column both interchanges come first: the
+/// interchange of rows `k + 1` and `q` (both below `k`) commutes with step `k`'s update of the
+/// column because it also interchanges the multipliers `l_{k+1,k}` and `l_{qk}`, so every entry
+/// gets its multiplier as before. Then `u_{k+1,j} = a_{k+1,j} − l_{k+1,k} a_kj`, and rows `i > k + 1`
+/// get `(a_ij − l_ik a_kj) − l_{i,k+1} u_{k+1,j}` in one pass ([`Lanes::sub_scaled2`], the first
+/// difference rounded as when it was stored), each of the two updates skipped exactly where a
+/// step skips it: where `a_kj` is zero, where `u_{k+1,j}` is zero, or where step `k + 1`'s
+/// pivot is zero (its column left unreduced).
+#[inline(always)]
+fn eliminate_pair<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize], k: usize, p: usize) {
+    let k1 = k + 1;
+    let (head, tail) = a.split_at_mut((k + 2) * n);
+    let (before, pair) = head.split_at_mut(k * n);
+    let (col_k, col_k1) = pair.split_at_mut(n);
+    // Step k on columns k and k + 1.
+    col_k.swap(k, p);
+    col_k1.swap(k, p);
+    let pivot = col_k[k];
+    L::div(&mut col_k[k1..], pivot);
+    let akj = col_k1[k];
+    if akj != 0.0 {
+        L::sub_scaled(&mut col_k1[k1..], &col_k[k1..], akj);
+    }
+    // Step k + 1's pivot, and both interchanges in the columns before, in one pass.
+    let q = k1 + L::first_largest_magnitude(&col_k1[k1..]);
+    piv[k1] = q;
+    col_k.swap(k1, q);
+    col_k1.swap(k1, q);
+    if p != k || q != k1 {
+        for col in before.chunks_exact_mut(n) {
+            col.swap(k, p);
+            col.swap(k1, q);
+        }
+    }
+    let pivot1 = col_k1[k1];
+    if pivot1 != 0.0 {
+        L::div(&mut col_k1[k1 + 1..], pivot1);
+    }
+    let (l_k1k, lk, lk1) = (col_k[k1], &col_k[k1 + 1..], &col_k1[k1 + 1..]);
+    for col in tail.chunks_exact_mut(n) {
+        col.swap(k, p);
+        col.swap(k1, q);
+        let akj = col[k];
+        if akj != 0.0 {
+            col[k1] -= l_k1k * akj;
+        }
+        let u = col[k1];
+        let step1 = pivot1 != 0.0 && u != 0.0;
+        match (akj != 0.0, step1) {
+            (true, true) => L::sub_scaled2(&mut col[k1 + 1..], lk, akj, lk1, u),
+            (true, false) => L::sub_scaled(&mut col[k1 + 1..], lk, akj),
+            (false, true) => L::sub_scaled(&mut col[k1 + 1..], lk1, u),
+            (false, false) => {}
         }
     }
 }
@@ -636,6 +714,41 @@ mod tests {
         a
     }
 
+    /// The elimination one pivot per pass over the trailing matrix (before two pivots per
+    /// pass, [`eliminate_pair`]), the reference the kernel must reproduce bit for bit.
+    fn one_pivot_reference<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        for k in 0..n {
+            let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
+            piv[k] = p;
+            if p != k {
+                for col in a.chunks_exact_mut(n) {
+                    col.swap(k, p);
+                }
+            }
+            let pivot = a[k * n + k];
+            if pivot == 0.0 {
+                continue;
+            }
+            let (head, tail) = a.split_at_mut((k + 1) * n);
+            let lk = &mut head[k * n + k + 1..(k + 1) * n];
+            L::div(lk, pivot);
+            for col in tail.chunks_exact_mut(n) {
+                let akj = col[k];
+                if akj == 0.0 {
+                    continue;
+                }
+                L::sub_scaled(&mut col[k + 1..], lk, akj);
+            }
+        }
+    }
+
+    /// [`one_pivot_reference`] with the portable loops: the factors and interchanges.
+    fn one_pivot_factors(src: &[f64], n: usize) -> (Vec<f64>, Vec<usize>) {
+        let (mut a, mut piv) = (src.to_vec(), vec![0; n]);
+        one_pivot_reference::<Portable>(n, &mut a, &mut piv);
+        (a, piv)
+    }
+
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()
     }
@@ -661,6 +774,9 @@ mod tests {
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
                 assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, seed {seed}");
+                let (reference, piv) = one_pivot_factors(&a, n);
+                assert_eq!(plain.piv, piv, "one pivot per pass, n = {n}, seed {seed}");
+                assert_eq!(bits(&plain.a), bits(&reference), "one pivot, n = {n}");
                 let rhs: Vec<f64> = (0..n)
                     .map(|i| {
                         if i % 4 == 1 {
@@ -722,5 +838,102 @@ mod tests {
             }
         }
         assert_eq!(cases, 48 * 4);
+    }
+
+    /// Small integers (exact cancellations: zero pivots in either step of a pair, zero
+    /// pivot-row entries before and after the first step's update), `−0` entries, NaN and
+    /// infinities, zero and repeated columns, sizes 1–40: two pivots per pass give bitwise the
+    /// factors and interchanges of one pivot per pass, with the portable loops and with AVX2.
+    /// The cases of a pair's pass (both updates, either one, none; a zero second pivot; a
+    /// `−0` that skips) are counted from the reference's factors and must all occur.
+    #[test]
+    fn two_pivots_per_pass_give_bitwise_the_one_pivot_elimination() {
+        let mut s = 17u64;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s >> 33
+        };
+        // [both, step k only, step k + 1 only, none, zero second pivot, zero single pivot,
+        //  a skipping −0, NaN factors]
+        let mut seen = [0usize; 8];
+        for n in 1..=40 {
+            for round in 0..12 {
+                let mut a: Vec<f64> = (0..n * n)
+                    .map(|_| match next() % 10 {
+                        0..=3 => 0.0,
+                        4 => -0.0,
+                        r => r as f64 - 7.0,
+                    })
+                    .collect();
+                if n > 2 {
+                    match round % 6 {
+                        // A column repeated (a zero pivot where the elimination reaches it).
+                        1 | 2 => {
+                            let (c, d) = ((next() as usize) % n, (next() as usize) % n);
+                            let src = a[d * n..(d + 1) * n].to_vec();
+                            a[c * n..(c + 1) * n].copy_from_slice(&src);
+                        }
+                        // A zero column.
+                        3 => {
+                            let c = (next() as usize) % n;
+                            a[c * n..(c + 1) * n].fill(if round % 2 == 0 { 0.0 } else { -0.0 });
+                        }
+                        4 => a[(next() as usize) % (n * n)] = f64::NAN,
+                        5 => a[(next() as usize) % (n * n)] = f64::INFINITY,
+                        _ => {}
+                    }
+                }
+                let (reference, ref_piv) = one_pivot_factors(&a, n);
+                let mut plain = SmallLu::new(n);
+                plain.avx2 = false;
+                plain.factor(&a);
+                assert_eq!(plain.piv, ref_piv, "portable, n = {n}, round {round}");
+                assert_eq!(bits(&plain.a), bits(&reference), "portable, n = {n}");
+                if avx2_available() {
+                    let mut fast = SmallLu::new(n);
+                    assert!(fast.avx2);
+                    fast.factor(&a);
+                    assert_eq!(fast.piv, ref_piv, "AVX2, n = {n}, round {round}");
+                    assert_eq!(bits(&fast.a), bits(&reference), "AVX2, n = {n}");
+                }
+                // The pairs the kernel takes, from the reference's pivots (`u_kk`).
+                let u = |i: usize, j: usize| reference[j * n + i];
+                let mut k = 0;
+                while k < n {
+                    if k + 1 < n && u(k, k) != 0.0 {
+                        if u(k + 1, k + 1) == 0.0 {
+                            seen[4] += 1;
+                        }
+                        for j in k + 2..n {
+                            let step1 = u(k + 1, k + 1) != 0.0 && u(k + 1, j) != 0.0;
+                            seen[match (u(k, j) != 0.0, step1) {
+                                (true, true) => 0,
+                                (true, false) => 1,
+                                (false, true) => 2,
+                                (false, false) => 3,
+                            }] += 1;
+                            if [u(k, j), u(k + 1, j)]
+                                .iter()
+                                .any(|x| x.to_bits() == (-0.0f64).to_bits())
+                            {
+                                seen[6] += 1;
+                            }
+                        }
+                        k += 2;
+                    } else {
+                        if u(k, k) == 0.0 {
+                            seen[5] += 1;
+                        }
+                        k += 1;
+                    }
+                }
+                if reference.iter().any(|x| x.is_nan()) {
+                    seen[7] += 1;
+                }
+            }
+        }
+        assert!(seen.iter().all(|&c| c > 0), "cases not exercised: {seen:?}");
     }
 }
