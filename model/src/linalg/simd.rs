@@ -13,10 +13,6 @@
 pub(super) trait Lanes {
     /// `x_i −= l_i s` for every `i` (the shorter length of `x` and `l`).
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64);
-    /// `x_i = (x_i − l_i s) − m_i t` for every `i` (the shortest length of `x`, `l` and `m`):
-    /// two [`Lanes::sub_scaled`] in one pass, the first difference rounded as if stored, so
-    /// bitwise the two passes (two elimination steps on one column, [`super::small_lu`]).
-    fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64);
     /// `x_i /= d` for every `i`.
     fn div(x: &mut [f64], d: f64);
     /// The partial pivot of a column `x` (not empty): the first entry of largest magnitude,
@@ -47,12 +43,6 @@ impl Lanes for Portable {
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
         for (x, l) in x.iter_mut().zip(l) {
             *x -= l * s;
-        }
-    }
-    #[inline(always)]
-    fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64) {
-        for ((x, l), m) in x.iter_mut().zip(l).zip(m) {
-            *x = (*x - l * s) - m * t;
         }
     }
     #[inline(always)]
@@ -91,11 +81,6 @@ impl Lanes for Avx2 {
         // SAFETY: `Avx2` is used only inside `#[target_feature(enable = "avx2")]` functions,
         // entered only when `avx2_available()` is true.
         unsafe { sub_scaled_avx2(x, l, s) }
-    }
-    #[inline(always)]
-    fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64) {
-        // SAFETY: as in `sub_scaled`.
-        unsafe { sub_scaled2_avx2(x, l, s, m, t) }
     }
     #[inline(always)]
     fn div(x: &mut [f64], d: f64) {
@@ -137,44 +122,11 @@ fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
     }
 }
 
-/// [`Lanes::sub_scaled2`] in four lanes, then two, then one; each product rounded before its
-/// subtraction (no fused multiply-add), as in [`sub_scaled_avx2`].
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn sub_scaled2_avx2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64) {
-    use std::arch::x86_64::*;
-    let len = x.len().min(l.len()).min(m.len());
-    let (xp, lp, mp) = (x.as_mut_ptr(), l.as_ptr(), m.as_ptr());
-    let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`, within the three slices.
-    unsafe {
-        while i + 4 <= len {
-            let y = _mm256_sub_pd(
-                _mm256_loadu_pd(xp.add(i)),
-                _mm256_mul_pd(_mm256_loadu_pd(lp.add(i)), s4),
-            );
-            let z = _mm256_sub_pd(y, _mm256_mul_pd(_mm256_loadu_pd(mp.add(i)), t4));
-            _mm256_storeu_pd(xp.add(i), z);
-            i += 4;
-        }
-        if i + 2 <= len {
-            let (s2, t2) = (_mm256_castpd256_pd128(s4), _mm256_castpd256_pd128(t4));
-            let y = _mm_sub_pd(
-                _mm_loadu_pd(xp.add(i)),
-                _mm_mul_pd(_mm_loadu_pd(lp.add(i)), s2),
-            );
-            let z = _mm_sub_pd(y, _mm_mul_pd(_mm_loadu_pd(mp.add(i)), t2));
-            _mm_storeu_pd(xp.add(i), z);
-            i += 2;
-        }
-        if i < len {
-            *xp.add(i) = (*xp.add(i) - *lp.add(i) * s) - *mp.add(i) * t;
-        }
-    }
-}
-
+/// [`Lanes::div`] in four lanes, a quadruple of zeros not divided: `±0 / d` is the zero with
+/// the sign of `±0` flipped where `d` is negative, for every `d` but zero and NaN (`0 / 0` is
+/// NaN), so the sign flip gives the division's bits. The divider takes 4–8 cycles
+/// per four lanes, and most quadruples of a step problem's multiplier column are zeros
+/// (`docs/latency.md`, branch wip-elimpair).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -183,11 +135,22 @@ fn div_avx2(x: &mut [f64], d: f64) {
     let len = x.len();
     let xp = x.as_mut_ptr();
     let d4 = _mm256_set1_pd(d);
+    // Neither zero nor NaN.
+    let skip = d.abs() > 0.0;
+    let sign = _mm256_and_pd(d4, _mm256_set1_pd(-0.0));
+    let zero = _mm256_setzero_pd();
     let mut i = 0;
     // SAFETY: every access is at an index below `len`.
     unsafe {
         while i + 4 <= len {
-            _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
+            let v = _mm256_loadu_pd(xp.add(i));
+            // NaN entries compare unequal to zero: divided.
+            let nonzero = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(v, zero));
+            if skip && nonzero == 0 {
+                _mm256_storeu_pd(xp.add(i), _mm256_xor_pd(v, sign));
+            } else {
+                _mm256_storeu_pd(xp.add(i), _mm256_div_pd(v, d4));
+            }
             i += 4;
         }
         while i < len {

@@ -182,108 +182,51 @@ impl SmallLu {
 }
 
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
-/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced. Two pivots
-/// per pass over the trailing matrix ([`eliminate_pair`]) where the first one is not zero and a
-/// second step follows; otherwise one ([`eliminate_one`]).
+/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
+///
+/// With look-ahead: step `k` updates column `k + 1` first and chooses step `k + 1`'s pivot row
+/// in it before it updates the other columns, which that choice does not depend on. The steps
+/// are a chain (pivot search, interchange, division, the next column's update) whose latency,
+/// not the number of operations, bounds the elimination of the step problems' matrices; in
+/// this order the other columns' updates run while the search's result is awaited instead of
+/// after it (`docs/latency.md`, branch wip-elimpair). The same operations on every entry in
+/// the same order as without look-ahead, so bitwise the same factors.
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    let mut k = 0;
-    while k < n {
-        let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
+    // Step k's pivot row when step k − 1 chose it already.
+    let mut next: Option<usize> = None;
+    for k in 0..n {
+        let p = match next.take() {
+            Some(p) => p,
+            None => k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]),
+        };
         piv[k] = p;
-        // `a_pk` is the pivot once rows `k` and `p` are interchanged.
-        if k + 1 < n && a[k * n + p] != 0.0 {
-            eliminate_pair::<L>(n, a, piv, k, p);
-            k += 2;
-        } else {
-            eliminate_one::<L>(n, a, k, p);
-            k += 1;
+        if p != k {
+            for col in a.chunks_exact_mut(n) {
+                col.swap(k, p);
+            }
         }
-    }
-}
-
-/// Elimination step `k` with pivot row `p`: rows `k` and `p` interchanged in every column,
-/// the multipliers `l_ik = a_ik / a_kk`, and every trailing column `j` with `a_kj ≠ 0` updated,
-/// `a_ij −= l_ik a_kj` (`i > k`); nothing but the interchange when the pivot is zero.
-#[inline(always)]
-fn eliminate_one<L: Lanes>(n: usize, a: &mut [f64], k: usize, p: usize) {
-    if p != k {
-        for col in a.chunks_exact_mut(n) {
-            col.swap(k, p);
-        }
-    }
-    let pivot = a[k * n + k];
-    if pivot == 0.0 {
-        return;
-    }
-    let (head, tail) = a.split_at_mut((k + 1) * n);
-    let lk = &mut head[k * n + k + 1..(k + 1) * n];
-    L::div(lk, pivot);
-    for col in tail.chunks_exact_mut(n) {
-        let akj = col[k];
-        if akj == 0.0 {
+        let pivot = a[k * n + k];
+        if pivot == 0.0 {
             continue;
         }
-        L::sub_scaled(&mut col[k + 1..], lk, akj);
-    }
-}
-
-/// Elimination steps `k` and `k + 1` (pivot row `p` of step `k`, whose pivot is not zero) with
-/// one pass over the trailing columns `j > k + 1`, bitwise the two [`eliminate_one`] steps.
-/// Column `k + 1` is updated by step `k` first, so that step `k + 1`'s pivot row `q` is chosen
-/// from the same numbers. In each trailing column both interchanges come first: the
-/// interchange of rows `k + 1` and `q` (both below `k`) commutes with step `k`'s update of the
-/// column because it also interchanges the multipliers `l_{k+1,k}` and `l_{qk}`, so every entry
-/// gets its multiplier as before. Then `u_{k+1,j} = a_{k+1,j} − l_{k+1,k} a_kj`, and rows `i > k + 1`
-/// get `(a_ij − l_ik a_kj) − l_{i,k+1} u_{k+1,j}` in one pass ([`Lanes::sub_scaled2`], the first
-/// difference rounded as when it was stored), each of the two updates skipped exactly where a
-/// step skips it: where `a_kj` is zero, where `u_{k+1,j}` is zero, or where step `k + 1`'s
-/// pivot is zero (its column left unreduced).
-#[inline(always)]
-fn eliminate_pair<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize], k: usize, p: usize) {
-    let k1 = k + 1;
-    let (head, tail) = a.split_at_mut((k + 2) * n);
-    let (before, pair) = head.split_at_mut(k * n);
-    let (col_k, col_k1) = pair.split_at_mut(n);
-    // Step k on columns k and k + 1.
-    col_k.swap(k, p);
-    col_k1.swap(k, p);
-    let pivot = col_k[k];
-    L::div(&mut col_k[k1..], pivot);
-    let akj = col_k1[k];
-    if akj != 0.0 {
-        L::sub_scaled(&mut col_k1[k1..], &col_k[k1..], akj);
-    }
-    // Step k + 1's pivot, and both interchanges in the columns before, in one pass.
-    let q = k1 + L::first_largest_magnitude(&col_k1[k1..]);
-    piv[k1] = q;
-    col_k.swap(k1, q);
-    col_k1.swap(k1, q);
-    if p != k || q != k1 {
-        for col in before.chunks_exact_mut(n) {
-            col.swap(k, p);
-            col.swap(k1, q);
+        let (head, tail) = a.split_at_mut((k + 1) * n);
+        let lk = &mut head[k * n + k + 1..(k + 1) * n];
+        L::div(lk, pivot);
+        let mut cols = tail.chunks_exact_mut(n);
+        if let Some(col) = cols.next() {
+            let akj = col[k];
+            if akj != 0.0 {
+                L::sub_scaled(&mut col[k + 1..], lk, akj);
+            }
+            next = Some(k + 1 + L::first_largest_magnitude(&col[k + 1..]));
         }
-    }
-    let pivot1 = col_k1[k1];
-    if pivot1 != 0.0 {
-        L::div(&mut col_k1[k1 + 1..], pivot1);
-    }
-    let (l_k1k, lk, lk1) = (col_k[k1], &col_k[k1 + 1..], &col_k1[k1 + 1..]);
-    for col in tail.chunks_exact_mut(n) {
-        col.swap(k, p);
-        col.swap(k1, q);
-        let akj = col[k];
-        if akj != 0.0 {
-            col[k1] -= l_k1k * akj;
-        }
-        let u = col[k1];
-        let step1 = pivot1 != 0.0 && u != 0.0;
-        match (akj != 0.0, step1) {
-            (true, true) => L::sub_scaled2(&mut col[k1 + 1..], lk, akj, lk1, u),
-            (true, false) => L::sub_scaled(&mut col[k1 + 1..], lk, akj),
-            (false, true) => L::sub_scaled(&mut col[k1 + 1..], lk1, u),
-            (false, false) => {}
+        for col in cols {
+            let akj = col[k];
+            if akj == 0.0 {
+                continue;
+            }
+            L::sub_scaled(&mut col[k + 1..], lk, akj);
         }
     }
 }
@@ -714,8 +657,8 @@ mod tests {
         a
     }
 
-    /// The elimination one pivot per pass over the trailing matrix (before two pivots per
-    /// pass, [`eliminate_pair`]), the reference the kernel must reproduce bit for bit.
+    /// The elimination without look-ahead (the kernel before it), the reference the kernel
+    /// must reproduce bit for bit.
     fn one_pivot_reference<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         for k in 0..n {
             let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
@@ -740,6 +683,51 @@ mod tests {
                 L::sub_scaled(&mut col[k + 1..], lk, akj);
             }
         }
+    }
+
+    /// The AVX2 loops with the division of every quadruple (before the zero quadruples'
+    /// sign flip), for the timing of main's kernel.
+    #[cfg(target_arch = "x86_64")]
+    struct Avx2DivAll;
+
+    #[cfg(target_arch = "x86_64")]
+    impl Lanes for Avx2DivAll {
+        #[inline(always)]
+        fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
+            Avx2::sub_scaled(x, l, s)
+        }
+        #[inline(always)]
+        fn div(x: &mut [f64], d: f64) {
+            use std::arch::x86_64::*;
+            let mut chunks = x.chunks_exact_mut(4);
+            for c in &mut chunks {
+                // SAFETY: four entries of `c`; the processor has AVX2 (the caller's).
+                unsafe {
+                    let v = _mm256_div_pd(_mm256_loadu_pd(c.as_ptr()), _mm256_set1_pd(d));
+                    _mm256_storeu_pd(c.as_mut_ptr(), v);
+                }
+            }
+            for v in chunks.into_remainder() {
+                *v /= d;
+            }
+        }
+        #[inline(always)]
+        fn first_largest_magnitude(x: &[f64]) -> usize {
+            Avx2::first_largest_magnitude(x)
+        }
+    }
+
+    /// Main's kernel: [`one_pivot_reference`] with [`Avx2DivAll`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn main_kernel_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        one_pivot_reference::<Avx2DivAll>(n, a, piv);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn one_pivot_reference_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        one_pivot_reference::<Avx2>(n, a, piv);
     }
 
     /// [`one_pivot_reference`] with the portable loops: the factors and interchanges.
@@ -840,14 +828,14 @@ mod tests {
         assert_eq!(cases, 48 * 4);
     }
 
-    /// Small integers (exact cancellations: zero pivots in either step of a pair, zero
-    /// pivot-row entries before and after the first step's update), `−0` entries, NaN and
-    /// infinities, zero and repeated columns, sizes 1–40: two pivots per pass give bitwise the
-    /// factors and interchanges of one pivot per pass, with the portable loops and with AVX2.
-    /// The cases of a pair's pass (both updates, either one, none; a zero second pivot; a
-    /// `−0` that skips) are counted from the reference's factors and must all occur.
+    /// Small integers (exact cancellations: zero pivots, zero pivot-row entries), `−0`
+    /// entries, NaN and infinities, zero and repeated columns, sizes 1–40: the elimination with
+    /// look-ahead gives bitwise the factors and interchanges of the one without
+    /// ([`one_pivot_reference`]), with the portable loops and with AVX2. The cases (a zero
+    /// pivot after a looked-ahead search, a `−0` that skips an update, an interchange, NaN
+    /// factors) are counted from the reference's factors and must all occur.
     #[test]
-    fn two_pivots_per_pass_give_bitwise_the_one_pivot_elimination() {
+    fn look_ahead_gives_bitwise_the_plain_elimination() {
         let mut s = 17u64;
         let mut next = move || {
             s = s
@@ -855,9 +843,8 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             s >> 33
         };
-        // [both, step k only, step k + 1 only, none, zero second pivot, zero single pivot,
-        //  a skipping −0, NaN factors]
-        let mut seen = [0usize; 8];
+        // [zero pivot after a nonzero one, a skipping −0, an interchange, NaN factors]
+        let mut seen = [0usize; 4];
         for n in 1..=40 {
             for round in 0..12 {
                 let mut a: Vec<f64> = (0..n * n)
@@ -898,42 +885,97 @@ mod tests {
                     assert_eq!(fast.piv, ref_piv, "AVX2, n = {n}, round {round}");
                     assert_eq!(bits(&fast.a), bits(&reference), "AVX2, n = {n}");
                 }
-                // The pairs the kernel takes, from the reference's pivots (`u_kk`).
                 let u = |i: usize, j: usize| reference[j * n + i];
-                let mut k = 0;
-                while k < n {
-                    if k + 1 < n && u(k, k) != 0.0 {
-                        if u(k + 1, k + 1) == 0.0 {
-                            seen[4] += 1;
-                        }
-                        for j in k + 2..n {
-                            let step1 = u(k + 1, k + 1) != 0.0 && u(k + 1, j) != 0.0;
-                            seen[match (u(k, j) != 0.0, step1) {
-                                (true, true) => 0,
-                                (true, false) => 1,
-                                (false, true) => 2,
-                                (false, false) => 3,
-                            }] += 1;
-                            if [u(k, j), u(k + 1, j)]
-                                .iter()
-                                .any(|x| x.to_bits() == (-0.0f64).to_bits())
-                            {
-                                seen[6] += 1;
-                            }
-                        }
-                        k += 2;
-                    } else {
-                        if u(k, k) == 0.0 {
-                            seen[5] += 1;
-                        }
-                        k += 1;
+                for k in 1..n {
+                    if u(k, k) == 0.0 && u(k - 1, k - 1) != 0.0 {
+                        seen[0] += 1;
                     }
                 }
+                for k in 0..n {
+                    if u(k, k) != 0.0
+                        && (k + 1..n).any(|j| u(k, j).to_bits() == (-0.0f64).to_bits())
+                    {
+                        seen[1] += 1;
+                    }
+                }
+                seen[2] += ref_piv
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, p)| *k != **p)
+                    .count();
                 if reference.iter().any(|x| x.is_nan()) {
-                    seen[7] += 1;
+                    seen[3] += 1;
                 }
             }
         }
         assert!(seen.iter().all(|&c| c > 0), "cases not exercised: {seen:?}");
+    }
+
+    /// The CPU time of this thread in nanoseconds (Linux), else the wall time since `start`.
+    fn cpu_ns(start: std::time::Instant) -> u128 {
+        std::fs::read_to_string("/proc/thread-self/schedstat")
+            .ok()
+            .and_then(|s| s.split_whitespace().next()?.parse().ok())
+            .unwrap_or_else(|| start.elapsed().as_nanos())
+    }
+
+    /// Not a check: the CPU time per factorisation, with AVX2, interleaved rounds, of main's
+    /// kernel (no look-ahead, every quadruple divided: "main"), of the elimination without
+    /// look-ahead ([`one_pivot_reference`], "plain") and of the kernel. The matrices come from the file `ECP_LU_BENCH` (one per line: `n`, then the
+    /// `n²` column-major entries as hexadecimal bits), else a 31 × 31 `awkward_matrix` a third
+    /// full; `ECP_LU_BENCH_REPS` factorisations per round (10⁶). Run with
+    /// `cargo test --release -p ecp-model --lib elimination_time -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn elimination_time() {
+        if !avx2_available() {
+            return;
+        }
+        let matrices: Vec<Vec<f64>> = match std::env::var("ECP_LU_BENCH") {
+            Ok(path) => std::fs::read_to_string(path)
+                .expect("ECP_LU_BENCH names a readable file")
+                .lines()
+                .map(|line| {
+                    line.split_whitespace()
+                        .skip(1)
+                        .map(|h| f64::from_bits(u64::from_str_radix(h, 16).expect("hex bits")))
+                        .collect()
+                })
+                .collect(),
+            Err(_) => vec![awkward_matrix(31, 4031, 0.36)],
+        };
+        let n = (matrices[0].len() as f64).sqrt() as usize;
+        assert!(matrices.iter().all(|m| m.len() == n * n));
+        let reps: usize = std::env::var("ECP_LU_BENCH_REPS")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(1_000_000);
+        // `ECP_LU_BENCH_ONLY=main`, `plain` or `kernel`: that one alone.
+        let only = std::env::var("ECP_LU_BENCH_ONLY").unwrap_or_default();
+        let kernels: [(&str, unsafe fn(usize, &mut [f64], &mut [usize])); 3] = [
+            ("main", main_kernel_avx2),
+            ("plain", one_pivot_reference_avx2),
+            ("kernel", eliminate_avx2),
+        ];
+        let mut a = vec![0.0; n * n];
+        let mut piv = vec![0; n];
+        let start = std::time::Instant::now();
+        for round in 0..8 {
+            for (name, kernel) in kernels {
+                if !only.is_empty() && only != name {
+                    continue;
+                }
+                let t0 = cpu_ns(start);
+                for r in 0..reps {
+                    let m = &matrices[r % matrices.len()];
+                    a.copy_from_slice(std::hint::black_box(m));
+                    // SAFETY: the processor has AVX2 (checked above).
+                    unsafe { kernel(n, &mut a, &mut piv) };
+                    std::hint::black_box(&a);
+                }
+                let per = (cpu_ns(start) - t0) as f64 / reps as f64;
+                eprintln!("round {round}, {name:>8}: {per:.1} ns per factorisation");
+            }
+        }
     }
 }
