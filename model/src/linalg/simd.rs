@@ -122,11 +122,6 @@ fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
     }
 }
 
-/// [`Lanes::div`] in four lanes, a quadruple of zeros not divided: `±0 / d` is the zero with
-/// the sign of `±0` flipped where `d` is negative, for every `d` but zero and NaN (`0 / 0` is
-/// NaN), so the sign flip gives the division's bits. The divider takes 4–8 cycles
-/// per four lanes, and most quadruples of a step problem's multiplier column are zeros
-/// (`docs/latency.md`, branch wip-elimpair).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
@@ -135,22 +130,11 @@ fn div_avx2(x: &mut [f64], d: f64) {
     let len = x.len();
     let xp = x.as_mut_ptr();
     let d4 = _mm256_set1_pd(d);
-    // Neither zero nor NaN.
-    let skip = d.abs() > 0.0;
-    let sign = _mm256_and_pd(d4, _mm256_set1_pd(-0.0));
-    let zero = _mm256_setzero_pd();
     let mut i = 0;
     // SAFETY: every access is at an index below `len`.
     unsafe {
         while i + 4 <= len {
-            let v = _mm256_loadu_pd(xp.add(i));
-            // NaN entries compare unequal to zero: divided.
-            let nonzero = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_NEQ_UQ>(v, zero));
-            if skip && nonzero == 0 {
-                _mm256_storeu_pd(xp.add(i), _mm256_xor_pd(v, sign));
-            } else {
-                _mm256_storeu_pd(xp.add(i), _mm256_div_pd(v, d4));
-            }
+            _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
             i += 4;
         }
         while i < len {

@@ -183,23 +183,10 @@ impl SmallLu {
 
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
 /// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
-///
-/// With look-ahead: step `k` updates column `k + 1` first and chooses step `k + 1`'s pivot row
-/// in it before it updates the other columns, which that choice does not depend on. The steps
-/// are a chain (pivot search, interchange, division, the next column's update) whose latency,
-/// not the number of operations, bounds the elimination of the step problems' matrices; in
-/// this order the other columns' updates run while the search's result is awaited instead of
-/// after it (`docs/latency.md`, branch wip-elimpair). The same operations on every entry in
-/// the same order as without look-ahead, so bitwise the same factors.
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    // Step k's pivot row when step k − 1 chose it already.
-    let mut next: Option<usize> = None;
     for k in 0..n {
-        let p = match next.take() {
-            Some(p) => p,
-            None => k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]),
-        };
+        let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
         if p != k {
             for col in a.chunks_exact_mut(n) {
@@ -213,15 +200,7 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
         L::div(lk, pivot);
-        let mut cols = tail.chunks_exact_mut(n);
-        if let Some(col) = cols.next() {
-            let akj = col[k];
-            if akj != 0.0 {
-                L::sub_scaled(&mut col[k + 1..], lk, akj);
-            }
-            next = Some(k + 1 + L::first_largest_magnitude(&col[k + 1..]));
-        }
-        for col in cols {
+        for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
                 continue;
@@ -657,86 +636,6 @@ mod tests {
         a
     }
 
-    /// The elimination without look-ahead (the kernel before it), the reference the kernel
-    /// must reproduce bit for bit.
-    fn one_pivot_reference<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
-        for k in 0..n {
-            let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
-            piv[k] = p;
-            if p != k {
-                for col in a.chunks_exact_mut(n) {
-                    col.swap(k, p);
-                }
-            }
-            let pivot = a[k * n + k];
-            if pivot == 0.0 {
-                continue;
-            }
-            let (head, tail) = a.split_at_mut((k + 1) * n);
-            let lk = &mut head[k * n + k + 1..(k + 1) * n];
-            L::div(lk, pivot);
-            for col in tail.chunks_exact_mut(n) {
-                let akj = col[k];
-                if akj == 0.0 {
-                    continue;
-                }
-                L::sub_scaled(&mut col[k + 1..], lk, akj);
-            }
-        }
-    }
-
-    /// The AVX2 loops with the division of every quadruple (before the zero quadruples'
-    /// sign flip), for the timing of main's kernel.
-    #[cfg(target_arch = "x86_64")]
-    struct Avx2DivAll;
-
-    #[cfg(target_arch = "x86_64")]
-    impl Lanes for Avx2DivAll {
-        #[inline(always)]
-        fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
-            Avx2::sub_scaled(x, l, s)
-        }
-        #[inline(always)]
-        fn div(x: &mut [f64], d: f64) {
-            use std::arch::x86_64::*;
-            let mut chunks = x.chunks_exact_mut(4);
-            for c in &mut chunks {
-                // SAFETY: four entries of `c`; the processor has AVX2 (the caller's).
-                unsafe {
-                    let v = _mm256_div_pd(_mm256_loadu_pd(c.as_ptr()), _mm256_set1_pd(d));
-                    _mm256_storeu_pd(c.as_mut_ptr(), v);
-                }
-            }
-            for v in chunks.into_remainder() {
-                *v /= d;
-            }
-        }
-        #[inline(always)]
-        fn first_largest_magnitude(x: &[f64]) -> usize {
-            Avx2::first_largest_magnitude(x)
-        }
-    }
-
-    /// Main's kernel: [`one_pivot_reference`] with [`Avx2DivAll`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn main_kernel_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
-        one_pivot_reference::<Avx2DivAll>(n, a, piv);
-    }
-
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn one_pivot_reference_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
-        one_pivot_reference::<Avx2>(n, a, piv);
-    }
-
-    /// [`one_pivot_reference`] with the portable loops: the factors and interchanges.
-    fn one_pivot_factors(src: &[f64], n: usize) -> (Vec<f64>, Vec<usize>) {
-        let (mut a, mut piv) = (src.to_vec(), vec![0; n]);
-        one_pivot_reference::<Portable>(n, &mut a, &mut piv);
-        (a, piv)
-    }
-
     fn bits(v: &[f64]) -> Vec<u64> {
         v.iter().map(|x| x.to_bits()).collect()
     }
@@ -762,9 +661,6 @@ mod tests {
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
                 assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, seed {seed}");
-                let (reference, piv) = one_pivot_factors(&a, n);
-                assert_eq!(plain.piv, piv, "one pivot per pass, n = {n}, seed {seed}");
-                assert_eq!(bits(&plain.a), bits(&reference), "one pivot, n = {n}");
                 let rhs: Vec<f64> = (0..n)
                     .map(|i| {
                         if i % 4 == 1 {
@@ -828,14 +724,296 @@ mod tests {
         assert_eq!(cases, 48 * 4);
     }
 
-    /// Small integers (exact cancellations: zero pivots, zero pivot-row entries), `−0`
-    /// entries, NaN and infinities, zero and repeated columns, sizes 1–40: the elimination with
-    /// look-ahead gives bitwise the factors and interchanges of the one without
-    /// ([`one_pivot_reference`]), with the portable loops and with AVX2. The cases (a zero
-    /// pivot after a looked-ahead search, a `−0` that skips an update, an interchange, NaN
-    /// factors) are counted from the reference's factors and must all occur.
+    // Variants of the elimination tried for the latency (issue 18) and not kept, each bitwise
+    // main's kernel; the timing test below compares them (`docs/latency.md`, "The small LU's
+    // elimination two pivots at a time, tried", branch wip-elimpair).
+
+    /// Main's elimination, written out: the reference each variant must reproduce bit for bit.
+    fn one_pivot_reference<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        for k in 0..n {
+            let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
+            piv[k] = p;
+            if p != k {
+                for col in a.chunks_exact_mut(n) {
+                    col.swap(k, p);
+                }
+            }
+            let pivot = a[k * n + k];
+            if pivot == 0.0 {
+                continue;
+            }
+            let (head, tail) = a.split_at_mut((k + 1) * n);
+            let lk = &mut head[k * n + k + 1..(k + 1) * n];
+            L::div(lk, pivot);
+            for col in tail.chunks_exact_mut(n) {
+                let akj = col[k];
+                if akj == 0.0 {
+                    continue;
+                }
+                L::sub_scaled(&mut col[k + 1..], lk, akj);
+            }
+        }
+    }
+
+    /// The loops of two elimination steps in one pass.
+    trait PairLanes: Lanes {
+        /// `x_i = (x_i − l_i s) − m_i t`: the first difference rounded as if it were stored,
+        /// so bitwise two [`Lanes::sub_scaled`].
+        fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64);
+    }
+
+    impl PairLanes for Portable {
+        fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64) {
+            for ((x, l), m) in x.iter_mut().zip(l).zip(m) {
+                *x = (*x - l * s) - m * t;
+            }
+        }
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    impl PairLanes for Avx2 {
+        #[inline(always)]
+        fn sub_scaled2(x: &mut [f64], l: &[f64], s: f64, m: &[f64], t: f64) {
+            use std::arch::x86_64::*;
+            let len = x.len().min(l.len()).min(m.len());
+            let (xp, lp, mp) = (x.as_mut_ptr(), l.as_ptr(), m.as_ptr());
+            let mut i = 0;
+            // SAFETY: indices below `len`; `Avx2` runs only where the processor has AVX2.
+            unsafe {
+                let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
+                while i + 4 <= len {
+                    let y = _mm256_sub_pd(
+                        _mm256_loadu_pd(xp.add(i)),
+                        _mm256_mul_pd(_mm256_loadu_pd(lp.add(i)), s4),
+                    );
+                    let z = _mm256_sub_pd(y, _mm256_mul_pd(_mm256_loadu_pd(mp.add(i)), t4));
+                    _mm256_storeu_pd(xp.add(i), z);
+                    i += 4;
+                }
+                while i < len {
+                    *xp.add(i) = (*xp.add(i) - *lp.add(i) * s) - *mp.add(i) * t;
+                    i += 1;
+                }
+            }
+        }
+    }
+
+    /// Two pivots per pass over the trailing matrix where step `k`'s pivot is not zero and a
+    /// step `k + 1` follows. Column `k + 1` is updated by step `k` first and step `k + 1`'s
+    /// pivot row `q` chosen in it; both interchanges in the other columns (in a pass of their
+    /// own: in the update's pass, the vector loads over the interchanged entries just stored
+    /// waited for the stores); the interchange of rows `k + 1` and `q` commutes with step `k`'s
+    /// update since it also interchanges the multipliers `l_{k+1,k}` and `l_{qk}`. Then per
+    /// trailing column `u_{k+1,j} = a_{k+1,j} − l_{k+1,k} a_kj` and rows `i > k + 1` get
+    /// `(a_ij − l_ik a_kj) − l_{i,k+1} u_{k+1,j}`, each update skipped where a step skips it
+    /// (`a_kj` zero; `u_{k+1,j}` zero or step `k + 1`'s pivot zero).
+    fn eliminate_pairs<L: PairLanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        let mut k = 0;
+        while k < n {
+            let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
+            piv[k] = p;
+            if k + 1 == n || a[k * n + p] == 0.0 {
+                // One step, as main's.
+                if p != k {
+                    for col in a.chunks_exact_mut(n) {
+                        col.swap(k, p);
+                    }
+                }
+                let pivot = a[k * n + k];
+                if pivot != 0.0 {
+                    let (head, tail) = a.split_at_mut((k + 1) * n);
+                    let lk = &mut head[k * n + k + 1..(k + 1) * n];
+                    L::div(lk, pivot);
+                    for col in tail.chunks_exact_mut(n) {
+                        let akj = col[k];
+                        if akj != 0.0 {
+                            L::sub_scaled(&mut col[k + 1..], lk, akj);
+                        }
+                    }
+                }
+                k += 1;
+                continue;
+            }
+            let k1 = k + 1;
+            let (head, tail) = a.split_at_mut((k + 2) * n);
+            let (before, pair) = head.split_at_mut(k * n);
+            let (col_k, col_k1) = pair.split_at_mut(n);
+            col_k.swap(k, p);
+            col_k1.swap(k, p);
+            let pivot = col_k[k];
+            L::div(&mut col_k[k1..], pivot);
+            let akj = col_k1[k];
+            if akj != 0.0 {
+                L::sub_scaled(&mut col_k1[k1..], &col_k[k1..], akj);
+            }
+            let q = k1 + L::first_largest_magnitude(&col_k1[k1..]);
+            piv[k1] = q;
+            col_k.swap(k1, q);
+            col_k1.swap(k1, q);
+            if p != k || q != k1 {
+                for col in before.chunks_exact_mut(n).chain(tail.chunks_exact_mut(n)) {
+                    col.swap(k, p);
+                    col.swap(k1, q);
+                }
+            }
+            let pivot1 = col_k1[k1];
+            if pivot1 != 0.0 {
+                L::div(&mut col_k1[k1 + 1..], pivot1);
+            }
+            let (l_k1k, lk, lk1) = (col_k[k1], &col_k[k1 + 1..], &col_k1[k1 + 1..]);
+            for col in tail.chunks_exact_mut(n) {
+                let akj = col[k];
+                if akj != 0.0 {
+                    col[k1] -= l_k1k * akj;
+                }
+                let u = col[k1];
+                let step1 = pivot1 != 0.0 && u != 0.0;
+                match (akj != 0.0, step1) {
+                    (true, true) => L::sub_scaled2(&mut col[k1 + 1..], lk, akj, lk1, u),
+                    (true, false) => L::sub_scaled(&mut col[k1 + 1..], lk, akj),
+                    (false, true) => L::sub_scaled(&mut col[k1 + 1..], lk1, u),
+                    (false, false) => {}
+                }
+            }
+            k += 2;
+        }
+    }
+
+    /// Look-ahead: step `k` updates column `k + 1` first and chooses step `k + 1`'s pivot row
+    /// in it before it updates the other columns (which that choice does not depend on), so
+    /// that the search's latency overlaps their updates.
+    fn eliminate_look_ahead<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        let mut next: Option<usize> = None;
+        for k in 0..n {
+            let p = match next.take() {
+                Some(p) => p,
+                None => k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]),
+            };
+            piv[k] = p;
+            if p != k {
+                for col in a.chunks_exact_mut(n) {
+                    col.swap(k, p);
+                }
+            }
+            let pivot = a[k * n + k];
+            if pivot == 0.0 {
+                continue;
+            }
+            let (head, tail) = a.split_at_mut((k + 1) * n);
+            let lk = &mut head[k * n + k + 1..(k + 1) * n];
+            L::div(lk, pivot);
+            let mut cols = tail.chunks_exact_mut(n);
+            if let Some(col) = cols.next() {
+                let akj = col[k];
+                if akj != 0.0 {
+                    L::sub_scaled(&mut col[k + 1..], lk, akj);
+                }
+                next = Some(k + 1 + L::first_largest_magnitude(&col[k + 1..]));
+            }
+            for col in cols {
+                let akj = col[k];
+                if akj != 0.0 {
+                    L::sub_scaled(&mut col[k + 1..], lk, akj);
+                }
+            }
+        }
+    }
+
+    /// The AVX2 loops with a quadruple of zero multipliers not divided but its signs flipped
+    /// where the pivot is negative (`±0 / d` for `d` neither zero nor NaN).
+    #[cfg(target_arch = "x86_64")]
+    struct Avx2ZeroQuads;
+
+    #[cfg(target_arch = "x86_64")]
+    impl Lanes for Avx2ZeroQuads {
+        #[inline(always)]
+        fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
+            Avx2::sub_scaled(x, l, s)
+        }
+        #[inline(always)]
+        fn div(x: &mut [f64], d: f64) {
+            use std::arch::x86_64::*;
+            let skip = d.abs() > 0.0;
+            let mut chunks = x.chunks_exact_mut(4);
+            // SAFETY: four entries of each chunk; `Avx2ZeroQuads` runs only where the
+            // processor has AVX2.
+            unsafe {
+                let d4 = _mm256_set1_pd(d);
+                let sign = _mm256_and_pd(d4, _mm256_set1_pd(-0.0));
+                for c in &mut chunks {
+                    let v = _mm256_loadu_pd(c.as_ptr());
+                    let nonzero = _mm256_cmp_pd::<_CMP_NEQ_UQ>(v, _mm256_setzero_pd());
+                    if skip && _mm256_movemask_pd(nonzero) == 0 {
+                        _mm256_storeu_pd(c.as_mut_ptr(), _mm256_xor_pd(v, sign));
+                    } else {
+                        _mm256_storeu_pd(c.as_mut_ptr(), _mm256_div_pd(v, d4));
+                    }
+                }
+            }
+            for v in chunks.into_remainder() {
+                *v /= d;
+            }
+        }
+        #[inline(always)]
+        fn first_largest_magnitude(x: &[f64]) -> usize {
+            Avx2::first_largest_magnitude(x)
+        }
+    }
+
+    type Kernel = unsafe fn(usize, &mut [f64], &mut [usize]);
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn main_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        one_pivot_reference::<Avx2>(n, a, piv);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn pairs_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        eliminate_pairs::<Avx2>(n, a, piv);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn look_ahead_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        eliminate_look_ahead::<Avx2>(n, a, piv);
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2")]
+    fn zero_quads_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+        one_pivot_reference::<Avx2ZeroQuads>(n, a, piv);
+    }
+
+    /// The kernel (AVX2 when the processor has it), main's written out, and the variants.
+    fn kernels() -> Vec<(&'static str, Kernel)> {
+        let mut kernels: Vec<(&str, Kernel)> = vec![
+            ("portable pairs", eliminate_pairs::<Portable>),
+            ("portable look-ahead", eliminate_look_ahead::<Portable>),
+        ];
+        #[cfg(target_arch = "x86_64")]
+        if avx2_available() {
+            kernels.extend([
+                ("main", eliminate_avx2 as Kernel),
+                ("main written out", main_avx2),
+                ("pairs", pairs_avx2),
+                ("look-ahead", look_ahead_avx2),
+                ("zero quadruples", zero_quads_avx2),
+            ]);
+        }
+        kernels
+    }
+
+    /// Small integers (exact cancellations: zero pivots, zero pivot-row entries before and
+    /// after an update), `−0` entries, NaN and infinities, zero and repeated columns, sizes
+    /// 1–40: the kernel and every variant give bitwise the factors and interchanges of main's
+    /// elimination with the portable loops. The cases are counted from those factors and must
+    /// all occur: for the pairs (which each step starts with the first pivot not zero), both
+    /// updates, either one and none in a trailing column, a zero second pivot, a zero single
+    /// pivot; a `−0` that skips an update; an interchange; NaN factors.
     #[test]
-    fn look_ahead_gives_bitwise_the_plain_elimination() {
+    fn tried_variants_give_bitwise_the_kernels_factors() {
         let mut s = 17u64;
         let mut next = move || {
             s = s
@@ -843,8 +1021,7 @@ mod tests {
                 .wrapping_add(1442695040888963407);
             s >> 33
         };
-        // [zero pivot after a nonzero one, a skipping −0, an interchange, NaN factors]
-        let mut seen = [0usize; 4];
+        let mut seen = [0usize; 9];
         for n in 1..=40 {
             for round in 0..12 {
                 let mut a: Vec<f64> = (0..n * n)
@@ -862,7 +1039,6 @@ mod tests {
                             let src = a[d * n..(d + 1) * n].to_vec();
                             a[c * n..(c + 1) * n].copy_from_slice(&src);
                         }
-                        // A zero column.
                         3 => {
                             let c = (next() as usize) % n;
                             a[c * n..(c + 1) * n].fill(if round % 2 == 0 { 0.0 } else { -0.0 });
@@ -872,40 +1048,42 @@ mod tests {
                         _ => {}
                     }
                 }
-                let (reference, ref_piv) = one_pivot_factors(&a, n);
-                let mut plain = SmallLu::new(n);
-                plain.avx2 = false;
-                plain.factor(&a);
-                assert_eq!(plain.piv, ref_piv, "portable, n = {n}, round {round}");
-                assert_eq!(bits(&plain.a), bits(&reference), "portable, n = {n}");
-                if avx2_available() {
-                    let mut fast = SmallLu::new(n);
-                    assert!(fast.avx2);
-                    fast.factor(&a);
-                    assert_eq!(fast.piv, ref_piv, "AVX2, n = {n}, round {round}");
-                    assert_eq!(bits(&fast.a), bits(&reference), "AVX2, n = {n}");
+                let (mut reference, mut ref_piv) = (a.clone(), vec![0; n]);
+                one_pivot_reference::<Portable>(n, &mut reference, &mut ref_piv);
+                for (name, kernel) in kernels() {
+                    let (mut f, mut piv) = (a.clone(), vec![0; n]);
+                    // SAFETY: the AVX2 kernels are listed only where the processor has AVX2.
+                    unsafe { kernel(n, &mut f, &mut piv) };
+                    assert_eq!(piv, ref_piv, "{name}, n = {n}, round {round}");
+                    assert_eq!(bits(&f), bits(&reference), "{name}, n = {n}, round {round}");
                 }
                 let u = |i: usize, j: usize| reference[j * n + i];
-                for k in 1..n {
-                    if u(k, k) == 0.0 && u(k - 1, k - 1) != 0.0 {
-                        seen[0] += 1;
+                let mut k = 0;
+                while k < n {
+                    if k + 1 < n && u(k, k) != 0.0 {
+                        seen[4] += usize::from(u(k + 1, k + 1) == 0.0);
+                        for j in k + 2..n {
+                            let step1 = u(k + 1, k + 1) != 0.0 && u(k + 1, j) != 0.0;
+                            seen[match (u(k, j) != 0.0, step1) {
+                                (true, true) => 0,
+                                (true, false) => 1,
+                                (false, true) => 2,
+                                (false, false) => 3,
+                            }] += 1;
+                        }
+                        k += 2;
+                    } else {
+                        seen[5] += usize::from(u(k, k) == 0.0);
+                        k += 1;
                     }
                 }
-                for k in 0..n {
-                    if u(k, k) != 0.0
-                        && (k + 1..n).any(|j| u(k, j).to_bits() == (-0.0f64).to_bits())
-                    {
-                        seen[1] += 1;
-                    }
-                }
-                seen[2] += ref_piv
-                    .iter()
-                    .enumerate()
-                    .filter(|(k, p)| *k != **p)
+                let negative_zero = (-0.0f64).to_bits();
+                seen[6] += (0..n)
+                    .filter(|&k| u(k, k) != 0.0)
+                    .filter(|&k| (k + 1..n).any(|j| u(k, j).to_bits() == negative_zero))
                     .count();
-                if reference.iter().any(|x| x.is_nan()) {
-                    seen[3] += 1;
-                }
+                seen[7] += ref_piv.iter().enumerate().filter(|(k, p)| k != *p).count();
+                seen[8] += usize::from(reference.iter().any(|x| x.is_nan()));
             }
         }
         assert!(seen.iter().all(|&c| c > 0), "cases not exercised: {seen:?}");
@@ -919,18 +1097,15 @@ mod tests {
             .unwrap_or_else(|| start.elapsed().as_nanos())
     }
 
-    /// Not a check: the CPU time per factorisation, with AVX2, interleaved rounds, of main's
-    /// kernel (no look-ahead, every quadruple divided: "main"), of the elimination without
-    /// look-ahead ([`one_pivot_reference`], "plain") and of the kernel. The matrices come from the file `ECP_LU_BENCH` (one per line: `n`, then the
-    /// `n²` column-major entries as hexadecimal bits), else a 31 × 31 `awkward_matrix` a third
-    /// full; `ECP_LU_BENCH_REPS` factorisations per round (10⁶). Run with
-    /// `cargo test --release -p ecp-model --lib elimination_time -- --ignored --nocapture`.
+    /// Not a check: the CPU time per factorisation of the kernel and of the variants with
+    /// AVX2, eight interleaved rounds. The matrices come from the file `ECP_LU_BENCH` (one per
+    /// line: `n`, then the `n²` column-major entries as hexadecimal bits), else a 31 × 31
+    /// `awkward_matrix` a third full; `ECP_LU_BENCH_REPS` factorisations per kernel and round
+    /// (10⁶). `cargo test --release -p ecp-model --lib elimination_time -- --ignored
+    /// --nocapture`.
     #[test]
     #[ignore]
     fn elimination_time() {
-        if !avx2_available() {
-            return;
-        }
         let matrices: Vec<Vec<f64>> = match std::env::var("ECP_LU_BENCH") {
             Ok(path) => std::fs::read_to_string(path)
                 .expect("ECP_LU_BENCH names a readable file")
@@ -950,31 +1125,22 @@ mod tests {
             .ok()
             .and_then(|r| r.parse().ok())
             .unwrap_or(1_000_000);
-        // `ECP_LU_BENCH_ONLY=main`, `plain` or `kernel`: that one alone.
-        let only = std::env::var("ECP_LU_BENCH_ONLY").unwrap_or_default();
-        let kernels: [(&str, unsafe fn(usize, &mut [f64], &mut [usize])); 3] = [
-            ("main", main_kernel_avx2),
-            ("plain", one_pivot_reference_avx2),
-            ("kernel", eliminate_avx2),
-        ];
-        let mut a = vec![0.0; n * n];
-        let mut piv = vec![0; n];
+        let (mut a, mut piv) = (vec![0.0; n * n], vec![0; n]);
         let start = std::time::Instant::now();
         for round in 0..8 {
-            for (name, kernel) in kernels {
-                if !only.is_empty() && only != name {
-                    continue;
-                }
+            for (name, kernel) in kernels()
+                .into_iter()
+                .filter(|(k, _)| !k.contains("portable"))
+            {
                 let t0 = cpu_ns(start);
                 for r in 0..reps {
-                    let m = &matrices[r % matrices.len()];
-                    a.copy_from_slice(std::hint::black_box(m));
-                    // SAFETY: the processor has AVX2 (checked above).
+                    a.copy_from_slice(std::hint::black_box(&matrices[r % matrices.len()]));
+                    // SAFETY: the AVX2 kernels are listed only where the processor has AVX2.
                     unsafe { kernel(n, &mut a, &mut piv) };
                     std::hint::black_box(&a);
                 }
                 let per = (cpu_ns(start) - t0) as f64 / reps as f64;
-                eprintln!("round {round}, {name:>8}: {per:.1} ns per factorisation");
+                eprintln!("round {round}, {name}: {per:.1} ns per factorisation");
             }
         }
     }
