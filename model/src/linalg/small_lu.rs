@@ -723,4 +723,125 @@ mod tests {
         }
         assert_eq!(cases, 48 * 4);
     }
+
+    /// Small integers (exact cancellations: zero pivots, zero pivot-row entries before and
+    /// after an update), `−0` entries, NaN and infinities, zero and repeated columns, sizes
+    /// 1–40: the AVX2 loops give bitwise the factors and interchanges of the portable ones.
+    /// The cases are counted from the factors and must all occur: a zero pivot, a `−0` that
+    /// skips an update, an interchange, NaN factors.
+    #[test]
+    fn avx2_loops_give_bitwise_the_portable_factors_on_exact_cases() {
+        if !avx2_available() {
+            eprintln!("no AVX2 on this processor: only the portable loops run");
+            return;
+        }
+        let mut s = 17u64;
+        let mut next = move || {
+            s = s
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            s >> 33
+        };
+        let mut seen = [0usize; 4];
+        for n in 1..=40 {
+            for round in 0..12 {
+                let mut a: Vec<f64> = (0..n * n)
+                    .map(|_| match next() % 10 {
+                        0..=3 => 0.0,
+                        4 => -0.0,
+                        r => r as f64 - 7.0,
+                    })
+                    .collect();
+                if n > 2 {
+                    match round % 6 {
+                        // A column repeated (a zero pivot where the elimination reaches it).
+                        1 | 2 => {
+                            let (c, d) = ((next() as usize) % n, (next() as usize) % n);
+                            let src = a[d * n..(d + 1) * n].to_vec();
+                            a[c * n..(c + 1) * n].copy_from_slice(&src);
+                        }
+                        3 => {
+                            let c = (next() as usize) % n;
+                            a[c * n..(c + 1) * n].fill(if round % 2 == 0 { 0.0 } else { -0.0 });
+                        }
+                        4 => a[(next() as usize) % (n * n)] = f64::NAN,
+                        5 => a[(next() as usize) % (n * n)] = f64::INFINITY,
+                        _ => {}
+                    }
+                }
+                let mut fast = SmallLu::new(n);
+                let mut plain = SmallLu::new(n);
+                plain.avx2 = false;
+                fast.factor(&a);
+                plain.factor(&a);
+                assert_eq!(fast.piv, plain.piv, "n = {n}, round {round}");
+                assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, round {round}");
+                let u = |i: usize, j: usize| plain.a[j * n + i];
+                seen[0] += (0..n).filter(|&k| u(k, k) == 0.0).count();
+                let negative_zero = (-0.0f64).to_bits();
+                seen[1] += (0..n)
+                    .filter(|&k| u(k, k) != 0.0)
+                    .filter(|&k| (k + 1..n).any(|j| u(k, j).to_bits() == negative_zero))
+                    .count();
+                seen[2] += plain
+                    .piv
+                    .iter()
+                    .enumerate()
+                    .filter(|(k, p)| k != *p)
+                    .count();
+                seen[3] += usize::from(plain.a.iter().any(|x| x.is_nan()));
+            }
+        }
+        assert!(seen.iter().all(|&c| c > 0), "cases not exercised: {seen:?}");
+    }
+
+    /// The CPU time of this thread in nanoseconds (Linux), else the wall time since `start`.
+    fn cpu_ns(start: std::time::Instant) -> u128 {
+        std::fs::read_to_string("/proc/thread-self/schedstat")
+            .ok()
+            .and_then(|s| s.split_whitespace().next()?.parse().ok())
+            .unwrap_or_else(|| start.elapsed().as_nanos())
+    }
+
+    /// Not a check: the CPU time per factorisation of the kernel (AVX2 where the processor has
+    /// it), five rounds. The matrices come from the file `ECP_LU_BENCH` (one per line: `n`,
+    /// then the `n²` column-major entries as hexadecimal bits; the desk's were dumped with
+    /// `gdb`, `docs/latency.md`, branch wip-elimpair), else a 31 × 31 `awkward_matrix` a third
+    /// full; `ECP_LU_BENCH_REPS` factorisations per round (10⁶). `cargo test --release -p
+    /// ecp-model --lib elimination_time -- --ignored --nocapture`.
+    #[test]
+    #[ignore]
+    fn elimination_time() {
+        let matrices: Vec<Vec<f64>> = match std::env::var("ECP_LU_BENCH") {
+            Ok(path) => std::fs::read_to_string(path)
+                .expect("ECP_LU_BENCH names a readable file")
+                .lines()
+                .map(|line| {
+                    line.split_whitespace()
+                        .skip(1)
+                        .map(|h| f64::from_bits(u64::from_str_radix(h, 16).expect("hex bits")))
+                        .collect()
+                })
+                .collect(),
+            Err(_) => vec![awkward_matrix(31, 4031, 0.36)],
+        };
+        let n = (matrices[0].len() as f64).sqrt() as usize;
+        assert!(matrices.iter().all(|m| m.len() == n * n));
+        let reps: usize = std::env::var("ECP_LU_BENCH_REPS")
+            .ok()
+            .and_then(|r| r.parse().ok())
+            .unwrap_or(1_000_000);
+        let mut lu = SmallLu::new(n);
+        let start = std::time::Instant::now();
+        for round in 0..5 {
+            let t0 = cpu_ns(start);
+            for r in 0..reps {
+                lu.a.copy_from_slice(std::hint::black_box(&matrices[r % matrices.len()]));
+                lu.eliminate();
+                std::hint::black_box(&lu.a);
+            }
+            let per = (cpu_ns(start) - t0) as f64 / reps as f64;
+            eprintln!("round {round}: {per:.1} ns per factorisation");
+        }
+    }
 }
