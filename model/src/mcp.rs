@@ -487,10 +487,7 @@ fn worst_component_sse2(
             let c = _mm_or_pd(_mm_andnot_pd(bad, c), _mm_and_pd(bad, inf));
             let larger = _mm_cmpgt_pd(c, best);
             best = _mm_or_pd(_mm_and_pd(larger, c), _mm_andnot_pd(larger, best));
-            best_index = _mm_or_pd(
-                _mm_and_pd(larger, index),
-                _mm_andnot_pd(larger, best_index),
-            );
+            best_index = _mm_or_pd(_mm_and_pd(larger, index), _mm_andnot_pd(larger, best_index));
             index = _mm_add_pd(index, two);
         }
         let (mut values, mut indices) = ([0.0f64; 2], [0.0f64; 2]);
@@ -846,7 +843,11 @@ mod tests {
                 let mut f: Vec<f64> = (0..n).map(|_| draw()).collect();
                 if n > 0 && trial % 2 == 1 {
                     let (k, s) = ((trial * 7) % n, specials[(trial / 2) % specials.len()]);
-                    if trial % 4 == 1 { z[k] = s } else { f[k] = s }
+                    if trial % 4 == 1 {
+                        z[k] = s
+                    } else {
+                        f[k] = s
+                    }
                     if trial % 8 == 7 {
                         // A second special value: the first of two `+∞` wins.
                         let k2 = (k + n / 2 + 1) % n;
@@ -885,7 +886,9 @@ mod tests {
     fn first_non_finite_is_the_first_nan_or_infinity() {
         let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY];
         for n in 0..10 {
-            let finite: Vec<f64> = (0..n).map(|i| [1.0, -0.0, 1e308, -2.5e-310][i % 4]).collect();
+            let finite: Vec<f64> = (0..n)
+                .map(|i| [1.0, -0.0, 1e308, -2.5e-310][i % 4])
+                .collect();
             assert_eq!(first_non_finite(&finite), None);
             for k in 0..n {
                 for s in specials {
