@@ -7,7 +7,7 @@ use crate::bounds::{BoundKind, Bounds, classify};
 use crate::error::ModelError;
 use crate::family::McpFamily;
 use crate::pattern::CscPattern;
-use crate::scaling::McpScales;
+use crate::scaling::{McpScales, ScalesUsage};
 use crate::structure::StepStructure;
 
 /// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
@@ -64,6 +64,12 @@ pub trait Mcp {
     /// in those units. `None` (the default): judged as given.
     fn scales(&self) -> Option<&McpScales> {
         None
+    }
+    /// [`Mcp::scales`] with [`McpScales::usage`]'s verdict for this problem's dimension, which
+    /// [`crate::solve_in_scales`] acts on. The default computes it (a pass over the scales); a
+    /// problem whose scales stay the same from one solve to the next may keep it.
+    fn scales_usage(&self) -> Option<(&McpScales, ScalesUsage)> {
+        self.scales().map(|s| (s, s.usage(self.dim())))
     }
     /// Groups of unknowns that a linear solver may eliminate first, each with its own rows
     /// (`docs/latency.md#structured-linear-solve`): in a contact step, one body's Newton–Euler
