@@ -171,7 +171,7 @@ impl DataBlock {
                 ),
             });
         }
-        if let Some(i) = values.iter().position(|v| !v.is_finite()) {
+        if let Some(i) = crate::mcp::first_non_finite(values) {
             return Err(ModelError::InvalidBlock {
                 block: self.name.clone(),
                 reason: format!(

@@ -7,7 +7,7 @@ use crate::bounds::{BoundKind, Bounds, classify};
 use crate::error::ModelError;
 use crate::family::McpFamily;
 use crate::pattern::CscPattern;
-use crate::scaling::McpScales;
+use crate::scaling::{McpScales, ScalesUsage};
 use crate::structure::StepStructure;
 
 /// A mixed complementarity problem `(n, l, u, F, J)` in the PATH/GAMS convention:
@@ -64,6 +64,12 @@ pub trait Mcp {
     /// in those units. `None` (the default): judged as given.
     fn scales(&self) -> Option<&McpScales> {
         None
+    }
+    /// [`Mcp::scales`] with [`McpScales::usage`]'s verdict for this problem's dimension, which
+    /// [`crate::solve_in_scales`] acts on. The default computes it (a pass over the scales); a
+    /// problem whose scales stay the same from one solve to the next may keep it.
+    fn scales_usage(&self) -> Option<(&McpScales, ScalesUsage)> {
+        self.scales().map(|s| (s, s.usage(self.dim())))
     }
     /// Groups of unknowns that a linear solver may eliminate first, each with its own rows
     /// (`docs/latency.md#structured-linear-solve`): in a contact step, one body's Newton–Euler
@@ -300,6 +306,41 @@ fn natural_residual_sse2(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> 
     }
 }
 
+/// The first entry of `v` that is not finite (NaN or ±∞), `None` when all are: the test of a
+/// starting point and of new data. One pass without an exit per entry (two entries per
+/// instruction on `x86_64`), then the scalar search only when some entry is not finite.
+pub fn first_non_finite(v: &[f64]) -> Option<usize> {
+    if all_finite(v) {
+        None
+    } else {
+        v.iter().position(|x| !x.is_finite())
+    }
+}
+
+/// Whether every entry of `v` is finite: `x · 0` is NaN exactly when `x` is NaN or ±∞.
+fn all_finite(v: &[f64]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        let pairs = v.len() / 2;
+        // SAFETY: SSE2 is part of the `x86_64` baseline; the loads are at `2p, 2p + 1 < len`.
+        let bad = unsafe {
+            let zero = _mm_setzero_pd();
+            let mut bad = _mm_setzero_pd();
+            for p in 0..pairs {
+                let y = _mm_mul_pd(_mm_loadu_pd(v.as_ptr().add(2 * p)), zero);
+                bad = _mm_or_pd(bad, _mm_cmpunord_pd(y, y));
+            }
+            _mm_movemask_pd(bad) != 0
+        };
+        !bad && v[2 * pairs..].iter().all(|x| x.is_finite())
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        v.iter().fold(true, |all, x| all & x.is_finite())
+    }
+}
+
 /// Where the natural residual is worst: index, value, and the component's name.
 #[derive(Debug, PartialEq)]
 pub struct WorstComponent {
@@ -375,8 +416,28 @@ pub fn diagnose_values_into(
 pub fn worst_component(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> Option<(usize, f64)> {
     let n = z.len();
     let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
-    let mut worst: Option<(usize, f64)> = None;
-    for i in 0..n {
+    #[cfg(target_arch = "x86_64")]
+    {
+        worst_component_sse2(z, f, lower, upper)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        worst_component_scalar(z, f, lower, upper, 0, None)
+    }
+}
+
+/// [`worst_component`]'s loop from component `from` on, one component at a time, `worst` the
+/// worst of the components before it.
+#[inline]
+fn worst_component_scalar(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    from: usize,
+    mut worst: Option<(usize, f64)>,
+) -> Option<(usize, f64)> {
+    for i in from..z.len() {
         let mut c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
         if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
@@ -386,6 +447,64 @@ pub fn worst_component(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> Op
         }
     }
     worst
+}
+
+/// [`worst_component`] two components per instruction (SSE2), the same index and bits as the
+/// scalar loop. Each lane keeps the first of its largest components (even indices in one, odd
+/// in the other; replaced only by a strictly larger one), so the first of the largest overall is
+/// the lane with the larger value, the smaller index on a tie. A component is `+∞` where `z − F`
+/// is NaN or `|z − mid|` is not below `∞`: exactly where the scalar loop makes it `+∞` (see
+/// [`natural_residual_sse2`]; a NaN `z` or `F` makes `z − F` NaN, and `z − F` NaN with both
+/// not NaN means both infinite, where `|z − mid|` is `∞` or NaN). Indices are kept as `f64`
+/// (exact below 2⁵³). A Newton solve's finish reports it (`docs/latency.md`).
+#[cfg(target_arch = "x86_64")]
+fn worst_component_sse2(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+) -> Option<(usize, f64)> {
+    use std::arch::x86_64::*;
+    let n = z.len();
+    let pairs = n / 2;
+    if pairs == 0 {
+        return worst_component_scalar(z, f, lower, upper, 0, None);
+    }
+    // SAFETY: SSE2 is part of the `x86_64` baseline; the loads are at `2p, 2p + 1 < n` of
+    // slices of length `n` (the caller cut them to `z`'s length).
+    unsafe {
+        let sign = _mm_set1_pd(-0.0);
+        let inf = _mm_set1_pd(f64::INFINITY);
+        let two = _mm_set1_pd(2.0);
+        // Below every component (each is `≥ +0` or `+∞`): the first pair replaces it.
+        let mut best = _mm_set1_pd(-1.0);
+        let mut best_index = _mm_setzero_pd();
+        let mut index = _mm_set_pd(1.0, 0.0);
+        for p in 0..pairs {
+            let i = 2 * p;
+            let zv = _mm_loadu_pd(z.as_ptr().add(i));
+            let x = _mm_sub_pd(zv, _mm_loadu_pd(f.as_ptr().add(i)));
+            let m = _mm_min_pd(
+                _mm_loadu_pd(upper.as_ptr().add(i)),
+                _mm_max_pd(_mm_loadu_pd(lower.as_ptr().add(i)), x),
+            );
+            let c = _mm_andnot_pd(sign, _mm_sub_pd(zv, m));
+            let bad = _mm_or_pd(_mm_cmpunord_pd(x, x), _mm_cmpnlt_pd(c, inf));
+            let c = _mm_or_pd(_mm_andnot_pd(bad, c), _mm_and_pd(bad, inf));
+            let larger = _mm_cmpgt_pd(c, best);
+            best = _mm_or_pd(_mm_and_pd(larger, c), _mm_andnot_pd(larger, best));
+            best_index = _mm_or_pd(_mm_and_pd(larger, index), _mm_andnot_pd(larger, best_index));
+            index = _mm_add_pd(index, two);
+        }
+        let (mut values, mut indices) = ([0.0f64; 2], [0.0f64; 2]);
+        _mm_storeu_pd(values.as_mut_ptr(), best);
+        _mm_storeu_pd(indices.as_mut_ptr(), best_index);
+        let lane = usize::from(
+            values[1] > values[0] || (values[1] == values[0] && indices[1] < indices[0]),
+        );
+        let worst = Some((indices[lane] as usize, values[lane]));
+        worst_component_scalar(z, f, lower, upper, 2 * pairs, worst)
+    }
 }
 
 /// The residuals a solve's summary reports of its final point ([`final_residuals`]).
@@ -695,6 +814,96 @@ mod tests {
                 let got = natural_residual(&z, &f, &l, &u);
                 let want = natural_with_exits(&z, &f, &l, &u);
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+            }
+        }
+    }
+
+    /// `worst_component` in lanes gives the scalar loop's index and bits: every length (pairs
+    /// and a last single component), ties between the lanes (the first index wins), the largest
+    /// in the last single component, special values (NaN, ±∞ counted as `+∞`, ±0) at every place.
+    #[test]
+    fn worst_component_in_lanes_is_the_first_of_the_largest() {
+        let inf = f64::INFINITY;
+        let lower = [0.0, -inf, 0.0, -inf, -1.0, 0.0];
+        let upper = [inf, inf, 2.0, 3.0, 1.0, inf];
+        let specials = [f64::NAN, inf, -inf, 1e308, -0.0, 0.0];
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let mut checked = 0;
+        for n in 0..40 {
+            for trial in 0..60 {
+                let l: Vec<f64> = (0..n).map(|i| lower[i % 6]).collect();
+                let u: Vec<f64> = (0..n).map(|i| upper[i % 6]).collect();
+                // Values on a coarse grid (quarters) make equal components, so ties, common.
+                let grid = trial % 3 == 0;
+                let mut draw = || {
+                    let v = 4.0 * next() - 2.0;
+                    if grid { (4.0 * v).round() / 4.0 } else { v }
+                };
+                let mut z: Vec<f64> = (0..n).map(|_| draw()).collect();
+                let mut f: Vec<f64> = (0..n).map(|_| draw()).collect();
+                if n > 0 && trial % 2 == 1 {
+                    let (k, s) = ((trial * 7) % n, specials[(trial / 2) % specials.len()]);
+                    if trial % 4 == 1 {
+                        z[k] = s
+                    } else {
+                        f[k] = s
+                    }
+                    if trial % 8 == 7 {
+                        // A second special value: the first of two `+∞` wins.
+                        let k2 = (k + n / 2 + 1) % n;
+                        z[k2] = specials[(trial / 8) % specials.len()];
+                    }
+                }
+                if n > 2 && trial % 10 == 4 {
+                    // The largest in the last component (odd `n`: the scalar tail).
+                    f[n - 1] = 1e6;
+                    z[n - 1] = 0.0;
+                }
+                let got = worst_component(&z, &f, &l, &u);
+                let want = worst_component_scalar(&z, &f, &l, &u, 0, None);
+                assert_eq!(
+                    got.map(|(i, v)| (i, v.to_bits())),
+                    want.map(|(i, v)| (i, v.to_bits())),
+                    "n = {n}: {z:?} {f:?}"
+                );
+                if let Some((_, v)) = got {
+                    assert_eq!(v.to_bits(), natural_residual(&z, &f, &l, &u).to_bits());
+                }
+                checked += usize::from(got.is_some());
+            }
+        }
+        assert_eq!(checked, 39 * 60);
+        // A tie across the lanes: components 1 and 2 equal and largest, the first (odd lane) wins.
+        let (z, f) = ([0.0, 0.0, 0.0, 0.0], [-0.5, -3.0, -3.0, -1.0]);
+        let (l, u) = ([0.0; 4], [inf; 4]);
+        assert_eq!(worst_component(&z, &f, &l, &u), Some((1, 3.0)));
+        assert_eq!(worst_component(&[], &[], &[], &[]), None);
+    }
+
+    /// `first_non_finite` is the scalar search's index: every length up to 9, each special
+    /// value at each place, and two of them (the first found).
+    #[test]
+    fn first_non_finite_is_the_first_nan_or_infinity() {
+        let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY];
+        for n in 0..10 {
+            let finite: Vec<f64> = (0..n)
+                .map(|i| [1.0, -0.0, 1e308, -2.5e-310][i % 4])
+                .collect();
+            assert_eq!(first_non_finite(&finite), None);
+            for k in 0..n {
+                for s in specials {
+                    let mut v = finite.clone();
+                    v[k] = s;
+                    assert_eq!(first_non_finite(&v), Some(k), "{v:?}");
+                    v[n - 1 - k.min(n - 1)] = s;
+                    assert_eq!(first_non_finite(&v), Some(k.min(n - 1 - k)), "{v:?}");
+                }
             }
         }
     }

@@ -350,8 +350,7 @@ pub fn solve_in_scales(
     // `ScaledMcp::new` accepts exactly the valid scales; it is only built when the scaled
     // attempt runs (a problem within the SI band that converges as given never needs it).
     let Some((scales, usage)) = mcp
-        .scales()
-        .map(|s| (s, s.usage(mcp.dim())))
+        .scales_usage()
         .filter(|(_, usage)| *usage != ScalesUsage::Unscaled)
         .filter(|_| z0.len() == mcp.dim())
     else {

@@ -353,7 +353,7 @@ pub fn validate_start(mcp: &dyn Mcp, z0: &[f64]) -> Result<(), SolveError> {
             mcp.dim()
         )));
     }
-    if let Some(i) = z0.iter().position(|v| !v.is_finite()) {
+    if let Some(i) = crate::mcp::first_non_finite(z0) {
         return Err(SolveError::InvalidProblem(format!(
             "starting point entry {} ({}) is not finite",
             i,

@@ -99,6 +99,9 @@ pub(crate) struct Layout {
     pub(crate) span: SpanData,
     /// The scene scales of the span prepared last (`scales.rs`).
     pub(crate) scales: Option<ecp_model::McpScales>,
+    /// [`ecp_model::McpScales::usage`] of [`Layout::scales`] for a problem of the dimension
+    /// given, computed when they are filled: kept with them while they are kept.
+    pub(crate) scales_usage: Option<(usize, ecp_model::ScalesUsage)>,
 }
 
 impl Layout {

@@ -869,6 +869,14 @@ impl StepFormulation for EcpContacts {
     fn scales(&self) -> Option<&McpScales> {
         self.layout.scales.as_ref()
     }
+
+    fn scales_usage(&self, n: usize) -> Option<(&McpScales, ecp_model::ScalesUsage)> {
+        let scales = self.layout.scales.as_ref()?;
+        match self.layout.scales_usage {
+            Some((m, usage)) if m == n => Some((scales, usage)),
+            _ => Some((scales, scales.usage(n))),
+        }
+    }
 }
 
 /// The largest change of a closed contact's normal impulse from one step to the next, relative

@@ -73,13 +73,13 @@ impl Layout {
     /// When `s` holds the scales of a span of the same problem whose rounded units are those of
     /// this span (`units` on entry; the common case: a speed or a step length that changed
     /// within a factor of `√2` of the same power of two), it is left as it is, the same
-    /// numbers as filling it again.
+    /// numbers as filling it again. Returns whether it filled `s` (`false`: left as it was).
     pub(crate) fn scene_scales_into(
         &self,
         mcp: &BlockMcp,
         s: &mut McpScales,
         units: &mut Vec<BodyUnits>,
-    ) {
+    ) -> bool {
         let n = mcp.dim();
         let h = self.span.h;
         let mu_bar = self.span.friction[0].max(1.0);
@@ -105,7 +105,7 @@ impl Layout {
             *kept = u;
         }
         if same {
-            return;
+            return false;
         }
         for v in [&mut s.variables, &mut s.rows] {
             v.clear();
@@ -136,6 +136,7 @@ impl Layout {
             set(c.pf, &[u.pf, u.pf, u.pf_l], &[u.pf_v, u.pf_v, u.pf_v_l]);
             set(c.sigma, &[u.v], &[u.pf]);
         }
+        true
     }
 }
 
@@ -214,6 +215,7 @@ mod tests {
     fn kept_scales_are_those_computed_entry_by_entry() {
         let mut solver = ecp_solvers::newton::NewtonSolver::new(Default::default());
         let (mut kept, mut refilled) = (0, 0);
+        let mut usages = std::collections::BTreeSet::new();
         for (scene, steps) in [(scenarios::a1_sliding(), 50), (scenarios::desk(), 40)] {
             let mut sim = Simulation::new(scene).unwrap_or_else(|e| panic!("{e}"));
             let mut last: Option<Vec<BodyUnits>> = None;
@@ -233,6 +235,17 @@ mod tests {
                     "step {step}"
                 );
                 assert_eq!(bits(&scales.rows), bits(&expected.rows), "step {step}");
+                // The verdict kept with the scales is that of a pass over them, and the one
+                // the step problem hands the backends.
+                let n = sim.mcp().dim();
+                assert_eq!(
+                    layout.scales_usage,
+                    Some((n, scales.usage(n))),
+                    "step {step}"
+                );
+                let handed = sim.step_problem().scales_usage().map(|(_, u)| u);
+                assert_eq!(handed, Some(scales.usage(n)), "step {step}");
+                usages.insert(format!("{:?}", scales.usage(n)));
                 if last.as_ref() == Some(&layout.span.units) {
                     kept += 1;
                 } else {
@@ -245,5 +258,7 @@ mod tests {
             kept > 10 && refilled > 3,
             "kept {kept}, refilled {refilled}"
         );
+        // Both scenes in SI units: within the band, solved as given first.
+        assert_eq!(usages.into_iter().collect::<Vec<_>>(), ["WithinSi"]);
     }
 }

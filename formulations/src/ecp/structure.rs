@@ -50,8 +50,12 @@ impl Layout {
             rows: Vec::new(),
         });
         let mut units = std::mem::take(&mut self.span.units);
-        self.scene_scales_into(mcp, &mut scales, &mut units);
+        let refilled = self.scene_scales_into(mcp, &mut scales, &mut units);
         self.span.units = units;
+        let n = ecp_model::Mcp::dim(mcp);
+        if refilled || self.scales_usage.is_none_or(|(m, _)| m != n) {
+            self.scales_usage = Some((n, scales.usage(n)));
+        }
         self.scales = Some(scales);
     }
 

@@ -267,7 +267,8 @@ fn assemble(
 pub struct StepProblem<'a> {
     mcp: &'a BlockMcp,
     structure: Option<&'a dyn StepStructure>,
-    scales: Option<&'a ecp_model::McpScales>,
+    /// The scene scales and their verdict ([`StepFormulation::scales_usage`]).
+    scales: Option<(&'a ecp_model::McpScales, ecp_model::ScalesUsage)>,
     /// The scene's `friction` data block (μ first), when the problem reads it: the friction
     /// family ([`Mcp::friction_family`]) scales that μ.
     friction: Option<DataId>,
@@ -351,6 +352,9 @@ impl Mcp for StepProblem<'_> {
         self.structure
     }
     fn scales(&self) -> Option<&ecp_model::McpScales> {
+        self.scales.map(|(s, _)| s)
+    }
+    fn scales_usage(&self) -> Option<(&ecp_model::McpScales, ecp_model::ScalesUsage)> {
         self.scales
     }
     fn elimination_groups(&self) -> &[Vec<usize>] {
@@ -786,7 +790,7 @@ impl Simulation {
         StepProblem {
             mcp: &self.mcp,
             structure: self.formulation.structure(),
-            scales: self.formulation.scales(),
+            scales: self.formulation.scales_usage(self.mcp.dim()),
             friction: self.handles.friction,
             start: self
                 .start_value

@@ -218,4 +218,10 @@ pub trait StepFormulation: Any + Send {
     fn scales(&self) -> Option<&ecp_model::McpScales> {
         None
     }
+    /// [`StepFormulation::scales`] with their verdict for a step problem of dimension `n`
+    /// ([`ecp_model::McpScales::usage`]). The default computes it; a formulation that keeps
+    /// its scales across spans may keep the verdict with them.
+    fn scales_usage(&self, n: usize) -> Option<(&ecp_model::McpScales, ecp_model::ScalesUsage)> {
+        self.scales().map(|s| (s, s.usage(n)))
+    }
 }
