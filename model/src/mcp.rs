@@ -530,6 +530,35 @@ pub fn fb_vector_of_kinds(
     }
 }
 
+/// [`fb_vector_of_kinds`] that also returns `‖Φ‖² = Σ Φ_i²`, summed in index order from `−0.0`
+/// (the bits of the separate sum `phi.iter().map(|p| p * p).sum()`): the sum's serial chain
+/// runs beside the components' evaluation instead of in a pass of its own (the merit `Ψ` at
+/// every trial point of Newton's line search).
+pub fn fb_vector_of_kinds_squared(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    kinds: &[BoundKind],
+    phi: &mut [f64],
+) -> f64 {
+    let n = z.len();
+    let (f, lower, upper, kinds, phi) = (
+        &f[..n],
+        &lower[..n],
+        &upper[..n],
+        &kinds[..n],
+        &mut phi[..n],
+    );
+    let mut s = -0.0;
+    for i in 0..n {
+        let c = fb_component_of_kind(kinds[i], z[i], f[i], lower[i], upper[i]);
+        phi[i] = c;
+        s += c * c;
+    }
+    s
+}
+
 /// The Fischer–Burmeister residual `‖Φ(z)‖₂`; `+∞` for non-finite input.
 pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     let mut s = 0.0;
@@ -628,7 +657,8 @@ mod tests {
     }
 
     /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at
-    /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`.
+    /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`, and
+    /// `fb_vector_of_kinds_squared` them and the bits of their separate sum of squares.
     #[test]
     fn natural_residual_and_classified_fb_match_the_plain_loops() {
         fn natural_with_exits(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
@@ -671,6 +701,11 @@ mod tests {
             fb_vector(&z, &f, &lower, &upper, &mut a);
             fb_vector_of_kinds(&z, &f, &lower, &upper, &kinds, &mut b);
             assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{z:?} {f:?}");
+            let mut c = [1.0; 6];
+            let squares = fb_vector_of_kinds_squared(&z, &f, &lower, &upper, &kinds, &mut c);
+            assert_eq!(a.map(f64::to_bits), c.map(f64::to_bits), "{z:?} {f:?}");
+            let sum: f64 = a.iter().map(|p| p * p).sum();
+            assert_eq!(squares.to_bits(), sum.to_bits(), "{z:?} {f:?}");
         }
         assert_eq!(natural_residual(&z0, &f0, &lower, &upper), 1.25);
         // Every length (pairs and a last single component), special values at every place.

@@ -38,7 +38,9 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
-use ecp_model::mcp::{FinalResiduals, fb_vector_of_kinds, fischer_burmeister, worst_component};
+use ecp_model::mcp::{
+    FinalResiduals, fb_vector_of_kinds_squared, fischer_burmeister, worst_component,
+};
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
     SolveReport, StepKind, Termination, finish_solve, finish_solve_with, natural_residual,
@@ -1170,8 +1172,9 @@ fn merit_at_trial(
 ) -> Option<f64> {
     mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
     *f_evals += 1;
-    fb_vector_of_kinds(&ws.z_trial, &ws.f_trial, l, u, &ws.kinds, &mut ws.phi_trial);
-    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+    // `Ψ = ½ ‖Φ‖²`, the sum of squares taken beside `Φ` (the bits of `dot(Φ, Φ)`).
+    let p = 0.5
+        * fb_vector_of_kinds_squared(&ws.z_trial, &ws.f_trial, l, u, &ws.kinds, &mut ws.phi_trial);
     p.is_finite().then_some(p)
 }
 
@@ -1666,8 +1669,7 @@ impl NewtonSolver {
                 s.chord_contraction
             }
         };
-        fb_vector_of_kinds(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
-        let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
+        let mut psi = 0.5 * fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
@@ -2192,11 +2194,6 @@ impl NewtonSolver {
                 trace.push(record);
             }
             iterations += 1;
-            let moved =
-                ws.z.iter()
-                    .zip(&ws.z_trial)
-                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
-                    .fold(0.0, f64::max);
             std::mem::swap(&mut ws.z, &mut ws.z_trial);
             std::mem::swap(&mut ws.f, &mut ws.f_trial);
             std::mem::swap(&mut ws.phi, &mut ws.phi_trial);
@@ -2289,7 +2286,15 @@ impl NewtonSolver {
                     continue;
                 }
             }
-            if residual > s.tolerance && moved <= 4.0 * f64::EPSILON {
+            // How far the step moved `z` (relative), only where the test needs it: the
+            // iterate before the step is in `z_trial` since the swap (a restore `continue`s).
+            let moved = || {
+                (ws.z_trial.iter())
+                    .zip(&ws.z)
+                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
+                    .fold(0.0, f64::max)
+            };
+            if residual > s.tolerance && moved() <= 4.0 * f64::EPSILON {
                 termination = Termination::Stagnated;
             }
             clock.lap(&mut prof, Phase::Other);
