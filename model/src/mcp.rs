@@ -372,17 +372,41 @@ pub fn diagnose_values_into(
 /// The first component of the largest natural residual and its value, a NaN counting as `+∞`
 /// ([`FinalResiduals::worst`]); its value is [`natural_residual`] bit for bit (`max` returns
 /// one of its arguments, and the NaN and non-finite cases are `+∞` in both). `None` when empty.
+///
+/// The value is [`natural_residual`]'s (two components per instruction), the index the first
+/// component whose residual is that value (a scan that stops there): the first component of
+/// the largest, as a scan keeping the first strictly larger one finds it.
 pub fn worst_component(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> Option<(usize, f64)> {
     let n = z.len();
     let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
-    let mut worst: Option<(usize, f64)> = None;
-    for i in 0..n {
+    if n == 0 {
+        return None;
+    }
+    let worst = natural_residual(z, f, lower, upper);
+    let index = (0..n).position(|i| {
+        let c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
+        // Every component `natural_residual` counts as non-finite is `+∞` here.
+        let c = if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
+            f64::INFINITY
+        } else {
+            c
+        };
+        c == worst
+    });
+    // One component is the largest; the plain scan would be the fallback if none matched.
+    Some(index.map_or_else(|| worst_component_scan(z, f, lower, upper), |i| (i, worst)))
+}
+
+/// [`worst_component`] as one scan keeping the first strictly larger component (`n > 0`).
+fn worst_component_scan(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> (usize, f64) {
+    let mut worst = (0, f64::NEG_INFINITY);
+    for i in 0..z.len() {
         let mut c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
         if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
             c = f64::INFINITY;
         }
-        if worst.is_none_or(|(_, w)| c > w) {
-            worst = Some((i, c));
+        if i == 0 || c > worst.1 {
+            worst = (i, c);
         }
     }
     worst
@@ -658,7 +682,8 @@ mod tests {
 
     /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at
     /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`, and
-    /// `fb_vector_of_kinds_squared` them and the bits of their separate sum of squares.
+    /// `fb_vector_of_kinds_squared` them and the bits of their separate sum of squares;
+    /// `worst_component` the first of the largest components, as the plain scan.
     #[test]
     fn natural_residual_and_classified_fb_match_the_plain_loops() {
         fn natural_with_exits(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
@@ -730,7 +755,29 @@ mod tests {
                 let got = natural_residual(&z, &f, &l, &u);
                 let want = natural_with_exits(&z, &f, &l, &u);
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                let worst = worst_component(&z, &f, &l, &u).map(|(i, w)| (i, w.to_bits()));
+                let scan = (n > 0).then(|| worst_component_scan(&z, &f, &l, &u));
+                assert_eq!(
+                    worst,
+                    scan.map(|(i, w)| (i, w.to_bits())),
+                    "n = {n}: {z:?} {f:?}"
+                );
+                assert_eq!(
+                    scan.map(|(_, w)| w.to_bits()),
+                    (n > 0).then_some(want.to_bits())
+                );
             }
         }
+        // Ties: the first of the largest (residuals 0.5, 1, 0, 1 and 2, 2 after a NaN).
+        let (l4, u4) = ([0.0; 4], [inf; 4]);
+        let worst = worst_component(&[0.5, 1.0, 0.0, 1.0], &[3.0, 5.0, 1.0, 5.0], &l4, &u4);
+        assert_eq!(worst, Some((1, 1.0)));
+        let worst = worst_component(&[0.0, 2.0, 2.0], &[f64::NAN, 3.0, 3.0], &l4[..3], &u4[..3]);
+        assert_eq!(worst, Some((0, inf)));
+        assert_eq!(
+            worst_component(&[0.0; 3], &[1.0; 3], &l4[..3], &u4[..3]),
+            Some((0, 0.0))
+        );
+        assert_eq!(worst_component(&[], &[], &[], &[]), None);
     }
 }
