@@ -2377,6 +2377,114 @@ mod tests {
     use super::*;
     use ecp_model::FnMcp;
 
+    /// The paired-column assembly gives the bits of the plain one, column by column in stored
+    /// order (`H`, `∇Ψ`, the column maxima with a NaN column, `H`'s largest), on patterns
+    /// with an odd and an even number of columns, columns with the diagonal first, last and
+    /// alone, and columns of different lengths.
+    #[test]
+    fn paired_columns_assemble_the_bits_of_one_column_at_a_time() {
+        fn plain(
+            pattern: &CscPattern,
+            (jac, da, db, phi): (&[f64], &[f64], &[f64], &[f64]),
+            h: &mut [f64],
+            grad: &mut [f64],
+            col_max: &mut [f64],
+        ) -> f64 {
+            let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
+            let mut largest = 0.0f64;
+            for j in 0..cp.len() - 1 {
+                let (mut s, mut cmax) = (0.0, 0.0f64);
+                for p in cp[j]..cp[j + 1] {
+                    let r = ri[p];
+                    let mut v = db[r] * jac[p];
+                    if p == diag[j] {
+                        v = db[r] * jac[p] + da[j];
+                    }
+                    h[p] = v;
+                    s += v * phi[r];
+                    cmax = cmax.max(v.abs());
+                }
+                let nan = (cp[j]..cp[j + 1]).any(|p| h[p].is_nan());
+                grad[j] = s;
+                largest = largest.max(cmax);
+                col_max[j] = if nan { f64::NAN } else { cmax };
+            }
+            largest
+        }
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for n in [1usize, 2, 5, 8] {
+            // Column j holds its diagonal and the rows `(j + k²) % n` for k up to a length
+            // that varies with j (from the diagonal alone to the whole column).
+            let columns: Vec<Vec<usize>> = (0..n)
+                .map(|j| {
+                    let mut rows: Vec<usize> =
+                        (0..(j * 3) % (n + 1)).map(|k| (j + k * k) % n).collect();
+                    rows.push(j);
+                    rows.sort_unstable();
+                    rows.dedup();
+                    rows
+                })
+                .collect();
+            let pattern = CscPattern::from_columns(n, columns).expect("a valid pattern");
+            let nnz = pattern.nnz();
+            for trial in 0..6 {
+                let mut jac: Vec<f64> = (0..nnz).map(|_| 4.0 * next() - 2.0).collect();
+                let da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
+                let mut db: Vec<f64> = (0..n).map(|_| -next()).collect();
+                let phi: Vec<f64> = (0..n).map(|_| 2.0 * next() - 1.0).collect();
+                match trial {
+                    1 => jac[nnz / 2] = f64::NAN,
+                    2 => db[n - 1] = 0.0,
+                    3 => jac.iter_mut().for_each(|v| *v *= 1e-20),
+                    4 => jac[0] = -0.0,
+                    _ => {}
+                }
+                let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
+                let mut rows = Vec::new();
+                let got = assemble_h_and_gradient(
+                    &pattern, &jac, &da, &db, &phi, &mut rows, &mut h1, &mut g1, &mut c1,
+                );
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
+                assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
+                assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
+                assert_eq!(bits(&c1), bits(&c0), "n = {n}, trial {trial}");
+                if trial == 1 {
+                    assert!(c1.iter().any(|c| c.is_nan()), "the NaN column is marked");
+                }
+            }
+        }
+    }
+
+    /// `same_branches` (each kind matched once) agrees with `pair_branch` compared point by
+    /// point, for every kind, on both sides of each branch's boundary, at it and with NaNs.
+    #[test]
+    fn same_branches_agree_with_the_pairs_branches() {
+        let inf = f64::INFINITY;
+        let bounds = [(-inf, inf), (0.0, inf), (-inf, 1.0), (-1.0, 1.0)];
+        let values = [-2.0, -1.0, -0.5, -0.0, 0.0, 0.5, 1.0, 2.0, f64::NAN];
+        for &(l, u) in &bounds {
+            let kind = classify(l, u);
+            for &z in &values {
+                for &f in &values {
+                    for &(z0, f0) in &[(0.5, 0.25), (-1.0, 1.0), (1.0, -1.0), (0.0, 0.0)] {
+                        let want = pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind);
+                        let got = same_branches((&[z], &[f]), (&[z0], &[f0]), &[l], &[u], &[kind]);
+                        assert_eq!(got, want, "{kind:?} z {z} f {f} z0 {z0} f0 {f0}");
+                    }
+                }
+            }
+        }
+    }
+
     /// The friction block of an open contact in miniature: `x` free with `F_x = x − 2`, the
     /// friction impulse `p` free with `F_p = σ p` (the friction row at `p_n = 0`), and the slip
     /// rate `σ ≥ 0` with `F_σ = −|p|` (the ellipsoid row at `p_n = 0`). At the start
