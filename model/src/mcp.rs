@@ -649,6 +649,35 @@ pub fn fb_vector_of_kinds(
     }
 }
 
+/// [`fb_vector_of_kinds`] that also returns `‖Φ‖² = Σ Φ_i²`, summed in index order from `−0.0`
+/// (the bits of the separate sum `phi.iter().map(|p| p * p).sum()`): the sum's serial chain
+/// runs beside the components' evaluation instead of in a pass of its own (the merit `Ψ` at
+/// every trial point of Newton's line search).
+pub fn fb_vector_of_kinds_squared(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    kinds: &[BoundKind],
+    phi: &mut [f64],
+) -> f64 {
+    let n = z.len();
+    let (f, lower, upper, kinds, phi) = (
+        &f[..n],
+        &lower[..n],
+        &upper[..n],
+        &kinds[..n],
+        &mut phi[..n],
+    );
+    let mut s = -0.0;
+    for i in 0..n {
+        let c = fb_component_of_kind(kinds[i], z[i], f[i], lower[i], upper[i]);
+        phi[i] = c;
+        s += c * c;
+    }
+    s
+}
+
 /// The Fischer–Burmeister residual `‖Φ(z)‖₂`; `+∞` for non-finite input.
 pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     let mut s = 0.0;
@@ -747,7 +776,9 @@ mod tests {
     }
 
     /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at
-    /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`.
+    /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`, and
+    /// `fb_vector_of_kinds_squared` them and the bits of their separate sum of squares;
+    /// `worst_component` the first of the largest components, as the plain scan.
     #[test]
     fn natural_residual_and_classified_fb_match_the_plain_loops() {
         fn natural_with_exits(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
@@ -790,6 +821,11 @@ mod tests {
             fb_vector(&z, &f, &lower, &upper, &mut a);
             fb_vector_of_kinds(&z, &f, &lower, &upper, &kinds, &mut b);
             assert_eq!(a.map(f64::to_bits), b.map(f64::to_bits), "{z:?} {f:?}");
+            let mut c = [1.0; 6];
+            let squares = fb_vector_of_kinds_squared(&z, &f, &lower, &upper, &kinds, &mut c);
+            assert_eq!(a.map(f64::to_bits), c.map(f64::to_bits), "{z:?} {f:?}");
+            let sum: f64 = a.iter().map(|p| p * p).sum();
+            assert_eq!(squares.to_bits(), sum.to_bits(), "{z:?} {f:?}");
         }
         assert_eq!(natural_residual(&z0, &f0, &lower, &upper), 1.25);
         // Every length (pairs and a last single component), special values at every place.
@@ -814,8 +850,30 @@ mod tests {
                 let got = natural_residual(&z, &f, &l, &u);
                 let want = natural_with_exits(&z, &f, &l, &u);
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                let worst = worst_component(&z, &f, &l, &u).map(|(i, w)| (i, w.to_bits()));
+                let scan = worst_component_scalar(&z, &f, &l, &u, 0, None);
+                assert_eq!(
+                    worst,
+                    scan.map(|(i, w)| (i, w.to_bits())),
+                    "n = {n}: {z:?} {f:?}"
+                );
+                assert_eq!(
+                    scan.map(|(_, w)| w.to_bits()),
+                    (n > 0).then_some(want.to_bits())
+                );
             }
         }
+        // Ties: the first of the largest (residuals 0.5, 1, 0, 1 and 2, 2 after a NaN).
+        let (l4, u4) = ([0.0; 4], [inf; 4]);
+        let worst = worst_component(&[0.5, 1.0, 0.0, 1.0], &[3.0, 5.0, 1.0, 5.0], &l4, &u4);
+        assert_eq!(worst, Some((1, 1.0)));
+        let worst = worst_component(&[0.0, 2.0, 2.0], &[f64::NAN, 3.0, 3.0], &l4[..3], &u4[..3]);
+        assert_eq!(worst, Some((0, inf)));
+        assert_eq!(
+            worst_component(&[0.0; 3], &[1.0; 3], &l4[..3], &u4[..3]),
+            Some((0, 0.0))
+        );
+        assert_eq!(worst_component(&[], &[], &[], &[]), None);
     }
 
     /// `worst_component` in lanes gives the scalar loop's index and bits: every length (pairs

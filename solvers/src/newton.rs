@@ -38,7 +38,9 @@ use std::time::Instant;
 
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
-use ecp_model::mcp::{FinalResiduals, fb_vector_of_kinds, fischer_burmeister, worst_component};
+use ecp_model::mcp::{
+    FinalResiduals, fb_vector_of_kinds_squared, fischer_burmeister, worst_component,
+};
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
     SolveReport, StepKind, Termination, finish_solve, finish_solve_with, natural_residual,
@@ -778,6 +780,9 @@ fn generalized_jacobian_rows(
     jv: &mut [f64],
 ) {
     let n = z.len();
+    // Cut to one length: no bounds checks in the loop.
+    let (f, l, u, kinds) = (&f[..n], &l[..n], &u[..n], &kinds[..n]);
+    let (ws_da, ws_db, degenerate) = (&mut ws_da[..n], &mut ws_db[..n], &mut degenerate[..n]);
     // First pass: regular components, and mark the degenerate ones with the direction
     // v (+1 for lower, −1 for upper) of De Luca–Facchinei–Kanzow.
     let mut any = false;
@@ -854,6 +859,11 @@ fn generalized_jacobian_rows(
 /// largest magnitude of each column in `col_max` (NaN for a column holding a NaN) and returns
 /// the largest of `H` (NaNs left out). `rows` is scratch of length `n` for `(D_b, Φ)` of each row
 /// (one bounds check per entry instead of two).
+///
+/// The columns go in pairs, their entries in lockstep: each column's `∇Ψ_j` and maximum are
+/// serial chains (an addition's latency per entry), and two columns' chains overlap. Each
+/// column's entries are taken in stored order, so every `∇Ψ_j` is summed as in a column at a
+/// time.
 #[allow(clippy::too_many_arguments)]
 fn assemble_h_and_gradient(
     pattern: &CscPattern,
@@ -870,10 +880,64 @@ fn assemble_h_and_gradient(
     rows.clear();
     rows.extend(db.iter().zip(phi).map(|(&b, &p)| (b, p)));
     let rows = &rows[..];
+    let ncols = cp.len() - 1;
     let mut largest = 0.0f64;
-    // One entry: `H_rj = D_b,r J_rj`, its share of `∇Ψ_j` and of the column's largest magnitude.
-    // `a > cmax` skips a NaN as `f64::max` does; a NaN entry makes `s` NaN (NaN times anything,
-    // plus anything, is NaN), so the columns are searched for one only when `s` is NaN.
+    let mut j = 0;
+    while j + 1 < ncols {
+        let (start, mid, end) = (cp[j], cp[j + 1], cp[j + 2]);
+        let (h0, h1) = h[start..end].split_at_mut(mid - start);
+        let (j0, j1) = jac[start..end].split_at(mid - start);
+        let (r0, r1) = ri[start..end].split_at(mid - start);
+        let mut a = ColumnSum::new(h0, j0, r0, diag[j] - start);
+        let mut b = ColumnSum::new(h1, j1, r1, diag[j + 1] - mid);
+        // The entries before each diagonal, the diagonals, the entries after them.
+        let (ka, kb) = (a.k, b.k);
+        ColumnSum::two_runs(rows, &mut a, &mut b, ..ka, ..kb);
+        a.diagonal(rows, j, da[j]);
+        b.diagonal(rows, j + 1, da[j + 1]);
+        ColumnSum::two_runs(rows, &mut a, &mut b, ka + 1.., kb + 1..);
+        a.finish(&mut grad[j], &mut col_max[j], &mut largest);
+        b.finish(&mut grad[j + 1], &mut col_max[j + 1], &mut largest);
+        j += 2;
+    }
+    if j < ncols {
+        let (start, end) = (cp[j], cp[j + 1]);
+        let k = diag[j] - start;
+        let mut a = ColumnSum::new(&mut h[start..end], &jac[start..end], &ri[start..end], k);
+        a.run(rows, ..k);
+        a.diagonal(rows, j, da[j]);
+        a.run(rows, k + 1..);
+        a.finish(&mut grad[j], &mut col_max[j], &mut largest);
+    }
+    largest
+}
+
+/// One column of [`assemble_h_and_gradient`]: its entries of `H` and `J`, their rows, the
+/// diagonal's place `k` among them, and the running `∇Ψ_j` (`s`) and largest magnitude.
+struct ColumnSum<'a> {
+    h: &'a mut [f64],
+    jac: &'a [f64],
+    rows: &'a [usize],
+    k: usize,
+    s: f64,
+    cmax: f64,
+}
+
+impl<'a> ColumnSum<'a> {
+    fn new(h: &'a mut [f64], jac: &'a [f64], rows: &'a [usize], k: usize) -> Self {
+        ColumnSum {
+            h,
+            jac,
+            rows,
+            k,
+            s: 0.0,
+            cmax: 0.0,
+        }
+    }
+
+    /// One entry: `H_rj = v`, its share `v Φ_r` of `∇Ψ_j` and of the column's largest magnitude.
+    /// `a > cmax` skips a NaN as `f64::max` does; a NaN entry makes `s` NaN (NaN times anything,
+    /// plus anything, is NaN), so the columns are searched for one only when `s` is NaN.
     #[inline(always)]
     fn entry(v: f64, p: f64, h: &mut f64, s: &mut f64, cmax: &mut f64) {
         *h = v;
@@ -883,29 +947,86 @@ fn assemble_h_and_gradient(
             *cmax = a;
         }
     }
-    for j in 0..cp.len() - 1 {
-        let (start, end, d) = (cp[j], cp[j + 1], diag[j]);
-        let (mut s, mut cmax) = (0.0, 0.0f64);
-        // The entries before the diagonal, the diagonal, the entries after it: the order of
-        // the stored entries, so `s` is summed as before.
-        let (hj, jj, rj) = (&mut h[start..end], &jac[start..end], &ri[start..end]);
-        let k = d - start;
-        for ((hp, &v), &r) in hj[..k].iter_mut().zip(&jj[..k]).zip(&rj[..k]) {
+
+    /// The off-diagonal entries `range` (`H_rj = D_b,r J_rj`), in order.
+    #[inline(always)]
+    fn run<R>(&mut self, rows: &[(f64, f64)], range: R)
+    where
+        R: std::slice::SliceIndex<[f64], Output = [f64]>
+            + std::slice::SliceIndex<[usize], Output = [usize]>
+            + Clone,
+    {
+        let (mut s, mut cmax) = (self.s, self.cmax);
+        let h = &mut self.h[range.clone()];
+        let (jac, ri) = (&self.jac[range.clone()], &self.rows[range]);
+        for ((hp, &v), &r) in h.iter_mut().zip(jac).zip(ri) {
             let (b, p) = rows[r];
-            entry(b * v, p, hp, &mut s, &mut cmax);
+            Self::entry(b * v, p, hp, &mut s, &mut cmax);
         }
-        let (b, p) = rows[j];
-        entry(b * jj[k] + da[j], p, &mut hj[k], &mut s, &mut cmax);
-        for ((hp, &v), &r) in hj[k + 1..].iter_mut().zip(&jj[k + 1..]).zip(&rj[k + 1..]) {
-            let (b, p) = rows[r];
-            entry(b * v, p, hp, &mut s, &mut cmax);
-        }
-        let nan = s.is_nan() && hj.iter().any(|v| v.is_nan());
-        grad[j] = s;
-        largest = largest.max(cmax);
-        col_max[j] = if nan { f64::NAN } else { cmax };
+        (self.s, self.cmax) = (s, cmax);
     }
-    largest
+
+    /// The off-diagonal entries `ra` of `a` and `rb` of `b` in lockstep (each in its order),
+    /// then what is left of the longer.
+    #[inline(always)]
+    fn two_runs<R, Q>(rows: &[(f64, f64)], a: &mut Self, b: &mut Self, ra: R, rb: Q)
+    where
+        R: std::slice::SliceIndex<[f64], Output = [f64]>
+            + std::slice::SliceIndex<[usize], Output = [usize]>
+            + Clone,
+        Q: std::slice::SliceIndex<[f64], Output = [f64]>
+            + std::slice::SliceIndex<[usize], Output = [usize]>
+            + Clone,
+    {
+        let (mut sa, mut ca, mut sb, mut cb) = (a.s, a.cmax, b.s, b.cmax);
+        let ha = &mut a.h[ra.clone()];
+        let (ja, ia) = (&a.jac[ra.clone()], &a.rows[ra]);
+        let hb = &mut b.h[rb.clone()];
+        let (jb, ib) = (&b.jac[rb.clone()], &b.rows[rb]);
+        let m = ha.len().min(hb.len());
+        let (ha, ha_rest) = ha.split_at_mut(m);
+        let (hb, hb_rest) = hb.split_at_mut(m);
+        let lanes = (ha.iter_mut().zip(&ja[..m]).zip(&ia[..m]))
+            .zip(hb.iter_mut().zip(&jb[..m]).zip(&ib[..m]));
+        for (((hpa, &va), &ra), ((hpb, &vb), &rb)) in lanes {
+            let (b0, p0) = rows[ra];
+            let (b1, p1) = rows[rb];
+            Self::entry(b0 * va, p0, hpa, &mut sa, &mut ca);
+            Self::entry(b1 * vb, p1, hpb, &mut sb, &mut cb);
+        }
+        for ((hp, &v), &r) in ha_rest.iter_mut().zip(&ja[m..]).zip(&ia[m..]) {
+            let (b0, p0) = rows[r];
+            Self::entry(b0 * v, p0, hp, &mut sa, &mut ca);
+        }
+        for ((hp, &v), &r) in hb_rest.iter_mut().zip(&jb[m..]).zip(&ib[m..]) {
+            let (b1, p1) = rows[r];
+            Self::entry(b1 * v, p1, hp, &mut sb, &mut cb);
+        }
+        (a.s, a.cmax, b.s, b.cmax) = (sa, ca, sb, cb);
+    }
+
+    /// The diagonal entry `H_jj = D_b,j J_jj + D_a,j`.
+    #[inline(always)]
+    fn diagonal(&mut self, rows: &[(f64, f64)], j: usize, da: f64) {
+        let (b, p) = rows[j];
+        let k = self.k;
+        Self::entry(
+            b * self.jac[k] + da,
+            p,
+            &mut self.h[k],
+            &mut self.s,
+            &mut self.cmax,
+        );
+    }
+
+    /// `∇Ψ_j`, the column's largest magnitude (NaN when it holds a NaN) and `H`'s largest.
+    #[inline(always)]
+    fn finish(&self, grad: &mut f64, col_max: &mut f64, largest: &mut f64) {
+        let nan = self.s.is_nan() && self.h.iter().any(|v| v.is_nan());
+        *grad = self.s;
+        *largest = largest.max(self.cmax);
+        *col_max = if nan { f64::NAN } else { self.cmax };
+    }
 }
 
 /// Adds to the diagonal of `h` (in `pattern`), for each column whose largest entry is at most
@@ -988,7 +1109,9 @@ fn pair_branch(z: f64, f: f64, l: f64, u: f64, kind: BoundKind) -> u8 {
     }
 }
 
-/// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`.
+/// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`:
+/// each pair's kind matched once for both points, the slices cut to one length (no bounds
+/// checks in the loop).
 fn same_branches(
     (z, f): (&[f64], &[f64]),
     (z0, f0): (&[f64], &[f64]),
@@ -996,10 +1119,22 @@ fn same_branches(
     u: &[f64],
     kinds: &[BoundKind],
 ) -> bool {
-    (0..z.len()).all(|i| {
-        pair_branch(z[i], f[i], l[i], u[i], kinds[i])
-            == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
-    })
+    let n = z.len();
+    let (f, z0, f0, l, u, kinds) = (&f[..n], &z0[..n], &f0[..n], &l[..n], &u[..n], &kinds[..n]);
+    (0..n).all(|i| same_branch(kinds[i], (z[i], f[i]), (z0[i], f0[i]), l[i], u[i]))
+}
+
+/// `pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind)`, with `kind` matched once.
+#[inline(always)]
+fn same_branch(kind: BoundKind, (z, f): (f64, f64), (z0, f0): (f64, f64), l: f64, u: f64) -> bool {
+    match kind {
+        BoundKind::Free => true,
+        BoundKind::Lower => (z - l > f) == (z0 - l > f0),
+        BoundKind::Upper => (u - z <= -f) == (u - z0 <= -f0),
+        BoundKind::Box => {
+            pair_branch(z, f, l, u, BoundKind::Box) == pair_branch(z0, f0, l, u, BoundKind::Box)
+        }
+    }
 }
 
 /// `‖z‖∞`: the size of the numbers the natural residual `z − mid(l, u, z − F)` is a difference
@@ -1037,8 +1172,9 @@ fn merit_at_trial(
 ) -> Option<f64> {
     mcp.evaluate(&ws.z_trial, &mut ws.f_trial);
     *f_evals += 1;
-    fb_vector_of_kinds(&ws.z_trial, &ws.f_trial, l, u, &ws.kinds, &mut ws.phi_trial);
-    let p = 0.5 * dot(&ws.phi_trial, &ws.phi_trial);
+    // `Ψ = ½ ‖Φ‖²`, the sum of squares taken beside `Φ` (the bits of `dot(Φ, Φ)`).
+    let p = 0.5
+        * fb_vector_of_kinds_squared(&ws.z_trial, &ws.f_trial, l, u, &ws.kinds, &mut ws.phi_trial);
     p.is_finite().then_some(p)
 }
 
@@ -1059,6 +1195,14 @@ fn try_ratio_step(
         ws.z_trial[i] = if ws.d[i] < 0.0 { l[i] } else { u[i] };
     }
     merit_at_trial(mcp, ws, l, u, f_evals)
+}
+
+/// `dst = −src` (the Newton and gradient directions' right-hand sides), in vector lanes.
+#[inline]
+fn negate_into(dst: &mut [f64], src: &[f64]) {
+    for (d, &v) in dst.iter_mut().zip(src) {
+        *d = -v;
+    }
 }
 
 /// `Σ a_i b_i` in index order from `−0.0`: what `a.iter().zip(b).map(|(x, y)| x * y).sum()`
@@ -1525,8 +1669,7 @@ impl NewtonSolver {
                 s.chord_contraction
             }
         };
-        fb_vector_of_kinds(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
-        let mut psi = 0.5 * dot(&ws.phi, &ws.phi);
+        let mut psi = 0.5 * fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
@@ -1591,9 +1734,7 @@ impl NewtonSolver {
                 && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
                 && let Some(linear) = self.linear.as_mut()
             {
-                for i in 0..n {
-                    ws.d[i] = -ws.phi[i];
-                }
+                negate_into(&mut ws.d, &ws.phi);
                 if linear.solve_in_place(&mut ws.d).is_ok()
                     && let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals)
                     && (chord_polish || p < psi)
@@ -1693,9 +1834,7 @@ impl NewtonSolver {
                     ws.f_lu.copy_from_slice(&ws.f);
                 }
                 if newton_ok {
-                    for i in 0..n {
-                        ws.d[i] = -ws.phi[i];
-                    }
+                    negate_into(&mut ws.d, &ws.phi);
                     newton_ok = linear.solve_in_place(&mut ws.d).is_ok();
                 }
                 if pinned {
@@ -1929,9 +2068,7 @@ impl NewtonSolver {
                             lm_mu * max_diag
                         };
                         let failed = ne.factor_damped(lambda).is_err() || {
-                            for i in 0..n {
-                                ws.d[i] = -ws.grad[i];
-                            }
+                            negate_into(&mut ws.d, &ws.grad);
                             ne.solve_in_place(&mut ws.d).is_err()
                         };
                         if failed {
@@ -2008,16 +2145,12 @@ impl NewtonSolver {
                     .filter(|k| newton_ok || *k != StepKind::Newton)
                 {
                     if k == StepKind::Newton {
-                        for i in 0..n {
-                            ws.d[i] = -ws.phi[i];
-                        }
+                        negate_into(&mut ws.d, &ws.phi);
                         if let Some(linear) = self.linear.as_mut() {
                             let _ = linear.solve_in_place(&mut ws.d);
                         }
                     } else {
-                        for i in 0..n {
-                            ws.d[i] = -ws.grad[i];
-                        }
+                        negate_into(&mut ws.d, &ws.grad);
                     }
                     let slope = dot(&ws.grad, &ws.d);
                     let mut t = 1.0;
@@ -2061,11 +2194,6 @@ impl NewtonSolver {
                 trace.push(record);
             }
             iterations += 1;
-            let moved =
-                ws.z.iter()
-                    .zip(&ws.z_trial)
-                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
-                    .fold(0.0, f64::max);
             std::mem::swap(&mut ws.z, &mut ws.z_trial);
             std::mem::swap(&mut ws.f, &mut ws.f_trial);
             std::mem::swap(&mut ws.phi, &mut ws.phi_trial);
@@ -2158,7 +2286,15 @@ impl NewtonSolver {
                     continue;
                 }
             }
-            if residual > s.tolerance && moved <= 4.0 * f64::EPSILON {
+            // How far the step moved `z` (relative), only where the test needs it: the
+            // iterate before the step is in `z_trial` since the swap (a restore `continue`s).
+            let moved = || {
+                (ws.z_trial.iter())
+                    .zip(&ws.z)
+                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
+                    .fold(0.0, f64::max)
+            };
+            if residual > s.tolerance && moved() <= 4.0 * f64::EPSILON {
                 termination = Termination::Stagnated;
             }
             clock.lap(&mut prof, Phase::Other);
@@ -2240,6 +2376,114 @@ impl NewtonSolver {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
+
+    /// The paired-column assembly gives the bits of the plain one, column by column in stored
+    /// order (`H`, `∇Ψ`, the column maxima with a NaN column, `H`'s largest), on patterns
+    /// with an odd and an even number of columns, columns with the diagonal first, last and
+    /// alone, and columns of different lengths.
+    #[test]
+    fn paired_columns_assemble_the_bits_of_one_column_at_a_time() {
+        fn plain(
+            pattern: &CscPattern,
+            (jac, da, db, phi): (&[f64], &[f64], &[f64], &[f64]),
+            h: &mut [f64],
+            grad: &mut [f64],
+            col_max: &mut [f64],
+        ) -> f64 {
+            let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
+            let mut largest = 0.0f64;
+            for j in 0..cp.len() - 1 {
+                let (mut s, mut cmax) = (0.0, 0.0f64);
+                for p in cp[j]..cp[j + 1] {
+                    let r = ri[p];
+                    let mut v = db[r] * jac[p];
+                    if p == diag[j] {
+                        v = db[r] * jac[p] + da[j];
+                    }
+                    h[p] = v;
+                    s += v * phi[r];
+                    cmax = cmax.max(v.abs());
+                }
+                let nan = (cp[j]..cp[j + 1]).any(|p| h[p].is_nan());
+                grad[j] = s;
+                largest = largest.max(cmax);
+                col_max[j] = if nan { f64::NAN } else { cmax };
+            }
+            largest
+        }
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64
+        };
+        for n in [1usize, 2, 5, 8] {
+            // Column j holds its diagonal and the rows `(j + k²) % n` for k up to a length
+            // that varies with j (from the diagonal alone to the whole column).
+            let columns: Vec<Vec<usize>> = (0..n)
+                .map(|j| {
+                    let mut rows: Vec<usize> =
+                        (0..(j * 3) % (n + 1)).map(|k| (j + k * k) % n).collect();
+                    rows.push(j);
+                    rows.sort_unstable();
+                    rows.dedup();
+                    rows
+                })
+                .collect();
+            let pattern = CscPattern::from_columns(n, columns).expect("a valid pattern");
+            let nnz = pattern.nnz();
+            for trial in 0..6 {
+                let mut jac: Vec<f64> = (0..nnz).map(|_| 4.0 * next() - 2.0).collect();
+                let da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
+                let mut db: Vec<f64> = (0..n).map(|_| -next()).collect();
+                let phi: Vec<f64> = (0..n).map(|_| 2.0 * next() - 1.0).collect();
+                match trial {
+                    1 => jac[nnz / 2] = f64::NAN,
+                    2 => db[n - 1] = 0.0,
+                    3 => jac.iter_mut().for_each(|v| *v *= 1e-20),
+                    4 => jac[0] = -0.0,
+                    _ => {}
+                }
+                let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
+                let mut rows = Vec::new();
+                let got = assemble_h_and_gradient(
+                    &pattern, &jac, &da, &db, &phi, &mut rows, &mut h1, &mut g1, &mut c1,
+                );
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
+                assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
+                assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
+                assert_eq!(bits(&c1), bits(&c0), "n = {n}, trial {trial}");
+                if trial == 1 {
+                    assert!(c1.iter().any(|c| c.is_nan()), "the NaN column is marked");
+                }
+            }
+        }
+    }
+
+    /// `same_branches` (each kind matched once) agrees with `pair_branch` compared point by
+    /// point, for every kind, on both sides of each branch's boundary, at it and with NaNs.
+    #[test]
+    fn same_branches_agree_with_the_pairs_branches() {
+        let inf = f64::INFINITY;
+        let bounds = [(-inf, inf), (0.0, inf), (-inf, 1.0), (-1.0, 1.0)];
+        let values = [-2.0, -1.0, -0.5, -0.0, 0.0, 0.5, 1.0, 2.0, f64::NAN];
+        for &(l, u) in &bounds {
+            let kind = classify(l, u);
+            for &z in &values {
+                for &f in &values {
+                    for &(z0, f0) in &[(0.5, 0.25), (-1.0, 1.0), (1.0, -1.0), (0.0, 0.0)] {
+                        let want = pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind);
+                        let got = same_branches((&[z], &[f]), (&[z0], &[f0]), &[l], &[u], &[kind]);
+                        assert_eq!(got, want, "{kind:?} z {z} f {f} z0 {z0} f0 {f0}");
+                    }
+                }
+            }
+        }
+    }
 
     /// The friction block of an open contact in miniature: `x` free with `F_x = x − 2`, the
     /// friction impulse `p` free with `F_p = σ p` (the friction row at `p_n = 0`), and the slip
