@@ -1121,3 +1121,135 @@ fn path_union_tip_s20270102_057_step_188_frozen_iterate() {
         .fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
     assert!(diff <= 1e-12, "solutions differ by {diff:e}");
 }
+
+/// The conic backend with the scene's tolerance and its defaults but the last stage of its
+/// Newton finish (`ConicSettings::friction_continuation`) as given.
+fn conic_with(tolerance: f64, friction_continuation: Option<usize>) -> ConicSolver {
+    ConicSolver::new(ConicSettings {
+        tolerance,
+        friction_continuation,
+        ..ConicSettings::default()
+    })
+}
+
+/// `s20261212_022_v_trough` step 62 with the conic backend alone (the jam in the crease of
+/// `newton_v_trough_s20261212_022_step_62_jam_in_the_crease`, on the conic backend's default
+/// trajectory): the fixed point stalls at 1.8e-4 and every Newton finish (local and safeguarded,
+/// from its best iterate and from the warm start) at 1.6–3.2e-6, near the warm start's branch.
+/// Without the finish's last stage the step must be reported as failed; with it (the plain
+/// iteration, then the continuation in the friction coefficient, `docs/latency.md`,
+/// wip-conic022) it converges to the wedging solution, the one Newton and PATH reach (both `p_n`
+/// above 1.5, five times the warm start's), with Newton's velocities from the same start.
+#[test]
+fn conic_v_trough_s20261212_022_step_62_friction_continuation() {
+    let path = regression_scene("s20261212_022_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let sim = at_default_step(&path, &mut conic_with(tolerance, Some(400)), 62);
+    let z0 = sim.z().to_vec();
+    match sim.solve_step_problem(&mut conic_with(tolerance, None), &z0) {
+        Err(SolveError::NotConverged { best }) => {
+            println!(
+                "conic s20261212_022_v_trough step 62 without the last stage: reported as \
+                 failed, residual {:e}",
+                best.summary.residual
+            );
+            assert!(
+                best.summary.residual > 100.0 * tolerance,
+                "a failed solve whose best point is near the tolerance ({:e})",
+                best.summary.residual
+            );
+        }
+        Ok(sol) => panic!(
+            "without the last stage the conic backend returned step 62 (residual {:e}): the \
+             test's premise is gone",
+            sol.summary.residual
+        ),
+        Err(e) => panic!("{e}"),
+    }
+    let sol = converged(sim.solve_step_problem(&mut conic_with(tolerance, Some(400)), &z0));
+    println!(
+        "conic s20261212_022_v_trough step 62 with the last stage: {} QPs, {:?} Newton \
+         iterations, residual {:e}",
+        sol.summary.iterations,
+        sol.summary.counter(Counter::NewtonPolish),
+        sol.summary.residual
+    );
+    assert!(sol.summary.residual <= tolerance);
+    let mcp = sim.mcp();
+    for c in &sim.handles().contacts {
+        let (before, after) = (z0[mcp.offset(c.normal)], sol.z[mcp.offset(c.normal)]);
+        assert!(
+            after > 1.5 && after > 5.0 * before,
+            "p_n {before} -> {after}: not the wedging branch"
+        );
+    }
+    // Newton (its own continuation) from the same start: the same velocities to 1e-8 (the
+    // unknowns are O(1); the step's loads are not unique in the tangential squeeze).
+    let newton = converged(sim.solve_step_problem(
+        &mut NewtonSolver::new(NewtonSettings {
+            tolerance,
+            ..NewtonSettings::default()
+        }),
+        &z0,
+    ));
+    for nu in sim.handles().bodies.iter().filter_map(|b| b.nu) {
+        for k in 0..6 {
+            let i = mcp.offset(nu) + k;
+            assert!(
+                (sol.z[i] - newton.z[i]).abs() <= 1e-8,
+                "velocity {k}: conic {} against Newton {}",
+                sol.z[i],
+                newton.z[i]
+            );
+        }
+    }
+}
+
+/// `s20270109_087_v_trough` step 140 (the held-out seed 20270109; a box of μ = 0.36 sliding along
+/// a V trough of sides 37° and 38.5°, h = 3 ms) with the conic backend alone: the fixed point
+/// stalls at a natural residual of 4.5e-7 for its 50 QPs, the local and safeguarded Newton
+/// finishes from both starts end at 1.6–1.8e-9 (worst row a pose row), from the warm start and
+/// from the driver's retry start, so the step failed and, the state not advancing, so did every
+/// later one. With the finish's last stage, the continuation in the friction coefficient in the
+/// scene scales (`docs/latency.md`, wip-conic022), the step converges (from the retry start's
+/// best iterate) with the body's velocity of Newton's and PATH's step 140 on their own
+/// trajectories, and the next three steps converge too.
+#[test]
+fn conic_v_trough_s20270109_087_step_140_friction_continuation() {
+    let path = regression_scene("s20270109_087_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let mut sim = at_default_step(&path, &mut conic_with(tolerance, Some(400)), 140);
+    let without = sim
+        .step(&mut conic_with(tolerance, None))
+        .unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "conic s20270109_087_v_trough step 140 without the last stage: converged {}, residual {:e}",
+        without.converged, without.summary.residual
+    );
+    assert!(
+        !without.converged && without.summary.residual > 10.0 * tolerance,
+        "without the last stage step 140 converged ({:e}): the test's premise is gone",
+        without.summary.residual
+    );
+    let mut sim = at_default_step(&path, &mut conic_with(tolerance, Some(400)), 140);
+    let mut solver = conic_with(tolerance, Some(400));
+    for k in 140..=143 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        if k == 140 {
+            // Newton's and PATH's step 140 (stress --seed 20270109 on main 7b003b0, 1e-13
+            // apart): v_x -4.902302726e-3 m/s, v_z 1.450267607e-3 m/s; the state before the
+            // step differs from theirs by up to 6e-9 in `v` (measured: 7.5e-11 and 2.1e-11 apart).
+            let v = rec.bodies[0].v;
+            assert!((v.x + 4.902_302_726e-3).abs() <= 1e-9, "v_x {}", v.x);
+            assert!((v.z - 1.450_267_607e-3).abs() <= 1e-9, "v_z {}", v.z);
+        }
+    }
+}

@@ -209,20 +209,15 @@ fn fast_subset_conic() {
 /// The (scene, backend) rows of `manifest.csv` whose failure with that backend alone is open (no
 /// cure yet): `regressions` asserts that they still fail *and say so* (failed steps or a timeout
 /// reported, never a point passed off as a step's answer), and tells which to drop from here once
-/// one passes. Both are a vertex in the crease of a V trough loaded by both sides (two
-/// contacts at one point; `docs/newton.md#a-jam-in-the-crease-s20261212_022_v_trough-step-62`,
-/// `docs/latency.md`, wip-conicslow); Newton's row of `s20261212_022_v_trough` is cured by its
-/// continuation in the friction coefficient (`docs/newton.md#a-continuation-in-the-friction-coefficient`).
-/// `s20270102_057_union_tip` with conic: a table tipping on an edge past a fold of its solution
-/// branch (steps 184–193 and 198 of the conic's own trajectory); every backend's attempts stop at
-/// the fold's local minimiser of the merit, and the conic backend's Newton finish has Newton's
-/// cure, the friction continuation, off (measured with it on in the safeguarded finish: 0 failed
-/// steps; `docs/latency.md`, wip-tip057).
-/// With the default fallbacks every one of them is solved (`regressions_with_default_settings_early`).
-const OPEN: &[(&str, &str)] = &[
-    ("s20261212_022_v_trough", "conic"),
-    ("s20270102_057_union_tip", "conic"),
-];
+/// one passes. Empty since the last row, the conic backend on `s20261212_022_v_trough` (a vertex
+/// in the crease of a V trough loaded by both sides,
+/// `docs/newton.md#a-jam-in-the-crease-s20261212_022_v_trough-step-62`), was cured by the conic
+/// Newton finish's continuation in the friction coefficient (`docs/latency.md`, wip-conic022), as
+/// Newton's row was by Newton's (`docs/newton.md#a-continuation-in-the-friction-coefficient`);
+/// the same stage cures the conic backend on `s20270102_057_union_tip` (a table tipping on an
+/// edge past a fold of its solution branch, `docs/latency.md`, wip-tip057).
+/// Kept: a regression scene added while its failure is still open is listed here.
+const OPEN: &[(&str, &str)] = &[];
 
 /// The regression scenes of `tests/stress_regressions/` (every generated scene that ever
 /// failed with some backend), each run to its end with the backends `manifest.csv` lists for it

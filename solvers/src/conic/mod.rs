@@ -33,7 +33,8 @@
 //!   error, and the outer fixed point is Anderson-accelerated. Neither is a Newton step on the
 //!   MCP. Where the fixed point stagnates, a semismooth-Newton polish from its best iterate
 //!   (and, when that falls short, from the warm start) finishes the step
-//!   ([`ConicSettings::newton_polish`]).
+//!   ([`ConicSettings::newton_polish`]); its last stage, where all else failed, is a
+//!   continuation in the friction coefficient ([`ConicSettings::friction_continuation`]).
 //! - [`ConicMode::AnitescuRelaxation`]: one QP without the shift, at the warm start's geometry
 //!   (Anitescu, Math. Prog. 2006). Convex and cheap, but it is a different model: a sliding
 //!   contact separates with normal velocity `μ ‖E u_T‖`, so sliding bodies drift off the
@@ -187,6 +188,17 @@ pub struct ConicSettings {
     /// `docs/latency.md`). Needs [`ConicSettings::early_finish_after`] > 0; 0 turns it off.
     /// Default 5.
     pub walk_finish_after: usize,
+    /// The Newton finish's last stage, run only after every other stage failed (the local and
+    /// the safeguarded finish from both starts): from the fixed point's best iterate, then from
+    /// the warm start, the plain iteration and then the Newton backend's continuation in the
+    /// friction coefficient ([`NewtonSettings::friction_continuation`], this many arc-length
+    /// iterations; `docs/newton.md#a-continuation-in-the-friction-coefficient`), in the
+    /// problem's units and then in its scene scales. Where the step's solution lies on another
+    /// branch than the warm start's (a body wedged in the crease of a V trough), every other
+    /// stage stalls near the warm start's branch (`docs/latency.md`, wip-conic022). Needs
+    /// [`ConicSettings::newton_polish`] > 0; `None` turns it off. Default `Some(400)`, the Newton
+    /// backend's.
+    pub friction_continuation: Option<usize>,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -271,6 +283,7 @@ impl Default for ConicSettings {
             early_finish_after: 3,
             early_finish_iterations: 10,
             walk_finish_after: 5,
+            friction_continuation: Some(400),
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -375,16 +388,25 @@ impl ConicSolver {
         let defaults = NewtonSettings::default();
         let handoff = finish == NewtonFinish::Handoff;
         let safeguarded = finish == NewtonFinish::Safeguarded;
+        let continued = finish == NewtonFinish::Continued;
         let mut newton = NewtonSolver::new(NewtonSettings {
             tolerance: self.settings.tolerance,
             max_iterations,
-            // Judged by the caller in the problem's own units, so solved in them.
-            scene_scales: false,
+            // Judged by the caller in the problem's own units, so solved in them; the last
+            // stage in the scene scales too when that fails (its point judged in the problem's
+            // units all the same): `s20270109_087_v_trough` step 140's continuation converges
+            // only there (`docs/latency.md`, wip-conic022).
+            scene_scales: continued,
             // The polish as measured with the conic backend (chord steps are Newton's desk lever).
             chord_contraction: None,
             // A failed polish falls back on the fixed point's own answer: no last restart.
             complementary_restart_from_best: None,
-            friction_continuation: None,
+            // The last stage's one attempt after the plain iteration.
+            friction_continuation: if continued {
+                self.settings.friction_continuation
+            } else {
+                None
+            },
             // Measured without it (wip-conicslow2): a failed local finish hands back to the
             // fixed point, not to Josephy–Newton steps.
             josephy_newton: None,
@@ -408,11 +430,19 @@ impl ConicSolver {
             // Without the continuations the complementary restart runs after the non-monotone
             // iteration, where the safeguarded finish runs its early one (before the first
             // continuation): at the early one's distance.
-            complementary_restart: if finish == NewtonFinish::Local {
-                defaults.early_complementary_restart
-            } else {
-                defaults.complementary_restart
+            // The last stage runs after the safeguarded finish from the same starts: of its
+            // attempts only the continuation in the friction coefficient is new.
+            complementary_restart: match finish {
+                NewtonFinish::Local => defaults.early_complementary_restart,
+                NewtonFinish::Continued => None,
+                _ => defaults.complementary_restart,
             },
+            early_complementary_restart: if continued {
+                None
+            } else {
+                defaults.early_complementary_restart
+            },
+            nonmonotone_restart: !continued && defaults.nonmonotone_restart,
             ..defaults
         });
         let sol = match newton.solve(mcp, z) {
@@ -445,6 +475,10 @@ enum NewtonFinish {
     /// The Newton backend's default safeguards (its smoothing continuation and damped and
     /// complementary restarts included).
     Safeguarded,
+    /// The last stage ([`ConicSettings::friction_continuation`]): the plain iteration, then the
+    /// continuation in the friction coefficient; the other attempts off (the safeguarded finish
+    /// ran them from the same starts), in the problem's units and then in its scene scales.
+    Continued,
 }
 
 /// Book-keeping of one solve.
@@ -978,7 +1012,18 @@ impl McpSolver for ConicSolver {
                 && best_residual.is_finite()
             {
                 let from_warm = z0 != best_z.as_slice();
-                'finish: for finish in [NewtonFinish::Local, NewtonFinish::Safeguarded] {
+                // The last stage only where both others failed from both starts: a step that
+                // converged without it is unchanged.
+                let stages: &[NewtonFinish] = if self.settings.friction_continuation.is_some() {
+                    &[
+                        NewtonFinish::Local,
+                        NewtonFinish::Safeguarded,
+                        NewtonFinish::Continued,
+                    ]
+                } else {
+                    &[NewtonFinish::Local, NewtonFinish::Safeguarded]
+                };
+                'finish: for &finish in stages {
                     for start in [Some(&best_z[..]), from_warm.then_some(z0)]
                         .into_iter()
                         .flatten()
