@@ -196,6 +196,152 @@ fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
     }
 }
 
+/// True when the processor runs AVX-512F (eight lanes; checked once per process by the
+/// standard library's cache).
+pub(super) fn avx512_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx512f")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Eight lanes, the last partial vector under a mask (lanes past the end neither loaded nor
+/// stored). Only to be used inside a function compiled with
+/// `#[target_feature(enable = "avx512f")]` that runs after [`avx512_available`] said yes.
+#[cfg(target_arch = "x86_64")]
+pub(super) struct Avx512;
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes for Avx512 {
+    #[inline(always)]
+    fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
+        // SAFETY: `Avx512` is used only inside `#[target_feature(enable = "avx512f")]`
+        // functions, entered only when `avx512_available()` is true.
+        unsafe { sub_scaled_avx512(x, l, s) }
+    }
+    #[inline(always)]
+    fn div(x: &mut [f64], d: f64) {
+        // SAFETY: as in `sub_scaled`.
+        unsafe { div_avx512(x, d) }
+    }
+    #[inline(always)]
+    fn first_largest_magnitude(x: &[f64]) -> usize {
+        // SAFETY: as in `sub_scaled`.
+        unsafe { first_largest_magnitude_avx512(x) }
+    }
+}
+
+/// The mask of the first `r < 8` lanes.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn tail_mask(r: usize) -> u8 {
+    ((1u16 << r) - 1) as u8
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn sub_scaled_avx512(x: &mut [f64], l: &[f64], s: f64) {
+    use std::arch::x86_64::*;
+    let len = x.len().min(l.len());
+    let (xp, lp) = (x.as_mut_ptr(), l.as_ptr());
+    let s8 = _mm512_set1_pd(s);
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len` (the tail's lanes at or past `len` are
+    // masked off: not read, not written), within both slices; unaligned access is allowed.
+    unsafe {
+        while i + 8 <= len {
+            let p = _mm512_mul_pd(_mm512_loadu_pd(lp.add(i)), s8);
+            _mm512_storeu_pd(xp.add(i), _mm512_sub_pd(_mm512_loadu_pd(xp.add(i)), p));
+            i += 8;
+        }
+        if i < len {
+            let k = tail_mask(len - i);
+            let p = _mm512_mul_pd(_mm512_maskz_loadu_pd(k, lp.add(i)), s8);
+            let v = _mm512_sub_pd(_mm512_maskz_loadu_pd(k, xp.add(i)), p);
+            _mm512_mask_storeu_pd(xp.add(i), k, v);
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn div_avx512(x: &mut [f64], d: f64) {
+    use std::arch::x86_64::*;
+    let len = x.len();
+    let xp = x.as_mut_ptr();
+    let d8 = _mm512_set1_pd(d);
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len` (the tail under a mask).
+    unsafe {
+        while i + 8 <= len {
+            _mm512_storeu_pd(xp.add(i), _mm512_div_pd(_mm512_loadu_pd(xp.add(i)), d8));
+            i += 8;
+        }
+        if i < len {
+            let k = tail_mask(len - i);
+            let v = _mm512_maskz_div_pd(k, _mm512_maskz_loadu_pd(k, xp.add(i)), d8);
+            _mm512_mask_storeu_pd(xp.add(i), k, v);
+        }
+    }
+}
+
+/// [`first_largest_magnitude_avx2`] in eight lanes, the tails under masks: the largest
+/// magnitude `m` (NaN passed over as there; a masked-off lane keeps the running maximum),
+/// then the first entry whose magnitude equals `m`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+#[inline]
+fn first_largest_magnitude_avx512(x: &[f64]) -> usize {
+    use std::arch::x86_64::*;
+    let len = x.len();
+    let first = x[0].abs();
+    if first.is_nan() || len < 8 {
+        return first_largest_magnitude_scalar(x);
+    }
+    let xp = x.as_ptr();
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len` (the tails under masks).
+    unsafe {
+        let mut m8 = _mm512_set1_pd(first);
+        while i + 8 <= len {
+            m8 = _mm512_max_pd(_mm512_abs_pd(_mm512_loadu_pd(xp.add(i))), m8);
+            i += 8;
+        }
+        if i < len {
+            let k = tail_mask(len - i);
+            let v = _mm512_abs_pd(_mm512_maskz_loadu_pd(k, xp.add(i)));
+            m8 = _mm512_mask_max_pd(m8, k, v, m8);
+        }
+        // No lane is NaN (each is `|x_0|` or a maximum whose second operand was not NaN).
+        let m8 = _mm512_set1_pd(_mm512_reduce_max_pd(m8));
+        i = 0;
+        while i + 8 <= len {
+            let v = _mm512_abs_pd(_mm512_loadu_pd(xp.add(i)));
+            let hit = _mm512_cmp_pd_mask::<_CMP_EQ_OQ>(v, m8);
+            if hit != 0 {
+                return i + hit.trailing_zeros() as usize;
+            }
+            i += 8;
+        }
+        if i < len {
+            let k = tail_mask(len - i);
+            let v = _mm512_abs_pd(_mm512_maskz_loadu_pd(k, xp.add(i)));
+            let hit = _mm512_mask_cmp_pd_mask::<_CMP_EQ_OQ>(k, v, m8);
+            if hit != 0 {
+                return i + hit.trailing_zeros() as usize;
+            }
+        }
+    }
+    // Not reached: the largest magnitude is that of an entry.
+    first_largest_magnitude_scalar(x)
+}
+
 /// `y += Σ_e values[q_e] · rows[j_e]` over `entries = [(j_e, q_e), ..]` in their order, where
 /// `rows[j]` is row `j` of the row-major matrix `rows` with `y.len()` columns: a sparse row
 /// times a dense row-major matrix (the sensitivities' weak residual slopes,
@@ -458,6 +604,12 @@ mod tests {
                 if avx2_available() {
                     // SAFETY: the processor has AVX2.
                     let fast = unsafe { first_largest_magnitude_avx2(&x) };
+                    assert_eq!(fast, expected, "{x:?}");
+                }
+                #[cfg(target_arch = "x86_64")]
+                if avx512_available() {
+                    // SAFETY: the processor has AVX-512F.
+                    let fast = unsafe { first_largest_magnitude_avx512(&x) };
                     assert_eq!(fast, expected, "{x:?}");
                 }
                 cases += 1;
