@@ -226,12 +226,12 @@ impl Lanes for Avx512 {
     #[inline(always)]
     fn div(x: &mut [f64], d: f64) {
         // SAFETY: as in `sub_scaled`.
-        unsafe { div_avx512(x, d) }
+        unsafe { div_avx2(x, d) }
     }
     #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
         // SAFETY: as in `sub_scaled`.
-        unsafe { first_largest_magnitude_avx512(x) }
+        unsafe { first_largest_magnitude_avx2(x) }
     }
 }
 
@@ -243,7 +243,7 @@ fn tail_mask(r: usize) -> u8 {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
+#[target_feature(enable = "avx512f,avx512vl")]
 #[inline]
 fn sub_scaled_avx512(x: &mut [f64], l: &[f64], s: f64) {
     use std::arch::x86_64::*;
@@ -254,16 +254,17 @@ fn sub_scaled_avx512(x: &mut [f64], l: &[f64], s: f64) {
     // SAFETY: every access is at an index below `len` (the tail's lanes at or past `len` are
     // masked off: not read, not written), within both slices; unaligned access is allowed.
     unsafe {
-        while i + 8 <= len {
-            let p = _mm512_mul_pd(_mm512_loadu_pd(lp.add(i)), s8);
-            _mm512_storeu_pd(xp.add(i), _mm512_sub_pd(_mm512_loadu_pd(xp.add(i)), p));
-            i += 8;
+        let s4 = _mm512_castpd512_pd256(s8);
+        while i + 4 <= len {
+            let p = _mm256_mul_pd(_mm256_loadu_pd(lp.add(i)), s4);
+            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(_mm256_loadu_pd(xp.add(i)), p));
+            i += 4;
         }
         if i < len {
             let k = tail_mask(len - i);
-            let p = _mm512_mul_pd(_mm512_maskz_loadu_pd(k, lp.add(i)), s8);
-            let v = _mm512_sub_pd(_mm512_maskz_loadu_pd(k, xp.add(i)), p);
-            _mm512_mask_storeu_pd(xp.add(i), k, v);
+            let p = _mm256_mul_pd(_mm256_maskz_loadu_pd(k, lp.add(i)), s4);
+            let v = _mm256_sub_pd(_mm256_maskz_loadu_pd(k, xp.add(i)), p);
+            _mm256_mask_storeu_pd(xp.add(i), k, v);
         }
     }
 }

@@ -315,19 +315,19 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
 // And for AVX-512F (`SmallLu::avx512`).
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
+#[target_feature(enable = "avx512f,avx512vl")]
 fn eliminate_avx512(n: usize, a: &mut [f64], piv: &mut [usize]) {
     eliminate_with::<Avx512>(n, a, piv);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
+#[target_feature(enable = "avx512f,avx512vl")]
 fn solve_avx512(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     solve_with::<Avx512>(n, a, piv, b);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
+#[target_feature(enable = "avx512f,avx512vl")]
 fn solve_rows_avx512(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     solve_rows_with::<Avx512>(n, a, piv, b, k);
 }
