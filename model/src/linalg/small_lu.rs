@@ -9,8 +9,8 @@
 //! (a third full).
 
 #[cfg(target_arch = "x86_64")]
-use super::simd::{Avx2, Avx512};
-use super::simd::{Lanes, Portable, avx2_available, avx512_available};
+use super::simd::Avx2;
+use super::simd::{Lanes, Portable, avx2_available};
 
 /// The factors `P A = L U` of a square matrix: `L` (unit diagonal, below) and `U` (on and above
 /// the diagonal) in one column-major array, and the row interchanges.
@@ -22,10 +22,6 @@ pub(crate) struct SmallLu {
     piv: Vec<usize>,
     /// The vector loops run with AVX2 (the processor has it; bitwise the same results).
     avx2: bool,
-    /// The elimination and the substitutions of [`SmallLu::solve`] and [`SmallLu::solve_rows`]
-    /// run in eight lanes with AVX-512F (bitwise the same results); the accumulated solves
-    /// stay with AVX2.
-    avx512: bool,
 }
 
 impl SmallLu {
@@ -35,7 +31,6 @@ impl SmallLu {
             a: vec![0.0; n * n],
             piv: vec![0; n],
             avx2: avx2_available(),
-            avx512: avx512_available(),
         }
     }
 
@@ -61,12 +56,6 @@ impl SmallLu {
 
     /// Factorises the matrix in [`SmallLu::storage_mut`] in place (finite: the caller checks).
     pub(crate) fn eliminate(&mut self) {
-        #[cfg(target_arch = "x86_64")]
-        if self.avx512 {
-            // SAFETY: `avx512` is set only when the processor has AVX-512F.
-            unsafe { eliminate_avx512(self.n, &mut self.a, &mut self.piv) };
-            return;
-        }
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
@@ -103,12 +92,6 @@ impl SmallLu {
     /// Solves `A x = b` in place.
     pub(crate) fn solve(&self, b: &mut [f64]) {
         #[cfg(target_arch = "x86_64")]
-        if self.avx512 {
-            // SAFETY: `avx512` is set only when the processor has AVX-512F.
-            unsafe { solve_avx512(self.n, &self.a, &self.piv, b) };
-            return;
-        }
-        #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
             unsafe { solve_avx2(self.n, &self.a, &self.piv, b) };
@@ -121,12 +104,6 @@ impl SmallLu {
     /// row operations on whole rows, so that a few right-hand sides share each factor entry
     /// (the block elimination's `A⁻¹ B`, [`super::SchurLu`]).
     pub(crate) fn solve_rows(&self, b: &mut [f64], k: usize) {
-        #[cfg(target_arch = "x86_64")]
-        if self.avx512 {
-            // SAFETY: `avx512` is set only when the processor has AVX-512F.
-            unsafe { solve_rows_avx512(self.n, &self.a, &self.piv, b, k) };
-            return;
-        }
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
@@ -310,26 +287,6 @@ fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
 #[target_feature(enable = "avx2")]
 fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     solve_rows_with::<Avx2>(n, a, piv, b, k);
-}
-
-// And for AVX-512F (`SmallLu::avx512`).
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn eliminate_avx512(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    eliminate_with::<Avx512>(n, a, piv);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn solve_avx512(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
-    solve_with::<Avx512>(n, a, piv, b);
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl")]
-fn solve_rows_avx512(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
-    solve_rows_with::<Avx512>(n, a, piv, b, k);
 }
 
 /// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
@@ -683,10 +640,9 @@ mod tests {
         v.iter().map(|x| x.to_bits()).collect()
     }
 
-    /// The AVX2 and AVX-512F loops give bitwise the factors, interchanges and solutions of the
-    /// portable ones (the same operations on each entry in the same order, no fused
-    /// multiply-add), on regular, singular and zero-pivot matrices of every size the kernel
-    /// serves (the eight-lane tails of every length).
+    /// The AVX2 loops give bitwise the factors, interchanges and solutions of the portable ones
+    /// (the same operations on each entry in the same order, no fused multiply-add), on regular,
+    /// singular and zero-pivot matrices of every size the kernel serves.
     #[test]
     fn avx2_loops_give_bitwise_the_portable_results() {
         if !avx2_available() {
@@ -695,19 +651,11 @@ mod tests {
         }
         let mut cases = 0;
         for n in 1..=48 {
-            for (seed, keep, wide) in [(3, 0.35), (4, 0.8), (6, 0.15), (7, 1.0)]
-                .into_iter()
-                .flat_map(|(seed, keep)| [(seed, keep, false), (seed, keep, true)])
-            {
-                if wide && !avx512_available() {
-                    continue;
-                }
+            for (seed, keep) in [(3, 0.35), (4, 0.8), (6, 0.15), (7, 1.0)] {
                 let a = awkward_matrix(n, seed * 1000 + n as u64, keep);
                 let mut fast = SmallLu::new(n);
-                fast.avx512 = wide;
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
-                plain.avx512 = false;
                 assert!(fast.avx2);
                 fast.factor(&a);
                 plain.factor(&a);
@@ -773,14 +721,12 @@ mod tests {
                 cases += 1;
             }
         }
-        let kernels = if avx512_available() { 2 } else { 1 };
-        assert_eq!(cases, 48 * 4 * kernels);
+        assert_eq!(cases, 48 * 4);
     }
 
     /// Small integers (exact cancellations: zero pivots, zero pivot-row entries before and
     /// after an update), `−0` entries, NaN and infinities, zero and repeated columns, sizes
-    /// 1–40: the AVX2 and AVX-512F loops give bitwise the factors and interchanges of the
-    /// portable ones.
+    /// 1–40: the AVX2 loops give bitwise the factors and interchanges of the portable ones.
     /// The cases are counted from the factors and must all occur: a zero pivot, a `−0` that
     /// skips an update, an interchange, NaN factors.
     #[test]
@@ -823,20 +769,13 @@ mod tests {
                         _ => {}
                     }
                 }
+                let mut fast = SmallLu::new(n);
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
-                plain.avx512 = false;
+                fast.factor(&a);
                 plain.factor(&a);
-                for wide in [false, true] {
-                    if wide && !avx512_available() {
-                        continue;
-                    }
-                    let mut fast = SmallLu::new(n);
-                    fast.avx512 = wide;
-                    fast.factor(&a);
-                    assert_eq!(fast.piv, plain.piv, "n = {n}, round {round}, wide {wide}");
-                    assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, round {round}");
-                }
+                assert_eq!(fast.piv, plain.piv, "n = {n}, round {round}");
+                assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, round {round}");
                 let u = |i: usize, j: usize| plain.a[j * n + i];
                 seen[0] += (0..n).filter(|&k| u(k, k) == 0.0).count();
                 let negative_zero = (-0.0f64).to_bits();
@@ -864,8 +803,8 @@ mod tests {
             .unwrap_or_else(|| start.elapsed().as_nanos())
     }
 
-    /// Not a check: the CPU time per factorisation of the kernel (AVX-512F or AVX2 where the
-    /// processor has it; AVX2 with `ECP_LU_BENCH_AVX2` set), five rounds. The matrices come from the file `ECP_LU_BENCH` (one per line: `n`,
+    /// Not a check: the CPU time per factorisation of the kernel (AVX2 where the processor has
+    /// it), five rounds. The matrices come from the file `ECP_LU_BENCH` (one per line: `n`,
     /// then the `n²` column-major entries as hexadecimal bits; the desk's were dumped with
     /// `gdb`, `docs/latency.md`, branch wip-elimpair), else a 31 × 31 `awkward_matrix` a third
     /// full; `ECP_LU_BENCH_REPS` factorisations per round (10⁶). `cargo test --release -p
@@ -893,8 +832,6 @@ mod tests {
             .and_then(|r| r.parse().ok())
             .unwrap_or(1_000_000);
         let mut lu = SmallLu::new(n);
-        lu.avx512 &= std::env::var_os("ECP_LU_BENCH_AVX2").is_none();
-        eprintln!("AVX2 {}, AVX-512F {}", lu.avx2, lu.avx512);
         let start = std::time::Instant::now();
         for round in 0..5 {
             let t0 = cpu_ns(start);
