@@ -126,8 +126,10 @@ pub struct PathSettings {
     /// (`docs/path.md#the-valley-of-the-v-troughs`). Off by default: it also stops attempts
     /// that would have converged, and those steps then cost more (window 40: two steps of the
     /// held-out seeds 155 → 220 and 161 → 203 iterations; window 20: +224 on the documented
-    /// seed), though it shortens the longest steps (728 → 402, 633 → 448). `0` for no such
-    /// stop. Default 0.
+    /// seed), though it shortens the longest steps (728 → 402, 633 → 448). On the seven stress
+    /// seeds every window from 20 to 80 lowers their total and the longest step (1 395 → 704 at
+    /// 20) but lengthens other steps, some past 200 iterations (`docs/latency.md`, branch
+    /// wip-pathstall). `0` for no such stop. Default 0.
     pub stall_window: usize,
     /// The factor by which an attempt's natural residual must fall within
     /// [`PathSettings::stall_window`] iterations, in `(0, 1)`. Default `0.5`.
