@@ -12,7 +12,8 @@
 //! it, then changed by the `--newton` / `--path` settings), printing the summary, the counters
 //! and, with `--trace`, every iteration (residual, merit, step kind, step length).
 //! `--driver` solves step K as a step does instead (the backend `--with` through the driver's
-//! budgeted starts and retry starts) and prints each solve it makes: its budget, result and
+//! budgeted starts and retry starts; `--path` / `--newton` settings change that step's backend
+//! when it is PATH / Newton) and prints each solve it makes: its budget, result and
 //! iterations. `--previous` prepares step K from the plain warm start (the last step's
 //! solution; `WarmStart::Previous`) instead of the extrapolated one.
 use std::process::ExitCode;
@@ -101,8 +102,28 @@ fn run() -> Result<(), String> {
         sim.set_warm_start(WarmStart::Previous);
     }
     if through_driver {
-        // Step K as a step solves it, each solve of the driver logged.
-        let mut logged = Logged(driver.as_mut(), None);
+        // Step K as a step solves it, each solve of the driver logged. The `--path` /
+        // `--newton` settings apply to this step's backend (the steps before it ran on the
+        // registry's defaults, as the stress suite's trajectory did).
+        let mut changed: Option<Box<dyn McpSolver>> = match with.as_str() {
+            "path" if !path_sets.is_empty() => Some(Box::new(PathSolver::new(path_settings(
+                &options, false, &path_sets,
+            )?))),
+            "newton" if !newton_sets.is_empty() => Some(Box::new(NewtonSolver::new(
+                newton_settings(&options, false, &newton_sets)?,
+            ))),
+            _ if path_sets.is_empty() && newton_sets.is_empty() => None,
+            _ => {
+                return Err(format!(
+                    "--driver applies --path settings with `--with path` and --newton settings with `--with newton` only (here `--with {with}`)"
+                ));
+            }
+        };
+        let backend: &mut dyn McpSolver = match changed.as_mut() {
+            Some(b) => b.as_mut(),
+            None => driver.as_mut(),
+        };
+        let mut logged = Logged(backend, None);
         let rec = sim.step(&mut logged).map_err(|e| e.to_string())?;
         println!(
             "step {step} by the driver: converged {}, {} iterations, {:?}, {:.1} us",
@@ -136,26 +157,8 @@ fn run() -> Result<(), String> {
     let z0 = sim.z().to_vec();
     println!("step {step}: {} unknowns", z0.len());
 
-    let d = PathSettings::default();
-    let mut ps = PathSettings {
-        tolerance: options.tolerance.unwrap_or(d.tolerance),
-        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
-        trace,
-        ..d
-    };
-    for kv in &path_sets {
-        set_path(&mut ps, kv)?;
-    }
-    let d = NewtonSettings::default();
-    let mut ns = NewtonSettings {
-        tolerance: options.tolerance.unwrap_or(d.tolerance),
-        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
-        trace,
-        ..d
-    };
-    for kv in &newton_sets {
-        set_newton(&mut ns, kv)?;
-    }
+    let ps = path_settings(&options, trace, &path_sets)?;
+    let ns = newton_settings(&options, trace, &newton_sets)?;
     let mut path_solver = PathSolver::new(ps);
     let mut newton_solver = NewtonSolver::new(ns).with_profile();
     if trace {
@@ -199,6 +202,45 @@ fn run() -> Result<(), String> {
         p.lm_trials
     );
     Ok(())
+}
+
+/// PATH's defaults with the scene's tolerance and iteration limit, then the `--path` settings.
+fn path_settings(
+    options: &BackendOptions,
+    trace: bool,
+    sets: &[String],
+) -> Result<PathSettings, String> {
+    let d = PathSettings::default();
+    let mut ps = PathSettings {
+        tolerance: options.tolerance.unwrap_or(d.tolerance),
+        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
+        trace,
+        ..d
+    };
+    for kv in sets {
+        set_path(&mut ps, kv)?;
+    }
+    Ok(ps)
+}
+
+/// Newton's defaults with the scene's tolerance and iteration limit, then the `--newton`
+/// settings.
+fn newton_settings(
+    options: &BackendOptions,
+    trace: bool,
+    sets: &[String],
+) -> Result<NewtonSettings, String> {
+    let d = NewtonSettings::default();
+    let mut ns = NewtonSettings {
+        tolerance: options.tolerance.unwrap_or(d.tolerance),
+        max_iterations: options.max_iterations.unwrap_or(d.max_iterations),
+        trace,
+        ..d
+    };
+    for kv in sets {
+        set_newton(&mut ns, kv)?;
+    }
+    Ok(ns)
 }
 
 fn report(
