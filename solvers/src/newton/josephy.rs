@@ -181,18 +181,9 @@ mod tests {
     /// The LCP `0 ≤ z ⊥ M z + q ≥ 0` with `M = [[2, 1], [1, 2]]`, `q = (−1, 1)`: solution
     /// `z = (0.5, 0)`, `w = (0, 1.5)`.
     fn lcp() -> FnMcp {
-        FnMcp::dense(
-            vec![0.0; 2],
-            vec![f64::INFINITY; 2],
-            |z, f| {
-                f[0] = 2.0 * z[0] + z[1] - 1.0;
-                f[1] = z[0] + 2.0 * z[1] + 1.0;
-            },
-            |_z, j| {
-                j.copy_from_slice(&[2.0, 1.0, 1.0, 2.0]);
-            },
-        )
-        .expect("a valid MCP")
+        ecp_model::mcp_library::lcp(vec![2.0, 1.0, 1.0, 2.0], vec![-1.0, 1.0])
+            .expect("a valid LCP")
+            .mcp
     }
 
     #[test]
