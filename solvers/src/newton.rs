@@ -1854,6 +1854,9 @@ impl NewtonSolver {
                 if newton_ok && linear.factored_by_elimination() {
                     prof.structured_factorizations += 1;
                 }
+                if newton_ok && linear.unit_rows_left_out() > 0 {
+                    prof.free_block_factorizations += 1;
+                }
                 if newton_ok && s.chord_contraction.is_some() {
                     ws.z_lu.copy_from_slice(&ws.z);
                     ws.f_lu.copy_from_slice(&ws.f);

@@ -76,7 +76,8 @@ impl UnitRowsLu {
         self.unit.len()
     }
 
-    /// Builds the lists for `mask` (nothing to do when they are built for it already).
+    /// Builds the lists for `mask` (nothing to do when they are built for it already). Not
+    /// inlined: a new mask is rare, and the factorisation's loop stays short.
     #[inline(never)]
     fn index(&mut self, pattern: &CscPattern, mask: &[bool]) {
         if self.built && self.mask == mask {
@@ -169,8 +170,7 @@ impl UnitRowsLu {
             lo = lo.min(d.abs());
             hi = hi.max(d.abs());
         }
-        if !mask.is_empty() && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite())
-        {
+        if !mask.is_empty() && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
             return Err(LinalgError::Singular {
                 ratio: if hi > 0.0 { lo / hi } else { 0.0 },
             });
@@ -183,10 +183,13 @@ impl UnitRowsLu {
     /// coupling skipped when `x_U` is zero, as it is at a held component, where `Φ_i = 0`).
     pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         self.check(b)?;
-        let mut coupled = false;
+        // Every entry of `b` is a unit row's or a free one's: the finiteness test of the
+        // result goes along.
+        let (mut coupled, mut finite) = (false, true);
         for (&i, &d) in self.unit.iter().zip(&self.diag) {
             b[i] /= d;
             coupled |= b[i] != 0.0;
+            finite &= b[i].is_finite();
         }
         let work = &mut self.work[..self.free.len()];
         for (w, &i) in work.iter_mut().zip(&self.free) {
@@ -200,8 +203,13 @@ impl UnitRowsLu {
         self.lu.solve(work);
         for (&w, &i) in work.iter().zip(&self.free) {
             b[i] = w;
+            finite &= w.is_finite();
         }
-        finite(b)
+        if finite {
+            Ok(())
+        } else {
+            Err(LinalgError::NonFinite)
+        }
     }
 
     /// Solves `Hᵀ x = b` in place: `H_FFᵀ x_F = b_F`, then `x_U = (b_U − H_FUᵀ x_F) / D_U`.
@@ -244,5 +252,187 @@ fn finite(b: &[f64]) -> Result<(), LinalgError> {
         Ok(())
     } else {
         Err(LinalgError::NonFinite)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::linalg::{DenseLu, LinalgError, LinearSolver};
+    use crate::pattern::CscPattern;
+
+    /// A dense `n × n` column-major matrix with a strong diagonal and unit rows `unit`
+    /// (diagonal `−1 − i`, the rest of the row zero, one of them `−0`).
+    fn matrix(n: usize, unit: &[usize], seed: u64) -> Vec<f64> {
+        let mut x = seed;
+        let mut a = vec![0.0; n * n];
+        for j in 0..n {
+            for i in 0..n {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let v = ((x >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+                a[j * n + i] = if i == j { 4.0 + v } else { v };
+            }
+        }
+        for &i in unit {
+            for j in 0..n {
+                a[j * n + i] = if j == i { -1.0 - i as f64 } else { 0.0 };
+            }
+            a[((i + 1) % n) * n + i] = -0.0;
+        }
+        a
+    }
+
+    fn whole_solve(a: &[f64], b: &[f64], transpose: bool) -> Vec<f64> {
+        let n = b.len();
+        let mut lu = DenseLu::new(n);
+        lu.factor(a).unwrap_or_else(|e| panic!("{e}"));
+        let mut x = b.to_vec();
+        if transpose {
+            lu.solve_transpose_in_place(&mut x)
+        } else {
+            lu.solve_in_place(&mut x)
+        }
+        .unwrap_or_else(|e| panic!("{e}"));
+        x
+    }
+
+    fn mask(n: usize, unit: &[usize]) -> Vec<bool> {
+        (0..n).map(|i| unit.contains(&i)).collect()
+    }
+
+    fn assert_close(x: &[f64], y: &[f64], tol: f64) {
+        for (u, v) in x.iter().zip(y) {
+            assert!(
+                (u - v).abs() <= tol * (1.0 + v.abs()),
+                "{x:?} against {y:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_free_block_solves_as_the_whole_matrix() {
+        let n = 9;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        // Two masks in turn: the lists are rebuilt for each and kept while it is the same.
+        for (seed, unit) in [(1, vec![1, 4, 8]), (2, vec![0, 5]), (3, vec![0, 5])] {
+            let a = matrix(n, &unit, seed);
+            solver
+                .factor_with_unit_rows(&a, &mask(n, &unit))
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(solver.unit_rows_left_out(), unit.len());
+            assert!(!solver.solves_rows());
+            // A right-hand side zero on the unit rows (a held component's Φ) and one that is
+            // not (a chord step's: the coupling `H_FU x_U` enters).
+            let mut b: Vec<f64> = (0..n).map(|i| 1.0 + i as f64 * 0.25).collect();
+            for held in [true, false] {
+                if held {
+                    for &i in &unit {
+                        b[i] = 0.0;
+                    }
+                } else {
+                    for &i in &unit {
+                        b[i] = 0.5 + i as f64;
+                    }
+                }
+                for transpose in [false, true] {
+                    let mut x = b.clone();
+                    if transpose {
+                        solver.solve_transpose_in_place(&mut x)
+                    } else {
+                        solver.solve_in_place(&mut x)
+                    }
+                    .unwrap_or_else(|e| panic!("{e}"));
+                    assert_close(&x, &whole_solve(&a, &b, transpose), 1e-14);
+                    if held && !transpose {
+                        for &i in &unit {
+                            assert_eq!(x[i], 0.0);
+                        }
+                    }
+                }
+            }
+            // Many right-hand sides: each column as solved alone.
+            let mut many: Vec<f64> = b.iter().chain(&b).map(|v| v * 2.0).collect();
+            solver
+                .solve_many_in_place(&mut many, 2)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut one: Vec<f64> = b.iter().map(|v| v * 2.0).collect();
+            solver
+                .solve_in_place(&mut one)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(&many[..n], &one[..]);
+            assert_eq!(&many[n..], &one[..]);
+        }
+    }
+
+    #[test]
+    fn a_unit_row_that_is_not_falls_back_to_the_whole_matrix() {
+        let n = 6;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        let unit = [2, 3];
+        let mut a = matrix(n, &unit, 7);
+        // Row 3 holds an entry off its diagonal: not a unit row after all.
+        a[5 * n + 3] = 0.125;
+        solver
+            .factor_with_unit_rows(&a, &mask(n, &unit))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(solver.unit_rows_left_out(), 0);
+        assert!(solver.solves_rows());
+        let b: Vec<f64> = (0..n).map(|i| i as f64 - 2.0).collect();
+        let mut x = b.clone();
+        solver
+            .solve_in_place(&mut x)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(x, whole_solve(&a, &b, false));
+        // No unit row: the whole matrix, bitwise `factor`'s.
+        solver
+            .factor_with_unit_rows(&a, &[false; 6])
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(solver.unit_rows_left_out(), 0);
+    }
+
+    #[test]
+    fn singular_and_non_finite_matrices_are_refused() {
+        let n = 5;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        let unit = [1];
+        let m = mask(n, &unit);
+        // A zero diagonal in a unit row: the whole matrix is singular.
+        let mut a = matrix(n, &unit, 3);
+        a[n + 1] = 0.0;
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        let mut x = vec![1.0; n];
+        assert_eq!(solver.solve_in_place(&mut x), Err(LinalgError::NotFactored));
+        // A unit row's diagonal tiny beside the block's pivots: the ratio sees both.
+        a[n + 1] = 1e-15;
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        // Two equal free columns: the free block is singular.
+        let mut a = matrix(n, &unit, 4);
+        for i in 0..n {
+            a[3 * n + i] = a[2 * n + i];
+        }
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        // A NaN in the free block, in the coupling, in a unit row.
+        for k in [2 * n + 3, n + 3, 4 * n + 1] {
+            let mut a = matrix(n, &unit, 5);
+            a[k] = f64::NAN;
+            assert_eq!(
+                solver.factor_with_unit_rows(&a, &m),
+                Err(LinalgError::NonFinite),
+                "{k}"
+            );
+        }
     }
 }
