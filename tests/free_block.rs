@@ -5,7 +5,7 @@
 //! differences of the solutions in the scene's units.
 
 use ecp::formulations::{Scene, Simulation, scenarios};
-use ecp::model::McpSolver;
+use ecp::model::{Mcp, McpSolver};
 use ecp::solvers::newton::{NewtonSettings, NewtonSolver};
 
 /// The lead's bound (issue 18): every step's solution within 1e-12 of the whole LU's, in the
