@@ -19,10 +19,12 @@ mod schur;
 mod simd;
 mod small_lu;
 mod sparse_cholesky;
+mod unit_rows;
 pub use schur::SchurLu;
 pub(crate) use simd::{add_row_combination, transpose, transpose_checked};
 use small_lu::SmallLu;
 pub use sparse_cholesky::{SparseCholesky, cholesky_flops};
+pub use unit_rows::UnitRowsLu;
 
 /// Largest dimension [`DenseLu`] factorises with its own small-matrix kernel instead of faer's
 /// blocked LU (`docs/latency.md`: below it the kernel is faster, above it faer is).
@@ -559,6 +561,11 @@ pub enum LinearSolver {
         pattern: CscPattern,
         /// The dense (column-major) position of each stored entry.
         positions: Vec<usize>,
+        /// The free block's LU of a matrix with unit rows
+        /// ([`LinearSolver::factor_with_unit_rows`]); `None` above [`SMALL_DENSE_MAX`].
+        unit_rows: Option<Box<UnitRowsLu>>,
+        /// Whether the last factorisation is `unit_rows`'.
+        unit_rows_used: bool,
     },
     /// Sparse LU with reused symbolic analysis.
     Sparse(Box<SparseLu>),
@@ -585,6 +592,8 @@ impl LinearSolver {
                 buf: vec![0.0; n * n],
                 pattern: pattern.clone(),
                 positions: pattern.dense_positions(),
+                unit_rows: (n <= SMALL_DENSE_MAX).then(|| Box::new(UnitRowsLu::new(pattern))),
+                unit_rows_used: false,
             })
         } else {
             Ok(LinearSolver::Sparse(Box::new(SparseLu::analyze(pattern)?)))
@@ -641,8 +650,15 @@ impl LinearSolver {
     pub fn factor(&mut self, values: &[f64]) -> Result<(), LinalgError> {
         match self {
             LinearSolver::Dense {
-                lu, buf, positions, ..
-            } => lu.factor_scattered(positions, values, buf),
+                lu,
+                buf,
+                positions,
+                unit_rows_used,
+                ..
+            } => {
+                *unit_rows_used = false;
+                lu.factor_scattered(positions, values, buf)
+            }
             LinearSolver::Sparse(s) => s.factor(values),
             LinearSolver::Structured {
                 schur,
@@ -660,9 +676,56 @@ impl LinearSolver {
             }
         }
     }
+    /// Factorises the matrix given by `values` in the pattern whose rows `i` with
+    /// `unit_rows[i]` hold only their diagonal entry (the others stored are zero): the dense
+    /// variant factorises only the block of the other rows and columns ([`UnitRowsLu`]; the
+    /// whole matrix when no row is a unit row, when a unit row holds a nonzero off the
+    /// diagonal after all, or above [`SMALL_DENSE_MAX`]); the others as
+    /// [`LinearSolver::factor`]. The solves solve with the whole matrix either way; the
+    /// singularity verdict is the pivot ratio of the unit rows' diagonals and the block's
+    /// pivots together.
+    pub fn factor_with_unit_rows(
+        &mut self,
+        values: &[f64],
+        unit_rows: &[bool],
+    ) -> Result<(), LinalgError> {
+        match self {
+            LinearSolver::Dense {
+                pattern,
+                unit_rows: Some(free),
+                unit_rows_used,
+                ..
+            } if unit_rows.len() == pattern.dim() && unit_rows.contains(&true) => {
+                *unit_rows_used = false;
+                if free.factor(pattern, values, unit_rows)? {
+                    *unit_rows_used = true;
+                    return Ok(());
+                }
+                self.factor(values)
+            }
+            _ => self.factor(values),
+        }
+    }
+    /// The unit rows the last factorisation left out of its LU
+    /// ([`LinearSolver::factor_with_unit_rows`]; 0 when it factorised the whole matrix).
+    pub fn unit_rows_left_out(&self) -> usize {
+        match self {
+            LinearSolver::Dense {
+                unit_rows: Some(free),
+                unit_rows_used: true,
+                ..
+            } => free.unit_rows(),
+            _ => 0,
+        }
+    }
     /// Solves `A x = b` in place.
     pub fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         match self {
+            LinearSolver::Dense {
+                unit_rows: Some(free),
+                unit_rows_used: true,
+                ..
+            } => free.solve_in_place(b),
             LinearSolver::Dense { lu, .. } => lu.solve_in_place(b),
             LinearSolver::Sparse(s) => s.solve_in_place(b),
             LinearSolver::Structured {
@@ -676,6 +739,11 @@ impl LinearSolver {
     /// Solves `Aᵀ x = b` in place.
     pub fn solve_transpose_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         match self {
+            LinearSolver::Dense {
+                unit_rows: Some(free),
+                unit_rows_used: true,
+                ..
+            } => free.solve_transpose_in_place(b),
             LinearSolver::Dense { lu, .. } => lu.solve_transpose_in_place(b),
             LinearSolver::Sparse(s) => s.solve_transpose_in_place(b),
             LinearSolver::Structured {
@@ -687,15 +755,19 @@ impl LinearSolver {
         }
     }
     /// True when [`LinearSolver::solve_rows_in_place`] solves: the dense variant with the small
-    /// kernel's factors.
+    /// kernel's factors of the whole matrix.
     pub fn solves_rows(&self) -> bool {
-        matches!(self, LinearSolver::Dense { lu, .. } if lu.small.is_some())
+        matches!(self, LinearSolver::Dense { lu, unit_rows_used: false, .. } if lu.small.is_some())
     }
-    /// [`DenseLu::solve_rows_in_place`] for the dense variant (`Ok(false)`, `b` untouched, for
-    /// the others).
+    /// [`DenseLu::solve_rows_in_place`] for the dense variant with the whole matrix's factors
+    /// (`Ok(false)`, `b` untouched, for the others).
     pub fn solve_rows_in_place(&mut self, b: &mut [f64], k: usize) -> Result<bool, LinalgError> {
         match self {
-            LinearSolver::Dense { lu, .. } => lu.solve_rows_in_place(b, k),
+            LinearSolver::Dense {
+                lu,
+                unit_rows_used: false,
+                ..
+            } => lu.solve_rows_in_place(b, k),
             _ => Ok(false),
         }
     }
@@ -703,6 +775,17 @@ impl LinearSolver {
     /// (dense: one call; sparse: column by column, each with its residual check).
     pub fn solve_many_in_place(&mut self, b: &mut [f64], k: usize) -> Result<(), LinalgError> {
         match self {
+            LinearSolver::Dense {
+                unit_rows: Some(free),
+                unit_rows_used: true,
+                pattern,
+                ..
+            } => {
+                check_many_rhs(b.len(), pattern.dim(), k)?;
+                let n = pattern.dim().max(1);
+                b.chunks_exact_mut(n)
+                    .try_for_each(|col| free.solve_in_place(col))
+            }
             LinearSolver::Dense { lu, .. } => lu.solve_many_in_place(b, k),
             LinearSolver::Structured {
                 dense,

@@ -145,6 +145,13 @@ pub struct NewtonSettings {
     /// so that the Newton step is taken rather than failing the LU of the whole system
     /// (docs/newton.md). Default `true`.
     pub pin_zero_columns: bool,
+    /// Factorise `H` on its free block: the rows of components held at a bound (`D_b,i = 0`,
+    /// so row `i` of `H` is `D_a,i e_iᵀ`) are left out of the LU, their step is `−Φ_i / D_a,i`
+    /// and the other rows' block is factorised alone
+    /// ([`ecp_model::linalg::LinearSolver::factor_with_unit_rows`]; the dense LU only). The
+    /// same step up to round-off (`docs/latency.md`, "Newton's Jacobian on its free block").
+    /// Default `true`.
+    pub free_block: bool,
     /// When the full Newton step fails the Armijo test, backtrack along the Newton direction
     /// (down to [`NewtonSettings::newton_shortest_step`]) and take that step instead of the
     /// Levenberg–Marquardt safeguard's when it lowers Ψ more. Without it, landing steps crawl
@@ -398,6 +405,7 @@ impl Default for NewtonSettings {
             min_norm_radius: 1e-3,
             watchdog_steps: 4,
             pin_zero_columns: true,
+            free_block: true,
             newton_line_search: true,
             newton_shortest_step: 1e-4,
             polish_below: 1e-3,
@@ -472,6 +480,8 @@ struct Workspace {
     d_alt: Vec<f64>,
     /// `(D_b, Φ)` of each row for [`assemble_h_and_gradient`].
     rows: Vec<(f64, f64)>,
+    /// The unit rows of `H` ([`NewtonSettings::free_block`], [`unit_rows`]).
+    unit: Vec<bool>,
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
@@ -546,6 +556,7 @@ impl Workspace {
         self.jac.resize(nnz, 0.0);
         self.h.resize(nnz, 0.0);
         self.rows.reserve(n.saturating_sub(self.rows.len()));
+        self.unit.resize(n, false);
     }
 
     fn resize_dense(&mut self, n: usize, dense: bool) {
@@ -851,6 +862,15 @@ fn generalized_jacobian_rows(
                 ws_db[i] = pb;
             }
         }
+    }
+}
+
+/// Marks the unit rows of `H = D_a + D_b J`: the rows with `D_b,i = 0` (a component held at
+/// its bound, `F_i` away from 0), whose only entry is the diagonal `D_a,i` (and its pin,
+/// [`pin_zero_columns`]). [`NewtonSettings::free_block`] factorises `H` without them.
+fn unit_rows(db: &[f64], unit: &mut [bool]) {
+    for (m, &b) in unit.iter_mut().zip(db) {
+        *m = b == 0.0;
     }
 }
 
@@ -1825,9 +1845,17 @@ impl NewtonSolver {
                         &mut ws.pin,
                         &mut ws.row_scale,
                     );
-                newton_ok = linear.factor(&ws.h).is_ok();
+                newton_ok = if s.free_block {
+                    unit_rows(&ws.db, &mut ws.unit);
+                    linear.factor_with_unit_rows(&ws.h, &ws.unit).is_ok()
+                } else {
+                    linear.factor(&ws.h).is_ok()
+                };
                 if newton_ok && linear.factored_by_elimination() {
                     prof.structured_factorizations += 1;
+                }
+                if newton_ok && linear.unit_rows_left_out() > 0 {
+                    prof.free_block_factorizations += 1;
                 }
                 if newton_ok && s.chord_contraction.is_some() {
                     ws.z_lu.copy_from_slice(&ws.z);

@@ -39,6 +39,15 @@ impl SmallLu {
         self.n
     }
 
+    /// Makes it an `n × n` workspace, in the storage it has when `n` is at most the largest
+    /// dimension it had (no allocation: the free block of a matrix with unit rows,
+    /// [`super::UnitRowsLu`]). The factors are invalid until the next elimination.
+    pub(crate) fn resize(&mut self, n: usize) {
+        self.n = n;
+        self.a.resize(n * n, 0.0);
+        self.piv.resize(n, 0);
+    }
+
     /// Factorises the column-major `n × n` matrix `src` (finite: the caller checks). A zero
     /// pivot column is left unreduced; the caller's pivot-ratio test reports the matrix singular.
     #[cfg(test)]

@@ -66,6 +66,9 @@ pub struct NewtonProfile {
     pub lu_factorizations: usize,
     /// Of those, the ones by block elimination ([`crate::newton::NewtonSettings::structured_solve`]).
     pub structured_factorizations: usize,
+    /// Of those, the ones of the free block alone (held rows left out:
+    /// [`crate::newton::NewtonSettings::free_block`]).
+    pub free_block_factorizations: usize,
     /// QR factorisations of the minimum-norm step.
     pub min_norm_factorizations: usize,
     /// Levenberg–Marquardt damping trials (each one factorisation of `HᵀH + λD`).
@@ -111,6 +114,7 @@ impl NewtonProfile {
         self.f_evals += other.f_evals;
         self.lu_factorizations += other.lu_factorizations;
         self.structured_factorizations += other.structured_factorizations;
+        self.free_block_factorizations += other.free_block_factorizations;
         self.min_norm_factorizations += other.min_norm_factorizations;
         self.lm_trials += other.lm_trials;
         self.lm_iterations += other.lm_iterations;

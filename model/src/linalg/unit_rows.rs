@@ -1,0 +1,438 @@
+//! The LU of a matrix some of whose rows are unit rows, on its free block alone.
+//!
+//! A row `i` whose only nonzero entry is its diagonal `d_i` (a *unit row*: Newton's `H = D_a +
+//! D_b J` at a component held at its bound with `D_b,i = 0`, `docs/latency.md`, "Newton's
+//! Jacobian on its free block") makes the matrix, with `U` the unit rows and `F` the others,
+//! block lower triangular: `H = [D_U 0; H_FU H_FF]`. So `H x = b` is `x_U = b_U / D_U` and
+//! `H_FF x_F = b_F − H_FU x_U`, and only `H_FF` is factorised. Its pivots and the `d_i` are
+//! the pivots of an elimination of `H` that takes the unit rows first, so the pivot-ratio
+//! verdict ([`super::SINGULAR_PIVOT_RATIO`]) is judged on both together.
+//!
+//! The lists that gather `H_FF` and `H_FU` from the stored entries are built once per unit-row
+//! mask and kept while the mask is the same (the active set changes seldom); the workspace is
+//! sized for the whole matrix once, so a new mask allocates nothing.
+
+use super::small_lu::SmallLu;
+use super::{LinalgError, SINGULAR_PIVOT_RATIO};
+use crate::pattern::CscPattern;
+
+/// The LU of `H_FF` and the entries of `D_U` and `H_FU` of a matrix with unit rows (module
+/// documentation), for matrices in one [`CscPattern`] up to [`super::SMALL_DENSE_MAX`]
+/// unknowns (the small kernel's).
+#[derive(Clone, Debug)]
+pub struct UnitRowsLu {
+    /// The unit-row mask the lists are built for, when `built`.
+    mask: Vec<bool>,
+    built: bool,
+    /// The free components, ascending: row and column `r` of `H_FF` is component `free[r]`.
+    free: Vec<usize>,
+    /// The unit rows, ascending.
+    unit: Vec<usize>,
+    /// The row (and column) of each free component in `H_FF` (unused for a unit one).
+    compact: Vec<usize>,
+    /// `H_FF`'s stored entries: their position in the values and in the column-major block.
+    block: Vec<(usize, usize)>,
+    /// `H_FU`'s stored entries: their position in the values, their row in `H_FF` and their
+    /// column (a unit component).
+    coupling: Vec<(usize, usize, usize)>,
+    /// The positions of the unit rows' off-diagonal entries: zero, read to check it.
+    off_unit: Vec<usize>,
+    /// The positions of the unit rows' diagonal entries, in the order of `unit`.
+    diag_pos: Vec<usize>,
+    /// The factorised matrix's `D_U` (order of `unit`) and `H_FU` (order of `coupling`).
+    diag: Vec<f64>,
+    coupling_values: Vec<f64>,
+    /// The small kernel's LU of `H_FF`.
+    lu: SmallLu,
+    /// A gathered free part of a right-hand side.
+    work: Vec<f64>,
+    factored: bool,
+}
+
+impl UnitRowsLu {
+    /// Workspace for `n × n` matrices in `pattern` with `nnz` stored entries.
+    pub(crate) fn new(pattern: &CscPattern) -> Self {
+        let (n, nnz) = (pattern.dim(), pattern.nnz());
+        UnitRowsLu {
+            mask: Vec::with_capacity(n),
+            built: false,
+            free: Vec::with_capacity(n),
+            unit: Vec::with_capacity(n),
+            compact: vec![0; n],
+            block: Vec::with_capacity(nnz),
+            coupling: Vec::with_capacity(nnz),
+            off_unit: Vec::with_capacity(nnz),
+            diag_pos: Vec::with_capacity(n),
+            diag: Vec::with_capacity(n),
+            coupling_values: Vec::with_capacity(nnz),
+            lu: SmallLu::new(n),
+            work: vec![0.0; n],
+            factored: false,
+        }
+    }
+
+    /// The number of unit rows of the mask last factorised with (the free block has the others).
+    pub fn unit_rows(&self) -> usize {
+        self.unit.len()
+    }
+
+    /// Builds the lists for `mask` (nothing to do when they are built for it already). Not
+    /// inlined: a new mask is rare, and the factorisation's loop stays short.
+    #[inline(never)]
+    fn index(&mut self, pattern: &CscPattern, mask: &[bool]) {
+        if self.built && self.mask == mask {
+            return;
+        }
+        self.built = true;
+        self.mask.clear();
+        self.mask.extend_from_slice(mask);
+        let n = mask.len();
+        self.free.clear();
+        self.unit.clear();
+        for (i, &m) in mask.iter().enumerate() {
+            if m {
+                self.unit.push(i);
+            } else {
+                self.free.push(i);
+            }
+        }
+        let f = self.free.len();
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        self.compact.resize(n, 0);
+        for (r, &i) in self.free.iter().enumerate() {
+            self.compact[i] = r;
+        }
+        let compact = &self.compact;
+        self.block.clear();
+        self.coupling.clear();
+        self.off_unit.clear();
+        for j in 0..n {
+            for q in cp[j]..cp[j + 1] {
+                let r = ri[q];
+                if mask[r] {
+                    if r != j {
+                        self.off_unit.push(q);
+                    }
+                } else if mask[j] {
+                    self.coupling.push((q, compact[r], j));
+                } else {
+                    self.block.push((q, compact[j] * f + compact[r]));
+                }
+            }
+        }
+        self.diag_pos.clear();
+        let dp = pattern.diag_pos();
+        self.diag_pos.extend(self.unit.iter().map(|&i| dp[i]));
+        self.lu.resize(f);
+    }
+
+    /// Factorises the matrix whose stored entries (in `pattern`) are `values` and whose rows
+    /// `mask[i]` are unit rows. `Ok(false)`, nothing factorised, when a unit row holds a
+    /// nonzero off-diagonal entry (or a NaN there): the caller factorises the whole matrix.
+    /// `NonFinite` for a non-finite entry elsewhere, `Singular` by the pivot ratio of `H_FF`'s
+    /// pivots and `D_U` together.
+    pub(crate) fn factor(
+        &mut self,
+        pattern: &CscPattern,
+        values: &[f64],
+        mask: &[bool],
+    ) -> Result<bool, LinalgError> {
+        self.factored = false;
+        self.index(pattern, mask);
+        if !self.off_unit.iter().all(|&q| values[q] == 0.0) {
+            return Ok(false);
+        }
+        let mut finite = true;
+        self.diag.clear();
+        self.diag.extend(self.diag_pos.iter().map(|&q| {
+            finite &= values[q].is_finite();
+            values[q]
+        }));
+        self.coupling_values.clear();
+        self.coupling_values
+            .extend(self.coupling.iter().map(|&(q, _, _)| {
+                finite &= values[q].is_finite();
+                values[q]
+            }));
+        let a = self.lu.storage_mut();
+        a.fill(0.0);
+        for &(q, k) in &self.block {
+            let v = values[q];
+            finite &= v.is_finite();
+            a[k] = v;
+        }
+        if !finite {
+            return Err(LinalgError::NonFinite);
+        }
+        self.lu.eliminate();
+        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
+        for d in self.lu.pivots().chain(self.diag.iter().copied()) {
+            lo = lo.min(d.abs());
+            hi = hi.max(d.abs());
+        }
+        if !mask.is_empty() && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
+            return Err(LinalgError::Singular {
+                ratio: if hi > 0.0 { lo / hi } else { 0.0 },
+            });
+        }
+        self.factored = true;
+        Ok(true)
+    }
+
+    /// Solves `H x = b` in place: `x_U = b_U / D_U`, then `H_FF x_F = b_F − H_FU x_U` (the
+    /// coupling skipped when `x_U` is zero, as it is at a held component, where `Φ_i = 0`).
+    pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.check(b)?;
+        // Every entry of `b` is a unit row's or a free one's: the finiteness test of the
+        // result goes along.
+        let (mut coupled, mut finite) = (false, true);
+        for (&i, &d) in self.unit.iter().zip(&self.diag) {
+            b[i] /= d;
+            coupled |= b[i] != 0.0;
+            finite &= b[i].is_finite();
+        }
+        let work = &mut self.work[..self.free.len()];
+        for (w, &i) in work.iter_mut().zip(&self.free) {
+            *w = b[i];
+        }
+        if coupled {
+            for (&(_, r, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
+                work[r] -= v * b[j];
+            }
+        }
+        self.lu.solve(work);
+        for (&w, &i) in work.iter().zip(&self.free) {
+            b[i] = w;
+            finite &= w.is_finite();
+        }
+        if finite {
+            Ok(())
+        } else {
+            Err(LinalgError::NonFinite)
+        }
+    }
+
+    /// Solves `Hᵀ x = b` in place: `H_FFᵀ x_F = b_F`, then `x_U = (b_U − H_FUᵀ x_F) / D_U`.
+    pub(crate) fn solve_transpose_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
+        self.check(b)?;
+        let work = &mut self.work[..self.free.len()];
+        for (w, &i) in work.iter_mut().zip(&self.free) {
+            *w = b[i];
+        }
+        self.lu.solve_transpose(work);
+        for (&w, &i) in work.iter().zip(&self.free) {
+            b[i] = w;
+        }
+        for (&(_, r, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
+            b[j] -= v * work[r];
+        }
+        for (&i, &d) in self.unit.iter().zip(&self.diag) {
+            b[i] /= d;
+        }
+        finite(b)
+    }
+
+    fn check(&self, b: &[f64]) -> Result<(), LinalgError> {
+        if !self.factored {
+            return Err(LinalgError::NotFactored);
+        }
+        if b.len() != self.mask.len() {
+            return Err(LinalgError::Factorization(format!(
+                "right-hand side has {} entries, expected {}",
+                b.len(),
+                self.mask.len()
+            )));
+        }
+        Ok(())
+    }
+}
+
+fn finite(b: &[f64]) -> Result<(), LinalgError> {
+    if b.iter().all(|v| v.is_finite()) {
+        Ok(())
+    } else {
+        Err(LinalgError::NonFinite)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::linalg::{DenseLu, LinalgError, LinearSolver};
+    use crate::pattern::CscPattern;
+
+    /// A dense `n × n` column-major matrix with a strong diagonal and unit rows `unit`
+    /// (diagonal `−1 − i`, the rest of the row zero, one of them `−0`).
+    fn matrix(n: usize, unit: &[usize], seed: u64) -> Vec<f64> {
+        let mut x = seed;
+        let mut a = vec![0.0; n * n];
+        for j in 0..n {
+            for i in 0..n {
+                x = x
+                    .wrapping_mul(6364136223846793005)
+                    .wrapping_add(1442695040888963407);
+                let v = ((x >> 11) as f64 / (1u64 << 53) as f64) - 0.5;
+                a[j * n + i] = if i == j { 4.0 + v } else { v };
+            }
+        }
+        for &i in unit {
+            for j in 0..n {
+                a[j * n + i] = if j == i { -1.0 - i as f64 } else { 0.0 };
+            }
+            a[((i + 1) % n) * n + i] = -0.0;
+        }
+        a
+    }
+
+    fn whole_solve(a: &[f64], b: &[f64], transpose: bool) -> Vec<f64> {
+        let n = b.len();
+        let mut lu = DenseLu::new(n);
+        lu.factor(a).unwrap_or_else(|e| panic!("{e}"));
+        let mut x = b.to_vec();
+        if transpose {
+            lu.solve_transpose_in_place(&mut x)
+        } else {
+            lu.solve_in_place(&mut x)
+        }
+        .unwrap_or_else(|e| panic!("{e}"));
+        x
+    }
+
+    fn mask(n: usize, unit: &[usize]) -> Vec<bool> {
+        (0..n).map(|i| unit.contains(&i)).collect()
+    }
+
+    fn assert_close(x: &[f64], y: &[f64], tol: f64) {
+        for (u, v) in x.iter().zip(y) {
+            assert!(
+                (u - v).abs() <= tol * (1.0 + v.abs()),
+                "{x:?} against {y:?}"
+            );
+        }
+    }
+
+    #[test]
+    fn the_free_block_solves_as_the_whole_matrix() {
+        let n = 9;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        // Two masks in turn: the lists are rebuilt for each and kept while it is the same.
+        for (seed, unit) in [(1, vec![1, 4, 8]), (2, vec![0, 5]), (3, vec![0, 5])] {
+            let a = matrix(n, &unit, seed);
+            solver
+                .factor_with_unit_rows(&a, &mask(n, &unit))
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(solver.unit_rows_left_out(), unit.len());
+            assert!(!solver.solves_rows());
+            // A right-hand side zero on the unit rows (a held component's Φ) and one that is
+            // not (a chord step's: the coupling `H_FU x_U` enters).
+            let mut b: Vec<f64> = (0..n).map(|i| 1.0 + i as f64 * 0.25).collect();
+            for held in [true, false] {
+                if held {
+                    for &i in &unit {
+                        b[i] = 0.0;
+                    }
+                } else {
+                    for &i in &unit {
+                        b[i] = 0.5 + i as f64;
+                    }
+                }
+                for transpose in [false, true] {
+                    let mut x = b.clone();
+                    if transpose {
+                        solver.solve_transpose_in_place(&mut x)
+                    } else {
+                        solver.solve_in_place(&mut x)
+                    }
+                    .unwrap_or_else(|e| panic!("{e}"));
+                    assert_close(&x, &whole_solve(&a, &b, transpose), 1e-14);
+                    if held && !transpose {
+                        for &i in &unit {
+                            assert_eq!(x[i], 0.0);
+                        }
+                    }
+                }
+            }
+            // Many right-hand sides: each column as solved alone.
+            let mut many: Vec<f64> = b.iter().chain(&b).map(|v| v * 2.0).collect();
+            solver
+                .solve_many_in_place(&mut many, 2)
+                .unwrap_or_else(|e| panic!("{e}"));
+            let mut one: Vec<f64> = b.iter().map(|v| v * 2.0).collect();
+            solver
+                .solve_in_place(&mut one)
+                .unwrap_or_else(|e| panic!("{e}"));
+            assert_eq!(&many[..n], &one[..]);
+            assert_eq!(&many[n..], &one[..]);
+        }
+    }
+
+    #[test]
+    fn a_unit_row_that_is_not_falls_back_to_the_whole_matrix() {
+        let n = 6;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        let unit = [2, 3];
+        let mut a = matrix(n, &unit, 7);
+        // Row 3 holds an entry off its diagonal: not a unit row after all.
+        a[5 * n + 3] = 0.125;
+        solver
+            .factor_with_unit_rows(&a, &mask(n, &unit))
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(solver.unit_rows_left_out(), 0);
+        assert!(solver.solves_rows());
+        let b: Vec<f64> = (0..n).map(|i| i as f64 - 2.0).collect();
+        let mut x = b.clone();
+        solver
+            .solve_in_place(&mut x)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(x, whole_solve(&a, &b, false));
+        // No unit row: the whole matrix, bitwise `factor`'s.
+        solver
+            .factor_with_unit_rows(&a, &[false; 6])
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(solver.unit_rows_left_out(), 0);
+    }
+
+    #[test]
+    fn singular_and_non_finite_matrices_are_refused() {
+        let n = 5;
+        let pattern = CscPattern::dense(n);
+        let mut solver = LinearSolver::for_pattern(&pattern, 120).unwrap_or_else(|e| panic!("{e}"));
+        let unit = [1];
+        let m = mask(n, &unit);
+        // A zero diagonal in a unit row: the whole matrix is singular.
+        let mut a = matrix(n, &unit, 3);
+        a[n + 1] = 0.0;
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        let mut x = vec![1.0; n];
+        assert_eq!(solver.solve_in_place(&mut x), Err(LinalgError::NotFactored));
+        // A unit row's diagonal tiny beside the block's pivots: the ratio sees both.
+        a[n + 1] = 1e-15;
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        // Two equal free columns: the free block is singular.
+        let mut a = matrix(n, &unit, 4);
+        for i in 0..n {
+            a[3 * n + i] = a[2 * n + i];
+        }
+        assert!(matches!(
+            solver.factor_with_unit_rows(&a, &m),
+            Err(LinalgError::Singular { .. })
+        ));
+        // A NaN in the free block, in the coupling, in a unit row.
+        for k in [2 * n + 3, n + 3, 4 * n + 1] {
+            let mut a = matrix(n, &unit, 5);
+            a[k] = f64::NAN;
+            assert_eq!(
+                solver.factor_with_unit_rows(&a, &m),
+                Err(LinalgError::NonFinite),
+                "{k}"
+            );
+        }
+    }
+}
