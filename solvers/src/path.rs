@@ -40,6 +40,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use ecp_model::linalg::ColumnTestedLu;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, Solution,
@@ -47,7 +48,7 @@ use ecp_model::{
     natural_residual, solve_in_scales, validate_start,
 };
 
-use crate::pivot::basis::BasisFactor;
+use crate::pivot::basis::DEPENDENCE_TOLERANCE;
 use crate::pivot::{
     AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath, all_finite,
     mul_vec_nonzero_columns,
@@ -381,8 +382,6 @@ pub struct PathSolver {
     q: Vec<f64>,
     jz: Vec<f64>,
     step_x: Vec<f64>,
-    /// The crash step's reduced Jacobian `J_II` (column-major, `ni × ni`).
-    reduced: Vec<f64>,
     /// Row of the reduced crash system of each variable (`usize::MAX` when not in it).
     reduced_slot: Vec<usize>,
     /// Right-hand side and solution of the reduced crash system.
@@ -391,10 +390,9 @@ pub struct PathSolver {
     inactive: Vec<usize>,
     active_prev: Vec<i8>,
     active: Vec<i8>,
-    order: Vec<usize>,
     /// The LU of the last crash target's reduced matrix (`J_II + shift·I`, rows and columns in
     /// `inactive`'s order, for the active set in `active`).
-    factor: BasisFactor,
+    factor: ColumnTestedLu,
     /// `factor` holds the LU of the reduced matrix of a crash target that was taken as a full
     /// step (`t = 1`) in this attempt, with no path step since: the polish may take chord steps
     /// on it ([`PathSolver::chord_target`]).
@@ -487,16 +485,14 @@ impl PathSolver {
             q: Vec::new(),
             jz: Vec::new(),
             step_x: Vec::new(),
-            reduced: Vec::new(),
             reduced_slot: Vec::new(),
             crash_rhs: Vec::new(),
             rhs: Vec::new(),
             inactive: Vec::new(),
             active_prev: Vec::new(),
             active: Vec::new(),
-            order: Vec::new(),
             result: Solution::default(),
-            factor: BasisFactor::default(),
+            factor: ColumnTestedLu::new(),
             kept_lu: false,
             jac_deferred: false,
             kept_key: None,
@@ -750,35 +746,43 @@ impl PathSolver {
             for (k, &i) in self.inactive.iter().enumerate() {
                 self.reduced_slot[i] = k;
             }
-            // Each column zeroed just before its scatter: one memset of all `ni²` entries
-            // is a `rep stosb` of several kB, counted per byte by callgrind.
-            if self.reduced.len() < ni * ni {
-                self.reduced.resize(ni * ni, 0.0);
-            }
+            // Straight into the LU's storage, each column zeroed just before its scatter (one
+            // memset of all `ni²` entries is a `rep stosb` of several kB, counted per byte by
+            // callgrind), with its largest magnitude, the scale of the dependence test.
+            let (reduced, norms) = self.factor.storage_mut(ni);
             // The fields as local slices, so the loop keeps them in registers.
             let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
             let (slot, jac) = (&self.reduced_slot[..], &self.jac[..]);
-            for (col, &j) in self.reduced[..ni * ni]
+            for ((col, norm), &j) in reduced
                 .chunks_exact_mut(ni)
+                .zip(norms.iter_mut())
                 .zip(&self.inactive)
             {
                 col.fill(0.0);
+                let mut largest = 0.0f64;
                 let range = cp[j]..cp[j + 1];
                 for (&i, &v) in ri[range.clone()].iter().zip(&jac[range]) {
-                    let kr = slot[i];
-                    if kr != usize::MAX {
-                        col[kr] = v;
+                    // An active row's slot is `usize::MAX`, beyond the column.
+                    if let Some(c) = col.get_mut(slot[i]) {
+                        *c = v;
+                        // `J` is finite here: one `maxsd`, not `f64::max`'s NaN tests.
+                        let a = v.abs();
+                        largest = if a > largest { a } else { largest };
                     }
                 }
+                *norm = largest;
             }
             if shift != 0.0 {
-                for k in 0..ni {
-                    self.reduced[k * ni + k] += shift;
+                for (k, (col, norm)) in reduced
+                    .chunks_exact_mut(ni)
+                    .zip(norms.iter_mut())
+                    .enumerate()
+                {
+                    col[k] += shift;
+                    *norm = col.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 }
             }
-            self.order.clear();
-            self.order.extend(0..ni);
-            if self.factor.factor(ni, &self.reduced, &self.order).is_err() {
+            if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
             if !self.reduced_newton_step(true) {

@@ -34,6 +34,14 @@ impl SmallLu {
         }
     }
 
+    /// Makes it an `n × n` LU on the storage it has (no allocation up to the largest `n` it
+    /// held): the storage's entries are then unspecified until the caller writes them.
+    pub(crate) fn resize(&mut self, n: usize) {
+        self.n = n;
+        self.a.resize(n * n, 0.0);
+        self.piv.resize(n, 0);
+    }
+
     /// Dimension `n`.
     pub(crate) fn dim(&self) -> usize {
         self.n
