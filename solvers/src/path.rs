@@ -573,11 +573,27 @@ fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
 /// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
 /// (the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead when `fischer`).
 fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool) {
+    evaluate_projected(mcp, p, f_evals, fischer, false);
+}
+
+/// [`evaluate_at`], with `F` taken from the problem where it holds it for that `z` already
+/// when `known` (`Mcp::known_value`: a time step's warm start, whose guard evaluated `F` there;
+/// the same bits as evaluating it). Counted as an evaluation either way.
+fn evaluate_projected(
+    mcp: &dyn Mcp,
+    p: &mut Point,
+    f_evals: &mut usize,
+    fischer: bool,
+    known: bool,
+) {
     let (l, u) = (mcp.lower(), mcp.upper());
     for i in 0..p.x.len() {
         p.z[i] = mid(l[i], u[i], p.x[i]);
     }
-    mcp.evaluate(&p.z, &mut p.f);
+    match known.then(|| mcp.known_value(&p.z)).flatten() {
+        Some(f) => p.f.copy_from_slice(f),
+        None => mcp.evaluate(&p.z, &mut p.f),
+    }
     p.residual = None;
     *f_evals += 1;
     if p.f.iter().all(|v| v.is_finite()) {
@@ -942,9 +958,10 @@ impl PathSolver {
             && !self.fischer
             && s.polish_below < 1.0;
 
-        // Start: z = π(z0), x its normal-map point.
+        // Start: z = π(z0), x its normal-map point; `F` there may be known already (a time
+        // step's warm start).
         self.current.x.copy_from_slice(z0);
-        evaluate_at(mcp, &mut self.current, f_evals, self.fischer);
+        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, true);
         let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
