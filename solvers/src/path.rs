@@ -598,7 +598,7 @@ fn evaluate_projected(
     }
     p.residual = None;
     *f_evals += 1;
-    if p.f.iter().all(|v| v.is_finite()) {
+    if all_finite(&p.f) {
         normal_point(p, l, u);
         if fischer {
             let s: f64 = (0..p.z.len())
