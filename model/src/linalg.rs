@@ -15,11 +15,13 @@ use faer::{Mat, Par};
 
 use crate::pattern::CscPattern;
 
+mod column_tested_lu;
 mod schur;
 mod simd;
 mod small_lu;
 mod sparse_cholesky;
 mod unit_rows;
+pub use column_tested_lu::{ColumnTestedLu, DependentColumn};
 pub use schur::SchurLu;
 pub(crate) use simd::{add_row_combination, transpose, transpose_checked};
 use small_lu::SmallLu;

@@ -40,6 +40,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use ecp_model::linalg::ColumnTestedLu;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, Solution,
@@ -47,7 +48,7 @@ use ecp_model::{
     natural_residual, solve_in_scales, validate_start,
 };
 
-use crate::pivot::basis::BasisFactor;
+use crate::pivot::basis::DEPENDENCE_TOLERANCE;
 use crate::pivot::{
     AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath, all_finite,
     mul_vec_nonzero_columns,
@@ -381,8 +382,6 @@ pub struct PathSolver {
     q: Vec<f64>,
     jz: Vec<f64>,
     step_x: Vec<f64>,
-    /// The crash step's reduced Jacobian `J_II` (column-major, `ni × ni`).
-    reduced: Vec<f64>,
     /// Row of the reduced crash system of each variable (`usize::MAX` when not in it).
     reduced_slot: Vec<usize>,
     /// Right-hand side and solution of the reduced crash system.
@@ -391,10 +390,9 @@ pub struct PathSolver {
     inactive: Vec<usize>,
     active_prev: Vec<i8>,
     active: Vec<i8>,
-    order: Vec<usize>,
     /// The LU of the last crash target's reduced matrix (`J_II + shift·I`, rows and columns in
     /// `inactive`'s order, for the active set in `active`).
-    factor: BasisFactor,
+    factor: ColumnTestedLu,
     /// `factor` holds the LU of the reduced matrix of a crash target that was taken as a full
     /// step (`t = 1`) in this attempt, with no path step since: the polish may take chord steps
     /// on it ([`PathSolver::chord_target`]).
@@ -487,16 +485,14 @@ impl PathSolver {
             q: Vec::new(),
             jz: Vec::new(),
             step_x: Vec::new(),
-            reduced: Vec::new(),
             reduced_slot: Vec::new(),
             crash_rhs: Vec::new(),
             rhs: Vec::new(),
             inactive: Vec::new(),
             active_prev: Vec::new(),
             active: Vec::new(),
-            order: Vec::new(),
             result: Solution::default(),
-            factor: BasisFactor::default(),
+            factor: ColumnTestedLu::new(),
             kept_lu: false,
             jac_deferred: false,
             kept_key: None,
@@ -554,17 +550,19 @@ impl PathSolver {
 /// `F_i < 0`, `x_i = z_i` elsewhere. Non-finite `F` gives `+∞`.
 fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
     let mut s = 0.0;
-    for i in 0..p.z.len() {
-        let (z, f) = (p.z[i], p.f[i]);
-        let x = if z <= l[i] && f > 0.0 {
-            l[i] - f
-        } else if z >= u[i] && f < 0.0 {
-            u[i] - f
+    let n = p.z.len();
+    for ((x, (&z, &f)), (&l, &u)) in (p.x[..n].iter_mut())
+        .zip(p.z.iter().zip(&p.f[..n]))
+        .zip(l[..n].iter().zip(&u[..n]))
+    {
+        *x = if z <= l && f > 0.0 {
+            l - f
+        } else if z >= u && f < 0.0 {
+            u - f
         } else {
             z
         };
-        p.x[i] = x;
-        let c = f + x - z;
+        let c = f + *x - z;
         s += c * c;
     }
     p.merit = if s.is_finite() {
@@ -577,14 +575,30 @@ fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
 /// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
 /// (the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead when `fischer`).
 fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool) {
+    evaluate_projected(mcp, p, f_evals, fischer, false);
+}
+
+/// [`evaluate_at`], with `F` taken from the problem where it holds it for that `z` already
+/// when `known` (`Mcp::known_value`: a time step's warm start, whose guard evaluated `F` there;
+/// the same bits as evaluating it). Counted as an evaluation either way.
+fn evaluate_projected(
+    mcp: &dyn Mcp,
+    p: &mut Point,
+    f_evals: &mut usize,
+    fischer: bool,
+    known: bool,
+) {
     let (l, u) = (mcp.lower(), mcp.upper());
     for i in 0..p.x.len() {
         p.z[i] = mid(l[i], u[i], p.x[i]);
     }
-    mcp.evaluate(&p.z, &mut p.f);
+    match known.then(|| mcp.known_value(&p.z)).flatten() {
+        Some(f) => p.f.copy_from_slice(f),
+        None => mcp.evaluate(&p.z, &mut p.f),
+    }
     p.residual = None;
     *f_evals += 1;
-    if p.f.iter().all(|v| v.is_finite()) {
+    if all_finite(&p.f) {
         normal_point(p, l, u);
         if fischer {
             let s: f64 = (0..p.z.len())
@@ -672,8 +686,11 @@ impl PathSolver {
         let sigma = self.settings.sufficient_decrease;
         let mut t = 1.0;
         for _ in 0..6 {
-            for i in 0..n {
-                self.trial.x[i] = self.current.z[i] + t * (self.step_x[i] - self.current.z[i]);
+            for ((x, &z), &b) in (self.trial.x[..n].iter_mut())
+                .zip(&self.current.z[..n])
+                .zip(&self.step_x[..n])
+            {
+                *x = z + t * (b - z);
             }
             evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
             if self.trial.merit <= (1.0 - sigma * t) * self.current.merit {
@@ -716,28 +733,31 @@ impl PathSolver {
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let cur = &self.current;
-        // Active set from the projection π(z − F): −1 lower, +1 upper, 0 inside.
+        // Active set from the projection π(z − F): −1 lower, +1 upper, 0 inside. Target: active
+        // components at their bounds; inactive ones by the reduced Newton system
+        // J_II Δ_I = −F_I − J_IA (b_A − z_A). One pass over zipped slices (no bounds checks,
+        // the fields not reloaded per component).
         self.inactive.clear();
-        for i in 0..n {
-            let y = cur.z[i] - cur.f[i];
-            self.active[i] = if y <= l[i] {
-                -1
-            } else if y >= u[i] {
-                1
+        let cur_zf = cur.z[..n].iter().zip(&cur.f[..n]);
+        let targets = (self.active[..n].iter_mut())
+            .zip(&mut self.step_x[..n])
+            .zip(&mut self.jz[..n]);
+        for (i, (((active, target), jz), ((&z, &f), (&li, &ui)))) in targets
+            .zip(cur_zf.zip(l[..n].iter().zip(&u[..n])))
+            .enumerate()
+        {
+            let y = z - f;
+            let (kind, b) = if y <= li {
+                (-1, li)
+            } else if y >= ui {
+                (1, ui)
             } else {
                 self.inactive.push(i);
-                0
+                (0, z)
             };
-        }
-        // Target: active components at their bounds; inactive ones by the reduced Newton system
-        // J_II Δ_I = −F_I − J_IA (b_A − z_A).
-        for i in 0..n {
-            self.step_x[i] = match self.active[i] {
-                -1 => l[i],
-                1 => u[i],
-                _ => cur.z[i],
-            };
-            self.jz[i] = self.step_x[i] - cur.z[i];
+            *active = kind;
+            *target = b;
+            *jz = b - z;
         }
         let ni = self.inactive.len();
         if ni > 0 {
@@ -750,35 +770,43 @@ impl PathSolver {
             for (k, &i) in self.inactive.iter().enumerate() {
                 self.reduced_slot[i] = k;
             }
-            // Each column zeroed just before its scatter: one memset of all `ni²` entries
-            // is a `rep stosb` of several kB, counted per byte by callgrind.
-            if self.reduced.len() < ni * ni {
-                self.reduced.resize(ni * ni, 0.0);
-            }
+            // Straight into the LU's storage, each column zeroed just before its scatter (one
+            // memset of all `ni²` entries is a `rep stosb` of several kB, counted per byte by
+            // callgrind), with its largest magnitude, the scale of the dependence test.
+            let (reduced, norms) = self.factor.storage_mut(ni);
             // The fields as local slices, so the loop keeps them in registers.
             let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
             let (slot, jac) = (&self.reduced_slot[..], &self.jac[..]);
-            for (col, &j) in self.reduced[..ni * ni]
+            for ((col, norm), &j) in reduced
                 .chunks_exact_mut(ni)
+                .zip(norms.iter_mut())
                 .zip(&self.inactive)
             {
                 col.fill(0.0);
+                let mut largest = 0.0f64;
                 let range = cp[j]..cp[j + 1];
                 for (&i, &v) in ri[range.clone()].iter().zip(&jac[range]) {
-                    let kr = slot[i];
-                    if kr != usize::MAX {
-                        col[kr] = v;
+                    // An active row's slot is `usize::MAX`, beyond the column.
+                    if let Some(c) = col.get_mut(slot[i]) {
+                        *c = v;
+                        // `J` is finite here: one `maxsd`, not `f64::max`'s NaN tests.
+                        let a = v.abs();
+                        largest = if a > largest { a } else { largest };
                     }
                 }
+                *norm = largest;
             }
             if shift != 0.0 {
-                for k in 0..ni {
-                    self.reduced[k * ni + k] += shift;
+                for (k, (col, norm)) in reduced
+                    .chunks_exact_mut(ni)
+                    .zip(norms.iter_mut())
+                    .enumerate()
+                {
+                    col[k] += shift;
+                    *norm = col.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 }
             }
-            self.order.clear();
-            self.order.extend(0..ni);
-            if self.factor.factor(ni, &self.reduced, &self.order).is_err() {
+            if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
             if !self.reduced_newton_step(true) {
@@ -804,16 +832,19 @@ impl PathSolver {
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let cur = &self.current;
-        for i in 0..n {
-            let y = cur.z[i] - cur.f[i];
-            let same = match self.active[i] {
-                -1 => y <= l[i] && cur.z[i] == l[i],
-                1 => y >= u[i] && cur.z[i] == u[i],
-                _ => y > l[i] && y < u[i],
-            };
-            if !same {
-                return false;
-            }
+        let same = (self.active[..n].iter())
+            .zip(cur.z[..n].iter().zip(&cur.f[..n]))
+            .zip(l[..n].iter().zip(&u[..n]))
+            .all(|((&active, (&z, &f)), (&l, &u))| {
+                let y = z - f;
+                match active {
+                    -1 => y <= l && z == l,
+                    1 => y >= u && z == u,
+                    _ => y > l && y < u,
+                }
+            });
+        if !same {
+            return false;
         }
         self.step_x.copy_from_slice(&cur.z);
         self.reduced_newton_step(false)
@@ -824,24 +855,25 @@ impl PathSolver {
     /// when `with_rhs`, else 0 (a chord step: every active component is at its bound already).
     /// `false`, leaving `step_x_I` as it was, when `Δ` is not finite.
     fn reduced_newton_step(&mut self, with_rhs: bool) -> bool {
-        let cur = &self.current;
-        let mut b = std::mem::take(&mut self.crash_rhs);
+        let (cur, inactive) = (&self.current, &self.inactive[..]);
+        let (f, rhs) = (&cur.f[..], &self.rhs[..]);
+        let b = &mut self.crash_rhs;
         b.clear();
         if with_rhs {
-            b.extend(self.inactive.iter().map(|&i| -cur.f[i] - self.rhs[i]));
+            b.extend(inactive.iter().map(|&i| -f[i] - rhs[i]));
         } else {
-            b.extend(self.inactive.iter().map(|&i| -cur.f[i]));
+            b.extend(inactive.iter().map(|&i| -f[i]));
         }
         if !b.is_empty() {
-            self.factor.solve(&mut b);
+            self.factor.solve(b);
         }
         let finite = b.iter().all(|v| v.is_finite());
         if finite {
-            for (k, &i) in self.inactive.iter().enumerate() {
-                self.step_x[i] = cur.z[i] + b[k];
+            let (z, step_x) = (&cur.z[..], &mut self.step_x[..]);
+            for (&i, &d) in inactive.iter().zip(b.iter()) {
+                step_x[i] = z[i] + d;
             }
         }
-        self.crash_rhs = b;
         finite
     }
 
@@ -938,9 +970,10 @@ impl PathSolver {
             && !self.fischer
             && s.polish_below < 1.0;
 
-        // Start: z = π(z0), x its normal-map point.
+        // Start: z = π(z0), x its normal-map point; `F` there may be known already (a time
+        // step's warm start).
         self.current.x.copy_from_slice(z0);
-        evaluate_at(mcp, &mut self.current, f_evals, self.fischer);
+        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, true);
         let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
@@ -1973,6 +2006,84 @@ mod tests {
         assert_eq!(next.summary.jac_evals, 0, "{:?}", next.summary);
         assert!(next.summary.converged());
         assert!((next.z[0] - root(2e-3)).abs() <= 1e-6);
+    }
+
+    /// `shifted_root(0)` with `F` at one point known (`Mcp::known_value`), counting its
+    /// evaluations of `F`.
+    struct KnownAt {
+        inner: FnMcp,
+        z: Vec<f64>,
+        f: Vec<f64>,
+        evaluations: std::cell::Cell<usize>,
+    }
+
+    impl Mcp for KnownAt {
+        fn dim(&self) -> usize {
+            self.inner.dim()
+        }
+        fn lower(&self) -> &[f64] {
+            self.inner.lower()
+        }
+        fn upper(&self) -> &[f64] {
+            self.inner.upper()
+        }
+        fn evaluate(&self, z: &[f64], f: &mut [f64]) {
+            self.evaluations.set(self.evaluations.get() + 1);
+            self.inner.evaluate(z, f)
+        }
+        fn jacobian_pattern(&self) -> &Arc<CscPattern> {
+            self.inner.jacobian_pattern()
+        }
+        fn jacobian(&self, z: &[f64], values: &mut [f64]) {
+            self.inner.jacobian(z, values)
+        }
+        fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
+            (z == self.z.as_slice()).then_some(self.f.as_slice())
+        }
+    }
+
+    /// `F` at the start handed over (`Mcp::known_value`) replaces the attempt's first
+    /// evaluation, and the solve returns the same point and summary bit for bit; `F` known at
+    /// another point is not taken.
+    #[test]
+    fn path_takes_f_at_the_start_when_the_problem_holds_it() {
+        let start = vec![1.2, 0.3];
+        let mut f = vec![0.0; 2];
+        shifted_root(0.0).evaluate(&start, &mut f);
+        let solve = |known_at: &[f64]| {
+            let mcp = KnownAt {
+                inner: shifted_root(0.0),
+                z: known_at.to_vec(),
+                f: f.clone(),
+                evaluations: std::cell::Cell::new(0),
+            };
+            let sol = PathSolver::new(PathSettings::default())
+                .solve(&mcp, &start)
+                .unwrap_or_else(|e| panic!("{e}"));
+            (sol, mcp.evaluations.get())
+        };
+        let (plain, plain_evaluations) = solve(&[]);
+        let (handed, handed_evaluations) = solve(&start);
+        let (elsewhere, elsewhere_evaluations) = solve(&[1.2, 0.30000000000000004]);
+        // z = (1, 0): z0² + z0 − 2 = 0, and F_1 = 1.1 > 0 at the bound.
+        assert!(
+            (plain.z[0] - 1.0).abs() <= 1e-15 && plain.z[1] == 0.0,
+            "{:?}",
+            plain.z
+        );
+        assert!(
+            plain.summary.iterations >= 2,
+            "{}",
+            plain.summary.iterations
+        );
+        assert_eq!(handed_evaluations + 1, plain_evaluations);
+        assert_eq!(elsewhere_evaluations, plain_evaluations);
+        for sol in [&handed, &elsewhere] {
+            assert_eq!(sol.z, plain.z);
+            assert_eq!(sol.summary.residual, plain.summary.residual);
+            assert_eq!(sol.summary.iterations, plain.summary.iterations);
+            assert_eq!(sol.summary.f_evals, plain.summary.f_evals);
+        }
     }
 
     #[test]

@@ -34,18 +34,19 @@ impl SmallLu {
         }
     }
 
-    /// Dimension `n`.
-    pub(crate) fn dim(&self) -> usize {
-        self.n
-    }
-
-    /// Makes it an `n × n` workspace, in the storage it has when `n` is at most the largest
-    /// dimension it had (no allocation: the free block of a matrix with unit rows,
-    /// [`super::UnitRowsLu`]). The factors are invalid until the next elimination.
+    /// Makes it an `n × n` LU on the storage it has (no allocation up to the largest `n` it
+    /// held: the free block of a matrix with unit rows, [`super::UnitRowsLu`], PATH's crash
+    /// step, [`super::ColumnTestedLu`]): the storage's entries, and the factors, are then
+    /// unspecified until the caller writes them and eliminates.
     pub(crate) fn resize(&mut self, n: usize) {
         self.n = n;
         self.a.resize(n * n, 0.0);
         self.piv.resize(n, 0);
+    }
+
+    /// Dimension `n`.
+    pub(crate) fn dim(&self) -> usize {
+        self.n
     }
 
     /// Factorises the column-major `n × n` matrix `src` (finite: the caller checks). A zero

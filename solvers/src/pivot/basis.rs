@@ -40,7 +40,7 @@ pub(crate) struct DependentColumn {
 const NONE: usize = usize::MAX;
 
 /// Relative pivot size below which a column is treated as dependent on the ones before it.
-const DEPENDENCE_TOLERANCE: f64 = 1e-11;
+pub(crate) const DEPENDENCE_TOLERANCE: f64 = 1e-11;
 
 /// The basis as unit columns plus the explicit inverse of the block `C_N` of the others.
 #[derive(Debug, Default)]
@@ -262,7 +262,10 @@ impl BasisFactor {
 
     /// Factorises the `n × n` matrix whose column `k` (basis position `order[k]`) is
     /// `columns[k n .. (k + 1) n]`, all dense (a plain dense LU for one-off solves with
-    /// [`BasisFactor::solve`]); dependence is judged in the given order.
+    /// [`BasisFactor::solve`]); dependence is judged in the given order. The tests' entry: the
+    /// PATH-like solver's crash step factorises its reduced Jacobian with
+    /// `ecp_model::linalg::ColumnTestedLu`, the same elimination and dependence test.
+    #[cfg(test)]
     pub fn factor(
         &mut self,
         n: usize,

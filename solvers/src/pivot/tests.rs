@@ -447,3 +447,30 @@ fn mul_solution_is_mul_bitwise() {
     a.mul_solution(&zs[0], 0.0, &mut out, &mut nonzero);
     assert_eq!(out[0].to_bits(), 0.0f64.to_bits());
 }
+
+/// `all_finite` by products with zero: every finite magnitude passes (`f64::MAX · 0 = 0`), and
+/// one NaN or infinity fails it in any lane of the four sums or in the remainder.
+#[test]
+fn all_finite_refuses_a_non_finite_entry_in_every_position() {
+    assert!(all_finite(&[]));
+    let finite = [
+        1.0,
+        -0.0,
+        f64::MAX,
+        -f64::MAX,
+        f64::MIN_POSITIVE,
+        5e-324,
+        -3.5,
+        0.0,
+        1e300,
+    ];
+    assert!(all_finite(&finite));
+    for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+        for k in 0..finite.len() {
+            let mut v = finite;
+            v[k] = bad;
+            assert!(!all_finite(&v), "{bad} at {k}");
+            assert!(!all_finite(&v[..=k]), "{bad} last of {}", k + 1);
+        }
+    }
+}
