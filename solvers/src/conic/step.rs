@@ -154,6 +154,9 @@ pub(crate) struct PolishWorkspace {
     before: Vec<f64>,
     /// The impulses before the sweep before, in the same order ([`StepQp::extrapolate`]).
     previous: Vec<f64>,
+    /// The impulses one sweep before `previous`, in the same order (the two-mode
+    /// extrapolation, [`two_mode_coefficients`]).
+    earlier: Vec<f64>,
     /// Each contact's multiplier `η` of its local friction problem at the last sweep (0 before
     /// the first, or when it stuck): the next sweep's Newton iteration starts there
     /// ([`local_friction`]).
@@ -748,6 +751,7 @@ impl StepQp {
             current,
             before,
             previous,
+            earlier,
             etas,
             normal,
             joint,
@@ -840,6 +844,7 @@ impl StepQp {
         etas.clear();
         etas.resize(self.contacts.len(), 0.0);
         for sweep in 0..sweeps {
+            std::mem::swap(earlier, previous);
             std::mem::swap(previous, before);
             before.clear();
             for c in contacts.iter() {
@@ -922,7 +927,11 @@ impl StepQp {
                 plain = 0;
             } else if extrapolating
                 && plain >= 2
-                && self.extrapolate(previous, before, contacts, wrench_sum, current)
+                && (self.extrapolate(previous, before, contacts, wrench_sum, current)
+                    || (plain >= TWO_MODE_AFTER
+                        && self.extrapolate_two_modes(
+                            earlier, previous, before, contacts, wrench_sum, current,
+                        )))
             {
                 plain = 0;
             }
@@ -975,6 +984,23 @@ const EXTRAPOLATE_RATE: f64 = 0.5;
 /// How far the last sweep's change may lie off the line of the change before it, relative to
 /// its size, for the polish to extrapolate: the sweeps then follow one mode.
 const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
+
+/// Plain sweeps in a row after which the polish, where Aitken's one-mode extrapolation does not
+/// apply, tries the two-mode one ([`two_mode_coefficients`]; it needs three changes). At 6 the
+/// desk's polishes, which settle or extrapolate along one mode sooner, are untouched (at 3–5 the
+/// two-mode extrapolation takes some of their sweeps and the desk's digest changes).
+const TWO_MODE_AFTER: usize = 6;
+
+/// Largest modulus of a root of the two-mode recurrence ([`two_mode_coefficients`]). The
+/// extrapolation needs no contraction (it solves the linear model), but sweeps that grow fast
+/// have left the region where the model holds. `056_union_slide` (seed 20270116) needs more
+/// than 1.2 (its sweeps grow by up to 1.07); 1.3, 1.5, 2 and no bound give the same.
+const TWO_MODE_RATE: f64 = 1.5;
+
+/// Smallest `1 − a − b = (1 − λ₁)(1 − λ₂)` of the two-mode recurrence: its inverse is the
+/// extrapolation's gain on the last changes, kept at most 4 (a mode near 1 is left to the
+/// sweeps, as [`EXTRAPOLATE_RATE`] does for one mode).
+const TWO_MODE_DISTANCE: f64 = 0.25;
 
 /// Unsettled sweeps in a row, none extrapolated, after which the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
@@ -1044,7 +1070,126 @@ fn one_mode_factor(
         .then(|| rate / (1.0 - rate))
 }
 
+/// The coefficients `(α, β)` of the two-mode extrapolation `x_{k+1} + α d₃ + β d₂` of four
+/// iterates `x_{k-2}, …, x_{k+1}` (`earlier`, `previous`, `before`, `after`), `d₁ = x_{k-1} −
+/// x_{k-2}`, `d₂ = x_k − x_{k-1}`, `d₃ = x_{k+1} − x_k`, when the changes follow one linear
+/// recurrence `d₃ = a d₂ + b d₁` (least squares; the fit's remainder at most
+/// [`EXTRAPOLATE_ALIGNMENT`] of `‖d₃‖`): the sweeps then move along two modes, the roots `λ` of
+/// `λ² − a λ − b` (a rotating pair `r e^{±iθ}` where the normal correction of a table's four
+/// legs and the friction at their moving centre of pressure chase each other, `056_union_slide`
+/// of seed 20270116: `r` 0.95–1.07, a period of 4–5 sweeps, `docs/latency.md`, wip-conic10x).
+/// Summing the recurrence over `n ≥ 3`, the changes to come add up to `S = ((a + b) d₃ + b
+/// d₂)/(1 − a − b)`, so `α = (a + b)/(1 − a − b)`, `β = b/(1 − a − b)`: the fixed point of the
+/// linear model, also where the sweeps do not contract (`r ≥ 1`), as long as no root is near 1.
+/// `None` unless both roots have modulus at most [`TWO_MODE_RATE`] and `1 − a − b ≥`
+/// [`TWO_MODE_DISTANCE`], or when `d₁`, `d₂` are (nearly) parallel (one mode: Aitken's) or the
+/// lengths differ.
+fn two_mode_coefficients(
+    earlier: &[f64],
+    previous: &[f64],
+    before: &[f64],
+    after: impl Iterator<Item = f64>,
+) -> Option<(f64, f64)> {
+    let (mut d11, mut d12, mut d22, mut d13, mut d23, mut d33) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut count = 0;
+    for (((&x0, &x1), &x2), x3) in earlier.iter().zip(previous).zip(before).zip(after) {
+        let (d1, d2, d3) = (x1 - x0, x2 - x1, x3 - x2);
+        d11 += d1 * d1;
+        d12 += d1 * d2;
+        d22 += d2 * d2;
+        d13 += d1 * d3;
+        d23 += d2 * d3;
+        d33 += d3 * d3;
+        count += 1;
+    }
+    if count != before.len()
+        || previous.len() != before.len()
+        || earlier.len() != before.len()
+        || d33 == 0.0
+    {
+        return None;
+    }
+    // The normal equations of min ‖d₃ − a d₂ − b d₁‖: [d₂·d₂ d₂·d₁; d₁·d₂ d₁·d₁] [a; b] = [d₂·d₃; d₁·d₃].
+    let det = d22 * d11 - d12 * d12;
+    if !(det > 1e-8 * d22 * d11) {
+        return None;
+    }
+    let a = (d23 * d11 - d13 * d12) / det;
+    let b = (d22 * d13 - d12 * d23) / det;
+    // The fit's remainder ‖d₃ − a d₂ − b d₁‖² = ‖d₃‖² − a d₂·d₃ − b d₁·d₃ at the least squares.
+    let off = (d33 - a * d23 - b * d13).max(0.0);
+    if off > EXTRAPOLATE_ALIGNMENT * EXTRAPOLATE_ALIGNMENT * d33 {
+        return None;
+    }
+    let disc = a * a + 4.0 * b;
+    let radius = if disc < 0.0 {
+        (-b).sqrt()
+    } else {
+        0.5 * (a.abs() + disc.sqrt())
+    };
+    let distance = 1.0 - a - b;
+    (radius <= TWO_MODE_RATE && distance >= TWO_MODE_DISTANCE && a.is_finite() && b.is_finite())
+        .then(|| ((a + b) / distance, b / distance))
+}
+
 impl StepQp {
+    /// The two-mode extrapolation of the polish's sweeps ([`two_mode_coefficients`]) where
+    /// Aitken's one-mode one ([`StepQp::extrapolate`]) does not apply, on the same terms: not
+    /// where a load would change sign or an unloaded vertex take load. Returns whether it moved
+    /// the impulses.
+    fn extrapolate_two_modes(
+        &self,
+        earlier: &[f64],
+        previous: &[f64],
+        before: &[f64],
+        contacts: &mut [ContactImpulses],
+        wrench_sum: &mut [[f64; 6]],
+        current: &[Vec<BodyFriction>],
+    ) -> bool {
+        let after = contacts.iter().flat_map(impulse_values);
+        let Some((alpha, beta)) = two_mode_coefficients(earlier, previous, before, after) else {
+            return false;
+        };
+        let step_at = |i: usize, x: f64| alpha * (x - before[i]) + beta * (before[i] - previous[i]);
+        let mut i = 0;
+        for c in contacts.iter() {
+            for &(_, l) in &c.vertex_impulses {
+                let next = l + step_at(i, l);
+                if (l > 0.0) != (next > 0.0) || (l == 0.0) != (before[i] == 0.0) {
+                    return false;
+                }
+                i += 1;
+            }
+            i += 3;
+        }
+        let mut i = 0;
+        for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
+            for (k, entry) in imp.vertex_impulses.iter_mut().enumerate() {
+                let step = step_at(i, entry.1);
+                i += 1;
+                let Some(rows) = rows else { continue };
+                entry.1 += step;
+                for side in &rows.sides {
+                    let w = &side.normal_wrenches[k];
+                    for j in 0..6 {
+                        wrench_sum[side.body][j] += step * w[j];
+                    }
+                }
+            }
+            for f in 0..3 {
+                let step = step_at(i, imp.friction[f]);
+                i += 1;
+                imp.friction[f] += step;
+                for (b, wf) in &current[c] {
+                    for j in 0..6 {
+                        wrench_sum[*b][j] += step * wf[f][j];
+                    }
+                }
+            }
+        }
+        true
+    }
+
     /// Aitken's extrapolation of the polish's sweeps to the limit of their slowest mode.
     ///
     /// After sweeps `x_{k-1} → x_k → x_{k+1}` (`previous`, `before`, `contacts`) with changes
