@@ -2168,6 +2168,98 @@ mod tests {
     }
 
     #[test]
+    fn two_mode_extrapolation_reaches_the_fixed_point_of_a_rotating_pair() {
+        // Iterates of the affine map x ↦ x* + T (x − x*), T a rotation by θ scaled by r on the
+        // plane of v, w (the polish's rotating pair, `056_union_slide`: a period of 4–5 sweeps),
+        // for r = 0.95 (contracting) and r = 1.07 (growing): x_k = x* + rᵏ (cos kθ v + sin kθ w).
+        let limit = [0.07, 0.027, 0.049, 0.099, -0.015, -0.08, -0.012];
+        let v = [1.0, -0.5, 0.2, 0.0, 0.3, -1.0, 0.1];
+        let w = [0.0, 0.4, -1.0, 0.6, 0.2, 0.1, -0.3];
+        let theta = 2.0 * std::f64::consts::PI / 4.5;
+        for r in [0.95f64, 1.07] {
+            let iterate = |k: i32| -> Vec<f64> {
+                let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+                (0..7)
+                    .map(|i| limit[i] + 1e-2 * r.powi(k) * (c * v[i] + s * w[i]))
+                    .collect()
+            };
+            let (x0, x1, x2, x3) = (iterate(5), iterate(6), iterate(7), iterate(8));
+            // One mode does not describe them.
+            assert_eq!(one_mode_factor(&x1, &x2, x3.iter().copied()), None);
+            let (alpha, beta) =
+                two_mode_coefficients(&x0, &x1, &x2, x3.iter().copied()).expect("two modes");
+            // a = 2 r cos θ, b = −r²: α = (a + b)/(1 − a − b), β = b/(1 − a − b).
+            let (a, b) = (2.0 * r * theta.cos(), -r * r);
+            assert!((alpha - (a + b) / (1.0 - a - b)).abs() < 1e-9, "α {alpha}");
+            assert!((beta - b / (1.0 - a - b)).abs() < 1e-9, "β {beta}");
+            for i in 0..7 {
+                let x = x3[i] + alpha * (x3[i] - x2[i]) + beta * (x2[i] - x1[i]);
+                assert!(
+                    (x - limit[i]).abs() < 1e-14,
+                    "r {r}, {i}: {x} against {}",
+                    limit[i]
+                );
+                assert!((x3[i] - limit[i]).abs() > 1e-4 || (v[i] == 0.0 && w[i] == 0.0));
+            }
+        }
+        let rotating = |r: f64, k: i32| -> Vec<f64> {
+            let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+            (0..7)
+                .map(|i| limit[i] + r.powi(k) * (c * v[i] + s * w[i]))
+                .collect()
+        };
+        // Growing faster than TWO_MODE_RATE: refused.
+        let x: Vec<Vec<f64>> = (0..4).map(|k| rotating(1.6, k)).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // A real mode near 1 (1 − a − b = (1 − λ₁)(1 − λ₂) < TWO_MODE_DISTANCE): refused.
+        let slow = |k: i32| -> Vec<f64> {
+            (0..7)
+                .map(|i| limit[i] + 0.9f64.powi(k) * v[i] + 0.5f64.powi(k) * w[i])
+                .collect()
+        };
+        let x: Vec<Vec<f64>> = (0..4).map(slow).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // Three modes: the two-mode recurrence does not fit (remainder over the alignment).
+        let u = [0.5, 0.5, 0.0, -0.5, 1.0, 0.0, 0.2];
+        let three = |k: i32| -> Vec<f64> {
+            let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+            (0..7)
+                .map(|i| {
+                    limit[i] + 0.9f64.powi(k) * (c * v[i] + s * w[i]) + (-0.6f64).powi(k) * u[i]
+                })
+                .collect()
+        };
+        let x: Vec<Vec<f64>> = (0..4).map(three).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // One mode (d₁, d₂ parallel), no change, and lengths that differ: refused.
+        let one =
+            |k: i32| -> Vec<f64> { (0..7).map(|i| limit[i] + 0.3f64.powi(k) * v[i]).collect() };
+        let x: Vec<Vec<f64>> = (0..4).map(one).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        assert_eq!(
+            two_mode_coefficients(&limit, &limit, &limit, limit.iter().copied()),
+            None
+        );
+        let x: Vec<Vec<f64>> = (0..4).map(|k| rotating(0.95, k)).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0][..6], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+    }
+
+    #[test]
     fn local_friction_sticks_or_slides_exactly() {
         let a = [[0.2, 0.01, 0.0], [0.01, 0.3, 0.02], [0.0, 0.02, 0.5]];
         let axes = [1.0, 1.0, 0.1];
