@@ -714,7 +714,10 @@ impl StepQp {
     ///   friction) until they settle, starting from the QP's dual or, for the outer loop's reuse,
     ///   from the previous QP's polished impulses ([`PolishStart`]; sweeps still unsettled after
     ///   [`JOINT_AFTER`] try a joint Newton step on the coupled conditions,
-    ///   [`StepQp::joint_step`], which the next sweeps confirm); it sticks with `u_T = 0`
+    ///   [`StepQp::joint_step`], which the next sweeps confirm; where every body has one
+    ///   contact, sweeps along one mode are extrapolated by Aitken's rule,
+    ///   [`StepQp::extrapolate`], and, after [`TWO_MODE_AFTER`] plain sweeps, along two,
+    ///   [`two_mode_coefficients`]); it sticks with `u_T = 0`
     ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
     ///   (`docs/model.md#friction`); every contact's friction acts at the centre of pressure of
     ///   its corrected normal impulses (the ECP of the assembled point) rather than at the ECP
@@ -836,7 +839,8 @@ impl StepQp {
             }
         }
         // Plain sweeps since the start or the last extrapolation (`previous` holds the impulses
-        // before the sweep before when it is at least 2). Only where every body has one
+        // before the sweep before when it is at least 2, `earlier` the ones before those when it
+        // is at least 3). Only where every body has one
         // contact, as the desk: with several the loads need not be unique, and which member
         // the sweeps reach depends on their path.
         let mut plain = 0;
