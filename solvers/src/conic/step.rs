@@ -1115,7 +1115,7 @@ fn two_mode_coefficients(
     }
     // The normal equations of min ‖d₃ − a d₂ − b d₁‖: [d₂·d₂ d₂·d₁; d₁·d₂ d₁·d₁] [a; b] = [d₂·d₃; d₁·d₃].
     let det = d22 * d11 - d12 * d12;
-    if !(det > 1e-8 * d22 * d11) {
+    if det.is_nan() || det <= 1e-8 * d22 * d11 {
         return None;
     }
     let a = (d23 * d11 - d13 * d12) / det;
