@@ -131,8 +131,9 @@ pub fn run_paths(
 }
 
 /// Times again, [`RETIME_REPEATS`] more times each, every run over [`RETIME_RATIO`] × its scene's
-/// PATH run and that PATH run, and keeps each one's shortest wall time: a PATH run of 10 ms
-/// is at the mercy of the machine's other work, so one timing decides no ratio.
+/// PATH run (PATH's counted as at least [`report::PATH_WALL_FLOOR_S`], as the criterion counts
+/// it) and that PATH run, and keeps each one's shortest wall time: a PATH run of 10 ms is at the
+/// mercy of the machine's other work, so one timing decides no ratio.
 fn retime(paths: &[PathBuf], options: &SuiteOptions, results: &mut [RunResult]) {
     let per_scene = options.solvers.len();
     let Some(path_order) = options.solvers.iter().position(|s| s == "path") else {
@@ -146,9 +147,10 @@ fn retime(paths: &[PathBuf], options: &SuiteOptions, results: &mut [RunResult]) 
         let slow: Vec<usize> = (0..per_scene)
             .filter(|&o| o != path_order)
             .filter(|&o| {
-                results
-                    .get(base + o)
-                    .is_some_and(|r| !r.timed_out && r.wall_s > RETIME_RATIO * path_wall)
+                results.get(base + o).is_some_and(|r| {
+                    !r.timed_out
+                        && r.wall_s > RETIME_RATIO * path_wall.max(report::PATH_WALL_FLOOR_S)
+                })
             })
             .collect();
         if slow.is_empty() {

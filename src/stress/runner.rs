@@ -103,7 +103,7 @@ pub struct RunResult {
 }
 
 impl RunResult {
-    fn empty(scene: &str, category: &str, solver: &str) -> Self {
+    pub(crate) fn empty(scene: &str, category: &str, solver: &str) -> Self {
         RunResult {
             scene: scene.to_string(),
             category: category.to_string(),

@@ -154,6 +154,9 @@ pub(crate) struct PolishWorkspace {
     before: Vec<f64>,
     /// The impulses before the sweep before, in the same order ([`StepQp::extrapolate`]).
     previous: Vec<f64>,
+    /// The impulses one sweep before `previous`, in the same order (the two-mode
+    /// extrapolation, [`two_mode_coefficients`]).
+    earlier: Vec<f64>,
     /// Each contact's multiplier `η` of its local friction problem at the last sweep (0 before
     /// the first, or when it stuck): the next sweep's Newton iteration starts there
     /// ([`local_friction`]).
@@ -711,7 +714,10 @@ impl StepQp {
     ///   friction) until they settle, starting from the QP's dual or, for the outer loop's reuse,
     ///   from the previous QP's polished impulses ([`PolishStart`]; sweeps still unsettled after
     ///   [`JOINT_AFTER`] try a joint Newton step on the coupled conditions,
-    ///   [`StepQp::joint_step`], which the next sweeps confirm); it sticks with `u_T = 0`
+    ///   [`StepQp::joint_step`], which the next sweeps confirm; where every body has one
+    ///   contact, sweeps along one mode are extrapolated by Aitken's rule,
+    ///   [`StepQp::extrapolate`], and, after [`TWO_MODE_AFTER`] plain sweeps, along two,
+    ///   [`two_mode_coefficients`]); it sticks with `u_T = 0`
     ///   exactly or slides with `p_f = −μ p_n E² u_T / ‖E u_T‖` exactly
     ///   (`docs/model.md#friction`); every contact's friction acts at the centre of pressure of
     ///   its corrected normal impulses (the ECP of the assembled point) rather than at the ECP
@@ -748,6 +754,7 @@ impl StepQp {
             current,
             before,
             previous,
+            earlier,
             etas,
             normal,
             joint,
@@ -832,7 +839,8 @@ impl StepQp {
             }
         }
         // Plain sweeps since the start or the last extrapolation (`previous` holds the impulses
-        // before the sweep before when it is at least 2). Only where every body has one
+        // before the sweep before when it is at least 2, `earlier` the ones before those when it
+        // is at least 3). Only where every body has one
         // contact, as the desk: with several the loads need not be unique, and which member
         // the sweeps reach depends on their path.
         let mut plain = 0;
@@ -840,6 +848,7 @@ impl StepQp {
         etas.clear();
         etas.resize(self.contacts.len(), 0.0);
         for sweep in 0..sweeps {
+            std::mem::swap(earlier, previous);
             std::mem::swap(previous, before);
             before.clear();
             for c in contacts.iter() {
@@ -922,7 +931,11 @@ impl StepQp {
                 plain = 0;
             } else if extrapolating
                 && plain >= 2
-                && self.extrapolate(previous, before, contacts, wrench_sum, current)
+                && (self.extrapolate(previous, before, contacts, wrench_sum, current)
+                    || (plain >= TWO_MODE_AFTER
+                        && self.extrapolate_two_modes(
+                            earlier, previous, before, contacts, wrench_sum, current,
+                        )))
             {
                 plain = 0;
             }
@@ -975,6 +988,23 @@ const EXTRAPOLATE_RATE: f64 = 0.5;
 /// How far the last sweep's change may lie off the line of the change before it, relative to
 /// its size, for the polish to extrapolate: the sweeps then follow one mode.
 const EXTRAPOLATE_ALIGNMENT: f64 = 5e-2;
+
+/// Plain sweeps in a row after which the polish, where Aitken's one-mode extrapolation does not
+/// apply, tries the two-mode one ([`two_mode_coefficients`]; it needs three changes). At 6 the
+/// desk's polishes, which settle or extrapolate along one mode sooner, are untouched (at 3–5 the
+/// two-mode extrapolation takes some of their sweeps and the desk's digest changes).
+const TWO_MODE_AFTER: usize = 6;
+
+/// Largest modulus of a root of the two-mode recurrence ([`two_mode_coefficients`]). The
+/// extrapolation needs no contraction (it solves the linear model), but sweeps that grow fast
+/// have left the region where the model holds. `056_union_slide` (seed 20270116) needs more
+/// than 1.2 (its sweeps grow by up to 1.07); 1.3, 1.5, 2 and no bound give the same.
+const TWO_MODE_RATE: f64 = 1.5;
+
+/// Smallest `1 − a − b = (1 − λ₁)(1 − λ₂)` of the two-mode recurrence: its inverse is the
+/// extrapolation's gain on the last changes, kept at most 4 (a mode near 1 is left to the
+/// sweeps, as [`EXTRAPOLATE_RATE`] does for one mode).
+const TWO_MODE_DISTANCE: f64 = 0.25;
 
 /// Unsettled sweeps in a row, none extrapolated, after which the polish tries a joint Newton step
 /// ([`StepQp::joint_step`]). The desk's polishes settle in 12 from a QP's duals (about 0.1 per
@@ -1044,7 +1074,126 @@ fn one_mode_factor(
         .then(|| rate / (1.0 - rate))
 }
 
+/// The coefficients `(α, β)` of the two-mode extrapolation `x_{k+1} + α d₃ + β d₂` of four
+/// iterates `x_{k-2}, …, x_{k+1}` (`earlier`, `previous`, `before`, `after`), `d₁ = x_{k-1} −
+/// x_{k-2}`, `d₂ = x_k − x_{k-1}`, `d₃ = x_{k+1} − x_k`, when the changes follow one linear
+/// recurrence `d₃ = a d₂ + b d₁` (least squares; the fit's remainder at most
+/// [`EXTRAPOLATE_ALIGNMENT`] of `‖d₃‖`): the sweeps then move along two modes, the roots `λ` of
+/// `λ² − a λ − b` (a rotating pair `r e^{±iθ}` where the normal correction of a table's four
+/// legs and the friction at their moving centre of pressure chase each other, `056_union_slide`
+/// of seed 20270116: `r` 0.95–1.07, a period of 4–5 sweeps, `docs/latency.md`, wip-conic10x).
+/// Summing the recurrence over `n ≥ 3`, the changes to come add up to `S = ((a + b) d₃ + b
+/// d₂)/(1 − a − b)`, so `α = (a + b)/(1 − a − b)`, `β = b/(1 − a − b)`: the fixed point of the
+/// linear model, also where the sweeps do not contract (`r ≥ 1`), as long as no root is near 1.
+/// `None` unless both roots have modulus at most [`TWO_MODE_RATE`] and `1 − a − b ≥`
+/// [`TWO_MODE_DISTANCE`], or when `d₁`, `d₂` are (nearly) parallel (one mode: Aitken's) or the
+/// lengths differ.
+fn two_mode_coefficients(
+    earlier: &[f64],
+    previous: &[f64],
+    before: &[f64],
+    after: impl Iterator<Item = f64>,
+) -> Option<(f64, f64)> {
+    let (mut d11, mut d12, mut d22, mut d13, mut d23, mut d33) = (0.0, 0.0, 0.0, 0.0, 0.0, 0.0);
+    let mut count = 0;
+    for (((&x0, &x1), &x2), x3) in earlier.iter().zip(previous).zip(before).zip(after) {
+        let (d1, d2, d3) = (x1 - x0, x2 - x1, x3 - x2);
+        d11 += d1 * d1;
+        d12 += d1 * d2;
+        d22 += d2 * d2;
+        d13 += d1 * d3;
+        d23 += d2 * d3;
+        d33 += d3 * d3;
+        count += 1;
+    }
+    if count != before.len()
+        || previous.len() != before.len()
+        || earlier.len() != before.len()
+        || d33 == 0.0
+    {
+        return None;
+    }
+    // The normal equations of min ‖d₃ − a d₂ − b d₁‖: [d₂·d₂ d₂·d₁; d₁·d₂ d₁·d₁] [a; b] = [d₂·d₃; d₁·d₃].
+    let det = d22 * d11 - d12 * d12;
+    if det.is_nan() || det <= 1e-8 * d22 * d11 {
+        return None;
+    }
+    let a = (d23 * d11 - d13 * d12) / det;
+    let b = (d22 * d13 - d12 * d23) / det;
+    // The fit's remainder ‖d₃ − a d₂ − b d₁‖² = ‖d₃‖² − a d₂·d₃ − b d₁·d₃ at the least squares.
+    let off = (d33 - a * d23 - b * d13).max(0.0);
+    if off > EXTRAPOLATE_ALIGNMENT * EXTRAPOLATE_ALIGNMENT * d33 {
+        return None;
+    }
+    let disc = a * a + 4.0 * b;
+    let radius = if disc < 0.0 {
+        (-b).sqrt()
+    } else {
+        0.5 * (a.abs() + disc.sqrt())
+    };
+    let distance = 1.0 - a - b;
+    (radius <= TWO_MODE_RATE && distance >= TWO_MODE_DISTANCE && a.is_finite() && b.is_finite())
+        .then(|| ((a + b) / distance, b / distance))
+}
+
 impl StepQp {
+    /// The two-mode extrapolation of the polish's sweeps ([`two_mode_coefficients`]) where
+    /// Aitken's one-mode one ([`StepQp::extrapolate`]) does not apply, on the same terms: not
+    /// where a load would change sign or an unloaded vertex take load. Returns whether it moved
+    /// the impulses.
+    fn extrapolate_two_modes(
+        &self,
+        earlier: &[f64],
+        previous: &[f64],
+        before: &[f64],
+        contacts: &mut [ContactImpulses],
+        wrench_sum: &mut [[f64; 6]],
+        current: &[Vec<BodyFriction>],
+    ) -> bool {
+        let after = contacts.iter().flat_map(impulse_values);
+        let Some((alpha, beta)) = two_mode_coefficients(earlier, previous, before, after) else {
+            return false;
+        };
+        let step_at = |i: usize, x: f64| alpha * (x - before[i]) + beta * (before[i] - previous[i]);
+        let mut i = 0;
+        for c in contacts.iter() {
+            for &(_, l) in &c.vertex_impulses {
+                let next = l + step_at(i, l);
+                if (l > 0.0) != (next > 0.0) || (l == 0.0) != (before[i] == 0.0) {
+                    return false;
+                }
+                i += 1;
+            }
+            i += 3;
+        }
+        let mut i = 0;
+        for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
+            for (k, entry) in imp.vertex_impulses.iter_mut().enumerate() {
+                let step = step_at(i, entry.1);
+                i += 1;
+                let Some(rows) = rows else { continue };
+                entry.1 += step;
+                for side in &rows.sides {
+                    let w = &side.normal_wrenches[k];
+                    for j in 0..6 {
+                        wrench_sum[side.body][j] += step * w[j];
+                    }
+                }
+            }
+            for f in 0..3 {
+                let step = step_at(i, imp.friction[f]);
+                i += 1;
+                imp.friction[f] += step;
+                for (b, wf) in &current[c] {
+                    for j in 0..6 {
+                        wrench_sum[*b][j] += step * wf[f][j];
+                    }
+                }
+            }
+        }
+        true
+    }
+
     /// Aitken's extrapolation of the polish's sweeps to the limit of their slowest mode.
     ///
     /// After sweeps `x_{k-1} → x_k → x_{k+1}` (`previous`, `before`, `contacts`) with changes
@@ -2020,6 +2169,98 @@ mod tests {
         assert_eq!(one_mode_factor(&limit, &limit, limit.iter().copied()), None);
         // Lengths that differ: refused.
         assert_eq!(one_mode_factor(&a[..3], &b, c.iter().copied()), None);
+    }
+
+    #[test]
+    fn two_mode_extrapolation_reaches_the_fixed_point_of_a_rotating_pair() {
+        // Iterates of the affine map x ↦ x* + T (x − x*), T a rotation by θ scaled by r on the
+        // plane of v, w (the polish's rotating pair, `056_union_slide`: a period of 4–5 sweeps),
+        // for r = 0.95 (contracting) and r = 1.07 (growing): x_k = x* + rᵏ (cos kθ v + sin kθ w).
+        let limit = [0.07, 0.027, 0.049, 0.099, -0.015, -0.08, -0.012];
+        let v = [1.0, -0.5, 0.2, 0.0, 0.3, -1.0, 0.1];
+        let w = [0.0, 0.4, -1.0, 0.6, 0.2, 0.1, -0.3];
+        let theta = 2.0 * std::f64::consts::PI / 4.5;
+        for r in [0.95f64, 1.07] {
+            let iterate = |k: i32| -> Vec<f64> {
+                let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+                (0..7)
+                    .map(|i| limit[i] + 1e-2 * r.powi(k) * (c * v[i] + s * w[i]))
+                    .collect()
+            };
+            let (x0, x1, x2, x3) = (iterate(5), iterate(6), iterate(7), iterate(8));
+            // One mode does not describe them.
+            assert_eq!(one_mode_factor(&x1, &x2, x3.iter().copied()), None);
+            let (alpha, beta) =
+                two_mode_coefficients(&x0, &x1, &x2, x3.iter().copied()).expect("two modes");
+            // a = 2 r cos θ, b = −r²: α = (a + b)/(1 − a − b), β = b/(1 − a − b).
+            let (a, b) = (2.0 * r * theta.cos(), -r * r);
+            assert!((alpha - (a + b) / (1.0 - a - b)).abs() < 1e-9, "α {alpha}");
+            assert!((beta - b / (1.0 - a - b)).abs() < 1e-9, "β {beta}");
+            for i in 0..7 {
+                let x = x3[i] + alpha * (x3[i] - x2[i]) + beta * (x2[i] - x1[i]);
+                assert!(
+                    (x - limit[i]).abs() < 1e-14,
+                    "r {r}, {i}: {x} against {}",
+                    limit[i]
+                );
+                assert!((x3[i] - limit[i]).abs() > 1e-4 || (v[i] == 0.0 && w[i] == 0.0));
+            }
+        }
+        let rotating = |r: f64, k: i32| -> Vec<f64> {
+            let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+            (0..7)
+                .map(|i| limit[i] + r.powi(k) * (c * v[i] + s * w[i]))
+                .collect()
+        };
+        // Growing faster than TWO_MODE_RATE: refused.
+        let x: Vec<Vec<f64>> = (0..4).map(|k| rotating(1.6, k)).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // A real mode near 1 (1 − a − b = (1 − λ₁)(1 − λ₂) < TWO_MODE_DISTANCE): refused.
+        let slow = |k: i32| -> Vec<f64> {
+            (0..7)
+                .map(|i| limit[i] + 0.9f64.powi(k) * v[i] + 0.5f64.powi(k) * w[i])
+                .collect()
+        };
+        let x: Vec<Vec<f64>> = (0..4).map(slow).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // Three modes: the two-mode recurrence does not fit (remainder over the alignment).
+        let u = [0.5, 0.5, 0.0, -0.5, 1.0, 0.0, 0.2];
+        let three = |k: i32| -> Vec<f64> {
+            let (c, s) = ((k as f64 * theta).cos(), (k as f64 * theta).sin());
+            (0..7)
+                .map(|i| {
+                    limit[i] + 0.9f64.powi(k) * (c * v[i] + s * w[i]) + (-0.6f64).powi(k) * u[i]
+                })
+                .collect()
+        };
+        let x: Vec<Vec<f64>> = (0..4).map(three).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        // One mode (d₁, d₂ parallel), no change, and lengths that differ: refused.
+        let one =
+            |k: i32| -> Vec<f64> { (0..7).map(|i| limit[i] + 0.3f64.powi(k) * v[i]).collect() };
+        let x: Vec<Vec<f64>> = (0..4).map(one).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
+        assert_eq!(
+            two_mode_coefficients(&limit, &limit, &limit, limit.iter().copied()),
+            None
+        );
+        let x: Vec<Vec<f64>> = (0..4).map(|k| rotating(0.95, k)).collect();
+        assert_eq!(
+            two_mode_coefficients(&x[0][..6], &x[1], &x[2], x[3].iter().copied()),
+            None
+        );
     }
 
     #[test]
