@@ -1253,3 +1253,43 @@ fn conic_v_trough_s20270109_087_step_140_friction_continuation() {
         }
     }
 }
+
+/// `s20270130_014_convex_toss` step 15 (the held-out seed 20270130; a point set tossed with spin
+/// landing on the floor, 51 unknowns), run as the stress suite runs it (`ecp run` with PATH, no
+/// fallbacks): the driver's budgeted solve fails and the full solve's attempts from the warm
+/// start fail before the smoothing continuation solves the step. Those attempts had no pivot
+/// budget, so their Lemke paths that do not end ran to Lemke's own limit of 50 pivots per unknown
+/// (2 550 each, 67 700 in the step's full solve): 226 iterations, 2.2 s in the stress run. Since
+/// every path outside the first attempt's budget stops at 10 pivots per unknown
+/// (`docs/path.md#lemke-paths-that-run-to-the-cap`) the step takes 97 iterations; every step
+/// converges either way.
+#[test]
+fn path_convex_toss_s20270130_014_step_15_later_path_cap() {
+    let path = regression_scene("s20270130_014_convex_toss");
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let out = std::env::temp_dir().join(format!("ecp_hard_steps_014_{}", std::process::id()));
+    let options = ecp::run::RunOptions {
+        out_dir: out.clone(),
+        solver: Some("path".to_string()),
+        formulation: Some("hull".to_string()),
+        steps: Some(15),
+        plots: false,
+        fallbacks: false,
+        ..Default::default()
+    };
+    let mut iterations = None;
+    let outcome = ecp::run::run_scene(&file, &options, |rec| {
+        assert!(rec.converged, "step {} did not converge", rec.step);
+        if rec.step == 15 {
+            iterations = Some(rec.summary.iterations);
+        }
+    })
+    .unwrap_or_else(|e| panic!("{e}"));
+    let _ = std::fs::remove_dir_all(&out);
+    assert_eq!(outcome.records.len(), 15);
+    let iterations = iterations.unwrap_or_else(|| panic!("no step 15"));
+    assert!(
+        (60..=130).contains(&iterations),
+        "step 15: {iterations} iterations, expected 60..=130 (226 with the paths at 50 per unknown)"
+    );
+}

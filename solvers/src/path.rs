@@ -176,9 +176,10 @@ pub struct PathSettings {
     /// makes a few pivots per unknown; on `012_multi_body` step 1008 (121 unknowns) the attempt
     /// as given ran 42 iterations of thousands of pivots each into the 20 s limit, where the one
     /// in the scales converges in 7 iterations and 13 pivots (`docs/path.md#hard-steps`). While
-    /// the budget lasts, each Lemke path of the attempt also stops at 10 pivots per unknown or
+    /// the budget lasts, each Lemke path of the attempt also stops at 3 pivots per unknown or
     /// at what is left of the budget, so no path overruns it (a longer path was a cycling one on
-    /// `038_multi_body`). The later attempts have no pivot budget. `0` for none. Default `100`.
+    /// `038_multi_body`). The later attempts have no pivot budget; each of their paths stops at
+    /// 10 pivots per unknown. `0` for none. Default `100`.
     pub first_attempt_pivots: usize,
     /// An attempt that reaches the tolerance with a natural residual above this fraction of it
     /// takes up to two more full Newton steps from its end point (the crash phase's projected
@@ -261,10 +262,21 @@ const POLISH_SHIFT_MAX: f64 = 1e-8;
 pub const FROZEN_STEP: f64 = 1e-12;
 
 /// Pivots per unknown a Lemke path of the first attempt may make while it has a pivot budget
-/// (`PathSettings::first_attempt_pivots`); later attempts keep Lemke's own limit (50 per
-/// unknown). On `038_multi_body` the first attempt's paths end within 109 pivots (153
-/// unknowns) or cycle to that limit (`docs/path.md`, 038).
-const FIRST_ATTEMPT_PATH_PIVOTS: usize = 10;
+/// (`PathSettings::first_attempt_pivots`). A path that ends (a solution, a ray, a singular
+/// basis) does so within about one pivot per unknown, and the others cycle to any cap: in the
+/// PATH runs of seeds 20270123 and 20270130 (`docs/stress.md`), 99.9 % of 196 589 ending paths
+/// within 0.83 pivots per unknown, 5 of them above 3 (at most 8.6), while the 806 paths cut at
+/// the former cap of 10 per unknown made 41–57 % of all pivots and the longest steps (0.5–3 s).
+/// A path stopped at the cap still gives its partial path (`docs/path.md`, 038).
+const FIRST_ATTEMPT_PATH_PIVOTS: usize = 3;
+
+/// Pivots per unknown a Lemke path may make outside the first attempt's budget (the later
+/// attempts; every attempt when `PathSettings::first_attempt_pivots` is 0), instead of Lemke's
+/// own limit of 50 per unknown: on the same seeds the later attempts' ending paths end within
+/// 1.3 per unknown, and their paths that ran to 50 per unknown made `014_convex_toss` step 15
+/// of seed 20270130 cost 67 700 pivots and 196 iterations, where 10 per unknown solve it in
+/// 5 900 and 57 (`docs/path.md#lemke-paths-that-run-to-the-cap`).
+const LATER_ATTEMPT_PATH_PIVOTS: usize = 10;
 
 /// A chord step of the polish (a step on a kept LU) is kept when it lowers the natural residual
 /// by at least this factor (below `polish_below · tolerance`: when it lowers it at all).
@@ -1148,14 +1160,16 @@ impl PathSolver {
                 break;
             }
             // Under the budget each path stops at FIRST_ATTEMPT_PATH_PIVOTS per unknown and at
-            // what is left of the budget: on `038_multi_body` the paths of the first attempt
-            // either end within 109 pivots (153 unknowns) or cycle to Lemke's own limit of
-            // 50 n, and the cycling ones were 93 % of all pivots (`docs/path.md`, 038).
-            if let Some(b) = self.pivot_budget {
-                let left = b - (counters.pivots - pivots_at_start);
-                self.lemke
-                    .set_pivot_cap(Some(left.min(FIRST_ATTEMPT_PATH_PIVOTS * n)));
-            }
+            // what is left of the budget, otherwise at LATER_ATTEMPT_PATH_PIVOTS per unknown:
+            // paths either end within a few pivots per unknown or cycle to the cap (on
+            // `038_multi_body` the cycling ones were 93 % of all pivots, `docs/path.md`, 038).
+            let cap = match self.pivot_budget {
+                Some(b) => {
+                    (b - (counters.pivots - pivots_at_start)).min(FIRST_ATTEMPT_PATH_PIVOTS * n)
+                }
+                None => LATER_ATTEMPT_PATH_PIVOTS * n,
+            };
+            self.lemke.set_pivot_cap(Some(cap));
             if self.out_of_time() {
                 counters.time_limit_reached = 1;
                 break;
