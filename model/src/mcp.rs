@@ -692,6 +692,39 @@ pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     }
 }
 
+/// [`fb_residual`] over the components in `rows` alone, `‖Φ_S(z)‖₂`: a lower bound of
+/// `fb_residual(z, f, lower, upper)` to the last bit when the ranges are disjoint and in
+/// increasing order (rounding to nearest is monotone, so each partial sum of the nonnegative
+/// `Φ_i²` taken in index order is at most the full sum's at the same index). A comparison
+/// `a < fb_residual_of_rows(..)` therefore implies `a < fb_residual(..)` without the other
+/// components of `F`. `+∞` for non-finite input (where `fb_residual` is `+∞` too); `0` (a
+/// bound still) for ranges out of order. Only `f` in `rows` is read.
+pub fn fb_residual_of_rows(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    rows: impl IntoIterator<Item = std::ops::Range<usize>>,
+) -> f64 {
+    let mut s = 0.0;
+    let mut end = 0;
+    for r in rows {
+        if r.start < end {
+            return 0.0;
+        }
+        end = r.end;
+        for i in r {
+            let c = fb_component(z[i], f[i], lower[i], upper[i]);
+            s += c * c;
+        }
+    }
+    if s.is_finite() {
+        s.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Evaluates `F` at `z` and returns the natural residual (allocates; for reports and tests).
 pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
     let mut f = vec![0.0; mcp.dim()];
