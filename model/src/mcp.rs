@@ -736,6 +736,40 @@ pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
 mod tests {
     use super::*;
 
+    /// `fb_residual_of_rows` is at most `fb_residual` to the last bit over every split of the
+    /// components into increasing ranges, equal to it when the ranges cover every component
+    /// (the same sum in the same order), `+∞` where it is, 0 for ranges out of order.
+    #[test]
+    fn the_residual_of_some_rows_bounds_the_whole_one() {
+        let inf = f64::INFINITY;
+        let lower = [-inf, 0.0, 0.0, -inf, -1.0, 0.0, -inf, 0.0];
+        let upper = [inf, inf, 1.0, 0.0, 1.0, inf, inf, inf];
+        let z = [0.3, 1e-3, 0.7, -0.2, 0.9, 0.0, -1e-9, 2.0];
+        let f = [1e-4, -0.5, 0.1, 0.3, -2.0, 1e-7, 0.2, 1e-12];
+        let whole = fb_residual(&z, &f, &lower, &upper);
+        assert!((whole - 1.127_602_5).abs() < 1e-6, "{whole}");
+        let n = z.len();
+        for a in 0..=n {
+            for b in a..=n {
+                let some = fb_residual_of_rows(&z, &f, &lower, &upper, [a..b]);
+                assert!(some <= whole, "{a}..{b}: {some} > {whole}");
+                let two = fb_residual_of_rows(&z, &f, &lower, &upper, [0..a, b..n]);
+                assert!(two <= whole, "0..{a}, {b}..{n}: {two} > {whole}");
+            }
+            let split = fb_residual_of_rows(&z, &f, &lower, &upper, [0..a, a..n]);
+            assert_eq!(split.to_bits(), whole.to_bits());
+        }
+        assert_eq!(
+            fb_residual_of_rows(&z, &f, &lower, &upper, [4..6, 0..2]),
+            0.0
+        );
+        let mut bad = f;
+        bad[1] = f64::NAN;
+        assert_eq!(fb_residual(&z, &bad, &lower, &upper), inf);
+        assert_eq!(fb_residual_of_rows(&z, &bad, &lower, &upper, [0..3]), inf);
+        assert!(fb_residual_of_rows(&z, &bad, &lower, &upper, [2..n]) < inf);
+    }
+
     /// A kept worst component takes a longer name in place (the step loop's zero allocations:
     /// desk step 29's `contact.sigma[0]` after `desk.nu.vx`), and the copy is the source's.
     #[test]

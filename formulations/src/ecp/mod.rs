@@ -37,7 +37,7 @@ use crate::blocks::{
     HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, SceneDataIds, add_body_data,
     add_plane_data, add_scene_data,
 };
-use crate::geometry::{ConvexHull, HalfSpace, gap_and_mode_at, min_gap};
+use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing, gap_and_mode_spaced, min_gap};
 use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
@@ -501,6 +501,7 @@ impl StepFormulation for EcpContacts {
             let data = add_body_data(problem, &spec.name, spec.mass.mass, &spec.mass.inertia);
             layout.bodies.push(EcpBody {
                 length: scales::bounding_diagonal(hull.vertices()),
+                spacing: VertexSpacing::of(spec.shape.vertices()),
                 hull,
                 nu,
                 q,
@@ -854,8 +855,15 @@ impl StepFormulation for EcpContacts {
             let (s, plane) = (&states[c.body], &scene.planes[c.plane]);
             let vertices = scene.bodies[c.body].shape.vertices();
             let r = self.rotations.of(c.body, &s.q);
-            let (gap, mode) =
-                gap_and_mode_at(vertices, (&s.x, &r), plane, MODE_TOLERANCE, &mut touching);
+            let spacing = &self.layout.bodies[c.body].spacing;
+            let (gap, mode) = gap_and_mode_spaced(
+                vertices,
+                spacing,
+                (&s.x, &r),
+                plane,
+                MODE_TOLERANCE,
+                &mut touching,
+            );
             let (a1, a2, pf) = (get(c.a1), get(c.a2), get(c.pf));
             out.push(ContactRecord {
                 a1: Vector3::new(a1[0], a1[1], a1[2]) + o,
