@@ -2467,7 +2467,10 @@ mod tests {
             assert!(plain.summary.residual <= 1e-10, "{label}");
             assert_eq!(handed.z, plain.z, "{label}");
             assert_eq!(handed.summary.residual, plain.summary.residual, "{label}");
-            assert_eq!(handed.summary.iterations, plain.summary.iterations, "{label}");
+            assert_eq!(
+                handed.summary.iterations, plain.summary.iterations,
+                "{label}"
+            );
             assert_eq!(handed.summary.f_evals, plain.summary.f_evals, "{label}");
         }
         assert!(handed_over >= 2, "{handed_over}");

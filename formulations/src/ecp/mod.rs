@@ -718,7 +718,8 @@ impl StepFormulation for EcpContacts {
             return;
         };
         // The guard: the extrapolated start only when its Fischer–Burmeister residual is below
-        // that of the plain warm start (two evaluations of `F`): near an event the extrapolation
+        // that of the plain warm start (`F` at both, the plain start's Newton–Euler rows first
+        // and the rest only when those do not decide): near an event the extrapolation
         // can land far from the solution (the stress suite's 023_room_corner, Newton: 670
         // iterations without the guard, 133 with it, 131 with the plain start). `F` at the start
         // chosen is kept for the backend (`warm_start_value`).

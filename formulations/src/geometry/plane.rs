@@ -292,11 +292,14 @@ fn mode_of_touching(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
         return ContactMode::Point;
     }
     let u = (p1 - p0) / spread;
-    let (_, off_line) = far(&|p| {
+    let off_line = |p: &Vector3<f64>| {
         let r = p - p0;
         (r - u * u.dot(&r)).norm()
-    });
-    if off_line <= tol {
+    };
+    // The largest distance from the line (from 0, NaN passed over) is within `tol` exactly
+    // when none is above it: the first point above decides (on the desk, one of the first few
+    // of its sixteen touching vertices).
+    if 0.0 <= tol && !touching.iter().any(|p| off_line(p) > tol) {
         ContactMode::Line
     } else {
         ContactMode::Patch
@@ -491,6 +494,68 @@ mod tests {
         let b = gap_and_mode_spaced(&close, &spacing, pose, &ground, TOL, &mut skipped);
         assert_eq!((a.0.to_bits(), a.1, &kept), (b.0.to_bits(), b.1, &skipped));
         assert_eq!(kept.len(), 2);
+    }
+
+    /// The line test stops at the first point off the line: the mode of the largest distance
+    /// (the fold over every point, as before) on point sets near a line, a point and a plane,
+    /// with NaN points and tolerances 0, 1e-7 and −1.
+    #[test]
+    fn the_first_point_off_the_line_decides_as_the_largest() {
+        fn by_largest(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
+            let Some(p0) = touching.first().copied() else {
+                return ContactMode::None;
+            };
+            let far = |f: &dyn Fn(&Vector3<f64>) -> f64| {
+                touching
+                    .iter()
+                    .map(|p| (*p, f(p)))
+                    .fold(
+                        (p0, 0.0),
+                        |best, cur| if cur.1 > best.1 { cur } else { best },
+                    )
+            };
+            let (p1, spread) = far(&|p| (p - p0).norm());
+            if spread <= tol {
+                return ContactMode::Point;
+            }
+            let u = (p1 - p0) / spread;
+            let (_, off_line) = far(&|p| {
+                let r = p - p0;
+                (r - u * u.dot(&r)).norm()
+            });
+            if off_line <= tol {
+                ContactMode::Line
+            } else {
+                ContactMode::Patch
+            }
+        }
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut modes = [0usize; 4];
+        for case in 0..400 {
+            let off = [0.0, 5e-8, 2e-7, 0.3][case % 4];
+            let along = if case % 8 < 4 { 1.0 } else { 1e-8 };
+            let mut points: Vec<Vector3<f64>> = (0..1 + case % 9)
+                .map(|_| {
+                    let t = next();
+                    Vector3::new(along * t, along * 0.5 * t + off * next(), off * next())
+                })
+                .collect();
+            if case % 13 == 0 {
+                points.push(Vector3::new(f64::NAN, 0.0, 0.0));
+            }
+            for tol in [0.0, TOL, -1.0] {
+                let mode = mode_of_touching(&points, tol);
+                assert_eq!(mode, by_largest(&points, tol), "case {case}, tol {tol}");
+                modes[mode as usize] += 1;
+            }
+        }
+        assert!(modes[..3].iter().all(|&m| m > 20), "{modes:?}");
     }
 
     #[test]
