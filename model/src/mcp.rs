@@ -44,15 +44,6 @@ pub trait Mcp {
         let _ = z;
         None
     }
-    /// The Fischer–Burmeister vector `Φ(z)` ([`fb_vector`]'s bits) and `‖Φ(z)‖² = Σ Φ_i²`
-    /// summed in index order from `−0.0`, when the problem already holds them for this very `z`
-    /// (with `F` there, [`Mcp::known_value`]): the warm start's guard computed them to choose
-    /// the start, and Newton's merit at its start is the same. `None` (the default): compute.
-    /// A wrapper that changes `F` or the bounds must not forward it.
-    fn known_fb(&self, z: &[f64]) -> Option<(&[f64], f64)> {
-        let _ = z;
-        None
-    }
     /// Human-readable name of component `i`, for diagnostics.
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")
@@ -681,24 +672,6 @@ pub fn fb_vector_of_kinds_squared(
     let mut s = -0.0;
     for i in 0..n {
         let c = fb_component_of_kind(kinds[i], z[i], f[i], lower[i], upper[i]);
-        phi[i] = c;
-        s += c * c;
-    }
-    s
-}
-
-/// [`fb_vector`] that also returns `‖Φ‖² = Σ Φ_i²`, summed in index order from `−0.0` (the
-/// bits of [`fb_vector_of_kinds_squared`]; its square root is [`fb_residual`]'s when finite).
-pub fn fb_vector_squared(
-    z: &[f64],
-    f: &[f64],
-    lower: &[f64],
-    upper: &[f64],
-    phi: &mut [f64],
-) -> f64 {
-    let mut s = -0.0;
-    for i in 0..z.len() {
-        let c = fb_component(z[i], f[i], lower[i], upper[i]);
         phi[i] = c;
         s += c * c;
     }

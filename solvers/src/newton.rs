@@ -1669,16 +1669,7 @@ impl NewtonSolver {
                 s.chord_contraction
             }
         };
-        // `Φ` and `‖Φ‖²` at the start may be known with `F` (`Mcp::known_fb`: the warm start's
-        // guard computed them to choose the start, ≈ 1.4 k instructions on the desk).
-        let squared = match mcp.known_fb(&ws.z) {
-            Some((phi, squared)) if phi.len() == ws.phi.len() => {
-                ws.phi.copy_from_slice(phi);
-                squared
-            }
-            _ => fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi),
-        };
-        let mut psi = 0.5 * squared;
+        let mut psi = 0.5 * fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
@@ -2561,8 +2552,6 @@ mod tests {
         z: Vec<f64>,
         f: Vec<f64>,
         evaluations: std::cell::Cell<usize>,
-        /// `Φ` and `‖Φ‖²` at `z`, when known too (`Mcp::known_fb`).
-        fb: Option<(Vec<f64>, f64)>,
     }
 
     impl Mcp for KnownAt {
@@ -2588,44 +2577,6 @@ mod tests {
         fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
             (z == self.z.as_slice()).then_some(self.f.as_slice())
         }
-        fn known_fb(&self, z: &[f64]) -> Option<(&[f64], f64)> {
-            let (phi, squared) = self.fb.as_ref()?;
-            (z == self.z.as_slice()).then_some((phi.as_slice(), *squared))
-        }
-    }
-
-    /// `Φ` and `‖Φ‖²` at the start handed over with `F` (`Mcp::known_fb`) are taken for the
-    /// start's merit: the same point, residual and iterations bit for bit as computing them,
-    /// and a sum that is not `Φ`'s (`+∞`) changes the solve (it stops as non-finite).
-    #[test]
-    fn phi_at_the_start_handed_over_is_the_start_merit() {
-        let (_, start) = smooth_three_start();
-        let inner = smooth_three();
-        let mut f = vec![0.0; 3];
-        inner.evaluate(&start, &mut f);
-        let mut phi = vec![0.0; 3];
-        let squared =
-            ecp_model::fb_vector_squared(&start, &f, inner.lower(), inner.upper(), &mut phi);
-        assert!(squared > 1e-9 && squared < 1e-6, "{squared}");
-        let solve = |fb: Option<(Vec<f64>, f64)>| {
-            let mcp = KnownAt {
-                inner: smooth_three(),
-                z: start.clone(),
-                f: f.clone(),
-                evaluations: std::cell::Cell::new(0),
-                fb,
-            };
-            NewtonSolver::new(NewtonSettings::default()).solve(&mcp, &start)
-        };
-        let plain = solve(None).unwrap_or_else(|e| panic!("{e}"));
-        let handed = solve(Some((phi.clone(), squared))).unwrap_or_else(|e| panic!("{e}"));
-        assert!(plain.summary.converged() && plain.summary.iterations >= 1);
-        assert_eq!(handed.z, plain.z);
-        assert_eq!(handed.summary.residual, plain.summary.residual);
-        assert_eq!(handed.summary.iterations, plain.summary.iterations);
-        if let Ok(wrong) = solve(Some((phi, f64::INFINITY))) {
-            assert!(!wrong.summary.converged(), "{:?}", wrong.summary);
-        }
     }
 
     /// `F` at the start handed over (`Mcp::known_value`) replaces the solver's first evaluation,
@@ -2643,7 +2594,6 @@ mod tests {
                     z: if known { start.clone() } else { Vec::new() },
                     f: f.clone(),
                     evaluations: std::cell::Cell::new(0),
-                    fb: None,
                 };
                 let mut solver = NewtonSolver::new(NewtonSettings::default());
                 solver.last_iterated = last_iterated;

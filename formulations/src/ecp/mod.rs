@@ -28,8 +28,8 @@ use std::cell::Cell;
 use nalgebra::{Matrix3, Vector3, Vector4};
 
 use ecp_model::{
-    BlockMcp, DataId, Input, Mcp, McpScales, Problem, ResId, StepStructure, VarBlock,
-    fb_residual_of_rows, fb_vector_squared,
+    BlockMcp, DataId, Input, Mcp, McpScales, Problem, ResId, StepStructure, VarBlock, fb_residual,
+    fb_residual_of_rows,
 };
 
 use crate::blocks::{
@@ -88,11 +88,7 @@ pub struct EcpContacts {
     start: Vec<f64>,
     start_f: Vec<f64>,
     f: Vec<f64>,
-    /// `Φ` and `‖Φ‖²` at the start chosen (`StepFormulation::warm_start_fb`), `Φ` at the other.
-    start_phi: Vec<f64>,
-    start_squared: f64,
-    phi: Vec<f64>,
-    /// `start`, `start_f`, `start_phi` and `start_squared` are the last warm start's.
+    /// `start` and `start_f` are the last warm start's.
     start_known: bool,
 }
 
@@ -159,9 +155,6 @@ impl EcpContacts {
             start: Vec::new(),
             start_f: Vec::new(),
             f: Vec::new(),
-            start_phi: Vec::new(),
-            start_squared: 0.0,
-            phi: Vec::new(),
             start_known: false,
         }
     }
@@ -181,9 +174,6 @@ impl EcpContacts {
             start: Vec::new(),
             start_f: Vec::new(),
             f: Vec::new(),
-            start_phi: Vec::new(),
-            start_squared: 0.0,
-            phi: Vec::new(),
             start_known: false,
         }
     }
@@ -736,29 +726,14 @@ impl StepFormulation for EcpContacts {
         // An extrapolated start that solves the step to round-off (A1's constant deceleration)
         // is taken without the plain one (its warm start, `F` and residual, ≈ 6 k instructions
         // on A1): the plain start, a step's change of `ν` away (`moving`), is not below it.
-        // `Φ` and `‖Φ‖²` at the start chosen are kept for the backend too (`warm_start_fb`):
-        // Newton's merit at its start.
         let mut start = std::mem::take(&mut self.start);
         let mut start_f = std::mem::take(&mut self.start_f);
-        let mut start_phi = std::mem::take(&mut self.start_phi);
         let mut f = std::mem::take(&mut self.f);
-        let mut phi = std::mem::take(&mut self.phi);
-        for v in [&mut f, &mut start_f, &mut phi, &mut start_phi] {
-            v.resize(z.len(), 0.0);
-        }
-        let (lower, upper) = (mcp.lower(), mcp.upper());
-        // `fb_residual`'s bits: the sum's square root, `+∞` when not finite.
-        let norm = |squared: f64| {
-            if squared.is_finite() {
-                squared.sqrt()
-            } else {
-                f64::INFINITY
-            }
-        };
+        f.resize(z.len(), 0.0);
+        start_f.resize(z.len(), 0.0);
         self.warm_start_from(ctx, mcp, z, Some(it));
         mcp.evaluate(z, &mut f);
-        let mut squared = fb_vector_squared(z, &f, lower, upper, &mut phi);
-        let merit = norm(squared);
+        let merit = fb_residual(z, &f, mcp.lower(), mcp.upper());
         let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
         self.extrapolated = merit <= EXACT_START * size;
         if !self.extrapolated {
@@ -775,31 +750,24 @@ impl StepFormulation for EcpContacts {
                 mcp.evaluate_rows_of(body.nu, &start, &mut start_f);
             }
             let rows = bodies.iter().map(|body| mcp.range(body.nu));
-            let bound = fb_residual_of_rows(&start, &start_f, lower, upper, rows);
+            let bound = fb_residual_of_rows(&start, &start_f, mcp.lower(), mcp.upper(), rows);
             self.extrapolated = merit < bound;
             if !self.extrapolated {
                 mcp.evaluate(&start, &mut start_f);
-                let plain = fb_vector_squared(&start, &start_f, lower, upper, &mut start_phi);
-                self.extrapolated = merit < norm(plain);
-                if !self.extrapolated {
-                    squared = plain;
-                }
+                let plain_merit = fb_residual(&start, &start_f, mcp.lower(), mcp.upper());
+                self.extrapolated = merit < plain_merit;
             }
         }
         if self.extrapolated {
             start.clear();
             start.extend_from_slice(z);
             std::mem::swap(&mut start_f, &mut f);
-            std::mem::swap(&mut start_phi, &mut phi);
         } else {
             z.copy_from_slice(&start);
         }
         self.start = start;
         self.start_f = start_f;
-        self.start_phi = start_phi;
-        self.start_squared = squared;
         self.f = f;
-        self.phi = phi;
         self.start_known = true;
     }
 
@@ -810,11 +778,6 @@ impl StepFormulation for EcpContacts {
     fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
         self.start_known
             .then_some((self.start.as_slice(), self.start_f.as_slice()))
-    }
-
-    fn warm_start_fb(&self) -> Option<(&[f64], f64)> {
-        self.start_known
-            .then_some((self.start_phi.as_slice(), self.start_squared))
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a

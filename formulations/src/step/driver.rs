@@ -275,8 +275,6 @@ pub struct StepProblem<'a> {
     /// The warm start and `F` there, when the formulation evaluated it
     /// ([`StepFormulation::warm_start_value`]) on the step problem as it still is.
     start: Option<(&'a [f64], &'a [f64])>,
-    /// `Φ` and `‖Φ‖²` at that start ([`StepFormulation::warm_start_fb`]).
-    start_fb: Option<(&'a [f64], f64)>,
 }
 
 impl StepProblem<'_> {
@@ -287,14 +285,6 @@ impl StepProblem<'_> {
         data[self.mcp.data_offset(friction)] *= s;
         data
     }
-}
-
-/// Whether `a` and `b` hold the same numbers bit for bit.
-fn same_bits(a: &[f64], b: &[f64]) -> bool {
-    a.len() == b.len()
-        && (a.iter())
-            .zip(b)
-            .fold(true, |same, (x, y)| same & (x.to_bits() == y.to_bits()))
 }
 
 /// `F(z; s)`: the step with the scene's friction coefficient `s μ`
@@ -346,12 +336,11 @@ impl Mcp for StepProblem<'_> {
     /// `F` at the warm start, for that start's bits only.
     fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
         let (start, f) = self.start?;
-        same_bits(start, z).then_some(f)
-    }
-    /// `Φ` and `‖Φ‖²` at the warm start, for that start's bits only.
-    fn known_fb(&self, z: &[f64]) -> Option<(&[f64], f64)> {
-        let ((start, _), fb) = (self.start?, self.start_fb?);
-        same_bits(start, z).then_some(fb)
+        let same = start.len() == z.len()
+            && (start.iter())
+                .zip(z)
+                .fold(true, |same, (a, b)| same & (a.to_bits() == b.to_bits()));
+        same.then_some(f)
     }
     fn component_name(&self, i: usize) -> String {
         self.mcp.component_name(i)
@@ -806,10 +795,6 @@ impl Simulation {
             start: self
                 .start_value
                 .then(|| self.formulation.warm_start_value())
-                .flatten(),
-            start_fb: self
-                .start_value
-                .then(|| self.formulation.warm_start_fb())
                 .flatten(),
         }
     }

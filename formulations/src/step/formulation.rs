@@ -153,11 +153,6 @@ pub trait StepFormulation: Any + Send {
     fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
         None
     }
-    /// `Φ` and `‖Φ‖²` at the start of [`StepFormulation::warm_start_value`], when the
-    /// formulation computed them there ([`ecp_model::Mcp::known_fb`]). The default is `None`.
-    fn warm_start_fb(&self) -> Option<(&[f64], f64)> {
-        None
-    }
     /// A deterministic second start after a failed solve: modify `z` (as the previous attempt
     /// left it) and return `true` to have the span solved again, `false` when there is no
     /// further start. `attempt` counts from 0.
