@@ -751,7 +751,7 @@ mod tests {
         let n = z.len();
         for a in 0..=n {
             for b in a..=n {
-                let some = fb_residual_of_rows(&z, &f, &lower, &upper, [a..b]);
+                let some = fb_residual_of_rows(&z, &f, &lower, &upper, std::iter::once(a..b));
                 assert!(some <= whole, "{a}..{b}: {some} > {whole}");
                 let two = fb_residual_of_rows(&z, &f, &lower, &upper, [0..a, b..n]);
                 assert!(two <= whole, "0..{a}, {b}..{n}: {two} > {whole}");
@@ -766,8 +766,11 @@ mod tests {
         let mut bad = f;
         bad[1] = f64::NAN;
         assert_eq!(fb_residual(&z, &bad, &lower, &upper), inf);
-        assert_eq!(fb_residual_of_rows(&z, &bad, &lower, &upper, [0..3]), inf);
-        assert!(fb_residual_of_rows(&z, &bad, &lower, &upper, [2..n]) < inf);
+        assert_eq!(
+            fb_residual_of_rows(&z, &bad, &lower, &upper, std::iter::once(0..3)),
+            inf
+        );
+        assert!(fb_residual_of_rows(&z, &bad, &lower, &upper, std::iter::once(2..n)) < inf);
     }
 
     /// A kept worst component takes a longer name in place (the step loop's zero allocations:
