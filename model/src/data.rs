@@ -488,6 +488,29 @@ mod tests {
         assert_eq!(f, z);
     }
 
+    /// `evaluate_rows_of` fills one variable block's rows, the term's addition included, with
+    /// the bits of the whole evaluation, and leaves the other rows as they were.
+    #[test]
+    fn the_rows_of_one_block_are_those_of_the_whole_evaluation() {
+        let (mcp, _) = spring_problem();
+        let z = [1.0, 2.0, 0.3];
+        let mut all = [0.0; 3];
+        mcp.evaluate(&z, &mut all);
+        let (x, y) = (crate::VarId(0), crate::VarId(1));
+        let mut f = [f64::NAN; 3];
+        mcp.evaluate_rows_of(x, &z, &mut f);
+        assert_eq!(
+            [f[0].to_bits(), f[1].to_bits()],
+            [all[0].to_bits(), all[1].to_bits()]
+        );
+        assert_eq!((f[0], f[1]), (1.0 - 4.0 * (1.0 - 0.3), 2.0 - 4.0 * 2.0));
+        assert!(f[2].is_nan());
+        let mut f = [f64::NAN; 3];
+        mcp.evaluate_rows_of(y, &z, &mut f);
+        assert!(f[0].is_nan() && f[1].is_nan());
+        assert_eq!(f[2].to_bits(), all[2].to_bits());
+    }
+
     #[test]
     fn terms_keep_the_pairing_rule() {
         // A term alone does not pair a variable block.

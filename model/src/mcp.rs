@@ -692,6 +692,39 @@ pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
     }
 }
 
+/// [`fb_residual`] over the components in `rows` alone, `‖Φ_S(z)‖₂`: a lower bound of
+/// `fb_residual(z, f, lower, upper)` to the last bit when the ranges are disjoint and in
+/// increasing order (rounding to nearest is monotone, so each partial sum of the nonnegative
+/// `Φ_i²` taken in index order is at most the full sum's at the same index). A comparison
+/// `a < fb_residual_of_rows(..)` therefore implies `a < fb_residual(..)` without the other
+/// components of `F`. `+∞` for non-finite input (where `fb_residual` is `+∞` too); `0` (a
+/// bound still) for ranges out of order. Only `f` in `rows` is read.
+pub fn fb_residual_of_rows(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    rows: impl IntoIterator<Item = std::ops::Range<usize>>,
+) -> f64 {
+    let mut s = 0.0;
+    let mut end = 0;
+    for r in rows {
+        if r.start < end {
+            return 0.0;
+        }
+        end = r.end;
+        for i in r {
+            let c = fb_component(z[i], f[i], lower[i], upper[i]);
+            s += c * c;
+        }
+    }
+    if s.is_finite() {
+        s.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Evaluates `F` at `z` and returns the natural residual (allocates; for reports and tests).
 pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
     let mut f = vec![0.0; mcp.dim()];
@@ -702,6 +735,43 @@ pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `fb_residual_of_rows` is at most `fb_residual` to the last bit over every split of the
+    /// components into increasing ranges, equal to it when the ranges cover every component
+    /// (the same sum in the same order), `+∞` where it is, 0 for ranges out of order.
+    #[test]
+    fn the_residual_of_some_rows_bounds_the_whole_one() {
+        let inf = f64::INFINITY;
+        let lower = [-inf, 0.0, 0.0, -inf, -1.0, 0.0, -inf, 0.0];
+        let upper = [inf, inf, 1.0, 0.0, 1.0, inf, inf, inf];
+        let z = [0.3, 1e-3, 0.7, -0.2, 0.9, 0.0, -1e-9, 2.0];
+        let f = [1e-4, -0.5, 0.1, 0.3, -2.0, 1e-7, 0.2, 1e-12];
+        let whole = fb_residual(&z, &f, &lower, &upper);
+        assert!((whole - 1.127_602_5).abs() < 1e-6, "{whole}");
+        let n = z.len();
+        for a in 0..=n {
+            for b in a..=n {
+                let some = fb_residual_of_rows(&z, &f, &lower, &upper, std::iter::once(a..b));
+                assert!(some <= whole, "{a}..{b}: {some} > {whole}");
+                let two = fb_residual_of_rows(&z, &f, &lower, &upper, [0..a, b..n]);
+                assert!(two <= whole, "0..{a}, {b}..{n}: {two} > {whole}");
+            }
+            let split = fb_residual_of_rows(&z, &f, &lower, &upper, [0..a, a..n]);
+            assert_eq!(split.to_bits(), whole.to_bits());
+        }
+        assert_eq!(
+            fb_residual_of_rows(&z, &f, &lower, &upper, [4..6, 0..2]),
+            0.0
+        );
+        let mut bad = f;
+        bad[1] = f64::NAN;
+        assert_eq!(fb_residual(&z, &bad, &lower, &upper), inf);
+        assert_eq!(
+            fb_residual_of_rows(&z, &bad, &lower, &upper, std::iter::once(0..3)),
+            inf
+        );
+        assert!(fb_residual_of_rows(&z, &bad, &lower, &upper, std::iter::once(2..n)) < inf);
+    }
 
     /// A kept worst component takes a longer name in place (the step loop's zero allocations:
     /// desk step 29's `contact.sigma[0]` after `desk.nu.vx`), and the copy is the source's.

@@ -729,6 +729,25 @@ impl BlockMcp {
         }
     }
 
+    /// The rows of `F` paired with variable block `v` at `z` (`f[self.range(v)]`), the rest of
+    /// `f` untouched: the paired block, then the terms adding to those rows in the order
+    /// [`Mcp::evaluate`] adds them, so the same bits as `evaluate` gives there (a guard that
+    /// needs a few rows of `F` at a trial point, `ecp_formulations`' warm start).
+    pub fn evaluate_rows_of(&self, v: VarId, z: &[f64], f: &mut [f64]) {
+        let data = &self.data_values;
+        for b in self.blocks.iter().filter(|b| !b.term && b.rows_of == v) {
+            b.block.evaluate(
+                Params::new(z, data, &b.ranges),
+                &mut f[b.row0..b.row0 + b.rows],
+            );
+        }
+        if self.has_terms {
+            for b in self.blocks.iter().filter(|b| b.term && b.rows_of == v) {
+                b.add_term_rows(Params::new(z, data, &b.ranges), f);
+            }
+        }
+    }
+
     /// [`Mcp::evaluate_with_jacobian`] with the data blocks' values `data` in place of the
     /// problem's own, as [`BlockMcp::evaluate_with_data`].
     #[inline(always)]

@@ -2024,14 +2024,14 @@ mod tests {
 
     /// `shifted_root(0)` with `F` at one point known (`Mcp::known_value`), counting its
     /// evaluations of `F`.
-    struct KnownAt {
-        inner: FnMcp,
+    struct KnownAt<'a> {
+        inner: &'a FnMcp,
         z: Vec<f64>,
         f: Vec<f64>,
         evaluations: std::cell::Cell<usize>,
     }
 
-    impl Mcp for KnownAt {
+    impl Mcp for KnownAt<'_> {
         fn dim(&self) -> usize {
             self.inner.dim()
         }
@@ -2062,11 +2062,12 @@ mod tests {
     #[test]
     fn path_takes_f_at_the_start_when_the_problem_holds_it() {
         let start = vec![1.2, 0.3];
+        let inner = shifted_root(0.0);
         let mut f = vec![0.0; 2];
-        shifted_root(0.0).evaluate(&start, &mut f);
+        inner.evaluate(&start, &mut f);
         let solve = |known_at: &[f64]| {
             let mcp = KnownAt {
-                inner: shifted_root(0.0),
+                inner: &inner,
                 z: known_at.to_vec(),
                 f: f.clone(),
                 evaluations: std::cell::Cell::new(0),
@@ -2513,5 +2514,48 @@ mod tests {
             .solve(&mcp, &[])
             .unwrap();
         assert!(sol.z.is_empty() && sol.summary.converged());
+    }
+
+    /// `F` at the start handed over (`Mcp::known_value`) replaces the start's evaluation of
+    /// every Kojima–Shindo start that is inside the bounds (its `π(x₀)` is the start itself),
+    /// and the solve returns the same point, residual, iterations and `f_evals` bit for bit.
+    #[test]
+    fn f_at_the_start_handed_over_replaces_the_start_evaluation() {
+        let p = kojima_shindo();
+        let mut handed_over = 0;
+        for (label, z0) in &p.starts {
+            let mut f = vec![0.0; z0.len()];
+            p.mcp.evaluate(z0, &mut f);
+            let solve = |known: bool| {
+                let mcp = KnownAt {
+                    inner: &p.mcp,
+                    z: if known { z0.clone() } else { Vec::new() },
+                    f: f.clone(),
+                    evaluations: std::cell::Cell::new(0),
+                };
+                let sol = PathSolver::new(PathSettings::default())
+                    .solve(&mcp, z0)
+                    .unwrap_or_else(|e| panic!("{label}: {e}"));
+                (sol, mcp.evaluations.get())
+            };
+            let ((plain, plain_evaluations), (handed, handed_evaluations)) =
+                (solve(false), solve(true));
+            let inside = z0.iter().all(|v| *v >= 0.0);
+            assert_eq!(
+                handed_evaluations + usize::from(inside),
+                plain_evaluations,
+                "{label}"
+            );
+            handed_over += usize::from(inside);
+            assert!(plain.summary.residual <= 1e-10, "{label}");
+            assert_eq!(handed.z, plain.z, "{label}");
+            assert_eq!(handed.summary.residual, plain.summary.residual, "{label}");
+            assert_eq!(
+                handed.summary.iterations, plain.summary.iterations,
+                "{label}"
+            );
+            assert_eq!(handed.summary.f_evals, plain.summary.f_evals, "{label}");
+        }
+        assert!(handed_over >= 2, "{handed_over}");
     }
 }

@@ -10,7 +10,7 @@ use ecp_model::{BlockMcp, DataId, ResId, VarId};
 
 use super::scales::BodyUnits;
 use crate::blocks::{BodyDataIds, BodyStepData, ContactFrame, SceneDataIds};
-use crate::geometry::{ConvexHull, HalfSpace};
+use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing};
 use crate::scene::BodyState;
 
 /// Handles of one contact's variable blocks.
@@ -55,6 +55,8 @@ pub(crate) struct EcpBody {
     /// The body's length unit `L` of its scene scales: the diagonal of the bounding box of
     /// Conv(F) (`scales.rs`).
     pub(crate) length: f64,
+    /// How far apart the body's vertices are (its contact records' merge tests).
+    pub(crate) spacing: VertexSpacing,
 }
 
 /// The data of the span prepared last, as the step's blocks read them.

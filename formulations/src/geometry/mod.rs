@@ -34,7 +34,8 @@ pub use mass::MassProperties;
 pub(crate) use pair_features::cone_combination;
 pub use pair_features::{HullPose, PairFeatures, pair_features, predicted_pose};
 pub use plane::{
-    ContactMode, HalfSpace, contact_mode, contact_mode_at, gap_and_mode_at, min_gap, world_vertices,
+    ContactMode, HalfSpace, VertexSpacing, contact_mode, contact_mode_at, gap_and_mode_at,
+    gap_and_mode_spaced, min_gap, world_vertices,
 };
 pub use points::{FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL};
 pub use polygon::convex_hull_2d;

@@ -161,6 +161,36 @@ pub fn contact_mode_at(
 /// positions (a contact record needs both): the same numbers as the two calls.
 pub fn gap_and_mode_at(
     body_vertices: &[Vector3<f64>],
+    pose: (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
+    gap_and_mode_merging::<true>(body_vertices, pose, plane, tol, touching)
+}
+
+/// [`gap_and_mode_at`] for vertices whose [`VertexSpacing`] is `spacing`: the touching vertices'
+/// merge tests are skipped where the spacing shows no two world vertices can merge
+/// ([`VertexSpacing::never_merge_at`]; 120 pairs on a desk record). The same numbers.
+pub fn gap_and_mode_spaced(
+    body_vertices: &[Vector3<f64>],
+    spacing: &VertexSpacing,
+    pose: (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
+    if spacing.count == body_vertices.len() && spacing.never_merge_at(pose.0) {
+        gap_and_mode_merging::<false>(body_vertices, pose, plane, tol, touching)
+    } else {
+        gap_and_mode_merging::<true>(body_vertices, pose, plane, tol, touching)
+    }
+}
+
+/// [`gap_and_mode_at`], the merge tests made only when `MERGE`.
+#[inline(always)]
+fn gap_and_mode_merging<const MERGE: bool>(
+    body_vertices: &[Vector3<f64>],
     (x, r): (&Vector3<f64>, &Matrix3<f64>),
     plane: &HalfSpace,
     tol: f64,
@@ -173,11 +203,60 @@ pub fn gap_and_mode_at(
         let p = x + r * v;
         let g = plane.value(&p);
         gap = gap.min(g);
-        if g <= tol && !touching.iter().any(|q| merges(q, &p)) {
+        if g <= tol && !(MERGE && touching.iter().any(|q| merges(q, &p))) {
             touching.push(p);
         }
     }
     (gap, mode_of_touching(touching, tol))
+}
+
+/// How far apart a body's vertices are (body frame): the least distance between two of them
+/// and their largest coordinate. Decides when the world positions `x + R v` of no two of them
+/// can merge ([`VERTEX_MERGE_TOL`]), whatever the rotation.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct VertexSpacing {
+    least: f64,
+    extent: f64,
+    count: usize,
+}
+
+impl VertexSpacing {
+    /// Above this many vertices the spacing is not computed (its pairs grow as the square);
+    /// such a body keeps its merge tests.
+    pub const MAX_VERTICES: usize = 256;
+
+    /// The spacing of `vertices` (body frame); least distance 0 (every merge test made) for
+    /// more than [`Self::MAX_VERTICES`] of them.
+    pub fn of(vertices: &[Vector3<f64>]) -> Self {
+        let mut least = f64::INFINITY;
+        if vertices.len() <= Self::MAX_VERTICES {
+            for (i, a) in vertices.iter().enumerate() {
+                for b in &vertices[i + 1..] {
+                    least = least.min((a - b).norm());
+                }
+            }
+        } else {
+            least = 0.0;
+        }
+        let extent = vertices.iter().fold(0.0, |m: f64, v| m.max(v.amax()));
+        VertexSpacing {
+            least,
+            extent,
+            count: vertices.len(),
+        }
+    }
+
+    /// Whether no two of the vertices' world positions `x + R v`, as computed, can be within
+    /// [`VERTEX_MERGE_TOL`] at position `x` and any rotation `R` (of a unit quaternion).
+    /// Each computed world coordinate is off by at most a few units of round-off of
+    /// `‖x‖∞ + 3 extent` (2⁻⁵³ each; `R`'s entries at most 1 to round-off), and `R` keeps
+    /// lengths to a relative 1e-15; the margin `1e-14 (‖x‖∞ + 3 extent)` covers twice that by
+    /// far, and the least distance must exceed twice the tolerance besides. False for
+    /// non-finite `x`.
+    pub fn never_merge_at(&self, x: &Vector3<f64>) -> bool {
+        let round_off = 1e-14 * (x.amax() + 3.0 * self.extent);
+        x.iter().all(|c| c.is_finite()) && self.least > 2.0 * VERTEX_MERGE_TOL + round_off
+    }
 }
 
 /// Whether `q` and `p` merge as one vertex: `|q − p| ≤ VERTEX_MERGE_TOL`. A coordinate more than
@@ -213,11 +292,14 @@ fn mode_of_touching(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
         return ContactMode::Point;
     }
     let u = (p1 - p0) / spread;
-    let (_, off_line) = far(&|p| {
+    let off_line = |p: &Vector3<f64>| {
         let r = p - p0;
         (r - u * u.dot(&r)).norm()
-    });
-    if off_line <= tol {
+    };
+    // The largest distance from the line (from 0, NaN passed over) is within `tol` exactly
+    // when none is above it: the first point above decides (on the desk, one of the first few
+    // of its sixteen touching vertices).
+    if 0.0 <= tol && !touching.iter().any(|p| off_line(p) > tol) {
         ContactMode::Line
     } else {
         ContactMode::Patch
@@ -352,6 +434,128 @@ mod tests {
                 assert_eq!(mode, contact_mode(&world, &ground, TOL), "{rpy:?}");
             }
         }
+    }
+
+    /// The records' merge tests skipped where the spacing allows: the desk's and the T-bar's
+    /// vertices (least distances 0.05 m both) at poses that touch and far from the origin
+    /// give the bits of `gap_and_mode_at` and its touching vertices; vertices a merge
+    /// tolerance apart, or a position too far for the margin, keep the tests.
+    #[test]
+    fn spaced_gap_and_mode_are_those_with_the_merge_tests() {
+        let ground = HalfSpace::ground();
+        let desk = VertexSpacing::of(Shape::desk().vertices());
+        assert!((desk.least - 0.05).abs() < 1e-12, "{desk:?}");
+        assert!((VertexSpacing::of(Shape::t_bar().vertices()).least - 0.05).abs() < 1e-12);
+        assert!(desk.never_merge_at(&Vector3::new(0.0, 0.0, 0.5)));
+        assert!(desk.never_merge_at(&Vector3::new(1e6, 0.0, 0.5)));
+        assert!(!desk.never_merge_at(&Vector3::new(1e14, 0.0, 0.5)));
+        assert!(!desk.never_merge_at(&Vector3::new(f64::NAN, 0.0, 0.5)));
+        let p = Vector3::new(0.1, 0.2, 0.0);
+        let close = [
+            p,
+            p + Vector3::new(0.5e-12, 0.0, 0.0),
+            p + Vector3::new(0.0, 1.5e-12, 0.0),
+            Vector3::new(0.0, 0.0, 1.0),
+        ];
+        assert!(!VertexSpacing::of(&close).never_merge_at(&Vector3::zeros()));
+        let (mut kept, mut skipped) = (Vec::new(), Vec::new());
+        let mut skips = 0;
+        for shape in [Shape::desk(), Shape::t_bar()] {
+            let v = shape.vertices();
+            let spacing = VertexSpacing::of(v);
+            for (rpy, lift) in [
+                ((0.0, 0.0, 0.0), 0.0),
+                ((5.0, 0.0, 0.0), 0.0),
+                ((5.0, 3.0, 0.0), 1e-3),
+                ((0.0, 10.0, 20.0), -1e-8),
+            ] {
+                let r = rotation_matrix(&quat_from_rpy_deg(rpy.0, rpy.1, rpy.2));
+                let lowest = min_gap(v, &Vector3::zeros(), &r, &ground);
+                for far in [0.0, 1e3, 1e14] {
+                    let x = Vector3::new(0.3 + far, -0.1, lift - lowest);
+                    let a = gap_and_mode_at(v, (&x, &r), &ground, TOL, &mut kept);
+                    let b = gap_and_mode_spaced(v, &spacing, (&x, &r), &ground, TOL, &mut skipped);
+                    assert_eq!((a.0.to_bits(), a.1), (b.0.to_bits(), b.1), "{rpy:?} {far}");
+                    assert_eq!(kept, skipped, "{rpy:?} {far}");
+                    skips += usize::from(spacing.never_merge_at(&x));
+                }
+            }
+        }
+        assert_eq!(skips, 16);
+        let a = gap_and_mode_at(
+            &close,
+            (&Vector3::zeros(), &Matrix3::identity()),
+            &ground,
+            TOL,
+            &mut kept,
+        );
+        let spacing = VertexSpacing::of(&close);
+        let pose = (&Vector3::zeros(), &Matrix3::identity());
+        let b = gap_and_mode_spaced(&close, &spacing, pose, &ground, TOL, &mut skipped);
+        assert_eq!((a.0.to_bits(), a.1, &kept), (b.0.to_bits(), b.1, &skipped));
+        assert_eq!(kept.len(), 2);
+    }
+
+    /// The line test stops at the first point off the line: the mode of the largest distance
+    /// (the fold over every point, as before) on point sets near a line, a point and a plane,
+    /// with NaN points and tolerances 0, 1e-7 and −1.
+    #[test]
+    fn the_first_point_off_the_line_decides_as_the_largest() {
+        fn by_largest(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
+            let Some(p0) = touching.first().copied() else {
+                return ContactMode::None;
+            };
+            let far = |f: &dyn Fn(&Vector3<f64>) -> f64| {
+                touching
+                    .iter()
+                    .map(|p| (*p, f(p)))
+                    .fold(
+                        (p0, 0.0),
+                        |best, cur| if cur.1 > best.1 { cur } else { best },
+                    )
+            };
+            let (p1, spread) = far(&|p| (p - p0).norm());
+            if spread <= tol {
+                return ContactMode::Point;
+            }
+            let u = (p1 - p0) / spread;
+            let (_, off_line) = far(&|p| {
+                let r = p - p0;
+                (r - u * u.dot(&r)).norm()
+            });
+            if off_line <= tol {
+                ContactMode::Line
+            } else {
+                ContactMode::Patch
+            }
+        }
+        let mut seed = 7u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut modes = [0usize; 4];
+        for case in 0..400 {
+            let off = [0.0, 5e-8, 2e-7, 0.3][case % 4];
+            let along = if case % 8 < 4 { 1.0 } else { 1e-8 };
+            let mut points: Vec<Vector3<f64>> = (0..1 + case % 9)
+                .map(|_| {
+                    let t = next();
+                    Vector3::new(along * t, along * 0.5 * t + off * next(), off * next())
+                })
+                .collect();
+            if case % 13 == 0 {
+                points.push(Vector3::new(f64::NAN, 0.0, 0.0));
+            }
+            for tol in [0.0, TOL, -1.0] {
+                let mode = mode_of_touching(&points, tol);
+                assert_eq!(mode, by_largest(&points, tol), "case {case}, tol {tol}");
+                modes[mode as usize] += 1;
+            }
+        }
+        assert!(modes[..3].iter().all(|&m| m > 20), "{modes:?}");
     }
 
     #[test]
