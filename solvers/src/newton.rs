@@ -1813,13 +1813,21 @@ impl NewtonSolver {
                 }
                 if newton_ok
                     && !polishing
+                    && !pinned
                     && let Some(fraction) = s.fast_full_step
                 {
                     // The full step first: taken when it lowers `Ψ` by `fraction`, without `∇Ψ`
-                    // (`NewtonSettings::fast_full_step`); else judged below as without it.
+                    // (`NewtonSettings::fast_full_step`); else judged below as without it. Not
+                    // on a pinned `H` (singular but for the pins: D5's collision, where the
+                    // descent test refuses steps that lower `Ψ` and the non-isolated `σ` follows
+                    // the step taken).
                     let p = try_step(mcp, ws, 1.0, l, u, &mut f_evals);
+                    // With `∇Ψᵀd = −2Ψ` (an exact solve), the descent test is
+                    // `2Ψ ≥ ρ‖d‖^p`: asked of the step too (a long step of an inaccurate solve is
+                    // judged by the tests).
                     if let Some(p) = p
                         && p <= fraction * psi
+                        && 2.0 * psi >= s.descent_rho * norm2(&ws.d).powf(s.descent_p)
                     {
                         accepted = Some((1.0, p));
                         lu_step = true;
