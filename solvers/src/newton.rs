@@ -884,7 +884,20 @@ fn assemble_h(
     let ncols = cp.len() - 1;
     let nnz = cp[ncols];
     let (h, jac, ri, db) = (&mut h[..nnz], &jac[..nnz], &ri[..nnz], &db[..ncols]);
-    for ((hp, &v), &r) in h.iter_mut().zip(jac).zip(ri) {
+    // Two entries a turn (half the loop's own instructions).
+    let (mut hc, mut jc, mut rc) = (
+        h.chunks_exact_mut(2),
+        jac.chunks_exact(2),
+        ri.chunks_exact(2),
+    );
+    for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
+        hp[0] = db[r[0]] * v[0];
+        hp[1] = db[r[1]] * v[1];
+    }
+    let rest = (hc.into_remainder().iter_mut())
+        .zip(jc.remainder())
+        .zip(rc.remainder());
+    for ((hp, &v), &r) in rest {
         *hp = db[r] * v;
     }
     for (&p, &a) in diag.iter().zip(da) {
