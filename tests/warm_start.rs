@@ -379,9 +379,10 @@ fn a_start_cut_short_of_its_budget_is_solved_again_with_the_full_limits() {
 }
 
 /// The guard's `F` at the warm start it chose is handed to the backend (`Mcp::known_value`,
-/// `docs/latency.md#the-a1-step-under-2-µs-the-guards-f-handed-over-branch-wip-a1two-issue-18`):
-/// on A1's step 4 (a quadratically extrapolated start, at round-off) it is `F` there bit for bit;
-/// a start one ulp away, or the step problem after a parameter is set, gets none.
+/// `docs/latency.md#the-a1-step-under-2-µs-the-guards-f-handed-over-branch-wip-a1two-issue-18`),
+/// and `Φ` there (`Mcp::known_fb_vector`, branch wip-newtonbook): on A1's step 4 (a
+/// quadratically extrapolated start, at round-off) they are `F` and `fb_vector` of it bit for
+/// bit; a start one ulp away, or the step problem after a parameter is set, gets neither.
 #[test]
 fn the_guards_f_at_the_warm_start_is_handed_over_for_that_start_only() {
     let mut sim = Simulation::new(scenarios::a1_sliding()).expect("A1 scene");
@@ -404,13 +405,24 @@ fn the_guards_f_at_the_warm_start_is_handed_over_for_that_start_only() {
         known.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
         f.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
     );
+    let mut phi = vec![f64::NAN; z0.len()];
+    ecp::model::fb_vector(&z0, &f, sim.mcp().lower(), sim.mcp().upper(), &mut phi);
+    let known_phi = problem
+        .known_fb_vector(&z0)
+        .expect("Φ at the extrapolated start");
+    assert_eq!(
+        known_phi.iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+        phi.iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+    );
     // The extrapolated start solves A1's step 4 to round-off (its motion is quadratic).
     let residual = ecp::model::natural_residual(&z0, &f, sim.mcp().lower(), sim.mcp().upper());
     assert!(residual < 1e-13, "{residual:e}");
     let mut moved = z0.clone();
     moved[0] = f64::from_bits(moved[0].to_bits() + 1);
     assert!(problem.known_value(&moved).is_none());
+    assert!(problem.known_fb_vector(&moved).is_none());
     sim.set_param(ecp::formulations::Param::Mu, 0.3)
         .expect("μ set");
     assert!(sim.step_problem().known_value(&z0).is_none());
+    assert!(sim.step_problem().known_fb_vector(&z0).is_none());
 }

@@ -44,6 +44,15 @@ pub trait Mcp {
         let _ = z;
         None
     }
+    /// `Φ(z)`, the Fischer–Burmeister reformulation ([`fb_vector`]), when the problem holds it
+    /// for this very `z` beside [`Mcp::known_value`]'s `F` (the bits `fb_vector` gives from
+    /// that `F`): the warm start's guard computes it to compare its starts, and the semismooth
+    /// Newton backend's merit at the start is its sum of squares. `None` (the default):
+    /// compute it. A wrapper that changes `F` or the bounds must not forward it.
+    fn known_fb_vector(&self, z: &[f64]) -> Option<&[f64]> {
+        let _ = z;
+        None
+    }
     /// Human-readable name of component `i`, for diagnostics.
     fn component_name(&self, i: usize) -> String {
         format!("z[{i}]")
@@ -725,6 +734,29 @@ pub fn fb_residual_of_rows(
     }
 }
 
+/// [`fb_residual`] that also writes `Φ(z)` ([`fb_vector`]) into `phi`: the same components,
+/// summed in the same order (a caller that compares residuals keeps `Φ` for a backend,
+/// [`Mcp::known_fb_vector`]).
+pub fn fb_residual_into(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    phi: &mut [f64],
+) -> f64 {
+    let mut s = 0.0;
+    for i in 0..z.len() {
+        let c = fb_component(z[i], f[i], lower[i], upper[i]);
+        phi[i] = c;
+        s += c * c;
+    }
+    if s.is_finite() {
+        s.sqrt()
+    } else {
+        f64::INFINITY
+    }
+}
+
 /// Evaluates `F` at `z` and returns the natural residual (allocates; for reports and tests).
 pub fn residual_of(mcp: &dyn Mcp, z: &[f64]) -> f64 {
     let mut f = vec![0.0; mcp.dim()];
@@ -840,6 +872,13 @@ mod tests {
             assert_eq!(worst_component(&z, &f, &lower, &upper), all.worst);
             let fb = fb_residual(&z, &f, &lower, &upper);
             assert_eq!(all.fb_residual().to_bits(), fb.to_bits(), "{z:?} {f:?}");
+            // `fb_residual_into`: the same residual, and `Φ` as `fb_vector` writes it.
+            let (mut phi, mut want) = ([7.0; 6], [0.0; 6]);
+            let fb_into = fb_residual_into(&z, &f, &lower, &upper, &mut phi);
+            assert_eq!(fb_into.to_bits(), fb.to_bits(), "{z:?} {f:?}");
+            fb_vector(&z, &f, &lower, &upper, &mut want);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&phi), bits(&want), "{z:?} {f:?}");
         }
         let empty = final_residuals(&[], &[], &[], &[]);
         assert_eq!((empty.natural, empty.worst), (0.0, None));

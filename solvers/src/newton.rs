@@ -379,6 +379,18 @@ pub struct NewtonSettings {
     /// `polish_below · tolerance`, where a run of full steps stops unpolished. `None`: neither.
     /// Default `Some(4.0)`.
     pub chord_round_off_floor: Option<f64>,
+    /// The full Newton step taken first: when the full step of an LU direction lowers `Ψ` to
+    /// at most this fraction of `Ψ`, it is taken without the descent test
+    /// ([`NewtonSettings::descent_rho`]) and the Armijo test, and `∇Ψ = HᵀΦ` is not formed
+    /// (with an exact solve `∇Ψᵀd = −2Ψ`, and such a step passes the Armijo test by far). Any
+    /// other full step is judged as without it (`∇Ψ` formed then, the same step). Not in the
+    /// polish of [`NewtonSettings::polish_below`], nor on an `H` with pinned columns
+    /// ([`NewtonSettings::pin_zero_columns`]), and only when `2Ψ ≥ ρ‖d‖^p` (the descent test
+    /// with `∇Ψᵀd = −2Ψ`). `None`: `∇Ψ` and the tests before the step, as before. Default
+    /// `Some(1e-2)` (`docs/latency.md`, "Newton's desk iteration outside the LU": the same
+    /// points on the reference scenes and three stress seeds, ≈ 4 k instructions fewer per desk
+    /// step).
+    pub fast_full_step: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -433,6 +445,7 @@ impl Default for NewtonSettings {
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
             chord_round_off_floor: Some(4.0),
+            fast_full_step: Some(1e-2),
             trace: false,
         }
     }
@@ -478,10 +491,10 @@ struct Workspace {
     f_alt: Vec<f64>,
     phi_alt: Vec<f64>,
     d_alt: Vec<f64>,
-    /// `(D_b, Φ)` of each row for [`assemble_h_and_gradient`].
-    rows: Vec<(f64, f64)>,
     /// The unit rows of `H` ([`NewtonSettings::free_block`], [`unit_rows`]).
     unit: Vec<bool>,
+    /// The bounds `(l, u)` that `kinds` were classified from, for the next solve's test.
+    kind_bounds: Vec<f64>,
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
@@ -555,7 +568,6 @@ impl Workspace {
         }
         self.jac.resize(nnz, 0.0);
         self.h.resize(nnz, 0.0);
-        self.rows.reserve(n.saturating_sub(self.rows.len()));
         self.unit.resize(n, false);
     }
 
@@ -874,186 +886,115 @@ fn unit_rows(db: &[f64], unit: &mut [bool]) {
     }
 }
 
-/// Writes `H = D_a + D_b J` into `h` (in `pattern`, the diagonal always stored) and `∇Ψ = HᵀΦ`
-/// into `grad`, in one pass over the stored entries; also, for [`pin_zero_columns`], the
-/// largest magnitude of each column in `col_max` (NaN for a column holding a NaN) and returns
-/// the largest of `H` (NaNs left out). `rows` is scratch of length `n` for `(D_b, Φ)` of each row
-/// (one bounds check per entry instead of two).
+/// Writes `H = D_a + D_b J` into `h` (in `pattern`, the diagonal always stored) and returns the
+/// largest magnitude of `H` (NaNs left out); `∇Ψ = HᵀΦ` is formed apart ([`gradient`]), only
+/// where an iteration needs it. For [`pin_zero_columns`], `col_max[j]` is a magnitude of column
+/// `j` that decides its test against `ZERO_COLUMN` times that largest: `|H_jj|` when it is
+/// above it (the column is not pinned), else the column's largest magnitude (NaN when the
+/// column holds a NaN).
 ///
-/// The columns go in pairs, their entries in lockstep: each column's `∇Ψ_j` and maximum are
-/// serial chains (an addition's latency per entry), and two columns' chains overlap. Each
-/// column's entries are taken in stored order, so every `∇Ψ_j` is summed as in a column at a
-/// time.
-#[allow(clippy::too_many_arguments)]
-fn assemble_h_and_gradient(
+/// `D_b J` in one pass over the stored entries (no per-column set-up), then `D_a` added on the
+/// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. The largest magnitude in four
+/// lanes (a maximum does not depend on the order; `a > m` skips a NaN as `f64::max` does).
+fn assemble_h(
     pattern: &CscPattern,
     jac: &[f64],
     da: &[f64],
     db: &[f64],
-    phi: &[f64],
-    rows: &mut Vec<(f64, f64)>,
     h: &mut [f64],
-    grad: &mut [f64],
     col_max: &mut [f64],
 ) -> f64 {
     let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
-    rows.clear();
-    rows.extend(db.iter().zip(phi).map(|(&b, &p)| (b, p)));
-    let rows = &rows[..];
     let ncols = cp.len() - 1;
-    let mut largest = 0.0f64;
-    let mut j = 0;
-    while j + 1 < ncols {
-        let (start, mid, end) = (cp[j], cp[j + 1], cp[j + 2]);
-        let (h0, h1) = h[start..end].split_at_mut(mid - start);
-        let (j0, j1) = jac[start..end].split_at(mid - start);
-        let (r0, r1) = ri[start..end].split_at(mid - start);
-        let mut a = ColumnSum::new(h0, j0, r0, diag[j] - start);
-        let mut b = ColumnSum::new(h1, j1, r1, diag[j + 1] - mid);
-        // The entries before each diagonal, the diagonals, the entries after them.
-        let (ka, kb) = (a.k, b.k);
-        ColumnSum::two_runs(rows, &mut a, &mut b, ..ka, ..kb);
-        a.diagonal(rows, j, da[j]);
-        b.diagonal(rows, j + 1, da[j + 1]);
-        ColumnSum::two_runs(rows, &mut a, &mut b, ka + 1.., kb + 1..);
-        a.finish(&mut grad[j], &mut col_max[j], &mut largest);
-        b.finish(&mut grad[j + 1], &mut col_max[j + 1], &mut largest);
-        j += 2;
+    let nnz = cp[ncols];
+    let (h, jac, ri, db) = (&mut h[..nnz], &jac[..nnz], &ri[..nnz], &db[..ncols]);
+    // Two entries a turn (half the loop's own instructions).
+    let (mut hc, mut jc, mut rc) = (
+        h.chunks_exact_mut(2),
+        jac.chunks_exact(2),
+        ri.chunks_exact(2),
+    );
+    for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
+        hp[0] = db[r[0]] * v[0];
+        hp[1] = db[r[1]] * v[1];
     }
-    if j < ncols {
-        let (start, end) = (cp[j], cp[j + 1]);
-        let k = diag[j] - start;
-        let mut a = ColumnSum::new(&mut h[start..end], &jac[start..end], &ri[start..end], k);
-        a.run(rows, ..k);
-        a.diagonal(rows, j, da[j]);
-        a.run(rows, k + 1..);
-        a.finish(&mut grad[j], &mut col_max[j], &mut largest);
+    let rest = (hc.into_remainder().iter_mut())
+        .zip(jc.remainder())
+        .zip(rc.remainder());
+    for ((hp, &v), &r) in rest {
+        *hp = db[r] * v;
+    }
+    for (&p, &a) in diag.iter().zip(da) {
+        h[p] += a;
+    }
+    let largest = largest_magnitude(h);
+    let threshold = ZERO_COLUMN * largest;
+    for (j, (m, &p)) in col_max[..ncols].iter_mut().zip(diag).enumerate() {
+        let d = h[p].abs();
+        let col = &h[cp[j]..cp[j + 1]];
+        // A witness above the threshold decides the test (NaN is not above it): the diagonal,
+        // else the first such entry; without one, the column's largest (or NaN).
+        *m = if d > threshold {
+            d
+        } else if let Some(a) = col.iter().map(|v| v.abs()).find(|&a| a > threshold) {
+            a
+        } else {
+            col.iter().fold(0.0, |m: f64, v| {
+                if v.is_nan() || m.is_nan() {
+                    f64::NAN
+                } else {
+                    m.max(v.abs())
+                }
+            })
+        };
     }
     largest
 }
 
-/// One column of [`assemble_h_and_gradient`]: its entries of `H` and `J`, their rows, the
-/// diagonal's place `k` among them, and the running `∇Ψ_j` (`s`) and largest magnitude.
-struct ColumnSum<'a> {
-    h: &'a mut [f64],
-    jac: &'a [f64],
-    rows: &'a [usize],
-    k: usize,
-    s: f64,
-    cmax: f64,
+/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes.
+#[inline]
+fn largest_magnitude(v: &[f64]) -> f64 {
+    let mut m = [0.0f64; 4];
+    let chunks = v.chunks_exact(4);
+    let rest = chunks.remainder();
+    for c in chunks {
+        for k in 0..4 {
+            let a = c[k].abs();
+            if a > m[k] {
+                m[k] = a;
+            }
+        }
+    }
+    for (k, x) in rest.iter().enumerate() {
+        let a = x.abs();
+        if a > m[k] {
+            m[k] = a;
+        }
+    }
+    m[0].max(m[1]).max(m[2].max(m[3]))
 }
 
-impl<'a> ColumnSum<'a> {
-    fn new(h: &'a mut [f64], jac: &'a [f64], rows: &'a [usize], k: usize) -> Self {
-        ColumnSum {
-            h,
-            jac,
-            rows,
-            k,
-            s: 0.0,
-            cmax: 0.0,
+/// `∇Ψ = HᵀΦ` into `grad`: each column's sum `Σ_r H_rj Φ_r` from `+0.0` in stored order (the
+/// bits of the sum taken beside the assembly before).
+fn gradient(pattern: &CscPattern, h: &[f64], phi: &[f64], grad: &mut [f64]) {
+    let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+    let ncols = cp.len() - 1;
+    let phi = &phi[..ncols];
+    for (j, g) in grad[..ncols].iter_mut().enumerate() {
+        let (start, end) = (cp[j], cp[j + 1]);
+        let mut s = 0.0;
+        for (&v, &r) in h[start..end].iter().zip(&ri[start..end]) {
+            s += v * phi[r];
         }
-    }
-
-    /// One entry: `H_rj = v`, its share `v Φ_r` of `∇Ψ_j` and of the column's largest magnitude.
-    /// `a > cmax` skips a NaN as `f64::max` does; a NaN entry makes `s` NaN (NaN times anything,
-    /// plus anything, is NaN), so the columns are searched for one only when `s` is NaN.
-    #[inline(always)]
-    fn entry(v: f64, p: f64, h: &mut f64, s: &mut f64, cmax: &mut f64) {
-        *h = v;
-        *s += v * p;
-        let a = v.abs();
-        if a > *cmax {
-            *cmax = a;
-        }
-    }
-
-    /// The off-diagonal entries `range` (`H_rj = D_b,r J_rj`), in order.
-    #[inline(always)]
-    fn run<R>(&mut self, rows: &[(f64, f64)], range: R)
-    where
-        R: std::slice::SliceIndex<[f64], Output = [f64]>
-            + std::slice::SliceIndex<[usize], Output = [usize]>
-            + Clone,
-    {
-        let (mut s, mut cmax) = (self.s, self.cmax);
-        let h = &mut self.h[range.clone()];
-        let (jac, ri) = (&self.jac[range.clone()], &self.rows[range]);
-        for ((hp, &v), &r) in h.iter_mut().zip(jac).zip(ri) {
-            let (b, p) = rows[r];
-            Self::entry(b * v, p, hp, &mut s, &mut cmax);
-        }
-        (self.s, self.cmax) = (s, cmax);
-    }
-
-    /// The off-diagonal entries `ra` of `a` and `rb` of `b` in lockstep (each in its order),
-    /// then what is left of the longer.
-    #[inline(always)]
-    fn two_runs<R, Q>(rows: &[(f64, f64)], a: &mut Self, b: &mut Self, ra: R, rb: Q)
-    where
-        R: std::slice::SliceIndex<[f64], Output = [f64]>
-            + std::slice::SliceIndex<[usize], Output = [usize]>
-            + Clone,
-        Q: std::slice::SliceIndex<[f64], Output = [f64]>
-            + std::slice::SliceIndex<[usize], Output = [usize]>
-            + Clone,
-    {
-        let (mut sa, mut ca, mut sb, mut cb) = (a.s, a.cmax, b.s, b.cmax);
-        let ha = &mut a.h[ra.clone()];
-        let (ja, ia) = (&a.jac[ra.clone()], &a.rows[ra]);
-        let hb = &mut b.h[rb.clone()];
-        let (jb, ib) = (&b.jac[rb.clone()], &b.rows[rb]);
-        let m = ha.len().min(hb.len());
-        let (ha, ha_rest) = ha.split_at_mut(m);
-        let (hb, hb_rest) = hb.split_at_mut(m);
-        let lanes = (ha.iter_mut().zip(&ja[..m]).zip(&ia[..m]))
-            .zip(hb.iter_mut().zip(&jb[..m]).zip(&ib[..m]));
-        for (((hpa, &va), &ra), ((hpb, &vb), &rb)) in lanes {
-            let (b0, p0) = rows[ra];
-            let (b1, p1) = rows[rb];
-            Self::entry(b0 * va, p0, hpa, &mut sa, &mut ca);
-            Self::entry(b1 * vb, p1, hpb, &mut sb, &mut cb);
-        }
-        for ((hp, &v), &r) in ha_rest.iter_mut().zip(&ja[m..]).zip(&ia[m..]) {
-            let (b0, p0) = rows[r];
-            Self::entry(b0 * v, p0, hp, &mut sa, &mut ca);
-        }
-        for ((hp, &v), &r) in hb_rest.iter_mut().zip(&jb[m..]).zip(&ib[m..]) {
-            let (b1, p1) = rows[r];
-            Self::entry(b1 * v, p1, hp, &mut sb, &mut cb);
-        }
-        (a.s, a.cmax, b.s, b.cmax) = (sa, ca, sb, cb);
-    }
-
-    /// The diagonal entry `H_jj = D_b,j J_jj + D_a,j`.
-    #[inline(always)]
-    fn diagonal(&mut self, rows: &[(f64, f64)], j: usize, da: f64) {
-        let (b, p) = rows[j];
-        let k = self.k;
-        Self::entry(
-            b * self.jac[k] + da,
-            p,
-            &mut self.h[k],
-            &mut self.s,
-            &mut self.cmax,
-        );
-    }
-
-    /// `∇Ψ_j`, the column's largest magnitude (NaN when it holds a NaN) and `H`'s largest.
-    #[inline(always)]
-    fn finish(&self, grad: &mut f64, col_max: &mut f64, largest: &mut f64) {
-        let nan = self.s.is_nan() && self.h.iter().any(|v| v.is_nan());
-        *grad = self.s;
-        *largest = largest.max(self.cmax);
-        *col_max = if nan { f64::NAN } else { self.cmax };
+        *g = s;
     }
 }
 
 /// Adds to the diagonal of `h` (in `pattern`), for each column whose largest entry is at most
 /// [`ZERO_COLUMN`] times the largest entry of `h`, the largest entry of its row (1 when the row
 /// is zero too); records the additions in `pin` and returns whether there was any. `pin` holds
-/// each column's largest magnitude on entry and `largest` the largest of `h`
-/// ([`assemble_h_and_gradient`]).
+/// on entry a magnitude of each column that decides that test (its largest, or its diagonal's
+/// when that is above the threshold) and `largest` the largest of `h` ([`assemble_h`]).
 fn pin_zero_columns(
     pattern: &CscPattern,
     h: &mut [f64],
@@ -1215,6 +1156,12 @@ fn try_ratio_step(
         ws.z_trial[i] = if ws.d[i] < 0.0 { l[i] } else { u[i] };
     }
     merit_at_trial(mcp, ws, l, u, f_evals)
+}
+
+/// Whether `a` and `b` hold the same bits (one pass without an exit per entry).
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len()
+        && (a.iter().zip(b)).fold(0u64, |acc, (x, y)| acc | (x.to_bits() ^ y.to_bits())) == 0
 }
 
 /// `dst = −src` (the Newton and gradient directions' right-hand sides), in vector lanes.
@@ -1629,10 +1576,21 @@ impl NewtonSolver {
         ws.z.copy_from_slice(z0);
         // The bound kinds, with the pattern the key of the kept LU: the same problem's next step
         // has the same kinds.
-        let same_kinds = ws.kinds.len() == n
-            && (ws.kinds.iter())
-                .zip(l.iter().zip(u))
-                .all(|(k, (&l, &u))| *k == classify(l, u));
+        // The bounds of the last solve, bit for bit, have its kinds (one vector pass instead of
+        // classifying each pair); other bounds may still have them.
+        let same_bounds = ws.kind_bounds.len() == 2 * n
+            && same_bits(&ws.kind_bounds[..n], l)
+            && same_bits(&ws.kind_bounds[n..], u);
+        let same_kinds = same_bounds
+            || ws.kinds.len() == n
+                && (ws.kinds.iter())
+                    .zip(l.iter().zip(u))
+                    .all(|(k, (&l, &u))| *k == classify(l, u));
+        if !same_bounds {
+            ws.kind_bounds.clear();
+            ws.kind_bounds.extend_from_slice(l);
+            ws.kind_bounds.extend_from_slice(u);
+        }
         if !same_kinds {
             ws.kinds.clear();
             ws.kinds
@@ -1657,15 +1615,25 @@ impl NewtonSolver {
         // `F` at the start may be known already (`Mcp::known_value`: the warm start's guard
         // evaluated it there, ≈ 2.6 k instructions on A1): the same bits as evaluating it.
         let mut have_jac = !from_kept && self.last_iterated;
-        match (mcp.known_value(&ws.z), have_jac) {
+        let f_known = match (mcp.known_value(&ws.z), have_jac) {
             (Some(f), true) => {
                 ws.f.copy_from_slice(f);
                 mcp.jacobian(&ws.z, &mut ws.jac);
+                true
             }
-            (Some(f), false) => ws.f.copy_from_slice(f),
-            (None, true) => mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac),
-            (None, false) => mcp.evaluate(&ws.z, &mut ws.f),
-        }
+            (Some(f), false) => {
+                ws.f.copy_from_slice(f);
+                true
+            }
+            (None, true) => {
+                mcp.evaluate_with_jacobian(&ws.z, &mut ws.f, &mut ws.jac);
+                false
+            }
+            (None, false) => {
+                mcp.evaluate(&ws.z, &mut ws.f);
+                false
+            }
+        };
         jac_evals += usize::from(have_jac);
         f_evals += 1;
         // The LU held is of an `H` without pins whose step passed the descent test; it is the
@@ -1689,7 +1657,20 @@ impl NewtonSolver {
                 s.chord_contraction
             }
         };
-        let mut psi = 0.5 * fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi);
+        // `Φ` at the start may be known with `F` (`Mcp::known_fb_vector`: the warm start's guard
+        // compared its starts by `‖Φ‖`): the same bits, and `Ψ` its sum of squares in the same
+        // order as `fb_vector_of_kinds_squared` (≈ 1.4 k instructions on the desk).
+        let known_phi = f_known
+            .then(|| mcp.known_fb_vector(&ws.z))
+            .flatten()
+            .filter(|phi| phi.len() == n);
+        let mut psi = match known_phi {
+            Some(phi) => {
+                ws.phi.copy_from_slice(phi);
+                0.5 * dot(&ws.phi, &ws.phi)
+            }
+            None => 0.5 * fb_vector_of_kinds_squared(&ws.z, &ws.f, l, u, &ws.kinds, &mut ws.phi),
+        };
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
         ws.z_best.copy_from_slice(&ws.z);
@@ -1796,6 +1777,14 @@ impl NewtonSolver {
             // Whether the step taken is the kept LU's full step (a chord step may follow it).
             let mut lu_step = chord;
             let mut newton_ok = false;
+            // `∇Ψᵀd` of the Newton direction `d` (set with `newton_ok`, `d` unchanged while it
+            // is used).
+            let mut newton_slope = 0.0;
+            // `grad` holds `∇Ψ = HᵀΦ` of this iteration's `H` (formed when first needed).
+            let mut grad_ready = false;
+            // `Ψ` at the full Newton step, when it was evaluated first
+            // (`NewtonSettings::fast_full_step`; the trial buffers hold that point).
+            let mut full_step = None;
             if !chord {
                 if !have_jac {
                     mcp.jacobian(&ws.z, &mut ws.jac);
@@ -1815,18 +1804,15 @@ impl NewtonSolver {
                     &mut ws.degenerate,
                     &mut ws.jv,
                 );
-                // H and ∇Ψ = HᵀΦ; `pin` gets the column maxima for the pinning test below.
-                let largest = assemble_h_and_gradient(
-                    &pattern,
-                    &ws.jac,
-                    &ws.da,
-                    &ws.db,
-                    &ws.phi,
-                    &mut ws.rows,
-                    &mut ws.h,
-                    &mut ws.grad,
-                    &mut ws.pin,
-                );
+                // H; `pin` gets the column maxima for the pinning test below.
+                let largest = assemble_h(&pattern, &ws.jac, &ws.da, &ws.db, &mut ws.h, &mut ws.pin);
+                if s.fast_full_step.is_none()
+                    || s.pin_zero_columns && ws.pin.iter().any(|&m| m <= ZERO_COLUMN * largest)
+                {
+                    // ∇Ψ now: the pins below change `H`'s diagonal and back, not bit for bit.
+                    gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
+                    grad_ready = true;
+                }
                 clock.lap(&mut prof, Phase::Jacobian);
 
                 // Newton direction, with the DFK descent test.
@@ -1870,12 +1856,42 @@ impl NewtonSolver {
                         ws.h[p] -= ws.pin[j];
                     }
                 }
-                let descent_ok = |d: &[f64], g: &[f64]| {
-                    let nd = norm2(d);
-                    let gd = dot(g, d);
-                    gd.is_finite() && gd <= -s.descent_rho * nd.powf(s.descent_p)
-                };
-                newton_ok = newton_ok && descent_ok(&ws.d, &ws.grad);
+                if newton_ok
+                    && !polishing
+                    && !pinned
+                    && let Some(fraction) = s.fast_full_step
+                {
+                    // The full step first: taken when it lowers `Ψ` by `fraction`, without `∇Ψ`
+                    // (`NewtonSettings::fast_full_step`); else judged below as without it. Not
+                    // on a pinned `H` (singular but for the pins: D5's collision, where the
+                    // descent test refuses steps that lower `Ψ` and the non-isolated `σ` follows
+                    // the step taken).
+                    let p = try_step(mcp, ws, 1.0, l, u, &mut f_evals);
+                    // With `∇Ψᵀd = −2Ψ` (an exact solve), the descent test is
+                    // `2Ψ ≥ ρ‖d‖^p`: asked of the step too (a long step of an inaccurate solve is
+                    // judged by the tests).
+                    if let Some(p) = p
+                        && p <= fraction * psi
+                        && 2.0 * psi >= s.descent_rho * norm2(&ws.d).powf(s.descent_p)
+                    {
+                        accepted = Some((1.0, p));
+                        lu_step = true;
+                        prof.full_steps_first += 1;
+                    } else {
+                        full_step = Some(p);
+                    }
+                }
+                if newton_ok && accepted.is_none() {
+                    if !grad_ready {
+                        gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
+                        grad_ready = true;
+                    }
+                    // `∇Ψᵀd`, kept as the slope of the Newton direction's line searches below.
+                    newton_slope = dot(&ws.grad, &ws.d);
+                    let nd = norm2(&ws.d);
+                    newton_ok = newton_slope.is_finite()
+                        && newton_slope <= -s.descent_rho * nd.powf(s.descent_p);
+                }
                 // A pinned `H` is singular but for the pins (D5's collision): its chord steps
                 // end where the next `H`'s LU fails, so its LU is not kept for them.
                 chord_lu = newton_ok && !pinned;
@@ -1925,9 +1941,12 @@ impl NewtonSolver {
             let local = residual <= s.min_norm_radius || psi <= 1e-6 * psi_start;
             if newton_ok && accepted.is_none() {
                 // The full Newton step, when it decreases Ψ enough (fast local convergence).
-                let slope = dot(&ws.grad, &ws.d);
-                if let Some(p) = try_step(mcp, ws, 1.0, l, u, &mut f_evals) {
-                    if p <= psi + s.armijo * slope
+                let trial = match full_step {
+                    Some(p) => p,
+                    None => try_step(mcp, ws, 1.0, l, u, &mut f_evals),
+                };
+                if let Some(p) = trial {
+                    if p <= psi + s.armijo * newton_slope
                         || natural_residual(&ws.z_trial, &ws.f_trial, l, u) <= s.tolerance
                     {
                         accepted = Some((1.0, p));
@@ -1982,7 +2001,7 @@ impl NewtonSolver {
                 }
             }
             if accepted.is_none() && newton_ok && s.newton_line_search {
-                let slope = dot(&ws.grad, &ws.d);
+                let slope = newton_slope;
                 let mut t = s.backtrack;
                 while newton_search.is_none() && t >= s.newton_shortest_step {
                     if let Some(p) = try_step(mcp, ws, t, l, u, &mut f_evals)
@@ -2010,6 +2029,11 @@ impl NewtonSolver {
                 // H singular (or its LU step useless): the minimum-norm least-squares step
                 // d = −H⁺Φ. It is a descent direction for Ψ (∇Ψᵀd = −‖Hd‖²) unless Φ ⊥ range H.
                 prof.min_norm_factorizations += 1;
+                if !grad_ready {
+                    gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
+                    grad_ready = true;
+                }
+
                 if self.min_norm.newton_step(
                     &pattern,
                     &ws.h,
@@ -2061,6 +2085,11 @@ impl NewtonSolver {
             clock.lap(&mut prof, Phase::MinNorm);
             if accepted.is_none() {
                 prof.lm_iterations += 1;
+                if !grad_ready {
+                    gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
+                    grad_ready = true;
+                }
+
                 // Levenberg–Marquardt with an adaptive damping (Moré's update): solve
                 // (HᵀH + λI) d = −∇Ψ, accept when the actual decrease of Ψ is a fair share of the
                 // decrease predicted by the linear model ½‖Φ + H d‖².
@@ -2165,6 +2194,9 @@ impl NewtonSolver {
                 }
             }
             if accepted.is_none() {
+                if !grad_ready {
+                    gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
+                }
                 // Last resort: Armijo backtracking along the Newton direction, then along −∇Ψ.
                 // No allocation in the iteration: the candidates are a fixed pair.
                 let candidates = [StepKind::Newton, StepKind::Gradient];
@@ -2207,19 +2239,21 @@ impl NewtonSolver {
                 StepKind::LevenbergMarquardt => lm_steps += 1,
                 _ => gradient_steps += 1,
             }
-            let record = IterationRecord {
-                iteration: iterations,
-                residual,
-                merit: psi,
-                step: kind,
-                step_length: t,
-                direction_norm: norm2(&ws.d),
-            };
-            if let Some(obs) = self.observer.as_mut() {
-                obs.observe(&record);
-            }
-            if s.trace {
-                trace.push(record);
+            if self.observer.is_some() || s.trace {
+                let record = IterationRecord {
+                    iteration: iterations,
+                    residual,
+                    merit: psi,
+                    step: kind,
+                    step_length: t,
+                    direction_norm: norm2(&ws.d),
+                };
+                if let Some(obs) = self.observer.as_mut() {
+                    obs.observe(&record);
+                }
+                if s.trace {
+                    trace.push(record);
+                }
             }
             iterations += 1;
             std::mem::swap(&mut ws.z, &mut ws.z_trial);
@@ -2383,11 +2417,15 @@ impl NewtonSolver {
             return finish_solve(mcp, ws.z_best.clone(), report);
         }
         // Φ at the returned point is at hand too (the iteration keeps `phi = Φ(z)`): its sum of
-        // squares, in component order as `fb_residual` sums it, spares the finish that pass.
-        let residuals = FinalResiduals::new(
-            worst_component(&ws.z_best, &ws.f, l, u),
-            dot(&ws.phi, &ws.phi),
-        );
+        // squares, in component order as `fb_residual` sums it, spares the finish that pass. It
+        // is `2Ψ` (the iteration keeps `psi = ½ dot(Φ, Φ)`, and halving a sum of at least twice
+        // the smallest normal number is exact); the sum again below that, and for a NaN.
+        let phi_squared = if psi >= 2.0 * f64::MIN_POSITIVE {
+            2.0 * psi
+        } else {
+            dot(&ws.phi, &ws.phi)
+        };
+        let residuals = FinalResiduals::new(worst_component(&ws.z_best, &ws.f, l, u), phi_squared);
         if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
             // Converged on its last LU: kept for the next solve's first iteration.
             self.kept_lu = s.chord_across_solves.is_some() && chord_lu && one_lu_step;
@@ -2405,12 +2443,13 @@ mod tests {
     use super::*;
     use ecp_model::FnMcp;
 
-    /// The paired-column assembly gives the bits of the plain one, column by column in stored
-    /// order (`H`, `∇Ψ`, the column maxima with a NaN column, `H`'s largest), on patterns
+    /// The flat assembly and the gradient apart give the bits of the plain assembly, column by
+    /// column in stored order (`H`, `∇Ψ`, `H`'s largest; the column magnitudes decide the
+    /// pinning test as the column maxima do, with a NaN column and a zero one), on patterns
     /// with an odd and an even number of columns, columns with the diagonal first, last and
     /// alone, and columns of different lengths.
     #[test]
-    fn paired_columns_assemble_the_bits_of_one_column_at_a_time() {
+    fn the_flat_assembly_and_the_gradient_give_the_bits_of_one_column_at_a_time() {
         fn plain(
             pattern: &CscPattern,
             (jac, da, db, phi): (&[f64], &[f64], &[f64], &[f64]),
@@ -2461,9 +2500,9 @@ mod tests {
                 .collect();
             let pattern = CscPattern::from_columns(n, columns).expect("a valid pattern");
             let nnz = pattern.nnz();
-            for trial in 0..6 {
+            for trial in 0..7 {
                 let mut jac: Vec<f64> = (0..nnz).map(|_| 4.0 * next() - 2.0).collect();
-                let da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
+                let mut da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
                 let mut db: Vec<f64> = (0..n).map(|_| -next()).collect();
                 let phi: Vec<f64> = (0..n).map(|_| 2.0 * next() - 1.0).collect();
                 match trial {
@@ -2471,22 +2510,47 @@ mod tests {
                     2 => db[n - 1] = 0.0,
                     3 => jac.iter_mut().for_each(|v| *v *= 1e-20),
                     4 => jac[0] = -0.0,
+                    // Signed zeros: `D_b J = −0.0` off the diagonal, `D_a = −0.0` on it.
+                    5 => {
+                        jac.iter_mut().for_each(|v| *v = 0.0);
+                        da[0] = -0.0;
+                    }
+                    // A zero column (pinned).
+                    6 => {
+                        let (cp, diag) = (pattern.col_ptr(), pattern.diag_pos());
+                        jac[cp[0]..cp[1]].iter_mut().for_each(|v| *v = 0.0);
+                        da[0] = 0.0;
+                        assert!(diag[0] < cp[1]);
+                    }
                     _ => {}
                 }
                 let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
-                let mut rows = Vec::new();
-                let got = assemble_h_and_gradient(
-                    &pattern, &jac, &da, &db, &phi, &mut rows, &mut h1, &mut g1, &mut c1,
-                );
+                let got = assemble_h(&pattern, &jac, &da, &db, &mut h1, &mut c1);
+                gradient(&pattern, &h1, &phi, &mut g1);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
                 assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
                 assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
-                assert_eq!(bits(&c1), bits(&c0), "n = {n}, trial {trial}");
+                // Each column's magnitude decides the pinning test as its largest does (a NaN
+                // column is not pinned), and is that largest where the test pins.
+                let threshold = ZERO_COLUMN * want;
+                let pins = |m: f64| m <= threshold;
+                for (j, (&c, &w)) in c1.iter().zip(&c0).enumerate() {
+                    let at = format!("n = {n}, trial {trial}, column {j}");
+                    assert_eq!(pins(c), pins(w), "{at}");
+                    if pins(w) {
+                        assert_eq!(c.to_bits(), w.to_bits(), "{at}");
+                    } else if !w.is_nan() {
+                        assert!(c > threshold && c <= w, "{at}");
+                    }
+                }
                 if trial == 1 {
-                    assert!(c1.iter().any(|c| c.is_nan()), "the NaN column is marked");
+                    assert!(c0.iter().any(|c| c.is_nan()), "a NaN column");
+                }
+                if trial == 6 && n > 1 {
+                    assert_eq!(c1[0], 0.0, "the zero column is pinned");
                 }
             }
         }
@@ -2975,6 +3039,55 @@ mod tests {
                 > 0,
             "{summary:?}"
         );
+    }
+
+    /// The full step tried first (`NewtonSettings::fast_full_step`) gives the points, residuals
+    /// and iteration counts of the tests first, bit for bit, where it takes steps (counted), on
+    /// a pinned `H` (where it is not tried) and from a start far out.
+    #[test]
+    fn the_full_step_first_gives_the_points_of_the_tests_first() {
+        let (_, near) = smooth_three_start();
+        let cases: [(FnMcp, Vec<f64>); 4] = [
+            (smooth_three(), near),
+            (smooth_three(), vec![0.5, 0.5, 0.5]),
+            (smooth_three(), vec![3.0, -2.0, 5.0]),
+            (open_friction_block(), vec![0.0, 0.0, 1.0]),
+        ];
+        let mut first_steps = 0;
+        for (k, (mcp, start)) in cases.iter().enumerate() {
+            let solve = |fast: Option<f64>| {
+                let mut solver = NewtonSolver::new(NewtonSettings {
+                    fast_full_step: fast,
+                    ..NewtonSettings::default()
+                })
+                .with_profile();
+                let sol = solver
+                    .solve(mcp, start)
+                    .unwrap_or_else(|e| panic!("{k}: {e}"));
+                (sol, solver.take_profile())
+            };
+            let ((tested, tested_profile), (first, profile)) = (solve(None), solve(Some(1e-2)));
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&first.z), bits(&tested.z), "case {k}");
+            assert_eq!(
+                first.summary.residual.to_bits(),
+                tested.summary.residual.to_bits()
+            );
+            assert_eq!(
+                first.summary.iterations, tested.summary.iterations,
+                "case {k}"
+            );
+            assert_eq!(profile.lu_factorizations, tested_profile.lu_factorizations);
+            assert_eq!(tested_profile.full_steps_first, 0);
+            if k == 3 {
+                assert_eq!(
+                    profile.full_steps_first, 0,
+                    "a pinned H is judged by the tests"
+                );
+            }
+            first_steps += profile.full_steps_first;
+        }
+        assert!(first_steps >= 3, "{first_steps} full steps first");
     }
 
     /// Kojima–Josephy from MCPLIB start 3: the plain iteration stops at a point that is not a

@@ -152,6 +152,9 @@ impl NewtonSettings {
         if let Some(ulps) = self.chord_round_off_floor {
             c.positive("chord_round_off_floor", ulps)?;
         }
+        if let Some(fraction) = self.fast_full_step {
+            c.fraction("fast_full_step", fraction)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
@@ -443,6 +446,14 @@ mod tests {
             "chord_round_off_floor",
             NewtonSettings {
                 chord_round_off_floor: Some(-1.0),
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "fast_full_step",
+            NewtonSettings {
+                fast_full_step: Some(1.0),
                 ..d()
             },
             v,

@@ -28,8 +28,8 @@ use std::cell::Cell;
 use nalgebra::{Matrix3, Vector3, Vector4};
 
 use ecp_model::{
-    BlockMcp, DataId, Input, Mcp, McpScales, Problem, ResId, StepStructure, VarBlock, fb_residual,
-    fb_residual_of_rows,
+    BlockMcp, DataId, Input, Mcp, McpScales, Problem, ResId, StepStructure, VarBlock,
+    fb_residual_into, fb_residual_of_rows,
 };
 
 use crate::blocks::{
@@ -83,11 +83,14 @@ pub struct EcpContacts {
     /// The span's warm start was extrapolated from the last two steps (`guess::extrapolate`):
     /// the first retry is then today's warm start.
     extrapolated: bool,
-    /// Storage of the guard of the extrapolated warm start (`warm_start`): the start chosen and
-    /// `F` there (`StepFormulation::warm_start_value`), and `F` at the other start.
+    /// Storage of the guard of the extrapolated warm start (`warm_start`): the start chosen,
+    /// `F` and `Φ` there (`StepFormulation::warm_start_value`, `warm_start_fb_vector`), and `F`
+    /// and `Φ` at the other start.
     start: Vec<f64>,
     start_f: Vec<f64>,
+    start_phi: Vec<f64>,
     f: Vec<f64>,
+    phi: Vec<f64>,
     /// `start` and `start_f` are the last warm start's.
     start_known: bool,
 }
@@ -154,7 +157,9 @@ impl EcpContacts {
             extrapolated: false,
             start: Vec::new(),
             start_f: Vec::new(),
+            start_phi: Vec::new(),
             f: Vec::new(),
+            phi: Vec::new(),
             start_known: false,
         }
     }
@@ -173,7 +178,9 @@ impl EcpContacts {
             extrapolated: false,
             start: Vec::new(),
             start_f: Vec::new(),
+            start_phi: Vec::new(),
             f: Vec::new(),
+            phi: Vec::new(),
             start_known: false,
         }
     }
@@ -729,11 +736,16 @@ impl StepFormulation for EcpContacts {
         let mut start = std::mem::take(&mut self.start);
         let mut start_f = std::mem::take(&mut self.start_f);
         let mut f = std::mem::take(&mut self.f);
+        let mut start_phi = std::mem::take(&mut self.start_phi);
+        let mut phi = std::mem::take(&mut self.phi);
         f.resize(z.len(), 0.0);
         start_f.resize(z.len(), 0.0);
+        phi.resize(z.len(), 0.0);
+        start_phi.resize(z.len(), 0.0);
         self.warm_start_from(ctx, mcp, z, Some(it));
         mcp.evaluate(z, &mut f);
-        let merit = fb_residual(z, &f, mcp.lower(), mcp.upper());
+        // `Φ` kept beside the residual: the backend's merit at the start chosen is its sum.
+        let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);
         let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
         self.extrapolated = merit <= EXACT_START * size;
         if !self.extrapolated {
@@ -754,7 +766,8 @@ impl StepFormulation for EcpContacts {
             self.extrapolated = merit < bound;
             if !self.extrapolated {
                 mcp.evaluate(&start, &mut start_f);
-                let plain_merit = fb_residual(&start, &start_f, mcp.lower(), mcp.upper());
+                let plain_merit =
+                    fb_residual_into(&start, &start_f, mcp.lower(), mcp.upper(), &mut start_phi);
                 self.extrapolated = merit < plain_merit;
             }
         }
@@ -762,12 +775,15 @@ impl StepFormulation for EcpContacts {
             start.clear();
             start.extend_from_slice(z);
             std::mem::swap(&mut start_f, &mut f);
+            std::mem::swap(&mut start_phi, &mut phi);
         } else {
             z.copy_from_slice(&start);
         }
         self.start = start;
         self.start_f = start_f;
+        self.start_phi = start_phi;
         self.f = f;
+        self.phi = phi;
         self.start_known = true;
     }
 
@@ -778,6 +794,10 @@ impl StepFormulation for EcpContacts {
     fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
         self.start_known
             .then_some((self.start.as_slice(), self.start_f.as_slice()))
+    }
+
+    fn warm_start_fb_vector(&self) -> Option<&[f64]> {
+        self.start_known.then_some(self.start_phi.as_slice())
     }
 
     /// One retry from the active-contact guess of every contact that is closed or closing (a

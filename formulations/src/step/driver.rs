@@ -262,6 +262,14 @@ fn assemble(
     })
 }
 
+/// Whether `a` and `b` hold the same bits (without an exit per entry).
+fn same_bits(a: &[f64], b: &[f64]) -> bool {
+    a.len() == b.len()
+        && (a.iter())
+            .zip(b)
+            .fold(true, |same, (x, y)| same & (x.to_bits() == y.to_bits()))
+}
+
 /// The step problem as the backends see it ([`Simulation::step_problem`]): the assembled MCP
 /// with the formulation's structural view, if it has one ([`StepFormulation::structure`]).
 pub struct StepProblem<'a> {
@@ -275,6 +283,9 @@ pub struct StepProblem<'a> {
     /// The warm start and `F` there, when the formulation evaluated it
     /// ([`StepFormulation::warm_start_value`]) on the step problem as it still is.
     start: Option<(&'a [f64], &'a [f64])>,
+    /// `Φ` at that start, when the formulation computed it too
+    /// ([`StepFormulation::warm_start_fb_vector`]); only with `start`.
+    start_phi: Option<&'a [f64]>,
 }
 
 impl StepProblem<'_> {
@@ -336,11 +347,13 @@ impl Mcp for StepProblem<'_> {
     /// `F` at the warm start, for that start's bits only.
     fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
         let (start, f) = self.start?;
-        let same = start.len() == z.len()
-            && (start.iter())
-                .zip(z)
-                .fold(true, |same, (a, b)| same & (a.to_bits() == b.to_bits()));
-        same.then_some(f)
+        same_bits(start, z).then_some(f)
+    }
+    /// `Φ` at the warm start, for that start's bits only (with its `F`).
+    fn known_fb_vector(&self, z: &[f64]) -> Option<&[f64]> {
+        let (start, _) = self.start?;
+        let phi = self.start_phi?;
+        (phi.len() == z.len() && same_bits(start, z)).then_some(phi)
     }
     fn component_name(&self, i: usize) -> String {
         self.mcp.component_name(i)
@@ -795,6 +808,10 @@ impl Simulation {
             start: self
                 .start_value
                 .then(|| self.formulation.warm_start_value())
+                .flatten(),
+            start_phi: self
+                .start_value
+                .then(|| self.formulation.warm_start_fb_vector())
                 .flatten(),
         }
     }

@@ -153,6 +153,13 @@ pub trait StepFormulation: Any + Send {
     fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {
         None
     }
+    /// `Φ` (the Fischer–Burmeister reformulation, [`ecp_model::fb_vector`]) at the start of
+    /// [`StepFormulation::warm_start_value`], when the formulation computed it there from that
+    /// `F` (the guard compares its starts by `‖Φ‖`): the driver hands it to the backend with
+    /// `F` ([`ecp_model::Mcp::known_fb_vector`]). The default is `None`.
+    fn warm_start_fb_vector(&self) -> Option<&[f64]> {
+        None
+    }
     /// A deterministic second start after a failed solve: modify `z` (as the previous attempt
     /// left it) and return `true` to have the span solved again, `false` when there is no
     /// further start. `attempt` counts from 0.

@@ -95,6 +95,9 @@ pub struct NewtonProfile {
     /// Chord's polishes not taken at the round-off floor
     /// ([`crate::newton::NewtonSettings::chord_round_off_floor`]).
     pub chord_polishes_skipped: usize,
+    /// Full Newton steps taken before `∇Ψ` was formed
+    /// ([`crate::newton::NewtonSettings::fast_full_step`]).
+    pub full_steps_first: usize,
     /// Nanoseconds per phase, in the order of [`Phase::ALL`].
     pub ns: [u64; 7],
 }
@@ -125,6 +128,7 @@ impl NewtonProfile {
         self.kept_lu_steps += other.kept_lu_steps;
         self.kept_lu_refusals += other.kept_lu_refusals;
         self.chord_polishes_skipped += other.chord_polishes_skipped;
+        self.full_steps_first += other.full_steps_first;
         for (a, b) in self.ns.iter_mut().zip(other.ns) {
             *a += b;
         }
