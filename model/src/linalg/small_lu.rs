@@ -8,7 +8,9 @@
 //! column whose entry in the pivot row is zero, which pays on the step problems' Jacobians
 //! (a third full).
 //!
-//! The pivots' reciprocals `1/u_kk` are kept with the factors: the multipliers `l_ik = a_ik ·
+//! With [`SmallLu::set_reciprocal_pivots`] (off by default: with it, Newton's A1 step 35 takes
+//! eight iterations instead of one, `docs/latency.md`, branch wip-recip) the pivots'
+//! reciprocals `1/u_kk` are kept with the factors: the multipliers `l_ik = a_ik ·
 //! (1/u_kk)` and the substitutions' `x_k · (1/u_kk)` are multiplications, not divisions (a
 //! division's latency is three to four times a multiplication's, and the back substitution's is
 //! on its serial chain). Each result is within two roundings of the division's (relative
@@ -30,10 +32,13 @@ pub(crate) struct SmallLu {
     a: Vec<f64>,
     /// Row `k` was interchanged with row `piv[k] ≥ k` at elimination step `k`.
     piv: Vec<usize>,
-    /// `1/u_kk` for every pivot (`±∞` for a zero one).
+    /// The factorisations keep the pivots' reciprocals and multiply by them
+    /// ([`SmallLu::set_reciprocal_pivots`]; off by default).
+    reciprocal_pivots: bool,
+    /// `1/u_kk` for every pivot (`±∞` for a zero one), when `reciprocal_pivots`.
     recip: Vec<f64>,
-    /// Every pivot's reciprocal stands in for it ([`reciprocal_serves`]): the substitutions
-    /// multiply; else they divide.
+    /// The last factorisation kept reciprocals and every one stands in for its pivot
+    /// ([`reciprocal_serves`]): the substitutions multiply; else they divide.
     by_reciprocal: bool,
     /// The vector loops run with AVX2 (the processor has it; bitwise the same results).
     avx2: bool,
@@ -45,8 +50,9 @@ impl SmallLu {
             n,
             a: vec![0.0; n * n],
             piv: vec![0; n],
+            reciprocal_pivots: false,
             recip: vec![0.0; n],
-            by_reciprocal: true,
+            by_reciprocal: false,
             avx2: avx2_available(),
         }
     }
@@ -73,15 +79,30 @@ impl SmallLu {
 
     /// Factorises the matrix in [`SmallLu::storage_mut`] in place (finite: the caller checks).
     pub(crate) fn eliminate(&mut self) {
+        let (n, a, piv, recip) = (self.n, &mut self.a, &mut self.piv, &mut self.recip);
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
-            self.by_reciprocal =
-                unsafe { eliminate_avx2(self.n, &mut self.a, &mut self.piv, &mut self.recip) };
+            self.by_reciprocal = unsafe {
+                if self.reciprocal_pivots {
+                    eliminate_avx2::<true>(n, a, piv, recip)
+                } else {
+                    eliminate_avx2::<false>(n, a, piv, recip)
+                }
+            };
             return;
         }
-        self.by_reciprocal =
-            eliminate_with::<Portable>(self.n, &mut self.a, &mut self.piv, &mut self.recip);
+        self.by_reciprocal = if self.reciprocal_pivots {
+            eliminate_with::<Portable, true>(n, a, piv, recip)
+        } else {
+            eliminate_with::<Portable, false>(n, a, piv, recip)
+        };
+    }
+
+    /// Multiplies by the pivots' reciprocals instead of dividing by the pivots from the next
+    /// factorisation on (off by default: `docs/latency.md`, branch wip-recip).
+    pub(crate) fn set_reciprocal_pivots(&mut self, on: bool) {
+        self.reciprocal_pivots = on;
     }
 
     /// The pivots' reciprocals when every one stands in for its pivot, else `None` (divide).
@@ -248,8 +269,13 @@ fn over_pivot(x: f64, a: &[f64], recip: Option<&[f64]>, n: usize, k: usize) -> f
 /// multipliers are the column times the pivot's reciprocal (kept in `recip`) where it stands in
 /// for the pivot ([`reciprocal_serves`]); returns whether every one does.
 #[inline(always)]
-fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize], recip: &mut [f64]) -> bool {
-    let mut by_reciprocal = true;
+fn eliminate_with<L: Lanes, const RECIPROCAL: bool>(
+    n: usize,
+    a: &mut [f64],
+    piv: &mut [usize],
+    recip: &mut [f64],
+) -> bool {
+    let mut by_reciprocal = RECIPROCAL;
     for k in 0..n {
         let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
@@ -259,14 +285,17 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize], recip: &
             }
         }
         let pivot = a[k * n + k];
-        let r = 1.0 / pivot;
-        recip[k] = r;
+        // Off: main's operations exactly (no reciprocal computed).
+        let r = if RECIPROCAL { 1.0 / pivot } else { 0.0 };
+        if RECIPROCAL {
+            recip[k] = r;
+        }
         if pivot == 0.0 {
             continue;
         }
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
-        if reciprocal_serves(pivot, r) {
+        if RECIPROCAL && reciprocal_serves(pivot, r) {
             L::scale(lk, r);
         } else {
             by_reciprocal = false;
@@ -286,13 +315,7 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize], recip: &
 /// Row interchanges, then `L y = P b` and `U x = y` by columns, a column skipped where its
 /// entry of the right-hand side is zero; `x_k` by the pivot's reciprocal when `recip` is given.
 #[inline(always)]
-fn solve_with<L: Lanes>(
-    n: usize,
-    a: &[f64],
-    piv: &[usize],
-    recip: Option<&[f64]>,
-    b: &mut [f64],
-) {
+fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], recip: Option<&[f64]>, b: &mut [f64]) {
     for (k, &p) in piv.iter().enumerate() {
         b.swap(k, p);
     }
@@ -362,8 +385,13 @@ fn solve_rows_with<L: Lanes>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize], recip: &mut [f64]) -> bool {
-    eliminate_with::<Avx2>(n, a, piv, recip)
+fn eliminate_avx2<const RECIPROCAL: bool>(
+    n: usize,
+    a: &mut [f64],
+    piv: &mut [usize],
+    recip: &mut [f64],
+) -> bool {
+    eliminate_with::<Avx2, RECIPROCAL>(n, a, piv, recip)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -600,6 +628,8 @@ mod tests {
         for (n, seed) in [(1, 1), (2, 2), (7, 3), (31, 4), (64, 5)] {
             let a = matrix(n, seed);
             let mut lu = SmallLu::new(n);
+            // Odd seeds divide by the pivots, even ones multiply by their reciprocals.
+            lu.set_reciprocal_pivots(seed % 2 == 0);
             lu.factor(&a);
             let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin() + 0.5).collect();
             for transpose in [false, true] {
@@ -691,9 +721,12 @@ mod tests {
                     }
                 })
                 .collect();
+            // Both ways: by divisions (odd seeds) and by the pivots' reciprocals (even ones).
+            let reciprocal = seed % 2 == 0;
             let mut lu = SmallLu::new(n);
+            lu.set_reciprocal_pivots(reciprocal);
             lu.factor(&a);
-            let (factors, piv) = reference_factors(&a, n, true);
+            let (factors, piv) = reference_factors(&a, n, reciprocal);
             assert_eq!(lu.piv, piv, "n = {n}");
             for (x, y) in lu.factors().iter().zip(&factors) {
                 assert!(x == y, "n = {n}: {x} vs {y}");
@@ -731,6 +764,7 @@ mod tests {
             for seed in [11u64, 12, 13] {
                 let a = matrix(n, seed * 100 + n as u64);
                 let mut lu = SmallLu::new(n);
+                lu.set_reciprocal_pivots(true);
                 lu.factor(&a);
                 if lu.pivots().any(|d| d.abs() < 1e-3) {
                     continue; // nearly singular: round-off is amplified, not what is tested
@@ -744,7 +778,10 @@ mod tests {
                     .iter()
                     .zip(&f)
                     .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
-                assert!(df <= 2e-14 * scale, "factors, n = {n}: {df:.2e} of {scale:.2e}");
+                assert!(
+                    df <= 2e-14 * scale,
+                    "factors, n = {n}: {df:.2e} of {scale:.2e}"
+                );
                 let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.61).sin() + 0.2).collect();
                 let mut exact = b.clone();
                 reference_solve(&f, &piv, n, &mut exact);
@@ -756,6 +793,7 @@ mod tests {
                 lu.solve_rows_accumulated(&mut acc, 1);
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
+                plain.set_reciprocal_pivots(true);
                 plain.factor(&a);
                 let mut portable = b.clone();
                 plain.solve(&mut portable);
@@ -771,7 +809,10 @@ mod tests {
             }
         }
         // Round-off moved something (the comparison is not vacuous).
-        eprintln!("worst relative: factors {:.2e}, solutions {:.2e}", worst.0, worst.1);
+        eprintln!(
+            "worst relative: factors {:.2e}, solutions {:.2e}",
+            worst.0, worst.1
+        );
         assert!(worst.0 > 0.0 && worst.1 > 0.0, "{worst:?}");
     }
 
@@ -793,6 +834,7 @@ mod tests {
                 let mut b = mul(&a, &x, n, false);
                 let scaled: Vec<f64> = a.iter().map(|v| v * scale).collect();
                 let mut lu = SmallLu::new(n);
+                lu.set_reciprocal_pivots(true);
                 lu.factor(&scaled);
                 assert!(!lu.by_reciprocal, "n = {n}, scale {scale:e}");
                 let (f, piv) = reference_factors(&scaled, n, true);
@@ -912,8 +954,8 @@ mod tests {
     }
 
     /// The AVX2 loops give bitwise the factors, interchanges and solutions of the portable ones
-    /// (the same operations on each entry in the same order, no fused multiply-add, both by the
-    /// pivots' reciprocals), on regular,
+    /// (the same operations on each entry in the same order, no fused multiply-add, both by
+    /// divisions or both by the pivots' reciprocals), on regular,
     /// singular and zero-pivot matrices of every size the kernel serves.
     #[test]
     fn avx2_loops_give_bitwise_the_portable_results() {
@@ -929,6 +971,9 @@ mod tests {
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
                 assert!(fast.avx2);
+                // Both ways: by divisions and by the pivots' reciprocals.
+                fast.set_reciprocal_pivots((n + seed as usize) % 2 == 0);
+                plain.set_reciprocal_pivots((n + seed as usize) % 2 == 0);
                 fast.factor(&a);
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
@@ -1044,6 +1089,9 @@ mod tests {
                 let mut fast = SmallLu::new(n);
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
+                // Both ways: by divisions (odd sizes) and by the pivots' reciprocals (even).
+                fast.set_reciprocal_pivots(n % 2 == 0);
+                plain.set_reciprocal_pivots(n % 2 == 0);
                 fast.factor(&a);
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, round {round}");
