@@ -82,12 +82,6 @@ pub(crate) struct BasisFactor {
     avx2: bool,
     /// Scratch: `m × m` LU, permutation, and vectors of length `n`.
     lu: Vec<f64>,
-    /// `1/u_kk` for every pivot of `lu`: the multipliers and the substitutions multiply by it
-    /// instead of dividing by `u_kk` (a division's latency is three to four multiplications').
-    recip: Vec<f64>,
-    /// Every pivot's reciprocal is a normal number and stands in for it; else (a pivot above
-    /// `2¹⁰²²` or below `2⁻¹⁰²⁴` in magnitude) the substitutions divide.
-    by_reciprocal: bool,
     perm: Vec<usize>,
     xc: Vec<f64>,
     t: Vec<f64>,
@@ -194,10 +188,6 @@ impl BasisFactor {
         if self.lu.len() < m * m {
             self.lu.resize(m * m, 0.0);
         }
-        if self.recip.len() < m {
-            self.recip.resize(m, 0.0);
-        }
-        self.by_reciprocal = true;
         if m == n {
             self.lu[..m * m].copy_from_slice(&self.cols[..n * n]);
         } else {
@@ -233,21 +223,9 @@ impl BasisFactor {
                 }
                 self.perm.swap(k, piv);
             }
-            // The multipliers by the pivot's reciprocal (within two roundings of the division),
-            // divided where the reciprocal is not a normal number. The dependence test above
-            // is on the pivot itself.
             let d = lu[k * m + k];
-            let r = 1.0 / d;
-            self.recip[k] = r;
-            if r.is_normal() {
-                for v in &mut lu[k * m + k + 1..(k + 1) * m] {
-                    *v *= r;
-                }
-            } else {
-                self.by_reciprocal = false;
-                for v in &mut lu[k * m + k + 1..(k + 1) * m] {
-                    *v /= d;
-                }
+            for v in &mut lu[k * m + k + 1..(k + 1) * m] {
+                *v /= d;
             }
             let (left, right) = lu.split_at_mut((k + 1) * m);
             let lcol = &left[k * m + k + 1..(k + 1) * m];
@@ -271,14 +249,13 @@ impl BasisFactor {
         }
         let (n, m) = (self.n, self.m);
         let lu = &self.lu;
-        let recip = self.by_reciprocal.then_some(&self.recip[..m]);
         for r in 0..m {
             let k = self.perm[r];
             let y = &mut self.inv[k * n..k * n + m];
             y.fill(0.0);
             y[r] = 1.0;
             // Columns before `r` are zero and skipped: the same work as starting at `r`.
-            substitute(y, lu, recip, m);
+            substitute(y, lu, m);
         }
         self.inverse_ready = true;
     }
@@ -309,15 +286,14 @@ impl BasisFactor {
             y[r] = self.xc[k];
         }
         let lu = &lu[..m * m];
-        let recip = self.by_reciprocal.then_some(&self.recip[..m]);
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
-            unsafe { substitute_avx2(y, lu, recip, m) };
+            unsafe { substitute_avx2(y, lu, m) };
             self.xc[..m].copy_from_slice(y);
             return;
         }
-        substitute(y, lu, recip, m);
+        substitute(y, lu, m);
         self.xc[..m].copy_from_slice(y);
     }
 
@@ -351,7 +327,6 @@ impl BasisFactor {
     fn lu_solve_block_transpose(&mut self) {
         let m = self.m;
         let lu = &self.lu;
-        let recip = self.by_reciprocal.then_some(&self.recip[..m]);
         let v = &mut self.g[..m];
         v.copy_from_slice(&self.xc[..m]);
         // Uᵀ w = s (forward), then Lᵀ v = w (backward); y = Pᵀ v.
@@ -361,7 +336,7 @@ impl BasisFactor {
                 .zip(&v[..c])
                 .map(|(u, w)| u * w)
                 .sum();
-            v[c] = over_pivot(v[c] - dot, lu, recip, m, c);
+            v[c] = (v[c] - dot) / lu[c * m + c];
         }
         for c in (0..m).rev() {
             let dot: f64 = lu[c * m + c + 1..(c + 1) * m]
@@ -708,22 +683,12 @@ fn eliminate_trailing_avx2(right: &mut [f64], lcol: &[f64], k: usize, m: usize) 
     eliminate_trailing(right, lcol, k, m);
 }
 
-/// `x / u_cc` by the pivot's reciprocal when the LU has reciprocals, else by the division.
-#[inline(always)]
-fn over_pivot(x: f64, lu: &[f64], recip: Option<&[f64]>, m: usize, c: usize) -> f64 {
-    match recip {
-        Some(r) => x * r[c],
-        None => x / lu[c * m + c],
-    }
-}
-
 /// `y ← U⁻¹ L⁻¹ y` with the `m × m` LU `lu` (column-major, unit lower triangle below the
 /// diagonal): forward then backward substitution by columns, each column's update element by
 /// element, so the vector widths of [`substitute_avx2`] and the portable build give bitwise
-/// the same solution (no fused multiply-add). `y_c / u_cc` is `y_c · (1/u_cc)` when `recip`
-/// holds the reciprocals.
+/// the same solution (no fused multiply-add).
 #[inline(always)]
-fn substitute(y: &mut [f64], lu: &[f64], recip: Option<&[f64]>, m: usize) {
+fn substitute(y: &mut [f64], lu: &[f64], m: usize) {
     for c in 0..m {
         let yc = y[c];
         if yc != 0.0 {
@@ -733,7 +698,7 @@ fn substitute(y: &mut [f64], lu: &[f64], recip: Option<&[f64]>, m: usize) {
         }
     }
     for c in (0..m).rev() {
-        y[c] = over_pivot(y[c], lu, recip, m, c);
+        y[c] /= lu[c * m + c];
         let yc = y[c];
         if yc != 0.0 {
             for (yi, u) in y[..c].iter_mut().zip(&lu[c * m..c * m + c]) {
@@ -748,8 +713,8 @@ fn substitute(y: &mut [f64], lu: &[f64], recip: Option<&[f64]>, m: usize) {
 /// of the step's instructions in two lanes.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn substitute_avx2(y: &mut [f64], lu: &[f64], recip: Option<&[f64]>, m: usize) {
-    substitute(y, lu, recip, m);
+fn substitute_avx2(y: &mut [f64], lu: &[f64], m: usize) {
+    substitute(y, lu, m);
 }
 
 /// `max_i |v_i|` (0 for an empty slice; NaNs skipped), as `fold(0.0, |a, v| a.max(v.abs()))`
@@ -987,113 +952,6 @@ mod tests {
                 assert!(worst <= 1e-12, "{worst}");
             }
             assert_eq!(runs[0], runs[1], "right-hand side {r}");
-        }
-    }
-
-    /// Column `p` of the 29 × 29 test matrix, times `scale`.
-    fn test_column(n: usize, p: usize, scale: f64) -> Vec<f64> {
-        (0..n)
-            .map(|i| {
-                let v = ((p * 29 + i * 13) % 19) as f64 / 5.0 - 1.7;
-                (v + f64::from(u8::from(i == p)) * 4.0) * scale
-            })
-            .collect()
-    }
-
-    /// The pivots' reciprocals move the LU and the solves by round-off only: against the
-    /// textbook elimination and substitution by divisions (the same row choices), every factor
-    /// entry within `10⁻¹⁴` of the largest and the solution within `10⁻¹³` relative to its
-    /// largest entry, for the solve and the transposed solve.
-    #[test]
-    fn reciprocal_pivots_stay_within_round_off_of_divisions() {
-        let n = 29;
-        let mut a = Vec::new();
-        let mut f = BasisFactor::default();
-        f.begin(n, false);
-        for p in 0..n {
-            let col = test_column(n, p, 1.0);
-            f.set_dense(p, &col);
-            a.extend(col);
-        }
-        f.finish().unwrap();
-        assert!(f.by_reciprocal);
-        // getf2 by divisions, the first largest pivot.
-        let mut lu = a.clone();
-        let mut perm: Vec<usize> = (0..n).collect();
-        for k in 0..n {
-            let mut q = k;
-            for i in k + 1..n {
-                if lu[k * n + i].abs() > lu[k * n + q].abs() {
-                    q = i;
-                }
-            }
-            for j in 0..n {
-                lu.swap(j * n + k, j * n + q);
-            }
-            perm.swap(k, q);
-            let d = lu[k * n + k];
-            for i in k + 1..n {
-                lu[k * n + i] /= d;
-            }
-            for j in k + 1..n {
-                for i in k + 1..n {
-                    lu[j * n + i] -= lu[k * n + i] * lu[j * n + k];
-                }
-            }
-        }
-        assert_eq!(f.perm[..n], perm[..]);
-        let big = lu.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let (mut moved, mut worst) = (0, 0.0f64);
-        for (x, y) in f.lu[..n * n].iter().zip(&lu) {
-            assert!((x - y).abs() <= 1e-14 * big, "{x} vs {y}");
-            moved += usize::from(x != y);
-        }
-        assert!(moved > 0, "no factor moved: the comparison would be vacuous");
-        let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos()).collect();
-        let mut x = b.clone();
-        f.solve(&mut x);
-        let mut y: Vec<f64> = perm.iter().map(|&r| b[r]).collect();
-        substitute(&mut y, &lu, None, n);
-        let ymax = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        for (u, v) in x.iter().zip(&y) {
-            worst = worst.max((u - v).abs() / ymax);
-        }
-        assert!(worst <= 1e-13, "solve: {worst:.2e}");
-        // The transposed solve: Aᵀ z = b to the same accuracy (its residual).
-        let mut z = b.clone();
-        f.solve_transpose(&mut z);
-        let zmax = z.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        for p in 0..n {
-            let s: f64 = (0..n).map(|i| a[p * n + i] * z[i]).sum();
-            assert!((s - b[p]).abs() <= 1e-13 * zmax.max(1.0), "transpose row {p}");
-        }
-    }
-
-    /// Pivots whose reciprocals are not normal numbers (the matrix scaled by `2¹⁰²⁰`: pivots
-    /// above `2¹⁰²²`, reciprocals subnormal) are divided by: the solution of the scaled system
-    /// is the unscaled one's within `10⁻¹²` relative, which multiplying by the subnormal
-    /// reciprocals (a few significant bits) would not give.
-    #[test]
-    fn pivots_without_a_normal_reciprocal_are_divided_by() {
-        let n = 29;
-        let scale = 2f64.powi(1020);
-        let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).cos()).collect();
-        let mut solutions = Vec::new();
-        for s in [1.0, scale] {
-            let mut f = BasisFactor::default();
-            f.begin(n, false);
-            for p in 0..n {
-                f.set_dense(p, &test_column(n, p, s));
-            }
-            f.finish().unwrap();
-            assert_eq!(f.by_reciprocal, s == 1.0);
-            let mut x: Vec<f64> = b.iter().map(|v| v * s).collect();
-            f.solve(&mut x);
-            solutions.push(x);
-        }
-        let xmax = solutions[0].iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        for (u, v) in solutions[0].iter().zip(&solutions[1]) {
-            assert!((u - v).abs() <= 1e-12 * xmax, "{u} vs {v}");
         }
     }
 
