@@ -325,8 +325,28 @@ fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], recip: Option<&[f64]
             L::sub_scaled(&mut b[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
         }
     }
+    // The choice made once, outside the loop: dividing, it is main's loop.
+    match recip {
+        Some(r) => back_substitute::<L, true>(n, a, r, b),
+        None => back_substitute::<L, false>(n, a, &[], b),
+    }
+}
+
+/// `U x = y` by columns (`y` in `b`), `x_k` by the pivot's reciprocal `recip[k]` when
+/// `RECIPROCAL`, else by dividing by `u_kk`; a column skipped where `x_k` is zero.
+#[inline(always)]
+fn back_substitute<L: Lanes, const RECIPROCAL: bool>(
+    n: usize,
+    a: &[f64],
+    recip: &[f64],
+    b: &mut [f64],
+) {
     for k in (0..n).rev() {
-        b[k] = over_pivot(b[k], a, recip, n, k);
+        if RECIPROCAL {
+            b[k] *= recip[k];
+        } else {
+            b[k] /= a[k * n + k];
+        }
         let bk = b[k];
         if bk != 0.0 {
             L::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
