@@ -143,16 +143,6 @@ impl DenseLu {
         self.n
     }
 
-    /// Multiplies by the pivots' reciprocals instead of dividing by the pivots (the small
-    /// kernel only; faer's blocked LU divides): results within two roundings per division, a
-    /// shorter chain in the triangular solves. Off by default (`docs/latency.md`, branch
-    /// wip-recip); takes effect at the next factorisation.
-    pub fn set_reciprocal_pivots(&mut self, on: bool) {
-        if let Some(small) = &mut self.small {
-            small.set_reciprocal_pivots(on);
-        }
-    }
-
     /// Factorises the column-major `n × n` matrix `a`.
     pub fn factor(&mut self, a: &[f64]) -> Result<(), LinalgError> {
         self.factored = false;
@@ -935,44 +925,6 @@ mod tests {
                     })
                     .sum();
                 assert!((ax + b[i]).abs() < 1e-12 * b[i].abs().max(1.0), "n = {n}");
-            }
-        }
-    }
-
-    /// With the pivots' reciprocals the small kernel's solves (plain, transposed, row-major)
-    /// stay within `10⁻¹³` relative of faer's blocked LU, which divides.
-    #[test]
-    fn reciprocal_pivots_agree_with_the_blocked_lu() {
-        for n in [1, 5, 31, SMALL_DENSE_MAX] {
-            let a: Vec<f64> = (0..n * n)
-                .map(|k| {
-                    let (i, j) = (k % n, k / n);
-                    let v = ((i * 5 + j * 11) % 13) as f64 - 6.0;
-                    v + if i == j { 15.0 } else { 0.0 }
-                })
-                .collect();
-            let (mut small, mut blocked) = (DenseLu::new(n), DenseLu::blocked(n));
-            small.set_reciprocal_pivots(true);
-            small.factor(&a).expect("regular");
-            blocked.factor(&a).expect("regular");
-            let b: Vec<f64> = (0..n).map(|i| 1.0 - 0.3 * i as f64).collect();
-            let mut rows = b.clone();
-            assert!(small.solve_rows_in_place(&mut rows, 1).expect("solved"));
-            for transpose in [false, true] {
-                let (mut x, mut y) = (b.clone(), b.clone());
-                if transpose {
-                    small.solve_transpose_in_place(&mut x).expect("solved");
-                    blocked.solve_transpose_in_place(&mut y).expect("solved");
-                } else {
-                    small.solve_in_place(&mut x).expect("solved");
-                    blocked.solve_in_place(&mut y).expect("solved");
-                }
-                let scale = y.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                let rows_too = if transpose { &x } else { &rows };
-                for ((u, w), v) in x.iter().zip(rows_too).zip(&y) {
-                    assert!((u - v).abs() <= 1e-13 * scale, "n = {n}: {u} vs {v}");
-                    assert!((w - v).abs() <= 1e-13 * scale, "n = {n}: {w} vs {v}");
-                }
             }
         }
     }

@@ -3,7 +3,7 @@
 //!
 //! The default `x86_64` target has SSE2 only, so the compiler's loops are two lanes wide; the
 //! machines that run the steps have AVX2 (four lanes). Each loop here is elementwise — `x_i −=
-//! l_i s`, `x_i /= d`, `x_i *= r` — with the product rounded before the subtraction (no fused multiply-add,
+//! l_i s`, `x_i /= d` — with the product rounded before the subtraction (no fused multiply-add,
 //! which rounds once and would change the last bit), so both versions give bitwise the same
 //! numbers: only the number of lanes per instruction differs (`docs/latency.md`). Runtime
 //! dispatch rather than `-C target-cpu` keeps the library and its Python wheels portable.
@@ -15,8 +15,6 @@ pub(super) trait Lanes {
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64);
     /// `x_i /= d` for every `i`.
     fn div(x: &mut [f64], d: f64);
-    /// `x_i *= r` for every `i` (a pivot's reciprocal `r = 1/d` instead of a division by `d`).
-    fn scale(x: &mut [f64], r: f64);
     /// The partial pivot of a column `x` (not empty): the first entry of largest magnitude,
     /// NaN entries passed over, 0 when `x_0` is NaN — what the scalar search
     /// `if |x_i| > best { best = |x_i|; p = i }` from `best = |x_0|` finds.
@@ -54,12 +52,6 @@ impl Lanes for Portable {
         }
     }
     #[inline(always)]
-    fn scale(x: &mut [f64], r: f64) {
-        for x in x.iter_mut() {
-            *x *= r;
-        }
-    }
-    #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
         first_largest_magnitude_scalar(x)
     }
@@ -94,11 +86,6 @@ impl Lanes for Avx2 {
     fn div(x: &mut [f64], d: f64) {
         // SAFETY: as in `sub_scaled`.
         unsafe { div_avx2(x, d) }
-    }
-    #[inline(always)]
-    fn scale(x: &mut [f64], r: f64) {
-        // SAFETY: as in `sub_scaled`.
-        unsafe { scale_avx2(x, r) }
     }
     #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
@@ -152,28 +139,6 @@ fn div_avx2(x: &mut [f64], d: f64) {
         }
         while i < len {
             *xp.add(i) /= d;
-            i += 1;
-        }
-    }
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-fn scale_avx2(x: &mut [f64], r: f64) {
-    use std::arch::x86_64::*;
-    let len = x.len();
-    let xp = x.as_mut_ptr();
-    let r4 = _mm256_set1_pd(r);
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`.
-    unsafe {
-        while i + 4 <= len {
-            _mm256_storeu_pd(xp.add(i), _mm256_mul_pd(_mm256_loadu_pd(xp.add(i)), r4));
-            i += 4;
-        }
-        while i < len {
-            *xp.add(i) *= r;
             i += 1;
         }
     }

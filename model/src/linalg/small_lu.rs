@@ -7,18 +7,6 @@
 //! column, the first one on ties), so the factors agree to round-off. It skips the update of a
 //! column whose entry in the pivot row is zero, which pays on the step problems' Jacobians
 //! (a third full).
-//!
-//! With [`SmallLu::set_reciprocal_pivots`] (off by default: with it, Newton's A1 step 35 takes
-//! eight iterations instead of one, `docs/latency.md`, branch wip-recip) the pivots'
-//! reciprocals `1/u_kk` are kept with the factors: the multipliers `l_ik = a_ik ·
-//! (1/u_kk)` and the substitutions' `x_k · (1/u_kk)` are multiplications, not divisions (a
-//! division's latency is three to four times a multiplication's, and the back substitution's is
-//! on its serial chain). Each result is within two roundings of the division's (relative
-//! `2⁻⁵²`); a pivot whose reciprocal is not a normal number (`|u_kk|` above `2¹⁰²²` or below
-//! `2⁻¹⁰²⁴`) is divided by instead. Zero, infinite and NaN pivots give the same results either way
-//! (`x · (1/±0) = x/±0`, `x · (1/±∞) = x/±∞`, NaN in both, signs included). The singular
-//! verdicts are the caller's, on the pivots themselves ([`SmallLu::pivots`]), not on the
-//! reciprocals (`docs/latency.md`, branch wip-recip).
 
 #[cfg(target_arch = "x86_64")]
 use super::simd::Avx2;
@@ -32,14 +20,6 @@ pub(crate) struct SmallLu {
     a: Vec<f64>,
     /// Row `k` was interchanged with row `piv[k] ≥ k` at elimination step `k`.
     piv: Vec<usize>,
-    /// The factorisations keep the pivots' reciprocals and multiply by them
-    /// ([`SmallLu::set_reciprocal_pivots`]; off by default).
-    reciprocal_pivots: bool,
-    /// `1/u_kk` for every pivot (`±∞` for a zero one), when `reciprocal_pivots`.
-    recip: Vec<f64>,
-    /// The last factorisation kept reciprocals and every one stands in for its pivot
-    /// ([`reciprocal_serves`]): the substitutions multiply; else they divide.
-    by_reciprocal: bool,
     /// The vector loops run with AVX2 (the processor has it; bitwise the same results).
     avx2: bool,
 }
@@ -50,9 +30,6 @@ impl SmallLu {
             n,
             a: vec![0.0; n * n],
             piv: vec![0; n],
-            reciprocal_pivots: false,
-            recip: vec![0.0; n],
-            by_reciprocal: false,
             avx2: avx2_available(),
         }
     }
@@ -89,35 +66,13 @@ impl SmallLu {
 
     /// Factorises the matrix in [`SmallLu::storage_mut`] in place (finite: the caller checks).
     pub(crate) fn eliminate(&mut self) {
-        let (n, a, piv, recip) = (self.n, &mut self.a, &mut self.piv, &mut self.recip);
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
-            self.by_reciprocal = unsafe {
-                if self.reciprocal_pivots {
-                    eliminate_avx2::<true>(n, a, piv, recip)
-                } else {
-                    eliminate_avx2::<false>(n, a, piv, recip)
-                }
-            };
+            unsafe { eliminate_avx2(self.n, &mut self.a, &mut self.piv) };
             return;
         }
-        self.by_reciprocal = if self.reciprocal_pivots {
-            eliminate_with::<Portable, true>(n, a, piv, recip)
-        } else {
-            eliminate_with::<Portable, false>(n, a, piv, recip)
-        };
-    }
-
-    /// Multiplies by the pivots' reciprocals instead of dividing by the pivots from the next
-    /// factorisation on (off by default: `docs/latency.md`, branch wip-recip).
-    pub(crate) fn set_reciprocal_pivots(&mut self, on: bool) {
-        self.reciprocal_pivots = on;
-    }
-
-    /// The pivots' reciprocals when every one stands in for its pivot, else `None` (divide).
-    fn reciprocals(&self) -> Option<&[f64]> {
-        self.by_reciprocal.then_some(&self.recip[..])
+        eliminate_with::<Portable>(self.n, &mut self.a, &mut self.piv);
     }
 
     /// `L` and `U` in one column-major array (`L` below the diagonal, unit diagonal implied).
@@ -149,10 +104,10 @@ impl SmallLu {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
-            unsafe { solve_avx2(self.n, &self.a, &self.piv, self.reciprocals(), b) };
+            unsafe { solve_avx2(self.n, &self.a, &self.piv, b) };
             return;
         }
-        solve_with::<Portable>(self.n, &self.a, &self.piv, self.reciprocals(), b);
+        solve_with::<Portable>(self.n, &self.a, &self.piv, b);
     }
 
     /// Solves `A X = B` in place for the `k` columns of the row-major `n × k` matrix `b`:
@@ -162,10 +117,10 @@ impl SmallLu {
         #[cfg(target_arch = "x86_64")]
         if self.avx2 {
             // SAFETY: `avx2` is set only when the processor has AVX2.
-            unsafe { solve_rows_avx2(self.n, &self.a, &self.piv, self.reciprocals(), b, k) };
+            unsafe { solve_rows_avx2(self.n, &self.a, &self.piv, b, k) };
             return;
         }
-        solve_rows_with::<Portable>(self.n, &self.a, &self.piv, self.reciprocals(), b, k);
+        solve_rows_with::<Portable>(self.n, &self.a, &self.piv, b, k);
     }
 
     /// [`SmallLu::solve_rows`] with each row's sum kept in registers: row `r` of the solution
@@ -187,17 +142,7 @@ impl SmallLu {
             }
             // SAFETY: `avx2` is set only when the processor has AVX2; `b` holds `n × k` entries
             // and the map is the identity.
-            unsafe {
-                solve_rows_accumulated_avx2(
-                    self.n,
-                    &self.a,
-                    &self.piv,
-                    self.reciprocals(),
-                    b,
-                    k,
-                    &map,
-                )
-            };
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, &map) };
             return;
         }
         self.solve_rows(b, k);
@@ -219,17 +164,7 @@ impl SmallLu {
         if self.avx2 && self.n <= 64 && rows.len() == self.n && ascending && within {
             // SAFETY: `avx2` is set only when the processor has AVX2; every mapped row is a
             // distinct row of `b`.
-            unsafe {
-                solve_rows_accumulated_avx2(
-                    self.n,
-                    &self.a,
-                    &self.piv,
-                    self.reciprocals(),
-                    b,
-                    k,
-                    rows,
-                )
-            };
+            unsafe { solve_rows_accumulated_avx2(self.n, &self.a, &self.piv, b, k, rows) };
             return true;
         }
         let _ = (ascending, within);
@@ -240,11 +175,10 @@ impl SmallLu {
     pub(crate) fn solve_transpose(&self, b: &mut [f64]) {
         let n = self.n;
         let a = &self.a;
-        let recip = self.reciprocals();
         for k in 0..n {
             let col = &a[k * n..k * n + k];
             let dot: f64 = col.iter().zip(&b[..k]).map(|(u, y)| u * y).sum();
-            b[k] = over_pivot(b[k] - dot, a, recip, n, k);
+            b[k] = (b[k] - dot) / a[k * n + k];
         }
         for k in (0..n).rev() {
             let col = &a[k * n + k + 1..(k + 1) * n];
@@ -257,35 +191,10 @@ impl SmallLu {
     }
 }
 
-/// The reciprocal `r = 1/d` of a pivot `d` stands in for it: `x · r` is within two roundings of
-/// `x / d` (`r` normal), or bitwise `x / d` (`d` zero, infinite or NaN). False for a finite
-/// nonzero `d` whose reciprocal overflows or is subnormal.
-#[inline(always)]
-fn reciprocal_serves(d: f64, r: f64) -> bool {
-    r.is_normal() || d == 0.0 || !d.is_finite()
-}
-
-/// `x / u_kk` by the reciprocal when there are reciprocals, else by the division.
-#[inline(always)]
-fn over_pivot(x: f64, a: &[f64], recip: Option<&[f64]>, n: usize, k: usize) -> f64 {
-    match recip {
-        Some(r) => x * r[k],
-        None => x / a[k * n + k],
-    }
-}
-
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
-/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced. The
-/// multipliers are the column times the pivot's reciprocal (kept in `recip`) where it stands in
-/// for the pivot ([`reciprocal_serves`]); returns whether every one does.
+/// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
 #[inline(always)]
-fn eliminate_with<L: Lanes, const RECIPROCAL: bool>(
-    n: usize,
-    a: &mut [f64],
-    piv: &mut [usize],
-    recip: &mut [f64],
-) -> bool {
-    let mut by_reciprocal = RECIPROCAL;
+fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
     for k in 0..n {
         let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
@@ -295,22 +204,12 @@ fn eliminate_with<L: Lanes, const RECIPROCAL: bool>(
             }
         }
         let pivot = a[k * n + k];
-        // Off: main's operations exactly (no reciprocal computed).
-        let r = if RECIPROCAL { 1.0 / pivot } else { 0.0 };
-        if RECIPROCAL {
-            recip[k] = r;
-        }
         if pivot == 0.0 {
             continue;
         }
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
-        if RECIPROCAL && reciprocal_serves(pivot, r) {
-            L::scale(lk, r);
-        } else {
-            by_reciprocal = false;
-            L::div(lk, pivot);
-        }
+        L::div(lk, pivot);
         for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
@@ -319,13 +218,12 @@ fn eliminate_with<L: Lanes, const RECIPROCAL: bool>(
             L::sub_scaled(&mut col[k + 1..], lk, akj);
         }
     }
-    by_reciprocal
 }
 
 /// Row interchanges, then `L y = P b` and `U x = y` by columns, a column skipped where its
-/// entry of the right-hand side is zero; `x_k` by the pivot's reciprocal when `recip` is given.
+/// entry of the right-hand side is zero.
 #[inline(always)]
-fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], recip: Option<&[f64]>, b: &mut [f64]) {
+fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     for (k, &p) in piv.iter().enumerate() {
         b.swap(k, p);
     }
@@ -335,28 +233,8 @@ fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], recip: Option<&[f64]
             L::sub_scaled(&mut b[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
         }
     }
-    // The choice made once, outside the loop: dividing, it is main's loop.
-    match recip {
-        Some(r) => back_substitute::<L, true>(n, a, r, b),
-        None => back_substitute::<L, false>(n, a, &[], b),
-    }
-}
-
-/// `U x = y` by columns (`y` in `b`), `x_k` by the pivot's reciprocal `recip[k]` when
-/// `RECIPROCAL`, else by dividing by `u_kk`; a column skipped where `x_k` is zero.
-#[inline(always)]
-fn back_substitute<L: Lanes, const RECIPROCAL: bool>(
-    n: usize,
-    a: &[f64],
-    recip: &[f64],
-    b: &mut [f64],
-) {
     for k in (0..n).rev() {
-        if RECIPROCAL {
-            b[k] *= recip[k];
-        } else {
-            b[k] /= a[k * n + k];
-        }
+        b[k] /= a[k * n + k];
         let bk = b[k];
         if bk != 0.0 {
             L::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
@@ -366,14 +244,7 @@ fn back_substitute<L: Lanes, const RECIPROCAL: bool>(
 
 /// [`solve_with`] for the `k` columns of a row-major `n × k` matrix, by whole rows.
 #[inline(always)]
-fn solve_rows_with<L: Lanes>(
-    n: usize,
-    a: &[f64],
-    piv: &[usize],
-    recip: Option<&[f64]>,
-    b: &mut [f64],
-    k: usize,
-) {
+fn solve_rows_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     for (r, &p) in piv.iter().enumerate() {
         if p != r {
             for c in 0..k {
@@ -399,10 +270,7 @@ fn solve_rows_with<L: Lanes>(
     for r in (0..n).rev() {
         let (head, tail) = b.split_at_mut(r * k);
         let row = &mut tail[..k];
-        match recip {
-            Some(recip) => L::scale(row, recip[r]),
-            None => L::div(row, a[r * n + r]),
-        }
+        L::div(row, a[r * n + r]);
         for (u, above) in a[r * n..r * n + r].iter().zip(head.chunks_exact_mut(k)) {
             if *u != 0.0 {
                 L::sub_scaled(above, row, *u);
@@ -415,32 +283,20 @@ fn solve_rows_with<L: Lanes>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn eliminate_avx2<const RECIPROCAL: bool>(
-    n: usize,
-    a: &mut [f64],
-    piv: &mut [usize],
-    recip: &mut [f64],
-) -> bool {
-    eliminate_with::<Avx2, RECIPROCAL>(n, a, piv, recip)
+fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
+    eliminate_with::<Avx2>(n, a, piv);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn solve_avx2(n: usize, a: &[f64], piv: &[usize], recip: Option<&[f64]>, b: &mut [f64]) {
-    solve_with::<Avx2>(n, a, piv, recip, b);
+fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
+    solve_with::<Avx2>(n, a, piv, b);
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-fn solve_rows_avx2(
-    n: usize,
-    a: &[f64],
-    piv: &[usize],
-    recip: Option<&[f64]>,
-    b: &mut [f64],
-    k: usize,
-) {
-    solve_rows_with::<Avx2>(n, a, piv, recip, b, k);
+fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
+    solve_rows_with::<Avx2>(n, a, piv, b, k);
 }
 
 /// [`SmallLu::solve_rows_accumulated`] with AVX2 on the rows `map[0..n]` of `b`: the row
@@ -456,7 +312,6 @@ unsafe fn solve_rows_accumulated_avx2(
     n: usize,
     a: &[f64],
     piv: &[usize],
-    recip: Option<&[f64]>,
     b: &mut [f64],
     k: usize,
     map: &[usize],
@@ -482,12 +337,12 @@ unsafe fn solve_rows_accumulated_avx2(
                 ($($w:literal)*) => {
                     match (width.div_ceil(4), tail) {
                         $(
-                            ($w, 4) => accumulated_strip::<$w, 4>(n, a, recip, b, k, map, c0, width),
-                            ($w, 2) => accumulated_strip::<$w, 2>(n, a, recip, b, k, map, c0, width),
-                            ($w, 1) => accumulated_strip::<$w, 1>(n, a, recip, b, k, map, c0, width),
-                            ($w, _) => accumulated_strip::<$w, 0>(n, a, recip, b, k, map, c0, width),
+                            ($w, 4) => accumulated_strip::<$w, 4>(n, a, b, k, map, c0, width),
+                            ($w, 2) => accumulated_strip::<$w, 2>(n, a, b, k, map, c0, width),
+                            ($w, 1) => accumulated_strip::<$w, 1>(n, a, b, k, map, c0, width),
+                            ($w, _) => accumulated_strip::<$w, 0>(n, a, b, k, map, c0, width),
                         )*
-                        _ => accumulated_strip::<1, 0>(n, a, recip, b, k, map, c0, width),
+                        _ => accumulated_strip::<1, 0>(n, a, b, k, map, c0, width),
                     }
                 };
             }
@@ -510,11 +365,9 @@ unsafe fn solve_rows_accumulated_avx2(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-#[allow(clippy::too_many_arguments)]
 unsafe fn accumulated_strip<const W: usize, const T: usize>(
     n: usize,
     a: &[f64],
-    recip: Option<&[f64]>,
     b: &mut [f64],
     k: usize,
     map: &[usize],
@@ -598,20 +451,9 @@ unsafe fn accumulated_strip<const W: usize, const T: usize>(
                     sub_scaled(&mut acc, bp.add(map[j] * k + c0), u);
                 }
             }
-            // `x_r / u_rr` by the pivot's reciprocal when there are reciprocals.
-            match recip {
-                Some(recip) => {
-                    let r4 = _mm256_set1_pd(recip[r]);
-                    for x in acc.iter_mut() {
-                        *x = _mm256_mul_pd(*x, r4);
-                    }
-                }
-                None => {
-                    let d4 = _mm256_set1_pd(*ap.add(r * n + r));
-                    for x in acc.iter_mut() {
-                        *x = _mm256_div_pd(*x, d4);
-                    }
-                }
+            let d4 = _mm256_set1_pd(*ap.add(r * n + r));
+            for x in acc.iter_mut() {
+                *x = _mm256_div_pd(*x, d4);
             }
             store(row, &acc);
         }
@@ -658,8 +500,6 @@ mod tests {
         for (n, seed) in [(1, 1), (2, 2), (7, 3), (31, 4), (64, 5)] {
             let a = matrix(n, seed);
             let mut lu = SmallLu::new(n);
-            // Odd seeds divide by the pivots, even ones multiply by their reciprocals.
-            lu.set_reciprocal_pivots(seed % 2 == 0);
             lu.factor(&a);
             let x: Vec<f64> = (0..n).map(|i| (i as f64 * 0.37).sin() + 0.5).collect();
             for transpose in [false, true] {
@@ -692,10 +532,8 @@ mod tests {
         }
     }
 
-    /// The textbook elimination without skipping zero multipliers, for comparison: the
-    /// multipliers by the pivot's reciprocal where it stands in for the pivot (the kernel's
-    /// rule) when `reciprocal`, else by division (LAPACK's `getf2`).
-    fn reference_factors(a: &[f64], n: usize, reciprocal: bool) -> (Vec<f64>, Vec<usize>) {
+    /// The textbook elimination without skipping zero multipliers, for comparison.
+    fn reference_factors(a: &[f64], n: usize) -> (Vec<f64>, Vec<usize>) {
         let mut a = a.to_vec();
         let mut piv = vec![0; n];
         for k in 0..n {
@@ -713,13 +551,8 @@ mod tests {
             if pivot == 0.0 {
                 continue;
             }
-            let r = 1.0 / pivot;
             for i in k + 1..n {
-                if reciprocal && reciprocal_serves(pivot, r) {
-                    a[k * n + i] *= r;
-                } else {
-                    a[k * n + i] /= pivot;
-                }
+                a[k * n + i] /= pivot;
             }
             for j in k + 1..n {
                 for i in k + 1..n {
@@ -751,179 +584,13 @@ mod tests {
                     }
                 })
                 .collect();
-            // Both ways: by divisions (odd seeds) and by the pivots' reciprocals (even ones).
-            let reciprocal = seed % 2 == 0;
             let mut lu = SmallLu::new(n);
-            lu.set_reciprocal_pivots(reciprocal);
             lu.factor(&a);
-            let (factors, piv) = reference_factors(&a, n, reciprocal);
+            let (factors, piv) = reference_factors(&a, n);
             assert_eq!(lu.piv, piv, "n = {n}");
             for (x, y) in lu.factors().iter().zip(&factors) {
                 assert!(x == y, "n = {n}: {x} vs {y}");
             }
-        }
-    }
-
-    /// `U x = y` by back substitution with divisions (the reference for the reciprocals).
-    fn reference_solve(f: &[f64], piv: &[usize], n: usize, b: &mut [f64]) {
-        for (k, &p) in piv.iter().enumerate() {
-            b.swap(k, p);
-        }
-        for k in 0..n {
-            for i in k + 1..n {
-                b[i] -= f[k * n + i] * b[k];
-            }
-        }
-        for k in (0..n).rev() {
-            b[k] /= f[k * n + k];
-            for i in 0..k {
-                b[i] -= f[k * n + i] * b[k];
-            }
-        }
-    }
-
-    /// Multiplying by the pivots' reciprocals moves the factors and the solutions by round-off
-    /// only: against the elimination and substitution by divisions, on dense matrices of sizes
-    /// 1–48 (partial pivoting, no growth), every factor entry within `2·10⁻¹⁴` of the largest
-    /// and every solution (of all four solves) within `2·10⁻¹³` relative to the largest. The pivots are the
-    /// same row choices (the interchanges are compared exactly).
-    #[test]
-    fn reciprocal_pivots_stay_within_round_off_of_divisions() {
-        let mut worst = (0.0f64, 0.0f64);
-        for n in 1..=48 {
-            for seed in [11u64, 12, 13] {
-                let a = matrix(n, seed * 100 + n as u64);
-                let mut lu = SmallLu::new(n);
-                lu.set_reciprocal_pivots(true);
-                lu.factor(&a);
-                if lu.pivots().any(|d| d.abs() < 1e-3) {
-                    continue; // nearly singular: round-off is amplified, not what is tested
-                }
-                assert!(lu.by_reciprocal, "n = {n}");
-                let (f, piv) = reference_factors(&a, n, false);
-                assert_eq!(lu.piv, piv, "n = {n}, seed {seed}");
-                let scale = f.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                let df = lu
-                    .factors()
-                    .iter()
-                    .zip(&f)
-                    .fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
-                assert!(
-                    df <= 2e-14 * scale,
-                    "factors, n = {n}: {df:.2e} of {scale:.2e}"
-                );
-                let b: Vec<f64> = (0..n).map(|i| (i as f64 * 0.61).sin() + 0.2).collect();
-                let mut exact = b.clone();
-                reference_solve(&f, &piv, n, &mut exact);
-                let xmax = exact.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-                let (mut x, mut rows) = (b.clone(), b.clone());
-                lu.solve(&mut x);
-                lu.solve_rows(&mut rows, 1);
-                let mut acc = b.clone();
-                lu.solve_rows_accumulated(&mut acc, 1);
-                let mut plain = SmallLu::new(n);
-                plain.avx2 = false;
-                plain.set_reciprocal_pivots(true);
-                plain.factor(&a);
-                let mut portable = b.clone();
-                plain.solve(&mut portable);
-                for y in [&x, &rows, &acc, &portable] {
-                    let dx = y
-                        .iter()
-                        .zip(&exact)
-                        .fold(0.0f64, |m, (u, v)| m.max((u - v).abs()));
-                    assert!(dx <= 2e-13 * xmax, "solve, n = {n}: {dx:.2e} of {xmax:.2e}");
-                    worst.1 = worst.1.max(dx / xmax);
-                }
-                worst.0 = worst.0.max(df / scale);
-            }
-        }
-        // Round-off moved something (the comparison is not vacuous).
-        eprintln!(
-            "worst relative: factors {:.2e}, solutions {:.2e}",
-            worst.0, worst.1
-        );
-        assert!(worst.0 > 0.0 && worst.1 > 0.0, "{worst:?}");
-    }
-
-    /// A pivot whose reciprocal is not a normal number is divided by (the factors are the
-    /// division's there, the solves divide): on matrices scaled by `2⁻¹⁰⁴⁰` (the reciprocals
-    /// overflow) and `2¹⁰²¹` (some are subnormal: the pivots are near 3) the solution is the substitution by divisions
-    /// (equal), finite, and for `2¹⁰²¹` the unscaled matrix's within `10⁻¹²` relative, where
-    /// multiplying by `∞` or by a subnormal would not be.
-    #[test]
-    fn pivots_without_a_normal_reciprocal_are_divided_by() {
-        for scale in [2f64.powi(-1040), 2f64.powi(1021)] {
-            for n in [3, 17, 31] {
-                let a: Vec<f64> = matrix(n, 70 + n as u64)
-                    .iter()
-                    .enumerate()
-                    .map(|(k, v)| if k % (n + 1) == 0 { v + 3.0 } else { *v })
-                    .collect();
-                let x: Vec<f64> = (0..n).map(|i| 0.01 * (1.0 + i as f64)).collect();
-                let mut b = mul(&a, &x, n, false);
-                let scaled: Vec<f64> = a.iter().map(|v| v * scale).collect();
-                let mut lu = SmallLu::new(n);
-                lu.set_reciprocal_pivots(true);
-                lu.factor(&scaled);
-                assert!(!lu.by_reciprocal, "n = {n}, scale {scale:e}");
-                let (f, piv) = reference_factors(&scaled, n, true);
-                assert_eq!(lu.piv, piv);
-                assert_eq!(bits(lu.factors()), bits(&f), "n = {n}, scale {scale:e}");
-                for v in b.iter_mut() {
-                    *v *= scale;
-                }
-                let mut divided = b.clone();
-                reference_solve(&f, &piv, n, &mut divided);
-                lu.solve(&mut b);
-                assert!(b.iter().zip(&divided).all(|(u, v)| u == v && u.is_finite()));
-                if scale > 1.0 {
-                    for (u, v) in b.iter().zip(&x) {
-                        assert!((u - v).abs() <= 1e-12 * v.abs(), "n = {n}: {u} vs {v}");
-                    }
-                }
-            }
-        }
-    }
-
-    /// For a zero, infinite or NaN pivot the reciprocal gives bitwise the division's result
-    /// (signs of zeros and infinities included; NaN for NaN), whatever the dividend, so the
-    /// singular and non-finite cases behave as with divisions.
-    #[test]
-    fn zero_infinite_and_nan_pivots_divide_and_multiply_alike() {
-        let xs = [
-            0.0,
-            -0.0,
-            1.5,
-            -2.25,
-            1e-300,
-            -1e300,
-            f64::MIN_POSITIVE / 8.0,
-            f64::INFINITY,
-            f64::NEG_INFINITY,
-            f64::NAN,
-        ];
-        for d in [0.0, -0.0, f64::INFINITY, f64::NEG_INFINITY, f64::NAN] {
-            let r = 1.0 / d;
-            assert!(reciprocal_serves(d, r));
-            for x in xs {
-                let (p, q) = (x * r, x / d);
-                assert!(
-                    p.to_bits() == q.to_bits() || (p.is_nan() && q.is_nan()),
-                    "{x} / {d}: {q} against {p}"
-                );
-            }
-        }
-        // Finite pivots: the reciprocal serves exactly while it is normal.
-        for (d, serves) in [
-            (1.0, true),
-            (2f64.powi(1022), true),
-            (2f64.powi(1023), false),
-            (2f64.powi(-1023), true),
-            (2f64.powi(-1030), false),
-            (f64::MAX, false),
-        ] {
-            assert_eq!(reciprocal_serves(d, 1.0 / d), serves, "{d:e}");
         }
     }
 
@@ -984,8 +651,7 @@ mod tests {
     }
 
     /// The AVX2 loops give bitwise the factors, interchanges and solutions of the portable ones
-    /// (the same operations on each entry in the same order, no fused multiply-add, both by
-    /// divisions or both by the pivots' reciprocals), on regular,
+    /// (the same operations on each entry in the same order, no fused multiply-add), on regular,
     /// singular and zero-pivot matrices of every size the kernel serves.
     #[test]
     fn avx2_loops_give_bitwise_the_portable_results() {
@@ -1001,9 +667,6 @@ mod tests {
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
                 assert!(fast.avx2);
-                // Both ways: by divisions and by the pivots' reciprocals.
-                fast.set_reciprocal_pivots((n + seed as usize).is_multiple_of(2));
-                plain.set_reciprocal_pivots((n + seed as usize).is_multiple_of(2));
                 fast.factor(&a);
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
@@ -1119,9 +782,6 @@ mod tests {
                 let mut fast = SmallLu::new(n);
                 let mut plain = SmallLu::new(n);
                 plain.avx2 = false;
-                // Both ways: by divisions (odd sizes) and by the pivots' reciprocals (even).
-                fast.set_reciprocal_pivots(n % 2 == 0);
-                plain.set_reciprocal_pivots(n % 2 == 0);
                 fast.factor(&a);
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, round {round}");
