@@ -555,6 +555,30 @@ fn held_out_union_slide_056_two_mode_polish() {
     }
 }
 
+/// `s20270206_134_union_slide` (held-out seed 20270206): a table (a union of a top and four
+/// legs) sliding and spinning on the floor. From step 426 its translation has slowed so that it
+/// spins about a point near its centre of pressure: the friction's direction at the centre of
+/// pressure turns with that point, which the friction's moment moves, and the polish's sweeps
+/// circle with period 5 without settling (50 sweeps each); the fixed point's QPs circle too, and
+/// steps 426–600 took 4–15 QPs and a Newton finish each (measured on main 39f29d5). Since the
+/// finish after an unsettled polish (from the warm start first, `docs/latency.md`,
+/// wip-conic134) 174 of those 175 steps take one QP (measured; the other 4): asserted at least
+/// 170, and every step converges.
+#[test]
+fn held_out_union_slide_134_finish_after_an_unsettled_polish() {
+    let name = "s20270206_134_union_slide";
+    let records = regression_steps(name, 600);
+    assert_every_step_converged(name, &records);
+    let quick = records[425..600]
+        .iter()
+        .filter(|r| r.summary.iterations <= 2)
+        .count();
+    assert!(
+        quick >= 170,
+        "steps 426-600: {quick} of 175 in at most 2 QPs (measured 174; before 0)"
+    );
+}
+
 /// `s20261212_061_v_trough` (held-out seed 20261212): a point set in the crease of a V trough
 /// (μ = 1.17), one vertex loaded by both sides, one side sticking, the other spinning. The other
 /// side's gap row is a combination of the sticking side's rows, so the polish's joint step has a

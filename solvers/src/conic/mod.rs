@@ -640,6 +640,8 @@ impl McpSolver for ConicSolver {
         let mut handoff_tried = false;
         let mut early_tried = false;
         let mut walk_tried = false;
+        // Whether a QP's polish of this solve ran to its cap unsettled (`StepQp::extract_into`).
+        let mut polish_unsettled = false;
         // Whether `result` and `layout` hold the previous QP's answer and shape (this solve's).
         let mut have_answer = false;
         // One reuse per solve at most: where the previous answer's active set is not the new
@@ -796,13 +798,17 @@ impl McpSolver for ConicSolver {
                         termination = Termination::SubproblemFailed;
                         break;
                     }
-                    sub.extract_into(
+                    let settled = sub.extract_into(
                         step::PolishStart::Qp(result),
                         bodies,
                         polish,
                         &mut self.polish,
                         point,
                     );
+                    // Only where every body has one contact (its loads unique): elsewhere the
+                    // fixed point picks a member of the solution set, and a finish would pick
+                    // another (the stress suite's troughs and corners took more QPs, measured).
+                    polish_unsettled |= !settled && step::one_contact_per_body(geometry);
                     // The layout a later reuse compares against, only while one can be tried.
                     if !reuse_tried && polish && self.settings.reuse_qp {
                         sub.layout_into(layout);
@@ -887,25 +893,32 @@ impl McpSolver for ConicSolver {
             // leave the fixed point's iterates as they were when they fall short, so a stall
             // after a walk is finished as without the walk's attempt.
             let stall_due = !early_tried && since_improvement >= self.settings.early_finish_after;
+            // A polish that did not settle: its point is the sweeps' cycle, off the step's
+            // solution, and the fixed point's next QPs circle too (`134_union_slide` of seed
+            // 20270206: a table spinning about a point near its centre of pressure, the sweeps
+            // turning with period 5; `docs/latency.md`, wip-conic134). The finish then comes at
+            // once, from the warm start first.
+            let unsettled_due = !early_tried && polish_unsettled;
             let walk_due = !walk_tried
                 && self.settings.walk_finish_after > 0
                 && walk >= self.settings.walk_finish_after;
             if self.settings.early_finish_after > 0
                 && self.settings.newton_polish > 0
-                && (stall_due || walk_due)
+                && (stall_due || unsettled_due || walk_due)
             {
-                let walk_due = !stall_due;
+                let walk_due = !stall_due && !unsettled_due;
                 if walk_due {
                     walk_tried = true;
                 } else {
                     early_tried = true;
                 }
+                let warm_first = walk_due || (unsettled_due && !stall_due);
                 let budget = self
                     .settings
                     .early_finish_iterations
                     .min(self.settings.newton_polish);
                 let from_warm = z0 != best_z.as_slice();
-                let starts = if walk_due {
+                let starts = if warm_first {
                     [from_warm.then_some(z0), Some(&best_z[..])]
                 } else {
                     [Some(&best_z[..]), from_warm.then_some(z0)]

@@ -733,6 +733,11 @@ impl StepQp {
     ///
     /// The point is written into `out`, whose vectors (the velocities, the contacts and each
     /// contact's vertex impulses) are refilled, not allocated anew.
+    ///
+    /// Returns whether the sweeps settled (`true` without `polish`): `false` when they ran to
+    /// [`MAX_SWEEPS`] unsettled, as they do where the friction's centre of pressure and its
+    /// direction chase each other (a table spinning about a point near its centre of
+    /// pressure, `docs/latency.md`, wip-conic134).
     pub fn extract_into(
         &self,
         start: PolishStart<'_>,
@@ -740,7 +745,7 @@ impl StepQp {
         polish: bool,
         work: &mut PolishWorkspace,
         out: &mut ConicPoint,
-    ) {
+    ) -> bool {
         let nb = bodies.len();
         let ConicPoint {
             velocities,
@@ -844,6 +849,8 @@ impl StepQp {
         // contact, as the desk: with several the loads need not be unique, and which member
         // the sweeps reach depends on their path.
         let mut plain = 0;
+        // Whether the sweeps ran to their cap without settling (none asked: settled).
+        let mut unsettled = polish;
         let extrapolating = self.one_contact_per_body();
         etas.clear();
         etas.resize(self.contacts.len(), 0.0);
@@ -918,6 +925,7 @@ impl StepQp {
                 }
             }
             if sweep >= 2 && settled(before, contacts) {
+                unsettled = false;
                 break;
             }
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
@@ -968,6 +976,7 @@ impl StepQp {
                 }
             }
         }
+        !unsettled
     }
 }
 
