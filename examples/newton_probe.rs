@@ -197,6 +197,7 @@ fn set(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "watchdog_steps" => s.watchdog_steps = n()?,
         "newton_shortest_step" => s.newton_shortest_step = f()?,
         "min_norm_step" => s.min_norm_step = b()?,
+        "kink_band" => s.kink_band = value.parse::<f64>().ok(),
         "smoothing_first" => s.smoothing_first = b()?,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),
         "smoothing" => {

@@ -422,6 +422,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),
         "smoothing_first" => s.smoothing_first = b()?,
         "min_norm_step" => s.min_norm_step = b()?,
+        "kink_band" => s.kink_band = value.parse::<f64>().ok(),
         "max_iterations" => s.max_iterations = n()?,
         "lm_residual_damping_after" => s.lm_residual_damping_after = value.parse::<usize>().ok(),
         _ => return Err(format!("unknown Newton setting {name}")),

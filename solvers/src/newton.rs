@@ -391,6 +391,20 @@ pub struct NewtonSettings {
     /// points on the reference scenes and three stress seeds, ≈ 4 k instructions fewer per desk
     /// step).
     pub fast_full_step: Option<f64>,
+    /// The bound held at a pair within round-off of the kink: a component exactly at its bound
+    /// (`z = l`, or `z = u`) whose `F` points out of the feasible side by at most this much
+    /// (`−band ≤ F < 0` at a lower bound, `0 < F ≤ band` at an upper one) gets the row of
+    /// `H` of a pair with `F` on the feasible side, `−e_i` (the element `(ξ, η) = (0, 1)` of
+    /// `∂φ(0, 0)`): the Newton step holds `z_i` at its bound. Without it the sign of the
+    /// round-off in `F` chooses between that row and `−e_i − 2∇F_i`, a row that asks
+    /// `z_i + 2F_i` to stay put: at A1's step 35 (the box stops within the step; the
+    /// extrapolated start has `σ = 0` and `μ p_n − ‖E⁻¹p_f‖` = ±5e-16) the first takes the
+    /// full step to sticking (1 iteration), the second a cut step, a Levenberg–Marquardt step
+    /// and 9 iterations (`docs/latency.md`, "Newton at the stop of a sliding box: A1 step 35").
+    /// At an attempt's first iteration only (the warm start), in the units Newton sees `F`
+    /// (the scene scales when [`NewtonSettings::scene_scales`]).
+    /// `None`: the partial derivatives at the point, whatever the sign. Default `None`.
+    pub kink_band: Option<f64>,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -446,6 +460,7 @@ impl Default for NewtonSettings {
             chord_across_solves: Some(1e-2),
             chord_round_off_floor: Some(4.0),
             fast_full_step: Some(1e-2),
+            kink_band: None,
             trace: false,
         }
     }
@@ -788,8 +803,11 @@ fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
     }
 }
 
-/// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`).
-fn generalized_jacobian_rows(
+/// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`);
+/// `band` is [`NewtonSettings::kink_band`] (0: off).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn generalized_jacobian_rows(
+    band: f64,
     z: &[f64],
     f: &[f64],
     l: &[f64],
@@ -815,6 +833,16 @@ fn generalized_jacobian_rows(
             BoundKind::Free => {
                 ws_da[i] = 0.0;
                 ws_db[i] = 1.0;
+            }
+            // At the bound with `F` out of the feasible side by round-off only: the row of
+            // `F ≥ 0` (`NewtonSettings::kink_band`).
+            BoundKind::Lower if z[i] == l[i] && f[i] < 0.0 && -f[i] <= band => {
+                ws_da[i] = -1.0;
+                ws_db[i] = 0.0;
+            }
+            BoundKind::Upper if z[i] == u[i] && f[i] > 0.0 && f[i] <= band => {
+                ws_da[i] = -1.0;
+                ws_db[i] = 0.0;
             }
             BoundKind::Lower => match phi_partials(z[i] - l[i], f[i]) {
                 Some((pa, pb)) => {
@@ -1791,7 +1819,16 @@ impl NewtonSolver {
                     jac_evals += 1;
                 }
                 // H = D_a + D_b J in J's pattern (the diagonal is always stored).
+                // At an attempt's start only: a warm start clamps unknowns onto their bounds
+                // exactly, with `F` at round-off (A1 step 35); later iterates reach a bound
+                // with `F` still moving (held there, d5_collision's step 25 took 8 iterations
+                // instead of 6).
                 generalized_jacobian_rows(
+                    if iterations == 0 {
+                        s.kink_band.unwrap_or(0.0)
+                    } else {
+                        0.0
+                    },
                     &ws.z,
                     &ws.f,
                     l,
@@ -2442,6 +2479,41 @@ impl NewtonSolver {
 mod tests {
     use super::*;
     use ecp_model::FnMcp;
+
+    /// `kink_band`: a component at its lower bound with `F` at −5e-16 gets the row of `F ≥ 0`
+    /// (`D_a = −1, D_b = 0`) with the band and the partial derivatives `(−1, −2)` without it;
+    /// `F` at −1e-13 (outside a band of 1e-14) keeps the derivatives; at an upper bound the
+    /// mirror image (`F` at +5e-16); a free component and one off its bound are not touched.
+    #[test]
+    fn the_kink_band_holds_a_bound_whose_f_is_out_by_round_off_only() {
+        let pattern = CscPattern::dense(4);
+        let jac = vec![0.0; 16];
+        let inf = f64::INFINITY;
+        let (l, u) = ([0.0, -inf, 0.0, -inf], [inf, 1.0, inf, inf]);
+        let kinds: Vec<BoundKind> = (0..4).map(|i| classify(l[i], u[i])).collect();
+        let z = [0.0, 1.0, 1e-3, 2.0];
+        let rows = |f: [f64; 4], band: f64| {
+            let (mut da, mut db, mut deg, mut jv) =
+                (vec![0.0; 4], vec![0.0; 4], vec![0.0; 4], vec![0.0; 4]);
+            generalized_jacobian_rows(
+                band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+            );
+            (da, db)
+        };
+        let f = [-5e-16, 5e-16, -5e-16, 3.0];
+        let (da, db) = rows(f, 0.0);
+        assert_eq!((da[0], db[0]), (-1.0, -2.0));
+        assert_eq!((da[1], db[1]), (-1.0, -2.0));
+        let (da_b, db_b) = rows(f, 1e-14);
+        assert_eq!((da_b[0], db_b[0]), (-1.0, 0.0));
+        assert_eq!((da_b[1], db_b[1]), (-1.0, 0.0));
+        // Off its bound by 1e-3 and free: the same rows with the band as without.
+        assert_eq!((da_b[2], db_b[2]), (da[2], db[2]));
+        assert_eq!((da_b[3], db_b[3]), (0.0, 1.0));
+        let (da_far, db_far) = rows([-1e-13, 1e-13, 0.0, 0.0], 1e-14);
+        assert!((da_far[0] + 1.0).abs() < 1e-15 && (db_far[0] + 2.0).abs() < 1e-15);
+        assert!((da_far[1] + 1.0).abs() < 1e-15 && (db_far[1] + 2.0).abs() < 1e-15);
+    }
 
     /// The flat assembly and the gradient apart give the bits of the plain assembly, column by
     /// column in stored order (`H`, `∇Ψ`, `H`'s largest; the column magnitudes decide the

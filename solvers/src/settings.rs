@@ -155,6 +155,9 @@ impl NewtonSettings {
         if let Some(fraction) = self.fast_full_step {
             c.fraction("fast_full_step", fraction)?;
         }
+        if let Some(band) = self.kink_band {
+            c.non_negative("kink_band", band)?;
+        }
         smoothing(&c, &self.smoothing)
     }
 }
@@ -454,6 +457,14 @@ mod tests {
             "fast_full_step",
             NewtonSettings {
                 fast_full_step: Some(1.0),
+                ..d()
+            },
+            v,
+        );
+        refused(
+            "kink_band",
+            NewtonSettings {
+                kink_band: Some(-1.0),
                 ..d()
             },
             v,

@@ -219,7 +219,9 @@ impl<'a> Augmented<'a> {
             .evaluate_with_jacobian_at(s, z, &mut self.f, &mut self.jac);
         fb_vector_of_kinds(z, &self.f, l, u, &self.kinds, &mut self.phi);
         let pattern = self.mcp.jacobian_pattern();
+        // Main's rows: the continuation's path does not start at a kink by extrapolation.
         generalized_jacobian_rows(
+            0.0,
             z,
             &self.f,
             l,
