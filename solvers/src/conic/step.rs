@@ -1164,43 +1164,7 @@ impl StepQp {
             return false;
         };
         let step_at = |i: usize, x: f64| alpha * (x - before[i]) + beta * (before[i] - previous[i]);
-        let mut i = 0;
-        for c in contacts.iter() {
-            for &(_, l) in &c.vertex_impulses {
-                let next = l + step_at(i, l);
-                if (l > 0.0) != (next > 0.0) || (l == 0.0) != (before[i] == 0.0) {
-                    return false;
-                }
-                i += 1;
-            }
-            i += 3;
-        }
-        let mut i = 0;
-        for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
-            for (k, entry) in imp.vertex_impulses.iter_mut().enumerate() {
-                let step = step_at(i, entry.1);
-                i += 1;
-                let Some(rows) = rows else { continue };
-                entry.1 += step;
-                for side in &rows.sides {
-                    let w = &side.normal_wrenches[k];
-                    for j in 0..6 {
-                        wrench_sum[side.body][j] += step * w[j];
-                    }
-                }
-            }
-            for f in 0..3 {
-                let step = step_at(i, imp.friction[f]);
-                i += 1;
-                imp.friction[f] += step;
-                for (b, wf) in &current[c] {
-                    for j in 0..6 {
-                        wrench_sum[*b][j] += step * wf[f][j];
-                    }
-                }
-            }
-        }
-        true
+        self.move_impulses(step_at, before, contacts, wrench_sum, current)
     }
 
     /// Aitken's extrapolation of the polish's sweeps to the limit of their slowest mode.
@@ -1229,11 +1193,31 @@ impl StepQp {
         let Some(factor) = one_mode_factor(previous, before, after) else {
             return false;
         };
-        // The active set stays: every load keeps its sign (zero stays zero).
+        self.move_impulses(
+            |i, x| factor * (x - before[i]),
+            before,
+            contacts,
+            wrench_sum,
+            current,
+        )
+    }
+
+    /// Moves every impulse `x_i` (in [`impulse_values`] order) by `step_at(i, x_i)` and the
+    /// wrench sums with it, for the polish's extrapolations; not at all, returning `false`,
+    /// when a load would change sign or an unloaded vertex (zero in `before`) take load (the
+    /// active set stays the sweeps').
+    fn move_impulses(
+        &self,
+        step_at: impl Fn(usize, f64) -> f64,
+        before: &[f64],
+        contacts: &mut [ContactImpulses],
+        wrench_sum: &mut [[f64; 6]],
+        current: &[Vec<BodyFriction>],
+    ) -> bool {
         let mut i = 0;
         for c in contacts.iter() {
             for &(_, l) in &c.vertex_impulses {
-                let next = l + factor * (l - before[i]);
+                let next = l + step_at(i, l);
                 if (l > 0.0) != (next > 0.0) || (l == 0.0) != (before[i] == 0.0) {
                     return false;
                 }
@@ -1244,7 +1228,7 @@ impl StepQp {
         let mut i = 0;
         for (c, (rows, imp)) in self.contacts.iter().zip(contacts.iter_mut()).enumerate() {
             for (k, entry) in imp.vertex_impulses.iter_mut().enumerate() {
-                let step = factor * (entry.1 - before[i]);
+                let step = step_at(i, entry.1);
                 i += 1;
                 let Some(rows) = rows else { continue };
                 entry.1 += step;
@@ -1256,7 +1240,7 @@ impl StepQp {
                 }
             }
             for f in 0..3 {
-                let step = factor * (imp.friction[f] - before[i]);
+                let step = step_at(i, imp.friction[f]);
                 i += 1;
                 imp.friction[f] += step;
                 for (b, wf) in &current[c] {
