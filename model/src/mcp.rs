@@ -694,11 +694,7 @@ pub fn fb_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
         let c = fb_component(z[i], f[i], lower[i], upper[i]);
         s += c * c;
     }
-    if s.is_finite() {
-        s.sqrt()
-    } else {
-        f64::INFINITY
-    }
+    norm_of_squares(s)
 }
 
 /// [`fb_residual`] over the components in `rows` alone, `‖Φ_S(z)‖₂`: a lower bound of
@@ -727,11 +723,7 @@ pub fn fb_residual_of_rows(
             s += c * c;
         }
     }
-    if s.is_finite() {
-        s.sqrt()
-    } else {
-        f64::INFINITY
-    }
+    norm_of_squares(s)
 }
 
 /// [`fb_residual`] that also writes `Φ(z)` ([`fb_vector`]) into `phi`: the same components,
@@ -750,6 +742,13 @@ pub fn fb_residual_into(
         phi[i] = c;
         s += c * c;
     }
+    norm_of_squares(s)
+}
+
+/// `√s` for the sum `s` of the squared FB components, `+∞` when it is not finite (a NaN or an
+/// infinite component): the one ending of [`fb_residual`], [`fb_residual_of_rows`] and
+/// [`fb_residual_into`].
+fn norm_of_squares(s: f64) -> f64 {
     if s.is_finite() {
         s.sqrt()
     } else {
