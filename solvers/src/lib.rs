@@ -43,6 +43,8 @@ pub mod pivot;
 pub mod registry;
 pub mod settings;
 pub mod smoothing;
+#[cfg(test)]
+mod test_support;
 
 pub use newton::{NewtonSettings, NewtonSolver};
 pub use path::{PathSettings, PathSolver};

@@ -2478,6 +2478,7 @@ impl NewtonSolver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::KnownAt;
     use ecp_model::FnMcp;
 
     /// `kink_band`: a component at its lower bound with `F` at −5e-16 gets the row of `F ≥ 0`
@@ -2709,56 +2710,19 @@ mod tests {
         .unwrap_or_else(|e| panic!("valid problem: {e}"))
     }
 
-    /// `smooth_three` with `F` at one point known (`Mcp::known_value`), counting its
-    /// evaluations of `F`.
-    struct KnownAt {
-        inner: FnMcp,
-        z: Vec<f64>,
-        f: Vec<f64>,
-        evaluations: std::cell::Cell<usize>,
-    }
-
-    impl Mcp for KnownAt {
-        fn dim(&self) -> usize {
-            self.inner.dim()
-        }
-        fn lower(&self) -> &[f64] {
-            self.inner.lower()
-        }
-        fn upper(&self) -> &[f64] {
-            self.inner.upper()
-        }
-        fn evaluate(&self, z: &[f64], f: &mut [f64]) {
-            self.evaluations.set(self.evaluations.get() + 1);
-            self.inner.evaluate(z, f)
-        }
-        fn jacobian_pattern(&self) -> &std::sync::Arc<ecp_model::CscPattern> {
-            self.inner.jacobian_pattern()
-        }
-        fn jacobian(&self, z: &[f64], values: &mut [f64]) {
-            self.inner.jacobian(z, values)
-        }
-        fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
-            (z == self.z.as_slice()).then_some(self.f.as_slice())
-        }
-    }
-
     /// `F` at the start handed over (`Mcp::known_value`) replaces the solver's first evaluation,
     /// with and without `J` at the start, and the solve returns the same point and summary bit
     /// for bit.
     #[test]
     fn f_at_the_start_handed_over_replaces_the_first_evaluation() {
         let (_, start) = smooth_three_start();
+        let inner = smooth_three();
         let mut f = vec![0.0; 3];
-        smooth_three().evaluate(&start, &mut f);
+        inner.evaluate(&start, &mut f);
         for last_iterated in [true, false] {
             let solve = |known: bool| {
-                let mcp = KnownAt {
-                    inner: smooth_three(),
-                    z: if known { start.clone() } else { Vec::new() },
-                    f: f.clone(),
-                    evaluations: std::cell::Cell::new(0),
-                };
+                let z = if known { start.clone() } else { Vec::new() };
+                let mcp = KnownAt::new(&inner, z, f.clone());
                 let mut solver = NewtonSolver::new(NewtonSettings::default());
                 solver.last_iterated = last_iterated;
                 let sol = solver.solve(&mcp, &start).unwrap_or_else(|e| panic!("{e}"));

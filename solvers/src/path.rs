@@ -1871,6 +1871,7 @@ impl PathSolver {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::test_support::KnownAt;
     use ecp_model::FnMcp;
     use ecp_model::mcp_library::{box_both_bounds, kojima_shindo};
     use std::sync::Mutex;
@@ -2022,40 +2023,6 @@ mod tests {
         assert!((next.z[0] - root(2e-3)).abs() <= 1e-6);
     }
 
-    /// `shifted_root(0)` with `F` at one point known (`Mcp::known_value`), counting its
-    /// evaluations of `F`.
-    struct KnownAt<'a> {
-        inner: &'a FnMcp,
-        z: Vec<f64>,
-        f: Vec<f64>,
-        evaluations: std::cell::Cell<usize>,
-    }
-
-    impl Mcp for KnownAt<'_> {
-        fn dim(&self) -> usize {
-            self.inner.dim()
-        }
-        fn lower(&self) -> &[f64] {
-            self.inner.lower()
-        }
-        fn upper(&self) -> &[f64] {
-            self.inner.upper()
-        }
-        fn evaluate(&self, z: &[f64], f: &mut [f64]) {
-            self.evaluations.set(self.evaluations.get() + 1);
-            self.inner.evaluate(z, f)
-        }
-        fn jacobian_pattern(&self) -> &Arc<CscPattern> {
-            self.inner.jacobian_pattern()
-        }
-        fn jacobian(&self, z: &[f64], values: &mut [f64]) {
-            self.inner.jacobian(z, values)
-        }
-        fn known_value(&self, z: &[f64]) -> Option<&[f64]> {
-            (z == self.z.as_slice()).then_some(self.f.as_slice())
-        }
-    }
-
     /// `F` at the start handed over (`Mcp::known_value`) replaces the attempt's first
     /// evaluation, and the solve returns the same point and summary bit for bit; `F` known at
     /// another point is not taken.
@@ -2066,12 +2033,7 @@ mod tests {
         let mut f = vec![0.0; 2];
         inner.evaluate(&start, &mut f);
         let solve = |known_at: &[f64]| {
-            let mcp = KnownAt {
-                inner: &inner,
-                z: known_at.to_vec(),
-                f: f.clone(),
-                evaluations: std::cell::Cell::new(0),
-            };
+            let mcp = KnownAt::new(&inner, known_at.to_vec(), f.clone());
             let sol = PathSolver::new(PathSettings::default())
                 .solve(&mcp, &start)
                 .unwrap_or_else(|e| panic!("{e}"));
@@ -2527,12 +2489,8 @@ mod tests {
             let mut f = vec![0.0; z0.len()];
             p.mcp.evaluate(z0, &mut f);
             let solve = |known: bool| {
-                let mcp = KnownAt {
-                    inner: &p.mcp,
-                    z: if known { z0.clone() } else { Vec::new() },
-                    f: f.clone(),
-                    evaluations: std::cell::Cell::new(0),
-                };
+                let z = if known { z0.clone() } else { Vec::new() };
+                let mcp = KnownAt::new(&p.mcp, z, f.clone());
                 let sol = PathSolver::new(PathSettings::default())
                     .solve(&mcp, z0)
                     .unwrap_or_else(|e| panic!("{label}: {e}"));
