@@ -417,6 +417,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
             s.complementary_restart_from_best = value.parse::<f64>().ok()
         }
         "josephy_newton" => s.josephy_newton = value.parse::<usize>().ok(),
+        "friction_continuation" => s.friction_continuation = value.parse::<usize>().ok(),
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),

@@ -1293,3 +1293,75 @@ fn path_convex_toss_s20270130_014_step_15_later_path_cap() {
         "step 15: {iterations} iterations, expected 60..=130 (226 with the paths at 50 per unknown)"
     );
 }
+
+/// `s20270213_134_union_slide` step 1 (the held-out seed 20270213; a table, a union of five
+/// boxes, of μ = 1.15 set down on its four legs sliding at 1.6 m/s and spinning at 3 rad/s,
+/// h = 10 ms, 31 unknowns): PATH solves the step in 10 iterations, but every attempt of Newton
+/// in the problem's own units before its last stage (plain, Josephy–Newton, non-monotone,
+/// damped, smoothing, damped smoothing) fails: 737 iterations, the best point at a natural
+/// residual of 6.5e-4. Two later stages each cure it: the continuation in the friction
+/// coefficient (`docs/newton.md#a-continuation-in-the-friction-coefficient`; 1 060 iterations
+/// in all, 1 126 with the driver's budgeted start, as in the stress run) and, without it, the
+/// attempts again in the scene's scales (the smoothing continuation there; 971). Without both,
+/// Newton alone must report the step as failed; with the defaults it converges to PATH's
+/// solution.
+#[test]
+fn newton_union_slide_s20270213_134_step_1_late_stages() {
+    let path = regression_scene("s20270213_134_union_slide");
+    let defaults = NewtonSettings::default();
+    let settings = NewtonSettings {
+        tolerance: scene_tolerance(&path).unwrap_or(defaults.tolerance),
+        ..defaults
+    };
+    let sim = at_default_step(&path, &mut NewtonSolver::new(settings.clone()), 1);
+    let z0 = sim.z().to_vec();
+    let without = NewtonSettings {
+        friction_continuation: None,
+        scene_scales: false,
+        ..settings.clone()
+    };
+    match sim.solve_step_problem(&mut NewtonSolver::new(without), &z0) {
+        Err(SolveError::NotConverged { best }) => {
+            println!(
+                "s20270213_134_union_slide step 1 without the late stages: reported as failed, \
+                 {} iterations, best residual {:e}",
+                best.summary.iterations, best.summary.residual
+            );
+            assert!(
+                best.summary.residual > 100.0 * settings.tolerance,
+                "a failed solve whose best point is near the tolerance ({:e})",
+                best.summary.residual
+            );
+        }
+        Ok(sol) => panic!(
+            "without the late stages Newton returned step 1 ({} iterations, residual {:e}): \
+             the test's premise is gone",
+            sol.summary.iterations, sol.summary.residual
+        ),
+        Err(e) => panic!("{e}"),
+    }
+    let sol = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    println!(
+        "s20270213_134_union_slide step 1 with the defaults: {} iterations, residual {:e}",
+        sol.summary.iterations, sol.summary.residual
+    );
+    assert_eq!(
+        sol.summary
+            .counter(Counter::Custom("friction_continuations")),
+        Some(1)
+    );
+    let reference =
+        converged(sim.solve_step_problem(&mut PathSolver::new(PathSettings::default()), &z0));
+    assert_iterations(&reference, ..=20);
+    let gap = sol
+        .z
+        .iter()
+        .zip(&reference.z)
+        .map(|(a, b)| (a - b).abs() / b.abs().max(1.0))
+        .fold(0.0, f64::max);
+    println!("largest difference from PATH's solution: {gap:e}");
+    assert!(
+        gap <= 1e-9,
+        "Newton's solution differs from PATH's by {gap:e}"
+    );
+}
