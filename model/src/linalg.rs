@@ -18,7 +18,6 @@ use crate::pattern::CscPattern;
 mod column_tested_lu;
 mod schur;
 mod simd;
-mod singleton_peel;
 mod small_lu;
 mod sparse_cholesky;
 mod unit_rows;

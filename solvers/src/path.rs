@@ -203,13 +203,6 @@ pub struct PathSettings {
     /// set, the crash phase's decrease and contraction tests, or the polish's). Default `false`
     /// (`docs/latency.md`, branch wip-pathfast of issue 18).
     pub chord_across_solves: bool,
-    /// The crash step's LU of `J_II` takes the singleton rows and columns first (those with
-    /// one nonzero entry among the rows and columns still in play) and eliminates only the
-    /// rest with partial pivoting; every pivot is tested against its own column's largest
-    /// magnitude, as the whole LU's are (`ecp_model::linalg::ColumnTestedLu::set_peel`). The
-    /// desk's `J_II` (25 × 25) has a core of 21. Default `true`; `false` is the LU of the whole
-    /// `J_II` (`docs/latency.md`, branch wip-pathfree of issue 18).
-    pub singleton_peel: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
 }
@@ -249,7 +242,6 @@ impl Default for PathSettings {
             first_attempt_pivots: 100,
             polish_below: 1e-3,
             chord_across_solves: false,
-            singleton_peel: true,
             trace: false,
         }
     }
@@ -826,7 +818,6 @@ impl PathSolver {
                     *norm = col.iter().fold(0.0f64, |a, v| a.max(v.abs()));
                 }
             }
-            self.factor.set_peel(self.settings.singleton_peel);
             if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }

@@ -10,14 +10,8 @@
 //! (`docs/latency.md`, branch wip-pathdesk3). The elimination, the pivot choice (the first
 //! entry of largest magnitude) and the substitutions are the basis LU's operations in the same
 //! order, so the factors and solutions are the same numbers.
-//!
-//! With [`ColumnTestedLu::set_peel`] the singleton rows and columns are taken first
-//! ([`super::singleton_peel`]): their pivots need no search, and only the rest, the core, is
-//! eliminated, with partial pivoting (`docs/latency.md`, branch wip-pathfree). Every pivot,
-//! a singleton's and the core's, is tested against its own column's largest magnitude as given.
 
 use super::SmallLu;
-use super::singleton_peel::SingletonPeel;
 
 /// Column `column` (0-based, in the matrix's column order) is numerically dependent on the
 /// columns before it (the first such column).
@@ -32,21 +26,10 @@ pub struct DependentColumn {
 /// [`ColumnTestedLu::factor`], solve with [`ColumnTestedLu::solve`].
 #[derive(Clone, Debug)]
 pub struct ColumnTestedLu {
-    /// The matrix as given and, without a peel, its factors.
     lu: SmallLu,
     /// The largest magnitude of each column as given (the scale of the pivot test).
     norms: Vec<f64>,
     factored: bool,
-    /// Take the singleton rows and columns first ([`ColumnTestedLu::set_peel`]).
-    peel_on: bool,
-    /// The singleton pivots of the last factorisation, when `peeled`.
-    peel: SingletonPeel,
-    peeled: bool,
-    /// The core's LU (`lu` keeps the matrix as given for the singletons' substitutions).
-    core: SmallLu,
-    /// Workspace of the solves: the solution by columns, the core's right-hand side.
-    x: Vec<f64>,
-    y: Vec<f64>,
 }
 
 impl Default for ColumnTestedLu {
@@ -62,27 +45,6 @@ impl ColumnTestedLu {
             lu: SmallLu::new(0),
             norms: Vec::new(),
             factored: false,
-            peel_on: false,
-            peel: SingletonPeel::default(),
-            peeled: false,
-            core: SmallLu::new(0),
-            x: Vec::new(),
-            y: Vec::new(),
-        }
-    }
-
-    /// Takes the singleton rows and columns first (`true`), or factorises the whole matrix as
-    /// the basis LU does (`false`, the default). Applies from the next factorisation.
-    pub fn set_peel(&mut self, on: bool) {
-        self.peel_on = on;
-    }
-
-    /// The number of pivots of the last factorisation taken as singletons (0 without a peel).
-    pub fn singleton_pivots(&self) -> usize {
-        if self.peeled {
-            self.peel.pivots().len()
-        } else {
-            0
         }
     }
 
@@ -105,21 +67,7 @@ impl ColumnTestedLu {
     /// Factorises the matrix in the storage in place. `Err` names the first column whose pivot
     /// is at most `tolerance` times that column's largest magnitude as given (or not finite):
     /// then no solve is possible.
-    ///
-    /// With a peel ([`ColumnTestedLu::set_peel`]) the column named is the first dependent one
-    /// in the order of elimination: the singleton rows', the core's, the singleton columns'.
     pub fn factor(&mut self, tolerance: f64) -> Result<(), DependentColumn> {
-        self.peeled = false;
-        if self.peel_on {
-            let n = self.lu.dim();
-            let a = self.lu.storage_mut();
-            if !self.peel.holds(a, n) {
-                self.peel.find(a, n);
-            }
-            if !self.peel.pivots().is_empty() {
-                return self.factor_peeled(tolerance);
-            }
-        }
         self.lu.eliminate();
         // The pivot at step `k` is `U_kk`, the first entry of largest magnitude of what was
         // left of column `k`.
@@ -133,101 +81,12 @@ impl ColumnTestedLu {
         Ok(())
     }
 
-    /// [`ColumnTestedLu::factor`] with the singleton pivots of `self.peel`: the core gathered
-    /// into its own LU and eliminated; the matrix as given is kept for the substitutions.
-    fn factor_peeled(&mut self, tolerance: f64) -> Result<(), DependentColumn> {
-        let n = self.lu.dim();
-        let a = self.lu.storage_mut();
-        let dependent =
-            |d: f64, norm: f64| d.abs() <= tolerance * norm.max(f64::MIN_POSITIVE) || !d.is_finite();
-        let (rows, columns) = (self.peel.core_rows(), self.peel.core_columns());
-        let m = rows.len();
-        self.core.resize(m);
-        let core = self.core.storage_mut();
-        for (dst, &j) in core.chunks_exact_mut(m.max(1)).zip(columns) {
-            let col = &a[j * n..(j + 1) * n];
-            for (d, &i) in dst.iter_mut().zip(rows) {
-                *d = col[i];
-            }
-        }
-        let pivots = self.peel.pivots();
-        for p in pivots.iter().filter(|p| !p.by_column) {
-            if dependent(a[p.column * n + p.row], self.norms[p.column]) {
-                return Err(DependentColumn { column: p.column });
-            }
-        }
-        if m > 0 {
-            self.core.eliminate();
-            for (d, &j) in self.core.pivots().zip(columns) {
-                if dependent(d, self.norms[j]) {
-                    return Err(DependentColumn { column: j });
-                }
-            }
-        }
-        for p in pivots.iter().filter(|p| p.by_column) {
-            if dependent(a[p.column * n + p.row], self.norms[p.column]) {
-                return Err(DependentColumn { column: p.column });
-            }
-        }
-        self.x.resize(n, 0.0);
-        self.y.resize(m, 0.0);
-        self.peeled = true;
-        self.factored = true;
-        Ok(())
-    }
-
     /// Solves `A x = b` in place with the last factorisation (`b` of length `n`; untouched when
     /// the last factorisation failed).
-    pub fn solve(&mut self, b: &mut [f64]) {
-        if !self.factored {
-            return;
-        }
-        if !self.peeled {
+    pub fn solve(&self, b: &mut [f64]) {
+        if self.factored {
             self.lu.solve(b);
-            return;
         }
-        // `P A Q = [L₁₁ 0 0; A₂₁ A₂₂ 0; A₃₁ A₃₂ L₃₃]` (`super::singleton_peel`): `x_C₁` by
-        // forward substitution, then the core, then `x_C₃` (the singleton columns' pivots in
-        // reverse order of removal). `x` is by columns; a column not solved yet is 0, and its
-        // entry in the rows used so far is 0 too.
-        let n = self.lu.dim();
-        let a = self.lu.factors();
-        let x = &mut self.x[..n];
-        x.fill(0.0);
-        let pivots = self.peel.pivots();
-        // A singleton row is zero in every column but the singleton rows' before it.
-        for p in pivots.iter().filter(|p| !p.by_column) {
-            let s = (0..n).fold(b[p.row], |s, j| s - a[j * n + p.row] * x[j]);
-            x[p.column] = s / a[p.column * n + p.row];
-        }
-        let (rows, columns) = (self.peel.core_rows(), self.peel.core_columns());
-        if !rows.is_empty() {
-            let y = &mut self.y[..rows.len()];
-            for (yi, &i) in y.iter_mut().zip(rows) {
-                *yi = b[i];
-            }
-            // `b_R₂ − A₂₁ x_C₁`, a column of `A₂₁` at a time.
-            for p in pivots.iter().filter(|p| !p.by_column) {
-                let xj = x[p.column];
-                if xj != 0.0 {
-                    let col = &a[p.column * n..(p.column + 1) * n];
-                    for (yi, &i) in y.iter_mut().zip(rows) {
-                        *yi -= col[i] * xj;
-                    }
-                }
-            }
-            self.core.solve(y);
-            for (&yi, &j) in y.iter().zip(columns) {
-                x[j] = yi;
-            }
-        }
-        for p in pivots.iter().rev().filter(|p| p.by_column) {
-            let s = (0..n)
-                .filter(|&j| j != p.column)
-                .fold(b[p.row], |s, j| s - a[j * n + p.row] * x[j]);
-            x[p.column] = s / a[p.column * n + p.row];
-        }
-        b[..n].copy_from_slice(x);
     }
 }
 
