@@ -252,6 +252,19 @@ impl Counters {
         self.entries.clear();
     }
 
+    /// Forgets every counter and reports `entries` in their order, keeping the storage: what
+    /// [`Counters::clear`] followed by a [`Counters::set`] of each entry gives when no counter
+    /// is named twice (a backend's fixed list at the end of every solve), without looking each
+    /// one up among those set before it (`docs/latency.md`, branch wip-pathfree).
+    pub fn set_all<const N: usize>(&mut self, entries: [(Counter, usize); N]) {
+        debug_assert!(
+            (0..N).all(|i| entries[i + 1..].iter().all(|(c, _)| *c != entries[i].0)),
+            "a counter named twice"
+        );
+        self.entries.clear();
+        self.entries.extend_from_slice(&entries);
+    }
+
     /// Number of reported counters.
     pub fn len(&self) -> usize {
         self.entries.len()
@@ -324,5 +337,28 @@ mod tests {
         );
         assert!(Counters::new().is_empty());
         assert_eq!(Counters::new().to_string(), "");
+    }
+
+    #[test]
+    fn set_all_is_clear_then_set_in_order() {
+        let list = [
+            (Counter::CrashSteps, 3),
+            (Counter::Pivots, 0),
+            (Counter::Custom("mine"), 7),
+        ];
+        let mut by_set = Counters::from([(Counter::Retries, 1), (Counter::Pivots, 9)]);
+        by_set.clear();
+        for (c, v) in list {
+            by_set.set(c, v);
+        }
+        let mut all = Counters::from([(Counter::Retries, 1), (Counter::Pivots, 9)]);
+        all.set_all(list);
+        assert_eq!(all, by_set);
+        assert_eq!(all.get(Counter::Retries), None);
+        assert_eq!(all.get(Counter::Custom("mine")), Some(7));
+        assert_eq!(
+            all.iter().map(|(k, v)| (k.as_str(), v)).collect::<Vec<_>>(),
+            [("crash_steps", 3), ("pivots", 0), ("mine", 7)]
+        );
     }
 }

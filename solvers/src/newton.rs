@@ -2428,17 +2428,14 @@ impl NewtonSolver {
         // The result in the storage `solve_into` handed over, if any (counters included).
         let mut result = std::mem::take(&mut ws.result);
         let mut counters = std::mem::take(&mut result.summary.counters);
-        counters.clear();
-        for (counter, value) in [
+        counters.set_all([
             (Counter::NewtonSteps, newton_steps),
             (Counter::MinNormSteps, min_norm_steps),
             (Counter::NonmonotoneSteps, nonmonotone_steps),
             (Counter::WatchdogRestores, watchdog_restores),
             (Counter::LevenbergMarquardtSteps, lm_steps),
             (Counter::GradientSteps, gradient_steps),
-        ] {
-            counters.set(counter, value);
-        }
+        ]);
         let report = SolveReport {
             solver: "newton",
             termination,

@@ -43,8 +43,8 @@ use std::time::Instant;
 use ecp_model::linalg::ColumnTestedLu;
 use ecp_model::mcp::fb_component;
 use ecp_model::{
-    Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, Solution,
-    SolveError, SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid,
+    Counter, CscPattern, IterationRecord, Mcp, McpScales, McpSolver, Observer, ScalesUsage,
+    Solution, SolveError, SolveReport, StepKind, Termination, finish_solve, finish_solve_into, mid,
     natural_residual, solve_in_scales, validate_start,
 };
 
@@ -329,6 +329,58 @@ impl Point {
     }
 }
 
+/// Where the crash target's `J_II` comes from in the stored Jacobian: for each inactive column
+/// in `inactive`'s order, the stored entries of its inactive rows (position in the values, row
+/// in `J_II`) in the order stored. Built for one pattern (held, so its address cannot be
+/// reused) and one inactive set, and kept while both are the same: the active set seldom
+/// changes within a solve or from one step to the next, and the gather then needs neither the
+/// rows' slots nor a test per stored entry (`docs/latency.md`, branch wip-pathfree).
+#[derive(Default)]
+struct GatherMap {
+    pattern: Option<Arc<CscPattern>>,
+    inactive: Vec<usize>,
+    /// `(position, row)` of `J_II`'s stored entries, column after column.
+    entries: Vec<(usize, usize)>,
+    /// Column `k`'s entries are `entries[start[k]..start[k + 1]]`.
+    start: Vec<usize>,
+}
+
+impl GatherMap {
+    /// Whether the map is built for `pattern` (the problem's `arc`) and `inactive`.
+    fn holds(&self, arc: &Arc<CscPattern>, pattern: &CscPattern, inactive: &[usize]) -> bool {
+        std::ptr::eq(&**arc, pattern)
+            && self.pattern.as_ref().is_some_and(|p| Arc::ptr_eq(p, arc))
+            && self.inactive == inactive
+    }
+
+    /// Builds the map for `inactive` (ascending) from `slot` (each variable's row in `J_II`,
+    /// `usize::MAX` for an active one); kept for `arc` when it is `pattern`'s.
+    fn build(
+        &mut self,
+        arc: &Arc<CscPattern>,
+        pattern: &CscPattern,
+        inactive: &[usize],
+        slot: &[usize],
+    ) {
+        self.pattern = std::ptr::eq(&**arc, pattern).then(|| Arc::clone(arc));
+        self.inactive.clear();
+        self.inactive.extend_from_slice(inactive);
+        self.entries.clear();
+        self.start.clear();
+        self.start.push(0);
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        for &j in inactive {
+            for q in cp[j]..cp[j + 1] {
+                let r = slot[ri[q]];
+                if r != usize::MAX {
+                    self.entries.push((q, r));
+                }
+            }
+            self.start.push(self.entries.len());
+        }
+    }
+}
+
 /// What an LU kept across solves was formed for ([`PathSettings::chord_across_solves`]).
 struct KeptKey {
     /// Solved as given (not in the scene scales).
@@ -396,6 +448,9 @@ pub struct PathSolver {
     step_x: Vec<f64>,
     /// Row of the reduced crash system of each variable (`usize::MAX` when not in it).
     reduced_slot: Vec<usize>,
+    /// The gather of `J_II` ([`GatherMap`]), kept while the pattern and the inactive set are
+    /// the same.
+    gather: GatherMap,
     /// Right-hand side and solution of the reduced crash system.
     crash_rhs: Vec<f64>,
     rhs: Vec<f64>,
@@ -498,6 +553,7 @@ impl PathSolver {
             jz: Vec::new(),
             step_x: Vec::new(),
             reduced_slot: Vec::new(),
+            gather: GatherMap::default(),
             crash_rhs: Vec::new(),
             rhs: Vec::new(),
             inactive: Vec::new(),
@@ -601,8 +657,11 @@ fn evaluate_projected(
     known: bool,
 ) {
     let (l, u) = (mcp.lower(), mcp.upper());
-    for i in 0..p.x.len() {
-        p.z[i] = mid(l[i], u[i], p.x[i]);
+    // Zipped slices: no bounds check per component.
+    let n = p.x.len();
+    for ((z, &x), (&l, &u)) in (p.z[..n].iter_mut().zip(&p.x[..n])).zip(l[..n].iter().zip(&u[..n]))
+    {
+        *z = mid(l, u, x);
     }
     match known.then(|| mcp.known_value(&p.z)).flatten() {
         Some(f) => p.f.copy_from_slice(f),
@@ -776,35 +835,37 @@ impl PathSolver {
             // rhs = −F − J (b − z), restricted to I (`b − z` is zero on I and wherever z is at
             // its bound already, so most columns are skipped).
             mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
-            // J_II gathered straight from the pattern (no dense copy of the whole J).
-            self.reduced_slot.clear();
-            self.reduced_slot.resize(n, usize::MAX);
-            for (k, &i) in self.inactive.iter().enumerate() {
-                self.reduced_slot[i] = k;
+            // J_II gathered straight from the pattern (no dense copy of the whole J), by the
+            // map of this pattern and inactive set.
+            let arc = mcp.jacobian_pattern();
+            if !self.gather.holds(arc, pattern, &self.inactive) {
+                self.reduced_slot.clear();
+                self.reduced_slot.resize(n, usize::MAX);
+                for (k, &i) in self.inactive.iter().enumerate() {
+                    self.reduced_slot[i] = k;
+                }
+                self.gather
+                    .build(arc, pattern, &self.inactive, &self.reduced_slot);
             }
             // Straight into the LU's storage, each column zeroed just before its scatter (one
             // memset of all `ni²` entries is a `rep stosb` of several kB, counted per byte by
             // callgrind), with its largest magnitude, the scale of the dependence test.
             let (reduced, norms) = self.factor.storage_mut(ni);
             // The fields as local slices, so the loop keeps them in registers.
-            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-            let (slot, jac) = (&self.reduced_slot[..], &self.jac[..]);
-            for ((col, norm), &j) in reduced
+            let (entries, jac) = (&self.gather.entries[..], &self.jac[..]);
+            for ((col, norm), w) in reduced
                 .chunks_exact_mut(ni)
                 .zip(norms.iter_mut())
-                .zip(&self.inactive)
+                .zip(self.gather.start.windows(2))
             {
                 col.fill(0.0);
                 let mut largest = 0.0f64;
-                let range = cp[j]..cp[j + 1];
-                for (&i, &v) in ri[range.clone()].iter().zip(&jac[range]) {
-                    // An active row's slot is `usize::MAX`, beyond the column.
-                    if let Some(c) = col.get_mut(slot[i]) {
-                        *c = v;
-                        // `J` is finite here: one `maxsd`, not `f64::max`'s NaN tests.
-                        let a = v.abs();
-                        largest = if a > largest { a } else { largest };
-                    }
+                for &(q, r) in &entries[w[0]..w[1]] {
+                    let v = jac[q];
+                    col[r] = v;
+                    // `J` is finite here: one `maxsd`, not `f64::max`'s NaN tests.
+                    let a = v.abs();
+                    largest = if a > largest { a } else { largest };
                 }
                 *norm = largest;
             }
@@ -1482,9 +1543,11 @@ impl McpSolver for PathSolver {
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
         // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
+        // `McpScales::usage`'s verdict is `Unscaled` exactly when the scales are all 1 or not
+        // valid; the problem may keep it from one solve to the next (`Mcp::scales_usage`).
         let scaled = mcp
-            .scales()
-            .is_some_and(|s| !s.is_identity() && s.is_valid(mcp.dim()));
+            .scales_usage()
+            .is_some_and(|(_, usage)| usage != ScalesUsage::Unscaled);
         // The system of units `solve_in_scales` hands over: the problem itself (as given) or
         // its scaled form, whose scales are the problem's (the key of a kept LU).
         let outer = mcp;
@@ -1822,8 +1885,7 @@ impl PathSolver {
         // The result in the storage `solve_into` handed over, if any (counters included).
         let mut result = std::mem::take(&mut self.result);
         let mut reported = std::mem::take(&mut result.summary.counters);
-        reported.clear();
-        for (counter, value) in [
+        reported.set_all([
             (Counter::Pivots, counters.pivots),
             (Counter::CrashSteps, counters.crash_steps),
             (Counter::PathSteps, counters.path_steps),
@@ -1840,9 +1902,7 @@ impl PathSolver {
             (Counter::FischerAttempts, counters.fischer_attempts),
             (Counter::BestPointRestarts, counters.best_point_restarts),
             (Counter::TimeLimitReached, counters.time_limit_reached),
-        ] {
-            reported.set(counter, value);
-        }
+        ]);
         let report = SolveReport {
             solver: "path",
             termination,
