@@ -579,6 +579,25 @@ fn held_out_union_slide_134_finish_after_an_unsettled_polish() {
     );
 }
 
+/// `s20270206_134_union_slide` again, steps 601–1000: where a polish circles and the finish
+/// follows, its sweeps stop once they circle (`conic::step`'s circling test) instead of running
+/// to their cap of 50, and the finish starts from a point nearer its start (wip-conicrob,
+/// `docs/latency.md`): 552 QPs over those 400 steps (main d1e6447: 927), every step converged.
+#[test]
+fn held_out_union_slide_134_circling_sweeps_stop() {
+    let name = "s20270206_134_union_slide";
+    let records = regression_steps(name, 1000);
+    assert_every_step_converged(name, &records);
+    let qps: usize = records[600..1000]
+        .iter()
+        .map(|r| r.summary.iterations)
+        .sum();
+    assert!(
+        qps <= 700,
+        "steps 601-1000: {qps} QPs (measured 552; main 927)"
+    );
+}
+
 /// `s20261212_061_v_trough` (held-out seed 20261212): a point set in the crease of a V trough
 /// (μ = 1.17), one vertex loaded by both sides, one side sticking, the other spinning. The other
 /// side's gap row is a combination of the sticking side's rows, so the polish's joint step has a

@@ -737,6 +737,7 @@ impl McpSolver for ConicSolver {
                         step::PolishStart::Impulses(&seed.contacts),
                         bodies,
                         true,
+                        false,
                         &mut self.polish,
                         point,
                     );
@@ -798,17 +799,27 @@ impl McpSolver for ConicSolver {
                         termination = Termination::SubproblemFailed;
                         break;
                     }
+                    // Only where every body has one contact (its loads unique): elsewhere the
+                    // fixed point picks a member of the solution set, and a finish would pick
+                    // another (the stress suite's troughs and corners took more QPs, measured).
+                    let one_contact = step::one_contact_per_body(geometry);
+                    // Where an unsettled polish is finished by Newton at once (the early finish
+                    // below, not yet tried), its sweeps stop once they circle: the rest of the
+                    // cap would not settle them (`134_union_slide` of seed 20270206,
+                    // `docs/latency.md`, wip-conicrob).
+                    let stop_circling = one_contact
+                        && !early_tried
+                        && self.settings.early_finish_after > 0
+                        && self.settings.newton_polish > 0;
                     let settled = sub.extract_into(
                         step::PolishStart::Qp(result),
                         bodies,
                         polish,
+                        stop_circling,
                         &mut self.polish,
                         point,
                     );
-                    // Only where every body has one contact (its loads unique): elsewhere the
-                    // fixed point picks a member of the solution set, and a finish would pick
-                    // another (the stress suite's troughs and corners took more QPs, measured).
-                    polish_unsettled |= !settled && step::one_contact_per_body(geometry);
+                    polish_unsettled |= !settled && one_contact;
                     // The layout a later reuse compares against, only while one can be tried.
                     if !reuse_tried && polish && self.settings.reuse_qp {
                         sub.layout_into(layout);

@@ -737,12 +737,15 @@ impl StepQp {
     /// Returns whether the sweeps settled (`true` without `polish`): `false` when they ran to
     /// [`MAX_SWEEPS`] unsettled, as they do where the friction's centre of pressure and its
     /// direction chase each other (a table spinning about a point near its centre of
-    /// pressure, `docs/latency.md`, wip-conic134).
+    /// pressure, `docs/latency.md`, wip-conic134), or, with `stop_circling` (the caller
+    /// finishes an unsettled point by Newton at once), when they stopped because they circle
+    /// ([`Circling`]: 15–20 sweeps instead of the cap's 50 there, wip-conicrob).
     pub fn extract_into(
         &self,
         start: PolishStart<'_>,
         bodies: &[BodyDynamics],
         polish: bool,
+        stop_circling: bool,
         work: &mut PolishWorkspace,
         out: &mut ConicPoint,
     ) -> bool {
@@ -854,6 +857,7 @@ impl StepQp {
         let extrapolating = self.one_contact_per_body();
         etas.clear();
         etas.resize(self.contacts.len(), 0.0);
+        let mut circling = Circling::default();
         for sweep in 0..sweeps {
             std::mem::swap(earlier, previous);
             std::mem::swap(previous, before);
@@ -924,8 +928,23 @@ impl StepQp {
                     }
                 }
             }
-            if sweep >= 2 && settled(before, contacts) {
+            // Not measured on the first two sweeps (they never count as settled, and the
+            // circling test starts later).
+            let (change, scale) = if sweep >= 2 {
+                impulse_change(before, contacts)
+            } else {
+                (f64::INFINITY, 0.0)
+            };
+            if change <= SETTLED * scale {
                 unsettled = false;
+                break;
+            }
+            // Sweeps that circle (no smaller change in the last CIRCLE_WINDOW sweeps than half
+            // the smallest before them) will not settle by the cap; where the caller finishes
+            // such a point by Newton at once, the remaining sweeps are wasted.
+            // Out of line, from CIRCLE_FROM on: the desk's polishes settle by sweep 12 and pay
+            // for the test only a branch per sweep and a call per sweep past CIRCLE_FROM.
+            if stop_circling && sweep >= CIRCLE_FROM && circling.record(sweep, change, scale) {
                 break;
             }
             // Sweeps that have not settled by now contract slowly (a steep two-support wedge at
@@ -1040,17 +1059,74 @@ fn impulse_values(c: &ContactImpulses) -> impl Iterator<Item = f64> + '_ {
     c.vertex_impulses.iter().map(|(_, l)| *l).chain(c.friction)
 }
 
-/// Whether a polish sweep changed no impulse by more than `SETTLED` of the largest one
-/// (`before`: the [`impulse_values`] of every contact before the sweep, in order).
-fn settled(before: &[f64], after: &[ContactImpulses]) -> bool {
+/// A polish sweep's largest change of an impulse and the largest impulse after it (`before`:
+/// the [`impulse_values`] of every contact before the sweep, in order); the sweeps have settled
+/// when the change is at most `SETTLED` times the largest impulse.
+fn impulse_change(before: &[f64], after: &[ContactImpulses]) -> (f64, f64) {
     let mut scale: f64 = 0.0;
     let mut change: f64 = 0.0;
     for (x, y) in before.iter().zip(after.iter().flat_map(impulse_values)) {
         scale = scale.max(y.abs());
         change = change.max((x - y).abs());
     }
-    change <= SETTLED * scale
+    (change, scale)
 }
+
+/// The circling test of the polish's sweeps ([`StepQp::extract_into`]'s `stop_circling`): the
+/// sweeps' relative changes of the last [`CIRCLE_WINDOW`] sweeps (by sweep number modulo the
+/// window) and the smallest one before them, from sweep [`CIRCLE_FROM`] on.
+struct Circling {
+    recent: [f64; CIRCLE_WINDOW],
+    earlier_smallest: f64,
+}
+
+impl Default for Circling {
+    fn default() -> Self {
+        Circling {
+            recent: [f64::INFINITY; CIRCLE_WINDOW],
+            earlier_smallest: f64::INFINITY,
+        }
+    }
+}
+
+impl Circling {
+    /// Records sweep `sweep`'s largest change `change` of an impulse, the largest impulse being
+    /// `scale` ([`impulse_change`]), and says whether the sweeps circle: no change in the last
+    /// [`CIRCLE_WINDOW`] sweeps below [`CIRCLE_RATIO`] times the smallest of the (at least
+    /// [`CIRCLE_EARLIER`]) recorded sweeps before them.
+    #[inline(never)]
+    fn record(&mut self, sweep: usize, change: f64, scale: f64) -> bool {
+        if sweep < CIRCLE_FROM || scale.is_nan() || scale <= 0.0 || !change.is_finite() {
+            return false;
+        }
+        let slot = sweep % CIRCLE_WINDOW;
+        if sweep >= CIRCLE_FROM + CIRCLE_WINDOW {
+            self.earlier_smallest = self.earlier_smallest.min(self.recent[slot]);
+        }
+        self.recent[slot] = change / scale;
+        sweep + 1 >= CIRCLE_FROM + CIRCLE_WINDOW + CIRCLE_EARLIER
+            && self
+                .recent
+                .iter()
+                .all(|&r| r >= CIRCLE_RATIO * self.earlier_smallest)
+    }
+}
+
+/// The first sweep whose change the circling test ([`StepQp::extract_into`]'s `stop_circling`)
+/// records: the desk's polishes settle in 7–12 sweeps and pay for the record only past it.
+const CIRCLE_FROM: usize = 5;
+
+/// Sweeps of the circling test's recent window.
+const CIRCLE_WINDOW: usize = 10;
+
+/// Sweeps before the recent window that the circling test needs recorded (so the test first
+/// runs at sweep `CIRCLE_FROM + CIRCLE_WINDOW + CIRCLE_EARLIER − 1`).
+const CIRCLE_EARLIER: usize = 5;
+
+/// The circling test's ratio: sweeps whose changes over the last window stayed at least this
+/// fraction of the smallest change before it do not contract (a contraction of ρ per sweep
+/// passes it for ρ^10 < 0.5, ρ < 0.93; slower ones would need more than the cap to settle).
+const CIRCLE_RATIO: f64 = 0.5;
 
 /// The factor `ρ/(1 − ρ)` of Aitken's extrapolation `x_{k+1} + ρ/(1 − ρ) d₂` of three
 /// iterates `x_{k-1}, x_k, x_{k+1}` (`previous`, `before`, `after`), `d₁ = x_k − x_{k-1}`,
@@ -2162,6 +2238,48 @@ mod tests {
         assert_eq!(one_mode_factor(&limit, &limit, limit.iter().copied()), None);
         // Lengths that differ: refused.
         assert_eq!(one_mode_factor(&a[..3], &b, c.iter().copied()), None);
+    }
+
+    /// The circling test stops sweeps that repeat (a period-5 cycle, as `134_union_slide`'s)
+    /// at the first sweep it runs, and sweeps that grow; it lets contracting sweeps run (0.9 per
+    /// sweep: 0.9^10 = 0.35 of the smallest change before the window), and stops a
+    /// contraction of 0.95 per sweep (0.95^10 = 0.60), which would need about 500 sweeps to
+    /// settle from 1e-1 to `SETTLED`.
+    #[test]
+    fn circling_test_stops_cycles_and_lets_contractions_run() {
+        let first_stop = |changes: &dyn Fn(usize) -> f64| {
+            let mut c = Circling::default();
+            (0..MAX_SWEEPS).find(|&k| c.record(k, changes(k), 2.0))
+        };
+        let cycle = [3e-2, 1e-2, 5e-2, 2e-2, 4e-2];
+        let first_test = CIRCLE_FROM + CIRCLE_WINDOW + CIRCLE_EARLIER - 1;
+        assert_eq!(first_test, 19);
+        assert_eq!(first_stop(&|k| cycle[k % 5]), Some(first_test));
+        assert_eq!(
+            first_stop(&|k| 1e-3 * 1.05f64.powi(k as i32)),
+            Some(first_test)
+        );
+        assert_eq!(first_stop(&|k| 1e-1 * 0.9f64.powi(k as i32)), None);
+        assert_eq!(
+            first_stop(&|k| 1e-1 * 0.95f64.powi(k as i32)),
+            Some(first_test)
+        );
+        // A cycle that an extrapolation breaks at sweep 22 (changes 1e-9 from there): stopped
+        // before it only if the test had already fired, which it has at 19.
+        assert_eq!(
+            first_stop(&|k| if k < 22 { cycle[k % 5] } else { 1e-9 }),
+            Some(first_test)
+        );
+        // No recorded scale (no load), or a change that is not finite: never stops.
+        let mut c = Circling::default();
+        assert!((0..MAX_SWEEPS).all(|k| !c.record(k, 1e-2, 0.0)));
+        let mut c = Circling::default();
+        assert!((0..MAX_SWEEPS).all(|k| !c.record(k, f64::NAN, 1.0)));
+        // Contracting at 0.93 per sweep (0.93^10 = 0.48: runs), flat from sweep 30: stopped at
+        // the first sweep whose window's smallest change is at least half the smallest before
+        // it (sweep 31: 0.93^9 = 0.52).
+        let stop = first_stop(&|k| 1e-1 * 0.93f64.powi(k.min(30) as i32));
+        assert_eq!(stop, Some(31));
     }
 
     #[test]
