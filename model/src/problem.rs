@@ -445,8 +445,7 @@ enum Constancy {
 }
 
 /// The constant entries of a block's Jacobian: its inputs `k` whose
-/// [`ResidualBlock::jacobian_depends_on`] lists data inputs only, each bound to a variable
-/// block no other input of the block reads (so no other input's writes land on its entries).
+/// [`ResidualBlock::jacobian_depends_on`] lists data inputs only.
 /// Returns the constancy, the column positions of the constant inputs (the others discarded)
 /// and those of the varying ones (the constant ones discarded).
 fn constant_columns(
@@ -455,15 +454,10 @@ fn constant_columns(
     col_pos: &[usize],
     block_start: &[usize],
 ) -> (Constancy, Vec<usize>, Vec<usize>) {
+    // (A variable block is bound to one input of a block at most, `Problem::add_residual_block`:
+    // no other input's writes land on a constant input's entries.)
     let is_constant = |k: usize| {
-        let Input::Var(v) = reads[k] else {
-            return false;
-        };
-        let alone = reads
-            .iter()
-            .enumerate()
-            .all(|(l, r)| l == k || *r != Input::Var(v));
-        alone
+        matches!(reads[k], Input::Var(_))
             && block.jacobian_depends_on(k).is_some_and(|deps| {
                 deps.iter()
                     .all(|&l| matches!(reads.get(l), Some(Input::Data(_))))
