@@ -217,6 +217,26 @@ impl Collector {
         });
     }
 
+    /// Records an entry that failed whatever the tolerances: `a` and `b` are its analytic
+    /// values at two points where they must be the same.
+    fn push_failure(
+        &mut self,
+        row: usize,
+        block: usize,
+        col: usize,
+        location: String,
+        a: f64,
+        b: f64,
+    ) {
+        self.push(row, block, col, location, a, b, 0.0);
+        if let Some(e) = self.all.last_mut()
+            && !e.failed
+        {
+            e.failed = true;
+            self.pairs[block].failures += 1;
+        }
+    }
+
     fn finish(mut self, name: String) -> JacobianReport {
         let failures = self.all.iter().filter(|e| e.failed).count();
         let entries = self.all.len();
@@ -327,7 +347,73 @@ pub fn check_residual_block(
             }
         }
     }
+    check_constant_inputs(
+        block,
+        &z,
+        &ranges,
+        &col_pos,
+        &block_start,
+        &analytic,
+        &mut collector,
+    );
     Ok(collector.finish(block.name().to_string()))
+}
+
+/// The inputs `k` whose Jacobian the block says depends on a few inputs only
+/// ([`ResidualBlock::jacobian_depends_on`]): the Jacobian again with every other input moved
+/// (`x → 1.5 x + 0.25`) must give input `k`'s entries bit for bit, else each entry that moved is
+/// a failure (the assembled MCP would keep a stale entry).
+fn check_constant_inputs(
+    block: &dyn ResidualBlock,
+    z: &[f64],
+    ranges: &[InputRange],
+    col_pos: &[usize],
+    block_start: &[usize],
+    analytic: &[f64],
+    collector: &mut Collector,
+) {
+    let m = block.num_residuals();
+    for (k, r) in ranges.iter().enumerate() {
+        let Some(deps) = block.jacobian_depends_on(k) else {
+            continue;
+        };
+        let mut moved = z.to_vec();
+        for (l, rl) in ranges.iter().enumerate() {
+            if !deps.contains(&l) {
+                for v in &mut moved[rl.offset..rl.offset + rl.len] {
+                    *v = 1.5 * *v + 0.25;
+                }
+            }
+        }
+        let mut again = vec![0.0; analytic.len()];
+        {
+            let mut jac = JacobianBlocks::new(&mut again, col_pos, block_start, m);
+            block.jacobian(Params::new(&moved, &[], ranges), &mut jac);
+        }
+        for j in 0..r.len {
+            let c = r.offset + j;
+            for i in 0..m {
+                let (a, b) = (analytic[c * m + i], again[c * m + i]);
+                if a.to_bits() != b.to_bits() {
+                    collector.push_failure(
+                        i,
+                        k,
+                        j,
+                        format!(
+                            "{}[{}] / input{}[{}] (said to depend on inputs {:?} only)",
+                            block.name(),
+                            i,
+                            k,
+                            j,
+                            deps
+                        ),
+                        a,
+                        b,
+                    );
+                }
+            }
+        }
+    }
 }
 
 /// Checks every residual block of an assembled problem at `z` with respect to every input,

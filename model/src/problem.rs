@@ -1,7 +1,7 @@
 //! The problem builder: variable blocks paired with residual blocks, data blocks they read, and
 //! terms added to paired rows, assembled into one MCP.
 
-use std::sync::Arc;
+use std::sync::{Arc, Mutex, PoisonError};
 
 use crate::bounds::VarBlock;
 pub use crate::bounds::VarId;
@@ -332,8 +332,16 @@ impl Problem {
                 block_start.push(col_pos.len());
             }
             let discards = col_pos.contains(&JacobianBlocks::DISCARD);
+            let (constant, constant_pos, varying_pos) = if res.term {
+                (Constancy::None, Vec::new(), Vec::new())
+            } else {
+                constant_columns(res.block.as_ref(), &res.reads, &col_pos, &block_start)
+            };
             blocks.push(AssembledBlock {
                 discards,
+                constant,
+                constant_pos,
+                varying_pos,
                 block: res.block,
                 rows_of: res.rows_of,
                 row0: r0,
@@ -373,10 +381,44 @@ impl Problem {
             }
             groups.push(indices);
         }
+        // The paired blocks whose constant Jacobian entries read each data block.
+        let mut constant_readers = vec![Vec::new(); self.data.len()];
+        for (i, b) in blocks.iter().enumerate() {
+            if b.constant == Constancy::None {
+                continue;
+            }
+            for k in 0..b.inputs.len() {
+                if b.constant_pos[b.block_start[k]..b.block_start[k + 1]]
+                    .first()
+                    .is_none_or(|&p| p == JacobianBlocks::DISCARD)
+                {
+                    continue;
+                }
+                for &l in b.block.jacobian_depends_on(k).unwrap_or(&[]) {
+                    if let Some(Input::Data(d)) = b.inputs.get(l)
+                        && constant_readers[d.0].last() != Some(&i)
+                    {
+                        constant_readers[d.0].push(i);
+                    }
+                }
+            }
+        }
+        let has_constants = blocks.iter().any(|b| b.constant != Constancy::None);
+        let constant = ConstantJacobian {
+            values: vec![0.0; if has_constants { pattern.nnz() } else { 0 }],
+            stale: blocks
+                .iter()
+                .map(|b| b.constant != Constancy::None)
+                .collect(),
+            any_stale: has_constants,
+        };
         Ok(BlockMcp {
             n,
             lower,
             upper,
+            constant: Mutex::new(constant),
+            constant_readers,
+            has_constants,
             vars: self.vars,
             offsets,
             data: self.data,
@@ -388,6 +430,73 @@ impl Problem {
             groups,
         })
     }
+}
+
+/// Which of a paired block's variable inputs have a Jacobian that is constant while the data are
+/// ([`ResidualBlock::jacobian_depends_on`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Constancy {
+    /// None: the block writes its whole Jacobian at every point.
+    None,
+    /// Some: the others are written at every point.
+    Some,
+    /// All: the block's Jacobian is the template's.
+    All,
+}
+
+/// The constant entries of a block's Jacobian: its inputs `k` whose
+/// [`ResidualBlock::jacobian_depends_on`] lists data inputs only.
+/// Returns the constancy, the column positions of the constant inputs (the others discarded)
+/// and those of the varying ones (the constant ones discarded).
+fn constant_columns(
+    block: &dyn ResidualBlock,
+    reads: &[Input],
+    col_pos: &[usize],
+    block_start: &[usize],
+) -> (Constancy, Vec<usize>, Vec<usize>) {
+    // (A variable block is bound to one input of a block at most, `Problem::add_residual_block`:
+    // no other input's writes land on a constant input's entries.)
+    let is_constant = |k: usize| {
+        matches!(reads[k], Input::Var(_))
+            && block.jacobian_depends_on(k).is_some_and(|deps| {
+                deps.iter()
+                    .all(|&l| matches!(reads.get(l), Some(Input::Data(_))))
+            })
+    };
+    let constant: Vec<bool> = (0..reads.len()).map(is_constant).collect();
+    let variables = reads.iter().filter(|r| matches!(r, Input::Var(_))).count();
+    let count = constant.iter().filter(|&&c| c).count();
+    if count == 0 {
+        return (Constancy::None, Vec::new(), Vec::new());
+    }
+    let mut constant_pos = Vec::with_capacity(col_pos.len());
+    let mut varying_pos = Vec::with_capacity(col_pos.len());
+    for (k, &c) in constant.iter().enumerate() {
+        for &p in &col_pos[block_start[k]..block_start[k + 1]] {
+            let (keep, drop) = if c {
+                (&mut constant_pos, &mut varying_pos)
+            } else {
+                (&mut varying_pos, &mut constant_pos)
+            };
+            keep.push(p);
+            drop.push(JacobianBlocks::DISCARD);
+        }
+    }
+    let constancy = if count == variables {
+        Constancy::All
+    } else {
+        Constancy::Some
+    };
+    (constancy, constant_pos, varying_pos)
+}
+
+/// The constant entries of the MCP Jacobian at the problem's data, and zeros elsewhere: what
+/// [`Mcp::jacobian`] starts from instead of zeroing the values.
+struct ConstantJacobian {
+    values: Vec<f64>,
+    /// Per residual block: its constant entries are to be written again (its data changed).
+    stale: Vec<bool>,
+    any_stale: bool,
 }
 
 struct AssembledBlock {
@@ -402,6 +511,12 @@ struct AssembledBlock {
     block_start: Vec<usize>,
     /// Whether the block has data inputs (whose columns `col_pos` discards).
     discards: bool,
+    /// Which variable inputs have a constant Jacobian ([`ResidualBlock::jacobian_depends_on`]).
+    constant: Constancy,
+    /// `col_pos` with only the constant inputs' columns (empty without any).
+    constant_pos: Vec<usize>,
+    /// `col_pos` without the constant inputs' columns (empty without any).
+    varying_pos: Vec<usize>,
     term: bool,
 }
 
@@ -416,6 +531,23 @@ impl AssembledBlock {
             self.rows,
             self.discards,
         )
+    }
+
+    /// Write access to this block's varying entries (not the constant ones, which the values
+    /// hold from the template) when `templated`, else to all of them.
+    #[inline]
+    fn varying<'a>(&'a self, values: &'a mut [f64], templated: bool) -> JacobianBlocks<'a> {
+        if templated && self.constant == Constancy::Some {
+            JacobianBlocks::with_discards(
+                values,
+                &self.varying_pos,
+                &self.block_start,
+                self.rows,
+                true,
+            )
+        } else {
+            self.sparse(values)
+        }
     }
 
     /// Number of variable columns (the width of a term's local Jacobian).
@@ -489,6 +621,14 @@ pub struct BlockMcp {
     data_values: Vec<f64>,
     blocks: Vec<AssembledBlock>,
     has_terms: bool,
+    /// The constant Jacobian entries at the problem's data ([`ResidualBlock::jacobian_depends_on`]),
+    /// written again after a change of the data they read; a lock only because `jacobian`
+    /// takes `&self` (never waited for: a held lock means the plain path).
+    constant: Mutex<ConstantJacobian>,
+    /// Per data block: the residual blocks whose constant entries read it.
+    constant_readers: Vec<Vec<usize>>,
+    /// Whether some block has constant entries.
+    has_constants: bool,
     pattern: Arc<CscPattern>,
     /// [`Mcp::elimination_groups`], as index lists.
     groups: Vec<Vec<usize>>,
@@ -546,8 +686,77 @@ impl BlockMcp {
         block.check_values(values)?;
         block.set_values(values);
         let o = self.data_offsets[d.0];
-        self.data_values[o..o + values.len()].copy_from_slice(values);
+        let old = &mut self.data_values[o..o + values.len()];
+        let changed = !old
+            .iter()
+            .zip(values)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        old.copy_from_slice(values);
+        if changed && !self.constant_readers[d.0].is_empty() {
+            let constant = self
+                .constant
+                .get_mut()
+                .unwrap_or_else(PoisonError::into_inner);
+            for &b in &self.constant_readers[d.0] {
+                constant.stale[b] = true;
+            }
+            constant.any_stale = true;
+        }
         Ok(())
+    }
+
+    /// Starts the MCP Jacobian `values` at `z` with data `data`: the constant entries from the
+    /// template (written again first where their data changed) and zeros elsewhere, when `data`
+    /// are the problem's own; otherwise zeros. Returns whether the template was used (then the
+    /// blocks write only their varying entries: the same bits, as the constant ones do not
+    /// depend on `z`).
+    #[inline]
+    fn start_jacobian(&self, data: &[f64], z: &[f64], values: &mut [f64]) -> bool {
+        if self.has_constants
+            && std::ptr::eq(data, self.data_values.as_slice())
+            && values.len() == self.pattern.nnz()
+            && let Ok(mut constant) = self.constant.try_lock()
+        {
+            if constant.any_stale {
+                self.write_constant_entries(&mut constant, z);
+            }
+            values.copy_from_slice(&constant.values);
+            return true;
+        }
+        values.fill(0.0);
+        false
+    }
+
+    /// Writes the constant entries of the stale blocks into the template, as `jacobian` would
+    /// write them at `z` (from zero, asked for those inputs only).
+    #[cold]
+    fn write_constant_entries(&self, constant: &mut ConstantJacobian, z: &[f64]) {
+        let ConstantJacobian {
+            values,
+            stale,
+            any_stale,
+        } = constant;
+        for (b, stale) in self.blocks.iter().zip(stale.iter_mut()) {
+            if !*stale {
+                continue;
+            }
+            for &p in &b.constant_pos {
+                if p != JacobianBlocks::DISCARD {
+                    values[p..p + b.rows].fill(0.0);
+                }
+            }
+            let mut jac = JacobianBlocks::with_discards(
+                values,
+                &b.constant_pos,
+                &b.block_start,
+                b.rows,
+                true,
+            );
+            b.block
+                .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
+            *stale = false;
+        }
+        *any_stale = false;
     }
 
     /// Number of residual blocks (paired blocks and terms).
@@ -758,14 +967,16 @@ impl BlockMcp {
         f: &mut [f64],
         values: &mut [f64],
     ) {
-        values.fill(0.0);
+        let templated = self.start_jacobian(data, z, values);
         for b in self.blocks.iter().filter(|b| !b.term) {
-            let mut jac = b.sparse(values);
-            b.block.evaluate_with_jacobian(
-                Params::new(z, data, &b.ranges),
-                &mut f[b.row0..b.row0 + b.rows],
-                &mut jac,
-            );
+            let params = Params::new(z, data, &b.ranges);
+            let out = &mut f[b.row0..b.row0 + b.rows];
+            if templated && b.constant == Constancy::All {
+                b.block.evaluate(params, out);
+            } else {
+                let mut jac = b.varying(values, templated);
+                b.block.evaluate_with_jacobian(params, out, &mut jac);
+            }
         }
         if self.has_terms {
             for b in self.blocks.iter().filter(|b| b.term) {
@@ -799,9 +1010,12 @@ impl Mcp for BlockMcp {
         &self.pattern
     }
     fn jacobian(&self, z: &[f64], values: &mut [f64]) {
-        values.fill(0.0);
+        let templated = self.start_jacobian(&self.data_values, z, values);
         for b in self.blocks.iter().filter(|b| !b.term) {
-            let mut jac = b.sparse(values);
+            if templated && b.constant == Constancy::All {
+                continue;
+            }
+            let mut jac = b.varying(values, templated);
             b.block
                 .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
         }

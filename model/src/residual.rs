@@ -228,6 +228,19 @@ pub trait ResidualBlock: Send + Sync {
     /// Writes the analytic Jacobian, block by block, for every input (variable or data) that
     /// `jac` [wants](JacobianBlocks::wants). `jac` starts zeroed.
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>);
+    /// The inputs `∂r/∂x_k` depends on, when that is fewer than all of them (Ceres' constant
+    /// Jacobian blocks): `Some(&[])` when `r` is affine in `x_k` with a constant coefficient,
+    /// `Some(&[2, 3])` when the coefficient reads inputs 2 and 3 only. `None` (the default): it
+    /// may read any input.
+    ///
+    /// When every input listed is bound to a data block, `∂r/∂x_k` is constant while the data
+    /// are: the assembled MCP writes it once per change of those data blocks and asks
+    /// [`ResidualBlock::jacobian`] at each point only for the other inputs (`docs/latency.md`,
+    /// "constant Jacobian entries"). The entries of input `k` must then be the same bits at any
+    /// values of the inputs not listed; [`crate::check_residual_block`] checks that.
+    fn jacobian_depends_on(&self, _k: usize) -> Option<&[usize]> {
+        None
+    }
     /// Evaluates residual and Jacobian together; override when they share work.
     fn evaluate_with_jacobian(&self, x: Params<'_>, out: &mut [f64], jac: &mut JacobianBlocks<'_>) {
         self.evaluate(x, out);

@@ -32,6 +32,10 @@ impl ResidualBlock for ClosestPointAlignment {
     fn parameter_sizes(&self) -> &[usize] {
         &[3, 3, 1]
     }
+    fn jacobian_depends_on(&self, _k: usize) -> Option<&[usize]> {
+        // Linear in every input, with the block's own coefficients.
+        Some(&[])
+    }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let (a1, a2, lg) = (x.block(0), x.block(1), x.block(2)[0]);
         for i in 0..3 {
@@ -194,6 +198,10 @@ impl ResidualBlock for HalfSpaceSide {
     fn parameter_sizes(&self) -> &[usize] {
         &[3, 1]
     }
+    fn jacobian_depends_on(&self, k: usize) -> Option<&[usize]> {
+        // Linear in `a` with the block's own coefficients.
+        if k == 0 { Some(&[]) } else { None }
+    }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         out[0] = -self.scale * (self.normal.dot(&v3(x.block(0), 0)) - x.block(1)[0]);
     }
@@ -226,6 +234,10 @@ impl ResidualBlock for NonPenetration {
     }
     fn parameter_sizes(&self) -> &[usize] {
         &[3, 1]
+    }
+    fn jacobian_depends_on(&self, k: usize) -> Option<&[usize]> {
+        // Linear in `a` with the block's own coefficients.
+        if k == 0 { Some(&[]) } else { None }
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         out[0] = self.scale * (self.normal.dot(&v3(x.block(0), 0)) - x.block(1)[0]);

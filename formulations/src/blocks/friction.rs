@@ -168,6 +168,14 @@ impl ResidualBlock for FrictionEllipsoid {
     fn parameter_sizes(&self) -> &[usize] {
         &[1, 3, 4]
     }
+    fn jacobian_depends_on(&self, k: usize) -> Option<&[usize]> {
+        // `∂/∂p_n = μ`.
+        if k == 0 {
+            Some(&[Self::FRICTION])
+        } else {
+            None
+        }
+    }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let f = FrictionParams::from_slice(x.block(Self::FRICTION));
         out[0] = f.mu * x.block(0)[0] - scaled_norm(&f, x.block(1)).0;

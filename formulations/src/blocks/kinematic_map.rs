@@ -33,6 +33,14 @@ impl ResidualBlock for KinematicMap {
     fn parameter_sizes(&self) -> &[usize] {
         &[7, 6, 13, 1]
     }
+    fn jacobian_depends_on(&self, k: usize) -> Option<&[usize]> {
+        // Linear in the unknowns: `−I` for `q`, `h` and `(h/2) E(Q^u)` for `ν`.
+        match k {
+            0 => Some(&[]),
+            1 => Some(&[Self::START, Self::H]),
+            _ => None,
+        }
+    }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let q = x.block(0);
         let nu = x.block(1);
