@@ -195,18 +195,23 @@ impl DenseLu {
         buf: &mut [f64],
     ) -> Result<(), LinalgError> {
         self.factored = false;
-        let target = match &mut self.small {
-            Some(small) => small.storage_mut(),
-            None => &mut *buf,
-        };
-        target.fill(0.0);
-        let mut finite = true;
-        for (&k, &v) in positions.iter().zip(values) {
-            finite &= v.is_finite();
-            target[k] = v;
-        }
-        if !finite {
+        // The entries scattered are the first `positions.len()`; their finiteness in one test
+        // in vector lanes.
+        if !simd::all_finite(&values[..positions.len().min(values.len())]) {
             return Err(LinalgError::NonFinite);
+        }
+        let target = match &mut self.small {
+            Some(small) => {
+                small.clear_storage();
+                small.storage_mut()
+            }
+            None => {
+                buf.fill(0.0);
+                &mut *buf
+            }
+        };
+        for (&k, &v) in positions.iter().zip(values) {
+            target[k] = v;
         }
         if self.small.is_none() {
             let n = self.n;

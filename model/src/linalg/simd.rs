@@ -196,6 +196,65 @@ fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
     }
 }
 
+/// True when every entry of `x` is finite: the exponent fields OR-ed together (an entry is
+/// ±∞ or NaN exactly when its exponent field is all ones, and then adding one to that field
+/// carries into the sign bit), with no branch per entry, so that the compiler runs it in vector
+/// lanes (four with AVX2). A matrix's finiteness test in one pass before its entries are moved,
+/// instead of a test in the scatter's loop (`docs/latency.md`, branch wip-lukernel).
+pub(super) fn all_finite(x: &[f64]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the processor has AVX2.
+        return unsafe { all_finite_avx2(x) };
+    }
+    all_finite_bits(x)
+}
+
+#[inline(always)]
+fn all_finite_bits(x: &[f64]) -> bool {
+    const EXPONENT: u64 = 0x7ff << 52;
+    let carried = x.iter().fold(0u64, |acc, v| {
+        acc | (v.to_bits() & EXPONENT).wrapping_add(1 << 52)
+    });
+    carried >> 63 == 0
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn all_finite_avx2(x: &[f64]) -> bool {
+    all_finite_bits(x)
+}
+
+/// Sets every entry of `x` to `+0` by 32-byte stores (the small LU's storage before a sparse
+/// matrix is scattered into it): a few hundred instructions where `memset`'s `rep stosb`
+/// counts one per byte in callgrind (it is fast either way; `docs/latency.md`, branch
+/// wip-lukernel). Only inside a function compiled with AVX2 that runs after
+/// [`avx2_available`] said yes.
+///
+/// # Safety
+/// The processor has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) unsafe fn zero_avx2(x: &mut [f64]) {
+    use std::arch::x86_64::*;
+    let len = x.len();
+    let xp = x.as_mut_ptr();
+    let z = _mm256_setzero_pd();
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len`.
+    unsafe {
+        while i + 4 <= len {
+            _mm256_storeu_pd(xp.add(i), z);
+            i += 4;
+        }
+        while i < len {
+            *xp.add(i) = 0.0;
+            i += 1;
+        }
+    }
+}
+
 /// `y += Σ_e values[q_e] · rows[j_e]` over `entries = [(j_e, q_e), ..]` in their order, where
 /// `rows[j]` is row `j` of the row-major matrix `rows` with `y.len()` columns: a sparse row
 /// times a dense row-major matrix (the sensitivities' weak residual slopes,
