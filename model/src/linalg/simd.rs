@@ -474,6 +474,58 @@ mod tests {
     /// The vector pivot search finds the scalar search's entry: small integers (ties
     /// everywhere, both signs, ±0), NaN at the first, a middle and the last entry, and
     /// infinities, for lengths around the lane widths.
+    /// The exponent-field test says what `is_finite` says, entry by entry: each special value
+    /// (NaN of both signs and a payload, ±∞) at every place of every length 0–40, and the
+    /// largest finite, the smallest normal, a subnormal and `−0` (finite) likewise.
+    #[test]
+    fn all_finite_is_the_entrywise_test() {
+        let specials = [
+            f64::NAN,
+            -f64::NAN,
+            f64::from_bits(0x7ff0_0000_0000_0001),
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MAX,
+            -f64::MAX,
+            f64::MIN_POSITIVE,
+            f64::from_bits(1),
+            -0.0,
+        ];
+        let mut refused = 0;
+        for len in 0..=40 {
+            let base: Vec<f64> = (0..len).map(|i| (i as f64 * 0.7).sin() * 1e3).collect();
+            assert!(all_finite(&base) && all_finite_bits(&base), "len {len}");
+            for &v in &specials {
+                for at in 0..len {
+                    let mut x = base.clone();
+                    x[at] = v;
+                    let expected = x.iter().all(|v| v.is_finite());
+                    assert_eq!(all_finite(&x), expected, "{v} at {at} of {len}");
+                    assert_eq!(all_finite_bits(&x), expected, "{v} at {at} of {len}");
+                    refused += usize::from(!expected);
+                }
+            }
+        }
+        assert_eq!(refused, 5 * (1..=40).sum::<usize>());
+    }
+
+    /// The vector zeroing writes `+0` (not `−0`, whose sign the elimination could carry) to
+    /// every entry of every length 0–21.
+    #[test]
+    fn zeroing_writes_positive_zeros() {
+        if !avx2_available() {
+            return;
+        }
+        for len in 0..=21 {
+            let mut x = vec![-1.5; len + 2];
+            x[len] = -0.0;
+            // SAFETY: the processor has AVX2.
+            unsafe { zero_avx2(&mut x[..len + 1]) };
+            assert!(x[..len + 1].iter().all(|v| v.to_bits() == 0), "len {len}");
+            assert_eq!(x[len + 1], -1.5);
+        }
+    }
+
     #[test]
     fn pivot_search_is_the_scalar_search() {
         let reference = |x: &[f64]| {

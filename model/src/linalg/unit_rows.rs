@@ -383,6 +383,67 @@ mod tests {
         }
     }
 
+    /// The solve as it was before the mapped solve (`docs/latency.md`, branch wip-lukernel):
+    /// `b_U / D_U`, `b_F` gathered in its own order, `− H_FU x_U`, the kernel's solve with its
+    /// interchanges, the free part scattered back.
+    fn gathered_solve(lu: &super::UnitRowsLu, b: &mut [f64]) {
+        for (&i, &d) in lu.unit.iter().zip(&lu.diag) {
+            b[i] /= d;
+        }
+        let mut work: Vec<f64> = lu.free.iter().map(|&i| b[i]).collect();
+        if lu.unit.iter().any(|&i| b[i] != 0.0) {
+            for (&(_, i, j), &v) in lu.coupling.iter().zip(&lu.coupling_values) {
+                work[lu.compact[i]] -= v * b[j];
+            }
+        }
+        lu.lu.solve(&mut work);
+        for (&w, &i) in work.iter().zip(&lu.free) {
+            b[i] = w;
+        }
+    }
+
+    /// The mapped solve gives bitwise the gathered solve's numbers, for right-hand sides zero
+    /// and nonzero on the unit rows, on matrices whose free block interchanges rows.
+    #[test]
+    fn the_mapped_solve_is_bitwise_the_gathered_solve() {
+        let n = 12;
+        let pattern = CscPattern::dense(n);
+        let mut lu = super::UnitRowsLu::new(&pattern);
+        let mut interchanged = false;
+        for (seed, unit) in [(11, vec![0, 3, 4, 10]), (12, vec![5]), (13, vec![1, 11])] {
+            let mut a = matrix(n, &unit, seed);
+            // A weak diagonal in the free block, so that its rows interchange.
+            for j in (0..n).filter(|j| !unit.contains(j)) {
+                a[j * n + j] *= 0.01;
+            }
+            assert_eq!(lu.factor(&pattern, &a, &mask(n, &unit)), Ok(true));
+            interchanged |= lu.order != lu.free;
+            for held in [true, false] {
+                let b: Vec<f64> = (0..n)
+                    .map(|i| {
+                        if held && unit.contains(&i) {
+                            0.0
+                        } else {
+                            (i as f64 * 1.3).sin()
+                        }
+                    })
+                    .collect();
+                let (mut x, mut y) = (b.clone(), b.clone());
+                lu.solve_in_place(&mut x).unwrap_or_else(|e| panic!("{e}"));
+                gathered_solve(&lu, &mut y);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&x), bits(&y), "seed {seed}, held {held}");
+            }
+        }
+        assert!(interchanged);
+        // Fewer values than the pattern stores: refused, not read past.
+        let a = matrix(n, &[2], 14);
+        assert!(matches!(
+            lu.factor(&pattern, &a[..n * n - 1], &mask(n, &[2])),
+            Err(LinalgError::Factorization(_))
+        ));
+    }
+
     #[test]
     fn a_unit_row_that_is_not_falls_back_to_the_whole_matrix() {
         let n = 6;
