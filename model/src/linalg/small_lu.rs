@@ -242,21 +242,14 @@ impl SmallLu {
 
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
 /// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
-///
-/// The columns are visited by index, not by `chunks_exact_mut(n)`, whose column count is an
-/// integer division per elimination step (two per step: the interchange and the update).
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    let a = &mut a[..n * n];
     for k in 0..n {
         let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
         if p != k {
-            let ap = a.as_mut_ptr();
-            for j in 0..n {
-                // SAFETY: `k < p < n`, so both entries of column `j < n` lie within the
-                // `n × n` storage and are distinct.
-                unsafe { std::ptr::swap_nonoverlapping(ap.add(j * n + k), ap.add(j * n + p), 1) };
+            for col in a.chunks_exact_mut(n) {
+                col.swap(k, p);
             }
         }
         let pivot = a[k * n + k];
@@ -266,17 +259,12 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
         L::div(lk, pivot);
-        let m = n - k - 1;
-        let tp = tail.as_mut_ptr();
-        for j in 0..m {
-            // SAFETY: `tail` holds the `m` columns after `k`, `n` entries each: rows `k..n` of
-            // column `j` are entries `j n + k .. (j + 1) n` of it (`head` holds `lk`).
-            let col = unsafe { std::slice::from_raw_parts_mut(tp.add(j * n + k), m + 1) };
-            let akj = col[0];
+        for col in tail.chunks_exact_mut(n) {
+            let akj = col[k];
             if akj == 0.0 {
                 continue;
             }
-            L::sub_scaled(&mut col[1..], lk, akj);
+            L::sub_scaled(&mut col[k + 1..], lk, akj);
         }
     }
 }
