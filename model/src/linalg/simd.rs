@@ -240,7 +240,8 @@ pub(super) unsafe fn zero_avx2(x: &mut [f64]) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
-    let z = _mm256_setzero_pd();
+    // Opaque to the compiler, which would otherwise recognise the loop as a `memset`.
+    let z = std::hint::black_box(_mm256_setzero_pd());
     let mut i = 0;
     // SAFETY: every access is at an index below `len`.
     unsafe {
