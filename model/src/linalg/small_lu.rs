@@ -850,7 +850,13 @@ mod tests {
                     let mut order = vec![0; n];
                     lu.row_order(&rows, &mut order);
                     let spread: Vec<f64> = (0..n)
-                        .map(|i| if i % 4 == 1 { 0.0 } else { (i as f64 * 0.7).cos() })
+                        .map(|i| {
+                            if i % 4 == 1 {
+                                0.0
+                            } else {
+                                (i as f64 * 0.7).cos()
+                            }
+                        })
                         .collect();
                     let unit: Vec<f64> = (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect();
                     for c in [&spread, &unit] {
