@@ -195,11 +195,6 @@ impl DenseLu {
         buf: &mut [f64],
     ) -> Result<(), LinalgError> {
         self.factored = false;
-        // The entries scattered are the first `positions.len()`; their finiteness in one test
-        // in vector lanes.
-        if !simd::all_finite(&values[..positions.len().min(values.len())]) {
-            return Err(LinalgError::NonFinite);
-        }
         let target = match &mut self.small {
             Some(small) => {
                 small.clear_storage();
@@ -210,8 +205,15 @@ impl DenseLu {
                 &mut *buf
             }
         };
+        // The finiteness test as the entries move: the exponent carries OR-ed, no branch per
+        // entry.
+        let mut carried = 0u64;
         for (&k, &v) in positions.iter().zip(values) {
+            carried |= simd::exponent_carry(v);
             target[k] = v;
+        }
+        if !simd::carries_finite(carried) {
+            return Err(LinalgError::NonFinite);
         }
         if self.small.is_none() {
             let n = self.n;

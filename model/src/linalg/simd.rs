@@ -210,13 +210,25 @@ pub(super) fn all_finite(x: &[f64]) -> bool {
     all_finite_bits(x)
 }
 
+/// `x`'s exponent field plus one at the field's lowest bit: the sign bit of the result is set
+/// exactly when `x` is ±∞ or NaN. OR-ed over many entries (no branch per entry), the sign bit of
+/// the OR says whether any is not finite ([`all_finite`], and the scatter loops that test
+/// while they move the entries).
+#[inline(always)]
+pub(super) fn exponent_carry(x: f64) -> u64 {
+    const EXPONENT: u64 = 0x7ff << 52;
+    (x.to_bits() & EXPONENT).wrapping_add(1 << 52)
+}
+
+/// Whether the OR of [`exponent_carry`] over some entries says that all of them are finite.
+#[inline(always)]
+pub(super) fn carries_finite(carried: u64) -> bool {
+    carried >> 63 == 0
+}
+
 #[inline(always)]
 fn all_finite_bits(x: &[f64]) -> bool {
-    const EXPONENT: u64 = 0x7ff << 52;
-    let carried = x.iter().fold(0u64, |acc, v| {
-        acc | (v.to_bits() & EXPONENT).wrapping_add(1 << 52)
-    });
-    carried >> 63 == 0
+    carries_finite(x.iter().fold(0u64, |acc, &v| acc | exponent_carry(v)))
 }
 
 #[cfg(target_arch = "x86_64")]

@@ -12,7 +12,7 @@
 //! mask and kept while the mask is the same (the active set changes seldom); the workspace is
 //! sized for the whole matrix once, so a new mask allocates nothing.
 
-use super::simd::all_finite;
+use super::simd::{all_finite, carries_finite, exponent_carry};
 use super::small_lu::SmallLu;
 use super::{LinalgError, SINGULAR_PIVOT_RATIO};
 use crate::pattern::CscPattern;
@@ -168,29 +168,38 @@ impl UnitRowsLu {
                 self.nnz
             )));
         };
-        // Every stored entry is a unit row's, `H_FU`'s or `H_FF`'s: one test in vector lanes
-        // for all (a non-finite entry off a unit row's diagonal gives `NonFinite` here, as the
-        // whole LU it would fall back to does).
-        if !all_finite(values) {
-            return Err(LinalgError::NonFinite);
-        }
         // SAFETY (the reads and writes below): every position in the lists is below
         // `self.nnz = values.len()`, and every block position below `free.len()²`, the
         // kernel's storage (`index` checks both when it builds the lists).
         let at = |q: usize| unsafe { *values.get_unchecked(q) };
+        // A unit row's off-diagonal entries are zero (a NaN is not: the whole LU refuses it).
         if !self.off_unit.iter().all(|&q| at(q) == 0.0) {
             return Ok(false);
         }
+        // Every other entry is tested for finiteness as it is moved: the exponent carries
+        // OR-ed, no branch per entry (`simd::exponent_carry`).
+        let mut carried = 0u64;
         self.diag.clear();
-        self.diag.extend(self.diag_pos.iter().map(|&q| at(q)));
+        self.diag.extend(self.diag_pos.iter().map(|&q| {
+            carried |= exponent_carry(at(q));
+            at(q)
+        }));
         self.coupling_values.clear();
         self.coupling_values
-            .extend(self.coupling.iter().map(|&(q, _, _)| at(q)));
+            .extend(self.coupling.iter().map(|&(q, _, _)| {
+                carried |= exponent_carry(at(q));
+                at(q)
+            }));
         self.lu.clear_storage();
         let a = self.lu.storage_mut();
         for &(q, k) in &self.block {
+            let v = at(q);
+            carried |= exponent_carry(v);
             // SAFETY: as above.
-            unsafe { *a.get_unchecked_mut(k) = at(q) };
+            unsafe { *a.get_unchecked_mut(k) = v };
+        }
+        if !carries_finite(carried) {
+            return Err(LinalgError::NonFinite);
         }
         self.lu.eliminate();
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
