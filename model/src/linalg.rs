@@ -196,16 +196,23 @@ impl DenseLu {
     ) -> Result<(), LinalgError> {
         self.factored = false;
         let target = match &mut self.small {
-            Some(small) => small.storage_mut(),
-            None => &mut *buf,
+            Some(small) => {
+                small.clear_storage();
+                small.storage_mut()
+            }
+            None => {
+                buf.fill(0.0);
+                &mut *buf
+            }
         };
-        target.fill(0.0);
-        let mut finite = true;
+        // The finiteness test as the entries move: the exponent carries OR-ed, no branch per
+        // entry.
+        let mut carried = 0u64;
         for (&k, &v) in positions.iter().zip(values) {
-            finite &= v.is_finite();
+            carried |= simd::exponent_carry(v);
             target[k] = v;
         }
-        if !finite {
+        if !simd::carries_finite(carried) {
             return Err(LinalgError::NonFinite);
         }
         if self.small.is_none() {

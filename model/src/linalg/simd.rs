@@ -196,6 +196,78 @@ fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
     }
 }
 
+/// True when every entry of `x` is finite: the exponent fields OR-ed together (an entry is
+/// ±∞ or NaN exactly when its exponent field is all ones, and then adding one to that field
+/// carries into the sign bit), with no branch per entry, so that the compiler runs it in vector
+/// lanes (four with AVX2). A matrix's finiteness test in one pass before its entries are moved,
+/// instead of a test in the scatter's loop (`docs/latency.md`, branch wip-lukernel).
+pub(super) fn all_finite(x: &[f64]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the processor has AVX2.
+        return unsafe { all_finite_avx2(x) };
+    }
+    all_finite_bits(x)
+}
+
+/// `x`'s exponent field plus one at the field's lowest bit: the sign bit of the result is set
+/// exactly when `x` is ±∞ or NaN. OR-ed over many entries (no branch per entry), the sign bit of
+/// the OR says whether any is not finite ([`all_finite`], and the scatter loops that test
+/// while they move the entries).
+#[inline(always)]
+pub(super) fn exponent_carry(x: f64) -> u64 {
+    const EXPONENT: u64 = 0x7ff << 52;
+    (x.to_bits() & EXPONENT).wrapping_add(1 << 52)
+}
+
+/// Whether the OR of [`exponent_carry`] over some entries says that all of them are finite.
+#[inline(always)]
+pub(super) fn carries_finite(carried: u64) -> bool {
+    carried >> 63 == 0
+}
+
+#[inline(always)]
+fn all_finite_bits(x: &[f64]) -> bool {
+    carries_finite(x.iter().fold(0u64, |acc, &v| acc | exponent_carry(v)))
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn all_finite_avx2(x: &[f64]) -> bool {
+    all_finite_bits(x)
+}
+
+/// Sets every entry of `x` to `+0` by 32-byte stores (the small LU's storage before a sparse
+/// matrix is scattered into it): a few hundred instructions where `memset`'s `rep stosb`
+/// counts one per byte in callgrind (it is fast either way; `docs/latency.md`, branch
+/// wip-lukernel). Only inside a function compiled with AVX2 that runs after
+/// [`avx2_available`] said yes.
+///
+/// # Safety
+/// The processor has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+pub(super) unsafe fn zero_avx2(x: &mut [f64]) {
+    use std::arch::x86_64::*;
+    let len = x.len();
+    let xp = x.as_mut_ptr();
+    // Opaque to the compiler, which would otherwise recognise the loop as a `memset`.
+    let z = std::hint::black_box(_mm256_setzero_pd());
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len`.
+    unsafe {
+        while i + 4 <= len {
+            _mm256_storeu_pd(xp.add(i), z);
+            i += 4;
+        }
+        while i < len {
+            *xp.add(i) = 0.0;
+            i += 1;
+        }
+    }
+}
+
 /// `y += Σ_e values[q_e] · rows[j_e]` over `entries = [(j_e, q_e), ..]` in their order, where
 /// `rows[j]` is row `j` of the row-major matrix `rows` with `y.len()` columns: a sparse row
 /// times a dense row-major matrix (the sensitivities' weak residual slopes,
@@ -414,6 +486,58 @@ mod tests {
     /// The vector pivot search finds the scalar search's entry: small integers (ties
     /// everywhere, both signs, ±0), NaN at the first, a middle and the last entry, and
     /// infinities, for lengths around the lane widths.
+    /// The exponent-field test says what `is_finite` says, entry by entry: each special value
+    /// (NaN of both signs and a payload, ±∞) at every place of every length 0–40, and the
+    /// largest finite, the smallest normal, a subnormal and `−0` (finite) likewise.
+    #[test]
+    fn all_finite_is_the_entrywise_test() {
+        let specials = [
+            f64::NAN,
+            -f64::NAN,
+            f64::from_bits(0x7ff0_0000_0000_0001),
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MAX,
+            -f64::MAX,
+            f64::MIN_POSITIVE,
+            f64::from_bits(1),
+            -0.0,
+        ];
+        let mut refused = 0;
+        for len in 0..=40 {
+            let base: Vec<f64> = (0..len).map(|i| (i as f64 * 0.7).sin() * 1e3).collect();
+            assert!(all_finite(&base) && all_finite_bits(&base), "len {len}");
+            for &v in &specials {
+                for at in 0..len {
+                    let mut x = base.clone();
+                    x[at] = v;
+                    let expected = x.iter().all(|v| v.is_finite());
+                    assert_eq!(all_finite(&x), expected, "{v} at {at} of {len}");
+                    assert_eq!(all_finite_bits(&x), expected, "{v} at {at} of {len}");
+                    refused += usize::from(!expected);
+                }
+            }
+        }
+        assert_eq!(refused, 5 * (1..=40).sum::<usize>());
+    }
+
+    /// The vector zeroing writes `+0` (not `−0`, whose sign the elimination could carry) to
+    /// every entry of every length 0–21.
+    #[test]
+    fn zeroing_writes_positive_zeros() {
+        if !avx2_available() {
+            return;
+        }
+        for len in 0..=21 {
+            let mut x = vec![-1.5; len + 2];
+            x[len] = -0.0;
+            // SAFETY: the processor has AVX2.
+            unsafe { zero_avx2(&mut x[..len + 1]) };
+            assert!(x[..len + 1].iter().all(|v| v.to_bits() == 0), "len {len}");
+            assert_eq!(x[len + 1], -1.5);
+        }
+    }
+
     #[test]
     fn pivot_search_is_the_scalar_search() {
         let reference = |x: &[f64]| {

@@ -12,6 +12,7 @@
 //! mask and kept while the mask is the same (the active set changes seldom); the workspace is
 //! sized for the whole matrix once, so a new mask allocates nothing.
 
+use super::simd::{all_finite, carries_finite, exponent_carry};
 use super::small_lu::SmallLu;
 use super::{LinalgError, SINGULAR_PIVOT_RATIO};
 use crate::pattern::CscPattern;
@@ -30,10 +31,15 @@ pub struct UnitRowsLu {
     unit: Vec<usize>,
     /// The row (and column) of each free component in `H_FF` (unused for a unit one).
     compact: Vec<usize>,
-    /// `H_FF`'s stored entries: their position in the values and in the column-major block.
+    /// The number of stored entries of the pattern the lists are built for: every position
+    /// in `block`, `coupling`, `off_unit` and `diag_pos` is below it (checked when built), so
+    /// that a factorisation checks the values' length once instead of each read.
+    nnz: usize,
+    /// `H_FF`'s stored entries: their position in the values and in the column-major block
+    /// (below `free.len()²`, the kernel's storage, checked when built).
     block: Vec<(usize, usize)>,
-    /// `H_FU`'s stored entries: their position in the values, their row in `H_FF` and their
-    /// column (a unit component).
+    /// `H_FU`'s stored entries: their position in the values, their row (a free component)
+    /// and their column (a unit component).
     coupling: Vec<(usize, usize, usize)>,
     /// The positions of the unit rows' off-diagonal entries: zero, read to check it.
     off_unit: Vec<usize>,
@@ -44,6 +50,9 @@ pub struct UnitRowsLu {
     coupling_values: Vec<f64>,
     /// The small kernel's LU of `H_FF`.
     lu: SmallLu,
+    /// The free components in the order of the factors' row interchanges
+    /// ([`SmallLu::row_order`]): the solves gather the right-hand side by it.
+    order: Vec<usize>,
     /// A gathered free part of a right-hand side.
     work: Vec<f64>,
     factored: bool,
@@ -59,6 +68,7 @@ impl UnitRowsLu {
             free: Vec::with_capacity(n),
             unit: Vec::with_capacity(n),
             compact: vec![0; n],
+            nnz,
             block: Vec::with_capacity(nnz),
             coupling: Vec::with_capacity(nnz),
             off_unit: Vec::with_capacity(nnz),
@@ -66,6 +76,7 @@ impl UnitRowsLu {
             diag: Vec::with_capacity(n),
             coupling_values: Vec::with_capacity(nnz),
             lu: SmallLu::new(n),
+            order: vec![0; n],
             work: vec![0.0; n],
             factored: false,
         }
@@ -114,7 +125,7 @@ impl UnitRowsLu {
                         self.off_unit.push(q);
                     }
                 } else if mask[j] {
-                    self.coupling.push((q, compact[r], j));
+                    self.coupling.push((q, r, j));
                 } else {
                     self.block.push((q, compact[j] * f + compact[r]));
                 }
@@ -124,6 +135,17 @@ impl UnitRowsLu {
         let dp = pattern.diag_pos();
         self.diag_pos.extend(self.unit.iter().map(|&i| dp[i]));
         self.lu.resize(f);
+        self.order.resize(f, 0);
+        // The invariants of `factor`'s unchecked reads and writes (a pattern's positions
+        // satisfy them; a failure here is a malformed pattern, not a user's input).
+        let nnz = pattern.nnz();
+        self.nnz = nnz;
+        assert!(
+            self.block.iter().all(|&(q, k)| q < nnz && k < f * f)
+                && self.coupling.iter().all(|&(q, _, _)| q < nnz)
+                && self.off_unit.iter().chain(&self.diag_pos).all(|&q| q < nnz),
+            "a stored entry's position outside the pattern"
+        );
     }
 
     /// Factorises the matrix whose stored entries (in `pattern`) are `values` and whose rows
@@ -139,29 +161,44 @@ impl UnitRowsLu {
     ) -> Result<bool, LinalgError> {
         self.factored = false;
         self.index(pattern, mask);
-        if !self.off_unit.iter().all(|&q| values[q] == 0.0) {
+        let Some(values) = values.get(..self.nnz) else {
+            return Err(LinalgError::Factorization(format!(
+                "{} values for a pattern of {} stored entries",
+                values.len(),
+                self.nnz
+            )));
+        };
+        // SAFETY (the reads and writes below): every position in the lists is below
+        // `self.nnz = values.len()`, and every block position below `free.len()²`, the
+        // kernel's storage (`index` checks both when it builds the lists).
+        let at = |q: usize| unsafe { *values.get_unchecked(q) };
+        // A unit row's off-diagonal entries are zero (a NaN is not: the whole LU refuses it).
+        if !self.off_unit.iter().all(|&q| at(q) == 0.0) {
             return Ok(false);
         }
-        let mut finite = true;
+        // Every other entry is tested for finiteness as it is moved: the exponent carries
+        // OR-ed, no branch per entry (`simd::exponent_carry`).
+        let mut carried = 0u64;
         self.diag.clear();
         self.diag.extend(self.diag_pos.iter().map(|&q| {
-            finite &= values[q].is_finite();
-            values[q]
+            carried |= exponent_carry(at(q));
+            at(q)
         }));
         self.coupling_values.clear();
         self.coupling_values
             .extend(self.coupling.iter().map(|&(q, _, _)| {
-                finite &= values[q].is_finite();
-                values[q]
+                carried |= exponent_carry(at(q));
+                at(q)
             }));
+        self.lu.clear_storage();
         let a = self.lu.storage_mut();
-        a.fill(0.0);
         for &(q, k) in &self.block {
-            let v = values[q];
-            finite &= v.is_finite();
-            a[k] = v;
+            let v = at(q);
+            carried |= exponent_carry(v);
+            // SAFETY: as above.
+            unsafe { *a.get_unchecked_mut(k) = v };
         }
-        if !finite {
+        if !carries_finite(carried) {
             return Err(LinalgError::NonFinite);
         }
         self.lu.eliminate();
@@ -175,6 +212,7 @@ impl UnitRowsLu {
                 ratio: if hi > 0.0 { lo / hi } else { 0.0 },
             });
         }
+        self.lu.row_order(&self.free, &mut self.order);
         self.factored = true;
         Ok(true)
     }
@@ -183,33 +221,21 @@ impl UnitRowsLu {
     /// coupling skipped when `x_U` is zero, as it is at a held component, where `Φ_i = 0`).
     pub(crate) fn solve_in_place(&mut self, b: &mut [f64]) -> Result<(), LinalgError> {
         self.check(b)?;
-        // Every entry of `b` is a unit row's or a free one's: the finiteness test of the
-        // result goes along.
-        let (mut coupled, mut finite) = (false, true);
+        let mut coupled = false;
         for (&i, &d) in self.unit.iter().zip(&self.diag) {
             b[i] /= d;
             coupled |= b[i] != 0.0;
-            finite &= b[i].is_finite();
         }
-        let work = &mut self.work[..self.free.len()];
-        for (w, &i) in work.iter_mut().zip(&self.free) {
-            *w = b[i];
-        }
+        // `b_F − H_FU x_U` where `b_F` lies (a unit entry `b[j]` is not changed by it).
         if coupled {
-            for (&(_, r, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
-                work[r] -= v * b[j];
+            for (&(_, i, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
+                b[i] -= v * b[j];
             }
         }
-        self.lu.solve(work);
-        for (&w, &i) in work.iter().zip(&self.free) {
-            b[i] = w;
-            finite &= w.is_finite();
-        }
-        if finite {
-            Ok(())
-        } else {
-            Err(LinalgError::NonFinite)
-        }
+        // Gathered in the order of the factors' interchanges, solved, written back.
+        self.lu
+            .solve_mapped(b, &self.order, &self.free, &mut self.work);
+        finite(b)
     }
 
     /// Solves `Hᵀ x = b` in place: `H_FFᵀ x_F = b_F`, then `x_U = (b_U − H_FUᵀ x_F) / D_U`.
@@ -223,8 +249,8 @@ impl UnitRowsLu {
         for (&w, &i) in work.iter().zip(&self.free) {
             b[i] = w;
         }
-        for (&(_, r, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
-            b[j] -= v * work[r];
+        for (&(_, i, j), &v) in self.coupling.iter().zip(&self.coupling_values) {
+            b[j] -= v * b[i];
         }
         for (&i, &d) in self.unit.iter().zip(&self.diag) {
             b[i] /= d;
@@ -248,7 +274,7 @@ impl UnitRowsLu {
 }
 
 fn finite(b: &[f64]) -> Result<(), LinalgError> {
-    if b.iter().all(|v| v.is_finite()) {
+    if all_finite(b) {
         Ok(())
     } else {
         Err(LinalgError::NonFinite)
@@ -364,6 +390,67 @@ mod tests {
             assert_eq!(&many[..n], &one[..]);
             assert_eq!(&many[n..], &one[..]);
         }
+    }
+
+    /// The solve as it was before the mapped solve (`docs/latency.md`, branch wip-lukernel):
+    /// `b_U / D_U`, `b_F` gathered in its own order, `− H_FU x_U`, the kernel's solve with its
+    /// interchanges, the free part scattered back.
+    fn gathered_solve(lu: &super::UnitRowsLu, b: &mut [f64]) {
+        for (&i, &d) in lu.unit.iter().zip(&lu.diag) {
+            b[i] /= d;
+        }
+        let mut work: Vec<f64> = lu.free.iter().map(|&i| b[i]).collect();
+        if lu.unit.iter().any(|&i| b[i] != 0.0) {
+            for (&(_, i, j), &v) in lu.coupling.iter().zip(&lu.coupling_values) {
+                work[lu.compact[i]] -= v * b[j];
+            }
+        }
+        lu.lu.solve(&mut work);
+        for (&w, &i) in work.iter().zip(&lu.free) {
+            b[i] = w;
+        }
+    }
+
+    /// The mapped solve gives bitwise the gathered solve's numbers, for right-hand sides zero
+    /// and nonzero on the unit rows, on matrices whose free block interchanges rows.
+    #[test]
+    fn the_mapped_solve_is_bitwise_the_gathered_solve() {
+        let n = 12;
+        let pattern = CscPattern::dense(n);
+        let mut lu = super::UnitRowsLu::new(&pattern);
+        let mut interchanged = false;
+        for (seed, unit) in [(11, vec![0, 3, 4, 10]), (12, vec![5]), (13, vec![1, 11])] {
+            let mut a = matrix(n, &unit, seed);
+            // A weak diagonal in the free block, so that its rows interchange.
+            for j in (0..n).filter(|j| !unit.contains(j)) {
+                a[j * n + j] *= 0.01;
+            }
+            assert_eq!(lu.factor(&pattern, &a, &mask(n, &unit)), Ok(true));
+            interchanged |= lu.order != lu.free;
+            for held in [true, false] {
+                let b: Vec<f64> = (0..n)
+                    .map(|i| {
+                        if held && unit.contains(&i) {
+                            0.0
+                        } else {
+                            (i as f64 * 1.3).sin()
+                        }
+                    })
+                    .collect();
+                let (mut x, mut y) = (b.clone(), b.clone());
+                lu.solve_in_place(&mut x).unwrap_or_else(|e| panic!("{e}"));
+                gathered_solve(&lu, &mut y);
+                let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                assert_eq!(bits(&x), bits(&y), "seed {seed}, held {held}");
+            }
+        }
+        assert!(interchanged);
+        // Fewer values than the pattern stores: refused, not read past.
+        let a = matrix(n, &[2], 14);
+        assert!(matches!(
+            lu.factor(&pattern, &a[..n * n - 1], &mask(n, &[2])),
+            Err(LinalgError::Factorization(_))
+        ));
     }
 
     #[test]
