@@ -1208,12 +1208,13 @@ fn round_off_scale(z: &[f64]) -> f64 {
 }
 
 /// `r ≤ k · round_off_scale(z)`, by a scan that stops at the first component that shows it:
-/// for `k ≥ 0` rounding is monotone, so `k · max_i |z_i|` is the largest of the `k · |z_i|`
-/// (and of `k · 0`, the fold's start); a NaN component shows nothing, as `max` leaves it out.
-/// (The settings' check makes `k` positive; any other `k` takes the fold.)
+/// for a finite `k > 0` rounding is monotone and no product is NaN, so `k · max_i |z_i|` is the
+/// largest of the `k · |z_i|` (and of `k · 0 = 0`, the fold's start); a NaN component shows
+/// nothing, as `max` leaves it out. (The settings' check makes `k` positive; any other `k`
+/// takes the fold: `0 · ∞` is NaN.)
 fn within_round_off(r: f64, k: f64, z: &[f64]) -> bool {
-    if k >= 0.0 {
-        r <= k * 0.0 || z.iter().any(|v| r <= k * v.abs())
+    if k > 0.0 && k.is_finite() {
+        r <= 0.0 || z.iter().any(|v| r <= k * v.abs())
     } else {
         r <= k * round_off_scale(z)
     }
