@@ -71,7 +71,8 @@ pub use family::McpFamily;
 pub use mcp::{
     FinalResiduals, FnMcp, Mcp, WorstComponent, diagnose, diagnose_values, diagnose_values_into,
     fb_component, fb_residual, fb_residual_into, fb_residual_of_rows, fb_vector, final_residuals,
-    fischer_burmeister, mid, natural_residual, residual_of, worst_component, write_worst_component,
+    fischer_burmeister, mid, natural_residual, residual_of, worst_component,
+    worst_component_of_residual, write_worst_component,
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, DataJacobianWork, Problem, ResId, VarId};

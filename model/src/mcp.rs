@@ -435,6 +435,34 @@ pub fn worst_component(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> Op
     }
 }
 
+/// [`worst_component`] of a point whose [`natural_residual`] `value` is known (the same `z`
+/// and `F`, bit for bit): the first component whose value is `value`, by a scan that stops
+/// there. The same index and bits as `worst_component`: `value` is the largest component (a
+/// maximum returns one of its arguments; `+∞` for a NaN or infinite one, as here), so its
+/// first occurrence is the first of the largest. A `value` that no component has (not this
+/// point's) falls back to the full search. A Newton solve's finish knows the residual of its
+/// last point (`docs/latency.md`).
+pub fn worst_component_of_residual(
+    z: &[f64],
+    f: &[f64],
+    lower: &[f64],
+    upper: &[f64],
+    value: f64,
+) -> Option<(usize, f64)> {
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
+    for i in 0..n {
+        let mut c = natural_map_component(z[i], f[i], lower[i], upper[i]).abs();
+        if c.is_nan() || f[i].is_nan() || z[i].is_nan() {
+            c = f64::INFINITY;
+        }
+        if c == value {
+            return Some((i, c));
+        }
+    }
+    worst_component(z, f, lower, upper)
+}
+
 /// [`worst_component`]'s loop from component `from` on, one component at a time, `worst` the
 /// worst of the components before it.
 #[inline]
@@ -680,7 +708,15 @@ pub fn fb_vector_of_kinds_squared(
     );
     let mut s = -0.0;
     for i in 0..n {
-        let c = fb_component_of_kind(kinds[i], z[i], f[i], lower[i], upper[i]);
+        // A free component's `Φ_i` is `F_i`: tested first, so that it reads `F` alone instead
+        // of the four vectors and the kinds' jump table (most of the desk's 31 components;
+        // the same value as `fb_component_of_kind`'s arm).
+        let (kind, fi) = (kinds[i], f[i]);
+        let c = if kind == BoundKind::Free {
+            fi
+        } else {
+            fb_component_of_kind(kind, z[i], fi, lower[i], upper[i])
+        };
         phi[i] = c;
         s += c * c;
     }
@@ -1041,6 +1077,14 @@ mod tests {
                 if let Some((_, v)) = got {
                     assert_eq!(v.to_bits(), natural_residual(&z, &f, &l, &u).to_bits());
                 }
+                // Found by the known residual: the same index and bits.
+                let by_value =
+                    worst_component_of_residual(&z, &f, &l, &u, natural_residual(&z, &f, &l, &u));
+                assert_eq!(
+                    by_value.map(|(i, v)| (i, v.to_bits())),
+                    want.map(|(i, v)| (i, v.to_bits())),
+                    "n = {n}: {z:?} {f:?}"
+                );
                 checked += usize::from(got.is_some());
             }
         }
@@ -1050,6 +1094,16 @@ mod tests {
         let (l, u) = ([0.0; 4], [inf; 4]);
         assert_eq!(worst_component(&z, &f, &l, &u), Some((1, 3.0)));
         assert_eq!(worst_component(&[], &[], &[], &[]), None);
+        assert_eq!(
+            worst_component_of_residual(&z, &f, &l, &u, 3.0),
+            Some((1, 3.0))
+        );
+        // A value of no component (another point's): the full search.
+        assert_eq!(
+            worst_component_of_residual(&z, &f, &l, &u, 2.0),
+            Some((1, 3.0))
+        );
+        assert_eq!(worst_component_of_residual(&[], &[], &[], &[], 0.0), None);
     }
 
     /// `first_non_finite` is the scalar search's index: every length up to 9, each special

@@ -39,7 +39,7 @@ use std::time::Instant;
 use ecp_model::bounds::{BoundKind, classify};
 use ecp_model::linalg::LinearSolver;
 use ecp_model::mcp::{
-    FinalResiduals, fb_vector_of_kinds_squared, fischer_burmeister, worst_component,
+    FinalResiduals, fb_vector_of_kinds_squared, fischer_burmeister, worst_component_of_residual,
 };
 use ecp_model::{
     Counter, CscPattern, IterationRecord, Mcp, McpSolver, Observer, Solution, SolveError,
@@ -481,7 +481,8 @@ struct Workspace {
     h: Vec<f64>,
     da: Vec<f64>,
     db: Vec<f64>,
-    degenerate: Vec<f64>,
+    /// The degenerate pairs of the last [`generalized_jacobian_rows`].
+    degenerate: Vec<usize>,
     jv: Vec<f64>,
     hd: Vec<f64>,
     grad: Vec<f64>,
@@ -551,13 +552,17 @@ impl Workspace {
     }
 
     fn resize(&mut self, n: usize, nnz: usize) {
+        // Every buffer is resized together: the same sizes leave them as they are (a pass over
+        // 25 vectors at every solve otherwise).
+        if self.n == n && self.f.len() == n && self.jac.len() == nnz {
+            return;
+        }
         self.n = n;
         for v in [
             &mut self.f,
             &mut self.phi,
             &mut self.da,
             &mut self.db,
-            &mut self.degenerate,
             &mut self.jv,
             &mut self.hd,
             &mut self.grad,
@@ -581,6 +586,7 @@ impl Workspace {
         ] {
             v.resize(n, 0.0);
         }
+        self.degenerate.reserve(n);
         self.jac.resize(nnz, 0.0);
         self.h.resize(nnz, 0.0);
         self.unit.resize(n, false);
@@ -804,7 +810,8 @@ fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
 }
 
 /// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`);
-/// `band` is [`NewtonSettings::kink_band`] (0: off).
+/// `band` is [`NewtonSettings::kink_band`] (0: off). `degenerate` gets the pairs at the kink
+/// (in increasing order), whose rows take the element along `J v`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn generalized_jacobian_rows(
     band: f64,
@@ -817,18 +824,18 @@ pub(crate) fn generalized_jacobian_rows(
     jac: &[f64],
     ws_da: &mut [f64],
     ws_db: &mut [f64],
-    degenerate: &mut [f64],
+    degenerate: &mut Vec<usize>,
     jv: &mut [f64],
 ) {
     let n = z.len();
     // Cut to one length: no bounds checks in the loop.
     let (f, l, u, kinds) = (&f[..n], &l[..n], &u[..n], &kinds[..n]);
-    let (ws_da, ws_db, degenerate) = (&mut ws_da[..n], &mut ws_db[..n], &mut degenerate[..n]);
-    // First pass: regular components, and mark the degenerate ones with the direction
-    // v (+1 for lower, −1 for upper) of De Luca–Facchinei–Kanzow.
-    let mut any = false;
+    let (ws_da, ws_db) = (&mut ws_da[..n], &mut ws_db[..n]);
+    // First pass: regular components, and list the degenerate ones; their direction v of
+    // De Luca–Facchinei–Kanzow is +1 for lower, −1 for upper bounds (`kinds`). The list
+    // (a few pairs) replaces a vector of `v` and two more passes over all components.
+    degenerate.clear();
     for i in 0..n {
-        degenerate[i] = 0.0;
         match kinds[i] {
             BoundKind::Free => {
                 ws_da[i] = 0.0;
@@ -849,10 +856,7 @@ pub(crate) fn generalized_jacobian_rows(
                     ws_da[i] = pa;
                     ws_db[i] = pb;
                 }
-                None => {
-                    degenerate[i] = 1.0;
-                    any = true;
-                }
+                None => degenerate.push(i),
             },
             BoundKind::Upper => match phi_partials(u[i] - z[i], -f[i]) {
                 // Φ = −φ(u − z, −F) ⇒ ∂Φ/∂z = φ_a + φ_b J.
@@ -860,10 +864,7 @@ pub(crate) fn generalized_jacobian_rows(
                     ws_da[i] = pa;
                     ws_db[i] = pb;
                 }
-                None => {
-                    degenerate[i] = -1.0;
-                    any = true;
-                }
+                None => degenerate.push(i),
             },
             BoundKind::Box => {
                 let a2 = u[i] - z[i];
@@ -878,29 +879,34 @@ pub(crate) fn generalized_jacobian_rows(
             }
         }
     }
-    if any {
-        // J v over the (few) columns where v is not zero: the other columns add nothing.
+    if !degenerate.is_empty() {
+        // The direction `v` of a listed pair: only lower and upper bounds are listed.
+        let v = |j: usize| {
+            if kinds[j] == BoundKind::Lower {
+                1.0
+            } else {
+                -1.0
+            }
+        };
+        // J v over the (few) columns where v is not zero, in increasing order: the other
+        // columns add nothing.
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         jv.fill(0.0);
-        for (j, &v) in degenerate.iter().enumerate() {
-            if v != 0.0 {
-                for p in cp[j]..cp[j + 1] {
-                    jv[ri[p]] += jac[p] * v;
-                }
+        for &j in degenerate.iter() {
+            let vj = v(j);
+            for p in cp[j]..cp[j + 1] {
+                jv[ri[p]] += jac[p] * vj;
             }
         }
-        for i in 0..n {
-            let v = degenerate[i];
-            if v > 0.0 {
-                let (pa, pb) = kink_partials(1.0, jv[i]);
-                ws_da[i] = pa;
-                ws_db[i] = pb;
-            } else if v < 0.0 {
+        for &i in degenerate.iter() {
+            let (pa, pb) = if v(i) > 0.0 {
+                kink_partials(1.0, jv[i])
+            } else {
                 // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
-                let (pa, pb) = kink_partials(1.0, -jv[i]);
-                ws_da[i] = pa;
-                ws_db[i] = pb;
-            }
+                kink_partials(1.0, -jv[i])
+            };
+            ws_da[i] = pa;
+            ws_db[i] = pb;
         }
     }
 }
@@ -935,22 +941,35 @@ fn assemble_h(
     let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
     let ncols = cp.len() - 1;
     let nnz = cp[ncols];
-    let (h, jac, ri, db) = (&mut h[..nnz], &jac[..nnz], &ri[..nnz], &db[..ncols]);
-    // Two entries a turn (half the loop's own instructions).
+    let (h, jac, ri) = (&mut h[..nnz], &jac[..nnz], &ri[..nnz]);
+    // The rows' `D_b` gathered without a bounds check per entry (two of the nine instructions
+    // an entry took): every stored row index of a `CscPattern` is below its dimension
+    // (`CscPattern::from_columns` refuses others, and the fields are private), which is
+    // `ncols`, the length `db` is cut to here.
+    assert_eq!(pattern.dim(), ncols);
+    let db = &db[..ncols];
+    let row_scale = |r: usize| {
+        debug_assert!(r < db.len());
+        // SAFETY: `r` is a row index of `pattern`, below `pattern.dim() == db.len()`.
+        unsafe { *db.get_unchecked(r) }
+    };
+    // Four entries a turn (a quarter of the loop's own instructions).
     let (mut hc, mut jc, mut rc) = (
-        h.chunks_exact_mut(2),
-        jac.chunks_exact(2),
-        ri.chunks_exact(2),
+        h.chunks_exact_mut(4),
+        jac.chunks_exact(4),
+        ri.chunks_exact(4),
     );
     for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
-        hp[0] = db[r[0]] * v[0];
-        hp[1] = db[r[1]] * v[1];
+        hp[0] = row_scale(r[0]) * v[0];
+        hp[1] = row_scale(r[1]) * v[1];
+        hp[2] = row_scale(r[2]) * v[2];
+        hp[3] = row_scale(r[3]) * v[3];
     }
     let rest = (hc.into_remainder().iter_mut())
         .zip(jc.remainder())
         .zip(rc.remainder());
     for ((hp, &v), &r) in rest {
-        *hp = db[r] * v;
+        *hp = row_scale(r) * v;
     }
     for (&p, &a) in diag.iter().zip(da) {
         h[p] += a;
@@ -959,29 +978,77 @@ fn assemble_h(
     let threshold = ZERO_COLUMN * largest;
     for (j, (m, &p)) in col_max[..ncols].iter_mut().zip(diag).enumerate() {
         let d = h[p].abs();
-        let col = &h[cp[j]..cp[j + 1]];
         // A witness above the threshold decides the test (NaN is not above it): the diagonal,
-        // else the first such entry; without one, the column's largest (or NaN).
+        // else the first such entry; without one, the column's largest (or NaN). The column is
+        // cut out only when the diagonal does not decide (its bounds checks cost as much as
+        // the test).
         *m = if d > threshold {
             d
-        } else if let Some(a) = col.iter().map(|v| v.abs()).find(|&a| a > threshold) {
-            a
         } else {
-            col.iter().fold(0.0, |m: f64, v| {
-                if v.is_nan() || m.is_nan() {
-                    f64::NAN
-                } else {
-                    m.max(v.abs())
-                }
-            })
+            let col = &h[cp[j]..cp[j + 1]];
+            if let Some(a) = col.iter().map(|v| v.abs()).find(|&a| a > threshold) {
+                a
+            } else {
+                col.iter().fold(0.0, |m: f64, v| {
+                    if v.is_nan() || m.is_nan() {
+                        f64::NAN
+                    } else {
+                        m.max(v.abs())
+                    }
+                })
+            }
         };
     }
     largest
 }
 
-/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes.
+/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes: two SSE2
+/// registers on `x86_64` (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the
+/// scalar loop does), the scalar loop elsewhere. A maximum does not depend on the order.
 #[inline]
 fn largest_magnitude(v: &[f64]) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        largest_magnitude_sse2(v)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        largest_magnitude_scalar(v)
+    }
+}
+
+/// [`largest_magnitude`] in SSE2 (the `x86_64` baseline), the same value.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+fn largest_magnitude_sse2(v: &[f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let quads = v.len() / 4;
+    // SAFETY: SSE2 is part of the `x86_64` baseline; the loads are at `4q .. 4q + 3 < v.len()`.
+    let mut m = unsafe {
+        let sign = _mm_set1_pd(-0.0);
+        let (mut m0, mut m1) = (_mm_setzero_pd(), _mm_setzero_pd());
+        for q in 0..quads {
+            let p = v.as_ptr().add(4 * q);
+            m0 = _mm_max_pd(_mm_andnot_pd(sign, _mm_loadu_pd(p)), m0);
+            m1 = _mm_max_pd(_mm_andnot_pd(sign, _mm_loadu_pd(p.add(2))), m1);
+        }
+        let mut lanes = [0.0f64; 4];
+        _mm_storeu_pd(lanes.as_mut_ptr(), m0);
+        _mm_storeu_pd(lanes.as_mut_ptr().add(2), m1);
+        lanes
+    };
+    for (k, x) in v[4 * quads..].iter().enumerate() {
+        let a = x.abs();
+        if a > m[k] {
+            m[k] = a;
+        }
+    }
+    m[0].max(m[1]).max(m[2].max(m[3]))
+}
+
+/// [`largest_magnitude`] one entry at a time (other targets; the tests' reference).
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+fn largest_magnitude_scalar(v: &[f64]) -> f64 {
     let mut m = [0.0f64; 4];
     let chunks = v.chunks_exact(4);
     let rest = chunks.remainder();
@@ -1110,7 +1177,12 @@ fn same_branches(
 ) -> bool {
     let n = z.len();
     let (f, z0, f0, l, u, kinds) = (&f[..n], &z0[..n], &f0[..n], &l[..n], &u[..n], &kinds[..n]);
-    (0..n).all(|i| same_branch(kinds[i], (z[i], f[i]), (z0[i], f0[i]), l[i], u[i]))
+    // A free pair has one branch: tested before the six values are loaded and the kinds'
+    // jump table taken (most of the desk's pairs).
+    (0..n).all(|i| {
+        let kind = kinds[i];
+        kind == BoundKind::Free || same_branch(kind, (z[i], f[i]), (z0[i], f0[i]), l[i], u[i])
+    })
 }
 
 /// `pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind)`, with `kind` matched once.
@@ -1135,6 +1207,19 @@ fn round_off_scale(z: &[f64]) -> f64 {
     z.iter().fold(0.0, |m: f64, v| m.max(v.abs()))
 }
 
+/// `r ≤ k · round_off_scale(z)`, by a scan that stops at the first component that shows it:
+/// for a finite `k > 0` rounding is monotone and no product is NaN, so `k · max_i |z_i|` is the
+/// largest of the `k · |z_i|` (and of `k · 0 = 0`, the fold's start); a NaN component shows
+/// nothing, as `max` leaves it out. (The settings' check makes `k` positive; any other `k`
+/// takes the fold: `0 · ∞` is NaN.)
+fn within_round_off(r: f64, k: f64, z: &[f64]) -> bool {
+    if k > 0.0 && k.is_finite() {
+        r <= 0.0 || z.iter().any(|v| r <= k * v.abs())
+    } else {
+        r <= k * round_off_scale(z)
+    }
+}
+
 /// Evaluates the trial point `z + t d` into the workspace's trial buffers; returns `Ψ` there,
 /// or `None` when `F` is not finite.
 fn try_step(
@@ -1145,8 +1230,9 @@ fn try_step(
     u: &[f64],
     f_evals: &mut usize,
 ) -> Option<f64> {
-    for i in 0..ws.n {
-        ws.z_trial[i] = ws.z[i] + t * ws.d[i];
+    // Over the three slices together (no bounds checks: the loop runs in vector lanes).
+    for ((zt, &z), &d) in ws.z_trial.iter_mut().zip(&ws.z).zip(&ws.d) {
+        *zt = z + t * d;
     }
     merit_at_trial(mcp, ws, l, u, f_evals)
 }
@@ -1675,7 +1761,7 @@ impl NewtonSolver {
         let at_round_off = |r: f64, z: &[f64]| {
             r <= s.polish_below * s.tolerance
                 && s.chord_round_off_floor
-                    .is_some_and(|ulps| r <= ulps * f64::EPSILON * round_off_scale(z))
+                    .is_some_and(|ulps| within_round_off(r, ulps * f64::EPSILON, z))
         };
         // The contraction a chord step on the LU held must give.
         let chord_kappa = |from_last: bool| {
@@ -1701,7 +1787,9 @@ impl NewtonSolver {
         };
         let psi_start = psi;
         let mut residual = natural_residual(&ws.z, &ws.f, l, u);
-        ws.z_best.copy_from_slice(&ws.z);
+        // The best point is the iterate `z` itself while this holds (`z_best` is then stale):
+        // it is copied only when a step leaves it (a copy per improvement before).
+        let mut best_is_z = true;
         let mut best_residual = residual;
         // The best residual after each iteration (index 0: at the start), for the stall test.
         ws.best_history.clear();
@@ -2312,7 +2400,12 @@ impl NewtonSolver {
             });
             if residual < best_residual {
                 best_residual = residual;
-                ws.z_best.copy_from_slice(&ws.z);
+                best_is_z = true;
+            } else if best_is_z {
+                // The step left the best point: it is the iterate before the step, in `z_trial`
+                // since the swap.
+                ws.z_best.copy_from_slice(&ws.z_trial);
+                best_is_z = false;
             }
             ws.best_history.push(best_residual);
             best_psi = best_psi.min(psi);
@@ -2372,6 +2465,10 @@ impl NewtonSolver {
                         best_psi = ws.best_psi_history[keep - 1];
                     }
                     min_norm_pending = 0;
+                    if best_is_z {
+                        ws.z_best.copy_from_slice(&ws.z);
+                        best_is_z = false;
+                    }
                     // The sequence failed: back to the checkpoint, monotone steps from there.
                     std::mem::swap(&mut ws.z, &mut ws.z_check);
                     std::mem::swap(&mut ws.f, &mut ws.f_check);
@@ -2385,15 +2482,16 @@ impl NewtonSolver {
                     continue;
                 }
             }
-            // How far the step moved `z` (relative), only where the test needs it: the
-            // iterate before the step is in `z_trial` since the swap (a restore `continue`s).
+            // Whether the step moved `z` (relative) by more than round-off, only where the test
+            // needs it: the iterate before the step is in `z_trial` since the swap (a restore
+            // `continue`s). The largest move is at most `4ε` exactly when no component's is
+            // above it (a NaN one counts in neither), so the scan stops at the first that is.
             let moved = || {
                 (ws.z_trial.iter())
                     .zip(&ws.z)
-                    .map(|(a, b)| (a - b).abs() / (1.0 + a.abs()))
-                    .fold(0.0, f64::max)
+                    .any(|(a, b)| (a - b).abs() / (1.0 + a.abs()) > 4.0 * f64::EPSILON)
             };
-            if residual > s.tolerance && moved() <= 4.0 * f64::EPSILON {
+            if residual > s.tolerance && !moved() {
                 termination = Termination::Stagnated;
             }
             clock.lap(&mut prof, Phase::Other);
@@ -2421,10 +2519,13 @@ impl NewtonSolver {
             total.add(&prof);
         }
         // Returning the last iterate: F there is at hand (the iteration keeps `f = F(z)`).
+        // (`best_is_z` implies `residual == best_residual`, so the last iterate.)
         let at_last = termination == Termination::Converged || residual <= best_residual;
-        if at_last {
-            ws.z_best.copy_from_slice(&ws.z);
-        }
+        let z_out: &[f64] = if at_last || best_is_z {
+            &ws.z
+        } else {
+            &ws.z_best
+        };
         // The result in the storage `solve_into` handed over, if any (counters included).
         let mut result = std::mem::take(&mut ws.result);
         let mut counters = std::mem::take(&mut result.summary.counters);
@@ -2448,7 +2549,7 @@ impl NewtonSolver {
             counters,
         };
         if !at_last {
-            return finish_solve(mcp, ws.z_best.clone(), report);
+            return finish_solve(mcp, z_out.to_vec(), report);
         }
         // Φ at the returned point is at hand too (the iteration keeps `phi = Φ(z)`): its sum of
         // squares, in component order as `fb_residual` sums it, spares the finish that pass. It
@@ -2459,8 +2560,11 @@ impl NewtonSolver {
         } else {
             dot(&ws.phi, &ws.phi)
         };
-        let residuals = FinalResiduals::new(worst_component(&ws.z_best, &ws.f, l, u), phi_squared);
-        if finish_solve_with(mcp, &ws.z_best, &residuals, report, &mut result) {
+        // `residual` is the natural residual of `(z, F)` (every assignment computes it there),
+        // so the worst component is its first occurrence.
+        let worst = worst_component_of_residual(z_out, &ws.f, l, u, residual);
+        let residuals = FinalResiduals::new(worst, phi_squared);
+        if finish_solve_with(mcp, z_out, &residuals, report, &mut result) {
             // Converged on its last LU: kept for the next solve's first iteration.
             self.kept_lu = s.chord_across_solves.is_some() && chord_lu && one_lu_step;
             Ok(result)
@@ -2492,7 +2596,7 @@ mod tests {
         let z = [0.0, 1.0, 1e-3, 2.0];
         let rows = |f: [f64; 4], band: f64| {
             let (mut da, mut db, mut deg, mut jv) =
-                (vec![0.0; 4], vec![0.0; 4], vec![0.0; 4], vec![0.0; 4]);
+                (vec![0.0; 4], vec![0.0; 4], Vec::new(), vec![0.0; 4]);
             generalized_jacobian_rows(
                 band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
             );
@@ -2511,6 +2615,25 @@ mod tests {
         let (da_far, db_far) = rows([-1e-13, 1e-13, 0.0, 0.0], 1e-14);
         assert!((da_far[0] + 1.0).abs() < 1e-15 && (db_far[0] + 2.0).abs() < 1e-15);
         assert!((da_far[1] + 1.0).abs() < 1e-15 && (db_far[1] + 2.0).abs() < 1e-15);
+        // Both pairs at the kink (`z` at the bound, `F = 0`): listed, and their rows the
+        // element along `J v` with `v = (1, −1, 0, 0)`; `J_rj = 4j + r + 1`, so `(J v)_0 = −4`,
+        // `(J v)_1 = −4`: `(1/√17 − 1, ∓4/√17 − 1)` (the upper pair's sign turned).
+        let jac: Vec<f64> = (0..16).map(|p| f64::from(p + 1)).collect();
+        let (mut da, mut db, mut deg, mut jv) = (vec![0.0; 4], vec![0.0; 4], vec![7], vec![0.0; 4]);
+        generalized_jacobian_rows(
+            0.0, &z, &[0.0; 4], &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+        );
+        assert_eq!(deg, vec![0, 1]);
+        let r = 17f64.sqrt();
+        let near = |a: f64, b: f64| (a - b).abs() < 1e-15;
+        assert!(
+            near(da[0], 1.0 / r - 1.0) && near(db[0], -4.0 / r - 1.0),
+            "{da:?} {db:?}"
+        );
+        assert!(
+            near(da[1], 1.0 / r - 1.0) && near(db[1], 4.0 / r - 1.0),
+            "{da:?} {db:?}"
+        );
     }
 
     /// The flat assembly and the gradient apart give the bits of the plain assembly, column by
@@ -2518,6 +2641,76 @@ mod tests {
     /// pinning test as the column maxima do, with a NaN column and a zero one), on patterns
     /// with an odd and an even number of columns, columns with the diagonal first, last and
     /// alone, and columns of different lengths.
+    /// `within_round_off` decides as `r ≤ k · round_off_scale(z)` does: every length to 6,
+    /// `r` and `k` on both sides of each component's `k · |z_i|`, with NaN, ±∞, ±0.
+    #[test]
+    fn the_round_off_scan_decides_as_the_largest_component() {
+        let values = [
+            0.0,
+            -0.0,
+            1.0,
+            -3.0,
+            0.5,
+            f64::NAN,
+            f64::INFINITY,
+            -2.5e-310,
+        ];
+        let ks = [0.0, 4.0 * f64::EPSILON, 1.0, f64::INFINITY, -1.0, f64::NAN];
+        let mut decided = [0usize; 2];
+        for n in 0..7 {
+            for shift in 0..values.len() {
+                let z: Vec<f64> = (0..n)
+                    .map(|i| values[(i * 3 + shift) % values.len()])
+                    .collect();
+                for &k in &ks {
+                    let scale = round_off_scale(&z);
+                    for r in [
+                        0.0,
+                        1e-16,
+                        8.9e-16,
+                        8.881784197001252e-16,
+                        3.0,
+                        f64::INFINITY,
+                    ] {
+                        for r in [r, r * (1.0 + f64::EPSILON), k * scale] {
+                            let want = r <= k * scale;
+                            assert_eq!(within_round_off(r, k, &z), want, "{r} {k} {z:?}");
+                            decided[usize::from(want)] += 1;
+                        }
+                    }
+                }
+            }
+        }
+        assert!(decided[0] > 100 && decided[1] > 100, "{decided:?}");
+    }
+
+    /// `largest_magnitude` (SSE2 lanes on `x86_64`) is the scalar loop's value on every length
+    /// to 13 with NaN, ±∞, −0 and ties at every place.
+    #[test]
+    fn the_largest_magnitude_in_lanes_is_the_scalar_loops() {
+        let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.0, -7.5, 7.5];
+        for n in 0..14 {
+            let base: Vec<f64> = (0..n)
+                .map(|i| [1.0, -3.0, 0.25, -2.5e-310, 7.5][i % 5])
+                .collect();
+            let mut cases = vec![base.clone()];
+            for k in 0..n {
+                for s in specials {
+                    let mut v = base.clone();
+                    v[k] = s;
+                    cases.push(v);
+                }
+            }
+            for v in cases {
+                let (got, want) = (largest_magnitude(&v), largest_magnitude_scalar(&v));
+                assert_eq!(got.to_bits(), want.to_bits(), "{v:?}");
+                assert!(!got.is_nan());
+            }
+        }
+        assert_eq!(largest_magnitude(&[f64::NAN; 5]), 0.0);
+        assert_eq!(largest_magnitude(&[-1.0, 2.0, f64::NAN, -9.0, 3.0]), 9.0);
+    }
+
     #[test]
     fn the_flat_assembly_and_the_gradient_give_the_bits_of_one_column_at_a_time() {
         fn plain(

@@ -166,7 +166,7 @@ struct Augmented<'a> {
     jac: Vec<f64>,
     da: Vec<f64>,
     db: Vec<f64>,
-    degenerate: Vec<f64>,
+    degenerate: Vec<usize>,
     jv: Vec<f64>,
     phi: Vec<f64>,
     /// Column-major `(n + 1) × (n + 1)`.
@@ -189,7 +189,7 @@ impl<'a> Augmented<'a> {
             jac: vec![0.0; mcp.jacobian_pattern().nnz()],
             da: vec![0.0; n],
             db: vec![0.0; n],
-            degenerate: vec![0.0; n],
+            degenerate: Vec::with_capacity(n),
             jv: vec![0.0; n],
             phi: vec![0.0; n],
             a: vec![0.0; (n + 1) * (n + 1)],
