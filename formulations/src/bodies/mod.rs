@@ -846,8 +846,8 @@ impl StepFormulation for MultiBody {
             mcp.set_data(d.friction, &ctx.scene.friction.values())?;
         }
         let o = Vector3::zeros();
-        for ((b, spec), s) in self.bodies.iter().zip(&ctx.scene.bodies).zip(ctx.states) {
-            set_body_data(mcp, &b.data, spec, s, &o, ctx.t0)?;
+        for (i, (b, s)) in self.bodies.iter().zip(ctx.states).enumerate() {
+            set_body_data(mcp, &b.data, s, &ctx.wrench(i), &o)?;
         }
         for (b, o) in self.obstacles.iter().zip(&ctx.scene.world.obstacles) {
             let s = o.span(ctx.t0, ctx.h);

@@ -5,6 +5,7 @@ use parry3d_f64::math::Vector as PVec;
 use parry3d_f64::shape::ConvexPolyhedron;
 
 use super::error::GeometryError;
+use super::lanes::VertexLanes;
 use super::points::{
     FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL, dedupe_points,
 };
@@ -47,6 +48,8 @@ pub struct ConvexHull {
     volume: f64,
     /// The largest distance of a vertex from the body origin ([`ConvexHull::radius`]).
     radius: f64,
+    /// The vertices in lanes ([`ConvexHull::vertex_lanes`]).
+    lanes: VertexLanes,
 }
 
 fn to_parry(v: &Vector3<f64>) -> PVec {
@@ -381,6 +384,7 @@ impl ConvexHull {
 
         let radius = vertices.iter().map(|v| v.norm()).fold(0.0, f64::max);
         Ok(ConvexHull {
+            lanes: VertexLanes::of(&vertices),
             vertices,
             faces: merged,
             volume,
@@ -391,6 +395,11 @@ impl ConvexHull {
     /// Extreme vertices of the hull (body frame).
     pub fn vertices(&self) -> &[Vector3<f64>] {
         &self.vertices
+    }
+
+    /// The extreme vertices in lanes (their world gaps a chunk at a time, [`VertexLanes`]).
+    pub fn vertex_lanes(&self) -> &VertexLanes {
+        &self.lanes
     }
 
     /// Faces of the hull, one per distinct plane (body frame).

@@ -455,7 +455,7 @@ impl StepFormulation for PointContacts {
         for (b, body) in self.bodies.iter().enumerate() {
             let s = ctx.states[b];
             let rot = rotation_matrix(&s.q);
-            set_body_data(mcp, &body.data, &ctx.scene.bodies[b], &s, &o, ctx.t0)?;
+            set_body_data(mcp, &body.data, &s, &ctx.wrench(b), &o)?;
             for (c, g) in self.contacts.iter().zip(&self.geometry) {
                 if c.body != b {
                     continue;
