@@ -68,25 +68,17 @@ fn lowest_feature(
 ) -> (Vector3<f64>, f64) {
     let verts = set.vertices();
     let gap = |v: &Vector3<f64>| plane.value(&(x + r * v));
-    // Each vertex's gap is read twice: for the hulls of up to `KEPT_GAPS` vertices computed once
-    // in lanes (`VertexLanes::gaps_into`: the bits of `gap`) and kept on the stack, for larger
-    // ones computed twice (the same number).
+    // Each vertex's gap is read twice: kept on the stack for the hulls of up to `KEPT_GAPS`
+    // vertices, computed twice (the same number) for larger ones.
     let mut kept = [0.0; KEPT_GAPS];
-    let gaps = &mut kept[..if verts.len() <= KEPT_GAPS {
-        verts.len()
-    } else {
-        0
-    }];
+    let gaps = &mut kept[..verts.len().min(KEPT_GAPS)];
     let mut gmin = f64::INFINITY;
-    if !gaps.is_empty() {
-        set.vertex_lanes().gaps_into(0, (x, r), plane, gaps);
-        for &g in gaps.iter() {
-            gmin = gmin.min(g);
+    for (k, v) in verts.iter().enumerate() {
+        let g = gap(v);
+        if let Some(slot) = gaps.get_mut(k) {
+            *slot = g;
         }
-    } else {
-        for v in verts {
-            gmin = gmin.min(gap(v));
-        }
+        gmin = gmin.min(g);
     }
     let mut a1_body = Vector3::zeros();
     let mut count: f64 = 0.0;

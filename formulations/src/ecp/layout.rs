@@ -10,7 +10,7 @@ use ecp_model::{BlockMcp, DataId, ResId, VarId};
 
 use super::scales::BodyUnits;
 use crate::blocks::{BodyDataIds, BodyStepData, ContactFrame, SceneDataIds};
-use crate::geometry::{ConvexHull, HalfSpace, VertexLanes, VertexSpacing};
+use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing};
 use crate::scene::BodyState;
 
 /// Handles of one contact's variable blocks.
@@ -57,9 +57,6 @@ pub(crate) struct EcpBody {
     pub(crate) length: f64,
     /// How far apart the body's vertices are (its contact records' merge tests).
     pub(crate) spacing: VertexSpacing,
-    /// The body's vertices (of its shape, not only Conv(F)'s) in lanes: its contact records'
-    /// gaps and modes.
-    pub(crate) vertices: VertexLanes,
 }
 
 /// The data of the span prepared last, as the step's blocks read them.

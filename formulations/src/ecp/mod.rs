@@ -37,10 +37,7 @@ use crate::blocks::{
     HullFaces, KinematicMap, NewtonEuler, NonPenetration, NormalCone, SceneDataIds, add_body_data,
     add_plane_data, add_scene_data,
 };
-use crate::geometry::{
-    ConvexHull, HalfSpace, VertexLanes, VertexSpacing, gap_and_mode_at, gap_and_mode_spaced,
-    min_gap,
-};
+use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing, gap_and_mode_spaced, min_gap};
 use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
@@ -512,7 +509,6 @@ impl StepFormulation for EcpContacts {
             layout.bodies.push(EcpBody {
                 length: scales::bounding_diagonal(hull.vertices()),
                 spacing: VertexSpacing::of(spec.shape.vertices()),
-                vertices: VertexLanes::of(spec.shape.vertices()),
                 hull,
                 nu,
                 q,
@@ -880,21 +876,15 @@ impl StepFormulation for EcpContacts {
             let (s, plane) = (&states[c.body], &scene.planes[c.plane]);
             let vertices = scene.bodies[c.body].shape.vertices();
             let r = self.rotations.of(c.body, &s.q);
-            let body = &self.layout.bodies[c.body];
-            // The lanes are the shape's vertices from the build (the scene's shape does not
-            // change without one; a count that differs takes the vertices themselves).
-            let (gap, mode) = if body.vertices.len() == vertices.len() {
-                gap_and_mode_spaced(
-                    &body.vertices,
-                    &body.spacing,
-                    (&s.x, &r),
-                    plane,
-                    MODE_TOLERANCE,
-                    &mut touching,
-                )
-            } else {
-                gap_and_mode_at(vertices, (&s.x, &r), plane, MODE_TOLERANCE, &mut touching)
-            };
+            let spacing = &self.layout.bodies[c.body].spacing;
+            let (gap, mode) = gap_and_mode_spaced(
+                vertices,
+                spacing,
+                (&s.x, &r),
+                plane,
+                MODE_TOLERANCE,
+                &mut touching,
+            );
             let (a1, a2, pf) = (get(c.a1), get(c.a2), get(c.pf));
             out.push(ContactRecord {
                 a1: Vector3::new(a1[0], a1[1], a1[2]) + o,

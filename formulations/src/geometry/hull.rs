@@ -5,7 +5,6 @@ use parry3d_f64::math::Vector as PVec;
 use parry3d_f64::shape::ConvexPolyhedron;
 
 use super::error::GeometryError;
-use super::lanes::VertexLanes;
 use super::points::{
     FLATNESS_TOL, MAX_HULL_CANDIDATES, MAX_HULL_POINTS, VERTEX_MERGE_TOL, dedupe_points,
 };
@@ -48,8 +47,6 @@ pub struct ConvexHull {
     volume: f64,
     /// The largest distance of a vertex from the body origin ([`ConvexHull::radius`]).
     radius: f64,
-    /// The vertices in lanes ([`ConvexHull::vertex_lanes`]).
-    lanes: VertexLanes,
 }
 
 fn to_parry(v: &Vector3<f64>) -> PVec {
@@ -384,7 +381,6 @@ impl ConvexHull {
 
         let radius = vertices.iter().map(|v| v.norm()).fold(0.0, f64::max);
         Ok(ConvexHull {
-            lanes: VertexLanes::of(&vertices),
             vertices,
             faces: merged,
             volume,
@@ -395,11 +391,6 @@ impl ConvexHull {
     /// Extreme vertices of the hull (body frame).
     pub fn vertices(&self) -> &[Vector3<f64>] {
         &self.vertices
-    }
-
-    /// The extreme vertices in lanes (their world gaps a chunk at a time, [`VertexLanes`]).
-    pub fn vertex_lanes(&self) -> &VertexLanes {
-        &self.lanes
     }
 
     /// Faces of the hull, one per distinct plane (body frame).

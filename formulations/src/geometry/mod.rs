@@ -8,8 +8,6 @@
 //! - [`MassProperties`]: validated mass and body-frame inertia;
 //! - [`HalfSpace`], [`contact_mode`], [`min_gap`]: the fixed half-space G and
 //!   the state-only queries on it;
-//! - [`VertexLanes`]: a vertex set in lanes, its world positions and gaps to a half-space a
-//!   chunk at a time (the records' and the warm start's vertex gaps);
 //! - [`convex_hull_2d`]: the convex hull of a planar point set (a contact patch);
 //! - [`pair_features`]: the closest (or overlapping) features of two hulls at given poses, the
 //!   starting point of a contact between two bodies.
@@ -22,7 +20,6 @@
 
 mod error;
 mod hull;
-mod lanes;
 mod mass;
 mod pair_features;
 mod plane;
@@ -33,7 +30,6 @@ mod shape;
 
 pub use error::GeometryError;
 pub use hull::{ConvexHull, Face, prune_to_extreme_candidates};
-pub use lanes::{LANE_CHUNK, VertexLanes, WorldChunk};
 pub use mass::MassProperties;
 pub(crate) use pair_features::cone_combination;
 pub use pair_features::{HullPose, PairFeatures, pair_features, predicted_pose};

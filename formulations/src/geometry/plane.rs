@@ -6,7 +6,6 @@ use std::fmt;
 use nalgebra::{Matrix3, Vector3};
 
 use super::error::GeometryError;
-use super::lanes::{LANE_CHUNK, VertexLanes, WorldChunk};
 use super::points::{VERTEX_MERGE_TOL, dedupe_points};
 
 /// A fixed obstacle G = { p : normal·p − offset ≤ 0 } (`docs/model.md#contact`,
@@ -167,7 +166,36 @@ pub fn gap_and_mode_at(
     tol: f64,
     touching: &mut Vec<Vector3<f64>>,
 ) -> (f64, ContactMode) {
-    let (x, r) = pose;
+    gap_and_mode_merging::<true>(body_vertices, pose, plane, tol, touching)
+}
+
+/// [`gap_and_mode_at`] for vertices whose [`VertexSpacing`] is `spacing`: the touching vertices'
+/// merge tests are skipped where the spacing shows no two world vertices can merge
+/// ([`VertexSpacing::never_merge_at`]; 120 pairs on a desk record). The same numbers.
+pub fn gap_and_mode_spaced(
+    body_vertices: &[Vector3<f64>],
+    spacing: &VertexSpacing,
+    pose: (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
+    if spacing.count == body_vertices.len() && spacing.never_merge_at(pose.0) {
+        gap_and_mode_merging::<false>(body_vertices, pose, plane, tol, touching)
+    } else {
+        gap_and_mode_merging::<true>(body_vertices, pose, plane, tol, touching)
+    }
+}
+
+/// [`gap_and_mode_at`], the merge tests made only when `MERGE`.
+#[inline(always)]
+fn gap_and_mode_merging<const MERGE: bool>(
+    body_vertices: &[Vector3<f64>],
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
     touching.clear();
     let mut gap = f64::INFINITY;
     for v in body_vertices {
@@ -175,41 +203,8 @@ pub fn gap_and_mode_at(
         let p = x + r * v;
         let g = plane.value(&p);
         gap = gap.min(g);
-        if g <= tol && !touching.iter().any(|q| merges(q, &p)) {
+        if g <= tol && !(MERGE && touching.iter().any(|q| merges(q, &p))) {
             touching.push(p);
-        }
-    }
-    (gap, mode_of_touching(touching, tol))
-}
-
-/// [`gap_and_mode_at`] for the vertices `lanes` ([`VertexLanes`]) whose [`VertexSpacing`] is
-/// `spacing`: the world positions and gaps a chunk of vertices at a time in lanes
-/// ([`VertexLanes::world_into`], the bits of the vertex-by-vertex ones), and the touching
-/// vertices' merge tests skipped where the spacing shows no two world vertices can merge
-/// ([`VertexSpacing::never_merge_at`]; 120 pairs on a desk record). The same numbers.
-pub fn gap_and_mode_spaced(
-    lanes: &VertexLanes,
-    spacing: &VertexSpacing,
-    pose: (&Vector3<f64>, &Matrix3<f64>),
-    plane: &HalfSpace,
-    tol: f64,
-    touching: &mut Vec<Vector3<f64>>,
-) -> (f64, ContactMode) {
-    let merge = !(spacing.count == lanes.len() && spacing.never_merge_at(pose.0));
-    touching.clear();
-    let mut gap = f64::INFINITY;
-    let mut chunk = WorldChunk::default();
-    for start in (0..lanes.len()).step_by(LANE_CHUNK) {
-        lanes.world_into(start, pose, plane, &mut chunk);
-        for (k, &g) in chunk.gap[..chunk.len].iter().enumerate() {
-            // The order of `gap_and_mode_at`'s pass: the same minimum and touching list.
-            gap = gap.min(g);
-            if g <= tol {
-                let p = chunk.point(k);
-                if !(merge && touching.iter().any(|q| merges(q, &p))) {
-                    touching.push(p);
-                }
-            }
         }
     }
     (gap, mode_of_touching(touching, tol))
@@ -468,7 +463,6 @@ mod tests {
         for shape in [Shape::desk(), Shape::t_bar()] {
             let v = shape.vertices();
             let spacing = VertexSpacing::of(v);
-            let lanes = VertexLanes::of(v);
             for (rpy, lift) in [
                 ((0.0, 0.0, 0.0), 0.0),
                 ((5.0, 0.0, 0.0), 0.0),
@@ -480,8 +474,7 @@ mod tests {
                 for far in [0.0, 1e3, 1e14] {
                     let x = Vector3::new(0.3 + far, -0.1, lift - lowest);
                     let a = gap_and_mode_at(v, (&x, &r), &ground, TOL, &mut kept);
-                    let b =
-                        gap_and_mode_spaced(&lanes, &spacing, (&x, &r), &ground, TOL, &mut skipped);
+                    let b = gap_and_mode_spaced(v, &spacing, (&x, &r), &ground, TOL, &mut skipped);
                     assert_eq!((a.0.to_bits(), a.1), (b.0.to_bits(), b.1), "{rpy:?} {far}");
                     assert_eq!(kept, skipped, "{rpy:?} {far}");
                     skips += usize::from(spacing.never_merge_at(&x));
@@ -498,14 +491,7 @@ mod tests {
         );
         let spacing = VertexSpacing::of(&close);
         let pose = (&Vector3::zeros(), &Matrix3::identity());
-        let b = gap_and_mode_spaced(
-            &VertexLanes::of(&close),
-            &spacing,
-            pose,
-            &ground,
-            TOL,
-            &mut skipped,
-        );
+        let b = gap_and_mode_spaced(&close, &spacing, pose, &ground, TOL, &mut skipped);
         assert_eq!((a.0.to_bits(), a.1, &kept), (b.0.to_bits(), b.1, &skipped));
         assert_eq!(kept.len(), 2);
     }
