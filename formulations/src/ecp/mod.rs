@@ -41,7 +41,7 @@ use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing, gap_and_mode_spaced,
 use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
-use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
+use crate::step::body::{is_closing, predict_pose, set_body_span_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Iterates, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
@@ -745,7 +745,7 @@ impl StepFormulation for EcpContacts {
             mcp.set_data(d.h, &[ctx.h])?;
         }
         for (b, (body, s)) in l.bodies.iter().zip(ctx.states).enumerate() {
-            set_body_data(mcp, &body.data, s, &ctx.wrench(b), &l.origin)?;
+            set_body_span_data(mcp, &body.data, s, &ctx.wrench(b), &l.origin)?;
         }
         l.record_span(mcp, ctx.states);
         Ok(())

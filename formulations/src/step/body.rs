@@ -7,12 +7,25 @@ use ecp_model::{BlockMcp, ModelError, VarId};
 
 use crate::blocks::{BodyDataIds, start_values};
 use crate::rotation::{kinematic_map, quat_normalize, rotation_matrix};
-use crate::scene::BodyState;
+use crate::scene::{BodySpec, BodyState};
 
-/// Writes body data `data` for a span from `state`: the start state (`x` relative to `origin`,
-/// the step problem's origin) and the applied wrench at the span's start, `wrench`
-/// ([`crate::step::StepContext::wrench`]; `docs/model.md#data-blocks`).
+/// Writes body data `data` for a span from `state` at `t0`: the start state (`x` relative to
+/// `origin`, the step problem's origin) and the applied wrench at `t0`
+/// (`docs/model.md#data-blocks`). [`set_body_span_data`] with the wrench evaluated here.
 pub fn set_body_data(
+    mcp: &mut BlockMcp,
+    data: &BodyDataIds,
+    spec: &BodySpec,
+    state: &BodyState,
+    origin: &Vector3<f64>,
+    t0: f64,
+) -> Result<(), ModelError> {
+    set_body_span_data(mcp, data, state, &spec.load.at(t0), origin)
+}
+
+/// [`set_body_data`] with the applied wrench at the span's start given, `wrench`: the one the
+/// driver evaluated once for the span ([`crate::step::StepContext::wrench`]).
+pub fn set_body_span_data(
     mcp: &mut BlockMcp,
     data: &BodyDataIds,
     state: &BodyState,
