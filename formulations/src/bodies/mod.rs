@@ -40,7 +40,7 @@ use crate::geometry::{
 use crate::record::{ContactRecord, MODE_TOLERANCE, PairRecord, scene_gaps_and_modes};
 use crate::rotation::{quat_normalize, rotation_matrix};
 use crate::scene::{BodyState, Scene, SceneError, validate_scene_parameters};
-use crate::step::body::{predict_pose, set_body_data, store_states};
+use crate::step::body::{predict_pose, set_body_span_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
@@ -846,8 +846,8 @@ impl StepFormulation for MultiBody {
             mcp.set_data(d.friction, &ctx.scene.friction.values())?;
         }
         let o = Vector3::zeros();
-        for ((b, spec), s) in self.bodies.iter().zip(&ctx.scene.bodies).zip(ctx.states) {
-            set_body_data(mcp, &b.data, spec, s, &o, ctx.t0)?;
+        for (i, (b, s)) in self.bodies.iter().zip(ctx.states).enumerate() {
+            set_body_span_data(mcp, &b.data, s, &ctx.wrench(i), &o)?;
         }
         for (b, o) in self.obstacles.iter().zip(&ctx.scene.world.obstacles) {
             let s = o.span(ctx.t0, ctx.h);

@@ -41,7 +41,7 @@ use crate::geometry::{ConvexHull, HalfSpace, VertexSpacing, gap_and_mode_spaced,
 use crate::record::{ContactRecord, MODE_TOLERANCE};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_body_penetration, validate_parameters};
-use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
+use crate::step::body::{is_closing, predict_pose, set_body_span_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Iterates, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
@@ -93,6 +93,9 @@ pub struct EcpContacts {
     phi: Vec<f64>,
     /// `start` and `start_f` are the last warm start's.
     start_known: bool,
+    /// Whether a term ([`ecp_model::Problem::add_term`]) adds to some body's `ν` rows, for the
+    /// step problem of that many residual blocks (`momentum_rows_decide`).
+    terms_on_nu: Option<(usize, bool)>,
 }
 
 /// The rotation `R(Q)` of the orientation each body was last asked for, kept across calls: the
@@ -161,6 +164,7 @@ impl EcpContacts {
             f: Vec::new(),
             phi: Vec::new(),
             start_known: false,
+            terms_on_nu: None,
         }
     }
 
@@ -182,6 +186,7 @@ impl EcpContacts {
             f: Vec::new(),
             phi: Vec::new(),
             start_known: false,
+            terms_on_nu: None,
         }
     }
 
@@ -322,6 +327,59 @@ impl EcpContacts {
         })
     }
 
+    /// Whether the extrapolated start's Fischer–Burmeister residual `merit` is below that of the
+    /// plain warm start's translational Newton–Euler rows (each body's first three `ν` rows, the
+    /// momentum balance `−m (v − v^u) + h (m g + f) + Σ (n p_n + t p_t + o p_o)`), found at the last
+    /// step's iterate `last` without building the plain start: so below the plain start's whole
+    /// residual, the guard's choice without the plain start (`warm_start`).
+    ///
+    /// Those rows read only `ν`, each contact's `p_n` and `p_f` and the span's data, never `q` or
+    /// `a1` (test `momentum_rows_at_the_last_iterate_are_those_of_the_plain_start`). The plain start
+    /// ([`EcpContacts::warm_start_from`] without iterates, from `last`) keeps `last`'s `ν`, and the
+    /// impulses of every contact closed in `last` (an open one whose predicted pose penetrates starts
+    /// active instead): with every contact closed and no term adding to the `ν` rows, `F` of those
+    /// rows at `last` has the plain start's bits, and their residual over those rows, in index order,
+    /// is at most the plain start's whole one ([`fb_residual_of_rows`]). `false` (undecided) otherwise;
+    /// `f` is scratch (`F` at `last` in those rows on return).
+    fn momentum_rows_decide(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        last: &[f64],
+        merit: f64,
+        f: &mut [f64],
+    ) -> bool {
+        let blocks = mcp.num_residual_blocks();
+        let terms = match self.terms_on_nu {
+            Some((n, terms)) if n == blocks => terms,
+            _ => {
+                let bodies = &self.layout.bodies;
+                let terms = (0..blocks).any(|r| {
+                    let (v, term) = mcp.residual_rows(ResId(r));
+                    term && bodies.iter().any(|b| b.nu == v)
+                });
+                self.terms_on_nu = Some((blocks, terms));
+                terms
+            }
+        };
+        let l = &self.layout;
+        let closed = l
+            .contacts
+            .iter()
+            .all(|c| last[mcp.range(c.pn)][0] > open_impulse(ctx.scene, c.body, ctx.h));
+        if terms || !closed {
+            return false;
+        }
+        for body in &l.bodies {
+            mcp.evaluate_rows_of(body.nu, last, f);
+        }
+        let rows = l.bodies.iter().map(|b| {
+            let nu = mcp.range(b.nu);
+            nu.start..nu.start + 3
+        });
+        merit < fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows)
+    }
+
     /// The warm start of [`StepFormulation::warm_start`], extrapolated from the iterates
     /// `smooth` when given.
     fn warm_start_from(
@@ -426,6 +484,7 @@ impl StepFormulation for EcpContacts {
         problem: &mut Problem,
     ) -> Result<StepHandles, SceneError> {
         validate_parameters(scene, true)?;
+        self.terms_on_nu = None;
         let mut layout = Layout::default();
         let scene_data = add_scene_data(problem, &scene.gravity, scene.h, &scene.friction);
         layout.plane_data = (scene.planes.iter().enumerate())
@@ -685,8 +744,8 @@ impl StepFormulation for EcpContacts {
         if let Some(d) = l.scene_data {
             mcp.set_data(d.h, &[ctx.h])?;
         }
-        for ((body, spec), s) in l.bodies.iter().zip(&ctx.scene.bodies).zip(ctx.states) {
-            set_body_data(mcp, &body.data, spec, s, &l.origin, ctx.t0)?;
+        for (b, (body, s)) in l.bodies.iter().zip(ctx.states).enumerate() {
+            set_body_span_data(mcp, &body.data, s, &ctx.wrench(b), &l.origin)?;
         }
         l.record_span(mcp, ctx.states);
         Ok(())
@@ -725,8 +784,9 @@ impl StepFormulation for EcpContacts {
             return;
         };
         // The guard: the extrapolated start only when its Fischer–Burmeister residual is below
-        // that of the plain warm start (`F` at both, the plain start's Newton–Euler rows first
-        // and the rest only when those do not decide): near an event the extrapolation
+        // that of the plain warm start (`F` at both: the plain start's momentum rows first, from
+        // the last iterate without building it, then its Newton–Euler rows, and the rest only
+        // when those do not decide): near an event the extrapolation
         // can land far from the solution (the stress suite's 023_room_corner, Newton: 670
         // iterations without the guard, 133 with it, 131 with the plain start). `F` at the start
         // chosen is kept for the backend (`warm_start_value`).
@@ -747,7 +807,10 @@ impl StepFormulation for EcpContacts {
         // `Φ` kept beside the residual: the backend's merit at the start chosen is its sum.
         let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);
         let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
-        self.extrapolated = merit <= EXACT_START * size;
+        // Then the plain start's momentum rows at the last iterate, without the plain start
+        // (`momentum_rows_decide`: on the desk they carry most of its residual).
+        self.extrapolated = merit <= EXACT_START * size
+            || self.momentum_rows_decide(ctx, mcp, it.last, merit, &mut start_f);
         if !self.extrapolated {
             start.clear();
             start.extend_from_slice(it.last);
@@ -1068,6 +1131,80 @@ mod tests {
         assert_eq!(pieces, [Some(1), Some(2), Some(3), Some(4)]);
         assert_eq!(union.contacts_per_body(), 4);
         assert!(union.capabilities().non_isolated_solutions);
+    }
+
+    /// The guard's momentum rows (`EcpContacts::momentum_rows_decide`): at the last step's
+    /// iterate, each body's first three `ν` rows have the bits of the plain warm start's (they
+    /// read neither `q` nor `a1`, and the plain start keeps `ν` and the closed contacts'
+    /// impulses), their residual is at most the plain start's whole one, and they change with
+    /// `v` and `p_n` (what they do read). Desk, A1 and T-bar, every step with its contacts closed.
+    #[test]
+    fn momentum_rows_at_the_last_iterate_are_those_of_the_plain_start() {
+        use crate::step::WarmStart;
+        use ecp_model::{fb_residual, fb_residual_of_rows};
+        for (scene, steps) in [
+            (scenarios::desk(), 40),
+            (scenarios::a1_sliding(), 30),
+            (scenarios::t_bar(), 100),
+        ] {
+            let name = scene.name.clone();
+            let mut sim = Simulation::new(scene).unwrap_or_else(|e| panic!("{e}"));
+            let mut solver = ecp_solvers::newton::NewtonSolver::new(Default::default());
+            let mut checked = 0;
+            for step in 1..=steps {
+                let rec = sim.step(&mut solver).unwrap_or_else(|e| panic!("{e}"));
+                assert!(rec.converged, "{name} step {step}");
+                let last = sim.z().to_vec();
+                sim.set_warm_start(WarmStart::Previous);
+                sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+                sim.set_warm_start(WarmStart::Extrapolated);
+                let plain = sim.z().to_vec();
+                let (mcp, scene) = (sim.mcp(), sim.scene());
+                let contacts = ecp(&sim).contacts();
+                let closed = contacts
+                    .iter()
+                    .all(|c| last[mcp.range(c.pn)][0] > open_impulse(scene, c.body, scene.h));
+                if !closed {
+                    continue;
+                }
+                let n = mcp.dim();
+                let (mut at_last, mut at_plain) = (vec![0.0; n], vec![0.0; n]);
+                let nus: Vec<_> = sim.handles().bodies.iter().filter_map(|b| b.nu).collect();
+                for &nu in &nus {
+                    mcp.evaluate_rows_of(nu, &last, &mut at_last);
+                    mcp.evaluate_rows_of(nu, &plain, &mut at_plain);
+                    for i in mcp.range(nu).take(3) {
+                        assert_eq!(at_last[i].to_bits(), at_plain[i].to_bits(), "{name} {step}");
+                    }
+                }
+                let rows = || {
+                    nus.iter().map(|&nu| {
+                        let r = mcp.range(nu);
+                        r.start..r.start + 3
+                    })
+                };
+                let bound = fb_residual_of_rows(&last, &at_last, mcp.lower(), mcp.upper(), rows());
+                let mut f = vec![0.0; n];
+                mcp.evaluate(&plain, &mut f);
+                let whole = fb_residual(&plain, &f, mcp.lower(), mcp.upper());
+                assert!(
+                    bound <= whole && bound > 0.0,
+                    "{name} {step}: {bound} {whole}"
+                );
+                // What the rows read: `v` and `p_n` move them.
+                let (nu, pn) = (nus[0], contacts[0].pn);
+                for (v, k) in [(nu, 0), (pn, 0)] {
+                    let mut moved = last.clone();
+                    moved[mcp.range(v).start + k] += 1e-3;
+                    let mut f = vec![0.0; n];
+                    mcp.evaluate_rows_of(nu, &moved, &mut f);
+                    let again = fb_residual_of_rows(&moved, &f, mcp.lower(), mcp.upper(), rows());
+                    assert_ne!(again.to_bits(), bound.to_bits(), "{name} {step}");
+                }
+                checked += 1;
+            }
+            assert!(checked >= steps / 2, "{name}: {checked} of {steps}");
+        }
     }
 
     /// A scene a million metres from the world origin is stepped in coordinates relative to an

@@ -56,7 +56,7 @@ use crate::blocks::{
 use crate::record::{ContactRecord, scene_gaps_and_modes};
 use crate::rotation::rotation_matrix;
 use crate::scene::{BodyState, Scene, SceneError, check_penetration, validate_parameters};
-use crate::step::body::{is_closing, predict_pose, set_body_data, store_states};
+use crate::step::body::{is_closing, predict_pose, set_body_span_data, store_states};
 use crate::step::{
     BodyHandles, Capabilities, ContactHandles, SensitivitySupport, StepContext, StepFormulation,
     StepHandles,
@@ -455,7 +455,7 @@ impl StepFormulation for PointContacts {
         for (b, body) in self.bodies.iter().enumerate() {
             let s = ctx.states[b];
             let rot = rotation_matrix(&s.q);
-            set_body_data(mcp, &body.data, &ctx.scene.bodies[b], &s, &o, ctx.t0)?;
+            set_body_span_data(mcp, &body.data, &s, &ctx.wrench(b), &o)?;
             for (c, g) in self.contacts.iter().zip(&self.geometry) {
                 if c.body != b {
                     continue;

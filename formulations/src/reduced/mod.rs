@@ -176,7 +176,7 @@ impl ReducedSliding {
         let mp = &body.mass;
         let r = rotation_matrix(&s.q);
         let iw = r * mp.inertia * r.transpose();
-        let load = body.load.at(ctx.t0);
+        let load = ctx.wrench(0);
         let force = scene.gravity * mp.mass + load.fixed_rows::<3>(0).into_owned();
         let torque = load.fixed_rows::<3>(3).into_owned() - s.w.cross(&(iw * s.w));
         SlidingStepData {

@@ -1,7 +1,7 @@
 //! What the formulations whose unknowns hold each body's end-of-step `ν` and `q` share: the
 //! span's body data, the predicted pose of the warm start, and the state stored from a solution.
 
-use nalgebra::{Matrix3, Vector3, Vector4};
+use nalgebra::{Matrix3, Vector3, Vector4, Vector6};
 
 use ecp_model::{BlockMcp, ModelError, VarId};
 
@@ -11,7 +11,7 @@ use crate::scene::{BodySpec, BodyState};
 
 /// Writes body data `data` for a span from `state` at `t0`: the start state (`x` relative to
 /// `origin`, the step problem's origin) and the applied wrench at `t0`
-/// (`docs/model.md#data-blocks`).
+/// (`docs/model.md#data-blocks`). [`set_body_span_data`] with the wrench evaluated here.
 pub fn set_body_data(
     mcp: &mut BlockMcp,
     data: &BodyDataIds,
@@ -20,9 +20,21 @@ pub fn set_body_data(
     origin: &Vector3<f64>,
     t0: f64,
 ) -> Result<(), ModelError> {
+    set_body_span_data(mcp, data, state, &spec.load.at(t0), origin)
+}
+
+/// [`set_body_data`] with the applied wrench at the span's start given, `wrench`: the one the
+/// driver evaluated once for the span ([`crate::step::StepContext::wrench`]).
+pub fn set_body_span_data(
+    mcp: &mut BlockMcp,
+    data: &BodyDataIds,
+    state: &BodyState,
+    wrench: &Vector6<f64>,
+    origin: &Vector3<f64>,
+) -> Result<(), ModelError> {
     let s = state;
     mcp.set_data(data.start, &start_values(&(s.x - origin), &s.q, &s.v, &s.w))?;
-    mcp.set_data(data.wrench, spec.load.at(t0).as_slice())
+    mcp.set_data(data.wrench, wrench.as_slice())
 }
 
 /// The warm start of a body's `q` for a span of length `h` from `state`: the previous

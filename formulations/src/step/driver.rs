@@ -44,7 +44,8 @@ fn extrapolation_budget(recent: usize) -> usize {
     (3 * recent).max(8)
 }
 
-/// The context of the span `[t0, t0 + h]` of `step` from the states `start`, for a step problem
+/// The context of the span `[t0, t0 + h]` of `step` from the states `start` (the bodies'
+/// applied `wrenches` at `t0`, [`StepContext::wrenches`]), for a step problem
 /// of dimension `dim` whose origin is `origin`: with the kept `history` of smooth steps when the
 /// span is a whole step of `scene` and `warm_start` extrapolates ([`History::iterates`]). The
 /// one construction of a span's context for its data, warm start and retry starts.
@@ -52,7 +53,7 @@ fn span_context<'a>(
     (scene, warm_start, history): (&'a Scene, WarmStart, &'a History),
     origin: Vector3<f64>,
     step: usize,
-    (start, t0, h): (&'a [BodyState], f64, f64),
+    (start, t0, h, wrenches): (&'a [BodyState], f64, f64, &'a [Vector6<f64>]),
     dim: usize,
 ) -> StepContext<'a> {
     let whole_step = h == scene.h && warm_start == WarmStart::Extrapolated;
@@ -63,6 +64,7 @@ fn span_context<'a>(
         h,
         step,
         history: history.iterates(whole_step, &origin, dim),
+        wrenches,
     }
 }
 
@@ -213,6 +215,9 @@ pub enum WarmStart {
 struct Kept {
     checkpoint: Checkpoint,
     wrenches: Vec<Vector6<f64>>,
+    /// The bodies' applied wrenches at the start of the span prepared last
+    /// ([`StepContext::wrenches`]).
+    span_wrenches: Vec<Vector6<f64>>,
     solution: Solution,
     last: Option<LastStep>,
     history: History,
@@ -454,6 +459,7 @@ impl Simulation {
             h: self.scene.h,
             step: self.step + 1,
             history: None,
+            wrenches: &[],
         };
         self.formulation
             .initial_guess(&ctx, &mut self.mcp, &mut self.z)?;
@@ -729,6 +735,7 @@ impl Simulation {
                 h: self.scene.h,
                 step: self.step + 1,
                 history: None,
+                wrenches: &[],
             };
             match self
                 .formulation
@@ -763,18 +770,25 @@ impl Simulation {
         if let Some(last) = self.last.take() {
             self.kept.last = Some(last);
         }
+        // The loads at `t0`, once for the span's data, its starts and its `LastStep`.
+        let mut wrenches = std::mem::take(&mut self.kept.span_wrenches);
+        wrenches.clear();
+        wrenches.extend(self.scene.bodies.iter().map(|b| b.load.at(t0)));
         let ctx = span_context(
             (&self.scene, self.warm_start, &self.kept.history),
             self.formulation.origin(),
             self.step + 1,
-            (start, t0, h),
+            (start, t0, h, &wrenches),
             self.z.len(),
         );
         self.start_value = false;
-        self.formulation.update_data(&ctx, &mut self.mcp)?;
-        self.formulation.warm_start(&ctx, &self.mcp, &mut self.z);
-        self.start_value = true;
-        Ok(())
+        let data = self.formulation.update_data(&ctx, &mut self.mcp);
+        if data.is_ok() {
+            self.formulation.warm_start(&ctx, &self.mcp, &mut self.z);
+            self.start_value = true;
+        }
+        self.kept.span_wrenches = wrenches;
+        data
     }
 
     /// Prepares the next step: the formulation's per-step adjustments, the step's data
@@ -906,7 +920,7 @@ impl Simulation {
                     (&self.scene, self.warm_start, &self.kept.history),
                     self.formulation.origin(),
                     self.step + 1,
-                    (start, t0, h),
+                    (start, t0, h, &self.kept.span_wrenches),
                     self.z.len(),
                 );
                 if !self
@@ -956,6 +970,7 @@ impl Simulation {
             h,
             step: self.step + 1,
             history: None,
+            wrenches: &[],
         };
         self.z.copy_from_slice(z);
         self.formulation
@@ -1045,10 +1060,8 @@ impl Simulation {
             self.kept.history.clear();
         }
         self.prepare_span(&start.0, t0, h)?;
-        let mut wrenches = std::mem::take(&mut self.kept.wrenches);
-        wrenches.clear();
-        wrenches.extend(self.scene.bodies.iter().map(|b| b.load.at(t0)));
-        self.kept.wrenches = wrenches;
+        // The step's loads for its `LastStep` (those of the span just prepared, at `t0`).
+        self.kept.wrenches.clone_from(&self.kept.span_wrenches);
         // `summary`: the record's when it is not `solution`'s; `whole`: `solution` solved the
         // whole step in one piece.
         let (summary, method, whole): (Option<Summary>, StepMethod, bool) =

@@ -9,7 +9,7 @@
 
 use std::any::Any;
 
-use nalgebra::Vector3;
+use nalgebra::{Vector3, Vector6};
 
 use ecp_model::{BlockMcp, Problem, StepStructure};
 
@@ -73,6 +73,21 @@ pub struct StepContext<'a> {
     /// What a warm start may extrapolate from
     /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`); `None` otherwise.
     pub history: Option<Iterates<'a>>,
+    /// Each body's applied wrench at `t0` ([`crate::scene::Load::at`]), evaluated once for the
+    /// span by the driver (a scene file's load is an expression evaluated per component); empty
+    /// where the driver does not set the span's data ([`StepContext::wrench`] then evaluates it).
+    pub wrenches: &'a [Vector6<f64>],
+}
+
+impl StepContext<'_> {
+    /// Body `b`'s applied wrench at `t0`, `(force, torque)` at the CM, world frame: the one
+    /// evaluated for the span ([`StepContext::wrenches`]), else its load at `t0`.
+    pub fn wrench(&self, b: usize) -> Vector6<f64> {
+        match self.wrenches.get(b) {
+            Some(w) => *w,
+            None => self.scene.bodies[b].load.at(self.t0),
+        }
+    }
 }
 
 /// Whether the step problem built last still fits ([`StepFormulation::begin_step`]).
