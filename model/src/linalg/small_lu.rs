@@ -765,18 +765,9 @@ mod tests {
                 plain.factor(&a);
                 assert_eq!(fast.piv, plain.piv, "n = {n}, seed {seed}");
                 assert_eq!(bits(&fast.a), bits(&plain.a), "n = {n}, seed {seed}");
-                let rhs: Vec<f64> = (0..n)
-                    .map(|i| {
-                        if i % 4 == 1 {
-                            0.0
-                        } else {
-                            (i as f64 * 0.7).cos()
-                        }
-                    })
-                    .collect();
                 // Zeros spread, a unit vector, zeros at the start (the substitutions skip the
                 // columns of zero entries).
-                let unit: Vec<f64> = (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect();
+                let (rhs, unit) = (spread_rhs(n), unit_rhs(n));
                 let late: Vec<f64> = (0..n)
                     .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
                     .collect();
@@ -828,6 +819,24 @@ mod tests {
         assert_eq!(cases, 48 * 4);
     }
 
+    /// A right-hand side of size `n` with a zero at every fourth entry (from the second).
+    fn spread_rhs(n: usize) -> Vec<f64> {
+        (0..n)
+            .map(|i| {
+                if i % 4 == 1 {
+                    0.0
+                } else {
+                    (i as f64 * 0.7).cos()
+                }
+            })
+            .collect()
+    }
+
+    /// The unit vector of size `n` at `n / 2`.
+    fn unit_rhs(n: usize) -> Vec<f64> {
+        (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect()
+    }
+
     /// The solve on mapped entries (the right-hand side gathered in the order of the
     /// interchanges, the solution scattered by the back substitution) gives bitwise
     /// [`SmallLu::solve`]'s solution of the gathered entries and leaves the other entries
@@ -849,16 +858,7 @@ mod tests {
                     interchanged += lu.piv.iter().enumerate().filter(|(k, p)| k != *p).count();
                     let mut order = vec![0; n];
                     lu.row_order(&rows, &mut order);
-                    let spread: Vec<f64> = (0..n)
-                        .map(|i| {
-                            if i % 4 == 1 {
-                                0.0
-                            } else {
-                                (i as f64 * 0.7).cos()
-                            }
-                        })
-                        .collect();
-                    let unit: Vec<f64> = (0..n).map(|i| f64::from(u8::from(i == n / 2))).collect();
+                    let (spread, unit) = (spread_rhs(n), unit_rhs(n));
                     for c in [&spread, &unit] {
                         let mut expected = c.clone();
                         lu.solve(&mut expected);
