@@ -237,37 +237,6 @@ fn all_finite_avx2(x: &[f64]) -> bool {
     all_finite_bits(x)
 }
 
-/// Sets every entry of `x` to `+0` by 32-byte stores (the small LU's storage before a sparse
-/// matrix is scattered into it): a few hundred instructions where `memset`'s `rep stosb`
-/// counts one per byte in callgrind (it is fast either way; `docs/latency.md`, branch
-/// wip-lukernel). Only inside a function compiled with AVX2 that runs after
-/// [`avx2_available`] said yes.
-///
-/// # Safety
-/// The processor has AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-pub(super) unsafe fn zero_avx2(x: &mut [f64]) {
-    use std::arch::x86_64::*;
-    let len = x.len();
-    let xp = x.as_mut_ptr();
-    // Opaque to the compiler, which would otherwise recognise the loop as a `memset`.
-    let z = std::hint::black_box(_mm256_setzero_pd());
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`.
-    unsafe {
-        while i + 4 <= len {
-            _mm256_storeu_pd(xp.add(i), z);
-            i += 4;
-        }
-        while i < len {
-            *xp.add(i) = 0.0;
-            i += 1;
-        }
-    }
-}
-
 /// `y += Σ_e values[q_e] · rows[j_e]` over `entries = [(j_e, q_e), ..]` in their order, where
 /// `rows[j]` is row `j` of the row-major matrix `rows` with `y.len()` columns: a sparse row
 /// times a dense row-major matrix (the sensitivities' weak residual slopes,
@@ -519,23 +488,6 @@ mod tests {
             }
         }
         assert_eq!(refused, 5 * (1..=40).sum::<usize>());
-    }
-
-    /// The vector zeroing writes `+0` (not `−0`, whose sign the elimination could carry) to
-    /// every entry of every length 0–21.
-    #[test]
-    fn zeroing_writes_positive_zeros() {
-        if !avx2_available() {
-            return;
-        }
-        for len in 0..=21 {
-            let mut x = vec![-1.5; len + 2];
-            x[len] = -0.0;
-            // SAFETY: the processor has AVX2.
-            unsafe { zero_avx2(&mut x[..len + 1]) };
-            assert!(x[..len + 1].iter().all(|v| v.to_bits() == 0), "len {len}");
-            assert_eq!(x[len + 1], -1.5);
-        }
     }
 
     #[test]

@@ -9,7 +9,7 @@
 //! (a third full).
 
 #[cfg(target_arch = "x86_64")]
-use super::simd::{Avx2, zero_avx2};
+use super::simd::Avx2;
 use super::simd::{Lanes, Portable, avx2_available};
 
 /// The factors `P A = L U` of a square matrix: `L` (unit diagonal, below) and `U` (on and above
@@ -65,15 +65,8 @@ impl SmallLu {
     }
 
     /// Sets every entry of [`SmallLu::storage_mut`] to `+0` (before a sparse matrix is
-    /// scattered into it): vector stores with AVX2, instead of `memset`'s `rep stosb`, which
-    /// callgrind counts by the byte.
+    /// scattered into it).
     pub(crate) fn clear_storage(&mut self) {
-        #[cfg(target_arch = "x86_64")]
-        if self.avx2 {
-            // SAFETY: `avx2` is set only when the processor has AVX2.
-            unsafe { zero_avx2(&mut self.a) };
-            return;
-        }
         self.a.fill(0.0);
     }
 
