@@ -42,6 +42,13 @@ pub fn rotation_matrix(q: &Vector4<f64>) -> Matrix3<f64> {
 /// where `∇f_i = R(Q) n̂_i` depends on the unknown end-of-step quaternion.
 /// With `R = N(Q)/s`, `s = |Q|²`: `∂R/∂q_k = (∂N/∂q_k − 2 q_k R)/s`.
 pub fn rotation_matrix_derivatives(q: &Vector4<f64>) -> [Matrix3<f64>; 4] {
+    rotation_matrix_and_derivatives(q).1
+}
+
+/// [`rotation_matrix`] and [`rotation_matrix_derivatives`] together: the derivatives are built
+/// from `R`, so a caller that needs both computes `R` once (the same bits as the two calls).
+#[inline]
+pub fn rotation_matrix_and_derivatives(q: &Vector4<f64>) -> (Matrix3<f64>, [Matrix3<f64>; 4]) {
     let w = q[0];
     let v = Vector3::new(q[1], q[2], q[3]);
     let s = q.norm_squared();
@@ -59,7 +66,7 @@ pub fn rotation_matrix_derivatives(q: &Vector4<f64>) -> [Matrix3<f64>; 4] {
             + skew(&e) * (2.0 * w);
         out[i + 1] = (dn - r * (2.0 * v[i])) / s;
     }
-    out
+    (r, out)
 }
 
 /// Kinematic map `E(Q)` with `Q̇ = ½ E(Q) ω` for the WORLD-frame angular
@@ -175,6 +182,23 @@ mod tests {
             let uq = UnitQuaternion::from_quaternion(Quaternion::new(q[0], q[1], q[2], q[3]));
             let expected = uq.to_rotation_matrix().into_inner();
             assert!((rotation_matrix(&q) - expected).abs().max() < 1e-14);
+        }
+    }
+
+    #[test]
+    fn rotation_and_derivatives_together_are_the_same_bits() {
+        let mut rng = Lcg(5);
+        let bits = |m: &Matrix3<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let mut qs: Vec<Vector4<f64>> = (0..50).map(|_| rng.quat()).collect();
+        // Exact zeros and a negative zero, where signed zeros could differ.
+        qs.push(Vector4::new(1.0, 0.0, 0.0, 0.0));
+        qs.push(Vector4::new(-0.0, 0.0, -1.0, 0.0));
+        for q in qs {
+            let (r, d) = rotation_matrix_and_derivatives(&q);
+            assert_eq!(bits(&r), bits(&rotation_matrix(&q)));
+            for (a, b) in d.iter().zip(rotation_matrix_derivatives(&q).iter()) {
+                assert_eq!(bits(a), bits(b));
+            }
         }
     }
 

@@ -337,9 +337,15 @@ impl Problem {
             } else {
                 constant_columns(res.block.as_ref(), &res.reads, &col_pos, &block_start)
             };
+            let constant_cols = constant_pos
+                .iter()
+                .copied()
+                .filter(|&p| p != JacobianBlocks::DISCARD)
+                .collect();
             blocks.push(AssembledBlock {
                 discards,
                 constant,
+                constant_cols,
                 constant_pos,
                 varying_pos,
                 block: res.block,
@@ -490,6 +496,27 @@ fn constant_columns(
     (constancy, constant_pos, varying_pos)
 }
 
+/// Zeroes `rows` entries from each position of `cols`. The columns are short (a block's rows),
+/// so the common lengths are zeroed by stores of a known size rather than a `memset` call each.
+fn zero_columns(values: &mut [f64], cols: &[usize], rows: usize) {
+    fn zero<const N: usize>(values: &mut [f64], cols: &[usize]) {
+        for &p in cols {
+            values[p..p + N].copy_from_slice(&[0.0; N]);
+        }
+    }
+    match rows {
+        1 => zero::<1>(values, cols),
+        3 => zero::<3>(values, cols),
+        6 => zero::<6>(values, cols),
+        7 => zero::<7>(values, cols),
+        _ => {
+            for &p in cols {
+                values[p..p + rows].fill(0.0);
+            }
+        }
+    }
+}
+
 /// The constant entries of the MCP Jacobian at the problem's data, and zeros elsewhere: what
 /// [`Mcp::jacobian`] starts from instead of zeroing the values.
 struct ConstantJacobian {
@@ -515,6 +542,8 @@ struct AssembledBlock {
     constant: Constancy,
     /// `col_pos` with only the constant inputs' columns (empty without any).
     constant_pos: Vec<usize>,
+    /// The stored columns of `constant_pos` (its positions that are not discarded).
+    constant_cols: Vec<usize>,
     /// `col_pos` without the constant inputs' columns (empty without any).
     varying_pos: Vec<usize>,
     term: bool,
@@ -683,16 +712,24 @@ impl BlockMcp {
                     self.data_offsets.len()
                 ),
             })?;
+        let o = self.data_offsets[d.0];
+        let size = block.size();
+        // The values held, bit for bit (checked when they were set, and the block's own copy is
+        // the same): nothing changes. Most of a step's data blocks (mass, inertia, gravity, h,
+        // friction) are set again unchanged every step.
+        if values.len() == size
+            && self.data_values[o..o + size]
+                .iter()
+                .zip(values)
+                .all(|(a, b)| a.to_bits() == b.to_bits())
+        {
+            return Ok(());
+        }
         block.check_values(values)?;
         block.set_values(values);
-        let o = self.data_offsets[d.0];
-        let old = &mut self.data_values[o..o + values.len()];
-        let changed = !old
-            .iter()
-            .zip(values)
-            .all(|(a, b)| a.to_bits() == b.to_bits());
-        old.copy_from_slice(values);
-        if changed && !self.constant_readers[d.0].is_empty() {
+        self.data_values[o..o + size].copy_from_slice(values);
+        // Changed: the values differ from those held in some bit.
+        if !self.constant_readers[d.0].is_empty() {
             let constant = self
                 .constant
                 .get_mut()
@@ -740,11 +777,7 @@ impl BlockMcp {
             if !*stale {
                 continue;
             }
-            for &p in &b.constant_pos {
-                if p != JacobianBlocks::DISCARD {
-                    values[p..p + b.rows].fill(0.0);
-                }
-            }
+            zero_columns(values, &b.constant_cols, b.rows);
             let mut jac = JacobianBlocks::with_discards(
                 values,
                 &b.constant_pos,

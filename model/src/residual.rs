@@ -89,6 +89,20 @@ impl<'a> Params<'a> {
         let r = self.inputs[k];
         &self.sources[r.kind as usize][r.offset..r.offset + r.len]
     }
+    /// Values of input `k` as an array of its declared size `N`: one length check, where a
+    /// block reading the slice entry by entry pays one per entry in its hot loops.
+    ///
+    /// # Panics
+    /// If input `k` does not have `N` values (a block reading a size it did not declare; the
+    /// problem builder checks the bound sizes against [`ResidualBlock::parameter_sizes`]).
+    #[inline]
+    pub fn array<const N: usize>(&self, k: usize) -> &'a [f64; N] {
+        let b = self.block(k);
+        match b.try_into() {
+            Ok(a) => a,
+            Err(_) => wrong_size(k, b.len(), N),
+        }
+    }
     /// Number of inputs.
     pub fn len(&self) -> usize {
         self.inputs.len()
@@ -97,6 +111,14 @@ impl<'a> Params<'a> {
     pub fn is_empty(&self) -> bool {
         self.inputs.is_empty()
     }
+}
+
+/// The panic of [`Params::array`], out of line: formatted in the hot path, its arguments
+/// were stored at every read.
+#[cold]
+#[inline(never)]
+fn wrong_size(k: usize, len: usize, n: usize) -> ! {
+    panic!("input {k} has {len} values, not {n}")
 }
 
 /// Write access to the small dense Jacobian blocks `∂r/∂x_k` of one residual block, one per
@@ -194,6 +216,41 @@ impl<'a> JacobianBlocks<'a> {
             self.values[p] += v;
         }
     }
+    /// Column `j` of block `k`, located once for a block that writes several of its rows
+    /// ([`JacobianBlocks::put`]): `set` looks the column up at every entry, which in the hot
+    /// loops of the step problem's blocks cost more than the entries' arithmetic.
+    #[inline]
+    pub fn column(&self, k: usize, j: usize) -> Column {
+        debug_assert!(j < self.cols(k));
+        Column(self.col_pos[self.block_start[k] + j])
+    }
+    /// Columns `j0 .. j0 + N` of block `k` ([`JacobianBlocks::column`]).
+    #[inline]
+    pub fn columns<const N: usize>(&self, k: usize, j0: usize) -> [Column; N] {
+        let s = self.block_start[k] + j0;
+        debug_assert!(j0 + N <= self.cols(k));
+        let cols: &[usize; N] = match self.col_pos[s..s + N].try_into() {
+            Ok(c) => c,
+            Err(_) => unreachable!("a slice of N positions"),
+        };
+        cols.map(Column)
+    }
+    /// Sets row `i` of a located column (as [`JacobianBlocks::set`] sets its entry).
+    #[inline]
+    pub fn put(&mut self, c: Column, i: usize, v: f64) {
+        debug_assert!(i < self.rows);
+        if c.0 != Self::DISCARD {
+            self.values[c.0 + i] = v;
+        }
+    }
+    /// Adds to row `i` of a located column (as [`JacobianBlocks::add`]).
+    #[inline]
+    pub fn put_add(&mut self, c: Column, i: usize, v: f64) {
+        debug_assert!(i < self.rows);
+        if c.0 != Self::DISCARD {
+            self.values[c.0 + i] += v;
+        }
+    }
     /// Adds a small row-major matrix `rows × cols` at offset `(i0, j0)` of block `k`.
     pub fn add_row_major(&mut self, k: usize, i0: usize, j0: usize, cols: usize, data: &[f64]) {
         for (r, row) in data.chunks_exact(cols).enumerate() {
@@ -209,6 +266,11 @@ impl<'a> JacobianBlocks<'a> {
         }
     }
 }
+
+/// A column of a [`JacobianBlocks`] block, located once ([`JacobianBlocks::column`]): where
+/// its row 0 lives, or [`JacobianBlocks::DISCARD`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Column(usize);
 
 /// A block of residual equations `r(x_1, …, x_K)` with an analytic Jacobian.
 ///
@@ -245,5 +307,56 @@ pub trait ResidualBlock: Send + Sync {
     fn evaluate_with_jacobian(&self, x: Params<'_>, out: &mut [f64], jac: &mut JacobianBlocks<'_>) {
         self.evaluate(x, out);
         self.jacobian(x, jac);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn located_columns_write_where_set_writes() {
+        // Two blocks of 2 rows: block 0 with 2 columns, block 1 with 3, its column 1 discarded.
+        let d = JacobianBlocks::DISCARD;
+        let col_pos = [0, 2, 4, d, 6];
+        let block_start = [0, 2, 5];
+        let (mut a, mut b) = ([0.5; 8], [0.5; 8]);
+        {
+            let mut jac = JacobianBlocks::new(&mut a, &col_pos, &block_start, 2);
+            for (k, j) in [(0, 0), (0, 1), (1, 0), (1, 1), (1, 2)] {
+                for i in 0..2 {
+                    jac.set(k, i, j, (10 * k + 3 * j + i) as f64);
+                    jac.add(k, i, j, 0.25);
+                }
+            }
+        }
+        {
+            let mut jac = JacobianBlocks::new(&mut b, &col_pos, &block_start, 2);
+            let c0: [Column; 2] = jac.columns(0, 0);
+            let c1: [Column; 3] = jac.columns(1, 0);
+            assert_eq!(jac.column(1, 2), c1[2]);
+            for (k, cols) in [(0, &c0[..]), (1, &c1[..])] {
+                for (j, &c) in cols.iter().enumerate() {
+                    for i in 0..2 {
+                        jac.put(c, i, (10 * k + 3 * j + i) as f64);
+                        jac.put_add(c, i, 0.25);
+                    }
+                }
+            }
+        }
+        assert_eq!(a, b);
+        assert_eq!(b[6..], [16.25, 17.25]);
+    }
+
+    #[test]
+    fn arrays_of_the_declared_sizes() {
+        let z = [1.0, 2.0, 3.0, 4.0];
+        let data = [5.0];
+        let inputs = [InputRange::var(1, 3), InputRange::data(0, 1)];
+        let x = Params::new(&z, &data, &inputs);
+        assert_eq!(x.array::<3>(0), &[2.0, 3.0, 4.0]);
+        assert_eq!(x.array::<1>(1), &[5.0]);
+        let wrong = std::panic::catch_unwind(|| x.array::<2>(0)[0]);
+        assert!(wrong.is_err());
     }
 }

@@ -5,10 +5,10 @@
 
 use nalgebra::Vector3;
 
-use ecp_model::{JacobianBlocks, Params, ResidualBlock};
+use ecp_model::{Column, JacobianBlocks, Params, ResidualBlock};
 
 use super::common::{v3, v4};
-use crate::rotation::{rotation_matrix, rotation_matrix_derivatives};
+use crate::rotation::{rotation_matrix, rotation_matrix_and_derivatives};
 
 /// Contact condition C1 (`docs/model.md#contact`): `0 = a1 − a2 − l_g ∇g(a2)`, normalised on the
 /// half-space G (whose gradient is its constant normal `n_G`). Reads `a1`, `a2`, `l_g`.
@@ -37,7 +37,8 @@ impl ResidualBlock for ClosestPointAlignment {
         Some(&[])
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let (a1, a2, lg) = (x.block(0), x.block(1), x.block(2)[0]);
+        let (a1, a2) = (x.array::<3>(0), x.array::<3>(1));
+        let lg = x.array::<1>(2)[0];
         for i in 0..3 {
             out[i] = self.scale * (a1[i] - a2[i] - lg * self.normal[i]);
         }
@@ -86,7 +87,7 @@ impl ResidualBlock for NormalCone {
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let l = x.block(0);
-        let r = rotation_matrix(&v4(x.block(1), 3));
+        let r = rotation_matrix(&v4(x.array::<7>(1), 3));
         let mut s = Vector3::zeros();
         for (li, ni) in l.iter().zip(&self.face_normals) {
             s += ni * *li;
@@ -96,21 +97,22 @@ impl ResidualBlock for NormalCone {
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let l = x.block(0);
-        let qv = v4(x.block(1), 3);
-        let r = rotation_matrix(&qv);
-        let dr = rotation_matrix_derivatives(&qv);
+        let qv = v4(x.array::<7>(1), 3);
+        let (r, dr) = rotation_matrix_and_derivatives(&qv);
         let mut s = Vector3::zeros();
         for (i, (li, ni)) in l.iter().zip(&self.face_normals).enumerate() {
             s += ni * *li;
             let col = r * ni;
+            let c = jac.column(0, i);
             for k in 0..3 {
-                jac.set(0, k, i, col[k]);
+                jac.put(c, k, col[k]);
             }
         }
-        for (j, d) in dr.iter().enumerate() {
+        let cq: [Column; 4] = jac.columns(1, 3);
+        for (d, c) in dr.iter().zip(cq) {
             let col = d * s;
             for k in 0..3 {
-                jac.set(1, k, 3 + j, col[k]);
+                jac.put(c, k, col[k]);
             }
         }
     }
@@ -141,20 +143,22 @@ impl ResidualBlock for HullFaces {
         &[3, 7]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let a1 = v3(x.block(0), 0);
-        let q = x.block(1);
+        let a1 = v3(x.array::<3>(0), 0);
+        let q = x.array::<7>(1);
         let r = rotation_matrix(&v4(q, 3));
         let local = r.transpose() * (a1 - v3(q, 0));
-        for (i, (ni, di)) in self.face_normals.iter().zip(&self.offsets).enumerate() {
-            out[i] = -self.scale * (ni.dot(&local) - di);
+        for (o, (ni, di)) in out
+            .iter_mut()
+            .zip(self.face_normals.iter().zip(&self.offsets))
+        {
+            *o = -self.scale * (ni.dot(&local) - di);
         }
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let a1 = v3(x.block(0), 0);
-        let q = x.block(1);
+        let a1 = v3(x.array::<3>(0), 0);
+        let q = x.array::<7>(1);
         let qv = v4(q, 3);
-        let r = rotation_matrix(&qv);
-        let dr = rotation_matrix_derivatives(&qv);
+        let (r, dr) = rotation_matrix_and_derivatives(&qv);
         let rel = a1 - v3(q, 0);
         // ∂(−f_i)/∂Q_k = −n̂_iᵀ (∂R/∂Q_k)ᵀ rel = −(∂R/∂Q_k n̂_i) · rel.
         let drt_rel: [Vector3<f64>; 4] = [
@@ -163,14 +167,17 @@ impl ResidualBlock for HullFaces {
             dr[2].transpose() * rel,
             dr[3].transpose() * rel,
         ];
+        // The ten columns located once (six faces write sixty entries).
+        let ca: [Column; 3] = jac.columns(0, 0);
+        let cq: [Column; 7] = jac.columns(1, 0);
         for (i, ni) in self.face_normals.iter().enumerate() {
             let g = r * ni * self.scale;
             for k in 0..3 {
-                jac.set(0, i, k, -g[k]);
-                jac.set(1, i, k, g[k]);
+                jac.put(ca[k], i, -g[k]);
+                jac.put(cq[k], i, g[k]);
             }
             for (k, d) in drt_rel.iter().enumerate() {
-                jac.set(1, i, 3 + k, -self.scale * ni.dot(d));
+                jac.put(cq[3 + k], i, -self.scale * ni.dot(d));
             }
         }
     }
@@ -203,7 +210,7 @@ impl ResidualBlock for HalfSpaceSide {
         if k == 0 { Some(&[]) } else { None }
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        out[0] = -self.scale * (self.normal.dot(&v3(x.block(0), 0)) - x.block(1)[0]);
+        out[0] = -self.scale * (self.normal.dot(&v3(x.array::<3>(0), 0)) - x.array::<1>(1)[0]);
     }
     fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         for k in 0..3 {
@@ -240,7 +247,7 @@ impl ResidualBlock for NonPenetration {
         if k == 0 { Some(&[]) } else { None }
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        out[0] = self.scale * (self.normal.dot(&v3(x.block(0), 0)) - x.block(1)[0]);
+        out[0] = self.scale * (self.normal.dot(&v3(x.array::<3>(0), 0)) - x.array::<1>(1)[0]);
     }
     fn jacobian(&self, _x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         for k in 0..3 {

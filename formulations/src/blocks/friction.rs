@@ -3,7 +3,7 @@
 
 use nalgebra::Vector3;
 
-use ecp_model::{JacobianBlocks, Params, ResidualBlock};
+use ecp_model::{Column, JacobianBlocks, Params, ResidualBlock};
 
 use super::common::{ContactFrame, v3};
 
@@ -85,24 +85,28 @@ impl ResidualBlock for FrictionDissipation {
         &[6, 7, 3, 1, 3, 1, 4]
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let slip = self.slip(x.block(0), &v3(x.block(1), 0), &v3(x.block(2), 0));
-        let pn = x.block(3)[0];
-        let pf = x.block(4);
-        let sigma = x.block(5)[0];
-        let s = FrictionParams::from_slice(x.block(Self::FRICTION)).scales();
+        let slip = self.slip(
+            x.array::<6>(0),
+            &v3(x.array::<7>(1), 0),
+            &v3(x.array::<3>(2), 0),
+        );
+        let pn = x.array::<1>(3)[0];
+        let pf = x.array::<3>(4);
+        let sigma = x.array::<1>(5)[0];
+        let s = FrictionParams::from_slice(x.array::<4>(Self::FRICTION)).scales();
         for i in 0..3 {
             out[i] = s[i] * pn * slip[i] + pf[i] * sigma;
         }
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let nu = x.block(0);
-        let pos = v3(x.block(1), 0);
-        let a1 = v3(x.block(2), 0);
+        let nu = x.array::<6>(0);
+        let pos = v3(x.array::<7>(1), 0);
+        let a1 = v3(x.array::<3>(2), 0);
         let slip = self.slip(nu, &pos, &a1);
-        let pn = x.block(3)[0];
-        let pf = x.block(4);
-        let sigma = x.block(5)[0];
-        let f = FrictionParams::from_slice(x.block(Self::FRICTION));
+        let pn = x.array::<1>(3)[0];
+        let pf = x.array::<3>(4);
+        let sigma = x.array::<1>(5)[0];
+        let f = FrictionParams::from_slice(x.array::<4>(Self::FRICTION));
         if jac.wants(Self::FRICTION) {
             // r_i = e_i² μ p_n slip_i + p_i σ.
             let e = [f.e_t, f.e_o, f.e_r];
@@ -119,25 +123,31 @@ impl ResidualBlock for FrictionDissipation {
         let w = v3(nu, 3);
         let r = a1 - pos;
         let fr = &self.frame;
+        // The columns located once ([`JacobianBlocks::columns`]).
+        let cnu: [Column; 6] = jac.columns(0, 0);
+        let cx: [Column; 3] = jac.columns(1, 0);
+        let ca: [Column; 3] = jac.columns(2, 0);
+        let cf: [Column; 3] = jac.columns(4, 0);
+        let (cn, cs) = (jac.column(3, 0), jac.column(5, 0));
         // Rows t and o: slip = d·v + (r × d)·ω, ∂/∂r = d × ω.
         for (row, d) in [(0usize, fr.t), (1, fr.o)] {
             let c = s[row] * pn;
             let rd = r.cross(&d);
             let dr = d.cross(&w);
             for k in 0..3 {
-                jac.set(0, row, k, c * d[k]);
-                jac.set(0, row, 3 + k, c * rd[k]);
-                jac.set(2, row, k, c * dr[k]);
-                jac.set(1, row, k, -c * dr[k]);
+                jac.put(cnu[k], row, c * d[k]);
+                jac.put(cnu[3 + k], row, c * rd[k]);
+                jac.put(ca[k], row, c * dr[k]);
+                jac.put(cx[k], row, -c * dr[k]);
             }
         }
         for k in 0..3 {
-            jac.set(0, 2, 3 + k, s[2] * pn * fr.n[k]);
+            jac.put(cnu[3 + k], 2, s[2] * pn * fr.n[k]);
         }
         for i in 0..3 {
-            jac.set(3, i, 0, s[i] * slip[i]);
-            jac.set(4, i, i, sigma);
-            jac.set(5, i, 0, pf[i]);
+            jac.put(cn, i, s[i] * slip[i]);
+            jac.put(cf[i], i, sigma);
+            jac.put(cs, i, pf[i]);
         }
     }
 }
@@ -177,12 +187,12 @@ impl ResidualBlock for FrictionEllipsoid {
         }
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let f = FrictionParams::from_slice(x.block(Self::FRICTION));
-        out[0] = f.mu * x.block(0)[0] - scaled_norm(&f, x.block(1)).0;
+        let f = FrictionParams::from_slice(x.array::<4>(Self::FRICTION));
+        out[0] = f.mu * x.array::<1>(0)[0] - scaled_norm(&f, x.array::<3>(1)).0;
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let f = FrictionParams::from_slice(x.block(Self::FRICTION));
-        let p = x.block(1);
+        let f = FrictionParams::from_slice(x.array::<4>(Self::FRICTION));
+        let p = x.array::<3>(1);
         let (norm, scaled) = scaled_norm(&f, p);
         jac.set(0, 0, 0, f.mu);
         // At p = 0 the norm is not differentiable; 0 is an element of its generalised gradient
@@ -194,7 +204,7 @@ impl ResidualBlock for FrictionEllipsoid {
         if jac.wants(Self::FRICTION) {
             // r = μ p_n − ‖u‖, u_k = p_k/e_k: ∂‖u‖/∂e_k = −u_k²/(e_k ‖u‖); at p = 0 the kink, 0
             // (the same element of the generalised gradient as above).
-            jac.set(Self::FRICTION, 0, 0, x.block(0)[0]);
+            jac.set(Self::FRICTION, 0, 0, x.array::<1>(0)[0]);
             let e = [f.e_t, f.e_o, f.e_r];
             if norm > 0.0 {
                 for k in 0..3 {

@@ -2,7 +2,7 @@
 
 use nalgebra::Vector4;
 
-use ecp_model::{JacobianBlocks, Params, ResidualBlock};
+use ecp_model::{Column, JacobianBlocks, Params, ResidualBlock};
 
 use super::common::{v3, v4};
 use super::data::start;
@@ -42,10 +42,10 @@ impl ResidualBlock for KinematicMap {
         }
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
-        let q = x.block(0);
-        let nu = x.block(1);
-        let s = x.block(Self::START);
-        let h = x.block(Self::H)[0];
+        let q = x.array::<7>(0);
+        let nu = x.array::<6>(1);
+        let s = x.array::<13>(Self::START);
+        let h = x.array::<1>(Self::H)[0];
         for i in 0..3 {
             out[i] = -q[i] + s[start::X + i] + h * nu[i];
         }
@@ -58,18 +58,26 @@ impl ResidualBlock for KinematicMap {
         }
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
-        let s = x.block(Self::START);
-        let h = x.block(Self::H)[0];
+        let s = x.array::<13>(Self::START);
+        let h = x.array::<1>(Self::H)[0];
         let q_start = v4(s, start::Q);
-        jac.add_diagonal(0, 0, 0, 7, -1.0);
-        jac.add_diagonal(1, 0, 0, 3, h);
+        // The columns located once ([`JacobianBlocks::columns`]); the diagonals added as
+        // `add_diagonal` adds them.
+        let cq: [Column; 7] = jac.columns(0, 0);
+        for (i, c) in cq.into_iter().enumerate() {
+            jac.put_add(c, i, -1.0);
+        }
+        let cv: [Column; 6] = jac.columns(1, 0);
+        for (i, &c) in cv[..3].iter().enumerate() {
+            jac.put_add(c, i, h);
+        }
         let e = kinematic_map(&q_start);
         for i in 0..4 {
             for j in 0..3 {
-                jac.set(1, 3 + i, 3 + j, 0.5 * h * e[(i, j)]);
+                jac.put(cv[3 + j], 3 + i, 0.5 * h * e[(i, j)]);
             }
         }
-        let w = v3(x.block(1), 3);
+        let w = v3(x.array::<6>(1), 3);
         if jac.wants(Self::START) {
             jac.add_diagonal(Self::START, 0, start::X, 3, 1.0);
             jac.add_diagonal(Self::START, 3, start::Q, 4, 1.0);
@@ -82,7 +90,7 @@ impl ResidualBlock for KinematicMap {
             }
         }
         if jac.wants(Self::H) {
-            let nu = x.block(1);
+            let nu = x.array::<6>(1);
             let dq = e * w * 0.5;
             for i in 0..3 {
                 jac.set(Self::H, i, 0, nu[i]);

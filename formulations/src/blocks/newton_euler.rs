@@ -3,11 +3,13 @@
 
 use nalgebra::{Matrix3, Matrix6, Vector3, Vector4, Vector6};
 
-use ecp_model::{JacobianBlocks, Params, ResidualBlock};
+use ecp_model::{Column, JacobianBlocks, Params, ResidualBlock};
 
 use super::common::{ContactFrame, inertia_direction, inertia_from_entries, mass_matrix, v3, v4};
 use super::data::start;
-use crate::rotation::{rotation_matrix, rotation_matrix_derivatives, skew};
+use crate::rotation::{
+    rotation_matrix, rotation_matrix_and_derivatives, rotation_matrix_derivatives, skew,
+};
 
 /// Sizes of the body data inputs every Newton–Euler block reads, in order: `mass` (1),
 /// `inertia` (6), `start` (13), `wrench` (6), `gravity` (3), `h` (1) ([`super::data`]).
@@ -53,17 +55,22 @@ pub struct BodyStepData {
 
 impl BodyStepData {
     /// The body data read from the six inputs starting at `k0` ([`BODY_DATA_SIZES`]).
-    #[inline]
+    /// Inlined, and the inputs read as arrays of their sizes: called at every point `F` is
+    /// evaluated at, where a call, the copy of its result and a check per entry read cost
+    /// more than the reads themselves.
+    #[inline(always)]
     pub fn from_inputs(x: Params<'_>, k0: usize) -> Self {
-        let s = x.block(k0 + body_input::START);
+        let s: &[f64; 13] = x.array(k0 + body_input::START);
+        let w: &[f64; 6] = x.array(k0 + body_input::WRENCH);
+        let v = start::V;
         BodyStepData {
-            mass: x.block(k0 + body_input::MASS)[0],
-            inertia: inertia_from_entries(x.block(k0 + body_input::INERTIA)),
+            mass: x.array::<1>(k0 + body_input::MASS)[0],
+            inertia: inertia_from_entries(x.array::<6>(k0 + body_input::INERTIA)),
             q_start: v4(s, start::Q),
-            nu_start: Vector6::from_column_slice(&s[start::V..start::V + 6]),
-            wrench: Vector6::from_column_slice(x.block(k0 + body_input::WRENCH)),
-            gravity: v3(x.block(k0 + body_input::GRAVITY), 0),
-            h: x.block(k0 + body_input::H)[0],
+            nu_start: Vector6::new(s[v], s[v + 1], s[v + 2], s[v + 3], s[v + 4], s[v + 5]),
+            wrench: Vector6::new(w[0], w[1], w[2], w[3], w[4], w[5]),
+            gravity: v3(x.array::<3>(k0 + body_input::GRAVITY), 0),
+            h: x.array::<1>(k0 + body_input::H)[0],
         }
     }
 
@@ -191,7 +198,7 @@ impl BodyStepData {
     ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
         let w1 = v3(nu.as_slice(), 3);
         let r0 = rotation_matrix(&self.q_start);
-        let r1 = rotation_matrix(q);
+        let (r1, dr) = rotation_matrix_and_derivatives(q);
         // `R1 I_body` and `I_body R0ᵀ ω^u` once, not per `k`: the same products, so the same
         // numbers (`(R1 I_body) X` is how `R1 * I_body * X` associates).
         let r1_inertia = r1 * self.inertia;
@@ -200,7 +207,6 @@ impl BodyStepData {
         let dw = -iw1 - (skew(&w1) * iw1 - skew(&l1)) * self.h;
         let omega0 = r0.transpose() * v3(self.nu_start.as_slice(), 3);
         let inertia_omega0 = self.inertia * omega0;
-        let dr = rotation_matrix_derivatives(q);
         let dq = dr.map(|d| {
             let dl = (d * self.inertia * r1.transpose() + r1_inertia * d.transpose()) * w1;
             -dl + d * inertia_omega0 - w1.cross(&dl) * self.h
@@ -290,15 +296,18 @@ impl BodyStepData {
     /// (input 1).
     fn variable_jacobian(&self, nu: &Vector6<f64>, q: &Vector4<f64>, jac: &mut JacobianBlocks<'_>) {
         let (dw, dq) = self.inertial_jacobian(nu, q);
+        // The columns located once ([`JacobianBlocks::columns`]).
+        let cv: [Column; 6] = jac.columns(0, 0);
         for i in 0..3 {
-            jac.set(0, i, i, -self.mass);
+            jac.put(cv[i], i, -self.mass);
             for j in 0..3 {
-                jac.set(0, 3 + i, 3 + j, dw[(i, j)]);
+                jac.put(cv[3 + j], 3 + i, dw[(i, j)]);
             }
         }
-        for (k, col) in dq.iter().enumerate() {
+        let cq: [Column; 4] = jac.columns(1, 3);
+        for (col, c) in dq.iter().zip(cq) {
             for i in 0..3 {
-                jac.set(1, 3 + i, 3 + k, col[i]);
+                jac.put(c, 3 + i, col[i]);
             }
         }
     }
@@ -352,17 +361,18 @@ impl NewtonEuler {
     }
 
     /// The body data at `x`.
+    #[inline]
     pub fn body(&self, x: Params<'_>) -> BodyStepData {
         BodyStepData::from_inputs(x, self.body_data_input())
     }
 
     /// Adds the contact impulses `Σ_c W p` to `r`.
     fn add_contacts(&self, x: Params<'_>, r: &mut Vector6<f64>) {
-        let pos = v3(x.block(1), 0);
+        let pos = v3(x.array::<7>(1), 0);
         for (c, fr) in self.frames.iter().enumerate() {
-            let a1 = v3(x.block(2 + 3 * c), 0);
-            let pn = x.block(3 + 3 * c)[0];
-            let pf = x.block(4 + 3 * c);
+            let a1 = v3(x.array::<3>(2 + 3 * c), 0);
+            let pn = x.array::<1>(3 + 3 * c)[0];
+            let pf = x.array::<3>(4 + 3 * c);
             let force = fr.n * pn + fr.t * pf[0] + fr.o * pf[1];
             let torque = (a1 - pos).cross(&force) + fr.n * pf[2];
             for i in 0..3 {
@@ -385,46 +395,49 @@ impl ResidualBlock for NewtonEuler {
     }
     fn evaluate(&self, x: Params<'_>, out: &mut [f64]) {
         let b = self.body(x);
-        let nu = Vector6::from_column_slice(x.block(0));
-        let mut r = b.inertial_rows(&nu, &v4(x.block(1), 3)) + b.impulse();
+        let nu = Vector6::from(*x.array::<6>(0));
+        let mut r = b.inertial_rows(&nu, &v4(x.array::<7>(1), 3)) + b.impulse();
         self.add_contacts(x, &mut r);
         out.copy_from_slice(r.as_slice());
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let b = self.body(x);
-        let nu = Vector6::from_column_slice(x.block(0));
-        let q = v4(x.block(1), 3);
+        let nu = Vector6::from(*x.array::<6>(0));
+        let q = v4(x.array::<7>(1), 3);
         b.data_jacobian(&nu, &q, self.body_data_input(), jac);
         // The unknowns' derivatives, unless only data are asked for (`∂F/∂θ`).
         if !(0..self.body_data_input()).any(|k| jac.wants(k)) {
             return;
         }
         b.variable_jacobian(&nu, &q, jac);
-        let pos = v3(x.block(1), 0);
+        let pos = v3(x.array::<7>(1), 0);
+        let cx: [Column; 3] = jac.columns(1, 0);
         for (c, fr) in self.frames.iter().enumerate() {
-            let a1 = v3(x.block(2 + 3 * c), 0);
-            let pn = x.block(3 + 3 * c)[0];
-            let pf = x.block(4 + 3 * c);
+            let a1 = v3(x.array::<3>(2 + 3 * c), 0);
+            let pn = x.array::<1>(3 + 3 * c)[0];
+            let pf = x.array::<3>(4 + 3 * c);
             let r = a1 - pos;
             let force = fr.n * pn + fr.t * pf[0] + fr.o * pf[1];
             // τ = r × f = −[f]× r ⇒ ∂τ/∂a1 = −[f]×, ∂τ/∂x = [f]×.
             let fx = skew(&force);
+            let ca: [Column; 3] = jac.columns(2 + 3 * c, 0);
             for i in 0..3 {
                 for j in 0..3 {
-                    jac.add(2 + 3 * c, 3 + i, j, -fx[(i, j)]);
-                    jac.add(1, 3 + i, j, fx[(i, j)]);
+                    jac.put_add(ca[j], 3 + i, -fx[(i, j)]);
+                    jac.put_add(cx[j], 3 + i, fx[(i, j)]);
                 }
             }
+            let cf: [Column; 3] = jac.columns(4 + 3 * c, 0);
             let cols = [
-                (3 + 3 * c, 0, fr.n, r.cross(&fr.n)),
-                (4 + 3 * c, 0, fr.t, r.cross(&fr.t)),
-                (4 + 3 * c, 1, fr.o, r.cross(&fr.o)),
-                (4 + 3 * c, 2, Vector3::zeros(), fr.n),
+                (jac.column(3 + 3 * c, 0), fr.n, r.cross(&fr.n)),
+                (cf[0], fr.t, r.cross(&fr.t)),
+                (cf[1], fr.o, r.cross(&fr.o)),
+                (cf[2], Vector3::zeros(), fr.n),
             ];
-            for (k, j, lin, ang) in cols {
+            for (col, lin, ang) in cols {
                 for i in 0..3 {
-                    jac.set(k, i, j, lin[i]);
-                    jac.set(k, 3 + i, j, ang[i]);
+                    jac.put(col, i, lin[i]);
+                    jac.put(col, 3 + i, ang[i]);
                 }
             }
         }

@@ -12,7 +12,7 @@ use nalgebra::{Matrix3, Vector3, Vector4};
 
 use ecp_model::JacobianBlocks;
 
-use crate::rotation::{rotation_matrix, rotation_matrix_derivatives, skew};
+use crate::rotation::{rotation_matrix_and_derivatives, skew};
 
 /// Below this length `ν_G` (or the projected reference axis) has no direction: the frame falls
 /// back to a fixed one with zero derivatives rather than divide by zero. At a solution
@@ -59,12 +59,12 @@ impl SupportNormal {
         for (m, w) in normals.iter().zip(mu) {
             local += m * *w;
         }
-        let rotation = rotation_matrix(q);
+        let (rotation, dr) = rotation_matrix_and_derivatives(q);
         SupportNormal {
             value: rotation * local,
             rotation,
             local,
-            dr: rotation_matrix_derivatives(q),
+            dr,
         }
     }
 
@@ -183,6 +183,7 @@ impl PairFrame {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::rotation::rotation_matrix;
 
     fn frame_fd(nu: &Vector3<f64>, axis: &Vector3<f64>) -> [[Matrix3<f64>; 3]; 2] {
         // Central differences of (n, t, o) with respect to ν_G and to r, column by column.
