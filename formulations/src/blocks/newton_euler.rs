@@ -123,13 +123,23 @@ impl BodyStepData {
     /// ([`BodyStepData::inertial_rows`] with the gyroscopic term held at `ω̃`): what a
     /// structure-exploiting backend reads ([`ecp_model::BodyDynamics`]).
     pub fn free_velocity(&self, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> Vector6<f64> {
+        self.free_velocity_in(r1, &(r1 * self.inertia * r1.transpose()), w_trial)
+    }
+
+    /// [`BodyStepData::free_velocity`] with `I_w1 = R1 I_b R1ᵀ` computed by the caller
+    /// ([`BodyStepData::dynamics`] needs it too).
+    fn free_velocity_in(
+        &self,
+        r1: &Matrix3<f64>,
+        iw1: &Matrix3<f64>,
+        w_trial: &Vector3<f64>,
+    ) -> Vector6<f64> {
         let impulse = self.impulse();
         let (v0, w0) = (
             self.nu_start.fixed_rows::<3>(0).into_owned(),
             self.nu_start.fixed_rows::<3>(3).into_owned(),
         );
         let r0 = rotation_matrix(&self.q_start);
-        let iw1 = r1 * self.inertia * r1.transpose();
         let lin = v0 + impulse.fixed_rows::<3>(0) / self.mass;
         let rhs = r1 * (self.inertia * (r0.transpose() * w0)) + impulse.fixed_rows::<3>(3)
             - w_trial.cross(&(iw1 * w_trial)) * self.h;
@@ -145,21 +155,16 @@ impl BodyStepData {
     /// free-motion velocity ([`BodyStepData::free_velocity`]): the body as a
     /// structure-exploiting backend sees it.
     pub fn dynamics(&self, r1: &Matrix3<f64>, w_trial: &Vector3<f64>) -> ecp_model::BodyDynamics {
+        // `I_w1` once for the mass matrix and the free velocity, written straight into rows.
         let iw1 = r1 * self.inertia * r1.transpose();
-        let mut m = Matrix6::zeros();
-        for i in 0..3 {
-            m[(i, i)] = self.mass;
-            for j in 0..3 {
-                m[(3 + i, 3 + j)] = iw1[(i, j)];
-            }
-        }
         let mut mass = [[0.0; 6]; 6];
-        for (i, row) in mass.iter_mut().enumerate() {
-            for (j, v) in row.iter_mut().enumerate() {
-                *v = m[(i, j)];
+        for i in 0..3 {
+            mass[i][i] = self.mass;
+            for j in 0..3 {
+                mass[3 + i][3 + j] = iw1[(i, j)];
             }
         }
-        let f = self.free_velocity(r1, w_trial);
+        let f = self.free_velocity_in(r1, &iw1, w_trial);
         ecp_model::BodyDynamics {
             mass,
             free_velocity: [f[0], f[1], f[2], f[3], f[4], f[5]],
@@ -503,6 +508,38 @@ mod tests {
         let mut out = [0.0; 6];
         ne.evaluate(Params::new(&z, &[], &ranges), &mut out);
         assert!(out.iter().all(|v| v.abs() < 1e-15), "{out:?}");
+    }
+
+    #[test]
+    fn dynamics_has_the_bits_of_free_velocity_and_the_end_mass_matrix() {
+        let b = BodyStepData {
+            mass: 2.5,
+            inertia: inertia_from_entries(&[0.4, 0.5, 0.6, 0.05, -0.02, 0.03]),
+            q_start: Vector4::new(0.8, 0.1, 0.5, -0.3),
+            nu_start: Vector6::new(0.4, 0.5, 0.6, -1.0, 0.3, 0.2),
+            wrench: Vector6::new(1.0, -2.0, 0.5, 0.1, 0.2, -0.3),
+            gravity: Vector3::new(0.1, 0.0, -9.81),
+            h: 0.01,
+        };
+        let r1 = rotation_matrix(&Vector4::new(0.9, 0.2, -0.1, 0.3));
+        let w = Vector3::new(1.5, -0.7, 2.0);
+        let d = b.dynamics(&r1, &w);
+        let f = b.free_velocity(&r1, &w);
+        assert_eq!(
+            d.free_velocity.map(f64::to_bits),
+            [0, 1, 2, 3, 4, 5].map(|i| f[i].to_bits())
+        );
+        let iw1 = r1 * b.inertia * r1.transpose();
+        for i in 0..6 {
+            for j in 0..6 {
+                let expected = match (i < 3, j < 3) {
+                    (true, true) if i == j => b.mass,
+                    (false, false) => iw1[(i - 3, j - 3)],
+                    _ => 0.0,
+                };
+                assert_eq!(d.mass[i][j].to_bits(), expected.to_bits(), "({i}, {j})");
+            }
+        }
     }
 
     #[test]
