@@ -712,24 +712,16 @@ impl BlockMcp {
                     self.data_offsets.len()
                 ),
             })?;
-        let o = self.data_offsets[d.0];
-        let size = block.size();
-        // The values held, bit for bit (checked when they were set, and the block's own copy is
-        // the same): nothing changes. Most of a step's data blocks (mass, inertia, gravity, h,
-        // friction) are set again unchanged every step.
-        if values.len() == size
-            && self.data_values[o..o + size]
-                .iter()
-                .zip(values)
-                .all(|(a, b)| a.to_bits() == b.to_bits())
-        {
-            return Ok(());
-        }
         block.check_values(values)?;
         block.set_values(values);
-        self.data_values[o..o + size].copy_from_slice(values);
-        // Changed: the values differ from those held in some bit.
-        if !self.constant_readers[d.0].is_empty() {
+        let o = self.data_offsets[d.0];
+        let old = &mut self.data_values[o..o + values.len()];
+        let changed = !old
+            .iter()
+            .zip(values)
+            .all(|(a, b)| a.to_bits() == b.to_bits());
+        old.copy_from_slice(values);
+        if changed && !self.constant_readers[d.0].is_empty() {
             let constant = self
                 .constant
                 .get_mut()
