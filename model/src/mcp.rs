@@ -939,7 +939,14 @@ mod tests {
                     want.worst.map(|(i, w)| (i, w.to_bits())),
                     "{z:?} {f:?}"
                 );
-                assert_eq!(got.fb_squared.to_bits(), want.fb_squared.to_bits());
+                // The sum's bits where it is a number; a NaN sum (∞ − ∞ in a component) is a
+                // NaN whose sign the compiled operand order picks, and reported as `+∞`.
+                if want.fb_squared.is_nan() {
+                    assert!(got.fb_squared.is_nan());
+                } else {
+                    assert_eq!(got.fb_squared.to_bits(), want.fb_squared.to_bits());
+                }
+                assert_eq!(got.fb_residual().to_bits(), want.fb_residual().to_bits());
             }
         }
     }
