@@ -459,10 +459,8 @@ pub struct PathSolver {
     /// The gather of `J_II` ([`GatherMap`]), kept while the pattern and the inactive set are
     /// the same.
     gather: GatherMap,
-    /// Work vector of the reduced crash system's mapped solve.
+    /// Right-hand side and solution of the reduced crash system.
     crash_rhs: Vec<f64>,
-    /// `inactive` in the order of `factor`'s row interchanges (`ColumnTestedLu::row_order`).
-    order: Vec<usize>,
     rhs: Vec<f64>,
     inactive: Vec<usize>,
     active_prev: Vec<i8>,
@@ -586,7 +584,6 @@ impl PathSolver {
             reduced_slot: Vec::new(),
             gather: GatherMap::default(),
             crash_rhs: Vec::new(),
-            order: Vec::new(),
             rhs: Vec::new(),
             inactive: Vec::new(),
             active_prev: Vec::new(),
@@ -980,8 +977,6 @@ impl PathSolver {
             if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
-            self.order.resize(ni, 0);
-            self.factor.row_order(&self.inactive, &mut self.order);
             if !self.reduced_newton_step(true, false) {
                 return false;
             }
@@ -1030,40 +1025,31 @@ impl PathSolver {
     /// `false`, leaving `x_I` as it was, when `Δ` is not finite.
     fn reduced_newton_step(&mut self, with_rhs: bool, into_trial: bool) -> bool {
         let (cur, inactive) = (&self.current, &self.inactive[..]);
-        if inactive.is_empty() {
-            return true;
-        }
-        // The right-hand side where the inactive components lie in `rhs` (full length; its
-        // other entries are not read), solved there on the rows in the factors' order: no
-        // gather into a vector of its own, no row interchanges per solve.
-        let (f, rhs) = (&cur.f[..], &mut self.rhs[..]);
+        let (f, rhs) = (&cur.f[..], &self.rhs[..]);
+        let b = &mut self.crash_rhs;
+        b.clear();
         if with_rhs {
-            for &i in inactive {
-                rhs[i] = -f[i] - rhs[i];
-            }
+            b.extend(inactive.iter().map(|&i| -f[i] - rhs[i]));
         } else {
-            for &i in inactive {
-                rhs[i] = -f[i];
+            b.extend(inactive.iter().map(|&i| -f[i]));
+        }
+        if !b.is_empty() {
+            self.factor.solve(b);
+        }
+        // The vector test (`all_finite`: the same verdict as a test per entry).
+        let finite = all_finite(b);
+        if finite {
+            let z = &cur.z[..];
+            let x = if into_trial {
+                &mut self.trial.x[..]
+            } else {
+                &mut self.step_x[..]
+            };
+            for (&i, &d) in inactive.iter().zip(b.iter()) {
+                x[i] = z[i] + d;
             }
         }
-        self.crash_rhs.resize(inactive.len(), 0.0);
-        self.factor
-            .solve_mapped(rhs, &self.order, inactive, &mut self.crash_rhs);
-        // `d · 0` is NaN exactly where `d` is not finite; `x_I` is written in the same pass
-        // (a step that is not finite is not taken: nothing reads `x_I` then).
-        let z = &cur.z[..];
-        let x = if into_trial {
-            &mut self.trial.x[..]
-        } else {
-            &mut self.step_x[..]
-        };
-        let mut nan = 0.0;
-        for &i in inactive {
-            let d = rhs[i];
-            nan += d * 0.0;
-            x[i] = z[i] + d;
-        }
-        nan == 0.0
+        finite
     }
 
     /// Solves the linearised problem at `self.current` with proximal term `lambda` and records

@@ -81,23 +81,6 @@ impl ColumnTestedLu {
         Ok(())
     }
 
-    /// The gather list of [`ColumnTestedLu::solve_mapped`] for the entries `rows[0..n]` of a
-    /// longer vector: `rows` in the order of the last factorisation's row interchanges
-    /// (`SmallLu::row_order`), computed once per factorisation.
-    pub fn row_order(&self, rows: &[usize], order: &mut [usize]) {
-        self.lu.row_order(rows, order);
-    }
-
-    /// Solves `A x = c` for `c_i = b[rows[i]]`, `x_i` written back to `b[rows[i]]`, the other
-    /// entries untouched (`order` from [`ColumnTestedLu::row_order`], `work` of at least `n`
-    /// entries): bitwise [`ColumnTestedLu::solve`] of the gathered `c` (`SmallLu::solve_mapped`).
-    /// Nothing is done when the last factorisation failed.
-    pub fn solve_mapped(&self, b: &mut [f64], order: &[usize], rows: &[usize], work: &mut [f64]) {
-        if self.factored {
-            self.lu.solve_mapped(b, order, rows, work);
-        }
-    }
-
     /// Solves `A x = b` in place with the last factorisation (`b` of length `n`; untouched when
     /// the last factorisation failed).
     pub fn solve(&self, b: &mut [f64]) {
