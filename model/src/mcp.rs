@@ -583,17 +583,12 @@ impl FinalResiduals {
 pub fn final_residuals(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> FinalResiduals {
     let n = z.len();
     let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
-    let mut worst: Option<(usize, f64)> = None;
+    // The worst component by its vector pass (the first of the largest, a NaN as `+∞`: the
+    // scalar loop's, bit for bit), then `Φ`'s squares in component order. One scalar loop for
+    // both was PATH's largest item of a desk step's finish (`docs/latency.md`, branch wip-path).
+    let worst = worst_component(z, f, lower, upper);
     let mut fb_squared = 0.0;
-    for i in 0..n {
-        let (zi, fi, li, ui) = (z[i], f[i], lower[i], upper[i]);
-        let mut c = natural_map_component(zi, fi, li, ui).abs();
-        if c.is_nan() || fi.is_nan() || zi.is_nan() {
-            c = f64::INFINITY;
-        }
-        if worst.is_none_or(|(_, w)| c > w) {
-            worst = Some((i, c));
-        }
+    for (((&zi, &fi), &li), &ui) in z.iter().zip(f).zip(lower).zip(upper) {
         let p = fb_component(zi, fi, li, ui);
         fb_squared += p * p;
     }
@@ -870,6 +865,90 @@ mod tests {
         };
         kept.clone_from(&longer);
         assert_eq!(kept, longer);
+    }
+
+    /// `final_residuals` gives the bits of the single scalar loop it replaced (the worst
+    /// component, the first of ties, a NaN as `+∞`, and `Φ`'s squares summed in order), on
+    /// every length 0–12 with free, one-sided and boxed bounds, ties, NaN and infinities.
+    #[test]
+    fn final_residuals_are_the_single_loops_bits() {
+        fn single_loop(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> FinalResiduals {
+            let mut worst: Option<(usize, f64)> = None;
+            let mut fb_squared = 0.0;
+            for i in 0..z.len() {
+                let (zi, fi, li, ui) = (z[i], f[i], lower[i], upper[i]);
+                let mut c = natural_map_component(zi, fi, li, ui).abs();
+                if c.is_nan() || fi.is_nan() || zi.is_nan() {
+                    c = f64::INFINITY;
+                }
+                if worst.is_none_or(|(_, w)| c > w) {
+                    worst = Some((i, c));
+                }
+                let p = fb_component(zi, fi, li, ui);
+                fb_squared += p * p;
+            }
+            FinalResiduals::new(worst, fb_squared)
+        }
+        let inf = f64::INFINITY;
+        let bounds = [
+            (0.0, inf),
+            (-inf, inf),
+            (-1.0, 2.0),
+            (-inf, 3.0),
+            (0.0, 0.0),
+        ];
+        let values = [
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            2.0,
+            0.5,
+            -2.5,
+            1e-300,
+            1e300,
+            f64::NAN,
+            inf,
+            -inf,
+        ];
+        let mut seed = 0x2545_f491_4f6c_dd1du64;
+        let mut next = |m: usize| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % m as u64) as usize
+        };
+        for n in 0..13 {
+            for round in 0..300 {
+                let (mut l, mut u, mut z, mut f) = (vec![], vec![], vec![], vec![]);
+                for _ in 0..n {
+                    let (lo, hi) = bounds[next(bounds.len())];
+                    l.push(lo);
+                    u.push(hi);
+                    // Non-finite values in a tenth of the rounds only, so ties of finite
+                    // maxima are common too.
+                    let pick = |k: usize| if round % 10 == 0 { k } else { k % 9 };
+                    z.push(mid(lo, hi, values[pick(next(values.len()))]));
+                    f.push(values[pick(next(values.len()))]);
+                }
+                let want = single_loop(&z, &f, &l, &u);
+                let got = final_residuals(&z, &f, &l, &u);
+                assert_eq!(got.natural.to_bits(), want.natural.to_bits(), "{z:?} {f:?}");
+                assert_eq!(
+                    got.worst.map(|(i, w)| (i, w.to_bits())),
+                    want.worst.map(|(i, w)| (i, w.to_bits())),
+                    "{z:?} {f:?}"
+                );
+                // The sum's bits where it is a number; a NaN sum (∞ − ∞ in a component) is a
+                // NaN whose sign the compiled operand order picks, and reported as `+∞`.
+                if want.fb_squared.is_nan() {
+                    assert!(got.fb_squared.is_nan());
+                } else {
+                    assert_eq!(got.fb_squared.to_bits(), want.fb_squared.to_bits());
+                }
+                assert_eq!(got.fb_residual().to_bits(), want.fb_residual().to_bits());
+            }
+        }
     }
 
     /// `final_residuals` and `worst_component` give the bits of the three separate passes they

@@ -303,6 +303,9 @@ struct Point {
     z: Vec<f64>,
     f: Vec<f64>,
     merit: f64,
+    /// Scratch of [`normal_point`]: the squares of `F_N`'s components, summed in order after
+    /// the branch-free pass.
+    squares: Vec<f64>,
     /// The natural residual of `z` and `f` once taken ([`Point::natural_residual`]; `None`
     /// after each evaluation): the step tests and the acceptance of a point share it.
     residual: Option<f64>,
@@ -313,6 +316,7 @@ impl Point {
         self.x.resize(n, 0.0);
         self.z.resize(n, 0.0);
         self.f.resize(n, 0.0);
+        self.squares.resize(n, 0.0);
     }
     fn copy_from(&mut self, other: &Point) {
         self.x.copy_from_slice(&other.x);
@@ -437,6 +441,10 @@ pub struct PathSolver {
     best_z: Vec<f64>,
     /// `F` at `best_z` (the final residuals need no evaluation of their own).
     best_f: Vec<f64>,
+    /// The best point so far is `current` itself, not yet copied into `best_z` and `best_f`
+    /// ([`PathSolver::keep_best`]): a run of ever better points (the desk's every step) copies
+    /// only the last one.
+    best_in_current: bool,
     jac: Vec<f64>,
     /// The Jacobian at `trial`, evaluated by the acceptance test; it becomes `jac` when the
     /// trial is accepted.
@@ -501,15 +509,32 @@ impl PathSolver {
         let residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
-            self.best_z.copy_from_slice(&self.current.z);
-            self.best_f.copy_from_slice(&self.current.f);
+            self.best_in_current = true;
+        } else if self.best_in_current {
+            // The point before (in `trial` now, until the next evaluation) stays the best.
+            self.best_z.copy_from_slice(&self.trial.z);
+            self.best_f.copy_from_slice(&self.trial.f);
+            self.best_in_current = false;
         }
         residual
     }
 
+    /// Copies the best point into `best_z` and `best_f` where it is still `current` only
+    /// ([`PathSolver::best_in_current`]), before `current` is overwritten.
+    fn keep_best(&mut self) {
+        if self.best_in_current {
+            self.best_z.copy_from_slice(&self.current.z);
+            self.best_f.copy_from_slice(&self.current.f);
+            self.best_in_current = false;
+        }
+    }
+
     /// Takes the trial point as a crash step of length `t` (a chord step has 1): recorded for
     /// the observer and the trace, counted as an iteration and a crash step, and made current
-    /// ([`PathSolver::accept_trial`]); returns its natural residual.
+    /// ([`PathSolver::accept_trial`]); returns its natural residual. The record (and the
+    /// step's norm, which only it uses) is skipped when neither the trace (`traced`) nor an
+    /// observer takes it.
+    #[allow(clippy::too_many_arguments)]
     fn take_crash_step(
         &mut self,
         t: f64,
@@ -517,18 +542,21 @@ impl PathSolver {
         iterations: &mut usize,
         counters: &mut Counters,
         (l, u, best_residual): (&[f64], &[f64], &mut f64),
+        traced: bool,
         record: &mut impl FnMut(usize, f64, f64, StepKind, f64, f64, &mut Option<Box<dyn Observer>>),
     ) -> f64 {
-        let norm = norm_inf_diff(&self.trial.x, &self.current.x);
-        record(
-            *iterations,
-            residual,
-            self.current.merit,
-            StepKind::Crash,
-            t,
-            norm,
-            &mut self.observer,
-        );
+        if traced || self.observer.is_some() {
+            let norm = norm_inf_diff(&self.trial.x, &self.current.x);
+            record(
+                *iterations,
+                residual,
+                self.current.merit,
+                StepKind::Crash,
+                t,
+                norm,
+                &mut self.observer,
+            );
+        }
         *iterations += 1;
         counters.crash_steps += 1;
         self.accept_trial(l, u, best_residual)
@@ -546,6 +574,7 @@ impl PathSolver {
             checkpoint: Point::default(),
             best_z: Vec::new(),
             best_f: Vec::new(),
+            best_in_current: false,
             jac: Vec::new(),
             trial_jac: Vec::new(),
             trial_has_jac: false,
@@ -616,28 +645,80 @@ impl PathSolver {
 /// The normal-map point of `z` with the smallest merit, and that merit `‖F_N(x)‖₂`:
 /// `x_i = l_i − F_i` where `z_i = l_i` and `F_i > 0`, `x_i = u_i − F_i` where `z_i = u_i` and
 /// `F_i < 0`, `x_i = z_i` elsewhere. Non-finite `F` gives `+∞`.
+///
+/// Two passes: `x` and the squares of `F_N = F + x − z` without a branch per component (the
+/// bounds' tests select, so the loop runs in vector lanes; the branches it replaces were
+/// mispredicted often enough to make this one of PATH's larger items in time, `docs/latency.md`,
+/// branch wip-path), then the squares summed in component order from `0.0`: the same numbers
+/// as the loop with `s += c · c`, bit for bit.
 fn normal_point(p: &mut Point, l: &[f64], u: &[f64]) {
-    let mut s = 0.0;
     let n = p.z.len();
-    for ((x, (&z, &f)), (&l, &u)) in (p.x[..n].iter_mut())
-        .zip(p.z.iter().zip(&p.f[..n]))
-        .zip(l[..n].iter().zip(&u[..n]))
-    {
-        *x = if z <= l && f > 0.0 {
-            l - f
-        } else if z >= u && f < 0.0 {
-            u - f
-        } else {
-            z
-        };
-        let c = f + *x - z;
-        s += c * c;
-    }
+    let Point {
+        x, z, f, squares, ..
+    } = p;
+    let z = &z[..];
+    normal_point_squares(&mut x[..n], &mut squares[..n], z, &f[..n], &l[..n], &u[..n]);
+    let s = squares[..n].iter().fold(0.0, |s, c2| s + c2);
     p.merit = if s.is_finite() {
         s.sqrt()
     } else {
         f64::INFINITY
     };
+}
+
+/// [`normal_point`]'s first pass, compiled for AVX2 where the processor has it (the same
+/// operations on the same numbers in either build: each lane is one component's).
+fn normal_point_squares(x: &mut [f64], sq: &mut [f64], z: &[f64], f: &[f64], l: &[f64], u: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2.
+        unsafe { normal_point_squares_avx2(x, sq, z, f, l, u) };
+        return;
+    }
+    normal_point_squares_with(x, sq, z, f, l, u);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn normal_point_squares_avx2(
+    x: &mut [f64],
+    sq: &mut [f64],
+    z: &[f64],
+    f: &[f64],
+    l: &[f64],
+    u: &[f64],
+) {
+    normal_point_squares_with(x, sq, z, f, l, u);
+}
+
+#[inline(always)]
+fn normal_point_squares_with(
+    x: &mut [f64],
+    sq: &mut [f64],
+    z: &[f64],
+    f: &[f64],
+    l: &[f64],
+    u: &[f64],
+) {
+    for ((x, sq), ((&z, &f), (&l, &u))) in
+        (x.iter_mut().zip(sq.iter_mut())).zip(z.iter().zip(f).zip(l.iter().zip(u)))
+    {
+        // `&` and selects, not `&&` and branches.
+        let at_lower = (z <= l) & (f > 0.0);
+        let at_upper = (z >= u) & (f < 0.0);
+        let xl = l - f;
+        let xu = u - f;
+        let v = if at_lower {
+            xl
+        } else if at_upper {
+            xu
+        } else {
+            z
+        };
+        *x = v;
+        let c = f + v - z;
+        *sq = c * c;
+    }
 }
 
 /// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
@@ -731,6 +812,7 @@ impl PathSolver {
         if all_finite(&self.jac) {
             return true;
         }
+        self.keep_best();
         self.current.copy_from(&self.checkpoint);
         *residual = self.current.natural_residual(mcp.lower(), mcp.upper());
         false
@@ -767,8 +849,9 @@ impl PathSolver {
             if self.trial.merit <= (1.0 - sigma * t) * self.current.merit {
                 // A full step that contracted the residual fast: the next step is a chord step
                 // on this LU, which needs no Jacobian at the trial. The current point (whose
-                // Jacobian is finite) is kept in `checkpoint` in case that Jacobian, evaluated
-                // only when the chord step is refused, is not finite.
+                // Jacobian is finite) is kept in `checkpoint` (by the caller, once the trial is
+                // taken) in case that Jacobian, evaluated only when the chord step is refused,
+                // is not finite.
                 // Only with the polish on: `polish_below = 1` is PATH before it, bit for bit.
                 if t == 1.0
                     && self.kept_lu
@@ -780,7 +863,6 @@ impl PathSolver {
                     if r > tolerance && r <= CRASH_CHORD_CONTRACTION * residual {
                         self.trial_has_jac = false;
                         self.jac_deferred = true;
-                        self.checkpoint.copy_from(&self.current);
                         return Some(t);
                     }
                 }
@@ -859,15 +941,28 @@ impl PathSolver {
                 .zip(self.gather.start.windows(2))
             {
                 col.fill(0.0);
-                let mut largest = 0.0f64;
-                for &(q, r) in &entries[w[0]..w[1]] {
+                // `J` is finite here: one `maxsd` per entry, not `f64::max`'s NaN tests. Four
+                // running maxima, not one: one chain of `maxsd` (four cycles each) through a
+                // column's entries held up the loop. The largest of non-negative finite
+                // numbers is the same number in any order.
+                let mut m = [0.0f64; 4];
+                let mut quads = entries[w[0]..w[1]].chunks_exact(4);
+                for e in &mut quads {
+                    for (m, &(q, r)) in m.iter_mut().zip(e) {
+                        let v = jac[q];
+                        col[r] = v;
+                        let a = v.abs();
+                        *m = if a > *m { a } else { *m };
+                    }
+                }
+                for (m, &(q, r)) in m.iter_mut().zip(quads.remainder()) {
                     let v = jac[q];
                     col[r] = v;
-                    // `J` is finite here: one `maxsd`, not `f64::max`'s NaN tests.
                     let a = v.abs();
-                    largest = if a > largest { a } else { largest };
+                    *m = if a > *m { a } else { *m };
                 }
-                *norm = largest;
+                let larger = |a: f64, b: f64| if a > b { a } else { b };
+                *norm = larger(larger(m[0], m[1]), larger(m[2], m[3]));
             }
             if shift != 0.0 {
                 for (k, (col, norm)) in reduced
@@ -882,7 +977,7 @@ impl PathSolver {
             if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
-            if !self.reduced_newton_step(true) {
+            if !self.reduced_newton_step(true, false) {
                 return false;
             }
         }
@@ -919,15 +1014,16 @@ impl PathSolver {
         if !same {
             return false;
         }
-        self.step_x.copy_from_slice(&cur.z);
-        self.reduced_newton_step(false)
+        self.trial.x.copy_from_slice(&cur.z);
+        self.reduced_newton_step(false, true)
     }
 
-    /// The inactive components of a crash or chord target: `step_x_I = z_I + Δ_I` with
+    /// The inactive components of a crash or chord target: `x_I = z_I + Δ_I` with
     /// `J_II Δ_I = −F_I − r_I` on the LU in `self.factor`, where `r = self.rhs` (`J (b − z)`)
-    /// when `with_rhs`, else 0 (a chord step: every active component is at its bound already).
-    /// `false`, leaving `step_x_I` as it was, when `Δ` is not finite.
-    fn reduced_newton_step(&mut self, with_rhs: bool) -> bool {
+    /// when `with_rhs`, else 0 (a chord step: every active component is at its bound already),
+    /// into `self.trial.x` when `into_trial` (a chord step's point), else into `self.step_x`.
+    /// `false`, leaving `x_I` as it was, when `Δ` is not finite.
+    fn reduced_newton_step(&mut self, with_rhs: bool, into_trial: bool) -> bool {
         let (cur, inactive) = (&self.current, &self.inactive[..]);
         let (f, rhs) = (&cur.f[..], &self.rhs[..]);
         let b = &mut self.crash_rhs;
@@ -940,11 +1036,17 @@ impl PathSolver {
         if !b.is_empty() {
             self.factor.solve(b);
         }
-        let finite = b.iter().all(|v| v.is_finite());
+        // The vector test (`all_finite`: the same verdict as a test per entry).
+        let finite = all_finite(b);
         if finite {
-            let (z, step_x) = (&cur.z[..], &mut self.step_x[..]);
+            let z = &cur.z[..];
+            let x = if into_trial {
+                &mut self.trial.x[..]
+            } else {
+                &mut self.step_x[..]
+            };
             for (&i, &d) in inactive.iter().zip(b.iter()) {
-                step_x[i] = z[i] + d;
+                x[i] = z[i] + d;
             }
         }
         finite
@@ -1045,13 +1147,13 @@ impl PathSolver {
 
         // Start: z = π(z0), x its normal-map point; `F` there may be known already (a time
         // step's warm start).
+        self.keep_best();
         self.current.x.copy_from_slice(z0);
         evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, true);
         let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
-            self.best_z.copy_from_slice(&self.current.z);
-            self.best_f.copy_from_slice(&self.current.f);
+            self.best_in_current = true;
         }
         let mut termination = if self.current.merit.is_finite() {
             Termination::MaxIterations
@@ -1103,7 +1205,6 @@ impl PathSolver {
                 }
                 if chord_next {
                     if self.chord_target(mcp) {
-                        self.trial.x.copy_from_slice(&self.step_x);
                         evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
                         let chorded = self.trial.natural_residual(l, u);
                         let sigma = s.sufficient_decrease;
@@ -1117,6 +1218,7 @@ impl PathSolver {
                                 iterations,
                                 counters,
                                 (l, u, best_residual),
+                                s.trace,
                                 &mut record,
                             );
                             if residual <= s.tolerance {
@@ -1158,8 +1260,16 @@ impl PathSolver {
                     iterations,
                     counters,
                     (l, u, best_residual),
+                    s.trace,
                     &mut record,
                 );
+                if chord_next {
+                    // The point before the step (in `trial` since it was taken, whole: `x`,
+                    // `z`, `F`, merit, residual) is the checkpoint a refused chord step goes
+                    // back to: moved there, not copied; `trial` is written afresh before it is
+                    // read again.
+                    std::mem::swap(&mut self.checkpoint, &mut self.trial);
+                }
                 if residual <= s.tolerance {
                     break;
                 }
@@ -1191,7 +1301,12 @@ impl PathSolver {
         let jscale = |jac: &[f64]| jac.iter().fold(1.0f64, |m, v| m.max(v.abs()));
         let mut lambda = 0.0f64;
         let mut first_lambda = initial_lambda;
-        self.checkpoint.copy_from(&self.current);
+        // Not when the loop below stops at once (the crash phase converged, the desk's every
+        // step): nothing after it reads the checkpoint.
+        let converged = residual <= s.tolerance;
+        if termination == Termination::MaxIterations && !converged {
+            self.checkpoint.copy_from(&self.current);
+        }
         let mut since_checkpoint = 0usize;
         let mut checkpoint_lambda = 0.0f64;
         // Set after a return to the checkpoint: the next step must pass the monotone path
@@ -1299,6 +1414,7 @@ impl PathSolver {
                 if since_checkpoint > 0 {
                     // The watchdog expired: back to the checkpoint, and search along its path.
                     counters.watchdog_restores += 1;
+                    self.keep_best();
                     self.current.copy_from(&self.checkpoint);
                     since_checkpoint = 0;
                     monotone = true;
@@ -1431,7 +1547,6 @@ impl PathSolver {
             }
             chord_last = false;
             if chords < POLISH_CHORD_STEPS && self.chord_target(mcp) {
-                self.trial.x.copy_from_slice(&self.step_x);
                 evaluate_at(mcp, &mut self.trial, f_evals, self.fischer);
                 let chorded = self.trial.natural_residual(l, u);
                 let bound = if above {
@@ -1448,6 +1563,7 @@ impl PathSolver {
                         iterations,
                         counters,
                         (l, u, best_residual),
+                        s.trace,
                         &mut record,
                     );
                     have_jac = false;
@@ -1503,6 +1619,7 @@ impl PathSolver {
                         iterations,
                         counters,
                         (l, u, best_residual),
+                        s.trace,
                         &mut record,
                     );
                     have_jac = false;
@@ -1518,9 +1635,10 @@ impl PathSolver {
         }
         if termination == Termination::Converged || residual <= *best_residual {
             *best_residual = residual;
-            self.best_z.copy_from_slice(&self.current.z);
-            self.best_f.copy_from_slice(&self.current.f);
+            self.best_in_current = true;
         }
+        // `best_z` and `best_f` hold the best point when the attempt ends.
+        self.keep_best();
         if residual <= s.tolerance {
             Termination::Converged
         } else {
@@ -1798,6 +1916,7 @@ impl PathSolver {
         let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
         self.resize(n, pattern.nnz());
         self.fischer = false;
+        self.best_in_current = false;
         let mut run = Run {
             trace: Vec::new(),
             counters: Counters::default(),
@@ -2140,6 +2259,96 @@ mod tests {
         }
         // F_N = F + x − z = (0, −2, 0.5).
         assert!((p.merit - (4.0f64 + 0.25).sqrt()).abs() < 1e-15);
+    }
+
+    /// The branch-free normal point gives the bits of the loop it replaced (`x` and the merit)
+    /// with the portable and the AVX2 pass: components at either bound with `F` of either sign
+    /// and zero, free, boxed and one-sided, `±0`, tiny and huge values, every length 0–13.
+    #[test]
+    fn normal_point_is_the_branching_loop_bitwise() {
+        fn branching(z: &[f64], f: &[f64], l: &[f64], u: &[f64]) -> (Vec<f64>, f64) {
+            let mut x = vec![0.0; z.len()];
+            let mut s = 0.0;
+            for i in 0..z.len() {
+                x[i] = if z[i] <= l[i] && f[i] > 0.0 {
+                    l[i] - f[i]
+                } else if z[i] >= u[i] && f[i] < 0.0 {
+                    u[i] - f[i]
+                } else {
+                    z[i]
+                };
+                let c = f[i] + x[i] - z[i];
+                s += c * c;
+            }
+            (
+                x,
+                if s.is_finite() {
+                    s.sqrt()
+                } else {
+                    f64::INFINITY
+                },
+            )
+        }
+        let inf = f64::INFINITY;
+        let bounds = [
+            (0.0, inf),
+            (-inf, inf),
+            (-1.0, 2.0),
+            (-inf, 3.0),
+            (-0.0, 0.0),
+            (1e-300, 1e300),
+        ];
+        let values = [
+            0.0, -0.0, 1.0, -1.0, 2.0, 3.0, -2.5, 1e-300, -1e300, 1e200, 0.1,
+        ];
+        let mut seed = 0x9e37_79b9_7f4a_7c15u64;
+        let mut next = |m: usize| {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed % m as u64) as usize
+        };
+        for n in 0..14 {
+            for _ in 0..200 {
+                let (mut l, mut u, mut z, mut f) = (vec![], vec![], vec![], vec![]);
+                for _ in 0..n {
+                    let (lo, hi) = bounds[next(bounds.len())];
+                    l.push(lo);
+                    u.push(hi);
+                    // z at a bound half of the time (where the normal point differs from z).
+                    z.push(match next(4) {
+                        0 => lo,
+                        1 => hi,
+                        _ => mid(lo, hi, values[next(values.len())]),
+                    });
+                    f.push(values[next(values.len())]);
+                }
+                let (want_x, want_merit) = branching(&z, &f, &l, &u);
+                for avx2 in [false, true] {
+                    let mut p = Point::default();
+                    p.resize(n);
+                    p.z.copy_from_slice(&z);
+                    p.f.copy_from_slice(&f);
+                    if avx2 {
+                        #[cfg(target_arch = "x86_64")]
+                        let has_avx2 = std::arch::is_x86_feature_detected!("avx2");
+                        #[cfg(not(target_arch = "x86_64"))]
+                        let has_avx2 = false;
+                        if !has_avx2 {
+                            continue;
+                        }
+                        normal_point(&mut p, &l, &u);
+                    } else {
+                        normal_point_squares_with(&mut p.x, &mut p.squares, &z, &f, &l, &u);
+                        let s = p.squares.iter().fold(0.0, |s, c2| s + c2);
+                        p.merit = if s.is_finite() { s.sqrt() } else { inf };
+                    }
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&p.x), bits(&want_x), "{z:?} {f:?} {l:?} {u:?}");
+                    assert_eq!(p.merit.to_bits(), want_merit.to_bits());
+                }
+            }
+        }
     }
 
     /// `F(z) = z³ − 1`, free: `J(0) = 0`, so the linearisation at the start has no basis.
