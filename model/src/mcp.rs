@@ -772,9 +772,21 @@ pub fn fb_residual_into(
     upper: &[f64],
     phi: &mut [f64],
 ) -> f64 {
+    // Cut to one length (no bounds checks in the loop), and a free component's `Φ_i = F_i`
+    // (`fb_component`'s first arm: both bounds not finite) taken before the bounds are
+    // classified and the kinds' jump table is taken: most of the desk's components are free,
+    // and the warm start's guard calls this at every step (`docs/latency.md`, branch
+    // wip-newtonown). The same components summed in the same order.
+    let n = z.len();
+    let (f, lower, upper, phi) = (&f[..n], &lower[..n], &upper[..n], &mut phi[..n]);
     let mut s = 0.0;
-    for i in 0..z.len() {
-        let c = fb_component(z[i], f[i], lower[i], upper[i]);
+    for i in 0..n {
+        let (l, u, fi) = (lower[i], upper[i], f[i]);
+        let c = if !l.is_finite() && !u.is_finite() {
+            fi
+        } else {
+            fb_component(z[i], fi, l, u)
+        };
         phi[i] = c;
         s += c * c;
     }
@@ -917,6 +929,70 @@ mod tests {
         }
         let empty = final_residuals(&[], &[], &[], &[]);
         assert_eq!((empty.natural, empty.worst), (0.0, None));
+    }
+
+    /// `fb_residual_into` (free components first, the slices cut to one length) gives the bits
+    /// of the plain loop over `fb_component` it replaced, residual and `Φ`: every kind of
+    /// bounds (a NaN bound counts as not finite, as `classify` takes it), signed zeros, NaN and
+    /// infinite `z` and `F`; a longer `F` and `Φ` are read and written up to `z`'s length only.
+    #[test]
+    fn fb_residual_into_matches_the_plain_loop() {
+        fn plain(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) -> f64 {
+            let mut s = 0.0;
+            for i in 0..z.len() {
+                let c = fb_component(z[i], f[i], lower[i], upper[i]);
+                phi[i] = c;
+                s += c * c;
+            }
+            norm_of_squares(s)
+        }
+        let (inf, nan) = (f64::INFINITY, f64::NAN);
+        let bounds = [
+            (-inf, inf),
+            (nan, inf),
+            (-inf, nan),
+            (0.0, inf),
+            (-0.0, inf),
+            (-inf, 1.0),
+            (-1.0, 1.0),
+            (nan, 2.0),
+        ];
+        let values = [-2.0, -0.5, -0.0, 0.0, 1e-300, 0.5, 3.0, inf, -inf, nan];
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        // Every (bounds, z, F) as one component, then vectors mixing them.
+        let mut zs = Vec::new();
+        let mut fs = Vec::new();
+        let mut ls = Vec::new();
+        let mut us = Vec::new();
+        for &(l, u) in &bounds {
+            for &z in &values {
+                for &f in &values {
+                    let (mut got, mut want) = ([7.0], [7.0]);
+                    let r = fb_residual_into(&[z], &[f], &[l], &[u], &mut got);
+                    let w = plain(&[z], &[f], &[l], &[u], &mut want);
+                    assert_eq!(r.to_bits(), w.to_bits(), "l {l} u {u} z {z} f {f}");
+                    assert_eq!(bits(&got), bits(&want), "l {l} u {u} z {z} f {f}");
+                    if f.is_finite() && z.is_finite() {
+                        zs.push(z);
+                        fs.push(f);
+                        ls.push(l);
+                        us.push(u);
+                    }
+                }
+            }
+        }
+        for len in [0, 1, 2, 5, 31, zs.len()] {
+            let (z, l, u) = (&zs[..len], &ls[..len], &us[..len]);
+            let mut f = fs[..len].to_vec();
+            f.push(nan);
+            let (mut got, mut want) = (vec![7.0; len + 1], vec![7.0; len + 1]);
+            let r = fb_residual_into(z, &f, l, u, &mut got);
+            let w = plain(z, &f, l, u, &mut want);
+            assert_eq!(r.to_bits(), w.to_bits(), "length {len}");
+            assert_eq!(bits(&got), bits(&want), "length {len}");
+            assert_eq!(got[len], 7.0);
+            assert_eq!(r.to_bits(), fb_residual(z, &f, l, u).to_bits());
+        }
     }
 
     /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at

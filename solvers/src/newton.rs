@@ -514,6 +514,15 @@ struct Workspace {
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
+    /// The components whose bounds are not free (`kinds[i] != Free`), in increasing order,
+    /// made with `kinds`: a free pair has one branch, so the chord steps' test
+    /// ([`same_branches`]) looks at these alone (9 of the desk's 31).
+    bounded: Vec<usize>,
+    /// For each column of `H`, the position of an entry that showed it is not to be pinned at
+    /// the last assembly ([`assemble_h`]): tried first at the next (the same pattern's `H`
+    /// moves little between iterations and steps). Reset to the diagonal's positions when the
+    /// pattern changes ([`NewtonSolver::prepare`]).
+    witness: Vec<usize>,
     /// The point and `F` where the kept LU's `H` was formed, for the chord steps' test of the
     /// pairs' branches ([`pair_branch`], [`NewtonSettings::chord_contraction`]).
     z_lu: Vec<f64>,
@@ -750,6 +759,12 @@ impl NewtonSolver {
             self.pattern = Some(pattern.clone());
         }
         self.ws.resize(mcp.dim(), pattern.nnz());
+        // The witnesses are positions in the pattern they were found in: the diagonal's of a
+        // new one (every position of column `j` in its pattern, as `assemble_h` asks).
+        if !same || self.ws.witness.len() != pattern.diag_pos().len() {
+            self.ws.witness.clear();
+            self.ws.witness.extend_from_slice(pattern.diag_pos());
+        }
         // The stall test's history holds at most one entry per iteration and the start.
         let history = self.settings.max_iterations.saturating_add(1).min(1 << 16);
         self.ws
@@ -921,11 +936,19 @@ fn unit_rows(db: &[f64], unit: &mut [bool]) {
 }
 
 /// Writes `H = D_a + D_b J` into `h` (in `pattern`, the diagonal always stored) and returns the
-/// largest magnitude of `H` (NaNs left out); `∇Ψ = HᵀΦ` is formed apart ([`gradient`]), only
-/// where an iteration needs it. For [`pin_zero_columns`], `col_max[j]` is a magnitude of column
-/// `j` that decides its test against `ZERO_COLUMN` times that largest: `|H_jj|` when it is
-/// above it (the column is not pinned), else the column's largest magnitude (NaN when the
-/// column holds a NaN).
+/// largest magnitude of `H` (NaNs left out) and whether some column may be pinned
+/// (`undecided`); `∇Ψ = HᵀΦ` is formed apart ([`gradient`]), only where an iteration needs it.
+///
+/// A column is not pinned ([`pin_zero_columns`]) when one of its entries is above
+/// `ZERO_COLUMN` times that largest (a witness). `witness[j]` is a position in column `j` (of
+/// this pattern): the last assembly's witness, tried first; else the diagonal, else the first
+/// entry above the threshold, kept as the next witness. When a column has none, `undecided`
+/// is true and `col_max[j]` is, for every column, a magnitude that decides its test as before:
+/// `|H_jj|` when it is above the threshold, else the first entry above it, else the column's
+/// largest magnitude (NaN when the column holds a NaN, which is not pinned). When `undecided`
+/// is false no column is pinned and `col_max` is left as it was (the desk's columns: one load
+/// and compare each, where the search of the half with a zero diagonal and the tests of all
+/// columns' maxima cost ≈ 1 k instructions a step, `docs/latency.md`, branch wip-newtonown).
 ///
 /// `D_b J` in one pass over the stored entries (no per-column set-up), then `D_a` added on the
 /// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. The largest magnitude in four
@@ -936,8 +959,9 @@ fn assemble_h(
     da: &[f64],
     db: &[f64],
     h: &mut [f64],
+    witness: &mut [usize],
     col_max: &mut [f64],
-) -> f64 {
+) -> (f64, bool) {
     let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
     let ncols = cp.len() - 1;
     let nnz = cp[ncols];
@@ -976,6 +1000,25 @@ fn assemble_h(
     }
     let largest = largest_magnitude(h);
     let threshold = ZERO_COLUMN * largest;
+    let mut undecided = false;
+    for (j, w) in witness[..ncols].iter_mut().enumerate() {
+        // The kept witness (a position of column `j`: `h[*w]` is one of its entries), then
+        // the diagonal, then the column's first entry above the threshold.
+        if h[*w].abs() > threshold {
+            continue;
+        }
+        if h[diag[j]].abs() > threshold {
+            *w = diag[j];
+            continue;
+        }
+        match h[cp[j]..cp[j + 1]].iter().position(|v| v.abs() > threshold) {
+            Some(k) => *w = cp[j] + k,
+            None => undecided = true,
+        }
+    }
+    if !undecided {
+        return (largest, false);
+    }
     for (j, (m, &p)) in col_max[..ncols].iter_mut().zip(diag).enumerate() {
         let d = h[p].abs();
         // A witness above the threshold decides the test (NaN is not above it): the diagonal,
@@ -999,7 +1042,7 @@ fn assemble_h(
             }
         };
     }
-    largest
+    (largest, true)
 }
 
 /// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes: two SSE2
@@ -1166,23 +1209,22 @@ fn pair_branch(z: f64, f: f64, l: f64, u: f64, kind: BoundKind) -> u8 {
 }
 
 /// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`:
-/// each pair's kind matched once for both points, the slices cut to one length (no bounds
-/// checks in the loop).
+/// a free pair has one branch, so only the pairs in `bounded` (the components whose kind is
+/// not free, [`Workspace::bounded`]) are compared, each kind matched once for both points
+/// (9 of the desk's 31 pairs, where a pass over all of them tested each free one).
 fn same_branches(
     (z, f): (&[f64], &[f64]),
     (z0, f0): (&[f64], &[f64]),
     l: &[f64],
     u: &[f64],
     kinds: &[BoundKind],
+    bounded: &[usize],
 ) -> bool {
     let n = z.len();
     let (f, z0, f0, l, u, kinds) = (&f[..n], &z0[..n], &f0[..n], &l[..n], &u[..n], &kinds[..n]);
-    // A free pair has one branch: tested before the six values are loaded and the kinds'
-    // jump table taken (most of the desk's pairs).
-    (0..n).all(|i| {
-        let kind = kinds[i];
-        kind == BoundKind::Free || same_branch(kind, (z[i], f[i]), (z0[i], f0[i]), l[i], u[i])
-    })
+    bounded
+        .iter()
+        .all(|&i| same_branch(kinds[i], (z[i], f[i]), (z0[i], f0[i]), l[i], u[i]))
 }
 
 /// `pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind)`, with `kind` matched once.
@@ -1709,6 +1751,8 @@ impl NewtonSolver {
             ws.kinds.clear();
             ws.kinds
                 .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
+            ws.bounded.clear();
+            (ws.bounded).extend((0..n).filter(|&i| ws.kinds[i] != BoundKind::Free));
         }
         // The first iteration tries a chord step on the last solve's LU: only the plain
         // iteration's first run (the restarts after a failed run start afresh).
@@ -1848,7 +1892,14 @@ impl NewtonSolver {
             let mut chord_residual = None;
             if let Some(kappa) = chord_kappa(lu_from_last)
                 && chord_ready
-                && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
+                && same_branches(
+                    (&ws.z, &ws.f),
+                    (&ws.z_lu, &ws.f_lu),
+                    l,
+                    u,
+                    &ws.kinds,
+                    &ws.bounded,
+                )
                 && let Some(linear) = self.linear.as_mut()
             {
                 negate_into(&mut ws.d, &ws.phi);
@@ -1929,10 +1980,21 @@ impl NewtonSolver {
                     &mut ws.degenerate,
                     &mut ws.jv,
                 );
-                // H; `pin` gets the column maxima for the pinning test below.
-                let largest = assemble_h(&pattern, &ws.jac, &ws.da, &ws.db, &mut ws.h, &mut ws.pin);
+                // H; `pin` gets the column maxima for the pinning test below, only when some
+                // column may be pinned (`undecided`): else no column is, and `pin` is not read.
+                let (largest, undecided) = assemble_h(
+                    &pattern,
+                    &ws.jac,
+                    &ws.da,
+                    &ws.db,
+                    &mut ws.h,
+                    &mut ws.witness,
+                    &mut ws.pin,
+                );
                 if s.fast_full_step.is_none()
-                    || s.pin_zero_columns && ws.pin.iter().any(|&m| m <= ZERO_COLUMN * largest)
+                    || s.pin_zero_columns
+                        && undecided
+                        && ws.pin.iter().any(|&m| m <= ZERO_COLUMN * largest)
                 {
                     // ∇Ψ now: the pins below change `H`'s diagonal and back, not bit for bit.
                     gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
@@ -1949,6 +2011,7 @@ impl NewtonSolver {
                 // diagonal for the factorisation, so the step leaves them where their (consistent)
                 // row puts them instead of failing the LU over the whole system.
                 let pinned = s.pin_zero_columns
+                    && undecided
                     && pin_zero_columns(
                         &pattern,
                         &mut ws.h,
@@ -2763,6 +2826,8 @@ mod tests {
                 .collect();
             let pattern = CscPattern::from_columns(n, columns).expect("a valid pattern");
             let nnz = pattern.nnz();
+            // The witnesses carried from trial to trial (as from iteration to iteration).
+            let mut witness = pattern.diag_pos().to_vec();
             for trial in 0..7 {
                 let mut jac: Vec<f64> = (0..nnz).map(|_| 4.0 * next() - 2.0).collect();
                 let mut da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
@@ -2790,7 +2855,8 @@ mod tests {
                 let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
-                let got = assemble_h(&pattern, &jac, &da, &db, &mut h1, &mut c1);
+                let (got, undecided) =
+                    assemble_h(&pattern, &jac, &da, &db, &mut h1, &mut witness, &mut c1);
                 gradient(&pattern, &h1, &phi, &mut g1);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
@@ -2800,6 +2866,32 @@ mod tests {
                 // column is not pinned), and is that largest where the test pins.
                 let threshold = ZERO_COLUMN * want;
                 let pins = |m: f64| m <= threshold;
+                // Each witness is in its column and above the threshold, but where the column
+                // has no such entry; without such a column, no column is pinned (and `c1` is
+                // not written).
+                let cp = pattern.col_ptr();
+                let mut none_above = false;
+                for (j, &w) in witness.iter().enumerate() {
+                    assert!(
+                        cp[j] <= w && w < cp[j + 1],
+                        "n = {n}, trial {trial}, column {j}"
+                    );
+                    let above = h1[cp[j]..cp[j + 1]].iter().any(|v| v.abs() > threshold);
+                    assert!(!above || h1[w].abs() > threshold, "n = {n}, trial {trial}");
+                    none_above |= !above;
+                }
+                assert_eq!(undecided, none_above, "n = {n}, trial {trial}");
+                if trial == 1 {
+                    assert!(c0.iter().any(|c| c.is_nan()), "a NaN column");
+                }
+                if trial == 6 {
+                    assert!(undecided, "n = {n}: the zero column has no witness");
+                }
+                if !undecided {
+                    assert!(!c0.iter().any(|&w| pins(w)), "n = {n}, trial {trial}");
+                    assert!(c1.iter().all(|&c| c == 0.0), "n = {n}, trial {trial}");
+                    continue;
+                }
                 for (j, (&c, &w)) in c1.iter().zip(&c0).enumerate() {
                     let at = format!("n = {n}, trial {trial}, column {j}");
                     assert_eq!(pins(c), pins(w), "{at}");
@@ -2808,9 +2900,6 @@ mod tests {
                     } else if !w.is_nan() {
                         assert!(c > threshold && c <= w, "{at}");
                     }
-                }
-                if trial == 1 {
-                    assert!(c0.iter().any(|c| c.is_nan()), "a NaN column");
                 }
                 if trial == 6 && n > 1 {
                     assert_eq!(c1[0], 0.0, "the zero column is pinned");
@@ -2832,11 +2921,50 @@ mod tests {
                 for &f in &values {
                     for &(z0, f0) in &[(0.5, 0.25), (-1.0, 1.0), (1.0, -1.0), (0.0, 0.0)] {
                         let want = pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind);
-                        let got = same_branches((&[z], &[f]), (&[z0], &[f0]), &[l], &[u], &[kind]);
+                        let bounded: &[usize] = if kind == BoundKind::Free { &[] } else { &[0] };
+                        let got = same_branches(
+                            (&[z], &[f]),
+                            (&[z0], &[f0]),
+                            &[l],
+                            &[u],
+                            &[kind],
+                            bounded,
+                        );
                         assert_eq!(got, want, "{kind:?} z {z} f {f} z0 {z0} f0 {f0}");
                     }
                 }
             }
+        }
+        // Vectors of mixed kinds, with the list the workspace makes: the answer of every pair
+        // compared (the free ones, left out of the list, included).
+        let mut seed = 5u64;
+        let mut pick = |k: usize| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) as usize % k
+        };
+        for _ in 0..2000 {
+            let n = 1 + pick(9);
+            let (mut z, mut f, mut z0, mut f0, mut l, mut u) =
+                (vec![], vec![], vec![], vec![], vec![], vec![]);
+            for _ in 0..n {
+                let (lb, ub) = bounds[pick(bounds.len())];
+                l.push(lb);
+                u.push(ub);
+                z.push(values[pick(values.len())]);
+                f.push(values[pick(values.len())]);
+                z0.push(values[pick(values.len())]);
+                f0.push(values[pick(values.len())]);
+            }
+            let kinds: Vec<BoundKind> = l.iter().zip(&u).map(|(&a, &b)| classify(a, b)).collect();
+            let bounded: Vec<usize> = (0..n).filter(|&i| kinds[i] != BoundKind::Free).collect();
+            let want = (0..n).all(|i| {
+                pair_branch(z[i], f[i], l[i], u[i], kinds[i])
+                    == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
+            });
+            let got = same_branches((&z, &f), (&z0, &f0), &l, &u, &kinds, &bounded);
+            assert_eq!(got, want, "{z:?} {f:?} {z0:?} {f0:?} {l:?} {u:?}");
         }
     }
 
