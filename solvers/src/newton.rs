@@ -827,8 +827,14 @@ fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
 /// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`);
 /// `band` is [`NewtonSettings::kink_band`] (0: off). `degenerate` gets the pairs at the kink
 /// (in increasing order), whose rows take the element along `J v`.
+///
+/// `bounded`: `None` writes every row; `Some(list)` only the listed ones (the components
+/// whose kind is not free, in increasing order, [`Workspace::bounded`]), the caller having
+/// written a free row's `(D_a, D_b) = (0, 1)` once (they never change): 22 of the desk's 31
+/// rows, a store pair and the kinds' test each at every factorisation.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn generalized_jacobian_rows(
+    bounded: Option<&[usize]>,
     band: f64,
     z: &[f64],
     f: &[f64],
@@ -850,7 +856,12 @@ pub(crate) fn generalized_jacobian_rows(
     // De Luca–Facchinei–Kanzow is +1 for lower, −1 for upper bounds (`kinds`). The list
     // (a few pairs) replaces a vector of `v` and two more passes over all components.
     degenerate.clear();
-    for i in 0..n {
+    if let Some(list) = bounded {
+        debug_assert!((0..n).all(|i| kinds[i] != BoundKind::Free
+            || ws_da[i] == 0.0 && ws_db[i] == 1.0
+            || list.contains(&i)));
+    }
+    let mut row = |i: usize| {
         match kinds[i] {
             BoundKind::Free => {
                 ws_da[i] = 0.0;
@@ -893,6 +904,10 @@ pub(crate) fn generalized_jacobian_rows(
                 ws_db[i] = -pb * qb;
             }
         }
+    };
+    match bounded {
+        None => (0..n).for_each(&mut row),
+        Some(list) => list.iter().for_each(|&i| row(i)),
     }
     if !degenerate.is_empty() {
         // The direction `v` of a listed pair: only lower and upper bounds are listed.
@@ -928,10 +943,13 @@ pub(crate) fn generalized_jacobian_rows(
 
 /// Marks the unit rows of `H = D_a + D_b J`: the rows with `D_b,i = 0` (a component held at
 /// its bound, `F_i` away from 0), whose only entry is the diagonal `D_a,i` (and its pin,
-/// [`pin_zero_columns`]). [`NewtonSettings::free_block`] factorises `H` without them.
-fn unit_rows(db: &[f64], unit: &mut [bool]) {
-    for (m, &b) in unit.iter_mut().zip(db) {
-        *m = b == 0.0;
+/// [`pin_zero_columns`]). [`NewtonSettings::free_block`] factorises `H` without them. Only
+/// the rows in `bounded` ([`Workspace::bounded`]): a free row's `D_b` is 1, its mark `false`
+/// written once with it.
+fn unit_rows(db: &[f64], bounded: &[usize], unit: &mut [bool]) {
+    debug_assert!((0..unit.len()).all(|i| unit[i] == (db[i] == 0.0) || bounded.contains(&i)));
+    for &i in bounded {
+        unit[i] = db[i] == 0.0;
     }
 }
 
@@ -1753,6 +1771,16 @@ impl NewtonSolver {
                 .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
             ws.bounded.clear();
             (ws.bounded).extend((0..n).filter(|&i| ws.kinds[i] != BoundKind::Free));
+            // A free row of `H` is `J`'s: `(D_a, D_b) = (0, 1)`, not a unit row, whatever the
+            // point; written here once, the iterations write the bounded rows alone.
+            for (i, _) in ws
+                .kinds
+                .iter()
+                .enumerate()
+                .filter(|(_, k)| **k == BoundKind::Free)
+            {
+                (ws.da[i], ws.db[i], ws.unit[i]) = (0.0, 1.0, false);
+            }
         }
         // The first iteration tries a chord step on the last solve's LU: only the plain
         // iteration's first run (the restarts after a failed run start afresh).
@@ -1963,6 +1991,7 @@ impl NewtonSolver {
                 // with `F` still moving (held there, d5_collision's step 25 took 8 iterations
                 // instead of 6).
                 generalized_jacobian_rows(
+                    Some(&ws.bounded),
                     if iterations == 0 {
                         s.kink_band.unwrap_or(0.0)
                     } else {
@@ -2020,7 +2049,7 @@ impl NewtonSolver {
                         &mut ws.row_scale,
                     );
                 newton_ok = if s.free_block {
-                    unit_rows(&ws.db, &mut ws.unit);
+                    unit_rows(&ws.db, &ws.bounded, &mut ws.unit);
                     linear.factor_with_unit_rows(&ws.h, &ws.unit).is_ok()
                 } else {
                     linear.factor(&ws.h).is_ok()
@@ -2661,7 +2690,8 @@ mod tests {
             let (mut da, mut db, mut deg, mut jv) =
                 (vec![0.0; 4], vec![0.0; 4], Vec::new(), vec![0.0; 4]);
             generalized_jacobian_rows(
-                band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+                None, band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg,
+                &mut jv,
             );
             (da, db)
         };
@@ -2684,7 +2714,8 @@ mod tests {
         let jac: Vec<f64> = (0..16).map(|p| f64::from(p + 1)).collect();
         let (mut da, mut db, mut deg, mut jv) = (vec![0.0; 4], vec![0.0; 4], vec![7], vec![0.0; 4]);
         generalized_jacobian_rows(
-            0.0, &z, &[0.0; 4], &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+            None, 0.0, &z, &[0.0; 4], &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg,
+            &mut jv,
         );
         assert_eq!(deg, vec![0, 1]);
         let r = 17f64.sqrt();
@@ -2697,6 +2728,75 @@ mod tests {
             near(da[1], 1.0 / r - 1.0) && near(db[1], 4.0 / r - 1.0),
             "{da:?} {db:?}"
         );
+    }
+
+    /// `generalized_jacobian_rows` over the bounded rows alone (free rows written once, as
+    /// the workspace does when it classifies the bounds) gives the bits of every row written,
+    /// the same degenerate list and `J v`: every kind, at and off its kinks, with the band.
+    #[test]
+    fn the_bounded_rows_alone_give_the_rows_of_all() {
+        let inf = f64::INFINITY;
+        let n = 8;
+        let pattern = CscPattern::dense(n);
+        let jac: Vec<f64> = (0..n * n).map(|p| f64::from(p as u32 % 7) - 3.0).collect();
+        let l = [0.0, -inf, -inf, 0.0, -1.0, -inf, 0.0, 0.0];
+        let u = [inf, inf, 1.0, inf, 1.0, inf, inf, 2.0];
+        let kinds: Vec<BoundKind> = (0..n).map(|i| classify(l[i], u[i])).collect();
+        let bounded: Vec<usize> = (0..n).filter(|&i| kinds[i] != BoundKind::Free).collect();
+        let points: [([f64; 8], [f64; 8]); 3] = [
+            (
+                [0.0, 1.0, 1.0, 0.5, 0.25, -2.0, 0.0, 2.0],
+                [0.0, 3.0, 0.0, -1.0, 2.0, 1.0, -5e-16, 0.0],
+            ),
+            (
+                [0.5, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0],
+                [1.0, -1.0, 2.0, 0.0, -1.0, 0.0, 0.0, 0.5],
+            ),
+            ([0.0; 8], [0.0; 8]),
+        ];
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (z, f) in points {
+            for band in [0.0, 1e-14] {
+                let (mut da0, mut db0, mut deg0, mut jv0) =
+                    (vec![7.0; n], vec![7.0; n], Vec::new(), vec![7.0; n]);
+                generalized_jacobian_rows(
+                    None, band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da0, &mut db0,
+                    &mut deg0, &mut jv0,
+                );
+                let (mut da1, mut db1, mut deg1, mut jv1) =
+                    (vec![7.0; n], vec![7.0; n], vec![3], vec![7.0; n]);
+                for i in (0..n).filter(|&i| kinds[i] == BoundKind::Free) {
+                    (da1[i], db1[i]) = (0.0, 1.0);
+                }
+                generalized_jacobian_rows(
+                    Some(&bounded),
+                    band,
+                    &z,
+                    &f,
+                    &l,
+                    &u,
+                    &kinds,
+                    &pattern,
+                    &jac,
+                    &mut da1,
+                    &mut db1,
+                    &mut deg1,
+                    &mut jv1,
+                );
+                assert_eq!(bits(&da1), bits(&da0), "{z:?} {f:?} band {band}");
+                assert_eq!(bits(&db1), bits(&db0), "{z:?} {f:?} band {band}");
+                assert_eq!(deg1, deg0);
+                if !deg0.is_empty() {
+                    assert_eq!(bits(&jv1), bits(&jv0));
+                }
+                let (mut unit0, mut unit1) = (vec![true; n], vec![false; n]);
+                for (m, &b) in unit0.iter_mut().zip(&db0) {
+                    *m = b == 0.0;
+                }
+                unit_rows(&db1, &bounded, &mut unit1);
+                assert_eq!(unit1, unit0);
+            }
+        }
     }
 
     /// The flat assembly and the gradient apart give the bits of the plain assembly, column by
