@@ -523,6 +523,11 @@ struct Workspace {
     /// moves little between iterations and steps). Reset to the diagonal's positions when the
     /// pattern changes ([`NewtonSolver::prepare`]).
     witness: Vec<usize>,
+    /// The positions of `J`'s stored entries in the bounded rows (`bounded`), in stored
+    /// order: the entries of `D_b J` that are not `J`'s own ([`assemble_h`]); made with
+    /// `bounded` for the pattern of the solve (`scaled_ready`).
+    scaled: Vec<usize>,
+    scaled_ready: bool,
     /// The point and `F` where the kept LU's `H` was formed, for the chord steps' test of the
     /// pairs' branches ([`pair_branch`], [`NewtonSettings::chord_contraction`]).
     z_lu: Vec<f64>,
@@ -764,6 +769,7 @@ impl NewtonSolver {
         if !same || self.ws.witness.len() != pattern.diag_pos().len() {
             self.ws.witness.clear();
             self.ws.witness.extend_from_slice(pattern.diag_pos());
+            self.ws.scaled_ready = false;
         }
         // The stall test's history holds at most one entry per iteration and the start.
         let history = self.settings.max_iterations.saturating_add(1).min(1 << 16);
@@ -861,7 +867,61 @@ pub(crate) fn generalized_jacobian_rows(
             || ws_da[i] == 0.0 && ws_db[i] == 1.0
             || list.contains(&i)));
     }
-    let mut row = |i: usize| {
+    match bounded {
+        None => jacobian_rows_of(0..n, band, (z, f, l, u, kinds), ws_da, ws_db, degenerate),
+        Some(list) => jacobian_rows_of(
+            list.iter().copied(),
+            band,
+            (z, f, l, u, kinds),
+            ws_da,
+            ws_db,
+            degenerate,
+        ),
+    }
+    if !degenerate.is_empty() {
+        // The direction `v` of a listed pair: only lower and upper bounds are listed.
+        let v = |j: usize| {
+            if kinds[j] == BoundKind::Lower {
+                1.0
+            } else {
+                -1.0
+            }
+        };
+        // J v over the (few) columns where v is not zero, in increasing order: the other
+        // columns add nothing.
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        jv.fill(0.0);
+        for &j in degenerate.iter() {
+            let vj = v(j);
+            for p in cp[j]..cp[j + 1] {
+                jv[ri[p]] += jac[p] * vj;
+            }
+        }
+        for &i in degenerate.iter() {
+            let (pa, pb) = if v(i) > 0.0 {
+                kink_partials(1.0, jv[i])
+            } else {
+                // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
+                kink_partials(1.0, -jv[i])
+            };
+            ws_da[i] = pa;
+            ws_db[i] = pb;
+        }
+    }
+}
+
+/// The rows `i` in `rows` of [`generalized_jacobian_rows`] (every row, or the bounded ones),
+/// `(z, F, l, u, kinds)` cut to one length; the pairs at the kink pushed to `degenerate`.
+#[inline(always)]
+fn jacobian_rows_of(
+    rows: impl Iterator<Item = usize>,
+    band: f64,
+    (z, f, l, u, kinds): (&[f64], &[f64], &[f64], &[f64], &[BoundKind]),
+    ws_da: &mut [f64],
+    ws_db: &mut [f64],
+    degenerate: &mut Vec<usize>,
+) {
+    for i in rows {
         match kinds[i] {
             BoundKind::Free => {
                 ws_da[i] = 0.0;
@@ -904,40 +964,6 @@ pub(crate) fn generalized_jacobian_rows(
                 ws_db[i] = -pb * qb;
             }
         }
-    };
-    match bounded {
-        None => (0..n).for_each(&mut row),
-        Some(list) => list.iter().for_each(|&i| row(i)),
-    }
-    if !degenerate.is_empty() {
-        // The direction `v` of a listed pair: only lower and upper bounds are listed.
-        let v = |j: usize| {
-            if kinds[j] == BoundKind::Lower {
-                1.0
-            } else {
-                -1.0
-            }
-        };
-        // J v over the (few) columns where v is not zero, in increasing order: the other
-        // columns add nothing.
-        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-        jv.fill(0.0);
-        for &j in degenerate.iter() {
-            let vj = v(j);
-            for p in cp[j]..cp[j + 1] {
-                jv[ri[p]] += jac[p] * vj;
-            }
-        }
-        for &i in degenerate.iter() {
-            let (pa, pb) = if v(i) > 0.0 {
-                kink_partials(1.0, jv[i])
-            } else {
-                // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
-                kink_partials(1.0, -jv[i])
-            };
-            ws_da[i] = pa;
-            ws_db[i] = pb;
-        }
     }
 }
 
@@ -969,13 +995,17 @@ fn unit_rows(db: &[f64], bounded: &[usize], unit: &mut [bool]) {
 /// columns' maxima cost ≈ 1 k instructions a step, `docs/latency.md`, branch wip-newtonown).
 ///
 /// `D_b J` in one pass over the stored entries (no per-column set-up), then `D_a` added on the
-/// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. The largest magnitude in four
+/// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. With `scaled`, the positions
+/// of the entries whose row's `D_b` may differ from 1 (every other row's is exactly 1): `J`
+/// copied and those entries alone scaled, the same bits. The largest magnitude in four
 /// lanes (a maximum does not depend on the order; `a > m` skips a NaN as `f64::max` does).
+#[allow(clippy::too_many_arguments)]
 fn assemble_h(
     pattern: &CscPattern,
     jac: &[f64],
     da: &[f64],
     db: &[f64],
+    scaled: Option<&[usize]>,
     h: &mut [f64],
     witness: &mut [usize],
     col_max: &mut [f64],
@@ -995,23 +1025,35 @@ fn assemble_h(
         // SAFETY: `r` is a row index of `pattern`, below `pattern.dim() == db.len()`.
         unsafe { *db.get_unchecked(r) }
     };
-    // Four entries a turn (a quarter of the loop's own instructions).
-    let (mut hc, mut jc, mut rc) = (
-        h.chunks_exact_mut(4),
-        jac.chunks_exact(4),
-        ri.chunks_exact(4),
-    );
-    for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
-        hp[0] = row_scale(r[0]) * v[0];
-        hp[1] = row_scale(r[1]) * v[1];
-        hp[2] = row_scale(r[2]) * v[2];
-        hp[3] = row_scale(r[3]) * v[3];
-    }
-    let rest = (hc.into_remainder().iter_mut())
-        .zip(jc.remainder())
-        .zip(rc.remainder());
-    for ((hp, &v), &r) in rest {
-        *hp = row_scale(r) * v;
+    if let Some(positions) = scaled {
+        // `D_b,r = 1` exactly in every row but those of the listed positions (the free rows,
+        // [`Workspace::scaled`]), and `1 · J_p` is `J_p` to the last bit (signed zeros too; a
+        // quiet NaN is itself): `J` copied, the listed entries scaled (on the desk the
+        // entries of the 9 bounded rows, a few of the 416 stored).
+        debug_assert!((0..nnz).all(|p| db[ri[p]] == 1.0 || positions.contains(&p)));
+        h.copy_from_slice(jac);
+        for &p in positions {
+            h[p] = row_scale(ri[p]) * jac[p];
+        }
+    } else {
+        // Four entries a turn (a quarter of the loop's own instructions).
+        let (mut hc, mut jc, mut rc) = (
+            h.chunks_exact_mut(4),
+            jac.chunks_exact(4),
+            ri.chunks_exact(4),
+        );
+        for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
+            hp[0] = row_scale(r[0]) * v[0];
+            hp[1] = row_scale(r[1]) * v[1];
+            hp[2] = row_scale(r[2]) * v[2];
+            hp[3] = row_scale(r[3]) * v[3];
+        }
+        let rest = (hc.into_remainder().iter_mut())
+            .zip(jc.remainder())
+            .zip(rc.remainder());
+        for ((hp, &v), &r) in rest {
+            *hp = row_scale(r) * v;
+        }
     }
     for (&p, &a) in diag.iter().zip(da) {
         h[p] += a;
@@ -1063,14 +1105,21 @@ fn assemble_h(
     (largest, true)
 }
 
-/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes: two SSE2
-/// registers on `x86_64` (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the
-/// scalar loop does), the scalar loop elsewhere. A maximum does not depend on the order.
+/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in lanes: four AVX
+/// registers of four where the processor runs AVX, else two SSE2 registers on `x86_64`
+/// (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the scalar loop does), the
+/// scalar loop elsewhere. A maximum does not depend on the order, and magnitudes have no
+/// signed zeros: every version gives the same bits.
 #[inline]
 fn largest_magnitude(v: &[f64]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     {
-        largest_magnitude_sse2(v)
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the processor runs AVX (checked just above).
+            unsafe { largest_magnitude_avx(v) }
+        } else {
+            largest_magnitude_sse2(v)
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -1105,6 +1154,54 @@ fn largest_magnitude_sse2(v: &[f64]) -> f64 {
         }
     }
     m[0].max(m[1]).max(m[2].max(m[3]))
+}
+
+/// [`largest_magnitude`] with AVX: sixteen entries a turn in four registers (`vmaxpd(a, m)` is
+/// `a > m ? a : m`, as `maxpd`), then four, then one at a time; the same value (the desk's `H`
+/// has 416 stored entries, half the instructions of the SSE2 loop, `docs/latency.md`, branch
+/// wip-newtonown). Only called where the processor runs AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn largest_magnitude_avx(v: &[f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let n = v.len();
+    let p = v.as_ptr();
+    let sign = _mm256_set1_pd(-0.0);
+    let (mut m0, mut m1, mut m2, mut m3) = (
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+    );
+    let mut i = 0;
+    // SAFETY: every load is at `i .. i + 3 < n` (or `i + 15 < n`), within `v`; unaligned loads
+    // need no alignment.
+    unsafe {
+        while i + 16 <= n {
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
+            m1 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 4))), m1);
+            m2 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 8))), m2);
+            m3 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 12))), m3);
+            i += 16;
+        }
+        while i + 4 <= n {
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
+            i += 4;
+        }
+    }
+    // The accumulators hold no NaN (each `max` keeps its second operand for a NaN `a`).
+    let m = _mm256_max_pd(_mm256_max_pd(m0, m1), _mm256_max_pd(m2, m3));
+    let mut lanes = [0.0f64; 4];
+    // SAFETY: `lanes` has room for the four lanes stored.
+    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), m) };
+    for (k, x) in v[i..].iter().enumerate() {
+        let a = x.abs();
+        if a > lanes[k] {
+            lanes[k] = a;
+        }
+    }
+    let top = |a: f64, b: f64| if b > a { b } else { a };
+    top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3]))
 }
 
 /// [`largest_magnitude`] one entry at a time (other targets; the tests' reference).
@@ -1240,9 +1337,17 @@ fn same_branches(
 ) -> bool {
     let n = z.len();
     let (f, z0, f0, l, u, kinds) = (&f[..n], &z0[..n], &f0[..n], &l[..n], &u[..n], &kinds[..n]);
-    bounded
-        .iter()
-        .all(|&i| same_branch(kinds[i], (z[i], f[i]), (z0[i], f0[i]), l[i], u[i]))
+    bounded.iter().all(|&i| {
+        let kind = kinds[i];
+        // A lower bound (every bounded pair of the ECP formulation: the multipliers, `p_n`,
+        // `σ ≥ 0`) tested first, with its five values alone: `same_branch`'s arm, without the
+        // other kinds' loads and jump.
+        if kind == BoundKind::Lower {
+            (z[i] - l[i] > f[i]) == (z0[i] - l[i] > f0[i])
+        } else {
+            same_branch(kind, (z[i], f[i]), (z0[i], f0[i]), l[i], u[i])
+        }
+    })
 }
 
 /// `pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind)`, with `kind` matched once.
@@ -1781,6 +1886,13 @@ impl NewtonSolver {
             {
                 (ws.da[i], ws.db[i], ws.unit[i]) = (0.0, 1.0, false);
             }
+            ws.scaled_ready = false;
+        }
+        if !ws.scaled_ready {
+            ws.scaled.clear();
+            let ri = pattern.row_idx();
+            (ws.scaled).extend((0..pattern.nnz()).filter(|&p| ws.kinds[ri[p]] != BoundKind::Free));
+            ws.scaled_ready = true;
         }
         // The first iteration tries a chord step on the last solve's LU: only the plain
         // iteration's first run (the restarts after a failed run start afresh).
@@ -2016,6 +2128,7 @@ impl NewtonSolver {
                     &ws.jac,
                     &ws.da,
                     &ws.db,
+                    Some(&ws.scaled),
                     &mut ws.h,
                     &mut ws.witness,
                     &mut ws.pin,
@@ -2852,7 +2965,8 @@ mod tests {
     #[test]
     fn the_largest_magnitude_in_lanes_is_the_scalar_loops() {
         let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.0, -7.5, 7.5];
-        for n in 0..14 {
+        // Every length to 39: the AVX loop's blocks of sixteen and four, and what is left.
+        for n in 0..40 {
             let base: Vec<f64> = (0..n)
                 .map(|i| [1.0, -3.0, 0.25, -2.5e-310, 7.5][i % 5])
                 .collect();
@@ -2868,6 +2982,16 @@ mod tests {
                 let (got, want) = (largest_magnitude(&v), largest_magnitude_scalar(&v));
                 assert_eq!(got.to_bits(), want.to_bits(), "{v:?}");
                 assert!(!got.is_nan());
+                #[cfg(target_arch = "x86_64")]
+                {
+                    let sse2 = largest_magnitude_sse2(&v);
+                    assert_eq!(sse2.to_bits(), want.to_bits(), "{v:?}");
+                    if std::arch::is_x86_feature_detected!("avx") {
+                        // SAFETY: the processor runs AVX.
+                        let avx = unsafe { largest_magnitude_avx(&v) };
+                        assert_eq!(avx.to_bits(), want.to_bits(), "{v:?}");
+                    }
+                }
             }
         }
         assert_eq!(largest_magnitude(&[f64::NAN; 5]), 0.0);
@@ -2955,13 +3079,54 @@ mod tests {
                 let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
-                let (got, undecided) =
-                    assemble_h(&pattern, &jac, &da, &db, &mut h1, &mut witness, &mut c1);
+                let (got, undecided) = assemble_h(
+                    &pattern,
+                    &jac,
+                    &da,
+                    &db,
+                    None,
+                    &mut h1,
+                    &mut witness,
+                    &mut c1,
+                );
                 gradient(&pattern, &h1, &phi, &mut g1);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
                 assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
                 assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
+                // `J` copied and the listed positions alone scaled, every other row's `D_b`
+                // exactly 1 (the free rows): the bits of the plain assembly with those `D_b`.
+                {
+                    let listed = |r: usize| r % 3 != 1;
+                    let db1: Vec<f64> = (0..n)
+                        .map(|r| if listed(r) { db[r] } else { 1.0 })
+                        .collect();
+                    let ri = pattern.row_idx();
+                    let positions: Vec<usize> = (0..nnz).filter(|&p| listed(ri[p])).collect();
+                    let (mut h2, mut g2, mut c2) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                    let (mut h3, mut c3) = (vec![7.0; nnz], vec![0.0; n]);
+                    let want = plain(&pattern, (&jac, &da, &db1, &phi), &mut h2, &mut g2, &mut c2);
+                    let mut w3 = pattern.diag_pos().to_vec();
+                    let mut w4 = pattern.diag_pos().to_vec();
+                    let (got, undecided) = assemble_h(
+                        &pattern,
+                        &jac,
+                        &da,
+                        &db1,
+                        Some(&positions),
+                        &mut h3,
+                        &mut w3,
+                        &mut c3,
+                    );
+                    assert_eq!(bits(&h3), bits(&h2), "n = {n}, trial {trial}");
+                    assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
+                    let (mut h4, mut c4) = (vec![0.0; nnz], vec![0.0; n]);
+                    let all =
+                        assemble_h(&pattern, &jac, &da, &db1, None, &mut h4, &mut w4, &mut c4);
+                    assert_eq!(bits(&h4), bits(&h2), "n = {n}, trial {trial}");
+                    assert_eq!((all.0.to_bits(), all.1), (got.to_bits(), undecided));
+                    assert_eq!(bits(&c4), bits(&c3));
+                }
                 // Each column's magnitude decides the pinning test as its largest does (a NaN
                 // column is not pinned), and is that largest where the test pins.
                 let threshold = ZERO_COLUMN * want;
