@@ -240,7 +240,12 @@ pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f
     let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
     #[cfg(target_arch = "x86_64")]
     {
-        natural_residual_sse2(z, f, lower, upper)
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the processor runs AVX (checked just above).
+            unsafe { natural_residual_avx(z, f, lower, upper) }
+        } else {
+            natural_residual_sse2(z, f, lower, upper)
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -313,6 +318,74 @@ fn natural_residual_sse2(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> 
         let i = 2 * pairs;
         natural_residual_scalar(&z[i..], &f[i..], &lower[i..], &upper[i..], r, non_finite)
     }
+}
+
+/// [`natural_residual`] four components per instruction (AVX), then a pair (the VEX forms of
+/// [`natural_residual_sse2`]'s), then the scalar loop: the same bits, as there (`vmaxpd`,
+/// `vminpd` take their second operand for a NaN as `maxpd`, `minpd` do; the unordered and
+/// not-less-than compares are `cmpunordpd`'s and `cmpnltpd`'s). Newton evaluates it ≈ 4 times a
+/// desk step, 31 components each (`docs/latency.md`, branch wip-newtonown). Only called where
+/// the processor runs AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn natural_residual_avx(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
+    let quads = n / 4;
+    let mut i = 4 * quads;
+    // SAFETY: the loads are at `4q .. 4q + 3 < n`, then at `i, i + 1 < n`, of slices of length
+    // `n`; unaligned loads need no alignment.
+    let (lanes, non_finite) = unsafe {
+        let sign = _mm256_set1_pd(-0.0);
+        let inf = _mm256_set1_pd(f64::INFINITY);
+        let (mut r, mut bad) = (_mm256_setzero_pd(), _mm256_setzero_pd());
+        for q in 0..quads {
+            let k = 4 * q;
+            let zv = _mm256_loadu_pd(z.as_ptr().add(k));
+            let x = _mm256_sub_pd(zv, _mm256_loadu_pd(f.as_ptr().add(k)));
+            let m = _mm256_min_pd(
+                _mm256_loadu_pd(upper.as_ptr().add(k)),
+                _mm256_max_pd(_mm256_loadu_pd(lower.as_ptr().add(k)), x),
+            );
+            let c = _mm256_andnot_pd(sign, _mm256_sub_pd(zv, m));
+            // `c` not below ∞ is ∞ or NaN.
+            let nan_or_inf = _mm256_or_pd(
+                _mm256_cmp_pd::<_CMP_UNORD_Q>(x, x),
+                _mm256_cmp_pd::<_CMP_NLT_UQ>(c, inf),
+            );
+            bad = _mm256_or_pd(bad, nan_or_inf);
+            r = _mm256_max_pd(c, r);
+        }
+        let mut lanes = [0.0f64; 4];
+        _mm256_storeu_pd(lanes.as_mut_ptr(), r);
+        let mut non_finite = _mm256_movemask_pd(bad) != 0;
+        if i + 2 <= n {
+            let (sign, inf) = (_mm256_castpd256_pd128(sign), _mm256_castpd256_pd128(inf));
+            let zv = _mm_loadu_pd(z.as_ptr().add(i));
+            let x = _mm_sub_pd(zv, _mm_loadu_pd(f.as_ptr().add(i)));
+            let m = _mm_min_pd(
+                _mm_loadu_pd(upper.as_ptr().add(i)),
+                _mm_max_pd(_mm_loadu_pd(lower.as_ptr().add(i)), x),
+            );
+            let c = _mm_andnot_pd(sign, _mm_sub_pd(zv, m));
+            let nan_or_inf = _mm_or_pd(_mm_cmpunord_pd(x, x), _mm_cmpnlt_pd(c, inf));
+            non_finite |= _mm_movemask_pd(nan_or_inf) != 0;
+            let mut pair = [0.0f64; 2];
+            _mm_storeu_pd(pair.as_mut_ptr(), c);
+            // Into the lanes as `max` would (a NaN `c` is counted in `non_finite`).
+            for (l, c) in lanes.iter_mut().zip(pair) {
+                if c > *l {
+                    *l = c;
+                }
+            }
+            i += 2;
+        }
+        (lanes, non_finite)
+    };
+    let top = |a: f64, b: f64| if b > a { b } else { a };
+    let r = top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3]));
+    natural_residual_scalar(&z[i..], &f[i..], &lower[i..], &upper[i..], r, non_finite)
 }
 
 /// The first entry of `v` that is not finite (NaN or ±∞), `None` when all are: the test of a
@@ -958,7 +1031,13 @@ mod tests {
             (nan, 2.0),
         ];
         let values = [-2.0, -0.5, -0.0, 0.0, 1e-300, 0.5, 3.0, inf, -inf, nan];
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        // The bits, but a NaN's sign and payload: Rust leaves them to the compiler (an inlined
+        // `r − a − b` with two NaN operands may keep either's), and no caller reads them.
+        let bits = |v: &[f64]| {
+            (v.iter())
+                .map(|x| if x.is_nan() { u64::MAX } else { x.to_bits() })
+                .collect::<Vec<_>>()
+        };
         // Every (bounds, z, F) as one component, then vectors mixing them.
         let mut zs = Vec::new();
         let mut fs = Vec::new();
@@ -1070,6 +1149,17 @@ mod tests {
                 let got = natural_residual(&z, &f, &l, &u);
                 let want = natural_with_exits(&z, &f, &l, &u);
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                // Each version of the lanes, whichever the processor picks above.
+                #[cfg(target_arch = "x86_64")]
+                {
+                    let sse2 = natural_residual_sse2(&z, &f, &l, &u);
+                    assert_eq!(sse2.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                    if std::arch::is_x86_feature_detected!("avx") {
+                        // SAFETY: the processor runs AVX.
+                        let avx = unsafe { natural_residual_avx(&z, &f, &l, &u) };
+                        assert_eq!(avx.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                    }
+                }
                 let worst = worst_component(&z, &f, &l, &u).map(|(i, w)| (i, w.to_bits()));
                 let scan = worst_component_scalar(&z, &f, &l, &u, 0, None);
                 assert_eq!(
