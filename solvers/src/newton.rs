@@ -910,13 +910,16 @@ pub(crate) fn generalized_jacobian_rows(
     }
 }
 
+/// `(z, F, l, u, kinds)`, each cut to one length.
+type PointAndKinds<'a> = (&'a [f64], &'a [f64], &'a [f64], &'a [f64], &'a [BoundKind]);
+
 /// The rows `i` in `rows` of [`generalized_jacobian_rows`] (every row, or the bounded ones),
 /// `(z, F, l, u, kinds)` cut to one length; the pairs at the kink pushed to `degenerate`.
 #[inline(always)]
 fn jacobian_rows_of(
     rows: impl Iterator<Item = usize>,
     band: f64,
-    (z, f, l, u, kinds): (&[f64], &[f64], &[f64], &[f64], &[BoundKind]),
+    (z, f, l, u, kinds): PointAndKinds<'_>,
     ws_da: &mut [f64],
     ws_db: &mut [f64],
     degenerate: &mut Vec<usize>,
