@@ -240,7 +240,12 @@ pub fn natural_residual(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f
     let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
     #[cfg(target_arch = "x86_64")]
     {
-        natural_residual_sse2(z, f, lower, upper)
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the processor runs AVX (checked just above).
+            unsafe { natural_residual_avx(z, f, lower, upper) }
+        } else {
+            natural_residual_sse2(z, f, lower, upper)
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -313,6 +318,74 @@ fn natural_residual_sse2(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> 
         let i = 2 * pairs;
         natural_residual_scalar(&z[i..], &f[i..], &lower[i..], &upper[i..], r, non_finite)
     }
+}
+
+/// [`natural_residual`] four components per instruction (AVX), then a pair (the VEX forms of
+/// [`natural_residual_sse2`]'s), then the scalar loop: the same bits, as there (`vmaxpd`,
+/// `vminpd` take their second operand for a NaN as `maxpd`, `minpd` do; the unordered and
+/// not-less-than compares are `cmpunordpd`'s and `cmpnltpd`'s). Newton evaluates it ≈ 4 times a
+/// desk step, 31 components each (`docs/latency.md`, branch wip-newtonown). Only called where
+/// the processor runs AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn natural_residual_avx(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let n = z.len();
+    let (f, lower, upper) = (&f[..n], &lower[..n], &upper[..n]);
+    let quads = n / 4;
+    let mut i = 4 * quads;
+    // SAFETY: the loads are at `4q .. 4q + 3 < n`, then at `i, i + 1 < n`, of slices of length
+    // `n`; unaligned loads need no alignment.
+    let (lanes, non_finite) = unsafe {
+        let sign = _mm256_set1_pd(-0.0);
+        let inf = _mm256_set1_pd(f64::INFINITY);
+        let (mut r, mut bad) = (_mm256_setzero_pd(), _mm256_setzero_pd());
+        for q in 0..quads {
+            let k = 4 * q;
+            let zv = _mm256_loadu_pd(z.as_ptr().add(k));
+            let x = _mm256_sub_pd(zv, _mm256_loadu_pd(f.as_ptr().add(k)));
+            let m = _mm256_min_pd(
+                _mm256_loadu_pd(upper.as_ptr().add(k)),
+                _mm256_max_pd(_mm256_loadu_pd(lower.as_ptr().add(k)), x),
+            );
+            let c = _mm256_andnot_pd(sign, _mm256_sub_pd(zv, m));
+            // `c` not below ∞ is ∞ or NaN.
+            let nan_or_inf = _mm256_or_pd(
+                _mm256_cmp_pd::<_CMP_UNORD_Q>(x, x),
+                _mm256_cmp_pd::<_CMP_NLT_UQ>(c, inf),
+            );
+            bad = _mm256_or_pd(bad, nan_or_inf);
+            r = _mm256_max_pd(c, r);
+        }
+        let mut lanes = [0.0f64; 4];
+        _mm256_storeu_pd(lanes.as_mut_ptr(), r);
+        let mut non_finite = _mm256_movemask_pd(bad) != 0;
+        if i + 2 <= n {
+            let (sign, inf) = (_mm256_castpd256_pd128(sign), _mm256_castpd256_pd128(inf));
+            let zv = _mm_loadu_pd(z.as_ptr().add(i));
+            let x = _mm_sub_pd(zv, _mm_loadu_pd(f.as_ptr().add(i)));
+            let m = _mm_min_pd(
+                _mm_loadu_pd(upper.as_ptr().add(i)),
+                _mm_max_pd(_mm_loadu_pd(lower.as_ptr().add(i)), x),
+            );
+            let c = _mm_andnot_pd(sign, _mm_sub_pd(zv, m));
+            let nan_or_inf = _mm_or_pd(_mm_cmpunord_pd(x, x), _mm_cmpnlt_pd(c, inf));
+            non_finite |= _mm_movemask_pd(nan_or_inf) != 0;
+            let mut pair = [0.0f64; 2];
+            _mm_storeu_pd(pair.as_mut_ptr(), c);
+            // Into the lanes as `max` would (a NaN `c` is counted in `non_finite`).
+            for (l, c) in lanes.iter_mut().zip(pair) {
+                if c > *l {
+                    *l = c;
+                }
+            }
+            i += 2;
+        }
+        (lanes, non_finite)
+    };
+    let top = |a: f64, b: f64| if b > a { b } else { a };
+    let r = top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3]));
+    natural_residual_scalar(&z[i..], &f[i..], &lower[i..], &upper[i..], r, non_finite)
 }
 
 /// The first entry of `v` that is not finite (NaN or ±∞), `None` when all are: the test of a
@@ -767,9 +840,21 @@ pub fn fb_residual_into(
     upper: &[f64],
     phi: &mut [f64],
 ) -> f64 {
+    // Cut to one length (no bounds checks in the loop), and a free component's `Φ_i = F_i`
+    // (`fb_component`'s first arm: both bounds not finite) taken before the bounds are
+    // classified and the kinds' jump table is taken: most of the desk's components are free,
+    // and the warm start's guard calls this at every step (`docs/latency.md`, branch
+    // wip-newtonown). The same components summed in the same order.
+    let n = z.len();
+    let (f, lower, upper, phi) = (&f[..n], &lower[..n], &upper[..n], &mut phi[..n]);
     let mut s = 0.0;
-    for i in 0..z.len() {
-        let c = fb_component(z[i], f[i], lower[i], upper[i]);
+    for i in 0..n {
+        let (l, u, fi) = (lower[i], upper[i], f[i]);
+        let c = if !l.is_finite() && !u.is_finite() {
+            fi
+        } else {
+            fb_component(z[i], fi, l, u)
+        };
         phi[i] = c;
         s += c * c;
     }
@@ -998,6 +1083,76 @@ mod tests {
         assert_eq!((empty.natural, empty.worst), (0.0, None));
     }
 
+    /// `fb_residual_into` (free components first, the slices cut to one length) gives the bits
+    /// of the plain loop over `fb_component` it replaced, residual and `Φ`: every kind of
+    /// bounds (a NaN bound counts as not finite, as `classify` takes it), signed zeros, NaN and
+    /// infinite `z` and `F`; a longer `F` and `Φ` are read and written up to `z`'s length only.
+    #[test]
+    fn fb_residual_into_matches_the_plain_loop() {
+        fn plain(z: &[f64], f: &[f64], lower: &[f64], upper: &[f64], phi: &mut [f64]) -> f64 {
+            let mut s = 0.0;
+            for i in 0..z.len() {
+                let c = fb_component(z[i], f[i], lower[i], upper[i]);
+                phi[i] = c;
+                s += c * c;
+            }
+            norm_of_squares(s)
+        }
+        let (inf, nan) = (f64::INFINITY, f64::NAN);
+        let bounds = [
+            (-inf, inf),
+            (nan, inf),
+            (-inf, nan),
+            (0.0, inf),
+            (-0.0, inf),
+            (-inf, 1.0),
+            (-1.0, 1.0),
+            (nan, 2.0),
+        ];
+        let values = [-2.0, -0.5, -0.0, 0.0, 1e-300, 0.5, 3.0, inf, -inf, nan];
+        // The bits, but a NaN's sign and payload: Rust leaves them to the compiler (an inlined
+        // `r − a − b` with two NaN operands may keep either's), and no caller reads them.
+        let bits = |v: &[f64]| {
+            (v.iter())
+                .map(|x| if x.is_nan() { u64::MAX } else { x.to_bits() })
+                .collect::<Vec<_>>()
+        };
+        // Every (bounds, z, F) as one component, then vectors mixing them.
+        let mut zs = Vec::new();
+        let mut fs = Vec::new();
+        let mut ls = Vec::new();
+        let mut us = Vec::new();
+        for &(l, u) in &bounds {
+            for &z in &values {
+                for &f in &values {
+                    let (mut got, mut want) = ([7.0], [7.0]);
+                    let r = fb_residual_into(&[z], &[f], &[l], &[u], &mut got);
+                    let w = plain(&[z], &[f], &[l], &[u], &mut want);
+                    assert_eq!(r.to_bits(), w.to_bits(), "l {l} u {u} z {z} f {f}");
+                    assert_eq!(bits(&got), bits(&want), "l {l} u {u} z {z} f {f}");
+                    if f.is_finite() && z.is_finite() {
+                        zs.push(z);
+                        fs.push(f);
+                        ls.push(l);
+                        us.push(u);
+                    }
+                }
+            }
+        }
+        for len in [0, 1, 2, 5, 31, zs.len()] {
+            let (z, l, u) = (&zs[..len], &ls[..len], &us[..len]);
+            let mut f = fs[..len].to_vec();
+            f.push(nan);
+            let (mut got, mut want) = (vec![7.0; len + 1], vec![7.0; len + 1]);
+            let r = fb_residual_into(z, &f, l, u, &mut got);
+            let w = plain(z, &f, l, u, &mut want);
+            assert_eq!(r.to_bits(), w.to_bits(), "length {len}");
+            assert_eq!(bits(&got), bits(&want), "length {len}");
+            assert_eq!(got[len], 7.0);
+            assert_eq!(r.to_bits(), fb_residual(z, &f, l, u).to_bits());
+        }
+    }
+
     /// `natural_residual` (one test after the loop) gives the bits of the loop that returned at
     /// the first NaN or non-finite component; `fb_vector_of_kinds` those of `fb_vector`, and
     /// `fb_vector_of_kinds_squared` them and the bits of their separate sum of squares;
@@ -1073,6 +1228,17 @@ mod tests {
                 let got = natural_residual(&z, &f, &l, &u);
                 let want = natural_with_exits(&z, &f, &l, &u);
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                // Each version of the lanes, whichever the processor picks above.
+                #[cfg(target_arch = "x86_64")]
+                {
+                    let sse2 = natural_residual_sse2(&z, &f, &l, &u);
+                    assert_eq!(sse2.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                    if std::arch::is_x86_feature_detected!("avx") {
+                        // SAFETY: the processor runs AVX.
+                        let avx = unsafe { natural_residual_avx(&z, &f, &l, &u) };
+                        assert_eq!(avx.to_bits(), want.to_bits(), "n = {n}: {z:?} {f:?}");
+                    }
+                }
                 let worst = worst_component(&z, &f, &l, &u).map(|(i, w)| (i, w.to_bits()));
                 let scan = worst_component_scalar(&z, &f, &l, &u, 0, None);
                 assert_eq!(

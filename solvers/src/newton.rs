@@ -514,6 +514,20 @@ struct Workspace {
     /// The kind of each component's bounds (`classify(l_i, u_i)`), once per solve: `Φ` and
     /// `D_a, D_b` read it at every trial point and iteration.
     kinds: Vec<BoundKind>,
+    /// The components whose bounds are not free (`kinds[i] != Free`), in increasing order,
+    /// made with `kinds`: a free pair has one branch, so the chord steps' test
+    /// ([`same_branches`]) looks at these alone (9 of the desk's 31).
+    bounded: Vec<usize>,
+    /// For each column of `H`, the position of an entry that showed it is not to be pinned at
+    /// the last assembly ([`assemble_h`]): tried first at the next (the same pattern's `H`
+    /// moves little between iterations and steps). Reset to the diagonal's positions when the
+    /// pattern changes ([`NewtonSolver::prepare`]).
+    witness: Vec<usize>,
+    /// The positions of `J`'s stored entries in the bounded rows (`bounded`), in stored
+    /// order: the entries of `D_b J` that are not `J`'s own ([`assemble_h`]); made with
+    /// `bounded` for the pattern of the solve (`scaled_ready`).
+    scaled: Vec<usize>,
+    scaled_ready: bool,
     /// The point and `F` where the kept LU's `H` was formed, for the chord steps' test of the
     /// pairs' branches ([`pair_branch`], [`NewtonSettings::chord_contraction`]).
     z_lu: Vec<f64>,
@@ -750,6 +764,13 @@ impl NewtonSolver {
             self.pattern = Some(pattern.clone());
         }
         self.ws.resize(mcp.dim(), pattern.nnz());
+        // The witnesses are positions in the pattern they were found in: the diagonal's of a
+        // new one (every position of column `j` in its pattern, as `assemble_h` asks).
+        if !same || self.ws.witness.len() != pattern.diag_pos().len() {
+            self.ws.witness.clear();
+            self.ws.witness.extend_from_slice(pattern.diag_pos());
+            self.ws.scaled_ready = false;
+        }
         // The stall test's history holds at most one entry per iteration and the start.
         let history = self.settings.max_iterations.saturating_add(1).min(1 << 16);
         self.ws
@@ -812,8 +833,14 @@ fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
 /// Row scalings `D_a, D_b` of `H = D_a + D_b J` (`docs/backends.md#semismooth-newton`);
 /// `band` is [`NewtonSettings::kink_band`] (0: off). `degenerate` gets the pairs at the kink
 /// (in increasing order), whose rows take the element along `J v`.
+///
+/// `bounded`: `None` writes every row; `Some(list)` only the listed ones (the components
+/// whose kind is not free, in increasing order, [`Workspace::bounded`]), the caller having
+/// written a free row's `(D_a, D_b) = (0, 1)` once (they never change): 22 of the desk's 31
+/// rows, a store pair and the kinds' test each at every factorisation.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn generalized_jacobian_rows(
+    bounded: Option<&[usize]>,
     band: f64,
     z: &[f64],
     f: &[f64],
@@ -835,7 +862,69 @@ pub(crate) fn generalized_jacobian_rows(
     // De Luca–Facchinei–Kanzow is +1 for lower, −1 for upper bounds (`kinds`). The list
     // (a few pairs) replaces a vector of `v` and two more passes over all components.
     degenerate.clear();
-    for i in 0..n {
+    if let Some(list) = bounded {
+        debug_assert!((0..n).all(|i| kinds[i] != BoundKind::Free
+            || ws_da[i] == 0.0 && ws_db[i] == 1.0
+            || list.contains(&i)));
+    }
+    match bounded {
+        None => jacobian_rows_of(0..n, band, (z, f, l, u, kinds), ws_da, ws_db, degenerate),
+        Some(list) => jacobian_rows_of(
+            list.iter().copied(),
+            band,
+            (z, f, l, u, kinds),
+            ws_da,
+            ws_db,
+            degenerate,
+        ),
+    }
+    if !degenerate.is_empty() {
+        // The direction `v` of a listed pair: only lower and upper bounds are listed.
+        let v = |j: usize| {
+            if kinds[j] == BoundKind::Lower {
+                1.0
+            } else {
+                -1.0
+            }
+        };
+        // J v over the (few) columns where v is not zero, in increasing order: the other
+        // columns add nothing.
+        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+        jv.fill(0.0);
+        for &j in degenerate.iter() {
+            let vj = v(j);
+            for p in cp[j]..cp[j + 1] {
+                jv[ri[p]] += jac[p] * vj;
+            }
+        }
+        for &i in degenerate.iter() {
+            let (pa, pb) = if v(i) > 0.0 {
+                kink_partials(1.0, jv[i])
+            } else {
+                // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
+                kink_partials(1.0, -jv[i])
+            };
+            ws_da[i] = pa;
+            ws_db[i] = pb;
+        }
+    }
+}
+
+/// `(z, F, l, u, kinds)`, each cut to one length.
+type PointAndKinds<'a> = (&'a [f64], &'a [f64], &'a [f64], &'a [f64], &'a [BoundKind]);
+
+/// The rows `i` in `rows` of [`generalized_jacobian_rows`] (every row, or the bounded ones),
+/// `(z, F, l, u, kinds)` cut to one length; the pairs at the kink pushed to `degenerate`.
+#[inline(always)]
+fn jacobian_rows_of(
+    rows: impl Iterator<Item = usize>,
+    band: f64,
+    (z, f, l, u, kinds): PointAndKinds<'_>,
+    ws_da: &mut [f64],
+    ws_db: &mut [f64],
+    degenerate: &mut Vec<usize>,
+) {
+    for i in rows {
         match kinds[i] {
             BoundKind::Free => {
                 ws_da[i] = 0.0;
@@ -879,65 +968,51 @@ pub(crate) fn generalized_jacobian_rows(
             }
         }
     }
-    if !degenerate.is_empty() {
-        // The direction `v` of a listed pair: only lower and upper bounds are listed.
-        let v = |j: usize| {
-            if kinds[j] == BoundKind::Lower {
-                1.0
-            } else {
-                -1.0
-            }
-        };
-        // J v over the (few) columns where v is not zero, in increasing order: the other
-        // columns add nothing.
-        let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
-        jv.fill(0.0);
-        for &j in degenerate.iter() {
-            let vj = v(j);
-            for p in cp[j]..cp[j + 1] {
-                jv[ri[p]] += jac[p] * vj;
-            }
-        }
-        for &i in degenerate.iter() {
-            let (pa, pb) = if v(i) > 0.0 {
-                kink_partials(1.0, jv[i])
-            } else {
-                // Direction z − t e_i: a = u − z grows like t, b = −F like t (J v)_i… with v_i = −1.
-                kink_partials(1.0, -jv[i])
-            };
-            ws_da[i] = pa;
-            ws_db[i] = pb;
-        }
-    }
 }
 
 /// Marks the unit rows of `H = D_a + D_b J`: the rows with `D_b,i = 0` (a component held at
 /// its bound, `F_i` away from 0), whose only entry is the diagonal `D_a,i` (and its pin,
-/// [`pin_zero_columns`]). [`NewtonSettings::free_block`] factorises `H` without them.
-fn unit_rows(db: &[f64], unit: &mut [bool]) {
-    for (m, &b) in unit.iter_mut().zip(db) {
-        *m = b == 0.0;
+/// [`pin_zero_columns`]). [`NewtonSettings::free_block`] factorises `H` without them. Only
+/// the rows in `bounded` ([`Workspace::bounded`]): a free row's `D_b` is 1, its mark `false`
+/// written once with it.
+fn unit_rows(db: &[f64], bounded: &[usize], unit: &mut [bool]) {
+    debug_assert!((0..unit.len()).all(|i| unit[i] == (db[i] == 0.0) || bounded.contains(&i)));
+    for &i in bounded {
+        unit[i] = db[i] == 0.0;
     }
 }
 
 /// Writes `H = D_a + D_b J` into `h` (in `pattern`, the diagonal always stored) and returns the
-/// largest magnitude of `H` (NaNs left out); `∇Ψ = HᵀΦ` is formed apart ([`gradient`]), only
-/// where an iteration needs it. For [`pin_zero_columns`], `col_max[j]` is a magnitude of column
-/// `j` that decides its test against `ZERO_COLUMN` times that largest: `|H_jj|` when it is
-/// above it (the column is not pinned), else the column's largest magnitude (NaN when the
-/// column holds a NaN).
+/// largest magnitude of `H` (NaNs left out) and whether some column may be pinned
+/// (`undecided`); `∇Ψ = HᵀΦ` is formed apart ([`gradient`]), only where an iteration needs it.
+///
+/// A column is not pinned ([`pin_zero_columns`]) when one of its entries is above
+/// `ZERO_COLUMN` times that largest (a witness). `witness[j]` is a position in column `j` (of
+/// this pattern): the last assembly's witness, tried first; else the diagonal, else the first
+/// entry above the threshold, kept as the next witness. When a column has none, `undecided`
+/// is true and `col_max[j]` is, for every column, a magnitude that decides its test as before:
+/// `|H_jj|` when it is above the threshold, else the first entry above it, else the column's
+/// largest magnitude (NaN when the column holds a NaN, which is not pinned). When `undecided`
+/// is false no column is pinned and `col_max` is left as it was (the desk's columns: one load
+/// and compare each, where the search of the half with a zero diagonal and the tests of all
+/// columns' maxima cost ≈ 1 k instructions a step, `docs/latency.md`, branch wip-newtonown).
 ///
 /// `D_b J` in one pass over the stored entries (no per-column set-up), then `D_a` added on the
-/// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. The largest magnitude in four
+/// diagonal: `D_b,j J_jj + D_a,j` rounded as the one expression. With `scaled`, the positions
+/// of the entries whose row's `D_b` may differ from 1 (every other row's is exactly 1): `J`
+/// copied and those entries alone scaled, the same bits. The largest magnitude in four
 /// lanes (a maximum does not depend on the order; `a > m` skips a NaN as `f64::max` does).
+#[allow(clippy::too_many_arguments)]
 fn assemble_h(
     pattern: &CscPattern,
     jac: &[f64],
     da: &[f64],
     db: &[f64],
+    scaled: Option<&[usize]>,
     h: &mut [f64],
+    witness: &mut [usize],
     col_max: &mut [f64],
-) -> f64 {
+) -> (f64, bool) {
     let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
     let ncols = cp.len() - 1;
     let nnz = cp[ncols];
@@ -953,29 +1028,66 @@ fn assemble_h(
         // SAFETY: `r` is a row index of `pattern`, below `pattern.dim() == db.len()`.
         unsafe { *db.get_unchecked(r) }
     };
-    // Four entries a turn (a quarter of the loop's own instructions).
-    let (mut hc, mut jc, mut rc) = (
-        h.chunks_exact_mut(4),
-        jac.chunks_exact(4),
-        ri.chunks_exact(4),
-    );
-    for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
-        hp[0] = row_scale(r[0]) * v[0];
-        hp[1] = row_scale(r[1]) * v[1];
-        hp[2] = row_scale(r[2]) * v[2];
-        hp[3] = row_scale(r[3]) * v[3];
-    }
-    let rest = (hc.into_remainder().iter_mut())
-        .zip(jc.remainder())
-        .zip(rc.remainder());
-    for ((hp, &v), &r) in rest {
-        *hp = row_scale(r) * v;
+    if let Some(positions) = scaled {
+        // `D_b,r = 1` exactly in every row but those of the listed positions (the free rows,
+        // [`Workspace::scaled`]), and `1 · J_p` is `J_p` to the last bit (signed zeros too; a
+        // quiet NaN is itself): `J` copied, the listed entries scaled (on the desk the
+        // entries of the 9 bounded rows, a few of the 416 stored).
+        debug_assert!((0..nnz).all(|p| db[ri[p]] == 1.0 || positions.contains(&p)));
+        h.copy_from_slice(jac);
+        for &p in positions {
+            h[p] = row_scale(ri[p]) * jac[p];
+        }
+    } else {
+        // Four entries a turn (a quarter of the loop's own instructions).
+        let (mut hc, mut jc, mut rc) = (
+            h.chunks_exact_mut(4),
+            jac.chunks_exact(4),
+            ri.chunks_exact(4),
+        );
+        for ((hp, v), r) in (&mut hc).zip(&mut jc).zip(&mut rc) {
+            hp[0] = row_scale(r[0]) * v[0];
+            hp[1] = row_scale(r[1]) * v[1];
+            hp[2] = row_scale(r[2]) * v[2];
+            hp[3] = row_scale(r[3]) * v[3];
+        }
+        let rest = (hc.into_remainder().iter_mut())
+            .zip(jc.remainder())
+            .zip(rc.remainder());
+        for ((hp, &v), &r) in rest {
+            *hp = row_scale(r) * v;
+        }
     }
     for (&p, &a) in diag.iter().zip(da) {
         h[p] += a;
     }
     let largest = largest_magnitude(h);
     let threshold = ZERO_COLUMN * largest;
+    let witness = &mut witness[..ncols];
+    // The kept witnesses first, in a pass of their own (a load and a compare a column): on the
+    // same problem's next `H` they nearly always all hold.
+    if witness.iter().all(|&w| h[w].abs() > threshold) {
+        return (largest, false);
+    }
+    let mut undecided = false;
+    for (j, w) in witness.iter_mut().enumerate() {
+        // The kept witness (a position of column `j`: `h[*w]` is one of its entries), then
+        // the diagonal, then the column's first entry above the threshold.
+        if h[*w].abs() > threshold {
+            continue;
+        }
+        if h[diag[j]].abs() > threshold {
+            *w = diag[j];
+            continue;
+        }
+        match h[cp[j]..cp[j + 1]].iter().position(|v| v.abs() > threshold) {
+            Some(k) => *w = cp[j] + k,
+            None => undecided = true,
+        }
+    }
+    if !undecided {
+        return (largest, false);
+    }
     for (j, (m, &p)) in col_max[..ncols].iter_mut().zip(diag).enumerate() {
         let d = h[p].abs();
         // A witness above the threshold decides the test (NaN is not above it): the diagonal,
@@ -999,17 +1111,24 @@ fn assemble_h(
             }
         };
     }
-    largest
+    (largest, true)
 }
 
-/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in four lanes: two SSE2
-/// registers on `x86_64` (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the
-/// scalar loop does), the scalar loop elsewhere. A maximum does not depend on the order.
+/// The largest magnitude of `v` (0 for an empty one, NaNs left out), in lanes: four AVX
+/// registers of four where the processor runs AVX, else two SSE2 registers on `x86_64`
+/// (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the scalar loop does), the
+/// scalar loop elsewhere. A maximum does not depend on the order, and magnitudes have no
+/// signed zeros: every version gives the same bits.
 #[inline]
 fn largest_magnitude(v: &[f64]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     {
-        largest_magnitude_sse2(v)
+        if std::arch::is_x86_feature_detected!("avx") {
+            // SAFETY: the processor runs AVX (checked just above).
+            unsafe { largest_magnitude_avx(v) }
+        } else {
+            largest_magnitude_sse2(v)
+        }
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -1044,6 +1163,54 @@ fn largest_magnitude_sse2(v: &[f64]) -> f64 {
         }
     }
     m[0].max(m[1]).max(m[2].max(m[3]))
+}
+
+/// [`largest_magnitude`] with AVX: sixteen entries a turn in four registers (`vmaxpd(a, m)` is
+/// `a > m ? a : m`, as `maxpd`), then four, then one at a time; the same value (the desk's `H`
+/// has 416 stored entries, half the instructions of the SSE2 loop, `docs/latency.md`, branch
+/// wip-newtonown). Only called where the processor runs AVX.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+fn largest_magnitude_avx(v: &[f64]) -> f64 {
+    use std::arch::x86_64::*;
+    let n = v.len();
+    let p = v.as_ptr();
+    let sign = _mm256_set1_pd(-0.0);
+    let (mut m0, mut m1, mut m2, mut m3) = (
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+        _mm256_setzero_pd(),
+    );
+    let mut i = 0;
+    // SAFETY: every load is at `i .. i + 3 < n` (or `i + 15 < n`), within `v`; unaligned loads
+    // need no alignment.
+    unsafe {
+        while i + 16 <= n {
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
+            m1 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 4))), m1);
+            m2 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 8))), m2);
+            m3 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 12))), m3);
+            i += 16;
+        }
+        while i + 4 <= n {
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
+            i += 4;
+        }
+    }
+    // The accumulators hold no NaN (each `max` keeps its second operand for a NaN `a`).
+    let m = _mm256_max_pd(_mm256_max_pd(m0, m1), _mm256_max_pd(m2, m3));
+    let mut lanes = [0.0f64; 4];
+    // SAFETY: `lanes` has room for the four lanes stored.
+    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), m) };
+    for (k, x) in v[i..].iter().enumerate() {
+        let a = x.abs();
+        if a > lanes[k] {
+            lanes[k] = a;
+        }
+    }
+    let top = |a: f64, b: f64| if b > a { b } else { a };
+    top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3]))
 }
 
 /// [`largest_magnitude`] one entry at a time (other targets; the tests' reference).
@@ -1166,22 +1333,29 @@ fn pair_branch(z: f64, f: f64, l: f64, u: f64, kind: BoundKind) -> u8 {
 }
 
 /// Whether every pair is on the same branch ([`pair_branch`]) at `(z, F)` and at `(z₀, F₀)`:
-/// each pair's kind matched once for both points, the slices cut to one length (no bounds
-/// checks in the loop).
+/// a free pair has one branch, so only the pairs in `bounded` (the components whose kind is
+/// not free, [`Workspace::bounded`]) are compared, each kind matched once for both points
+/// (9 of the desk's 31 pairs, where a pass over all of them tested each free one).
 fn same_branches(
     (z, f): (&[f64], &[f64]),
     (z0, f0): (&[f64], &[f64]),
     l: &[f64],
     u: &[f64],
     kinds: &[BoundKind],
+    bounded: &[usize],
 ) -> bool {
     let n = z.len();
     let (f, z0, f0, l, u, kinds) = (&f[..n], &z0[..n], &f0[..n], &l[..n], &u[..n], &kinds[..n]);
-    // A free pair has one branch: tested before the six values are loaded and the kinds'
-    // jump table taken (most of the desk's pairs).
-    (0..n).all(|i| {
+    bounded.iter().all(|&i| {
         let kind = kinds[i];
-        kind == BoundKind::Free || same_branch(kind, (z[i], f[i]), (z0[i], f0[i]), l[i], u[i])
+        // A lower bound (every bounded pair of the ECP formulation: the multipliers, `p_n`,
+        // `σ ≥ 0`) tested first, with its five values alone: `same_branch`'s arm, without the
+        // other kinds' loads and jump.
+        if kind == BoundKind::Lower {
+            (z[i] - l[i] > f[i]) == (z0[i] - l[i] > f0[i])
+        } else {
+            same_branch(kind, (z[i], f[i]), (z0[i], f0[i]), l[i], u[i])
+        }
     })
 }
 
@@ -1709,6 +1883,25 @@ impl NewtonSolver {
             ws.kinds.clear();
             ws.kinds
                 .extend(l.iter().zip(u).map(|(&l, &u)| classify(l, u)));
+            ws.bounded.clear();
+            (ws.bounded).extend((0..n).filter(|&i| ws.kinds[i] != BoundKind::Free));
+            // A free row of `H` is `J`'s: `(D_a, D_b) = (0, 1)`, not a unit row, whatever the
+            // point; written here once, the iterations write the bounded rows alone.
+            for (i, _) in ws
+                .kinds
+                .iter()
+                .enumerate()
+                .filter(|(_, k)| **k == BoundKind::Free)
+            {
+                (ws.da[i], ws.db[i], ws.unit[i]) = (0.0, 1.0, false);
+            }
+            ws.scaled_ready = false;
+        }
+        if !ws.scaled_ready {
+            ws.scaled.clear();
+            let ri = pattern.row_idx();
+            (ws.scaled).extend((0..pattern.nnz()).filter(|&p| ws.kinds[ri[p]] != BoundKind::Free));
+            ws.scaled_ready = true;
         }
         // The first iteration tries a chord step on the last solve's LU: only the plain
         // iteration's first run (the restarts after a failed run start afresh).
@@ -1848,7 +2041,14 @@ impl NewtonSolver {
             let mut chord_residual = None;
             if let Some(kappa) = chord_kappa(lu_from_last)
                 && chord_ready
-                && same_branches((&ws.z, &ws.f), (&ws.z_lu, &ws.f_lu), l, u, &ws.kinds)
+                && same_branches(
+                    (&ws.z, &ws.f),
+                    (&ws.z_lu, &ws.f_lu),
+                    l,
+                    u,
+                    &ws.kinds,
+                    &ws.bounded,
+                )
                 && let Some(linear) = self.linear.as_mut()
             {
                 negate_into(&mut ws.d, &ws.phi);
@@ -1912,6 +2112,7 @@ impl NewtonSolver {
                 // with `F` still moving (held there, d5_collision's step 25 took 8 iterations
                 // instead of 6).
                 generalized_jacobian_rows(
+                    Some(&ws.bounded),
                     if iterations == 0 {
                         s.kink_band.unwrap_or(0.0)
                     } else {
@@ -1929,10 +2130,22 @@ impl NewtonSolver {
                     &mut ws.degenerate,
                     &mut ws.jv,
                 );
-                // H; `pin` gets the column maxima for the pinning test below.
-                let largest = assemble_h(&pattern, &ws.jac, &ws.da, &ws.db, &mut ws.h, &mut ws.pin);
+                // H; `pin` gets the column maxima for the pinning test below, only when some
+                // column may be pinned (`undecided`): else no column is, and `pin` is not read.
+                let (largest, undecided) = assemble_h(
+                    &pattern,
+                    &ws.jac,
+                    &ws.da,
+                    &ws.db,
+                    Some(&ws.scaled),
+                    &mut ws.h,
+                    &mut ws.witness,
+                    &mut ws.pin,
+                );
                 if s.fast_full_step.is_none()
-                    || s.pin_zero_columns && ws.pin.iter().any(|&m| m <= ZERO_COLUMN * largest)
+                    || s.pin_zero_columns
+                        && undecided
+                        && ws.pin.iter().any(|&m| m <= ZERO_COLUMN * largest)
                 {
                     // ∇Ψ now: the pins below change `H`'s diagonal and back, not bit for bit.
                     gradient(&pattern, &ws.h, &ws.phi, &mut ws.grad);
@@ -1949,6 +2162,7 @@ impl NewtonSolver {
                 // diagonal for the factorisation, so the step leaves them where their (consistent)
                 // row puts them instead of failing the LU over the whole system.
                 let pinned = s.pin_zero_columns
+                    && undecided
                     && pin_zero_columns(
                         &pattern,
                         &mut ws.h,
@@ -1957,7 +2171,7 @@ impl NewtonSolver {
                         &mut ws.row_scale,
                     );
                 newton_ok = if s.free_block {
-                    unit_rows(&ws.db, &mut ws.unit);
+                    unit_rows(&ws.db, &ws.bounded, &mut ws.unit);
                     linear.factor_with_unit_rows(&ws.h, &ws.unit).is_ok()
                 } else {
                     linear.factor(&ws.h).is_ok()
@@ -2598,7 +2812,8 @@ mod tests {
             let (mut da, mut db, mut deg, mut jv) =
                 (vec![0.0; 4], vec![0.0; 4], Vec::new(), vec![0.0; 4]);
             generalized_jacobian_rows(
-                band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+                None, band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg,
+                &mut jv,
             );
             (da, db)
         };
@@ -2621,7 +2836,8 @@ mod tests {
         let jac: Vec<f64> = (0..16).map(|p| f64::from(p + 1)).collect();
         let (mut da, mut db, mut deg, mut jv) = (vec![0.0; 4], vec![0.0; 4], vec![7], vec![0.0; 4]);
         generalized_jacobian_rows(
-            0.0, &z, &[0.0; 4], &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg, &mut jv,
+            None, 0.0, &z, &[0.0; 4], &l, &u, &kinds, &pattern, &jac, &mut da, &mut db, &mut deg,
+            &mut jv,
         );
         assert_eq!(deg, vec![0, 1]);
         let r = 17f64.sqrt();
@@ -2634,6 +2850,75 @@ mod tests {
             near(da[1], 1.0 / r - 1.0) && near(db[1], 4.0 / r - 1.0),
             "{da:?} {db:?}"
         );
+    }
+
+    /// `generalized_jacobian_rows` over the bounded rows alone (free rows written once, as
+    /// the workspace does when it classifies the bounds) gives the bits of every row written,
+    /// the same degenerate list and `J v`: every kind, at and off its kinks, with the band.
+    #[test]
+    fn the_bounded_rows_alone_give_the_rows_of_all() {
+        let inf = f64::INFINITY;
+        let n = 8;
+        let pattern = CscPattern::dense(n);
+        let jac: Vec<f64> = (0..n * n).map(|p| f64::from(p as u32 % 7) - 3.0).collect();
+        let l = [0.0, -inf, -inf, 0.0, -1.0, -inf, 0.0, 0.0];
+        let u = [inf, inf, 1.0, inf, 1.0, inf, inf, 2.0];
+        let kinds: Vec<BoundKind> = (0..n).map(|i| classify(l[i], u[i])).collect();
+        let bounded: Vec<usize> = (0..n).filter(|&i| kinds[i] != BoundKind::Free).collect();
+        let points: [([f64; 8], [f64; 8]); 3] = [
+            (
+                [0.0, 1.0, 1.0, 0.5, 0.25, -2.0, 0.0, 2.0],
+                [0.0, 3.0, 0.0, -1.0, 2.0, 1.0, -5e-16, 0.0],
+            ),
+            (
+                [0.5, 0.0, 0.0, 0.0, 1.0, 0.0, 1.0, 1.0],
+                [1.0, -1.0, 2.0, 0.0, -1.0, 0.0, 0.0, 0.5],
+            ),
+            ([0.0; 8], [0.0; 8]),
+        ];
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for (z, f) in points {
+            for band in [0.0, 1e-14] {
+                let (mut da0, mut db0, mut deg0, mut jv0) =
+                    (vec![7.0; n], vec![7.0; n], Vec::new(), vec![7.0; n]);
+                generalized_jacobian_rows(
+                    None, band, &z, &f, &l, &u, &kinds, &pattern, &jac, &mut da0, &mut db0,
+                    &mut deg0, &mut jv0,
+                );
+                let (mut da1, mut db1, mut deg1, mut jv1) =
+                    (vec![7.0; n], vec![7.0; n], vec![3], vec![7.0; n]);
+                for i in (0..n).filter(|&i| kinds[i] == BoundKind::Free) {
+                    (da1[i], db1[i]) = (0.0, 1.0);
+                }
+                generalized_jacobian_rows(
+                    Some(&bounded),
+                    band,
+                    &z,
+                    &f,
+                    &l,
+                    &u,
+                    &kinds,
+                    &pattern,
+                    &jac,
+                    &mut da1,
+                    &mut db1,
+                    &mut deg1,
+                    &mut jv1,
+                );
+                assert_eq!(bits(&da1), bits(&da0), "{z:?} {f:?} band {band}");
+                assert_eq!(bits(&db1), bits(&db0), "{z:?} {f:?} band {band}");
+                assert_eq!(deg1, deg0);
+                if !deg0.is_empty() {
+                    assert_eq!(bits(&jv1), bits(&jv0));
+                }
+                let (mut unit0, mut unit1) = (vec![true; n], vec![false; n]);
+                for (m, &b) in unit0.iter_mut().zip(&db0) {
+                    *m = b == 0.0;
+                }
+                unit_rows(&db1, &bounded, &mut unit1);
+                assert_eq!(unit1, unit0);
+            }
+        }
     }
 
     /// The flat assembly and the gradient apart give the bits of the plain assembly, column by
@@ -2689,7 +2974,8 @@ mod tests {
     #[test]
     fn the_largest_magnitude_in_lanes_is_the_scalar_loops() {
         let specials = [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, -0.0, -7.5, 7.5];
-        for n in 0..14 {
+        // Every length to 39: the AVX loop's blocks of sixteen and four, and what is left.
+        for n in 0..40 {
             let base: Vec<f64> = (0..n)
                 .map(|i| [1.0, -3.0, 0.25, -2.5e-310, 7.5][i % 5])
                 .collect();
@@ -2705,6 +2991,16 @@ mod tests {
                 let (got, want) = (largest_magnitude(&v), largest_magnitude_scalar(&v));
                 assert_eq!(got.to_bits(), want.to_bits(), "{v:?}");
                 assert!(!got.is_nan());
+                #[cfg(target_arch = "x86_64")]
+                {
+                    let sse2 = largest_magnitude_sse2(&v);
+                    assert_eq!(sse2.to_bits(), want.to_bits(), "{v:?}");
+                    if std::arch::is_x86_feature_detected!("avx") {
+                        // SAFETY: the processor runs AVX.
+                        let avx = unsafe { largest_magnitude_avx(&v) };
+                        assert_eq!(avx.to_bits(), want.to_bits(), "{v:?}");
+                    }
+                }
             }
         }
         assert_eq!(largest_magnitude(&[f64::NAN; 5]), 0.0);
@@ -2763,6 +3059,8 @@ mod tests {
                 .collect();
             let pattern = CscPattern::from_columns(n, columns).expect("a valid pattern");
             let nnz = pattern.nnz();
+            // The witnesses carried from trial to trial (as from iteration to iteration).
+            let mut witness = pattern.diag_pos().to_vec();
             for trial in 0..7 {
                 let mut jac: Vec<f64> = (0..nnz).map(|_| 4.0 * next() - 2.0).collect();
                 let mut da: Vec<f64> = (0..n).map(|_| next() - 1.0).collect();
@@ -2790,16 +3088,84 @@ mod tests {
                 let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
-                let got = assemble_h(&pattern, &jac, &da, &db, &mut h1, &mut c1);
+                let (got, undecided) = assemble_h(
+                    &pattern,
+                    &jac,
+                    &da,
+                    &db,
+                    None,
+                    &mut h1,
+                    &mut witness,
+                    &mut c1,
+                );
                 gradient(&pattern, &h1, &phi, &mut g1);
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
                 assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
                 assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
+                // `J` copied and the listed positions alone scaled, every other row's `D_b`
+                // exactly 1 (the free rows): the bits of the plain assembly with those `D_b`.
+                {
+                    let listed = |r: usize| r % 3 != 1;
+                    let db1: Vec<f64> = (0..n)
+                        .map(|r| if listed(r) { db[r] } else { 1.0 })
+                        .collect();
+                    let ri = pattern.row_idx();
+                    let positions: Vec<usize> = (0..nnz).filter(|&p| listed(ri[p])).collect();
+                    let (mut h2, mut g2, mut c2) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
+                    let (mut h3, mut c3) = (vec![7.0; nnz], vec![0.0; n]);
+                    let want = plain(&pattern, (&jac, &da, &db1, &phi), &mut h2, &mut g2, &mut c2);
+                    let mut w3 = pattern.diag_pos().to_vec();
+                    let mut w4 = pattern.diag_pos().to_vec();
+                    let (got, undecided) = assemble_h(
+                        &pattern,
+                        &jac,
+                        &da,
+                        &db1,
+                        Some(&positions),
+                        &mut h3,
+                        &mut w3,
+                        &mut c3,
+                    );
+                    assert_eq!(bits(&h3), bits(&h2), "n = {n}, trial {trial}");
+                    assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
+                    let (mut h4, mut c4) = (vec![0.0; nnz], vec![0.0; n]);
+                    let all =
+                        assemble_h(&pattern, &jac, &da, &db1, None, &mut h4, &mut w4, &mut c4);
+                    assert_eq!(bits(&h4), bits(&h2), "n = {n}, trial {trial}");
+                    assert_eq!((all.0.to_bits(), all.1), (got.to_bits(), undecided));
+                    assert_eq!(bits(&c4), bits(&c3));
+                }
                 // Each column's magnitude decides the pinning test as its largest does (a NaN
                 // column is not pinned), and is that largest where the test pins.
                 let threshold = ZERO_COLUMN * want;
                 let pins = |m: f64| m <= threshold;
+                // Each witness is in its column and above the threshold, but where the column
+                // has no such entry; without such a column, no column is pinned (and `c1` is
+                // not written).
+                let cp = pattern.col_ptr();
+                let mut none_above = false;
+                for (j, &w) in witness.iter().enumerate() {
+                    assert!(
+                        cp[j] <= w && w < cp[j + 1],
+                        "n = {n}, trial {trial}, column {j}"
+                    );
+                    let above = h1[cp[j]..cp[j + 1]].iter().any(|v| v.abs() > threshold);
+                    assert!(!above || h1[w].abs() > threshold, "n = {n}, trial {trial}");
+                    none_above |= !above;
+                }
+                assert_eq!(undecided, none_above, "n = {n}, trial {trial}");
+                if trial == 1 {
+                    assert!(c0.iter().any(|c| c.is_nan()), "a NaN column");
+                }
+                if trial == 6 {
+                    assert!(undecided, "n = {n}: the zero column has no witness");
+                }
+                if !undecided {
+                    assert!(!c0.iter().any(|&w| pins(w)), "n = {n}, trial {trial}");
+                    assert!(c1.iter().all(|&c| c == 0.0), "n = {n}, trial {trial}");
+                    continue;
+                }
                 for (j, (&c, &w)) in c1.iter().zip(&c0).enumerate() {
                     let at = format!("n = {n}, trial {trial}, column {j}");
                     assert_eq!(pins(c), pins(w), "{at}");
@@ -2808,9 +3174,6 @@ mod tests {
                     } else if !w.is_nan() {
                         assert!(c > threshold && c <= w, "{at}");
                     }
-                }
-                if trial == 1 {
-                    assert!(c0.iter().any(|c| c.is_nan()), "a NaN column");
                 }
                 if trial == 6 && n > 1 {
                     assert_eq!(c1[0], 0.0, "the zero column is pinned");
@@ -2832,11 +3195,50 @@ mod tests {
                 for &f in &values {
                     for &(z0, f0) in &[(0.5, 0.25), (-1.0, 1.0), (1.0, -1.0), (0.0, 0.0)] {
                         let want = pair_branch(z, f, l, u, kind) == pair_branch(z0, f0, l, u, kind);
-                        let got = same_branches((&[z], &[f]), (&[z0], &[f0]), &[l], &[u], &[kind]);
+                        let bounded: &[usize] = if kind == BoundKind::Free { &[] } else { &[0] };
+                        let got = same_branches(
+                            (&[z], &[f]),
+                            (&[z0], &[f0]),
+                            &[l],
+                            &[u],
+                            &[kind],
+                            bounded,
+                        );
                         assert_eq!(got, want, "{kind:?} z {z} f {f} z0 {z0} f0 {f0}");
                     }
                 }
             }
+        }
+        // Vectors of mixed kinds, with the list the workspace makes: the answer of every pair
+        // compared (the free ones, left out of the list, included).
+        let mut seed = 5u64;
+        let mut pick = |k: usize| {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 33) as usize % k
+        };
+        for _ in 0..2000 {
+            let n = 1 + pick(9);
+            let (mut z, mut f, mut z0, mut f0, mut l, mut u) =
+                (vec![], vec![], vec![], vec![], vec![], vec![]);
+            for _ in 0..n {
+                let (lb, ub) = bounds[pick(bounds.len())];
+                l.push(lb);
+                u.push(ub);
+                z.push(values[pick(values.len())]);
+                f.push(values[pick(values.len())]);
+                z0.push(values[pick(values.len())]);
+                f0.push(values[pick(values.len())]);
+            }
+            let kinds: Vec<BoundKind> = l.iter().zip(&u).map(|(&a, &b)| classify(a, b)).collect();
+            let bounded: Vec<usize> = (0..n).filter(|&i| kinds[i] != BoundKind::Free).collect();
+            let want = (0..n).all(|i| {
+                pair_branch(z[i], f[i], l[i], u[i], kinds[i])
+                    == pair_branch(z0[i], f0[i], l[i], u[i], kinds[i])
+            });
+            let got = same_branches((&z, &f), (&z0, &f0), &l, &u, &kinds, &bounded);
+            assert_eq!(got, want, "{z:?} {f:?} {z0:?} {f0:?} {l:?} {u:?}");
         }
     }
 

@@ -221,6 +221,7 @@ impl<'a> Augmented<'a> {
         let pattern = self.mcp.jacobian_pattern();
         // Main's rows: the continuation's path does not start at a kink by extrapolation.
         generalized_jacobian_rows(
+            None,
             0.0,
             z,
             &self.f,
