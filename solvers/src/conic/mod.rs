@@ -242,6 +242,17 @@ pub struct ConicSettings {
     /// desk's QPs take 5.4 interior-point iterations instead of 10.8
     /// (`docs/latency.md#the-conic-desk-steps-qp-warm-started-branch-wip-conicws-issue-18`).
     pub warm_qp: bool,
+    /// At a solve's first outer iteration, before its QP: polish the impulses of the previous
+    /// solve's answer (kept by the solver when that answer was a polished point) against the
+    /// first QP's data, when the QP has the same rows as the one that answer was polished
+    /// against ([`ConicSettings::reuse_qp`]'s test) and every body has one contact (their loads
+    /// are then unique, as for [`ConicSettings::warm_qp`]). When the sweeps settle within
+    /// [`WARM_POLISH_SWEEPS`], the settled point solves that QP's linearised problem on its
+    /// active set (as the QP's answer polished would), so it is the outer iterate and the QP is
+    /// not solved; otherwise the QP is solved as without it. Counted in `"qp_reuses"`. The step's
+    /// answer is the same to the fixed point's tolerance, its last digits depend on the solve
+    /// before. Default `true`: the desk step without a QP (`docs/latency.md`, wip-conic).
+    pub warm_polish: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
     /// clarabel's settings, passed through. Default [`default_clarabel_settings`]: clarabel's
@@ -288,6 +299,7 @@ impl Default for ConicSettings {
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
             warm_qp: true,
+            warm_polish: true,
             trace: false,
             clarabel: default_clarabel_settings(),
         }
@@ -603,6 +615,9 @@ impl McpSolver for ConicSolver {
             per_body,
             sides,
             drift,
+            last_contacts,
+            last_layout,
+            have_last,
         } = &mut ws;
         zeroed(f, n);
         z.clear();
@@ -648,6 +663,9 @@ impl McpSolver for ConicSolver {
         // QP's, the trial's polish runs all its sweeps (the stress suite's troughs: 3.5× the
         // wall time when every outer iteration tried it).
         let mut reuse_tried = false;
+        // Whether the solve ends on a polished point (`point`, polished against `qp_storage`'s
+        // QP): its impulses start the next solve's first polish (`ConicSettings::warm_polish`).
+        let mut answer_polished = false;
         // The warm start's normal impulse of every contact (empty when the structure does not
         // say).
         warm_loads.clear();
@@ -726,7 +744,47 @@ impl McpSolver for ConicSolver {
             // this iteration needs no QP (`ConicSettings::reuse_qp`).
             let polish = exact && self.settings.polish;
             let mut reused = None;
-            if have_answer && !reuse_tried && polish && self.settings.reuse_qp && !sub.anchored() {
+            // The first iteration's QP replaced by the previous solve's impulses polished
+            // against its data (`ConicSettings::warm_polish`): a settled polish is that QP's
+            // answer polished, to the sweeps' tolerance, whatever it started from, where every
+            // body has one contact (its loads unique). Its point is the iterate even when it
+            // does not solve the step (the desk's first iterate never does: the geometry moves).
+            if it == 0
+                && *have_last
+                && polish
+                && self.settings.warm_polish
+                && !sub.anchored()
+                && step::one_contact_per_body(geometry)
+            {
+                sub.layout_into(new_layout);
+                if new_layout == last_layout
+                    && sub.extract_into(
+                        step::PolishStart::Impulses(last_contacts),
+                        bodies,
+                        true,
+                        false,
+                        WARM_POLISH_SWEEPS,
+                        &mut self.polish,
+                        point,
+                    )
+                {
+                    structure.assemble(point, z_new);
+                    mcp.evaluate(z_new, f);
+                    f_at_z = false;
+                    run.f_evals += 1;
+                    reused = Some(natural_residual(z_new, f, lower, upper));
+                    // The answer the next iteration's reuse compares against and starts from.
+                    std::mem::swap(layout, new_layout);
+                    have_answer = true;
+                }
+            }
+            if reused.is_none()
+                && have_answer
+                && !reuse_tried
+                && polish
+                && self.settings.reuse_qp
+                && !sub.anchored()
+            {
                 sub.layout_into(new_layout);
                 if new_layout == layout {
                     reuse_tried = true;
@@ -738,6 +796,7 @@ impl McpSolver for ConicSolver {
                         bodies,
                         true,
                         false,
+                        step::MAX_SWEEPS,
                         &mut self.polish,
                         point,
                     );
@@ -816,6 +875,7 @@ impl McpSolver for ConicSolver {
                         bodies,
                         polish,
                         stop_circling,
+                        step::MAX_SWEEPS,
                         &mut self.polish,
                         point,
                     );
@@ -857,6 +917,7 @@ impl McpSolver for ConicSolver {
             }
             if residual <= self.settings.tolerance {
                 termination = Termination::Converged;
+                answer_polished = polish;
                 break;
             }
             if !handoff_tried
@@ -1003,6 +1064,16 @@ impl McpSolver for ConicSolver {
             structure.assemble(seed, z_in);
             std::mem::swap(x, next);
             have_state = true;
+        }
+        // The next solve's start (`ConicSettings::warm_polish`): swapped, not copied, so that
+        // `point` refills the old start's vectors. A solve that took no outer iteration (its
+        // warm start solved the step) leaves the start as it was.
+        if answer_polished {
+            std::mem::swap(last_contacts, &mut point.contacts);
+            qp_storage.layout_into(last_layout);
+            *have_last = true;
+        } else if iterations > 0 {
+            *have_last = false;
         }
         if exact {
             // Return the best iterate; a later iterate may have been worse.
@@ -1270,7 +1341,17 @@ struct OuterWorkspace {
     sides: Vec<step::BodyFriction>,
     /// The anchored loads' last change, for the stagnation test ([`loads_drifting`]).
     drift: LoadDrift,
+    /// The impulses of the last solve's answer when it was a polished point (`have_last`), and
+    /// the layout of the QP they were polished against ([`ConicSettings::warm_polish`]).
+    last_contacts: Vec<ecp_model::ContactImpulses>,
+    last_layout: Vec<usize>,
+    have_last: bool,
 }
+
+/// Sweeps at most of the polish of the previous solve's impulses ([`ConicSettings::warm_polish`]).
+/// The desk's settle in N (the first QP's duals take 7 or 8); a trial that needs more gives way to
+/// the QP, which a long polish would cost more than.
+pub const WARM_POLISH_SWEEPS: usize = 12;
 
 /// The change of the anchored contacts' loads over one outer iteration, kept for the next
 /// ([`loads_drifting`]).
