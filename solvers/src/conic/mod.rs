@@ -1430,3 +1430,32 @@ const DRIFT_COSINE: f64 = 0.9;
 /// See [`loads_drifting`]: a load change counts when it exceeds this fraction of the largest
 /// anchored load.
 const DRIFT_SIZE: f64 = 1e-6;
+
+#[cfg(test)]
+mod warm_polish_tests {
+    use super::same_active_set;
+    use ecp_model::ContactImpulses;
+
+    fn contact(loads: &[f64], sigma: f64) -> ContactImpulses {
+        ContactImpulses {
+            vertex_impulses: loads.iter().copied().enumerate().collect(),
+            sigma,
+            ..ContactImpulses::default()
+        }
+    }
+
+    #[test]
+    fn the_warm_polish_needs_the_same_loaded_vertices_and_slip_and_some_load() {
+        let before = [contact(&[1.0, 0.0, 2.0], 0.1)];
+        assert!(same_active_set(&before, &[contact(&[1.5, 0.0, 1.0], 0.3)]));
+        // A vertex joined, one left, the contact stuck, the layout differs.
+        assert!(!same_active_set(&before, &[contact(&[1.5, 0.2, 1.0], 0.3)]));
+        assert!(!same_active_set(&before, &[contact(&[1.5, 0.0, 0.0], 0.3)]));
+        assert!(!same_active_set(&before, &[contact(&[1.5, 0.0, 1.0], 0.0)]));
+        assert!(!same_active_set(&before, &[contact(&[1.5, 0.0], 0.3)]));
+        assert!(!same_active_set(&before, &[]));
+        // A contact without load: the sweeps never load it.
+        let unloaded = [contact(&[0.0, 0.0], 0.0)];
+        assert!(!same_active_set(&unloaded, &unloaded));
+    }
+}
