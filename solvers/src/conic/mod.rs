@@ -618,6 +618,9 @@ impl McpSolver for ConicSolver {
             last_contacts,
             last_layout,
             have_last,
+            prev_contacts,
+            have_prev,
+            start_contacts,
         } = &mut ws;
         zeroed(f, n);
         z.clear();
@@ -758,8 +761,17 @@ impl McpSolver for ConicSolver {
             {
                 sub.layout_into(new_layout);
                 if new_layout == last_layout
+                    && {
+                        extrapolated_start(
+                            last_contacts,
+                            *have_prev,
+                            prev_contacts,
+                            start_contacts,
+                        );
+                        true
+                    }
                     && sub.extract_into(
-                        step::PolishStart::Impulses(last_contacts),
+                        step::PolishStart::Impulses(start_contacts),
                         bodies,
                         true,
                         false,
@@ -1070,11 +1082,15 @@ impl McpSolver for ConicSolver {
         // `point` refills the old start's vectors. A solve that took no outer iteration (its
         // warm start solved the step) leaves the start as it was.
         if answer_polished {
+            qp_storage.layout_into(new_layout);
+            *have_prev = *have_last && new_layout == last_layout;
+            std::mem::swap(prev_contacts, last_contacts);
             std::mem::swap(last_contacts, &mut point.contacts);
-            qp_storage.layout_into(last_layout);
+            std::mem::swap(last_layout, new_layout);
             *have_last = true;
         } else if iterations > 0 {
             *have_last = false;
+            *have_prev = false;
         }
         if exact {
             // Return the best iterate; a later iterate may have been worse.
@@ -1219,6 +1235,46 @@ impl McpSolver for ConicSolver {
 /// friction acting at each piece's centre of pressure) stays as it was; the stress suite's
 /// troughs and corners are at 1e-11–5e-3 (`docs/latency.md#conic-backend`).
 const WARM_LOADS_RESIDUAL: f64 = 1e-2;
+
+/// The warm polish's start ([`ConicSettings::warm_polish`]) into `out`: the last answer's
+/// impulses, extrapolated linearly from the answer before (`have_prev`) where both load the same
+/// vertices and slide alike (the desk's loads follow a smooth forcing, so the start is a step's
+/// change squared off, not a step's change); a loaded vertex whose extrapolated load would not be
+/// positive keeps its last load, so the start has the last answer's active set.
+fn extrapolated_start(
+    last: &[ecp_model::ContactImpulses],
+    have_prev: bool,
+    prev: &[ecp_model::ContactImpulses],
+    out: &mut Vec<ecp_model::ContactImpulses>,
+) {
+    let extrapolate = have_prev && same_active_set(prev, last);
+    out.truncate(last.len());
+    for (c, l) in last.iter().enumerate() {
+        if c == out.len() {
+            out.push(ecp_model::ContactImpulses::default());
+        }
+        let o = &mut out[c];
+        o.vertex_impulses.clear();
+        o.sigma = l.sigma;
+        o.normal = l.normal;
+        o.friction = l.friction;
+        match prev.get(c).filter(|_| extrapolate) {
+            Some(p) => {
+                o.vertex_impulses
+                    .extend(l.vertex_impulses.iter().zip(&p.vertex_impulses).map(
+                        |(&(j, a), &(_, b))| {
+                            let x = 2.0 * a - b;
+                            (j, if a > 0.0 && x > 0.0 { x } else { a })
+                        },
+                    ));
+                for i in 0..3 {
+                    o.friction[i] = 2.0 * l.friction[i] - p.friction[i];
+                }
+            }
+            None => o.vertex_impulses.extend_from_slice(&l.vertex_impulses),
+        }
+    }
+}
 
 /// Whether two points of one layout load the same patch vertices and slide at the same contacts,
 /// each contact with some load ([`ConicSettings::warm_polish`]): the previous solve's active set
@@ -1366,6 +1422,11 @@ struct OuterWorkspace {
     last_contacts: Vec<ecp_model::ContactImpulses>,
     last_layout: Vec<usize>,
     have_last: bool,
+    /// The answer's impulses of the solve before the last, when polished against a QP of the
+    /// same layout (`have_prev`), and the warm polish's start extrapolated from both.
+    prev_contacts: Vec<ecp_model::ContactImpulses>,
+    have_prev: bool,
+    start_contacts: Vec<ecp_model::ContactImpulses>,
 }
 
 /// Sweeps at most of the polish of the previous solve's impulses ([`ConicSettings::warm_polish`]).
