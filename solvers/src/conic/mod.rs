@@ -246,12 +246,15 @@ pub struct ConicSettings {
     /// solve's answer (kept by the solver when that answer was a polished point) against the
     /// first QP's data, when the QP has the same rows as the one that answer was polished
     /// against ([`ConicSettings::reuse_qp`]'s test) and every body has one contact (their loads
-    /// are then unique, as for [`ConicSettings::warm_qp`]). When the sweeps settle within
-    /// [`WARM_POLISH_SWEEPS`], the settled point solves that QP's linearised problem on its
-    /// active set (as the QP's answer polished would), so it is the outer iterate and the QP is
-    /// not solved; otherwise the QP is solved as without it. Counted in `"qp_reuses"`. The step's
-    /// answer is the same to the fixed point's tolerance, its last digits depend on the solve
-    /// before. Default `true`: the desk step without a QP (`docs/latency.md`, wip-conic).
+    /// are then unique, as for [`ConicSettings::warm_qp`]); the start is extrapolated from the
+    /// two answers before where both had the same active set. When the sweeps settle within
+    /// [`WARM_POLISH_SWEEPS`] on the start's active set (the same loaded vertices and sliding
+    /// contacts, each contact loaded), the settled point solves that QP's linearised problem
+    /// (as the QP's answer polished would), so it is the outer iterate and the QP is not
+    /// solved; otherwise the QP is solved as without it. Counted in `"qp_reuses"`. The step's
+    /// answer is the same to the sweeps' tolerance (the reference scenes within 1e-12), its
+    /// last digits depend on the solve before. Default `true`: the desk step without a QP,
+    /// 42 % faster (`docs/latency.md`, wip-conic).
     pub warm_polish: bool,
     /// Record a per-iteration trace in the summary. Default `false`.
     pub trace: bool,
@@ -1430,7 +1433,7 @@ struct OuterWorkspace {
 }
 
 /// Sweeps at most of the polish of the previous solve's impulses ([`ConicSettings::warm_polish`]).
-/// The desk's settle in N (the first QP's duals take 7 or 8); a trial that needs more gives way to
+/// The desk's settle in about 7 (as from the first QP's duals); a trial that needs more gives way to
 /// the QP, which a long polish would cost more than.
 pub const WARM_POLISH_SWEEPS: usize = 12;
 
