@@ -230,6 +230,65 @@ fn desk_separate_runs_agree() {
     println!("desk, separate runs: max |dv| conic vs Newton {max_dv:.2e}");
 }
 
+/// The first outer iteration's QP replaced by the previous step's impulses polished against its
+/// data (`ConicSettings::warm_polish`, `docs/latency.md`, wip-conic): the desk's steps take no QP
+/// once the first is solved (both outer iterations polish, `qp_reuses` 2), and every step is the
+/// step computed with the QPs to 1e-12 (positions, velocities, ECP and loads; the polish settles
+/// on the same linearised problem's answer from either start).
+#[test]
+fn desk_warm_polish_replaces_the_first_qp() {
+    let warm = run(
+        scene("desk"),
+        &mut ConicSolver::new(ConicSettings::default()),
+    );
+    let cold = run(
+        scene("desk"),
+        &mut ConicSolver::new(ConicSettings {
+            warm_polish: false,
+            ..ConicSettings::default()
+        }),
+    );
+    assert_eq!(warm.len(), 400);
+    assert_eq!(cold.len(), 400);
+    let qp_free = warm
+        .iter()
+        .filter(|r| r.summary.counter(Counter::Custom("dense_qp_iterations")) == Some(0))
+        .count();
+    assert!(qp_free >= 390, "{qp_free} of 400 desk steps without a QP");
+    assert!(
+        cold.iter()
+            .all(|r| r.summary.counter(Counter::Custom("qp_reuses")) == Some(1)),
+        "without the warm polish every desk step solves one QP and reuses its answer once"
+    );
+    let mut worst: f64 = 0.0;
+    for (a, b) in warm.iter().zip(&cold) {
+        assert!(
+            a.converged && a.summary.residual <= RESIDUAL,
+            "step {}",
+            a.step
+        );
+        assert_eq!(
+            a.summary.iterations, b.summary.iterations,
+            "step {}",
+            a.step
+        );
+        let (x, y) = (&a.bodies[0], &b.bodies[0]);
+        let d = (x.x - y.x)
+            .amax()
+            .max((x.v - y.v).amax())
+            .max((x.w - y.w).amax())
+            .max((x.q - y.q).amax());
+        worst = worst.max(d);
+        for (c, e) in a.contacts.iter().zip(&b.contacts) {
+            worst = worst.max((c.pn - e.pn).abs());
+        }
+    }
+    assert!(
+        worst <= 1e-12,
+        "desk with and without the warm polish: {worst:.3e} apart"
+    );
+}
+
 /// The fixed point alone (the default, `newton_handoff = 0`; no rescue) converges on every desk
 /// step, and with the fixed point's iterate handed to a short Newton finish once its residual is
 /// ≤ 1e-4 (`docs/latency.md#conic-backend`) the run reaches the same steps: velocities within 1e-8

@@ -740,12 +740,17 @@ impl StepQp {
     /// pressure, `docs/latency.md`, wip-conic134), or, with `stop_circling` (the caller
     /// finishes an unsettled point by Newton at once), when they stopped because they circle
     /// ([`Circling`]: 15–20 sweeps instead of the cap's 50 there, wip-conicrob).
+    ///
+    /// `max_sweeps` caps the sweeps ([`MAX_SWEEPS`] but for the outer loop's trial of the
+    /// previous solve's impulses, which gives up sooner and solves the QP instead).
+    #[allow(clippy::too_many_arguments)]
     pub fn extract_into(
         &self,
         start: PolishStart<'_>,
         bodies: &[BodyDynamics],
         polish: bool,
         stop_circling: bool,
+        max_sweeps: usize,
         work: &mut PolishWorkspace,
         out: &mut ConicPoint,
     ) -> bool {
@@ -837,7 +842,7 @@ impl StepQp {
         // the duals, and the outer fixed point then converges to a point off the step's solution
         // by that remainder (`a5_drop_tilted` step 16: a loaded vertex 1.2e-12 m deep, natural
         // residual 1.23e-10 > 1e-10, with the dense QPs; `docs/latency.md#conic-backend`).
-        let sweeps = if polish { MAX_SWEEPS } else { 0 };
+        let sweeps = if polish { max_sweeps } else { 0 };
         // The friction wrenches each contact's friction currently acts through, per side.
         current.resize_with(self.contacts.len(), Vec::new);
         for (sides, r) in current.iter_mut().zip(&self.contacts) {
@@ -1008,7 +1013,7 @@ pub(crate) enum PolishStart<'a> {
 }
 
 /// Gauss–Seidel sweeps of the polish at most.
-const MAX_SWEEPS: usize = 50;
+pub(crate) const MAX_SWEEPS: usize = 50;
 
 /// Largest contraction per sweep at which the polish extrapolates its sweeps ([`StepQp::extrapolate`]).
 const EXTRAPOLATE_RATE: f64 = 0.5;
