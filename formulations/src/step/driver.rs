@@ -210,7 +210,7 @@ pub enum WarmStart {
 /// What a step writes into storage kept across steps, so that a step allocates nothing once
 /// it has grown (`docs/latency.md#allocations`): the checkpoint, the loads, the backend's result
 /// ([`McpSolver::solve_into`]), a [`LastStep`] no longer current, and the iterates of the last
-/// two smooth steps ([`StepContext::history`]).
+/// (up to six) smooth steps ([`StepContext::history`]).
 #[derive(Default)]
 struct Kept {
     checkpoint: Checkpoint,

@@ -13,10 +13,57 @@ pub struct Iterates<'a> {
     pub before: &'a [f64],
     /// `z_k`: what `z` holds when the span's warm start is first asked for.
     pub last: &'a [f64],
+    /// `z_{k−3}`, `z_{k−4}`, `z_{k−5}`, each when the steps back to it were smooth (and every
+    /// newer one is given): the extrapolations of orders 3 to 5 and the quadratic one's miss of
+    /// the last step (`docs/latency.md`, branch wip-xorder).
+    pub earlier: [Option<&'a [f64]>; 3],
 }
 
-/// How many steps' iterates are kept.
-const KEPT: usize = 3;
+impl<'a> Iterates<'a> {
+    /// The `back`-th newest iterate (0: `z_k`), when given and every newer one is.
+    pub fn at(&self, back: usize) -> Option<&'a [f64]> {
+        match back {
+            0 => Some(self.last),
+            1 => Some(self.before),
+            2 => self.older,
+            _ => {
+                let k = back - 3;
+                let run = self.older.is_some()
+                    && k < self.earlier.len()
+                    && self.earlier[..=k].iter().all(Option::is_some);
+                if run { self.earlier[k] } else { None }
+            }
+        }
+    }
+
+    /// How many iterates in a row, from `z_k` back, are given (2 to [`KEPT`]).
+    pub fn depth(&self) -> usize {
+        (2..KEPT)
+            .find(|&back| self.at(back).is_none())
+            .unwrap_or(KEPT)
+    }
+
+    /// Keeps the iterates from `z_k` back to `z_{k−back}` and drops the older ones (`back ≥ 1`).
+    pub fn truncate(&mut self, back: usize) {
+        if back < 2 {
+            self.older = None;
+        }
+        for (i, e) in self.earlier.iter_mut().enumerate() {
+            if i + 3 > back {
+                *e = None;
+            }
+        }
+    }
+}
+
+/// How many steps' iterates are kept: six, for the hull formulation's extrapolation of order 5
+/// (`guess::MAX_ORDER` in `ecp`).
+const KEPT: usize = 6;
+
+/// Over how many of the last smooth steps [`History::recent_iterations`] takes the most
+/// iterations (the extrapolated attempt's budget, `max(8, 3 r)`): three, as when three steps
+/// were kept.
+const RECENT: usize = 3;
 
 /// The iterates after the read-out of the last [`KEPT`] steps (storage kept across steps, so
 /// that a step allocates nothing once it has grown) and how many steps in a row up to the last
@@ -54,14 +101,14 @@ impl History {
 
     /// The most iterations any of the last smooth steps kept took (0 when none is kept).
     pub(super) fn recent_iterations(&self) -> usize {
-        (0..self.streak.min(KEPT))
+        (0..self.streak.min(RECENT))
             .map(|back| self.iterations[(self.next + 2 * KEPT - 1 - back) % KEPT])
             .max()
             .unwrap_or(0)
     }
 
-    /// The iterates of the last smooth steps (at least two) for a span that is a `whole_step`,
-    /// relative to `origin` and of dimension `dim`.
+    /// The iterates of the last smooth steps (at least two, at most [`KEPT`]) for a span that is a
+    /// `whole_step`, relative to `origin` and of dimension `dim`.
     pub(super) fn iterates(
         &self,
         whole_step: bool,
@@ -78,10 +125,15 @@ impl History {
         if !whole_step {
             return None;
         }
-        Some(Iterates {
+        let mut it = Iterates {
             older: at(2),
             before: at(1)?,
             last: at(0)?,
-        })
+            earlier: [at(3), at(4), at(5)],
+        };
+        // Only an unbroken run back from `z_k` (an older iterate fits whenever a newer one does,
+        // but the depth is the run's).
+        it.truncate(it.depth() - 1);
+        Some(it)
     }
 }
