@@ -137,3 +137,51 @@ impl History {
         Some(it)
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The kept iterates come newest first, as far back as the smooth steps go (at most six),
+    /// only while they share the origin and dimension; `truncate` and `depth` agree with `at`,
+    /// and the budget's iterations are the last three steps' most.
+    #[test]
+    fn six_iterates_are_kept_newest_first_while_the_run_lasts() {
+        let o = Vector3::zeros();
+        let mut h = History::default();
+        for k in 0..8 {
+            h.push(&[k as f64, 0.0], o, 1 + k % 4);
+        }
+        let it = h
+            .iterates(true, &o, 2)
+            .unwrap_or_else(|| panic!("no iterates"));
+        assert_eq!(it.depth(), KEPT);
+        for back in 0..KEPT {
+            assert_eq!(it.at(back).map(|z| z[0]), Some((7 - back) as f64));
+        }
+        assert!(it.at(KEPT).is_none());
+        assert_eq!(h.recent_iterations(), 4); // steps 5, 6, 7: 2, 3, 4 iterations
+        let mut short = it;
+        short.truncate(3);
+        assert_eq!(short.depth(), 4);
+        assert!(short.at(4).is_none() && short.earlier[1].is_none());
+        short.truncate(1);
+        assert_eq!(short.depth(), 2);
+        assert!(short.older.is_none());
+        // Not for a substep, another dimension; another origin ends the run there.
+        assert!(h.iterates(false, &o, 2).is_none());
+        assert!(h.iterates(true, &o, 3).is_none());
+        h.push(&[8.0, 0.0], Vector3::new(1.0, 0.0, 0.0), 1);
+        assert!(h.iterates(true, &o, 2).is_none());
+        h.push(&[9.0, 0.0], o, 1);
+        assert!(h.iterates(true, &o, 2).is_none());
+        h.push(&[10.0, 0.0], o, 1);
+        let it = h
+            .iterates(true, &o, 2)
+            .unwrap_or_else(|| panic!("no iterates"));
+        assert_eq!(it.depth(), 2);
+        assert_eq!((it.last[0], it.before[0]), (10.0, 9.0));
+        h.clear();
+        assert!(h.iterates(true, &o, 2).is_none());
+    }
+}
