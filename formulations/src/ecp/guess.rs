@@ -487,6 +487,7 @@ fn extrapolated(order: usize, v: &[f64; PAST]) -> f64 {
 /// extrapolations of order p by O(h^{p+1}): fewer Newton iterations where the convergence is
 /// quadratic (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`, and
 /// branch wip-xorder for order 3).
+#[inline]
 pub(crate) fn extrapolate(
     z: &mut [f64],
     range: std::ops::Range<usize>,

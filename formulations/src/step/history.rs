@@ -25,22 +25,20 @@ impl<'a> Iterates<'a> {
         match back {
             0 => Some(self.last),
             1 => Some(self.before),
-            2 => self.older,
-            _ => {
-                let k = back - 3;
-                let run = self.older.is_some()
-                    && k < self.earlier.len()
-                    && self.earlier[..=k].iter().all(Option::is_some);
-                if run { self.earlier[k] } else { None }
-            }
+            _ if back < self.depth() => match back {
+                2 => self.older,
+                _ => self.earlier[back - 3],
+            },
+            _ => None,
         }
     }
 
     /// How many iterates in a row, from `z_k` back, are given (2 to [`KEPT`]).
     pub fn depth(&self) -> usize {
-        (2..KEPT)
-            .find(|&back| self.at(back).is_none())
-            .unwrap_or(KEPT)
+        if self.older.is_none() {
+            return 2;
+        }
+        3 + self.earlier.iter().take_while(|e| e.is_some()).count()
     }
 
     /// Keeps the iterates from `z_k` back to `z_{k−back}` and drops the older ones (`back ≥ 1`).
