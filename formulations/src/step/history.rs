@@ -89,6 +89,13 @@ impl History {
     /// in `iterations`, in coordinates relative to `origin`.
     pub(super) fn push(&mut self, z: &[f64], origin: Vector3<f64>, iterations: usize) {
         let slot = self.next;
+        if self.z[slot].capacity() < z.len() {
+            // Every slot grown at once (their iterates kept), so that a step after the first kept
+            // one allocates nothing (`tests/step_allocations.rs`: A1 from its fourth step).
+            for kept in &mut self.z {
+                kept.reserve(z.len().saturating_sub(kept.len()));
+            }
+        }
         self.z[slot].clear();
         self.z[slot].extend_from_slice(z);
         self.origins[slot] = origin;
