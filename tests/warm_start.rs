@@ -426,3 +426,26 @@ fn the_guards_f_at_the_warm_start_is_handed_over_for_that_start_only() {
     assert!(sim.step_problem().known_value(&z0).is_none());
     assert!(sim.step_problem().known_fb_vector(&z0).is_none());
 }
+
+/// [`WarmStart::Quadratic`] (at most three smooth steps handed over) is the default of before the
+/// extrapolation's orders up to 5 bit for bit (`step_latency desk-steps 400` on `7d1cb73`:
+/// `28e77963fba1fc23`); the default takes fewer Newton iterations on the desk (120 steps: 190
+/// against 378, `docs/latency.md`, branch wip-xorder) and ends within 1e-12 of it.
+#[test]
+fn quadratic_warm_start_is_the_order_2_default_bit_for_bit() {
+    let mut solver = NewtonSolver::new(NewtonSettings::default());
+    let records = desk_records(Some(WarmStart::Quadratic), &mut solver, 400);
+    assert_eq!(digest(&records), 0x28e7_7963_fba1_fc23);
+    const STEPS: usize = 120;
+    let (quadratic_its, quadratic_states) = desk_run(Some(WarmStart::Quadratic), STEPS);
+    let (its, states) = desk_run(None, STEPS);
+    assert!(
+        10 * its < 7 * quadratic_its,
+        "{its} iterations against {quadratic_its}"
+    );
+    for (a, b) in states.iter().zip(&quadratic_states) {
+        for (x, y) in a.iter().zip(b) {
+            assert!((x - y).abs() <= 1e-12, "{x} against {y}");
+        }
+    }
+}

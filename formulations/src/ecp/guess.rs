@@ -390,25 +390,144 @@ impl Guess<'_> {
     }
 }
 
-/// The unknowns `range` of `z` extrapolated from the last steps' iterates: at constant rate,
-/// `2 z_k − z_{k−1}`, or, with `z_{k−2}`, at constant change of rate,
-/// `3 z_k − 3 z_{k−1} + z_{k−2}` (clamped at 0 when `nonnegative`). On a smooth step the last
-/// step's values miss the solution by O(h), the extrapolations by O(h²) and O(h³): fewer Newton
-/// iterations where the convergence is quadratic
-/// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
+/// The highest order of the hull formulation's extrapolated warm start: the polynomial through
+/// the last six steps' iterates (measured on the desk, orders 2–5: 3.1, 2.3, 1.6, 1.4 Newton
+/// iterations a step; `docs/latency.md`, branch wip-xorder).
+pub(crate) const MAX_ORDER: usize = 5;
+
+/// The most iterates [`Past`] reads: the extrapolation of order [`MAX_ORDER`].
+const PAST: usize = MAX_ORDER + 1;
+
+/// The last steps' iterates an extrapolation reads (newest first) and its order: the polynomial
+/// of degree `order` through `z_k, …, z_{k−order}`, taken one step on.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Past<'a> {
+    z: [&'a [f64]; PAST],
+    /// How many of `z` are iterates (from `z_k` back); the others repeat `z_k`.
+    depth: usize,
+    order: usize,
+}
+
+impl<'a> Past<'a> {
+    /// The iterates `it`, extrapolated at the highest order they allow (at most [`MAX_ORDER`]).
+    pub(crate) fn new(it: &Iterates<'a>) -> Self {
+        let depth = it.depth().min(PAST);
+        let z = std::array::from_fn(|back| it.at(back).unwrap_or(it.last));
+        Past {
+            z,
+            depth,
+            order: depth - 1,
+        }
+    }
+
+    /// `z_k`, the last step's iterate.
+    pub(crate) fn newest(&self) -> &'a [f64] {
+        self.z[0]
+    }
+
+    /// The extrapolation's order.
+    pub(crate) fn order(&self) -> usize {
+        self.order
+    }
+
+    /// The same iterates extrapolated at order `order` (at most the highest they allow).
+    pub(crate) fn with_order(self, order: usize) -> Self {
+        Past {
+            order: order.clamp(1, self.depth - 1),
+            ..self
+        }
+    }
+
+    /// How far the extrapolation of order `order` from the steps before the last one missed the
+    /// last one's iterate over `range` (the largest difference), `None` when there are not the
+    /// `order + 2` iterates it needs.
+    pub(crate) fn miss(&self, order: usize, range: std::ops::Range<usize>) -> Option<f64> {
+        if order == 0 || order + 2 > self.depth {
+            return None;
+        }
+        let z = &self.z;
+        let mut worst: f64 = 0.0;
+        for j in range {
+            let mut v = [0.0; PAST];
+            for (back, slot) in v.iter_mut().enumerate().take(PAST - 1) {
+                *slot = z[back + 1][j];
+            }
+            let miss = (extrapolated(order, &v) - z[0][j]).abs();
+            // NaN counts as the worst miss.
+            worst = if miss.is_nan() {
+                f64::INFINITY
+            } else {
+                worst.max(miss)
+            };
+        }
+        Some(worst)
+    }
+}
+
+/// The polynomial extrapolation of order `order` (1 to 5) from values `v[0]` (newest), `v[1]`, …
+/// one step apart, one step on: `2 a − b`, `3 a − 3 b + c`, `4 a − 6 b + 4 c − d`,
+/// `5 a − 10 b + 10 c − 5 d + e`, `6 a − 15 b + 20 c − 15 d + 6 e − f` (the first two as they
+/// always were, for their bits).
+fn extrapolated(order: usize, v: &[f64; PAST]) -> f64 {
+    let [a, b, c, d, e, f] = *v;
+    match order {
+        0 => a,
+        1 => 2.0 * a - b,
+        2 => 3.0 * (a - b) + c,
+        3 => 4.0 * (a - b) - 2.0 * (b - 2.0 * c) - d,
+        4 => 5.0 * (a - d) - 10.0 * (b - c) + e,
+        _ => 6.0 * (a + e) - 15.0 * (b + d) + 20.0 * c - f,
+    }
+}
+
+/// The unknowns `range` of `z` extrapolated from the last steps' iterates `past` at its order:
+/// at constant rate, `2 z_k − z_{k−1}`, at constant change of rate, `3 z_k − 3 z_{k−1} +
+/// z_{k−2}`, or at order 3, `4 z_k − 6 z_{k−1} + 4 z_{k−2} − z_{k−3}` (clamped at 0 when
+/// `nonnegative`). On a smooth step the last step's values miss the solution by O(h), the
+/// extrapolations of order p by O(h^{p+1}): fewer Newton iterations where the convergence is
+/// quadratic (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`, and
+/// branch wip-xorder for order 3).
+#[inline]
 pub(crate) fn extrapolate(
     z: &mut [f64],
     range: std::ops::Range<usize>,
-    it: &Iterates<'_>,
+    past: &Past<'_>,
     nonnegative: bool,
 ) {
-    let (before, last) = (it.before, it.last);
-    for j in range {
-        let v = match it.older {
-            Some(older) => 3.0 * (last[j] - before[j]) + older[j],
-            None => 2.0 * last[j] - before[j],
-        };
-        z[j] = if nonnegative { v.max(0.0) } else { v };
+    let [a, b, c, d, e, f] = past.z;
+    let clamp = |v: f64| if nonnegative { v.max(0.0) } else { v };
+    // One loop per order, each reading only the iterates it needs.
+    match past.order {
+        0 => {
+            for j in range {
+                z[j] = clamp(a[j]);
+            }
+        }
+        1 => {
+            for j in range {
+                z[j] = clamp(extrapolated(1, &[a[j], b[j], 0.0, 0.0, 0.0, 0.0]));
+            }
+        }
+        2 => {
+            for j in range {
+                z[j] = clamp(extrapolated(2, &[a[j], b[j], c[j], 0.0, 0.0, 0.0]));
+            }
+        }
+        3 => {
+            for j in range {
+                z[j] = clamp(extrapolated(3, &[a[j], b[j], c[j], d[j], 0.0, 0.0]));
+            }
+        }
+        4 => {
+            for j in range {
+                z[j] = clamp(extrapolated(4, &[a[j], b[j], c[j], d[j], e[j], 0.0]));
+            }
+        }
+        _ => {
+            for j in range {
+                z[j] = clamp(extrapolated(5, &[a[j], b[j], c[j], d[j], e[j], f[j]]));
+            }
+        }
     }
 }
 
@@ -520,6 +639,80 @@ mod tests {
                 assert!(l.iter().any(|&li| li > 0.0));
             }
         }
+    }
+
+    /// The iterates `z` (newest first) as [`Iterates`].
+    fn iterates(z: &[Vec<f64>]) -> Iterates<'_> {
+        Iterates {
+            last: &z[0],
+            before: &z[1],
+            older: z.get(2).map(Vec::as_slice),
+            earlier: [3, 4, 5].map(|k| z.get(k).map(Vec::as_slice)),
+        }
+    }
+
+    /// The extrapolation of order p is exact on polynomials of degree at most p (to round-off)
+    /// and misses one of degree p + 1: the binomial coefficients of each order, checked.
+    #[test]
+    fn each_order_extrapolates_polynomials_of_its_degree_exactly() {
+        for order in 1..PAST {
+            for degree in 0..=order + 1 {
+                let f = |t: f64| {
+                    (0..=degree)
+                        .map(|k| (0.3 + k as f64) * t.powi(k as i32))
+                        .sum()
+                };
+                // z_k at t = 0, z_{k−b} at t = −b; the extrapolation is the value at t = 1.
+                let z: Vec<Vec<f64>> = (0..=order).map(|b| vec![f(-(b as f64))]).collect();
+                let past = Past::new(&iterates(&z)).with_order(order);
+                assert_eq!(past.order(), order);
+                let mut out = [0.0];
+                extrapolate(&mut out, 0..1, &past, false);
+                let exact = (out[0] - f(1.0)).abs() <= 1e-12 * f(1.0).abs().max(1.0);
+                assert_eq!(
+                    exact,
+                    degree <= order,
+                    "order {order} degree {degree}: {}",
+                    out[0]
+                );
+            }
+        }
+    }
+
+    /// On a smooth periodic motion (the desk's load, ω = 2π rad/s, h = 0.01, with a third
+    /// harmonic) each order of extrapolation misses the next value by less than the one below
+    /// it, the highest the hull formulation uses by a factor of at least 100 below the
+    /// quadratic one's (branch wip-xorder); and the miss of the last step (`Past::miss`) is the
+    /// extrapolation's from the steps before it.
+    #[test]
+    fn higher_orders_miss_a_smooth_periodic_motion_less() {
+        let (w, h) = (std::f64::consts::TAU, 0.01);
+        let f = |t: f64| (w * t).sin() + 0.2 * (3.0 * w * t + 0.4).cos() - 0.05 * t;
+        let mut worst = [0.0f64; PAST];
+        for k in 10..110 {
+            let t = k as f64 * h;
+            let z: Vec<Vec<f64>> = (0..PAST).map(|b| vec![f(t - b as f64 * h)]).collect();
+            for order in 1..PAST {
+                let past = Past::new(&iterates(&z)).with_order(order);
+                let mut out = [0.0];
+                extrapolate(&mut out, 0..1, &past, false);
+                worst[order] = worst[order].max((out[0] - f(t + h)).abs());
+                // The last step's miss: the same order from one step back.
+                if order + 2 <= PAST {
+                    let back: Vec<Vec<f64>> = z[1..].to_vec();
+                    let earlier = Past::new(&iterates(&back)).with_order(order);
+                    let mut pred = [0.0];
+                    extrapolate(&mut pred, 0..1, &earlier, false);
+                    let miss = past.miss(order, 0..1).unwrap_or(f64::NAN);
+                    assert_eq!(miss.to_bits(), (pred[0] - z[0][0]).abs().to_bits());
+                }
+            }
+        }
+        for order in 2..PAST {
+            assert!(worst[order] < worst[order - 1], "{worst:?}");
+        }
+        assert!(worst[MAX_ORDER] < 1e-2 * worst[2], "{worst:?}");
+        assert_eq!(PAST, MAX_ORDER + 1);
     }
 
     #[test]

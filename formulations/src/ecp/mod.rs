@@ -46,7 +46,7 @@ use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Iterates, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
 };
-use guess::{Guess, closest_point_guess_into, extrapolate};
+use guess::{Guess, Past, closest_point_guess_into, extrapolate};
 pub use layout::ContactVars;
 use layout::{EcpBody, Layout};
 use union::union_pieces;
@@ -380,6 +380,38 @@ impl EcpContacts {
         merit < fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows)
     }
 
+    /// The order of the extrapolation from the iterates `past`: the highest they allow (at most
+    /// [`guess::MAX_ORDER`]), but 2 when the quadratic extrapolation from the steps before the
+    /// last one hit the last one's `ν` to round-off (at most [`EXACT_START`] of `max(1, ‖ν‖∞)`):
+    /// the motion is then polynomial of degree 2 at most (A1's constant deceleration, a box
+    /// sliding down an incline), where higher orders only amplify the round-off (their
+    /// coefficients sum to 15, 31, 63 against 7) and a start solved to round-off returned in 0
+    /// iterations becomes a start needing one (`a4_incline_25`, Newton: 92 iterations with order
+    /// 2, 98 with 4 always, 105 with 5 always).
+    fn extrapolation_order<'a>(&self, mcp: &BlockMcp, past: Past<'a>) -> Past<'a> {
+        // A higher order only after a whole run of `MAX_ORDER + 1` smooth steps: a sustained
+        // smooth motion, not the few steps between two events, where the start of the next
+        // event step decides which of several solutions a step with a non-unique impulse split
+        // takes (`s20261128_061_v_trough`, Newton without fallbacks: with orders 3 and 4 on its
+        // steps 5–6, step 6 ends 2.2e-7 away, and step 16 fails after 3 353 iterations).
+        if past.order() < guess::MAX_ORDER {
+            return past.with_order(2);
+        }
+        let last = past.newest();
+        let (mut miss, mut size) = (0.0f64, 1.0f64);
+        for body in &self.layout.bodies {
+            let nu = mcp.range(body.nu);
+            size = last[nu.clone()].iter().fold(size, |m, v| m.max(v.abs()));
+            // `None` only with fewer than four iterates: no evidence for the quadratic.
+            miss = miss.max(past.miss(2, nu).unwrap_or(f64::INFINITY));
+        }
+        if miss <= EXACT_START * size {
+            past.with_order(2)
+        } else {
+            past
+        }
+    }
+
     /// The warm start of [`StepFormulation::warm_start`], extrapolated from the iterates
     /// `smooth` when given.
     fn warm_start_from(
@@ -387,15 +419,15 @@ impl EcpContacts {
         ctx: &StepContext<'_>,
         mcp: &BlockMcp,
         z: &mut [f64],
-        smooth: Option<Iterates<'_>>,
+        smooth: Option<(&[f64], Past<'_>)>,
     ) {
         let l = &self.layout;
         let o = l.origin;
-        if let Some(it) = &smooth {
+        if let Some((last, past)) = &smooth {
             // From the last step's iterate (the same start however often it is asked for).
-            z.copy_from_slice(it.last);
+            z.copy_from_slice(last);
             for body in &l.bodies {
-                extrapolate(z, mcp.range(body.nu), it, false);
+                extrapolate(z, mcp.range(body.nu), past, false);
             }
         }
         let mut motion = std::mem::take(&mut self.motion);
@@ -415,14 +447,14 @@ impl EcpContacts {
                 // feature lowest.
                 let (x1, r1) = &motion[c.body];
                 let moved = guess.follow_closest_feature(i, (x1, r1), z);
-                if let Some(it) = &smooth
+                if let Some((_, past)) = &smooth
                     && !moved
                 {
                     for v in [c.a1, c.a2, c.pf] {
-                        extrapolate(z, mcp.range(v), it, false);
+                        extrapolate(z, mcp.range(v), past, false);
                     }
                     for v in [c.l, c.lg, c.pn, c.sigma] {
-                        extrapolate(z, mcp.range(v), it, true);
+                        extrapolate(z, mcp.range(v), past, true);
                     }
                 }
                 continue;
@@ -771,10 +803,18 @@ impl StepFormulation for EcpContacts {
             {
                 return None;
             }
-            // The older iterate only when it has the same modes too.
-            it.older = it
-                .older
-                .filter(|older| self.same_contact_modes(ctx, mcp, older, it.last));
+            // The older iterates only as far back as each has the same modes too (and as the
+            // highest order reads).
+            it.truncate(guess::MAX_ORDER);
+            for back in 2..it.depth() {
+                if !it
+                    .at(back)
+                    .is_some_and(|z| self.same_contact_modes(ctx, mcp, z, it.last))
+                {
+                    it.truncate(back - 1);
+                    break;
+                }
+            }
             Some(it)
         });
         self.start_known = false;
@@ -783,6 +823,7 @@ impl StepFormulation for EcpContacts {
             self.warm_start_from(ctx, mcp, z, None);
             return;
         };
+        let past = self.extrapolation_order(mcp, Past::new(&it));
         // The guard: the extrapolated start only when its Fischer–Burmeister residual is below
         // that of the plain warm start (`F` at both: the plain start's momentum rows first, from
         // the last iterate without building it, then its Newton–Euler rows, and the rest only
@@ -802,7 +843,7 @@ impl StepFormulation for EcpContacts {
         start_f.resize(z.len(), 0.0);
         phi.resize(z.len(), 0.0);
         start_phi.resize(z.len(), 0.0);
-        self.warm_start_from(ctx, mcp, z, Some(it));
+        self.warm_start_from(ctx, mcp, z, Some((it.last, past)));
         mcp.evaluate(z, &mut f);
         // `Φ` kept beside the residual: the backend's merit at the start chosen is its sum.
         let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);

@@ -56,14 +56,21 @@ fn span_context<'a>(
     (start, t0, h, wrenches): (&'a [BodyState], f64, f64, &'a [Vector6<f64>]),
     dim: usize,
 ) -> StepContext<'a> {
-    let whole_step = h == scene.h && warm_start == WarmStart::Extrapolated;
+    let whole_step = h == scene.h && warm_start != WarmStart::Previous;
+    let mut history = history.iterates(whole_step, &origin, dim);
+    if warm_start == WarmStart::Quadratic
+        && let Some(it) = &mut history
+    {
+        // At most three steps: the extrapolations of orders 1 and 2 alone.
+        it.truncate(2);
+    }
     StepContext {
         scene,
         states: start,
         t0,
         h,
         step,
-        history: history.iterates(whole_step, &origin, dim),
+        history,
         wrenches,
     }
 }
@@ -205,12 +212,17 @@ pub enum WarmStart {
     /// fewer iterations on smooth motion.
     #[default]
     Extrapolated,
+    /// [`WarmStart::Extrapolated`] from at most the last three smooth steps (the formulation's
+    /// extrapolation of order 2 at most): the default before the orders up to 5
+    /// (`docs/latency.md`, branch wip-xorder), whose trajectories it reproduces bit for bit
+    /// (`tests/hard_steps.rs` reaches steps measured on them).
+    Quadratic,
 }
 
 /// What a step writes into storage kept across steps, so that a step allocates nothing once
 /// it has grown (`docs/latency.md#allocations`): the checkpoint, the loads, the backend's result
 /// ([`McpSolver::solve_into`]), a [`LastStep`] no longer current, and the iterates of the last
-/// two smooth steps ([`StepContext::history`]).
+/// (up to six) smooth steps ([`StepContext::history`]).
 #[derive(Default)]
 struct Kept {
     checkpoint: Checkpoint,
@@ -760,7 +772,7 @@ impl Simulation {
     /// steps are main's, bit for bit (PATH without its polish stops anywhere within its
     /// tolerance, and a different start moved its results by up to 3.3e-9).
     fn extrapolates(&self, solver: &dyn McpSolver) -> bool {
-        self.warm_start == WarmStart::Extrapolated && solver.converges_to_round_off()
+        self.warm_start != WarmStart::Previous && solver.converges_to_round_off()
     }
 
     /// Sets the data of the span `[t0, t0 + h]` from `start` (the states at its start) and the
