@@ -932,13 +932,21 @@ impl PathSolver {
         let (f, rhs) = (&cur.f[..], &self.rhs[..]);
         let b = &mut self.crash_rhs;
         b.clear();
+        // Gathered in the order of the LU's row interchanges (row `k` of `J_II` is component
+        // `inactive[k]`), so that the solve does no interchanges; `Δ_I` comes back in
+        // `inactive`'s order, bitwise the plain solve's.
+        let rows = self.factor.interchanged_rows();
+        debug_assert_eq!(rows.len(), inactive.len());
         if with_rhs {
-            b.extend(inactive.iter().map(|&i| -f[i] - rhs[i]));
+            b.extend(rows.iter().map(|&k| {
+                let i = inactive[k];
+                -f[i] - rhs[i]
+            }));
         } else {
-            b.extend(inactive.iter().map(|&i| -f[i]));
+            b.extend(rows.iter().map(|&k| -f[inactive[k]]));
         }
         if !b.is_empty() {
-            self.factor.solve(b);
+            self.factor.solve_interchanged(b);
         }
         let finite = b.iter().all(|v| v.is_finite());
         if finite {

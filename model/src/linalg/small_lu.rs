@@ -116,6 +116,31 @@ impl SmallLu {
         solve_with::<Portable>(self.n, &self.a, &self.piv, b);
     }
 
+    /// [`SmallLu::solve`] of a right-hand side whose row interchanges are done already: `b`
+    /// holds `P c` (`b[i] = c[order[i]]` with [`SmallLu::interchanged_rows`]' `order`, as a
+    /// caller gathers it) and gets `x` with `A x = c`. The same substitutions as
+    /// [`SmallLu::solve`], so bitwise its solution; a caller that gathers `c` anyway saves the
+    /// `n` interchanges per solve (PATH's crash step, [`super::ColumnTestedLu`]).
+    pub(crate) fn solve_interchanged(&self, b: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the processor has AVX2.
+            unsafe { substitute_avx2(self.n, &self.a, b) };
+            return;
+        }
+        substitute_with::<Portable>(self.n, &self.a, b);
+    }
+
+    /// The rows of `P A` as rows of `A`: `order[i]` is the row of `A` in row `i` after the
+    /// factors' interchanges ([`SmallLu::row_order`] of the rows `0..n`).
+    pub(crate) fn interchanged_rows(&self, order: &mut Vec<usize>) {
+        order.clear();
+        order.extend(0..self.n);
+        for (k, &p) in self.piv.iter().enumerate() {
+            order.swap(k, p);
+        }
+    }
+
     /// The rows `rows[0..n]` of a longer vector in the order of `P b` (the factors' row
     /// interchanges applied to them): `order[i] = rows[perm[i]]` with
     /// [`SmallLu::row_permutation`]'s `perm`. The gather list of [`SmallLu::solve_mapped`],
@@ -269,6 +294,13 @@ fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     for (k, &p) in piv.iter().enumerate() {
         b.swap(k, p);
     }
+    substitute_with::<L>(n, a, b);
+}
+
+/// `L y = b` and `U x = y` by columns on `b = P c` (interchanged already), a column skipped
+/// where its entry of the right-hand side is zero.
+#[inline(always)]
+fn substitute_with<L: Lanes>(n: usize, a: &[f64], b: &mut [f64]) {
     for k in 0..n {
         let bk = b[k];
         if bk != 0.0 {
@@ -365,6 +397,12 @@ fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
 #[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     solve_with::<Avx2>(n, a, piv, b);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn substitute_avx2(n: usize, a: &[f64], b: &mut [f64]) {
+    substitute_with::<Avx2>(n, a, b);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -764,11 +802,21 @@ mod tests {
                 let late: Vec<f64> = (0..n)
                     .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
                     .collect();
+                let mut order = Vec::new();
+                fast.interchanged_rows(&mut order);
                 for b in [&rhs, &unit, &late] {
                     let (mut x, mut y) = (b.clone(), b.clone());
                     fast.solve(&mut x);
                     plain.solve(&mut y);
                     assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
+                    // Gathered in the interchanges' order, solved without them: the same bits
+                    // with both loops.
+                    let gathered: Vec<f64> = order.iter().map(|&r| b[r]).collect();
+                    let (mut u, mut v) = (gathered.clone(), gathered);
+                    fast.solve_interchanged(&mut u);
+                    plain.solve_interchanged(&mut v);
+                    assert_eq!(bits(&u), bits(&y), "interchanged, n = {n}, seed {seed}");
+                    assert_eq!(bits(&v), bits(&y), "interchanged, n = {n}, seed {seed}");
                 }
                 for k in [1, 3, 4, 5, 8, 9, 16, 30, 32] {
                     let rows: Vec<f64> = (0..n * k)
