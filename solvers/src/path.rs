@@ -460,6 +460,10 @@ pub struct PathSolver {
     /// The LU of the last crash target's reduced matrix (`J_II + shift·I`, rows and columns in
     /// `inactive`'s order, for the active set in `active`).
     factor: ColumnTestedLu,
+    /// The components of `factor`'s rows (`inactive`) in the order of its row interchanges
+    /// ([`ColumnTestedLu::row_order`]): the crash and chord steps gather their right-hand
+    /// sides by it.
+    crash_order: Vec<usize>,
     /// `factor` holds the LU of the reduced matrix of a crash target that was taken as a full
     /// step (`t = 1`) in this attempt, with no path step since: the polish may take chord steps
     /// on it ([`PathSolver::chord_target`]).
@@ -561,6 +565,7 @@ impl PathSolver {
             active: Vec::new(),
             result: Solution::default(),
             factor: ColumnTestedLu::new(),
+            crash_order: Vec::new(),
             kept_lu: false,
             jac_deferred: false,
             kept_key: None,
@@ -882,6 +887,7 @@ impl PathSolver {
             if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
+            self.factor.row_order(&self.inactive, &mut self.crash_order);
             if !self.reduced_newton_step(true) {
                 return false;
             }
@@ -932,18 +938,15 @@ impl PathSolver {
         let (f, rhs) = (&cur.f[..], &self.rhs[..]);
         let b = &mut self.crash_rhs;
         b.clear();
-        // Gathered in the order of the LU's row interchanges (row `k` of `J_II` is component
-        // `inactive[k]`), so that the solve does no interchanges; `Δ_I` comes back in
-        // `inactive`'s order, bitwise the plain solve's.
-        let rows = self.factor.interchanged_rows();
-        debug_assert_eq!(rows.len(), inactive.len());
+        // Gathered in the order of the LU's row interchanges (`crash_order`), so that the
+        // solve does no interchanges; `Δ_I` comes back in `inactive`'s order, bitwise the
+        // plain solve's.
+        let order = &self.crash_order[..];
+        debug_assert_eq!(order.len(), inactive.len());
         if with_rhs {
-            b.extend(rows.iter().map(|&k| {
-                let i = inactive[k];
-                -f[i] - rhs[i]
-            }));
+            b.extend(order.iter().map(|&i| -f[i] - rhs[i]));
         } else {
-            b.extend(rows.iter().map(|&k| -f[inactive[k]]));
+            b.extend(order.iter().map(|&i| -f[i]));
         }
         if !b.is_empty() {
             self.factor.solve_interchanged(b);

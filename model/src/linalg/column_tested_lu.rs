@@ -29,9 +29,6 @@ pub struct ColumnTestedLu {
     lu: SmallLu,
     /// The largest magnitude of each column as given (the scale of the pivot test).
     norms: Vec<f64>,
-    /// The rows of the last factorisation's `P A` as rows of `A`
-    /// ([`ColumnTestedLu::interchanged_rows`]).
-    rows: Vec<usize>,
     factored: bool,
 }
 
@@ -47,7 +44,6 @@ impl ColumnTestedLu {
         ColumnTestedLu {
             lu: SmallLu::new(0),
             norms: Vec::new(),
-            rows: Vec::new(),
             factored: false,
         }
     }
@@ -73,7 +69,6 @@ impl ColumnTestedLu {
     /// then no solve is possible.
     pub fn factor(&mut self, tolerance: f64) -> Result<(), DependentColumn> {
         self.lu.eliminate();
-        self.lu.interchanged_rows(&mut self.rows);
         // The pivot at step `k` is `U_kk`, the first entry of largest magnitude of what was
         // left of column `k`.
         for (k, (d, norm)) in self.lu.pivots().zip(&self.norms).enumerate() {
@@ -94,16 +89,22 @@ impl ColumnTestedLu {
         }
     }
 
-    /// The rows of the last factorisation's `P A` as rows of `A`: row `i` of the interchanged
-    /// matrix is row `interchanged_rows()[i]` of the matrix given. A caller that gathers its
-    /// right-hand side in this order solves with [`ColumnTestedLu::solve_interchanged`].
-    pub fn interchanged_rows(&self) -> &[usize] {
-        &self.rows
+    /// The labels `rows[0..n]` of the rows of the matrix given (a caller's component of each
+    /// row) in the order of the last factorisation's row interchanges: `order[i] = rows[r]`
+    /// where row `i` of `P A` is row `r` of `A`. A caller that gathers its right-hand side by
+    /// this list solves with [`ColumnTestedLu::solve_interchanged`]; it is the same list until
+    /// the next factorisation.
+    ///
+    /// # Panics
+    /// When `rows` holds fewer than [`ColumnTestedLu::dim`] labels (a caller's bug).
+    pub fn row_order(&self, rows: &[usize], order: &mut Vec<usize>) {
+        order.resize(self.lu.dim(), 0);
+        self.lu.row_order(rows, order);
     }
 
-    /// Solves `A x = c` in place where `b` holds `c` gathered in the order of
-    /// [`ColumnTestedLu::interchanged_rows`] (`b[i] = c[rows[i]]`); `x` comes back in the
-    /// natural order (`b[j] = x_j`). Bitwise [`ColumnTestedLu::solve`]'s solution: the gather
+    /// Solves `A x = c` in place where `b` holds `c` gathered in the order of the factors'
+    /// interchanges ([`ColumnTestedLu::row_order`]: `b[i] = c[r]` for the row `r` of `A` in
+    /// row `i` of `P A`); `x` comes back in the natural order (`b[j] = x_j`). Bitwise [`ColumnTestedLu::solve`]'s solution: the gather
     /// does the interchanges that the solve would do on `c` (the same numbers moved), and the
     /// substitutions are the same; it saves the `n` interchanges per solve of a caller that
     /// gathers `c` anyway (PATH's crash and chord steps). Untouched when the last
@@ -201,7 +202,9 @@ mod tests {
                 if lu.factor(1e-13).is_err() {
                     continue;
                 }
-                let rows = lu.interchanged_rows().to_vec();
+                let identity: Vec<usize> = (0..n).collect();
+                let mut rows = Vec::new();
+                lu.row_order(&identity, &mut rows);
                 interchanged += rows.iter().enumerate().filter(|(i, r)| *i != **r).count();
                 for rhs in 0..3 {
                     let c: Vec<f64> = (0..n)

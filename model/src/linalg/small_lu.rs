@@ -100,9 +100,19 @@ impl SmallLu {
         }
     }
 
-    /// The diagonal of `U`.
+    /// The diagonal of `U` (every `n + 1`-th entry of the `n × n` storage: no index
+    /// arithmetic or bounds check per pivot).
     pub(crate) fn pivots(&self) -> impl Iterator<Item = f64> + '_ {
-        (0..self.n).map(|i| self.a[i * self.n + i])
+        self.a[..self.n * self.n]
+            .iter()
+            .step_by(self.n + 1)
+            .copied()
+    }
+
+    /// `range` widened by the magnitudes of `U`'s pivots ([`magnitude_range`]): the smallest and
+    /// the largest, NaN pivots passed over, for a pivot-ratio verdict.
+    pub(crate) fn pivot_magnitude_range(&self, range: (f64, f64)) -> (f64, f64) {
+        self.pivots().fold(range, magnitude_range)
     }
 
     /// Solves `A x = b` in place.
@@ -117,8 +127,8 @@ impl SmallLu {
     }
 
     /// [`SmallLu::solve`] of a right-hand side whose row interchanges are done already: `b`
-    /// holds `P c` (`b[i] = c[order[i]]` with [`SmallLu::interchanged_rows`]' `order`, as a
-    /// caller gathers it) and gets `x` with `A x = c`. The same substitutions as
+    /// holds `P c` (`b[i] = c[order[i]]` with `order` [`SmallLu::row_order`] of the rows
+    /// `0..n`, as a caller gathers it) and gets `x` with `A x = c`. The same substitutions as
     /// [`SmallLu::solve`], so bitwise its solution; a caller that gathers `c` anyway saves the
     /// `n` interchanges per solve (PATH's crash step, [`super::ColumnTestedLu`]).
     pub(crate) fn solve_interchanged(&self, b: &mut [f64]) {
@@ -129,16 +139,6 @@ impl SmallLu {
             return;
         }
         substitute_with::<Portable>(self.n, &self.a, b);
-    }
-
-    /// The rows of `P A` as rows of `A`: `order[i]` is the row of `A` in row `i` after the
-    /// factors' interchanges ([`SmallLu::row_order`] of the rows `0..n`).
-    pub(crate) fn interchanged_rows(&self, order: &mut Vec<usize>) {
-        order.clear();
-        order.extend(0..self.n);
-        for (k, &p) in self.piv.iter().enumerate() {
-            order.swap(k, p);
-        }
     }
 
     /// The rows `rows[0..n]` of a longer vector in the order of `P b` (the factors' row
@@ -258,6 +258,16 @@ impl SmallLu {
     }
 }
 
+/// `(lo, hi)` widened by `|d|`: bitwise `(lo.min(|d|), hi.max(|d|))` when neither `lo` nor
+/// `hi` is NaN (a pivot-ratio fold from `(∞, +0)`): a NaN `|d|` leaves both as `f64::min` and
+/// `f64::max` do, and a magnitude is never `−0`, so equal operands have the same bits. One
+/// `minsd` and one `maxsd`, without `f64::min`/`max`'s NaN tests on the fold's serial chain.
+#[inline(always)]
+pub(crate) fn magnitude_range((lo, hi): (f64, f64), d: f64) -> (f64, f64) {
+    let m = d.abs();
+    (if m < lo { m } else { lo }, if m > hi { m } else { hi })
+}
+
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
 /// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
 #[inline(always)]
@@ -301,17 +311,58 @@ fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
 /// where its entry of the right-hand side is zero.
 #[inline(always)]
 fn substitute_with<L: Lanes>(n: usize, a: &[f64], b: &mut [f64]) {
+    forward_with::<L>(n, a, b);
+    backward_with::<L>(n, a, b, |_, _| {});
+}
+
+/// `L y = b` by columns on the first `n` entries of `x`, a column skipped where `y_k` is zero.
+/// Indexed without bounds checks after one check of the lengths (the per-column checks and
+/// index arithmetic were a fifth of a desk solve's instructions).
+#[inline(always)]
+fn forward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64]) {
+    assert!(
+        x.len() >= n && a.len() >= n * n,
+        "an n × n factor and n entries"
+    );
     for k in 0..n {
-        let bk = b[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut b[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
+        // SAFETY: `k < n ≤ x.len()`, and column `k` below the diagonal, `k n + k + 1 ..
+        // (k + 1) n`, lies within `a`'s `n²` entries.
+        unsafe {
+            let yk = *x.get_unchecked(k);
+            if yk != 0.0 {
+                L::sub_scaled(
+                    x.get_unchecked_mut(k + 1..n),
+                    a.get_unchecked(k * n + k + 1..(k + 1) * n),
+                    yk,
+                );
+            }
         }
     }
+}
+
+/// `U x = y` by columns on the first `n` entries of `x`, `done(k, x_k)` called as each `x_k` is
+/// final, a column skipped where `x_k` is zero. Indexed as [`forward_with`].
+#[inline(always)]
+fn backward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64], mut done: impl FnMut(usize, f64)) {
+    assert!(
+        x.len() >= n && a.len() >= n * n,
+        "an n × n factor and n entries"
+    );
     for k in (0..n).rev() {
-        b[k] /= a[k * n + k];
-        let bk = b[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
+        // SAFETY: `k < n ≤ x.len()`, and column `k` on and above the diagonal, `k n ..= k n + k`,
+        // lies within `a`'s `n²` entries.
+        unsafe {
+            let xk = x.get_unchecked_mut(k);
+            *xk /= *a.get_unchecked(k * n + k);
+            let xk = *xk;
+            done(k, xk);
+            if xk != 0.0 {
+                L::sub_scaled(
+                    x.get_unchecked_mut(..k),
+                    a.get_unchecked(k * n..k * n + k),
+                    xk,
+                );
+            }
         }
     }
 }
@@ -328,24 +379,12 @@ fn solve_mapped_with<L: Lanes>(
     rows: &[usize],
     work: &mut [f64],
 ) {
-    let work = &mut work[..n];
+    let (work, rows) = (&mut work[..n], &rows[..n]);
     for (w, &i) in work.iter_mut().zip(&order[..n]) {
         *w = b[i];
     }
-    for k in 0..n {
-        let bk = work[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut work[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
-        }
-    }
-    for (k, &i) in rows[..n].iter().enumerate().rev() {
-        work[k] /= a[k * n + k];
-        let bk = work[k];
-        b[i] = bk;
-        if bk != 0.0 {
-            L::sub_scaled(&mut work[..k], &a[k * n..k * n + k], bk);
-        }
-    }
+    forward_with::<L>(n, a, work);
+    backward_with::<L>(n, a, work, |k, xk| b[rows[k]] = xk);
 }
 
 /// [`solve_with`] for the `k` columns of a row-major `n × k` matrix, by whole rows.
@@ -719,6 +758,48 @@ mod tests {
         }
     }
 
+    /// The pivot-ratio fold by plain comparisons is bitwise `f64::min`/`max`'s, NaN pivots
+    /// passed over, and `pivots` is the diagonal.
+    #[test]
+    fn magnitude_range_is_the_min_max_fold() {
+        let values = [
+            1.0,
+            -0.0,
+            0.0,
+            f64::NAN,
+            -f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MIN_POSITIVE / 4.0,
+            -3.5e300,
+            2.0,
+            -2.0,
+        ];
+        let bits = |(lo, hi): (f64, f64)| (lo.to_bits(), hi.to_bits());
+        for start in 0..values.len() {
+            for len in 0..=values.len() {
+                let seq: Vec<f64> = (0..len)
+                    .map(|i| values[(start + 3 * i) % values.len()])
+                    .collect();
+                let plain = seq.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), d| {
+                    (lo.min(d.abs()), hi.max(d.abs()))
+                });
+                let fast = seq
+                    .iter()
+                    .copied()
+                    .fold((f64::INFINITY, 0.0), magnitude_range);
+                assert_eq!(bits(fast), bits(plain), "{seq:?}");
+            }
+        }
+        for n in [0, 1, 2, 7, 31] {
+            let a = matrix(n, n as u64 + 11);
+            let mut lu = SmallLu::new(n);
+            lu.factor(&a);
+            let diagonal: Vec<f64> = (0..n).map(|i| lu.a[i * n + i]).collect();
+            assert_eq!(lu.pivots().collect::<Vec<_>>(), diagonal);
+        }
+    }
+
     #[test]
     fn pivoting_takes_the_largest_entry_of_the_column() {
         // [[1, 2], [3, 4]] column-major: the first pivot is 3 (row 1).
@@ -802,8 +883,9 @@ mod tests {
                 let late: Vec<f64> = (0..n)
                     .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
                     .collect();
-                let mut order = Vec::new();
-                fast.interchanged_rows(&mut order);
+                let identity: Vec<usize> = (0..n).collect();
+                let mut order = vec![0; n];
+                fast.row_order(&identity, &mut order);
                 for b in [&rhs, &unit, &late] {
                     let (mut x, mut y) = (b.clone(), b.clone());
                     fast.solve(&mut x);
