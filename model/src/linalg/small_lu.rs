@@ -330,7 +330,7 @@ fn forward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64]) {
         unsafe {
             let yk = *x.get_unchecked(k);
             if yk != 0.0 {
-                L::sub_scaled(
+                L::sub_scaled_from_end(
                     x.get_unchecked_mut(k + 1..n),
                     a.get_unchecked(k * n + k + 1..(k + 1) * n),
                     yk,
