@@ -317,51 +317,73 @@ fn substitute_with<L: Lanes>(n: usize, a: &[f64], b: &mut [f64]) {
 
 /// `L y = b` by columns on the first `n` entries of `x`, a column skipped where `y_k` is zero.
 /// Indexed without bounds checks after one check of the lengths (the per-column checks and
-/// index arithmetic were a fifth of a desk solve's instructions).
+/// index arithmetic were a fifth of a desk solve's instructions). The next entry `y_{k+1}`, the
+/// only one the next step waits for, is updated first and carried in a register; the rest of
+/// the column in vectors aligned to its end, so that each load lies within one store of the
+/// step before (`docs/latency.md`, branch wip-lu). Every entry gets the same operations in the
+/// same order as in the plain column loop.
 #[inline(always)]
 fn forward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64]) {
     assert!(
         x.len() >= n && a.len() >= n * n,
         "an n × n factor and n entries"
     );
-    for k in 0..n {
-        // SAFETY: `k < n ≤ x.len()`, and column `k` below the diagonal, `k n + k + 1 ..
-        // (k + 1) n`, lies within `a`'s `n²` entries.
-        unsafe {
-            let yk = *x.get_unchecked(k);
+    if n == 0 {
+        return;
+    }
+    // SAFETY: `k < n ≤ x.len()`, `k + 1 < n` where it is read, and column `k` below the
+    // diagonal, `k n + k + 1 .. (k + 1) n`, lies within `a`'s `n²` entries.
+    unsafe {
+        let mut yk = *x.get_unchecked(0);
+        for k in 0..n {
+            *x.get_unchecked_mut(k) = yk;
+            if k + 1 == n {
+                break;
+            }
+            let next = *x.get_unchecked(k + 1);
             if yk != 0.0 {
-                L::sub_scaled_from_end(
-                    x.get_unchecked_mut(k + 1..n),
-                    a.get_unchecked(k * n + k + 1..(k + 1) * n),
-                    yk,
-                );
+                let l = a.get_unchecked(k * n + k + 1..(k + 1) * n);
+                let updated = next - *l.get_unchecked(0) * yk;
+                L::sub_scaled_from_end(x.get_unchecked_mut(k + 2..n), l.get_unchecked(1..), yk);
+                yk = updated;
+            } else {
+                yk = next;
             }
         }
     }
 }
 
 /// `U x = y` by columns on the first `n` entries of `x`, `done(k, x_k)` called as each `x_k` is
-/// final, a column skipped where `x_k` is zero. Indexed as [`forward_with`].
+/// final, a column skipped where `x_k` is zero. Indexed as [`forward_with`], and likewise the
+/// next entry `w_{k−1}`, which the next division waits for, updated first and carried in a
+/// register (the rest in vectors from the start, whose boundaries the steps share).
 #[inline(always)]
 fn backward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64], mut done: impl FnMut(usize, f64)) {
     assert!(
         x.len() >= n && a.len() >= n * n,
         "an n × n factor and n entries"
     );
-    for k in (0..n).rev() {
-        // SAFETY: `k < n ≤ x.len()`, and column `k` on and above the diagonal, `k n ..= k n + k`,
-        // lies within `a`'s `n²` entries.
-        unsafe {
-            let xk = x.get_unchecked_mut(k);
-            *xk /= *a.get_unchecked(k * n + k);
-            let xk = *xk;
+    if n == 0 {
+        return;
+    }
+    // SAFETY: `k < n ≤ x.len()`, `k ≥ 1` where `k − 1` is read, and column `k` on and above the
+    // diagonal, `k n ..= k n + k`, lies within `a`'s `n²` entries.
+    unsafe {
+        let mut wk = *x.get_unchecked(n - 1);
+        for k in (0..n).rev() {
+            let xk = wk / *a.get_unchecked(k * n + k);
+            *x.get_unchecked_mut(k) = xk;
             done(k, xk);
+            if k == 0 {
+                break;
+            }
+            let prev = *x.get_unchecked(k - 1);
             if xk != 0.0 {
-                L::sub_scaled(
-                    x.get_unchecked_mut(..k),
-                    a.get_unchecked(k * n..k * n + k),
-                    xk,
-                );
+                let u = a.get_unchecked(k * n..k * n + k);
+                wk = prev - *u.get_unchecked(k - 1) * xk;
+                L::sub_scaled(x.get_unchecked_mut(..k - 1), u.get_unchecked(..k - 1), xk);
+            } else {
+                wk = prev;
             }
         }
     }
@@ -797,6 +819,58 @@ mod tests {
             lu.factor(&a);
             let diagonal: Vec<f64> = (0..n).map(|i| lu.a[i * n + i]).collect();
             assert_eq!(lu.pivots().collect::<Vec<_>>(), diagonal);
+        }
+    }
+
+    /// The substitutions (the next entry carried in a register, vectors from the end or the
+    /// start) give bitwise the plain column loops' solution: interchanges, then `L y = P b`
+    /// and `U x = y` by columns, a column skipped where its entry is zero.
+    #[test]
+    fn substitutions_are_bitwise_the_plain_column_loops() {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for n in 0..=40 {
+            for (seed, keep) in [(3, 0.35), (6, 0.15), (7, 1.0)] {
+                let a = awkward_matrix(n, seed * 1000 + n as u64, keep);
+                for avx2 in [false, avx2_available()] {
+                    let mut lu = SmallLu::new(n);
+                    lu.avx2 = avx2;
+                    lu.factor(&a);
+                    let late: Vec<f64> = (0..n)
+                        .map(|i| match i % 4 {
+                            0 => -0.0,
+                            1 if i < n / 2 => 0.0,
+                            _ => 1.0 - 0.1 * i as f64,
+                        })
+                        .collect();
+                    for b in [spread_rhs(n), unit_rhs(n), late] {
+                        let mut reference = b.clone();
+                        for (k, &p) in lu.piv.iter().enumerate() {
+                            reference.swap(k, p);
+                        }
+                        let f = &lu.a;
+                        for k in 0..n {
+                            let yk = reference[k];
+                            if yk != 0.0 {
+                                for i in k + 1..n {
+                                    reference[i] -= f[k * n + i] * yk;
+                                }
+                            }
+                        }
+                        for k in (0..n).rev() {
+                            reference[k] /= f[k * n + k];
+                            let xk = reference[k];
+                            if xk != 0.0 {
+                                for i in 0..k {
+                                    reference[i] -= f[k * n + i] * xk;
+                                }
+                            }
+                        }
+                        let mut x = b.clone();
+                        lu.solve(&mut x);
+                        assert_eq!(bits(&x), bits(&reference), "n = {n}, seed {seed}, {avx2}");
+                    }
+                }
+            }
         }
     }
 
