@@ -149,7 +149,7 @@ fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
     // stores need no alignment.
     unsafe {
         if len % 2 == 1 {
-            *xp = *xp - *lp * s;
+            *xp -= *lp * s;
             i = 1;
         }
         if (len - i) % 4 == 2 {
