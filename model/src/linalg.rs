@@ -256,10 +256,7 @@ impl DenseLu {
         let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
         if let Some(small) = &mut self.small {
             small.eliminate();
-            for d in small.pivots() {
-                lo = lo.min(d.abs());
-                hi = hi.max(d.abs());
-            }
+            (lo, hi) = small.pivot_magnitude_range((lo, hi));
         } else {
             let stack = MemStack::new(&mut self.mem);
             pp_factor::lu_in_place(

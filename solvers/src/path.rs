@@ -468,6 +468,10 @@ pub struct PathSolver {
     /// The LU of the last crash target's reduced matrix (`J_II + shift·I`, rows and columns in
     /// `inactive`'s order, for the active set in `active`).
     factor: ColumnTestedLu,
+    /// The components of `factor`'s rows (`inactive`) in the order of its row interchanges
+    /// ([`ColumnTestedLu::row_order`]): the crash and chord steps gather their right-hand
+    /// sides by it.
+    crash_order: Vec<usize>,
     /// `factor` holds the LU of the reduced matrix of a crash target that was taken as a full
     /// step (`t = 1`) in this attempt, with no path step since: the polish may take chord steps
     /// on it ([`PathSolver::chord_target`]).
@@ -590,6 +594,7 @@ impl PathSolver {
             active: Vec::new(),
             result: Solution::default(),
             factor: ColumnTestedLu::new(),
+            crash_order: Vec::new(),
             kept_lu: false,
             jac_deferred: false,
             kept_key: None,
@@ -977,6 +982,7 @@ impl PathSolver {
             if self.factor.factor(DEPENDENCE_TOLERANCE).is_err() {
                 return false;
             }
+            self.factor.row_order(&self.inactive, &mut self.crash_order);
             if !self.reduced_newton_step(true, false) {
                 return false;
             }
@@ -1028,13 +1034,18 @@ impl PathSolver {
         let (f, rhs) = (&cur.f[..], &self.rhs[..]);
         let b = &mut self.crash_rhs;
         b.clear();
+        // Gathered in the order of the LU's row interchanges (`crash_order`), so that the
+        // solve does no interchanges; `Δ_I` comes back in `inactive`'s order, bitwise the
+        // plain solve's.
+        let order = &self.crash_order[..];
+        debug_assert_eq!(order.len(), inactive.len());
         if with_rhs {
-            b.extend(inactive.iter().map(|&i| -f[i] - rhs[i]));
+            b.extend(order.iter().map(|&i| -f[i] - rhs[i]));
         } else {
-            b.extend(inactive.iter().map(|&i| -f[i]));
+            b.extend(order.iter().map(|&i| -f[i]));
         }
         if !b.is_empty() {
-            self.factor.solve(b);
+            self.factor.solve_interchanged(b);
         }
         // The vector test (`all_finite`: the same verdict as a test per entry).
         let finite = all_finite(b);

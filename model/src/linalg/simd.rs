@@ -13,6 +13,11 @@
 pub(super) trait Lanes {
     /// `x_i −= l_i s` for every `i` (the shorter length of `x` and `l`).
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64);
+    /// [`Lanes::sub_scaled`] in vectors aligned to the end of `x` (the odd entry first, then a
+    /// pair, then fours): the forward substitution's updates `x[k + 1..n]` then all share their
+    /// vector boundaries with the step before, so each load is within one earlier store and is
+    /// forwarded from it (`docs/latency.md`, branch wip-lu). The same operation on every entry.
+    fn sub_scaled_from_end(x: &mut [f64], l: &[f64], s: f64);
     /// `x_i /= d` for every `i`.
     fn div(x: &mut [f64], d: f64);
     /// The partial pivot of a column `x` (not empty): the first entry of largest magnitude,
@@ -44,6 +49,10 @@ impl Lanes for Portable {
         for (x, l) in x.iter_mut().zip(l) {
             *x -= l * s;
         }
+    }
+    #[inline(always)]
+    fn sub_scaled_from_end(x: &mut [f64], l: &[f64], s: f64) {
+        Self::sub_scaled(x, l, s);
     }
     #[inline(always)]
     fn div(x: &mut [f64], d: f64) {
@@ -83,6 +92,11 @@ impl Lanes for Avx2 {
         unsafe { sub_scaled_avx2(x, l, s) }
     }
     #[inline(always)]
+    fn sub_scaled_from_end(x: &mut [f64], l: &[f64], s: f64) {
+        // SAFETY: as in `sub_scaled`.
+        unsafe { sub_scaled_from_end_avx2(x, l, s) }
+    }
+    #[inline(always)]
     fn div(x: &mut [f64], d: f64) {
         // SAFETY: as in `sub_scaled`.
         unsafe { div_avx2(x, d) }
@@ -118,6 +132,35 @@ fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
         }
         if i < len {
             *xp.add(i) -= *lp.add(i) * s;
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
+    use std::arch::x86_64::*;
+    let len = x.len().min(l.len());
+    let (xp, lp) = (x.as_mut_ptr(), l.as_ptr());
+    let s4 = _mm256_set1_pd(s);
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len`, within both slices; unaligned loads and
+    // stores need no alignment.
+    unsafe {
+        if len % 2 == 1 {
+            *xp -= *lp * s;
+            i = 1;
+        }
+        if (len - i) % 4 == 2 {
+            let p = _mm_mul_pd(_mm_loadu_pd(lp.add(i)), _mm256_castpd256_pd128(s4));
+            _mm_storeu_pd(xp.add(i), _mm_sub_pd(_mm_loadu_pd(xp.add(i)), p));
+            i += 2;
+        }
+        while i < len {
+            let p = _mm256_mul_pd(_mm256_loadu_pd(lp.add(i)), s4);
+            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(_mm256_loadu_pd(xp.add(i)), p));
+            i += 4;
         }
     }
 }
@@ -419,6 +462,43 @@ fn transpose_avx2<const CHECK: bool>(
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The update in vectors aligned to the end is bitwise the plain loop's, for every length
+    /// around the lane widths, `x` longer than `l` and the reverse, signed zeros included.
+    #[test]
+    fn sub_scaled_from_the_end_is_the_plain_loop() {
+        if !avx2_available() {
+            return;
+        }
+        for len in 0..40 {
+            for (extra_x, extra_l) in [(0, 0), (3, 0), (0, 2)] {
+                let x: Vec<f64> = (0..len + extra_x)
+                    .map(|i| match i % 5 {
+                        0 => -0.0,
+                        1 => 0.0,
+                        _ => (i as f64 * 0.7).sin() * 1e3,
+                    })
+                    .collect();
+                let l: Vec<f64> = (0..len + extra_l)
+                    .map(|i| {
+                        if i % 4 == 3 {
+                            -0.0
+                        } else {
+                            (i as f64 * 1.3).cos()
+                        }
+                    })
+                    .collect();
+                for s in [0.37, -2.5e-7, 0.0, -0.0] {
+                    let (mut a, mut b) = (x.clone(), x.clone());
+                    Portable::sub_scaled(&mut a, &l, s);
+                    // SAFETY: the processor has AVX2.
+                    unsafe { sub_scaled_from_end_avx2(&mut b, &l, s) };
+                    let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+                    assert_eq!(bits(&a), bits(&b), "len {len}, s {s}");
+                }
+            }
+        }
+    }
 
     /// The row combination gives bitwise what the scalar loop `y_k += v · x_jk` gives, entry
     /// by entry in the order of the entries, for row lengths around the lane widths.

@@ -100,9 +100,19 @@ impl SmallLu {
         }
     }
 
-    /// The diagonal of `U`.
+    /// The diagonal of `U` (every `n + 1`-th entry of the `n × n` storage: no index
+    /// arithmetic or bounds check per pivot).
     pub(crate) fn pivots(&self) -> impl Iterator<Item = f64> + '_ {
-        (0..self.n).map(|i| self.a[i * self.n + i])
+        self.a[..self.n * self.n]
+            .iter()
+            .step_by(self.n + 1)
+            .copied()
+    }
+
+    /// `range` widened by the magnitudes of `U`'s pivots ([`magnitude_range`]): the smallest and
+    /// the largest, NaN pivots passed over, for a pivot-ratio verdict.
+    pub(crate) fn pivot_magnitude_range(&self, range: (f64, f64)) -> (f64, f64) {
+        self.pivots().fold(range, magnitude_range)
     }
 
     /// Solves `A x = b` in place.
@@ -114,6 +124,21 @@ impl SmallLu {
             return;
         }
         solve_with::<Portable>(self.n, &self.a, &self.piv, b);
+    }
+
+    /// [`SmallLu::solve`] of a right-hand side whose row interchanges are done already: `b`
+    /// holds `P c` (`b[i] = c[order[i]]` with `order` [`SmallLu::row_order`] of the rows
+    /// `0..n`, as a caller gathers it) and gets `x` with `A x = c`. The same substitutions as
+    /// [`SmallLu::solve`], so bitwise its solution; a caller that gathers `c` anyway saves the
+    /// `n` interchanges per solve (PATH's crash step, [`super::ColumnTestedLu`]).
+    pub(crate) fn solve_interchanged(&self, b: &mut [f64]) {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is set only when the processor has AVX2.
+            unsafe { substitute_avx2(self.n, &self.a, b) };
+            return;
+        }
+        substitute_with::<Portable>(self.n, &self.a, b);
     }
 
     /// The rows `rows[0..n]` of a longer vector in the order of `P b` (the factors' row
@@ -233,6 +258,16 @@ impl SmallLu {
     }
 }
 
+/// `(lo, hi)` widened by `|d|`: bitwise `(lo.min(|d|), hi.max(|d|))` when neither `lo` nor
+/// `hi` is NaN (a pivot-ratio fold from `(∞, +0)`): a NaN `|d|` leaves both as `f64::min` and
+/// `f64::max` do, and a magnitude is never `−0`, so equal operands have the same bits. One
+/// `minsd` and one `maxsd`, without `f64::min`/`max`'s NaN tests on the fold's serial chain.
+#[inline(always)]
+pub(crate) fn magnitude_range((lo, hi): (f64, f64), d: f64) -> (f64, f64) {
+    let m = d.abs();
+    (if m < lo { m } else { lo }, if m > hi { m } else { hi })
+}
+
 /// Right-looking elimination with partial pivoting (LAPACK's `getf2`), the update of a column
 /// skipped when its pivot-row entry is zero. A zero pivot column is left unreduced.
 #[inline(always)]
@@ -269,17 +304,87 @@ fn solve_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     for (k, &p) in piv.iter().enumerate() {
         b.swap(k, p);
     }
-    for k in 0..n {
-        let bk = b[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut b[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
+    substitute_with::<L>(n, a, b);
+}
+
+/// `L y = b` and `U x = y` by columns on `b = P c` (interchanged already), a column skipped
+/// where its entry of the right-hand side is zero.
+#[inline(always)]
+fn substitute_with<L: Lanes>(n: usize, a: &[f64], b: &mut [f64]) {
+    forward_with::<L>(n, a, b);
+    backward_with::<L>(n, a, b, |_, _| {});
+}
+
+/// `L y = b` by columns on the first `n` entries of `x`, a column skipped where `y_k` is zero.
+/// Indexed without bounds checks after one check of the lengths (the per-column checks and
+/// index arithmetic were a fifth of a desk solve's instructions). The next entry `y_{k+1}`, the
+/// only one the next step waits for, is updated first and carried in a register; the rest of
+/// the column in vectors aligned to its end, so that each load lies within one store of the
+/// step before (`docs/latency.md`, branch wip-lu). Every entry gets the same operations in the
+/// same order as in the plain column loop.
+#[inline(always)]
+fn forward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64]) {
+    assert!(
+        x.len() >= n && a.len() >= n * n,
+        "an n × n factor and n entries"
+    );
+    if n == 0 {
+        return;
+    }
+    // SAFETY: `k < n ≤ x.len()`, `k + 1 < n` where it is read, and column `k` below the
+    // diagonal, `k n + k + 1 .. (k + 1) n`, lies within `a`'s `n²` entries.
+    unsafe {
+        let mut yk = *x.get_unchecked(0);
+        for k in 0..n {
+            *x.get_unchecked_mut(k) = yk;
+            if k + 1 == n {
+                break;
+            }
+            let next = *x.get_unchecked(k + 1);
+            if yk != 0.0 {
+                let l = a.get_unchecked(k * n + k + 1..(k + 1) * n);
+                let updated = next - *l.get_unchecked(0) * yk;
+                L::sub_scaled_from_end(x.get_unchecked_mut(k + 2..n), l.get_unchecked(1..), yk);
+                yk = updated;
+            } else {
+                yk = next;
+            }
         }
     }
-    for k in (0..n).rev() {
-        b[k] /= a[k * n + k];
-        let bk = b[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut b[..k], &a[k * n..k * n + k], bk);
+}
+
+/// `U x = y` by columns on the first `n` entries of `x`, `done(k, x_k)` called as each `x_k` is
+/// final, a column skipped where `x_k` is zero. Indexed as [`forward_with`], and likewise the
+/// next entry `w_{k−1}`, which the next division waits for, updated first and carried in a
+/// register (the rest in vectors from the start, whose boundaries the steps share).
+#[inline(always)]
+fn backward_with<L: Lanes>(n: usize, a: &[f64], x: &mut [f64], mut done: impl FnMut(usize, f64)) {
+    assert!(
+        x.len() >= n && a.len() >= n * n,
+        "an n × n factor and n entries"
+    );
+    if n == 0 {
+        return;
+    }
+    // SAFETY: `k < n ≤ x.len()`, `k ≥ 1` where `k − 1` is read, and column `k` on and above the
+    // diagonal, `k n ..= k n + k`, lies within `a`'s `n²` entries.
+    unsafe {
+        let mut wk = *x.get_unchecked(n - 1);
+        for k in (0..n).rev() {
+            let xk = wk / *a.get_unchecked(k * n + k);
+            *x.get_unchecked_mut(k) = xk;
+            done(k, xk);
+            if k == 0 {
+                break;
+            }
+            let prev = *x.get_unchecked(k - 1);
+            if xk != 0.0 {
+                let u = a.get_unchecked(k * n..k * n + k);
+                wk = prev - *u.get_unchecked(k - 1) * xk;
+                L::sub_scaled(x.get_unchecked_mut(..k - 1), u.get_unchecked(..k - 1), xk);
+            } else {
+                wk = prev;
+            }
         }
     }
 }
@@ -296,24 +401,12 @@ fn solve_mapped_with<L: Lanes>(
     rows: &[usize],
     work: &mut [f64],
 ) {
-    let work = &mut work[..n];
+    let (work, rows) = (&mut work[..n], &rows[..n]);
     for (w, &i) in work.iter_mut().zip(&order[..n]) {
         *w = b[i];
     }
-    for k in 0..n {
-        let bk = work[k];
-        if bk != 0.0 {
-            L::sub_scaled(&mut work[k + 1..], &a[k * n + k + 1..(k + 1) * n], bk);
-        }
-    }
-    for (k, &i) in rows[..n].iter().enumerate().rev() {
-        work[k] /= a[k * n + k];
-        let bk = work[k];
-        b[i] = bk;
-        if bk != 0.0 {
-            L::sub_scaled(&mut work[..k], &a[k * n..k * n + k], bk);
-        }
-    }
+    forward_with::<L>(n, a, work);
+    backward_with::<L>(n, a, work, |k, xk| b[rows[k]] = xk);
 }
 
 /// [`solve_with`] for the `k` columns of a row-major `n × k` matrix, by whole rows.
@@ -365,6 +458,12 @@ fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
 #[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     solve_with::<Avx2>(n, a, piv, b);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn substitute_avx2(n: usize, a: &[f64], b: &mut [f64]) {
+    substitute_with::<Avx2>(n, a, b);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -681,6 +780,100 @@ mod tests {
         }
     }
 
+    /// The pivot-ratio fold by plain comparisons is bitwise `f64::min`/`max`'s, NaN pivots
+    /// passed over, and `pivots` is the diagonal.
+    #[test]
+    fn magnitude_range_is_the_min_max_fold() {
+        let values = [
+            1.0,
+            -0.0,
+            0.0,
+            f64::NAN,
+            -f64::NAN,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::MIN_POSITIVE / 4.0,
+            -3.5e300,
+            2.0,
+            -2.0,
+        ];
+        let bits = |(lo, hi): (f64, f64)| (lo.to_bits(), hi.to_bits());
+        for start in 0..values.len() {
+            for len in 0..=values.len() {
+                let seq: Vec<f64> = (0..len)
+                    .map(|i| values[(start + 3 * i) % values.len()])
+                    .collect();
+                let plain = seq.iter().fold((f64::INFINITY, 0.0f64), |(lo, hi), d| {
+                    (lo.min(d.abs()), hi.max(d.abs()))
+                });
+                let fast = seq
+                    .iter()
+                    .copied()
+                    .fold((f64::INFINITY, 0.0), magnitude_range);
+                assert_eq!(bits(fast), bits(plain), "{seq:?}");
+            }
+        }
+        for n in [0, 1, 2, 7, 31] {
+            let a = matrix(n, n as u64 + 11);
+            let mut lu = SmallLu::new(n);
+            lu.factor(&a);
+            let diagonal: Vec<f64> = (0..n).map(|i| lu.a[i * n + i]).collect();
+            assert_eq!(lu.pivots().collect::<Vec<_>>(), diagonal);
+        }
+    }
+
+    /// The substitutions (the next entry carried in a register, vectors from the end or the
+    /// start) give bitwise the plain column loops' solution: interchanges, then `L y = P b`
+    /// and `U x = y` by columns, a column skipped where its entry is zero.
+    #[test]
+    fn substitutions_are_bitwise_the_plain_column_loops() {
+        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+        for n in 0..=40 {
+            for (seed, keep) in [(3, 0.35), (6, 0.15), (7, 1.0)] {
+                let a = awkward_matrix(n, seed * 1000 + n as u64, keep);
+                for avx2 in [false, avx2_available()] {
+                    let mut lu = SmallLu::new(n);
+                    lu.avx2 = avx2;
+                    lu.factor(&a);
+                    let late: Vec<f64> = (0..n)
+                        .map(|i| match i % 4 {
+                            0 => -0.0,
+                            1 if i < n / 2 => 0.0,
+                            _ => 1.0 - 0.1 * i as f64,
+                        })
+                        .collect();
+                    for b in [spread_rhs(n), unit_rhs(n), late] {
+                        let mut reference = b.clone();
+                        for (k, &p) in lu.piv.iter().enumerate() {
+                            reference.swap(k, p);
+                        }
+                        let f = &lu.a;
+                        for k in 0..n {
+                            let yk = reference[k];
+                            if yk != 0.0 {
+                                for i in k + 1..n {
+                                    reference[i] -= f[k * n + i] * yk;
+                                }
+                            }
+                        }
+                        for k in (0..n).rev() {
+                            reference[k] /= f[k * n + k];
+                            let xk = reference[k];
+                            if xk != 0.0 {
+                                for i in 0..k {
+                                    reference[i] -= f[k * n + i] * xk;
+                                }
+                            }
+                        }
+                        let mut x = b.clone();
+                        lu.solve(&mut x);
+                        assert_eq!(bits(&x), bits(&reference), "n = {n}, seed {seed}, {avx2}");
+                    }
+                }
+            }
+        }
+    }
+
     #[test]
     fn pivoting_takes_the_largest_entry_of_the_column() {
         // [[1, 2], [3, 4]] column-major: the first pivot is 3 (row 1).
@@ -764,11 +957,22 @@ mod tests {
                 let late: Vec<f64> = (0..n)
                     .map(|i| if i < n / 3 { 0.0 } else { 1.0 - 0.1 * i as f64 })
                     .collect();
+                let identity: Vec<usize> = (0..n).collect();
+                let mut order = vec![0; n];
+                fast.row_order(&identity, &mut order);
                 for b in [&rhs, &unit, &late] {
                     let (mut x, mut y) = (b.clone(), b.clone());
                     fast.solve(&mut x);
                     plain.solve(&mut y);
                     assert_eq!(bits(&x), bits(&y), "solve, n = {n}, seed {seed}");
+                    // Gathered in the interchanges' order, solved without them: the same bits
+                    // with both loops.
+                    let gathered: Vec<f64> = order.iter().map(|&r| b[r]).collect();
+                    let (mut u, mut v) = (gathered.clone(), gathered);
+                    fast.solve_interchanged(&mut u);
+                    plain.solve_interchanged(&mut v);
+                    assert_eq!(bits(&u), bits(&y), "interchanged, n = {n}, seed {seed}");
+                    assert_eq!(bits(&v), bits(&y), "interchanged, n = {n}, seed {seed}");
                 }
                 for k in [1, 3, 4, 5, 8, 9, 16, 30, 32] {
                     let rows: Vec<f64> = (0..n * k)

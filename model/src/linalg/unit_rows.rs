@@ -13,7 +13,7 @@
 //! sized for the whole matrix once, so a new mask allocates nothing.
 
 use super::simd::{all_finite, carries_finite, exponent_carry};
-use super::small_lu::SmallLu;
+use super::small_lu::{SmallLu, magnitude_range};
 use super::{LinalgError, SINGULAR_PIVOT_RATIO};
 use crate::pattern::CscPattern;
 
@@ -202,11 +202,8 @@ impl UnitRowsLu {
             return Err(LinalgError::NonFinite);
         }
         self.lu.eliminate();
-        let (mut lo, mut hi) = (f64::INFINITY, 0.0f64);
-        for d in self.lu.pivots().chain(self.diag.iter().copied()) {
-            lo = lo.min(d.abs());
-            hi = hi.max(d.abs());
-        }
+        let range = self.lu.pivot_magnitude_range((f64::INFINITY, 0.0));
+        let (lo, hi) = self.diag.iter().copied().fold(range, magnitude_range);
         if !mask.is_empty() && (lo.is_nan() || lo <= SINGULAR_PIVOT_RATIO * hi || !lo.is_finite()) {
             return Err(LinalgError::Singular {
                 ratio: if hi > 0.0 { lo / hi } else { 0.0 },
