@@ -1397,7 +1397,7 @@ fn newton_multi_body_s20270320_129_step_4_minimum_norm_above_dense_max() {
         "s20270320_129_multi_body step 4: {} iterations with minimum-norm steps up to 120 unknowns, {} up to 200",
         before.summary.iterations, after.summary.iterations
     );
-    // Measured on the old trajectory: 35 and 1.
+    // Measured: 36 and 1.
     assert_iterations(&before, 10..);
     assert_iterations(&after, ..=3);
     assert!(after.summary.residual <= tolerance);

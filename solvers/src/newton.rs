@@ -2045,7 +2045,8 @@ impl NewtonSolver {
                 let mut polish_ok = newton_ok;
                 if !polish_ok && ratio_steps > 0 && !ws.dense.is_empty() {
                     prof.min_norm_factorizations += 1;
-                    polish_ok = self.min_norm.newton_step(
+                    polish_ok = self.min_norm.step(
+                        n > s.dense_max,
                         &pattern,
                         &ws.h,
                         &mut ws.dense,
@@ -2167,7 +2168,8 @@ impl NewtonSolver {
                     grad_ready = true;
                 }
 
-                if self.min_norm.newton_step(
+                if self.min_norm.step(
+                    n > s.dense_max,
                     &pattern,
                     &ws.h,
                     &mut ws.dense,
