@@ -417,6 +417,8 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
             s.complementary_restart_from_best = value.parse::<f64>().ok()
         }
         "josephy_newton" => s.josephy_newton = value.parse::<usize>().ok(),
+        "dense_max" => s.dense_max = n()?,
+        "min_norm_max" => s.min_norm_max = n()?,
         "friction_continuation" => s.friction_continuation = value.parse::<usize>().ok(),
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,

@@ -125,6 +125,13 @@ pub struct NewtonSettings {
     /// point on isolated but hard steps (a tipping box once in the air, measured on A6 at
     /// 110 N), so a solve that fails after taking them is restarted once without them.
     pub min_norm_step: bool,
+    /// Largest dimension on which [`NewtonSettings::min_norm_step`] is taken (its dense QR);
+    /// the LU stays sparse above [`NewtonSettings::dense_max`]. Was `dense_max` (120): on
+    /// `129_multi_body` of the held-out seed 20270320 (144 unknowns, four bodies, three resting
+    /// on faces, where `H` is singular) every step then crawled 20 Levenberg–Marquardt iterations
+    /// before the Josephy–Newton restart solved it (80× PATH's instructions); with the step,
+    /// one iteration (`docs/stress.md`, branch wip-heldout4). Default 200.
+    pub min_norm_max: usize,
     /// Numerical rank of `H` for the minimum-norm step: columns whose remaining norm in the
     /// pivoted QR falls below this times the largest column norm are treated as dependent.
     /// Default `1e-10`.
@@ -427,6 +434,7 @@ impl Default for NewtonSettings {
             dense_max: 120,
             structured_solve: false,
             min_norm_step: true,
+            min_norm_max: 200,
             rank_tolerance: 1e-10,
             min_norm_radius: 1e-3,
             watchdog_steps: 4,
@@ -780,7 +788,7 @@ impl NewtonSolver {
             .best_psi_history
             .reserve(history.saturating_sub(self.ws.best_psi_history.len()));
 
-        let dense = self.settings.min_norm_step && mcp.dim() <= self.settings.dense_max;
+        let dense = self.settings.min_norm_step && mcp.dim() <= self.settings.min_norm_max;
         self.ws.resize_dense(mcp.dim(), dense);
         Ok(())
     }
@@ -2251,7 +2259,8 @@ impl NewtonSolver {
                 let mut polish_ok = newton_ok;
                 if !polish_ok && ratio_steps > 0 && !ws.dense.is_empty() {
                     prof.min_norm_factorizations += 1;
-                    polish_ok = self.min_norm.newton_step(
+                    polish_ok = self.min_norm.step(
+                        n > s.dense_max,
                         &pattern,
                         &ws.h,
                         &mut ws.dense,
@@ -2373,7 +2382,8 @@ impl NewtonSolver {
                     grad_ready = true;
                 }
 
-                if self.min_norm.newton_step(
+                if self.min_norm.step(
+                    n > s.dense_max,
                     &pattern,
                     &ws.h,
                     &mut ws.dense,
