@@ -33,7 +33,7 @@ impl<'a> Iterates<'a> {
         }
     }
 
-    /// How many iterates in a row, from `z_k` back, are given (2 to [`KEPT`]).
+    /// How many iterates in a row, from `z_k` back, are given (2 to 6, the steps kept).
     pub fn depth(&self) -> usize {
         if self.older.is_none() {
             return 2;
