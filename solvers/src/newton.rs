@@ -638,6 +638,8 @@ pub struct NewtonSolver {
     in_continuation: bool,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     budget: Option<usize>,
+    /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
+    start_predicted: bool,
     /// `linear` holds the LU of an `H` formed at `Workspace::z_lu` by the last solve, which
     /// converged with it (no pinned columns, a descent step): the next solve's first iteration
     /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
@@ -705,6 +707,7 @@ impl NewtonSolver {
             min_norm_kept: 0,
             in_continuation: false,
             budget: None,
+            start_predicted: false,
             kept_lu: false,
             kept_lu_gate: KeptLuGate::default(),
             last_iterated: true,
@@ -1532,6 +1535,14 @@ impl McpSolver for NewtonSolver {
         true
     }
 
+    /// Honoured: a predicted start below `polish_below · tolerance` is returned as it stands
+    /// only at the round-off floor ([`NewtonSettings::chord_round_off_floor`]; without it,
+    /// never), else it takes the polish's full step.
+    fn set_start_predicted(&mut self, predicted: bool) -> bool {
+        self.start_predicted = predicted;
+        true
+    }
+
     /// Near a solution the iteration converges quadratically, far below the tolerance.
     fn converges_to_round_off(&self) -> bool {
         true
@@ -2011,7 +2022,11 @@ impl NewtonSolver {
                 // Converged; one more full Newton step when the residual is just below the
                 // tolerance (see `NewtonSettings::polish_below`), one more chord step when the
                 // last step was one (its rate is linear: it ends a factor above round-off).
-                if polishing || residual <= s.polish_below * s.tolerance {
+                // A predicted start (`McpSolver::set_start_predicted`) is not a point
+                // converged to: below the polish bound it stands only at round-off.
+                let unproven =
+                    iterations == 0 && self.start_predicted && !at_round_off(residual, &ws.z);
+                if polishing || (residual <= s.polish_below * s.tolerance && !unproven) {
                     if !last_chord || chord_polished || iterations >= s.max_iterations {
                         termination = Termination::Converged;
                         break;

@@ -290,6 +290,18 @@ const POLISH_CHORD_STEPS: usize = 4;
 /// round-off (a chord step contracts by its rate, so the next one moves it by less).
 const POLISH_CHORD_FLOOR: f64 = 1e-2;
 
+/// A predicted start ([`McpSolver::set_start_predicted`]) is returned as it stands when its
+/// natural residual is within this many units of round-off of `‖z‖∞` (Newton's
+/// `NewtonSettings::chord_round_off_floor` default).
+const START_ROUND_OFF_ULPS: f64 = 4.0;
+
+/// Whether the natural residual `r` at `z` is at the round-off floor of `z`
+/// ([`START_ROUND_OFF_ULPS`]).
+fn at_round_off(r: f64, z: &[f64]) -> bool {
+    let scale = z.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    r <= START_ROUND_OFF_ULPS * f64::EPSILON * scale
+}
+
 /// A full crash step that lowers the natural residual by this factor is followed by a chord
 /// step on its LU (as Newton's `chord_contraction`): close enough to the solution that the
 /// Jacobian's change over the step is small. A step that gains less (far from the solution, or
@@ -495,6 +507,8 @@ pub struct PathSolver {
     result: Solution,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     iteration_budget: Option<usize>,
+    /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
+    start_predicted: bool,
 }
 
 impl PathSolver {
@@ -600,6 +614,7 @@ impl PathSolver {
             pivot_budget: None,
             fischer: false,
             iteration_budget: None,
+            start_predicted: false,
         }
     }
     /// Whether the wall-clock budget of the current solve is spent.
@@ -1155,6 +1170,11 @@ impl PathSolver {
             *best_residual = residual;
             self.best_in_current = true;
         }
+        // A predicted start (`McpSolver::set_start_predicted`) below the polish bound is not a
+        // point converged to: it takes the polish unless it is at round-off.
+        let mut polish_start = self.start_predicted
+            && residual <= s.polish_below * s.tolerance
+            && !at_round_off(residual, &self.current.z);
         let mut termination = if self.current.merit.is_finite() {
             Termination::MaxIterations
         } else {
@@ -1537,7 +1557,8 @@ impl PathSolver {
         let mut chords = 0;
         let mut chord_last = chord_landed;
         while residual <= s.tolerance && n > 0 && !self.out_of_time() {
-            let above = residual > s.polish_below * s.tolerance;
+            let above =
+                residual > s.polish_below * s.tolerance || std::mem::take(&mut polish_start);
             // The chord's polish only above a floor: a chord step that ended far below the
             // bound is at round-off already (the desk: 2e-16).
             if !above
@@ -1731,6 +1752,13 @@ impl McpSolver for PathSolver {
     /// stopped after `budget` iterations (at most [`PathSettings::max_iterations`]).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
         self.iteration_budget = budget;
+        true
+    }
+
+    /// Honoured: a predicted start below `polish_below · tolerance` is returned as it stands
+    /// only at the round-off floor (`START_ROUND_OFF_ULPS`), else it takes the polish's steps.
+    fn set_start_predicted(&mut self, predicted: bool) -> bool {
+        self.start_predicted = predicted;
         true
     }
 

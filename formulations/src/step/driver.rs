@@ -882,9 +882,16 @@ impl Simulation {
             self.start_budget
         };
         let budgeted = first_budget.is_some() && solver.set_iteration_budget(first_budget);
+        // An extrapolated start is a prediction: the backend returns it as it stands only at
+        // round-off, else polishes it (`McpSolver::set_start_predicted`); the retry starts
+        // (the previous answer, the active-contact guess) are not.
+        let predicted = extrapolated && solver.set_start_predicted(true);
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
         if budgeted {
             solver.set_iteration_budget(None);
+        }
+        if predicted {
+            solver.set_start_predicted(false);
         }
         let mut failure = match first {
             Ok(()) => return Ok(()),
