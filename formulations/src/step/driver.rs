@@ -233,6 +233,10 @@ struct Kept {
     solution: Solution,
     last: Option<LastStep>,
     history: History,
+    /// The last prepared span's first solve was from a predicted start
+    /// ([`McpSolver::set_start_predicted`], honoured by the backend): a solve of 0 iterations
+    /// there returned a start at round-off.
+    predicted: bool,
 }
 
 /// The states and `z` at the start of a step, for going back to it.
@@ -890,6 +894,7 @@ impl Simulation {
         let predicted = extrapolated
             && self.formulation.warm_start_order() > QUADRATIC
             && solver.set_start_predicted(true);
+        self.kept.predicted = predicted;
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
         if budgeted {
             solver.set_iteration_budget(None);
@@ -1141,13 +1146,18 @@ impl Simulation {
         // step, drifts (the T-bar at rest, ω off by up to 1.7e-12 after 8 steps of 0 iterations;
         // its residual stays below the tolerance). A step that took more iterations was an
         // event (an impact settling, a change of feature), which the next steps do not continue.
+        // Except a predicted start returned as it stood (`Kept::predicted`): the backend took it
+        // only at round-off, an answer as refined as a polished one; clearing the history after
+        // it cost the next steps their order-5 start (PATH's `056_union_slide`: 0, 5, 3, 2, 1
+        // iterations while the history refilled).
         let retried = (solution.summary.counters)
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
-        let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
+        let iterations = solution.summary.iterations;
+        let easy = (1..=SMOOTH_ITERATIONS).contains(&iterations)
+            || (iterations == 0 && self.kept.predicted);
         if self.extrapolates(solver) && whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
-            let iterations = solution.summary.iterations;
             self.kept.history.push(&self.z, origin, iterations);
         } else {
             self.kept.history.clear();
