@@ -3445,6 +3445,43 @@ mod tests {
     }
 
     #[test]
+    fn a_predicted_start_below_the_polish_bound_is_polished_unless_at_round_off() {
+        let (exact, _) = smooth_three_start();
+        // The solution moved by 2e-14 in `z0`: a natural residual of ≈ 3e-14, below
+        // `polish_below · tolerance` (1e-13) and above the round-off floor (4 ulps of ‖z‖∞).
+        let start = vec![exact[0] + 2e-14, exact[1], exact[2]];
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        let plain = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(plain.summary.iterations, 0);
+        assert_eq!(plain.z, start);
+        let r = plain.summary.residual;
+        assert!(r > 1e-14 && r <= 1e-13, "{r}");
+        // Predicted (`McpSolver::set_start_predicted`): one polish step, to round-off.
+        assert!(solver.set_start_predicted(true));
+        let polished = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(polished.summary.iterations, 1, "{:?}", polished.summary);
+        assert!(polished.summary.residual <= 1e-15, "{:?}", polished.summary);
+        assert!((polished.z[0] - exact[0]).abs() <= 1e-15);
+        // The solution itself (at round-off) stands.
+        let stands = solver
+            .solve(&smooth_three(), &exact)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(stands.summary.iterations, 0, "{:?}", stands.summary);
+        assert_eq!(stands.z, exact);
+        // Unset: as before, bit for bit.
+        assert!(solver.set_start_predicted(false));
+        let again = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(again.z, plain.z);
+        assert_eq!(again.summary.iterations, 0);
+    }
+
+    #[test]
     fn a_chord_step_at_the_round_off_floor_ends_the_run_without_the_polish() {
         let (exact, start) = smooth_three_start();
         let solve = |floor, polish_below| {

@@ -2116,6 +2116,35 @@ mod tests {
     }
 
     #[test]
+    fn a_predicted_start_below_the_polish_bound_is_polished_unless_at_round_off() {
+        // `z0 = 1 + 1.5e-14` misses the root by a residual of ≈ 4.5e-14: below `polish_below ·
+        // tolerance` (1e-13), so a start returned as it stands, but 50 ulps above round-off.
+        let p = shifted_root(0.0);
+        let start = [1.0 + 1.5e-14, 0.0];
+        let mut solver = PathSolver::new(PathSettings::default());
+        let plain = solver.solve(&p, &start).unwrap();
+        assert_eq!(plain.summary.iterations, 0);
+        assert_eq!(plain.z, start);
+        let r = plain.summary.residual;
+        assert!(r > 1e-14 && r <= 1e-13, "{r}");
+        // Predicted (`McpSolver::set_start_predicted`): polished to the root.
+        assert!(solver.set_start_predicted(true));
+        let polished = solver.solve(&p, &start).unwrap();
+        assert!(polished.summary.iterations >= 1, "{:?}", polished.summary);
+        assert!(polished.summary.residual <= 2e-15, "{:?}", polished.summary);
+        assert!((polished.z[0] - 1.0).abs() <= 1e-15, "{:?}", polished.z);
+        // At round-off (the root itself) a predicted start stands.
+        let exact = solver.solve(&p, &[1.0, 0.0]).unwrap();
+        assert_eq!(exact.summary.iterations, 0);
+        assert_eq!(exact.z, [1.0, 0.0]);
+        // Unset: as before.
+        assert!(solver.set_start_predicted(false));
+        let again = solver.solve(&p, &start).unwrap();
+        assert_eq!(again.z, plain.z);
+        assert_eq!(again.summary.iterations, 0);
+    }
+
+    #[test]
     fn path_polish_takes_chord_steps_on_the_crash_steps_lu() {
         // `z0² + z0 = 2` (free) and `z1 ≥ 0` with `F1 = z1 + 1 + z0/10 > 0` (at its bound), from
         // `z0 = 1 + 1e-6`: the crash step lands at a residual of about 3e-13, within the
