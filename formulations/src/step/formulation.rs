@@ -71,10 +71,11 @@ pub struct StepContext<'a> {
     pub h: f64,
     /// The step the span belongs to, from 1.
     pub step: usize,
-    /// The iterates after the read-out of the two (or three) steps before this span, when the
-    /// span is a whole step and they were solved directly, in one piece, from their warm start
-    /// in 1–5 iterations (no retry, no fallback), in the same origin, with no state, parameter or
-    /// data set since.
+    /// The iterates after the read-out of the last steps before this span (two to six,
+    /// `history::KEPT`, newest first), when the span is a whole step and they were solved
+    /// directly, in one piece, from their warm start in 1–5 iterations (or in 0 from a predicted
+    /// start, which the backend took only at round-off: `McpSolver::set_start_predicted`), no
+    /// retry, no fallback, in the same origin, with no state, parameter or data set since.
     /// What a warm start may extrapolate from
     /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`); `None` otherwise.
     pub history: Option<Iterates<'a>>,
