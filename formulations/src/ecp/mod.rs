@@ -808,14 +808,8 @@ impl StepFormulation for EcpContacts {
                 return None;
             }
             // The older iterates only as far back as each has the same modes too (and as the
-            // highest order reads). Short of a whole run the order is 2 at most
-            // (`extrapolation_order`), which reads `z_{k−2}`: the older ones' modes are not
-            // asked (A1, whose 0-iteration steps end its runs, tested up to two more a step).
-            it.truncate(if it.depth() > guess::MAX_ORDER {
-                guess::MAX_ORDER
-            } else {
-                2
-            });
+            // highest order reads).
+            it.truncate(guess::MAX_ORDER);
             for back in 2..it.depth() {
                 if !it
                     .at(back)
