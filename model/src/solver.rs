@@ -332,6 +332,19 @@ pub trait McpSolver {
         let _ = budget;
         false
     }
+    /// Marks the starts of the next solves, until it is set again, as predictions (`true`: a
+    /// time step's extrapolated warm start) or not. A backend that honours it returns a
+    /// predicted start as it stands only when its natural residual is at the round-off floor
+    /// of the point; a start below its polish bound but above that floor takes one polish
+    /// step, as a start just below the tolerance does. An extrapolation's miss is not the
+    /// round-off of the last answer, so accepting it anywhere below the polish bound would
+    /// move results by up to that bound's effect on the unknowns (the T-bar with PATH: 1.16e-12
+    /// at a start of residual 9.9e-14, `docs/latency.md`, branch wip-xorder2). Returns whether
+    /// the backend honours it; the default does not (and ignores it).
+    fn set_start_predicted(&mut self, predicted: bool) -> bool {
+        let _ = predicted;
+        false
+    }
     /// Whether the backend's converged point does not depend on its starting point beyond
     /// round-off: it converges fast enough near a solution to end far below its tolerance
     /// (semismooth Newton: quadratically, to ~1e-16), so that two starts of one step give the

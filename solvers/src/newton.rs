@@ -646,6 +646,8 @@ pub struct NewtonSolver {
     in_continuation: bool,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     budget: Option<usize>,
+    /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
+    start_predicted: bool,
     /// `linear` holds the LU of an `H` formed at `Workspace::z_lu` by the last solve, which
     /// converged with it (no pinned columns, a descent step): the next solve's first iteration
     /// may take a chord step on it ([`NewtonSettings::chord_across_solves`]). Cleared when the
@@ -713,6 +715,7 @@ impl NewtonSolver {
             min_norm_kept: 0,
             in_continuation: false,
             budget: None,
+            start_predicted: false,
             kept_lu: false,
             kept_lu_gate: KeptLuGate::default(),
             last_iterated: true,
@@ -1540,6 +1543,14 @@ impl McpSolver for NewtonSolver {
         true
     }
 
+    /// Honoured: a predicted start below `polish_below · tolerance` is returned as it stands
+    /// only at the round-off floor ([`NewtonSettings::chord_round_off_floor`]; without it,
+    /// never), else it takes the polish's full step.
+    fn set_start_predicted(&mut self, predicted: bool) -> bool {
+        self.start_predicted = predicted;
+        true
+    }
+
     /// Near a solution the iteration converges quadratically, far below the tolerance.
     fn converges_to_round_off(&self) -> bool {
         true
@@ -2019,7 +2030,11 @@ impl NewtonSolver {
                 // Converged; one more full Newton step when the residual is just below the
                 // tolerance (see `NewtonSettings::polish_below`), one more chord step when the
                 // last step was one (its rate is linear: it ends a factor above round-off).
-                if polishing || residual <= s.polish_below * s.tolerance {
+                // A predicted start (`McpSolver::set_start_predicted`) is not a point
+                // converged to: below the polish bound it stands only at round-off.
+                let unproven =
+                    iterations == 0 && self.start_predicted && !at_round_off(residual, &ws.z);
+                if polishing || (residual <= s.polish_below * s.tolerance && !unproven) {
                     if !last_chord || chord_polished || iterations >= s.max_iterations {
                         termination = Termination::Converged;
                         break;
@@ -3437,6 +3452,43 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(within.z, full.z);
         assert_eq!(within.summary.iterations, full.summary.iterations);
+    }
+
+    #[test]
+    fn a_predicted_start_below_the_polish_bound_is_polished_unless_at_round_off() {
+        let (exact, _) = smooth_three_start();
+        // The solution moved by 2e-14 in `z0`: a natural residual of ≈ 3e-14, below
+        // `polish_below · tolerance` (1e-13) and above the round-off floor (4 ulps of ‖z‖∞).
+        let start = vec![exact[0] + 2e-14, exact[1], exact[2]];
+        let mut solver = NewtonSolver::new(NewtonSettings::default());
+        let plain = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(plain.summary.iterations, 0);
+        assert_eq!(plain.z, start);
+        let r = plain.summary.residual;
+        assert!(r > 1e-14 && r <= 1e-13, "{r}");
+        // Predicted (`McpSolver::set_start_predicted`): one polish step, to round-off.
+        assert!(solver.set_start_predicted(true));
+        let polished = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(polished.summary.iterations, 1, "{:?}", polished.summary);
+        assert!(polished.summary.residual <= 1e-15, "{:?}", polished.summary);
+        assert!((polished.z[0] - exact[0]).abs() <= 1e-15);
+        // The solution itself (at round-off) stands.
+        let stands = solver
+            .solve(&smooth_three(), &exact)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(stands.summary.iterations, 0, "{:?}", stands.summary);
+        assert_eq!(stands.z, exact);
+        // Unset: as before, bit for bit.
+        assert!(solver.set_start_predicted(false));
+        let again = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(again.z, plain.z);
+        assert_eq!(again.summary.iterations, 0);
     }
 
     #[test]

@@ -290,6 +290,18 @@ const POLISH_CHORD_STEPS: usize = 4;
 /// round-off (a chord step contracts by its rate, so the next one moves it by less).
 const POLISH_CHORD_FLOOR: f64 = 1e-2;
 
+/// A predicted start ([`McpSolver::set_start_predicted`]) is returned as it stands when its
+/// natural residual is within this many units of round-off of `‖z‖∞` (Newton's
+/// `NewtonSettings::chord_round_off_floor` default).
+const START_ROUND_OFF_ULPS: f64 = 4.0;
+
+/// Whether the natural residual `r` at `z` is at the round-off floor of `z`
+/// ([`START_ROUND_OFF_ULPS`]).
+fn at_round_off(r: f64, z: &[f64]) -> bool {
+    let scale = z.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    r <= START_ROUND_OFF_ULPS * f64::EPSILON * scale
+}
+
 /// A full crash step that lowers the natural residual by this factor is followed by a chord
 /// step on its LU (as Newton's `chord_contraction`): close enough to the solution that the
 /// Jacobian's change over the step is small. A step that gains less (far from the solution, or
@@ -499,6 +511,8 @@ pub struct PathSolver {
     result: Solution,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     iteration_budget: Option<usize>,
+    /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
+    start_predicted: bool,
 }
 
 impl PathSolver {
@@ -605,6 +619,7 @@ impl PathSolver {
             pivot_budget: None,
             fischer: false,
             iteration_budget: None,
+            start_predicted: false,
         }
     }
     /// Whether the wall-clock budget of the current solve is spent.
@@ -1166,6 +1181,11 @@ impl PathSolver {
             *best_residual = residual;
             self.best_in_current = true;
         }
+        // A predicted start (`McpSolver::set_start_predicted`) below the polish bound is not a
+        // point converged to: it takes the polish unless it is at round-off.
+        let mut polish_start = self.start_predicted
+            && residual <= s.polish_below * s.tolerance
+            && !at_round_off(residual, &self.current.z);
         let mut termination = if self.current.merit.is_finite() {
             Termination::MaxIterations
         } else {
@@ -1548,7 +1568,8 @@ impl PathSolver {
         let mut chords = 0;
         let mut chord_last = chord_landed;
         while residual <= s.tolerance && n > 0 && !self.out_of_time() {
-            let above = residual > s.polish_below * s.tolerance;
+            let above =
+                residual > s.polish_below * s.tolerance || std::mem::take(&mut polish_start);
             // The chord's polish only above a floor: a chord step that ended far below the
             // bound is at round-off already (the desk: 2e-16).
             if !above
@@ -1742,6 +1763,13 @@ impl McpSolver for PathSolver {
     /// stopped after `budget` iterations (at most [`PathSettings::max_iterations`]).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
         self.iteration_budget = budget;
+        true
+    }
+
+    /// Honoured: a predicted start below `polish_below · tolerance` is returned as it stands
+    /// only at the round-off floor (`START_ROUND_OFF_ULPS`), else it takes the polish's steps.
+    fn set_start_predicted(&mut self, predicted: bool) -> bool {
+        self.start_predicted = predicted;
         true
     }
 
@@ -2096,6 +2124,35 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn a_predicted_start_below_the_polish_bound_is_polished_unless_at_round_off() {
+        // `z0 = 1 + 1.5e-14` misses the root by a residual of ≈ 4.5e-14: below `polish_below ·
+        // tolerance` (1e-13), so a start returned as it stands, but 50 ulps above round-off.
+        let p = shifted_root(0.0);
+        let start = [1.0 + 1.5e-14, 0.0];
+        let mut solver = PathSolver::new(PathSettings::default());
+        let plain = solver.solve(&p, &start).unwrap();
+        assert_eq!(plain.summary.iterations, 0);
+        assert_eq!(plain.z, start);
+        let r = plain.summary.residual;
+        assert!(r > 1e-14 && r <= 1e-13, "{r}");
+        // Predicted (`McpSolver::set_start_predicted`): polished to the root.
+        assert!(solver.set_start_predicted(true));
+        let polished = solver.solve(&p, &start).unwrap();
+        assert!(polished.summary.iterations >= 1, "{:?}", polished.summary);
+        assert!(polished.summary.residual <= 2e-15, "{:?}", polished.summary);
+        assert!((polished.z[0] - 1.0).abs() <= 1e-15, "{:?}", polished.z);
+        // At round-off (the root itself) a predicted start stands.
+        let exact = solver.solve(&p, &[1.0, 0.0]).unwrap();
+        assert_eq!(exact.summary.iterations, 0);
+        assert_eq!(exact.z, [1.0, 0.0]);
+        // Unset: as before.
+        assert!(solver.set_start_predicted(false));
+        let again = solver.solve(&p, &start).unwrap();
+        assert_eq!(again.z, plain.z);
+        assert_eq!(again.summary.iterations, 0);
     }
 
     #[test]

@@ -83,6 +83,8 @@ pub struct EcpContacts {
     /// The span's warm start was extrapolated from the last two steps (`guess::extrapolate`):
     /// the first retry is then today's warm start.
     extrapolated: bool,
+    /// The order of that extrapolation (`StepFormulation::warm_start_order`), 0 without one.
+    order: usize,
     /// Storage of the guard of the extrapolated warm start (`warm_start`): the start chosen,
     /// `F` and `Φ` there (`StepFormulation::warm_start_value`, `warm_start_fb_vector`), and `F`
     /// and `Φ` at the other start.
@@ -158,6 +160,7 @@ impl EcpContacts {
             touching: Kept::default(),
             rotations: Rotations::default(),
             extrapolated: false,
+            order: 0,
             start: Vec::new(),
             start_f: Vec::new(),
             start_phi: Vec::new(),
@@ -180,6 +183,7 @@ impl EcpContacts {
             touching: Kept::default(),
             rotations: Rotations::default(),
             extrapolated: false,
+            order: 0,
             start: Vec::new(),
             start_f: Vec::new(),
             start_phi: Vec::new(),
@@ -820,6 +824,7 @@ impl StepFormulation for EcpContacts {
         self.start_known = false;
         let Some(it) = smooth else {
             self.extrapolated = false;
+            self.order = 0;
             self.warm_start_from(ctx, mcp, z, None);
             return;
         };
@@ -875,6 +880,7 @@ impl StepFormulation for EcpContacts {
                 self.extrapolated = merit < plain_merit;
             }
         }
+        self.order = if self.extrapolated { past.order() } else { 0 };
         if self.extrapolated {
             start.clear();
             start.extend_from_slice(z);
@@ -893,6 +899,10 @@ impl StepFormulation for EcpContacts {
 
     fn warm_start_extrapolated(&self) -> bool {
         self.extrapolated
+    }
+
+    fn warm_start_order(&self) -> usize {
+        self.order
     }
 
     fn warm_start_value(&self) -> Option<(&[f64], &[f64])> {

@@ -16,7 +16,7 @@ use ecp_model::{
 };
 
 use super::fallback::{Fallbacks, Spans, rescue};
-use super::formulation::{Capabilities, Prepared, StepContext, StepFormulation};
+use super::formulation::{Capabilities, Prepared, QUADRATIC, StepContext, StepFormulation};
 use super::handles::StepHandles;
 use super::history::History;
 use super::params::{Param, ParamError};
@@ -233,6 +233,10 @@ struct Kept {
     solution: Solution,
     last: Option<LastStep>,
     history: History,
+    /// The last prepared span's first solve was from a predicted start
+    /// ([`McpSolver::set_start_predicted`], honoured by the backend): a solve of 0 iterations
+    /// there returned a start at round-off.
+    predicted: bool,
 }
 
 /// The states and `z` at the start of a step, for going back to it.
@@ -882,9 +886,21 @@ impl Simulation {
             self.start_budget
         };
         let budgeted = first_budget.is_some() && solver.set_iteration_budget(first_budget);
+        // A start extrapolated beyond the quadratic is a prediction: the backend returns it as
+        // it stands only at round-off, else polishes it (`McpSolver::set_start_predicted`).
+        // Orders 1–2 continue polynomial motion to round-off (A1's constant deceleration: its
+        // starts at 1–8 ulps of `‖z‖∞` polished cost 29 → 39 Newton iterations over 50 steps)
+        // and are kept as they were; the retry starts are not predictions.
+        let predicted = extrapolated
+            && self.formulation.warm_start_order() > QUADRATIC
+            && solver.set_start_predicted(true);
+        self.kept.predicted = predicted;
         let first = solver.solve_into(&self.step_problem(), &self.z, out);
         if budgeted {
             solver.set_iteration_budget(None);
+        }
+        if predicted {
+            solver.set_start_predicted(false);
         }
         let mut failure = match first {
             Ok(()) => return Ok(()),
@@ -1130,13 +1146,18 @@ impl Simulation {
         // step, drifts (the T-bar at rest, ω off by up to 1.7e-12 after 8 steps of 0 iterations;
         // its residual stays below the tolerance). A step that took more iterations was an
         // event (an impact settling, a change of feature), which the next steps do not continue.
+        // Except a predicted start returned as it stood (`Kept::predicted`): the backend took it
+        // only at round-off, an answer as refined as a polished one; clearing the history after
+        // it cost the next steps their order-5 start (PATH's `056_union_slide`: 0, 5, 3, 2, 1
+        // iterations while the history refilled).
         let retried = (solution.summary.counters)
             .get(ecp_model::Counter::Retries)
             .is_some_and(|n| n > 0);
-        let easy = (1..=SMOOTH_ITERATIONS).contains(&solution.summary.iterations);
+        let iterations = solution.summary.iterations;
+        let easy = (1..=SMOOTH_ITERATIONS).contains(&iterations)
+            || (iterations == 0 && self.kept.predicted);
         if self.extrapolates(solver) && whole && method == StepMethod::Direct && !retried && easy {
             let origin = self.formulation.origin();
-            let iterations = solution.summary.iterations;
             self.kept.history.push(&self.z, origin, iterations);
         } else {
             self.kept.history.clear();
@@ -1639,6 +1660,9 @@ mod tests {
         }
         fn warm_start_extrapolated(&self) -> bool {
             self.0.warm_start_extrapolated()
+        }
+        fn warm_start_order(&self) -> usize {
+            self.0.warm_start_order()
         }
         fn retry_start(
             &mut self,

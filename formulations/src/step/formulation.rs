@@ -16,6 +16,11 @@ use ecp_model::{BlockMcp, Problem, StepStructure};
 use super::handles::StepHandles;
 use super::history::Iterates;
 use crate::record::{ContactRecord, PairRecord};
+
+/// The highest order of extrapolation ([`StepFormulation::warm_start_order`]) whose start the
+/// driver takes as before the order-5 start (branch wip-xorder): a polynomial motion of degree
+/// 2 at most continued to round-off.
+pub const QUADRATIC: usize = 2;
 use crate::scene::{BodyState, Scene, SceneError};
 
 /// How exact the step sensitivities of a formulation are (`docs/fitting.md`).
@@ -66,10 +71,11 @@ pub struct StepContext<'a> {
     pub h: f64,
     /// The step the span belongs to, from 1.
     pub step: usize,
-    /// The iterates after the read-out of the two (or three) steps before this span, when the
-    /// span is a whole step and they were solved directly, in one piece, from their warm start
-    /// in 1–5 iterations (no retry, no fallback), in the same origin, with no state, parameter or
-    /// data set since.
+    /// The iterates after the read-out of the last steps before this span (two to six,
+    /// `history::KEPT`, newest first), when the span is a whole step and they were solved
+    /// directly, in one piece, from their warm start in 1–5 iterations (or in 0 from a predicted
+    /// start, which the backend took only at round-off: `McpSolver::set_start_predicted`), no
+    /// retry, no fallback, in the same origin, with no state, parameter or data set since.
     /// What a warm start may extrapolate from
     /// (`docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`); `None` otherwise.
     pub history: Option<Iterates<'a>>,
@@ -160,6 +166,15 @@ pub trait StepFormulation: Any + Send {
     /// extrapolation). The default is `false`.
     fn warm_start_extrapolated(&self) -> bool {
         false
+    }
+    /// The order of the extrapolation the last [`StepFormulation::warm_start`] took (the degree
+    /// of its polynomial in the steps: 1, 2 or 5 for the hull formulation), 0 when it did not
+    /// extrapolate. Above [`QUADRATIC`] the start is a prediction of a smooth motion, not a
+    /// polynomial one continued to round-off: the driver has the backend return it as it
+    /// stands only at round-off ([`ecp_model::McpSolver::set_start_predicted`]). The default
+    /// is 0.
+    fn warm_start_order(&self) -> usize {
+        0
     }
     /// The start the last [`StepFormulation::warm_start`] wrote and `F` there, when it evaluated
     /// `F` at that start on the step problem it was given (the extrapolated warm start's guard
