@@ -224,29 +224,16 @@ fn gap_and_mode_bounded<const MERGE: bool>(
     if !(lift.is_finite() && margin.is_finite()) {
         return gap_and_mode_merging::<MERGE>(body_vertices, (x, r), plane, tol, touching);
     }
-    // The vertices with `b ≤ cut` as `gap_and_mode_merging` takes them, and the least bound.
-    let pass = |cut: f64, touching: &mut Vec<Vector3<f64>>| {
-        touching.clear();
-        let (mut gap, mut lowest) = (f64::INFINITY, f64::INFINITY);
-        for v in body_vertices {
-            let b = w.dot(v);
-            lowest = lowest.min(b);
-            if b > cut {
-                continue;
-            }
-            let p = x + r * v;
-            let g = plane.value(&p);
-            gap = gap.min(g);
-            if g <= tol && !(MERGE && touching.iter().any(|q| merges(q, &p))) {
-                touching.push(p);
-            }
-        }
-        (gap, lowest)
-    };
     let near = (tol - lift) + 2.0 * margin;
-    let (mut gap, lowest) = pass(near, touching);
+    let pose = (x, r);
+    let mut gap = gap_of_kept::<MERGE>(body_vertices, &w, near, pose, plane, tol, touching);
     if !(gap <= tol) {
-        gap = pass((lowest + 3.0 * margin).max(near), touching).0;
+        let lowest = body_vertices
+            .iter()
+            .map(|v| w.dot(v))
+            .fold(f64::INFINITY, |m, b| if b < m { b } else { m });
+        let cut = (lowest + 3.0 * margin).max(near);
+        gap = gap_of_kept::<MERGE>(body_vertices, &w, cut, pose, plane, tol, touching);
     }
     // Every computed world coordinate is within `size` (to round-off).
     let mode = if size <= 1e75 {
@@ -255,6 +242,36 @@ fn gap_and_mode_bounded<const MERGE: bool>(
         mode_of_touching(touching, tol)
     };
     (gap, mode)
+}
+
+/// The pass of [`gap_and_mode_bounded`]: the vertices with `w·v ≤ cut` (or NaN) as
+/// `gap_and_mode_merging` takes them; their least gap. Copies of `w`, `x` and `R` stay in
+/// registers across the pushes.
+#[inline(always)]
+fn gap_of_kept<const MERGE: bool>(
+    body_vertices: &[Vector3<f64>],
+    w: &Vector3<f64>,
+    cut: f64,
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> f64 {
+    let (w, x, r, plane) = (*w, *x, *r, *plane);
+    touching.clear();
+    let mut gap = f64::INFINITY;
+    for v in body_vertices {
+        if w.dot(v) > cut {
+            continue;
+        }
+        let p = x + r * v;
+        let g = plane.value(&p);
+        gap = gap.min(g);
+        if g <= tol && !(MERGE && touching.iter().any(|q| merges(q, &p))) {
+            touching.push(p);
+        }
+    }
+    gap
 }
 
 /// [`gap_and_mode_at`], the merge tests made only when `MERGE`.
