@@ -227,7 +227,8 @@ fn gap_and_mode_bounded<const MERGE: bool>(
     let near = (tol - lift) + 2.0 * margin;
     let pose = (x, r);
     let mut gap = gap_of_kept::<MERGE>(body_vertices, &w, near, pose, plane, tol, touching);
-    if !(gap <= tol) {
+    // Neither is NaN here (`min` passes NaN over; a NaN `tol` made the margin NaN above).
+    if gap > tol {
         let lowest = body_vertices
             .iter()
             .map(|v| w.dot(v))
