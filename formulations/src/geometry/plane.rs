@@ -180,11 +180,99 @@ pub fn gap_and_mode_spaced(
     tol: f64,
     touching: &mut Vec<Vector3<f64>>,
 ) -> (f64, ContactMode) {
-    if spacing.count == body_vertices.len() && spacing.never_merge_at(pose.0) {
-        gap_and_mode_merging::<false>(body_vertices, pose, plane, tol, touching)
-    } else {
+    if spacing.count != body_vertices.len() {
         gap_and_mode_merging::<true>(body_vertices, pose, plane, tol, touching)
+    } else if spacing.never_merge_at(pose.0) {
+        gap_and_mode_bounded::<false>(body_vertices, spacing.extent, pose, plane, tol, touching)
+    } else {
+        gap_and_mode_bounded::<true>(body_vertices, spacing.extent, pose, plane, tol, touching)
     }
+}
+
+/// [`gap_and_mode_merging`] that skips the world position of every vertex whose gap provably
+/// can be neither the least nor within `tol` (a desk at rest: its 24 vertices off the floor).
+/// `extent` bounds the vertices' coordinates (`VertexSpacing::extent`). The same numbers.
+///
+/// The bound: `b = (Rᵀn)·v` (computed), so that `g = n·(x + R v) − c ≈ lift + b` with
+/// `lift = n·x − c`. With `U = ‖x‖₁ + 3 extent Σ|R_ij|` (at least `‖x‖∞ + 3 max|R| extent`,
+/// which bounds every term), the computed `g` and `lift + b` are each within about 60 units of
+/// round-off of `U` (and 2 of `|c|`) of the exact value (dot products of three terms,
+/// `|n| = 1`); `margin` = 1e-13 (U + |c| + |tol|), over 15 times both together, also covers
+/// the round-off of the thresholds' own sums. A vertex with `b > (tol − lift) + 2 margin`
+/// has `g > tol`: it does not touch. The first pass skips those; if a kept vertex touches,
+/// the skipped ones are above its gap too, so the least gap and the touching points are
+/// those of every vertex. Otherwise a second pass from the start keeps besides the vertices
+/// with `b ≤ lowest + 3 margin`: a vertex above that has its gap above that of the vertex of
+/// the least bound (kept), so it is not the least. Either way the vertices kept are computed
+/// as before and in the same order: the touching points, their merges and the mode are the
+/// same, and the least gap the same bits (a skipped gap is above it, so `min` with it would
+/// have returned the other operand; ties, ±0 among them, are all kept, in order). NaN bounds
+/// are never skipped; a non-finite `lift` or margin (non-finite input) takes every vertex.
+#[inline(always)]
+fn gap_and_mode_bounded<const MERGE: bool>(
+    body_vertices: &[Vector3<f64>],
+    extent: f64,
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> (f64, ContactMode) {
+    let w = r.tr_mul(&plane.normal);
+    let lift = plane.normal.dot(x) - plane.offset;
+    let size = x.abs().sum() + 3.0 * r.abs().sum() * extent + plane.offset.abs() + tol.abs();
+    let margin = 1e-13 * size + f64::MIN_POSITIVE;
+    if !(lift.is_finite() && margin.is_finite()) {
+        return gap_and_mode_merging::<MERGE>(body_vertices, (x, r), plane, tol, touching);
+    }
+    let near = (tol - lift) + 2.0 * margin;
+    let pose = (x, r);
+    let mut gap = gap_of_kept::<MERGE>(body_vertices, &w, near, pose, plane, tol, touching);
+    // Neither is NaN here (`min` passes NaN over; a NaN `tol` made the margin NaN above).
+    if gap > tol {
+        let lowest = body_vertices
+            .iter()
+            .map(|v| w.dot(v))
+            .fold(f64::INFINITY, |m, b| if b < m { b } else { m });
+        let cut = (lowest + 3.0 * margin).max(near);
+        gap = gap_of_kept::<MERGE>(body_vertices, &w, cut, pose, plane, tol, touching);
+    }
+    // Every computed world coordinate is within `size` (to round-off).
+    let mode = if size <= 1e75 {
+        mode_of_touching_moderate(touching, tol)
+    } else {
+        mode_of_touching(touching, tol)
+    };
+    (gap, mode)
+}
+
+/// The pass of [`gap_and_mode_bounded`]: the vertices with `w·v ≤ cut` (or NaN) as
+/// `gap_and_mode_merging` takes them; their least gap. Copies of `w`, `x` and `R` stay in
+/// registers across the pushes.
+#[inline(always)]
+fn gap_of_kept<const MERGE: bool>(
+    body_vertices: &[Vector3<f64>],
+    w: &Vector3<f64>,
+    cut: f64,
+    (x, r): (&Vector3<f64>, &Matrix3<f64>),
+    plane: &HalfSpace,
+    tol: f64,
+    touching: &mut Vec<Vector3<f64>>,
+) -> f64 {
+    let (w, x, r, plane) = (*w, *x, *r, *plane);
+    touching.clear();
+    let mut gap = f64::INFINITY;
+    for v in body_vertices {
+        if w.dot(v) > cut {
+            continue;
+        }
+        let p = x + r * v;
+        let g = plane.value(&p);
+        gap = gap.min(g);
+        if g <= tol && !(MERGE && touching.iter().any(|q| merges(q, &p))) {
+            touching.push(p);
+        }
+    }
+    gap
 }
 
 /// [`gap_and_mode_at`], the merge tests made only when `MERGE`.
@@ -304,6 +392,39 @@ fn mode_of_touching(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
     } else {
         ContactMode::Patch
     }
+}
+
+/// [`mode_of_touching`] of touching points whose coordinates are at most 1e75 in magnitude (no
+/// square below overflows), deciding `Patch` from the first three points alone where they
+/// prove it (a desk at rest: three corners of a leg), without the pass for the farthest point.
+///
+/// Why that is the same mode: with `r_a`, `r_b` the second and third points less the first,
+/// and any unit direction `û`, `|r_a × r_b| ≤ |r_a| d_b + |r_b| d_a + d_a d_b` (`d` the distance
+/// from the line through the first point along `û`), so if `|r_a × r_b| > s (|r_a| + |r_b| + s)`
+/// one of `d_a`, `d_b` exceeds `s`. `mode_of_touching`'s line runs along its computed `u`,
+/// a unit vector to a few units of round-off; its computed distance of a point `r` is then
+/// within about 25 units of round-off of `|r|` of the exact one, so `s = tol + 1e-14 (|r_a| +
+/// |r_b|)` makes one computed distance exceed `tol`: `Patch`, as the spread (at least `|r_a|`,
+/// the same computed norm) exceeds `tol` too. The computed cross product's norm is within
+/// about 12 units of round-off of `|r_a| |r_b|` of the exact one: the `1e-14 |r_a| |r_b|` term
+/// and the factor `1 + 1e-13` cover that and the bound's own round-off. Lengths below 1e-100
+/// (products near underflow), a negative or NaN `tol`, or fewer than three points: the full
+/// test.
+fn mode_of_touching_moderate(touching: &[Vector3<f64>], tol: f64) -> ContactMode {
+    if let [p0, a, b, ..] = touching {
+        let (ra, rb) = (a - p0, b - p0);
+        let (na, nb) = (ra.norm(), rb.norm());
+        let s = tol + 1e-14 * (na + nb);
+        let bound = (1.0 + 1e-13) * s * (na + nb + s) + 1e-14 * na * nb;
+        if tol >= 0.0
+            && (na > tol || nb > tol)
+            && na.min(nb) >= 1e-100
+            && ra.cross(&rb).norm() > bound
+        {
+            return ContactMode::Patch;
+        }
+    }
+    mode_of_touching(touching, tol)
 }
 
 /// World-frame positions `x + R v` of body-frame vertices `v`, for a body at
@@ -494,6 +615,159 @@ mod tests {
         let b = gap_and_mode_spaced(&close, &spacing, pose, &ground, TOL, &mut skipped);
         assert_eq!((a.0.to_bits(), a.1, &kept), (b.0.to_bits(), b.1, &skipped));
         assert_eq!(kept.len(), 2);
+    }
+
+    /// The bounded pass skips only vertices that can be neither the least gap nor touching:
+    /// its gap, mode and touching points are those of `gap_and_mode_at` (every vertex) bit for
+    /// bit, on the desk, the T-bar, random point clouds and clouds with near-coincident points
+    /// (the merge tests), at random and level poses on three planes, far from the origin, with
+    /// the lowest vertex a few units of round-off around the tolerance and around 0, tolerances
+    /// 1e-7, 0 and −1, and non-finite positions.
+    #[test]
+    fn bounded_gap_and_mode_are_those_of_every_vertex() {
+        fn bits(points: &[Vector3<f64>]) -> Vec<[u64; 3]> {
+            points
+                .iter()
+                .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
+                .collect()
+        }
+        let mut seed = 11u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let planes = [
+            HalfSpace::ground(),
+            HalfSpace::incline(0.3).expect("finite angle"),
+            HalfSpace::new(Vector3::new(0.2, -0.5, 1.0), 0.7).expect("non-zero normal"),
+        ];
+        let mut shapes = vec![
+            Shape::desk().vertices().to_vec(),
+            Shape::t_bar().vertices().to_vec(),
+        ];
+        for k in 0..6 {
+            shapes.push(
+                (0..3 + 5 * k)
+                    .map(|_| Vector3::new(next(), next(), next()))
+                    .collect(),
+            );
+        }
+        // Pairs closer than the merge tolerance, and level ties (a flat face at z = −0.25).
+        let mut close: Vec<Vector3<f64>> = (0..8)
+            .map(|_| Vector3::new(next(), next(), -0.25))
+            .collect();
+        close.push(close[0] + Vector3::new(3e-13, 0.0, 0.0));
+        close.push(close[3] + Vector3::new(0.0, -2e-13, 1e-13));
+        close.push(Vector3::new(0.0, 0.0, 0.4));
+        shapes.push(close);
+        let (mut all, mut bounded) = (Vec::new(), Vec::new());
+        let (mut cases, mut touched, mut modes) = (0, 0, [0usize; 4]);
+        for v in &shapes {
+            let spacing = VertexSpacing::of(v);
+            for (k, plane) in planes.iter().enumerate() {
+                let n = plane.normal();
+                for pose in 0..12 {
+                    let r = if pose < 3 {
+                        Matrix3::identity()
+                    } else {
+                        let (a, b, c) = (360.0 * next(), 360.0 * next(), 360.0 * next());
+                        rotation_matrix(&quat_from_rpy_deg(a, b, c))
+                    };
+                    let far = [0.0, 1e3, 1e7][pose % 3];
+                    let (t, _, o) = plane.contact_frame();
+                    let along = t * (far + next()) + o * next();
+                    // Place the lowest vertex at `target` (as computed), then step `x` by a
+                    // few units of round-off along the normal around it.
+                    for target in [TOL, 0.0, 1e-3] {
+                        let lowest = min_gap(v, &along, &r, plane);
+                        let base = along + n * (target - lowest);
+                        for ulps in -3i32..=3 {
+                            let x = base + n * (f64::from(ulps) * f64::EPSILON * (1.0 + far));
+                            for tol in [TOL, 0.0, -1.0] {
+                                let a = gap_and_mode_at(v, (&x, &r), plane, tol, &mut all);
+                                let pose = (&x, &r);
+                                let b = gap_and_mode_spaced(
+                                    v,
+                                    &spacing,
+                                    pose,
+                                    plane,
+                                    tol,
+                                    &mut bounded,
+                                );
+                                let what =
+                                    format!("plane {k}, target {target}, ulps {ulps}, tol {tol}");
+                                assert_eq!((a.0.to_bits(), a.1), (b.0.to_bits(), b.1), "{what}");
+                                assert_eq!(bits(&all), bits(&bounded), "{what}");
+                                cases += 1;
+                                touched += usize::from(a.0 == tol);
+                                modes[a.1 as usize] += 1;
+                            }
+                        }
+                    }
+                }
+            }
+            for bad in [f64::NAN, f64::INFINITY, f64::NEG_INFINITY, 1e300] {
+                for x in [Vector3::new(bad, 0.0, 0.1), Vector3::new(0.1, 0.2, bad)] {
+                    let r = Matrix3::identity();
+                    let a = gap_and_mode_at(v, (&x, &r), &planes[2], TOL, &mut all);
+                    let b =
+                        gap_and_mode_spaced(v, &spacing, (&x, &r), &planes[2], TOL, &mut bounded);
+                    assert_eq!((a.0.to_bits(), a.1), (b.0.to_bits(), b.1), "{x:?}");
+                    assert_eq!(bits(&all), bits(&bounded), "{x:?}");
+                }
+            }
+        }
+        // The lowest vertex exactly at the tolerance in some cases, and every mode met.
+        assert!(cases > 5000 && touched > 20, "{cases} {touched}");
+        assert!(modes.iter().all(|&m| m > 50), "{modes:?}");
+    }
+
+    /// The three-point `Patch` gives the mode of the full test: random sets near a point, a
+    /// line and a plane at scales 1e-9 to 1e6, triangles whose height is a relative 1e-12 to
+    /// 0.1 around the tolerance (the line then along another, farther point or the first two),
+    /// and tolerances 1e-7, 0, −1 and NaN.
+    #[test]
+    fn three_points_decide_a_patch_as_the_full_test() {
+        let mut seed = 5u64;
+        let mut next = || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        };
+        let mut modes = [0usize; 4];
+        for case in 0..4000 {
+            let scale = [1e-9, 1e-3, 1.0, 1e6][case % 4];
+            let off = [0.0, 5e-8, 2e-7, 0.3][(case / 4) % 4] * scale;
+            let shift = Vector3::new(next(), next(), next()) * [0.0, 1.0, 1e3][(case / 16) % 3];
+            let mut points: Vec<Vector3<f64>> = (0..1 + case % 11)
+                .map(|_| {
+                    let t = next() * scale;
+                    shift + Vector3::new(t, 0.5 * t + off * next(), off * next())
+                })
+                .collect();
+            if case % 5 == 0 && points.len() >= 3 {
+                // A triangle of height `h` near the tolerance: the first two points on the
+                // x axis, the third above their middle.
+                let h = TOL * (1.0 + [1e-12, -1e-12, 1e-6, -1e-6, 0.1, -0.1][(case / 5) % 6]);
+                let l = [2.0 * TOL, 1e-3, 1.0][(case / 30) % 3];
+                points[0] = shift;
+                points[1] = shift + Vector3::new(l, 0.0, 0.0);
+                points[2] = shift + Vector3::new(0.5 * l, h, 0.0);
+            }
+            for tol in [TOL, 0.0, -1.0, f64::NAN] {
+                let mode = mode_of_touching_moderate(&points, tol);
+                assert_eq!(
+                    mode,
+                    mode_of_touching(&points, tol),
+                    "case {case}, tol {tol}"
+                );
+                modes[mode as usize] += 1;
+            }
+        }
+        assert!(modes[..3].iter().all(|&m| m > 100), "{modes:?}");
     }
 
     /// The line test stops at the first point off the line: the mode of the largest distance
