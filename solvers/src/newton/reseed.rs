@@ -90,3 +90,18 @@ impl NewtonSolver {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Without a structure there is nothing to reseed: the failed solve's result stands, so
+    /// problems without contacts geometry (the MCP library) are solved as before.
+    #[test]
+    fn no_structure_no_reseed() {
+        let p = ecp_model::mcp_library::kojima_josephy();
+        let (_, z0) = &p.starts[0];
+        assert!(p.mcp.structure().is_none());
+        assert!(reseeded_start(&p.mcp, z0).is_none());
+    }
+}
