@@ -1524,15 +1524,16 @@ impl McpSolver for NewtonSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
-        let result = self.solve_from(mcp, z0);
-        match result {
-            Err(SolveError::NotConverged { best })
-                if self.budget.is_none() && self.settings.structure_reseed =>
-            {
-                self.reseed_attempt(mcp, z0, best)
-            }
-            r => r,
+        let mut result = self.solve_from(mcp, z0);
+        // Tested by reference and returned from the one variable (no copy of a converged
+        // solution): a converged solve costs a branch.
+        if self.budget.is_none()
+            && self.settings.structure_reseed
+            && matches!(result, Err(SolveError::NotConverged { .. }))
+        {
+            result = self.reseed_attempt(mcp, z0, result);
         }
+        result
     }
 
     /// [`McpSolver::solve`] with `out`'s storage: the first run writes its result there

@@ -54,16 +54,23 @@ pub(super) fn reseeded_start(mcp: &dyn Mcp, z0: &[f64]) -> Option<Vec<f64>> {
 }
 
 impl NewtonSolver {
-    /// After the whole solve from `z0` failed with `best`: the whole solve again from the
+    /// After the whole solve from `z0` failed (`failed`, returned as it is unless it is a
+    /// `NotConverged` with its best point `best`): the whole solve again from the
     /// reseeded start ([`reseeded_start`]); its result when it converges (its iterations
     /// counting the failed solve's, one `Counter::Custom("structure_reseed")`), else the
     /// better end point of the two.
+    #[cold]
+    #[inline(never)]
     pub(super) fn reseed_attempt(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
-        best: Box<Solution>,
+        failed: Result<Solution, SolveError>,
     ) -> Result<Solution, SolveError> {
+        let best = match failed {
+            Err(SolveError::NotConverged { best }) => best,
+            other => return other,
+        };
         let spent = best.summary.iterations;
         let Some(start) = reseeded_start(mcp, z0) else {
             return Err(SolveError::NotConverged { best });
