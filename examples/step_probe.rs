@@ -42,6 +42,7 @@ fn run() -> Result<(), String> {
     let (mut compare, mut as_given, mut states, mut sweep) = (false, false, false, false);
     let (mut through_driver, mut previous) = (false, false);
     let (mut newton_sets, mut path_sets) = (Vec::new(), Vec::new());
+    let mut blends: Vec<String> = Vec::new();
     while let Some(a) = args.next() {
         let mut value = || args.next().unwrap_or_default();
         match a.as_str() {
@@ -54,6 +55,7 @@ fn run() -> Result<(), String> {
             "--sweep" => sweep = true,
             "--driver" => through_driver = true,
             "--previous" => previous = true,
+            "--blend" => blends.push(value()),
             "--newton" => newton_sets.push(value()),
             "--path" => path_sets.push(value()),
             _ => path = Some(a),
@@ -171,6 +173,82 @@ fn run() -> Result<(), String> {
     let problem: &dyn Mcp = if as_given { &unscaled } else { &step_problem };
     let zp = report("path", &mut path_solver, problem, &z0, trace);
     let zn = report("newton", &mut newton_solver, problem, &z0, trace);
+    // `--blend MODE:T`: Newton again from a start between the warm start and PATH's answer:
+    // `all:T` moves every unknown by T of the way, `contact:T` only the `contact.*` unknowns,
+    // `point:T` only the contact points `contact.a*`, `weights:T` only `contact.l*`.
+    for b in &blends {
+        // `reseed:empty|lowest|patch`: the warm start's velocities mapped back by the structure
+        // (`StepStructure::assemble`): every contact's point from the geometry at the warm
+        // start's configuration, with no impulse, or the warm start's `p_n` on the patch's
+        // lowest vertex, or spread evenly over the patch; friction and slip zero.
+        if let Some(kind) = b.strip_prefix("reseed:") {
+            let st = problem.structure().ok_or("no structure")?;
+            let mut point = ecp::model::ConicPoint {
+                velocities: st.velocities(&z0),
+                contacts: Vec::new(),
+            };
+            for c in 0..st.num_contacts() {
+                let g = st.contact(c, &z0, 0.0);
+                let pn = st.normal_impulse(c, &z0).unwrap_or(0.0).max(0.0);
+                let mut imp = ecp::model::ContactImpulses::default();
+                match kind {
+                    "lowest" => {
+                        if let Some(v) = g.patch.iter().min_by(|a, b| a.gap.total_cmp(&b.gap)) {
+                            imp.vertex_impulses.push((v.index, pn));
+                        }
+                    }
+                    "patch" => {
+                        let n = g.patch.len().max(1) as f64;
+                        for v in &g.patch {
+                            imp.vertex_impulses.push((v.index, pn / n));
+                        }
+                    }
+                    _ => {}
+                }
+                point.contacts.push(imp);
+            }
+            let mut zs = z0.clone();
+            st.assemble(&point, &mut zs);
+            let mut ns2 = NewtonSolver::new(newton_settings(&options, false, &newton_sets)?);
+            report(&format!("newton from {b}"), &mut ns2, problem, &zs, false);
+            continue;
+        }
+        // `zero:PREFIX` / `set:PREFIX=V`: the warm start with the unknowns named PREFIX… at V.
+        if let Some(rest) = b.strip_prefix("set:") {
+            let (prefix, v) = rest.split_once('=').unwrap_or((rest, "0"));
+            let v: f64 = v.parse().map_err(|_| format!("bad --blend {b}"))?;
+            let mcp = sim.mcp();
+            let mut zs = z0.clone();
+            for (i, zi) in zs.iter_mut().enumerate() {
+                if mcp.component_name(i).starts_with(prefix) {
+                    *zi = v.clamp(mcp.lower()[i], mcp.upper()[i]);
+                }
+            }
+            let mut ns2 = NewtonSolver::new(newton_settings(&options, false, &newton_sets)?);
+            report(&format!("newton from {b}"), &mut ns2, problem, &zs, false);
+            continue;
+        }
+        let (mode, t) = b.split_once(':').unwrap_or((b.as_str(), "1"));
+        let t: f64 = t.parse().map_err(|_| format!("bad --blend {b}"))?;
+        let mcp = sim.mcp();
+        let mut zs = z0.clone();
+        for i in 0..z0.len() {
+            let name = mcp.component_name(i);
+            let pick = match mode {
+                "all" => true,
+                "contact" => name.starts_with("contact."),
+                "point" => name.starts_with("contact.a"),
+                "weights" => name.starts_with("contact.l"),
+                "body" => name.starts_with("body."),
+                _ => false,
+            };
+            if pick {
+                zs[i] = z0[i] + t * (zp[i] - z0[i]);
+            }
+        }
+        let mut ns2 = NewtonSolver::new(newton_settings(&options, false, &newton_sets)?);
+        report(&format!("newton from {b}"), &mut ns2, problem, &zs, false);
+    }
     if compare {
         // Each unknown at the warm start, PATH's end point and Newton's, with F there.
         let mcp = sim.mcp();
@@ -420,6 +498,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
         "dense_max" => s.dense_max = n()?,
         "min_norm_max" => s.min_norm_max = n()?,
         "friction_continuation" => s.friction_continuation = value.parse::<usize>().ok(),
+        "structure_reseed" => s.structure_reseed = b()?,
         "watchdog_steps" => s.watchdog_steps = n()?,
         "smoothing" if !b()? => s.smoothing = None,
         "damped_restart" => s.damped_restart = value.parse::<f64>().ok(),

@@ -790,6 +790,8 @@ fn newton_v_trough_061_step_17_complementary_restart() {
         complementary_restart: None,
         early_complementary_restart: None,
         complementary_restart_from_best: None,
+        // The structure reseed (wip-tip070) also cures this step: off, to test the restart.
+        structure_reseed: false,
         ..settings.clone()
     };
     let sim = at_default_step(&path, &mut NewtonSolver::new(before.clone()), 17);
@@ -1326,6 +1328,9 @@ fn newton_union_slide_s20270213_134_step_1_late_stages() {
     let without = NewtonSettings {
         friction_continuation: None,
         scene_scales: false,
+        // The structure reseed (wip-tip070) also cures this step (816 iterations): off, as a
+        // late stage too.
+        structure_reseed: false,
         ..settings.clone()
     };
     match sim.solve_step_problem(&mut NewtonSolver::new(without), &z0) {
@@ -1414,6 +1419,45 @@ fn newton_multi_body_s20270320_129_step_4_minimum_norm_above_dense_max() {
             .summary
             .counter(Counter::MinNormSteps)
             .is_some_and(|n| n > 0),
+        "{}",
+        after.summary.counters
+    );
+}
+
+/// `s20270320_070_union_tip` step 97 (a chain of five boxes spun to 430 rad/s, 2.1 rad a step,
+/// h = 5 ms, landing on a vertex 0.4 m from the warm start's contact point; 38 unknowns):
+/// every attempt from the warm start stalls at 7.5e-5 (the old vertex's hull weights), and the
+/// solve from the warm start's contacts re-derived by the structure converges
+/// (`NewtonSettings::structure_reseed`, `docs/stress.md`, wip-tip070).
+#[test]
+fn newton_union_tip_s20270320_070_step_97_structure_reseed() {
+    let path = regression_scene("s20270320_070_union_tip");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let settings = NewtonSettings {
+        tolerance,
+        ..NewtonSettings::default()
+    };
+    let without = NewtonSettings {
+        structure_reseed: false,
+        ..settings.clone()
+    };
+    let sim = at_default_step(&path, &mut NewtonSolver::new(settings.clone()), 97);
+    let z0 = sim.z().to_vec();
+    let before = sim.solve_step_problem(&mut NewtonSolver::new(without), &z0);
+    assert!(
+        matches!(before, Err(SolveError::NotConverged { .. })),
+        "without the reseed: {:?}",
+        before.map(|s| s.summary.iterations)
+    );
+    let after = converged(sim.solve_step_problem(&mut NewtonSolver::new(settings), &z0));
+    println!(
+        "s20270320_070_union_tip step 97: {} iterations with the structure reseed",
+        after.summary.iterations
+    );
+    assert!(after.summary.residual <= tolerance);
+    assert_eq!(
+        after.summary.counter(Counter::Custom("structure_reseed")),
+        Some(1),
         "{}",
         after.summary.counters
     );

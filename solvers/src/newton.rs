@@ -56,6 +56,7 @@ mod josephy;
 mod min_norm;
 mod profile;
 mod ratio;
+mod reseed;
 use crate::smoothing::{SmoothingSettings, continuation};
 use min_norm::MinNorm;
 use profile::Clock;
@@ -322,6 +323,16 @@ pub struct NewtonSettings {
     /// otherwise fail, on problems with a friction family of at most
     /// [`NewtonSettings::dense_max`] unknowns. `None` turns it off. Default `Some(400)`.
     pub friction_continuation: Option<usize>,
+    /// When the whole solve from `z0` failed (not within an iteration budget), solve once more
+    /// from the warm start's contacts re-derived by the problem's structure
+    /// ([`ecp_model::StepStructure::assemble`]): the velocities of `z0`, each contact's normal
+    /// impulse on its patch's lowest vertex at `z0`'s configuration, so its point is the one
+    /// the geometry gives there instead of the warm start's (`newton/reseed.rs`). On a body
+    /// spinning 2 rad a step, the warm start's contact point lies on a vertex that has turned
+    /// away, and every attempt from it stalls at a local minimiser of the merit
+    /// (`s20270320_070_union_tip`, step 97: 2 096 iterations, then 59 from the reseeded start).
+    /// Runs only on problems with a structure, only after a failure. Default `true`.
+    pub structure_reseed: bool,
 
     /// After the plain iteration from `z0` failed (in a budgeted run too,
     /// [`McpSolver::set_iteration_budget`]), up to this many Josephy–Newton steps from `z0`
@@ -461,6 +472,7 @@ impl Default for NewtonSettings {
             early_complementary_restart: Some(3e4),
             complementary_restart_from_best: Some(3e4),
             friction_continuation: Some(400),
+            structure_reseed: true,
 
             josephy_newton: Some(20),
             scene_scales: true,
@@ -1515,11 +1527,16 @@ impl McpSolver for NewtonSolver {
     }
 
     fn solve(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
-        // Judged in the problem's scene scales when it has them (`ecp_model::scaling`).
-        if !self.settings.scene_scales {
-            return self.solve_budgeted(mcp, z0);
+        let mut result = self.solve_from(mcp, z0);
+        // Tested by reference and returned from the one variable (no copy of a converged
+        // solution): a converged solve costs a branch.
+        if self.budget.is_none()
+            && self.settings.structure_reseed
+            && matches!(result, Err(SolveError::NotConverged { .. }))
+        {
+            result = self.reseed_attempt(mcp, z0, result);
         }
-        solve_in_scales(mcp, z0, |mcp, z0| self.solve_budgeted(mcp, z0))
+        result
     }
 
     /// [`McpSolver::solve`] with `out`'s storage: the first run writes its result there
@@ -1558,6 +1575,15 @@ impl McpSolver for NewtonSolver {
 }
 
 impl NewtonSolver {
+    /// The solve from `z0`, judged in the problem's scene scales when it has them
+    /// (`ecp_model::scaling`).
+    fn solve_from(&mut self, mcp: &dyn Mcp, z0: &[f64]) -> Result<Solution, SolveError> {
+        if !self.settings.scene_scales {
+            return self.solve_budgeted(mcp, z0);
+        }
+        solve_in_scales(mcp, z0, |mcp, z0| self.solve_budgeted(mcp, z0))
+    }
+
     /// [`NewtonSolver::solve_restarted`], or within the iteration budget
     /// ([`McpSolver::set_iteration_budget`]) its first run alone — followed, when it fails, by
     /// the Josephy–Newton attempt ([`NewtonSettings::josephy_newton`]) — the same point when

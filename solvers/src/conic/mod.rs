@@ -458,6 +458,8 @@ impl ConicSolver {
                 defaults.early_complementary_restart
             },
             nonmonotone_restart: !continued && defaults.nonmonotone_restart,
+            // A failed finish hands back to the fixed point (kept as measured: wip-tip070).
+            structure_reseed: false,
             ..defaults
         });
         let sol = match newton.solve(mcp, z) {
