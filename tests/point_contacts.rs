@@ -814,8 +814,10 @@ fn a6_point_model_carries_load_across_a_gap() {
 /// friction wrench depends on how the load is split, and the split is not unique: neither is
 /// the motion. The desk's first step, solved from the same warm start by Newton (without its
 /// Josephy–Newton steps, which find PATH's member) and by PATH:
-/// both converge (≤ 1e-10) but their ω_z differ by 9.9e-3 rad/s (measured; asserted > 1e-3),
-/// far beyond what a residual of 1e-10 allows (~1e-9). The ECP model has one contact and one
+/// both converge (≤ 1e-10) but their ω_z differ by 1.5e-4 rad/s (measured; asserted > 1e-5),
+/// far beyond what a residual of 1e-10 allows (~1e-9). Which member Newton reaches depends on
+/// its path: 9.9e-3 when this test was written, 2.1e-3 before Newton's minimum-norm step ran
+/// above 120 unknowns (this problem has 157; `docs/stress.md`, branch wip-heldout4). The ECP model has one contact and one
 /// friction law per patch, and its two backends agree to 1e-13 (example `point_vs_ecp`).
 #[test]
 fn desk_point_model_motion_depends_on_the_load_split() {
@@ -840,7 +842,7 @@ fn desk_point_model_motion_depends_on_the_load_split() {
         wa - wb
     );
     assert!(
-        (wa - wb).abs() > 1e-3,
+        (wa - wb).abs() > 1e-5,
         "the two backends found the same motion"
     );
     let split = |z: &[f64]| -> Vec<f64> {
