@@ -45,6 +45,7 @@ pub mod settings;
 pub mod smoothing;
 #[cfg(test)]
 mod test_support;
+mod union_find;
 
 pub use newton::{NewtonSettings, NewtonSolver};
 pub use path::{PathSettings, PathSolver};

@@ -51,6 +51,7 @@ use ecp_model::linalg;
 use super::mass_factor::{MassFactor, solve6};
 use super::min_norm::{PsdRange, Scratch};
 use super::qp::{Cone, ConicQp, QpResult};
+use crate::union_find::{find, union};
 
 fn cross(a: &[f64; 3], b: &[f64; 3]) -> [f64; 3] {
     [
@@ -1618,20 +1619,10 @@ impl StepQp {
         } = out;
         root.clear();
         root.extend(0..num_bodies);
-        fn find(root: &mut [usize], mut b: usize) -> usize {
-            while root[b] != b {
-                root[b] = root[root[b]];
-                b = root[b];
-            }
-            b
-        }
         for rows in self.contacts.iter().flatten() {
             let first = rows.sides[0].body;
             for side in &rows.sides[1..] {
-                let (a, b) = (find(root, first), find(root, side.body));
-                if a != b {
-                    root[a.max(b)] = a.min(b);
-                }
+                union(root, first, side.body);
             }
         }
         *len = 0;

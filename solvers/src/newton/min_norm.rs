@@ -19,6 +19,8 @@
 //! Written here, like the pivotal solver's basis factorisation, because it needs the numerical
 //! rank and the pivot order, and allocates nothing after the first call.
 
+use crate::union_find::{find, union};
+
 /// The decomposition of one matrix and the buffers to solve with it.
 #[derive(Debug, Default)]
 pub(crate) struct MinNorm {
@@ -251,19 +253,9 @@ impl MinNorm {
         let mut root = std::mem::take(&mut self.block_of);
         root.clear();
         root.extend(0..n);
-        fn find(root: &mut [usize], mut i: usize) -> usize {
-            while root[i] != i {
-                root[i] = root[root[i]];
-                i = root[i];
-            }
-            i
-        }
         for j in 0..n {
             for &i in &row_idx[col_ptr[j]..col_ptr[j + 1]] {
-                let (a, b) = (find(&mut root, i), find(&mut root, j));
-                if a != b {
-                    root[a.max(b)] = a.min(b);
-                }
+                union(&mut root, i, j);
             }
         }
         for i in 0..n {
