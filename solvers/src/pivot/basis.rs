@@ -361,6 +361,22 @@ impl BasisFactor {
             return;
         }
         let (n, m) = (self.n, self.m);
+        if m == 0 {
+            // Every basis column is a unit column (the start of an LCP path, and its eta file's
+            // base): `B₀⁻¹ a` is `a` permuted, with no block to solve.
+            match a {
+                Column::Dense(b) => {
+                    for (&p, &v) in self.unit_position[..n].iter().zip(&b[..n]) {
+                        out[p] = v;
+                    }
+                }
+                Column::Unit(row) => {
+                    out[..n].fill(0.0);
+                    out[self.unit_position[row]] = 1.0;
+                }
+            }
+            return;
+        }
         if by_lu {
             match a {
                 Column::Dense(b) => {
@@ -801,6 +817,53 @@ mod tests {
                 "transpose step {step}: {s} vs {}",
                 c[p]
             );
+        }
+    }
+
+    /// A basis of unit columns only (`m = 0`, Lemke's start on an LCP) solves by permuting the
+    /// right-hand side, bitwise (signed zeros included), at the start and after updates that
+    /// bring the block back to `m = 0`.
+    #[test]
+    fn an_all_unit_basis_solves_by_permutation_bitwise() {
+        let n = 5;
+        let units = [3, 0, 4, 1, 2];
+        let a = [0.5, -1.25, 3.0, -0.0, 7.5];
+        for eta_mode in [false, true] {
+            let mut f = BasisFactor::default();
+            f.begin(n, eta_mode);
+            for (p, &row) in units.iter().enumerate() {
+                f.set_unit(p, row);
+            }
+            f.finish().unwrap();
+            let mut out = vec![f64::NAN; n];
+            f.solve_column(Column::Dense(&a), &mut out);
+            for p in 0..n {
+                assert_eq!(out[p].to_bits(), a[units[p]].to_bits(), "position {p}");
+            }
+            f.solve_column(Column::Unit(4), &mut out);
+            for p in 0..n {
+                assert_eq!(out[p], if units[p] == 4 { 1.0 } else { 0.0 });
+            }
+            let mut b = a;
+            f.solve(&mut b);
+            for p in 0..n {
+                assert_eq!(b[p].to_bits(), a[units[p]].to_bits(), "solve, position {p}");
+            }
+            // A dense column replaces e_0 (m = 1), then e_0 comes back (m = 0 again).
+            let c = [1.0, 2.0, 0.5, -1.0, 4.0];
+            f.solve_column(Column::Dense(&c), &mut out);
+            let alpha = out.clone();
+            f.update(1, Column::Dense(&c), &alpha);
+            f.solve_column(Column::Unit(0), &mut out);
+            let alpha = out.clone();
+            f.update(1, Column::Unit(0), &alpha);
+            f.solve_column(Column::Dense(&a), &mut out);
+            for p in 0..n {
+                assert!(
+                    (out[p] - a[units[p]]).abs() < 1e-14,
+                    "after updates, position {p}"
+                );
+            }
         }
     }
 
