@@ -448,10 +448,142 @@ fn solve_rows_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], 
 
 // The same loops compiled for AVX2, entered only when the processor has it (`SmallLu::avx2`).
 
+/// [`eliminate_with`] with AVX2, bitwise its factors and interchanges (every entry gets the same
+/// operations in the same order; `docs/latency.md`, branch wip-elim), with less work around the
+/// arithmetic:
+/// - the row interchange of step `k` walks only the factored columns `0..k` apart; the pivot
+///   column's is done in its division and each trailing column's in its update pass, which
+///   reads both entries anyway. There the displaced entry `a_kj` goes to row `p` without being
+///   stored first: the division blends it into its lane, an update computes row `p` from the
+///   stale entry with the vector and then overwrites it with `a_kj − l_pk u_kj` (a vector load
+///   over a just-stored scalar would wait for the store);
+/// - the trailing columns whose pivot-row entry is nonzero are updated two at a time, sharing
+///   the multiplier column's loads (each column still gets its own rank-1 update);
+/// - columns walked by pointer (no `chunks_exact` length division, no bounds checks).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
-    eliminate_with::<Avx2>(n, a, piv);
+    use super::simd::{div_interchanged_avx2, first_largest_magnitude_avx2};
+    use std::slice::{from_raw_parts, from_raw_parts_mut};
+    assert!(
+        a.len() >= n * n && piv.len() >= n,
+        "an n × n matrix and n pivots"
+    );
+    let ap = a.as_mut_ptr();
+    // SAFETY: column `j < n` is `ap[j n .. (j + 1) n]`, within `a`'s `n²` entries; every pointer
+    // below is column `j`'s row `i` with `i, j < n`, and the slices made from them are rows of
+    // one column (`k + 1 .. n`), so that slices of distinct columns do not overlap.
+    unsafe {
+        for k in 0..n {
+            let ck = ap.add(k * n);
+            let p = k + first_largest_magnitude_avx2(from_raw_parts(ck.add(k), n - k));
+            *piv.get_unchecked_mut(k) = p;
+            let d = p - k;
+            if d != 0 {
+                let mut c = ap.add(k);
+                for _ in 0..k {
+                    let t = *c;
+                    *c = *c.add(d);
+                    *c.add(d) = t;
+                    c = c.add(n);
+                }
+            }
+            let pivot = *ck.add(p);
+            let displaced = *ck.add(k);
+            *ck.add(k) = pivot;
+            if pivot == 0.0 {
+                // Left unreduced. (A zero largest magnitude is the first entry's, so `d` is 0
+                // here; the interchange is kept for the general rule.)
+                *ck.add(p) = displaced;
+                if d != 0 {
+                    let mut c = ck.add(n + k);
+                    for _ in k + 1..n {
+                        let t = *c;
+                        *c = *c.add(d);
+                        *c.add(d) = t;
+                        c = c.add(n);
+                    }
+                }
+                continue;
+            }
+            let m = n - k - 1;
+            // Row `p` is entry `d − 1` of the rows `k + 1 ..`; none when `d` is 0.
+            let q = d.wrapping_sub(1);
+            div_interchanged_avx2(from_raw_parts_mut(ck.add(k + 1), m), pivot, q, displaced);
+            let lk = from_raw_parts(ck.add(k + 1), m);
+            // The trailing columns from their row `k`: `c` is column `j`'s row `k`.
+            let first = ck.add(n + k);
+            let end = ap.add(n * n + k);
+            if d == 0 {
+                update_trailing::<false>(first, end, n, 0, lk);
+            } else {
+                update_trailing::<true>(first, end, n, d, lk);
+            }
+        }
+    }
+}
+
+/// The trailing columns' updates of one elimination step of [`eliminate_avx2`]: column `j`'s rows
+/// from `k` at `c = first + (j − k − 1) n`, up to `end`; with `INTERCHANGE`, rows `k` and
+/// `k + d` (`d ≥ 1`) are interchanged on the way, `lk` holding the multipliers of rows `k + 1 ..`
+/// (row `k + d` at `d − 1`, already interchanged). Columns whose (interchanged) row-`k` entry
+/// is zero are not updated; the others two at a time.
+///
+/// # Safety
+/// AVX2; `first` to `end` by `n` are columns of at least `k + 1 + lk.len()` rows from `c`, not
+/// overlapping `lk`, and `d ≤ lk.len()`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn update_trailing<const INTERCHANGE: bool>(
+    first: *mut f64,
+    end: *mut f64,
+    n: usize,
+    d: usize,
+    lk: &[f64],
+) {
+    use super::simd::{sub_scaled_avx2, sub_scaled_pair_avx2};
+    use std::slice::from_raw_parts_mut;
+    let m = lk.len();
+    // Row `k + d`'s multiplier, for the entry the vector update computes from a stale value.
+    let lq = if INTERCHANGE { lk[d - 1] } else { 0.0 };
+    // SAFETY: as the caller's.
+    unsafe {
+        let rows = |c: *mut f64| from_raw_parts_mut(c.add(1), m);
+        // A column waiting for a partner: its row `k`, its `u_kj`, and its displaced entry.
+        let mut waiting: Option<(*mut f64, f64, f64)> = None;
+        let mut c = first;
+        while c < end {
+            let (ukj, displaced) = if INTERCHANGE {
+                let (u, x) = (*c.add(d), *c);
+                *c = u;
+                (u, x)
+            } else {
+                (*c, 0.0)
+            };
+            if ukj != 0.0 {
+                match waiting.take() {
+                    None => waiting = Some((c, ukj, displaced)),
+                    Some((w, uw, xw)) => {
+                        sub_scaled_pair_avx2(rows(w), rows(c), lk, uw, ukj);
+                        if INTERCHANGE {
+                            *w.add(d) = xw - lq * uw;
+                            *c.add(d) = displaced - lq * ukj;
+                        }
+                    }
+                }
+            } else if INTERCHANGE {
+                *c.add(d) = displaced;
+            }
+            c = c.add(n);
+        }
+        if let Some((w, uw, xw)) = waiting {
+            sub_scaled_avx2(rows(w), lk, uw);
+            if INTERCHANGE {
+                *w.add(d) = xw - lq * uw;
+            }
+        }
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
