@@ -168,7 +168,7 @@ fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn div_avx2(x: &mut [f64], d: f64) {
+pub(super) fn div_avx2(x: &mut [f64], d: f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
@@ -223,6 +223,72 @@ pub(super) fn sub_scaled_pair_avx2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f
             let lv = *lp.add(i);
             *xp.add(i) -= lv * s;
             *yp.add(i) -= lv * t;
+        }
+    }
+}
+
+/// TEMPORARY: `x_i = v_i − l_i s` with `v_q = xo` (and `y` likewise with `t`, `yo` when `PAIR`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[inline]
+#[allow(clippy::too_many_arguments)]
+pub(super) fn sub_scaled_blend_avx2<const PAIR: bool>(
+    x: &mut [f64],
+    y: &mut [f64],
+    l: &[f64],
+    s: f64,
+    t: f64,
+    q: usize,
+    xo: f64,
+    yo: f64,
+) {
+    use std::arch::x86_64::*;
+    let len = l.len();
+    assert!(x.len() >= len && (!PAIR || y.len() >= len));
+    let (xp, yp, lp) = (x.as_mut_ptr(), y.as_mut_ptr(), l.as_ptr());
+    let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
+    let (xo4, yo4) = (_mm256_set1_pd(xo), _mm256_set1_pd(yo));
+    let q4 = _mm256_set1_epi64x(q.min(i64::MAX as usize) as i64);
+    let mut at = _mm256_set_epi64x(3, 2, 1, 0);
+    let mut i = 0;
+    // SAFETY: every access is at an index below `len`, within the slices.
+    unsafe {
+        while i + 4 <= len {
+            let here = _mm256_castsi256_pd(_mm256_cmpeq_epi64(at, q4));
+            let lv = _mm256_loadu_pd(lp.add(i));
+            let xv = _mm256_blendv_pd(_mm256_loadu_pd(xp.add(i)), xo4, here);
+            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(xv, _mm256_mul_pd(lv, s4)));
+            if PAIR {
+                let yv = _mm256_blendv_pd(_mm256_loadu_pd(yp.add(i)), yo4, here);
+                _mm256_storeu_pd(yp.add(i), _mm256_sub_pd(yv, _mm256_mul_pd(lv, t4)));
+            }
+            at = _mm256_add_epi64(at, _mm256_set1_epi64x(4));
+            i += 4;
+        }
+        if i + 2 <= len {
+            let here = _mm_castsi128_pd(_mm_cmpeq_epi64(
+                _mm256_castsi256_si128(at),
+                _mm256_castsi256_si128(q4),
+            ));
+            let lv = _mm_loadu_pd(lp.add(i));
+            let xv = _mm_blendv_pd(_mm_loadu_pd(xp.add(i)), _mm256_castpd256_pd128(xo4), here);
+            let p = _mm_mul_pd(lv, _mm256_castpd256_pd128(s4));
+            _mm_storeu_pd(xp.add(i), _mm_sub_pd(xv, p));
+            if PAIR {
+                let yv = _mm_blendv_pd(_mm_loadu_pd(yp.add(i)), _mm256_castpd256_pd128(yo4), here);
+                let p = _mm_mul_pd(lv, _mm256_castpd256_pd128(t4));
+                _mm_storeu_pd(yp.add(i), _mm_sub_pd(yv, p));
+            }
+            i += 2;
+        }
+        if i < len {
+            let lv = *lp.add(i);
+            let xv = if i == q { xo } else { *xp.add(i) };
+            *xp.add(i) = xv - lv * s;
+            if PAIR {
+                let yv = if i == q { yo } else { *yp.add(i) };
+                *yp.add(i) = yv - lv * t;
+            }
         }
     }
 }
