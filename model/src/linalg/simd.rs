@@ -111,7 +111,7 @@ impl Lanes for Avx2 {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-pub(super) fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
+fn sub_scaled_avx2(x: &mut [f64], l: &[f64], s: f64) {
     use std::arch::x86_64::*;
     let len = x.len().min(l.len());
     let (xp, lp) = (x.as_mut_ptr(), l.as_ptr());
@@ -168,7 +168,7 @@ fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-pub(super) fn div_avx2(x: &mut [f64], d: f64) {
+fn div_avx2(x: &mut [f64], d: f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
@@ -187,153 +187,6 @@ pub(super) fn div_avx2(x: &mut [f64], d: f64) {
     }
 }
 
-/// `x_i −= l_i s` and `y_i −= l_i t` for every `i` (the length of `l`; `x` and `y` at least as
-/// long), in the lanes of [`sub_scaled_avx2`] (fours from the start, a pair, one): two columns of
-/// the elimination's trailing block updated by one multiplier column in one pass, sharing its
-/// loads. Each entry gets [`Lanes::sub_scaled`]'s operation (the product rounded, then the
-/// subtraction), so bitwise two calls of it.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-pub(super) fn sub_scaled_pair_avx2(x: &mut [f64], y: &mut [f64], l: &[f64], s: f64, t: f64) {
-    use std::arch::x86_64::*;
-    let len = l.len();
-    assert!(x.len() >= len && y.len() >= len);
-    let (xp, yp, lp) = (x.as_mut_ptr(), y.as_mut_ptr(), l.as_ptr());
-    let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`, within the three slices.
-    unsafe {
-        while i + 4 <= len {
-            let lv = _mm256_loadu_pd(lp.add(i));
-            let (p, q) = (_mm256_mul_pd(lv, s4), _mm256_mul_pd(lv, t4));
-            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(_mm256_loadu_pd(xp.add(i)), p));
-            _mm256_storeu_pd(yp.add(i), _mm256_sub_pd(_mm256_loadu_pd(yp.add(i)), q));
-            i += 4;
-        }
-        if i + 2 <= len {
-            let lv = _mm_loadu_pd(lp.add(i));
-            let p = _mm_mul_pd(lv, _mm256_castpd256_pd128(s4));
-            let q = _mm_mul_pd(lv, _mm256_castpd256_pd128(t4));
-            _mm_storeu_pd(xp.add(i), _mm_sub_pd(_mm_loadu_pd(xp.add(i)), p));
-            _mm_storeu_pd(yp.add(i), _mm_sub_pd(_mm_loadu_pd(yp.add(i)), q));
-            i += 2;
-        }
-        if i < len {
-            let lv = *lp.add(i);
-            *xp.add(i) -= lv * s;
-            *yp.add(i) -= lv * t;
-        }
-    }
-}
-
-/// TEMPORARY: `x_i = v_i − l_i s` with `v_q = xo` (and `y` likewise with `t`, `yo` when `PAIR`).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-#[allow(clippy::too_many_arguments)]
-pub(super) fn sub_scaled_blend_avx2<const PAIR: bool>(
-    x: &mut [f64],
-    y: &mut [f64],
-    l: &[f64],
-    s: f64,
-    t: f64,
-    q: usize,
-    xo: f64,
-    yo: f64,
-) {
-    use std::arch::x86_64::*;
-    let len = l.len();
-    assert!(x.len() >= len && (!PAIR || y.len() >= len));
-    let (xp, yp, lp) = (x.as_mut_ptr(), y.as_mut_ptr(), l.as_ptr());
-    let (s4, t4) = (_mm256_set1_pd(s), _mm256_set1_pd(t));
-    let (xo4, yo4) = (_mm256_set1_pd(xo), _mm256_set1_pd(yo));
-    let q4 = _mm256_set1_epi64x(q.min(i64::MAX as usize) as i64);
-    let mut at = _mm256_set_epi64x(3, 2, 1, 0);
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`, within the slices.
-    unsafe {
-        while i + 4 <= len {
-            let here = _mm256_castsi256_pd(_mm256_cmpeq_epi64(at, q4));
-            let lv = _mm256_loadu_pd(lp.add(i));
-            let xv = _mm256_blendv_pd(_mm256_loadu_pd(xp.add(i)), xo4, here);
-            _mm256_storeu_pd(xp.add(i), _mm256_sub_pd(xv, _mm256_mul_pd(lv, s4)));
-            if PAIR {
-                let yv = _mm256_blendv_pd(_mm256_loadu_pd(yp.add(i)), yo4, here);
-                _mm256_storeu_pd(yp.add(i), _mm256_sub_pd(yv, _mm256_mul_pd(lv, t4)));
-            }
-            at = _mm256_add_epi64(at, _mm256_set1_epi64x(4));
-            i += 4;
-        }
-        if i + 2 <= len {
-            let here = _mm_castsi128_pd(_mm_cmpeq_epi64(
-                _mm256_castsi256_si128(at),
-                _mm256_castsi256_si128(q4),
-            ));
-            let lv = _mm_loadu_pd(lp.add(i));
-            let xv = _mm_blendv_pd(_mm_loadu_pd(xp.add(i)), _mm256_castpd256_pd128(xo4), here);
-            let p = _mm_mul_pd(lv, _mm256_castpd256_pd128(s4));
-            _mm_storeu_pd(xp.add(i), _mm_sub_pd(xv, p));
-            if PAIR {
-                let yv = _mm_blendv_pd(_mm_loadu_pd(yp.add(i)), _mm256_castpd256_pd128(yo4), here);
-                let p = _mm_mul_pd(lv, _mm256_castpd256_pd128(t4));
-                _mm_storeu_pd(yp.add(i), _mm_sub_pd(yv, p));
-            }
-            i += 2;
-        }
-        if i < len {
-            let lv = *lp.add(i);
-            let xv = if i == q { xo } else { *xp.add(i) };
-            *xp.add(i) = xv - lv * s;
-            if PAIR {
-                let yv = if i == q { yo } else { *yp.add(i) };
-                *yp.add(i) = yv - lv * t;
-            }
-        }
-    }
-}
-
-/// `x_i = v_i / d` for every `i`, where `v_i` is `x_i` but `v_q = old` (`q` beyond `x`: no
-/// entry replaced): the multipliers of an elimination step whose row interchange puts `old`
-/// at `q`, without storing it first (a vector load over a just-stored scalar waits for the
-/// store). In the lanes of [`sub_scaled_avx2`] (fours from the start, a pair, one), so that
-/// each of the updates' loads of the multipliers lies within one of these stores. Each entry
-/// gets [`Lanes::div`]'s one division.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline]
-pub(super) fn div_interchanged_avx2(x: &mut [f64], d: f64, q: usize, old: f64) {
-    use std::arch::x86_64::*;
-    let len = x.len();
-    let xp = x.as_mut_ptr();
-    let (d4, o4) = (_mm256_set1_pd(d), _mm256_set1_pd(old));
-    // Lane indices as 64-bit integers; `q` beyond `i64::MAX` is beyond `x` all the same.
-    let q4 = _mm256_set1_epi64x(q.min(i64::MAX as usize) as i64);
-    let mut at = _mm256_set_epi64x(3, 2, 1, 0);
-    let mut i = 0;
-    // SAFETY: every access is at an index below `len`.
-    unsafe {
-        while i + 4 <= len {
-            let here = _mm256_castsi256_pd(_mm256_cmpeq_epi64(at, q4));
-            let v = _mm256_blendv_pd(_mm256_loadu_pd(xp.add(i)), o4, here);
-            _mm256_storeu_pd(xp.add(i), _mm256_div_pd(v, d4));
-            at = _mm256_add_epi64(at, _mm256_set1_epi64x(4));
-            i += 4;
-        }
-        if i + 2 <= len {
-            let here = _mm_cmpeq_epi64(_mm256_castsi256_si128(at), _mm256_castsi256_si128(q4));
-            let v = _mm_loadu_pd(xp.add(i));
-            let v = _mm_blendv_pd(v, _mm256_castpd256_pd128(o4), _mm_castsi128_pd(here));
-            _mm_storeu_pd(xp.add(i), _mm_div_pd(v, _mm256_castpd256_pd128(d4)));
-            i += 2;
-        }
-        if i < len {
-            let v = if i == q { old } else { *xp.add(i) };
-            *xp.add(i) = v / d;
-        }
-    }
-}
-
 /// [`Lanes::first_largest_magnitude`] in two vector passes: the largest magnitude `m` (NaN
 /// passed over: `max_pd` returns its second operand, the running maximum, when either is
 /// NaN, and that maximum starts at the finite or infinite `|x_0|`), then the first entry
@@ -342,7 +195,7 @@ pub(super) fn div_interchanged_avx2(x: &mut [f64], d: f64, q: usize, old: f64) {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-pub(super) fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
+fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
     use std::arch::x86_64::*;
     let len = x.len();
     let first = x[0].abs();
