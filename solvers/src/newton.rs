@@ -386,14 +386,6 @@ pub struct NewtonSettings {
     /// solve factorises first, as before. Default `Some(1e-2)` (measured: `docs/latency.md`,
     /// "Newton's desk step on the LU kept from the step before" and "The A1 step in 2 µs").
     pub chord_across_solves: Option<f64>,
-    /// An experiment, off by default (`docs/latency.md`, branch wip-newton): with
-    /// [`NewtonSettings::chord_across_solves`], keep the LU of every solve that converged with
-    /// it as its last factorisation (not only of one-step runs at the round-off floor), the
-    /// LU kept on, step after step, while its chord steps solve, and try it on every solve
-    /// (no back-off after tries that did not pay). Its chord steps' tests decide as before;
-    /// a run that ends on them is polished by a full step unless at the round-off floor. Not
-    /// bitwise the default's: other steps, other round-off. Default `false`.
-    pub kept_lu_every_solve: bool,
     /// The round-off floor of the chord steps ([`NewtonSettings::chord_contraction`]), in units
     /// of round-off (`f64::EPSILON`) of `‖z‖∞`: the natural residual `z − mid(l, u, z − F)` is a
     /// difference of numbers of that size, so no step lowers it much below. A chord step that
@@ -486,7 +478,6 @@ impl Default for NewtonSettings {
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
-            kept_lu_every_solve: false,
             chord_round_off_floor: Some(4.0),
             fast_full_step: Some(1e-2),
             kink_band: None,
@@ -2024,7 +2015,7 @@ impl NewtonSolver {
             && self.attempt == 0
             && !self.nonmonotone
             && !self.in_continuation
-            && (s.kept_lu_every_solve || self.kept_lu_gate.take_turn());
+            && self.kept_lu_gate.take_turn();
         // `J` at the start only when the first iteration is likely to form `H`: not on the kept
         // LU (a refused chord step evaluates it then), and not after a solve that took no
         // iteration (a step at rest: `J` would be dropped, ≈ 12.7 k of A1's 36.7 k
@@ -2861,9 +2852,8 @@ impl NewtonSolver {
         // run that needed several steps (the desk: a full step to 1e-9, then chord steps)
         // keeps none: the next step's residual would need several chord steps on an `H` a step
         // old, which cost more than a factorisation (`docs/latency.md`, branch wip-a1fast).
-        let one_lu_step = s.kept_lu_every_solve
-            || iterations == 0
-            || (iterations == 1 && last_lu_step && at_round_off(residual, &ws.z));
+        let one_lu_step =
+            iterations == 0 || (iterations == 1 && last_lu_step && at_round_off(residual, &ws.z));
         if let Some(total) = self.profile.as_mut() {
             prof.runs = 1;
             prof.iterations = iterations;
