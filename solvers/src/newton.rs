@@ -1028,7 +1028,8 @@ fn unit_rows(db: &[f64], bounded: &[usize], unit: &mut [bool]) {
 /// `jac` `None`: `h` holds `J` already and is turned into `H` in place (with `scaled` only):
 /// the solver's iteration swaps the two buffers instead of copying `J` (a 3.3 kB `memcpy` a
 /// desk iteration).
-#[allow(clippy::too_many_arguments)]
+// `h = D_b · h` written as the product of the copy's path (`D_b · J`), not `h *= D_b`.
+#[allow(clippy::too_many_arguments, clippy::assign_op_pattern)]
 fn assemble_h(
     pattern: &CscPattern,
     jac: Option<&[f64]>,
