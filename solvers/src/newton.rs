@@ -1025,21 +1025,25 @@ fn unit_rows(db: &[f64], bounded: &[usize], unit: &mut [bool]) {
 /// of the entries whose row's `D_b` may differ from 1 (every other row's is exactly 1): `J`
 /// copied and those entries alone scaled, the same bits. The largest magnitude in four
 /// lanes (a maximum does not depend on the order; `a > m` skips a NaN as `f64::max` does).
-#[allow(clippy::too_many_arguments)]
+/// `jac` `None`: `h` holds `J` already and is turned into `H` in place (with `scaled` only):
+/// the solver's iteration swaps the two buffers instead of copying `J` (a 3.3 kB `memcpy` a
+/// desk iteration).
+// `h = D_b · h` written as the product of the copy's path (`D_b · J`), not `h *= D_b`.
+#[allow(clippy::too_many_arguments, clippy::assign_op_pattern)]
 fn assemble_h(
     pattern: &CscPattern,
-    jac: &[f64],
+    jac: Option<&[f64]>,
     da: &[f64],
     db: &[f64],
     scaled: Option<&[usize]>,
     h: &mut [f64],
     witness: &mut [usize],
     col_max: &mut [f64],
-) -> (f64, bool) {
+) -> (f64, bool, bool) {
     let (cp, ri, diag) = (pattern.col_ptr(), pattern.row_idx(), pattern.diag_pos());
     let ncols = cp.len() - 1;
     let nnz = cp[ncols];
-    let (h, jac, ri) = (&mut h[..nnz], &jac[..nnz], &ri[..nnz]);
+    let (h, ri) = (&mut h[..nnz], &ri[..nnz]);
     // The rows' `D_b` gathered without a bounds check per entry (two of the nine instructions
     // an entry took): every stored row index of a `CscPattern` is below its dimension
     // (`CscPattern::from_columns` refuses others, and the fields are private), which is
@@ -1057,11 +1061,14 @@ fn assemble_h(
         // quiet NaN is itself): `J` copied, the listed entries scaled (on the desk the
         // entries of the 9 bounded rows, a few of the 416 stored).
         debug_assert!((0..nnz).all(|p| db[ri[p]] == 1.0 || positions.contains(&p)));
-        h.copy_from_slice(jac);
-        for &p in positions {
-            h[p] = row_scale(ri[p]) * jac[p];
+        if let Some(jac) = jac {
+            h.copy_from_slice(&jac[..nnz]);
         }
-    } else {
+        for &p in positions {
+            h[p] = row_scale(ri[p]) * h[p];
+        }
+    } else if let Some(jac) = jac {
+        let jac = &jac[..nnz];
         // Four entries a turn (a quarter of the loop's own instructions).
         let (mut hc, mut jc, mut rc) = (
             h.chunks_exact_mut(4),
@@ -1080,17 +1087,24 @@ fn assemble_h(
         for ((hp, &v), &r) in rest {
             *hp = row_scale(r) * v;
         }
+    } else {
+        // In place, every entry scaled (not the solver's path: it lists the positions).
+        for (hp, &r) in h.iter_mut().zip(ri) {
+            *hp = row_scale(r) * *hp;
+        }
     }
     for (&p, &a) in diag.iter().zip(da) {
         h[p] += a;
     }
-    let largest = largest_magnitude(h);
+    let (largest, nan) = largest_magnitude(h);
+    // Every stored entry of `H` finite: no NaN, and the largest magnitude not `∞`.
+    let finite = !nan && largest.is_finite();
     let threshold = ZERO_COLUMN * largest;
     let witness = &mut witness[..ncols];
     // The kept witnesses first, in a pass of their own (a load and a compare a column): on the
     // same problem's next `H` they nearly always all hold.
     if witness.iter().all(|&w| h[w].abs() > threshold) {
-        return (largest, false);
+        return (largest, false, finite);
     }
     let mut undecided = false;
     for (j, w) in witness.iter_mut().enumerate() {
@@ -1109,7 +1123,7 @@ fn assemble_h(
         }
     }
     if !undecided {
-        return (largest, false);
+        return (largest, false, finite);
     }
     for (j, (m, &p)) in col_max[..ncols].iter_mut().zip(diag).enumerate() {
         let d = h[p].abs();
@@ -1134,16 +1148,19 @@ fn assemble_h(
             }
         };
     }
-    (largest, true)
+    (largest, true, finite)
 }
 
 /// The largest magnitude of `v` (0 for an empty one, NaNs left out), in lanes: four AVX
 /// registers of four where the processor runs AVX, else two SSE2 registers on `x86_64`
 /// (`maxpd(a, m)` is `a > m ? a : m`, which skips a NaN `a` as the scalar loop does), the
 /// scalar loop elsewhere. A maximum does not depend on the order, and magnitudes have no
-/// signed zeros: every version gives the same bits.
+/// signed zeros: every version gives the same bits. With it, whether `v` holds a NaN (an
+/// unordered compare OR-ed beside each `max`): `v` is all finite when there is none and the
+/// largest is finite, and the LU's load need not test each entry again
+/// ([`LinearSolver::factor_with_unit_rows_finite`]).
 #[inline]
-fn largest_magnitude(v: &[f64]) -> f64 {
+fn largest_magnitude(v: &[f64]) -> (f64, bool) {
     #[cfg(target_arch = "x86_64")]
     {
         if std::arch::is_x86_feature_detected!("avx") {
@@ -1162,30 +1179,34 @@ fn largest_magnitude(v: &[f64]) -> f64 {
 /// [`largest_magnitude`] in SSE2 (the `x86_64` baseline), the same value.
 #[cfg(target_arch = "x86_64")]
 #[inline]
-fn largest_magnitude_sse2(v: &[f64]) -> f64 {
+fn largest_magnitude_sse2(v: &[f64]) -> (f64, bool) {
     use std::arch::x86_64::*;
     let quads = v.len() / 4;
     // SAFETY: SSE2 is part of the `x86_64` baseline; the loads are at `4q .. 4q + 3 < v.len()`.
-    let mut m = unsafe {
+    let (mut m, mut nan) = unsafe {
         let sign = _mm_set1_pd(-0.0);
         let (mut m0, mut m1) = (_mm_setzero_pd(), _mm_setzero_pd());
+        let mut u = _mm_setzero_pd();
         for q in 0..quads {
             let p = v.as_ptr().add(4 * q);
-            m0 = _mm_max_pd(_mm_andnot_pd(sign, _mm_loadu_pd(p)), m0);
-            m1 = _mm_max_pd(_mm_andnot_pd(sign, _mm_loadu_pd(p.add(2))), m1);
+            let (x0, x1) = (_mm_loadu_pd(p), _mm_loadu_pd(p.add(2)));
+            m0 = _mm_max_pd(_mm_andnot_pd(sign, x0), m0);
+            m1 = _mm_max_pd(_mm_andnot_pd(sign, x1), m1);
+            u = _mm_or_pd(u, _mm_cmpunord_pd(x0, x1));
         }
         let mut lanes = [0.0f64; 4];
         _mm_storeu_pd(lanes.as_mut_ptr(), m0);
         _mm_storeu_pd(lanes.as_mut_ptr().add(2), m1);
-        lanes
+        (lanes, _mm_movemask_pd(u) != 0)
     };
     for (k, x) in v[4 * quads..].iter().enumerate() {
         let a = x.abs();
+        nan |= a.is_nan();
         if a > m[k] {
             m[k] = a;
         }
     }
-    m[0].max(m[1]).max(m[2].max(m[3]))
+    (m[0].max(m[1]).max(m[2].max(m[3])), nan)
 }
 
 /// [`largest_magnitude`] with AVX: sixteen entries a turn in four registers (`vmaxpd(a, m)` is
@@ -1194,7 +1215,7 @@ fn largest_magnitude_sse2(v: &[f64]) -> f64 {
 /// wip-newtonown). Only called where the processor runs AVX.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx")]
-fn largest_magnitude_avx(v: &[f64]) -> f64 {
+fn largest_magnitude_avx(v: &[f64]) -> (f64, bool) {
     use std::arch::x86_64::*;
     let n = v.len();
     let p = v.as_ptr();
@@ -1205,40 +1226,54 @@ fn largest_magnitude_avx(v: &[f64]) -> f64 {
         _mm256_setzero_pd(),
         _mm256_setzero_pd(),
     );
+    // NaN lanes: an unordered compare of two loaded registers is true where either is NaN.
+    let (mut u0, mut u1) = (_mm256_setzero_pd(), _mm256_setzero_pd());
     let mut i = 0;
     // SAFETY: every load is at `i .. i + 3 < n` (or `i + 15 < n`), within `v`; unaligned loads
     // need no alignment.
     unsafe {
         while i + 16 <= n {
-            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
-            m1 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 4))), m1);
-            m2 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 8))), m2);
-            m3 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i + 12))), m3);
+            let (x0, x1) = (_mm256_loadu_pd(p.add(i)), _mm256_loadu_pd(p.add(i + 4)));
+            let (x2, x3) = (
+                _mm256_loadu_pd(p.add(i + 8)),
+                _mm256_loadu_pd(p.add(i + 12)),
+            );
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, x0), m0);
+            m1 = _mm256_max_pd(_mm256_andnot_pd(sign, x1), m1);
+            m2 = _mm256_max_pd(_mm256_andnot_pd(sign, x2), m2);
+            m3 = _mm256_max_pd(_mm256_andnot_pd(sign, x3), m3);
+            u0 = _mm256_or_pd(u0, _mm256_cmp_pd::<_CMP_UNORD_Q>(x0, x1));
+            u1 = _mm256_or_pd(u1, _mm256_cmp_pd::<_CMP_UNORD_Q>(x2, x3));
             i += 16;
         }
         while i + 4 <= n {
-            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, _mm256_loadu_pd(p.add(i))), m0);
+            let x0 = _mm256_loadu_pd(p.add(i));
+            m0 = _mm256_max_pd(_mm256_andnot_pd(sign, x0), m0);
+            u0 = _mm256_or_pd(u0, _mm256_cmp_pd::<_CMP_UNORD_Q>(x0, x0));
             i += 4;
         }
     }
     // The accumulators hold no NaN (each `max` keeps its second operand for a NaN `a`).
     let m = _mm256_max_pd(_mm256_max_pd(m0, m1), _mm256_max_pd(m2, m3));
+    let mut nan = _mm256_movemask_pd(_mm256_or_pd(u0, u1)) != 0;
     let mut lanes = [0.0f64; 4];
     // SAFETY: `lanes` has room for the four lanes stored.
     unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), m) };
     for (k, x) in v[i..].iter().enumerate() {
         let a = x.abs();
+        nan |= a.is_nan();
         if a > lanes[k] {
             lanes[k] = a;
         }
     }
     let top = |a: f64, b: f64| if b > a { b } else { a };
-    top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3]))
+    (top(top(lanes[0], lanes[1]), top(lanes[2], lanes[3])), nan)
 }
 
 /// [`largest_magnitude`] one entry at a time (other targets; the tests' reference).
 #[cfg_attr(target_arch = "x86_64", allow(dead_code))]
-fn largest_magnitude_scalar(v: &[f64]) -> f64 {
+fn largest_magnitude_scalar(v: &[f64]) -> (f64, bool) {
+    let nan = v.iter().any(|x| x.is_nan());
     let mut m = [0.0f64; 4];
     let chunks = v.chunks_exact(4);
     let rest = chunks.remainder();
@@ -1256,7 +1291,7 @@ fn largest_magnitude_scalar(v: &[f64]) -> f64 {
             m[k] = a;
         }
     }
-    m[0].max(m[1]).max(m[2].max(m[3]))
+    (m[0].max(m[1]).max(m[2].max(m[3])), nan)
 }
 
 /// `∇Ψ = HᵀΦ` into `grad`: each column's sum `Σ_r H_rj Φ_r` from `+0.0` in stored order (the
@@ -1491,6 +1526,29 @@ fn dot(a: &[f64], b: &[f64]) -> f64 {
         s += x * y;
     }
     s
+}
+
+/// `a >= rho * nd.powf(p)`, the descent tests' comparison, decided without `powf` where
+/// `‖d‖²` and `‖d‖³` decide it (`powf`: ≈ 125 instructions and 0.6 % of a desk step's perf
+/// samples). For `1e-90 ≤ nd ≤ 1` and `2 ≤ p ≤ 3`, `nd³ ≤ nd^p ≤ nd²`; `powf` is within an
+/// ulp of `nd^p` and each product within half an ulp, so `ρ·powf(nd, p)` is within `4ε` of
+/// `ρ·nd²` from below and of `ρ·nd³` from above (all of them normal numbers where taken, at
+/// least `1e-290`). A margin of `1e-12` leaves the bound's verdict the exact test's; between
+/// the bounds (and for other `p`, `ρ`, `nd`, NaNs) the exact test decides. On the desk `2Ψ` is
+/// ≈ 1e-12 and `ρ‖d‖²` ≈ 1e-20: the first bound decides.
+fn at_least_rho_pow(a: f64, rho: f64, nd: f64, p: f64) -> bool {
+    const SMALLEST: f64 = 1e-290;
+    if (2.0..=3.0).contains(&p) && rho > 0.0 && rho.is_finite() && (1e-90..=1.0).contains(&nd) {
+        let square = rho * (nd * nd);
+        if square >= SMALLEST && a >= square * (1.0 + 1e-12) {
+            return true;
+        }
+        let cube = rho * (nd * nd * nd);
+        if cube >= SMALLEST && a < cube * (1.0 - 1e-12) {
+            return false;
+        }
+    }
+    a >= rho * nd.powf(p)
 }
 
 fn norm2(a: &[f64]) -> f64 {
@@ -1967,6 +2025,8 @@ impl NewtonSolver {
         // `F` at the start may be known already (`Mcp::known_value`: the warm start's guard
         // evaluated it there, ≈ 2.6 k instructions on A1): the same bits as evaluating it.
         let mut have_jac = !from_kept && self.last_iterated;
+        // `ws.jac` holds `H` since the iteration formed it in place (`assemble_h`), not `J`.
+        let mut jac_gone = false;
         let f_known = match (mcp.known_value(&ws.z), have_jac) {
             (Some(f), true) => {
                 ws.f.copy_from_slice(f);
@@ -2181,9 +2241,14 @@ impl NewtonSolver {
                 );
                 // H; `pin` gets the column maxima for the pinning test below, only when some
                 // column may be pinned (`undecided`): else no column is, and `pin` is not read.
-                let (largest, undecided) = assemble_h(
+                // Formed in `J`'s buffer, the buffers swapped (no copy of `J`): `ws.jac` holds
+                // no `J` until the next evaluation (`jac_gone`; the ratio test evaluates it
+                // again at the same point, the same bits, when it needs `J d`).
+                std::mem::swap(&mut ws.jac, &mut ws.h);
+                jac_gone = true;
+                let (largest, undecided, finite) = assemble_h(
                     &pattern,
-                    &ws.jac,
+                    None,
                     &ws.da,
                     &ws.db,
                     Some(&ws.scaled),
@@ -2221,7 +2286,14 @@ impl NewtonSolver {
                     );
                 newton_ok = if s.free_block {
                     unit_rows(&ws.db, &ws.bounded, &mut ws.unit);
-                    linear.factor_with_unit_rows(&ws.h, &ws.unit).is_ok()
+                    // `H` found finite by its largest-magnitude pass (before any pins, which
+                    // add to it): the free block's load moves it without testing each entry.
+                    if finite && !pinned {
+                        linear.factor_with_unit_rows_finite(&ws.h, &ws.unit)
+                    } else {
+                        linear.factor_with_unit_rows(&ws.h, &ws.unit)
+                    }
+                    .is_ok()
                 } else {
                     linear.factor(&ws.h).is_ok()
                 };
@@ -2260,7 +2332,7 @@ impl NewtonSolver {
                     // judged by the tests).
                     if let Some(p) = p
                         && p <= fraction * psi
-                        && 2.0 * psi >= s.descent_rho * norm2(&ws.d).powf(s.descent_p)
+                        && at_least_rho_pow(2.0 * psi, s.descent_rho, norm2(&ws.d), s.descent_p)
                     {
                         accepted = Some((1.0, p));
                         lu_step = true;
@@ -2277,8 +2349,9 @@ impl NewtonSolver {
                     // `∇Ψᵀd`, kept as the slope of the Newton direction's line searches below.
                     newton_slope = dot(&ws.grad, &ws.d);
                     let nd = norm2(&ws.d);
+                    // `x ≤ (−ρ)·P` is `−x ≥ ρ·P` (a product's rounding is symmetric).
                     newton_ok = newton_slope.is_finite()
-                        && newton_slope <= -s.descent_rho * nd.powf(s.descent_p);
+                        && at_least_rho_pow(-newton_slope, s.descent_rho, nd, s.descent_p);
                 }
                 // A pinned `H` is singular but for the pins (D5's collision): its chord steps
                 // end where the next `H`'s LU fails, so its LU is not kept for them.
@@ -2364,6 +2437,12 @@ impl NewtonSolver {
             // crosses, as a pivot).
             let ratio_on = s.ratio_test && self.attempt == 0 && !self.in_continuation;
             if ratio_on && accepted.is_none() && newton_ok {
+                if jac_gone {
+                    // `J` at `z` again (its buffer holds `H`'s last values): the same point,
+                    // the same bits; not counted, as the one evaluation it replaces.
+                    mcp.jacobian(&ws.z, &mut ws.jac);
+                    jac_gone = false;
+                }
                 pattern.mul_vec(&ws.jac, &ws.d, &mut ws.jv);
                 if let Some(event) = ratio::first_event(&ws.z, &ws.f, &ws.d, &ws.jv, l, u)
                     && let Some(p) = try_ratio_step(mcp, ws, event, l, u, &mut f_evals)
@@ -3040,22 +3119,29 @@ mod tests {
             }
             for v in cases {
                 let (got, want) = (largest_magnitude(&v), largest_magnitude_scalar(&v));
-                assert_eq!(got.to_bits(), want.to_bits(), "{v:?}");
-                assert!(!got.is_nan());
+                let key = |(m, nan): (f64, bool)| (m.to_bits(), nan);
+                assert_eq!(key(got), key(want), "{v:?}");
+                assert!(!got.0.is_nan());
+                // The NaN flag is whether `v` holds one, wherever it lies.
+                assert_eq!(got.1, v.iter().any(|x| x.is_nan()), "{v:?}");
                 #[cfg(target_arch = "x86_64")]
                 {
                     let sse2 = largest_magnitude_sse2(&v);
-                    assert_eq!(sse2.to_bits(), want.to_bits(), "{v:?}");
+                    assert_eq!(key(sse2), key(want), "{v:?}");
                     if std::arch::is_x86_feature_detected!("avx") {
                         // SAFETY: the processor runs AVX.
                         let avx = unsafe { largest_magnitude_avx(&v) };
-                        assert_eq!(avx.to_bits(), want.to_bits(), "{v:?}");
+                        assert_eq!(key(avx), key(want), "{v:?}");
                     }
                 }
             }
         }
-        assert_eq!(largest_magnitude(&[f64::NAN; 5]), 0.0);
-        assert_eq!(largest_magnitude(&[-1.0, 2.0, f64::NAN, -9.0, 3.0]), 9.0);
+        assert_eq!(largest_magnitude(&[f64::NAN; 5]), (0.0, true));
+        assert_eq!(
+            largest_magnitude(&[-1.0, 2.0, f64::NAN, -9.0, 3.0]),
+            (9.0, true)
+        );
+        assert_eq!(largest_magnitude(&[-1.0, 2.0, -9.0, 3.0]), (9.0, false));
     }
 
     #[test]
@@ -3139,9 +3225,9 @@ mod tests {
                 let (mut h0, mut g0, mut c0) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let (mut h1, mut g1, mut c1) = (vec![0.0; nnz], vec![0.0; n], vec![0.0; n]);
                 let want = plain(&pattern, (&jac, &da, &db, &phi), &mut h0, &mut g0, &mut c0);
-                let (got, undecided) = assemble_h(
+                let (got, undecided, finite) = assemble_h(
                     &pattern,
-                    &jac,
+                    Some(&jac),
                     &da,
                     &db,
                     None,
@@ -3154,6 +3240,7 @@ mod tests {
                 assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
                 assert_eq!(bits(&h1), bits(&h0), "n = {n}, trial {trial}");
                 assert_eq!(bits(&g1), bits(&g0), "n = {n}, trial {trial}");
+                assert_eq!(finite, h1.iter().all(|x| x.is_finite()), "trial {trial}");
                 // `J` copied and the listed positions alone scaled, every other row's `D_b`
                 // exactly 1 (the free rows): the bits of the plain assembly with those `D_b`.
                 {
@@ -3168,9 +3255,9 @@ mod tests {
                     let want = plain(&pattern, (&jac, &da, &db1, &phi), &mut h2, &mut g2, &mut c2);
                     let mut w3 = pattern.diag_pos().to_vec();
                     let mut w4 = pattern.diag_pos().to_vec();
-                    let (got, undecided) = assemble_h(
+                    let (got, undecided, _) = assemble_h(
                         &pattern,
-                        &jac,
+                        Some(&jac),
                         &da,
                         &db1,
                         Some(&positions),
@@ -3181,11 +3268,31 @@ mod tests {
                     assert_eq!(bits(&h3), bits(&h2), "n = {n}, trial {trial}");
                     assert_eq!(got.to_bits(), want.to_bits(), "n = {n}, trial {trial}");
                     let (mut h4, mut c4) = (vec![0.0; nnz], vec![0.0; n]);
-                    let all =
-                        assemble_h(&pattern, &jac, &da, &db1, None, &mut h4, &mut w4, &mut c4);
+                    let all = assemble_h(
+                        &pattern,
+                        Some(&jac),
+                        &da,
+                        &db1,
+                        None,
+                        &mut h4,
+                        &mut w4,
+                        &mut c4,
+                    );
                     assert_eq!(bits(&h4), bits(&h2), "n = {n}, trial {trial}");
                     assert_eq!((all.0.to_bits(), all.1), (got.to_bits(), undecided));
                     assert_eq!(bits(&c4), bits(&c3));
+                    // In place (`J` in `h`, the solver's path), listed positions or all: the
+                    // same bits, witnesses and column magnitudes.
+                    for listed in [Some(positions.as_slice()), None] {
+                        let (mut h5, mut c5) = (jac.clone(), vec![0.0; n]);
+                        let mut w5 = pattern.diag_pos().to_vec();
+                        let inplace = assemble_h(
+                            &pattern, None, &da, &db1, listed, &mut h5, &mut w5, &mut c5,
+                        );
+                        assert_eq!(bits(&h5), bits(&h2), "n = {n}, trial {trial}");
+                        assert_eq!((inplace.0.to_bits(), inplace.1), (got.to_bits(), undecided));
+                        assert_eq!((bits(&c5), &w5), (bits(&c3), &w3));
+                    }
                 }
                 // Each column's magnitude decides the pinning test as its largest does (a NaN
                 // column is not pinned), and is that largest where the test pins.
@@ -3231,6 +3338,73 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn the_descent_bounds_decide_as_powf() {
+        // Random and edge values of `a`, `nd` near the bounds' margins and the ranges' ends,
+        // `p` and `ρ` of the defaults and others: the verdict is the exact test's.
+        let mut state = 0x2545_f491_4f6c_dd1du64;
+        let mut next = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            (state >> 11) as f64 / (1u64 << 53) as f64
+        };
+        let specials = [
+            0.0,
+            -0.0,
+            1.0,
+            1e-90,
+            1e-91,
+            1.0 + f64::EPSILON,
+            f64::MIN_POSITIVE,
+            f64::MAX,
+            f64::INFINITY,
+            -1.0,
+            f64::NAN,
+        ];
+        let mut cases = 0;
+        for &p in &[2.1, 2.0, 3.0, 1.9, 3.5, f64::NAN] {
+            for &rho in &[1e-8, 1.0, 1e12, 0.0, -1e-8, f64::INFINITY, f64::NAN] {
+                for k in 0..4000 {
+                    let nd = if k < specials.len() {
+                        specials[k]
+                    } else {
+                        10f64.powf(-120.0 * next()) * (1.0 + next())
+                    };
+                    let exact = rho * nd.powf(p);
+                    let square = rho * nd * nd;
+                    let cube = rho * nd * nd * nd;
+                    // `a` at the exact value, an ulp or a tiny factor either side, at the two
+                    // bounds and their margins, and random.
+                    for a in [
+                        exact,
+                        f64::from_bits(exact.to_bits().wrapping_add(1)),
+                        f64::from_bits(exact.to_bits().wrapping_sub(1)),
+                        exact * (1.0 + 1e-13),
+                        exact * (1.0 - 1e-13),
+                        square,
+                        square * (1.0 + 1e-12),
+                        square * (1.0 + 2e-12),
+                        cube,
+                        cube * (1.0 - 1e-12),
+                        cube * (1.0 - 2e-12),
+                        square * next(),
+                        cube * next() * 3.0,
+                        specials[k % specials.len()],
+                    ] {
+                        assert_eq!(
+                            at_least_rho_pow(a, rho, nd, p),
+                            a >= rho * nd.powf(p),
+                            "a = {a:e}, rho = {rho:e}, nd = {nd:e}, p = {p}"
+                        );
+                        cases += 1;
+                    }
+                }
+            }
+        }
+        assert!(cases > 1_000_000);
     }
 
     /// `same_branches` (each kind matched once) agrees with `pair_branch` compared point by

@@ -152,12 +152,14 @@ impl UnitRowsLu {
     /// `mask[i]` are unit rows. `Ok(false)`, nothing factorised, when a unit row holds a
     /// nonzero off-diagonal entry (or a NaN there): the caller factorises the whole matrix.
     /// `NonFinite` for a non-finite entry elsewhere, `Singular` by the pivot ratio of `H_FF`'s
-    /// pivots and `D_U` together.
+    /// pivots and `D_U` together. `known_finite`: the caller has found every value finite, and
+    /// `H_FF`'s entries are moved without the test (`LinearSolver::factor_with_unit_rows_finite`).
     pub(crate) fn factor(
         &mut self,
         pattern: &CscPattern,
         values: &[f64],
         mask: &[bool],
+        known_finite: bool,
     ) -> Result<bool, LinalgError> {
         self.factored = false;
         self.index(pattern, mask);
@@ -192,11 +194,19 @@ impl UnitRowsLu {
             }));
         self.lu.clear_storage();
         let a = self.lu.storage_mut();
-        for &(q, k) in &self.block {
-            let v = at(q);
-            carried |= exponent_carry(v);
-            // SAFETY: as above.
-            unsafe { *a.get_unchecked_mut(k) = v };
+        if known_finite {
+            // Loads and stores alone (the test is the caller's).
+            for &(q, k) in &self.block {
+                // SAFETY: as above.
+                unsafe { *a.get_unchecked_mut(k) = at(q) };
+            }
+        } else {
+            for &(q, k) in &self.block {
+                let v = at(q);
+                carried |= exponent_carry(v);
+                // SAFETY: as above.
+                unsafe { *a.get_unchecked_mut(k) = v };
+            }
         }
         if !carries_finite(carried) {
             return Err(LinalgError::NonFinite);
@@ -422,7 +432,10 @@ mod tests {
             for j in (0..n).filter(|j| !unit.contains(j)) {
                 a[j * n + j] *= 0.01;
             }
-            assert_eq!(lu.factor(&pattern, &a, &mask(n, &unit)), Ok(true));
+            assert_eq!(lu.factor(&pattern, &a, &mask(n, &unit), false), Ok(true));
+            // The load without the finiteness test (values known finite): the same factors.
+            let mut known = super::UnitRowsLu::new(&pattern);
+            assert_eq!(known.factor(&pattern, &a, &mask(n, &unit), true), Ok(true));
             interchanged |= lu.order != lu.free;
             for held in [true, false] {
                 let b: Vec<f64> = (0..n)
@@ -434,18 +447,22 @@ mod tests {
                         }
                     })
                     .collect();
-                let (mut x, mut y) = (b.clone(), b.clone());
+                let (mut x, mut y, mut w) = (b.clone(), b.clone(), b.clone());
                 lu.solve_in_place(&mut x).unwrap_or_else(|e| panic!("{e}"));
                 gathered_solve(&lu, &mut y);
+                known
+                    .solve_in_place(&mut w)
+                    .unwrap_or_else(|e| panic!("{e}"));
                 let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
                 assert_eq!(bits(&x), bits(&y), "seed {seed}, held {held}");
+                assert_eq!(bits(&w), bits(&x), "seed {seed}, held {held}");
             }
         }
         assert!(interchanged);
         // Fewer values than the pattern stores: refused, not read past.
         let a = matrix(n, &[2], 14);
         assert!(matches!(
-            lu.factor(&pattern, &a[..n * n - 1], &mask(n, &[2])),
+            lu.factor(&pattern, &a[..n * n - 1], &mask(n, &[2]), false),
             Err(LinalgError::Factorization(_))
         ));
     }
