@@ -50,7 +50,7 @@ use ecp_model::{
 
 use crate::pivot::basis::DEPENDENCE_TOLERANCE;
 use crate::pivot::{
-    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath, all_finite,
+    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath,
     mul_vec_nonzero_columns,
 };
 use crate::smoothing::{SmoothingSettings, continuation};
@@ -359,6 +359,9 @@ struct GatherMap {
     entries: Vec<(usize, usize)>,
     /// Column `k`'s entries are `entries[start[k]..start[k + 1]]`.
     start: Vec<usize>,
+    /// The pattern's stored entries when built: every position is below it (the gather's
+    /// unchecked reads rest on it, [`gather_reduced`]).
+    nnz: usize,
 }
 
 impl GatherMap {
@@ -384,6 +387,7 @@ impl GatherMap {
         self.entries.clear();
         self.start.clear();
         self.start.push(0);
+        self.nnz = pattern.nnz();
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         for &j in inactive {
             for q in cp[j]..cp[j + 1] {
@@ -787,6 +791,122 @@ fn evaluate_projected(
     }
 }
 
+/// [`crate::pivot::all_finite`] compiled for AVX2 where the processor has it: four lanes per
+/// instruction instead of two on the Jacobian's 400 entries the desk tests every step. The
+/// verdict does not depend on the order of the sums (any NaN term makes the sum NaN).
+fn all_finite(values: &[f64]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2.
+        return unsafe { all_finite_avx2(values) };
+    }
+    crate::pivot::all_finite(values)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn all_finite_avx2(values: &[f64]) -> bool {
+    crate::pivot::all_finite(values)
+}
+
+/// The crash target's `J_II` from the stored Jacobian `jac` by `map` (built for this pattern and
+/// inactive set) into `reduced` (`ni × ni`, column after column, `ni = map.inactive.len()`),
+/// and each column's largest magnitude into `norms`. `jac` is finite (tested before).
+///
+/// The storage is zeroed in one pass of vector stores, then the stored entries are scattered
+/// by unchecked reads: the column-by-column `fill` (a `memset` call per column) and the two
+/// bounds checks per entry were about a third of the crash target's instructions
+/// (`docs/latency.md`, branch wip-path of the fifteenth session). The same values land in the
+/// same places, and the largest magnitudes are the same numbers.
+fn gather_reduced(reduced: &mut [f64], norms: &mut [f64], map: &GatherMap, jac: &[f64]) {
+    let ni = map.inactive.len();
+    // What the unchecked reads and writes below rest on: every row in the map is below `ni`
+    // (rows of `J_II`), every position below `map.nnz` (positions of the pattern's entries).
+    assert!(
+        reduced.len() == ni * ni
+            && norms.len() == ni
+            && map.start.len() == ni + 1
+            && map.start[ni] == map.entries.len()
+            && jac.len() >= map.nnz,
+        "gather map of another system"
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2; the map's bounds are checked above.
+        unsafe { gather_reduced_avx2(reduced, norms, map, jac) };
+        return;
+    }
+    // SAFETY: the map's bounds are checked above.
+    unsafe { gather_reduced_with(reduced, norms, map, jac) };
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gather_reduced_avx2(
+    reduced: &mut [f64],
+    norms: &mut [f64],
+    map: &GatherMap,
+    jac: &[f64],
+) {
+    // SAFETY: the caller's.
+    unsafe { gather_reduced_with(reduced, norms, map, jac) };
+}
+
+/// [`gather_reduced`]'s body.
+///
+/// # Safety
+/// `map`'s rows are below `norms.len()` (`ni`), its positions below `jac.len()`, its
+/// `start` has `ni + 1` ascending entries ending at `entries.len()`, and `reduced` is `ni × ni`.
+#[inline(always)]
+unsafe fn gather_reduced_with(
+    reduced: &mut [f64],
+    norms: &mut [f64],
+    map: &GatherMap,
+    jac: &[f64],
+) {
+    let ni = norms.len();
+    // A zero the compiler cannot see: a loop storing a known zero becomes a `memset` call
+    // (a `rep stosb` over `ni²` entries, or one call per column), this one vector stores.
+    let zero = std::hint::black_box(0.0f64);
+    for v in reduced.iter_mut() {
+        *v = zero;
+    }
+    let entries = &map.entries[..];
+    for (k, (col, norm)) in reduced
+        .chunks_exact_mut(ni)
+        .zip(norms.iter_mut())
+        .enumerate()
+    {
+        // SAFETY: `start` has `ni + 1` entries, ascending, the last `entries.len()`.
+        let (a, b) = unsafe { (*map.start.get_unchecked(k), *map.start.get_unchecked(k + 1)) };
+        let column = unsafe { entries.get_unchecked(a..b) };
+        // `J` is finite here: one `maxsd` per entry, not `f64::max`'s NaN tests. Four running
+        // maxima, not one: one chain of `maxsd` (four cycles each) through a column's entries
+        // held up the loop. The largest of non-negative finite numbers is the same number in
+        // any order.
+        let mut m = [0.0f64; 4];
+        let mut quads = column.chunks_exact(4);
+        for e in &mut quads {
+            for (m, &(q, r)) in m.iter_mut().zip(e) {
+                // SAFETY: `q < jac.len()`, `r < ni = col.len()` (the map's).
+                let v = unsafe { *jac.get_unchecked(q) };
+                unsafe { *col.get_unchecked_mut(r) = v };
+                let a = v.abs();
+                *m = if a > *m { a } else { *m };
+            }
+        }
+        for (m, &(q, r)) in m.iter_mut().zip(quads.remainder()) {
+            // SAFETY: as above.
+            let v = unsafe { *jac.get_unchecked(q) };
+            unsafe { *col.get_unchecked_mut(r) = v };
+            let a = v.abs();
+            *m = if a > *m { a } else { *m };
+        }
+        let larger = |a: f64, b: f64| if a > b { a } else { b };
+        *norm = larger(larger(m[0], m[1]), larger(m[2], m[3]));
+    }
+}
+
 fn norm_inf_diff(a: &[f64], b: &[f64]) -> f64 {
     a.iter()
         .zip(b)
@@ -949,41 +1069,10 @@ impl PathSolver {
                 self.gather
                     .build(arc, pattern, &self.inactive, &self.reduced_slot);
             }
-            // Straight into the LU's storage, each column zeroed just before its scatter (one
-            // memset of all `ni²` entries is a `rep stosb` of several kB, counted per byte by
-            // callgrind), with its largest magnitude, the scale of the dependence test.
+            // Straight into the LU's storage, with each column's largest magnitude, the scale
+            // of the dependence test.
             let (reduced, norms) = self.factor.storage_mut(ni);
-            // The fields as local slices, so the loop keeps them in registers.
-            let (entries, jac) = (&self.gather.entries[..], &self.jac[..]);
-            for ((col, norm), w) in reduced
-                .chunks_exact_mut(ni)
-                .zip(norms.iter_mut())
-                .zip(self.gather.start.windows(2))
-            {
-                col.fill(0.0);
-                // `J` is finite here: one `maxsd` per entry, not `f64::max`'s NaN tests. Four
-                // running maxima, not one: one chain of `maxsd` (four cycles each) through a
-                // column's entries held up the loop. The largest of non-negative finite
-                // numbers is the same number in any order.
-                let mut m = [0.0f64; 4];
-                let mut quads = entries[w[0]..w[1]].chunks_exact(4);
-                for e in &mut quads {
-                    for (m, &(q, r)) in m.iter_mut().zip(e) {
-                        let v = jac[q];
-                        col[r] = v;
-                        let a = v.abs();
-                        *m = if a > *m { a } else { *m };
-                    }
-                }
-                for (m, &(q, r)) in m.iter_mut().zip(quads.remainder()) {
-                    let v = jac[q];
-                    col[r] = v;
-                    let a = v.abs();
-                    *m = if a > *m { a } else { *m };
-                }
-                let larger = |a: f64, b: f64| if a > b { a } else { b };
-                *norm = larger(larger(m[0], m[1]), larger(m[2], m[3]));
-            }
+            gather_reduced(reduced, norms, &self.gather, &self.jac);
             if shift != 0.0 {
                 for (k, (col, norm)) in reduced
                     .chunks_exact_mut(ni)
