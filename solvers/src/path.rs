@@ -563,6 +563,16 @@ impl PathSolver {
         }
     }
 
+    /// The best point of the attempts so far and `F` there: `best_z` and `best_f`, or
+    /// `current`'s while it is the best ([`PathSolver::best_in_current`]).
+    fn best_point(&self) -> (&[f64], &[f64]) {
+        if self.best_in_current {
+            (&self.current.z, &self.current.f)
+        } else {
+            (&self.best_z, &self.best_f)
+        }
+    }
+
     /// Takes the trial point as a crash step of length `t` (a chord step has 1): recorded for
     /// the observer and the trace, counted as an iteration and a crash step, and made current
     /// ([`PathSolver::accept_trial`]); returns its natural residual. The record (and the
@@ -766,23 +776,27 @@ fn normal_point_squares_with(
 /// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
 /// (the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead when `fischer`).
 fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool) {
-    evaluate_projected(mcp, p, f_evals, fischer, false);
+    evaluate_projected(mcp, p, f_evals, fischer, None);
 }
 
-/// [`evaluate_at`], with `F` taken from the problem where it holds it for that `z` already
-/// when `known` (`Mcp::known_value`: a time step's warm start, whose guard evaluated `F` there;
-/// the same bits as evaluating it). Counted as an evaluation either way.
+/// [`evaluate_at`], or at an attempt's start `z = π(z0)` when `start` is `Some(z0)`: then `F`
+/// is taken from the problem where it holds it for that `z` already (`Mcp::known_value`: a time
+/// step's warm start, whose guard evaluated `F` there; the same bits as evaluating it), and the
+/// point is as if `x` had been set to `z0` first. Counted as an evaluation either way.
 fn evaluate_projected(
     mcp: &dyn Mcp,
     p: &mut Point,
     f_evals: &mut usize,
     fischer: bool,
-    known: bool,
+    start: Option<&[f64]>,
 ) {
     let (l, u) = (mcp.lower(), mcp.upper());
     let n = p.x.len();
-    project(&mut p.z[..n], &p.x[..n], &l[..n], &u[..n]);
-    match known.then(|| mcp.known_value(&p.z)).flatten() {
+    // From the start `z0` itself, not from a copy of it in `x`: where `F` is finite, the
+    // normal point overwrites every component of `x` anyway.
+    let from = start.unwrap_or(&p.x);
+    project(&mut p.z[..n], &from[..n], &l[..n], &u[..n]);
+    match start.and_then(|_| mcp.known_value(&p.z)) {
         Some(f) => p.f.copy_from_slice(f),
         None => mcp.evaluate(&p.z, &mut p.f),
     }
@@ -801,6 +815,10 @@ fn evaluate_projected(
             };
         }
     } else {
+        // `x` as the caller set it, the start where it came from there.
+        if let Some(z0) = start {
+            p.x.copy_from_slice(z0);
+        }
         p.merit = f64::INFINITY;
     }
 }
@@ -1087,8 +1105,12 @@ impl PathSolver {
         // Active set from the projection π(z − F): −1 lower, +1 upper, 0 inside. Target: active
         // components at their bounds; inactive ones by the reduced Newton system
         // J_II Δ_I = −F_I − J_IA (b_A − z_A). One pass over zipped slices (no bounds checks,
-        // the fields not reloaded per component).
-        self.inactive.clear();
+        // the fields not reloaded per component). The inactive components are listed by
+        // writing every index and advancing past the inactive ones (no `push`, whose length
+        // and capacity were reloaded from `self` per component).
+        self.inactive.resize(n, 0);
+        let listed = &mut self.inactive[..n];
+        let mut ni = 0;
         let cur_zf = cur.z[..n].iter().zip(&cur.f[..n]);
         let targets = (self.active[..n].iter_mut())
             .zip(&mut self.step_x[..n])
@@ -1103,14 +1125,16 @@ impl PathSolver {
             } else if y >= ui {
                 (1, ui)
             } else {
-                self.inactive.push(i);
                 (0, z)
             };
+            // `ni <= i < n`.
+            listed[ni] = i;
+            ni += usize::from(kind == 0);
             *active = kind;
             *target = b;
             *jz = b - z;
         }
-        let ni = self.inactive.len();
+        self.inactive.truncate(ni);
         if ni > 0 {
             // rhs = −F − J (b − z), restricted to I (`b − z` is zero on I and wherever z is at
             // its bound already, so most columns are skipped).
@@ -1193,7 +1217,8 @@ impl PathSolver {
     /// `false`, leaving `x_I` as it was, when `Δ` is not finite.
     fn reduced_newton_step(&mut self, with_rhs: bool, into_trial: bool) -> bool {
         let (cur, inactive) = (&self.current, &self.inactive[..]);
-        let (f, rhs) = (&cur.f[..], &self.rhs[..]);
+        // Of one length, so that one bounds check per index serves both.
+        let (f, rhs) = (&cur.f[..], &self.rhs[..cur.f.len()]);
         let b = &mut self.crash_rhs;
         b.clear();
         // Gathered in the order of the LU's row interchanges (`crash_order`), so that the
@@ -1214,9 +1239,9 @@ impl PathSolver {
         if finite {
             let z = &cur.z[..];
             let x = if into_trial {
-                &mut self.trial.x[..]
+                &mut self.trial.x[..z.len()]
             } else {
-                &mut self.step_x[..]
+                &mut self.step_x[..z.len()]
             };
             for (&i, &d) in inactive.iter().zip(b.iter()) {
                 x[i] = z[i] + d;
@@ -1321,8 +1346,7 @@ impl PathSolver {
         // Start: z = π(z0), x its normal-map point; `F` there may be known already (a time
         // step's warm start).
         self.keep_best();
-        self.current.x.copy_from_slice(z0);
-        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, true);
+        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, Some(z0));
         let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
@@ -1816,8 +1840,10 @@ impl PathSolver {
             *best_residual = residual;
             self.best_in_current = true;
         }
-        // `best_z` and `best_f` hold the best point when the attempt ends.
-        self.keep_best();
+        // The best point is in `best_z` and `best_f`, or still `current` itself
+        // (`best_in_current`): copied by the next attempt's start, if there is one, not here
+        // (a solve that converges in its first attempt, the desk's every one, reports it from
+        // `current`, [`PathSolver::best_point`]).
         if residual <= s.tolerance {
             Termination::Converged
         } else {
@@ -2173,6 +2199,7 @@ impl PathSolver {
             && !self.out_of_time()
         {
             run.counters.best_point_restarts += 1;
+            self.keep_best();
             let best = self.best_z.clone();
             let t = self.attempt(mcp, &pattern, &best, s, 0.0, true, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
@@ -2221,10 +2248,11 @@ impl PathSolver {
             counters: reported,
         };
         // `best_f` is F at `best_z` once a finite residual made the point this solve's best.
+        let (best_z, best_f) = self.best_point();
         if !best_residual.is_finite() {
-            return finish_solve(mcp, self.best_z.clone(), report);
+            return finish_solve(mcp, best_z.to_vec(), report);
         }
-        if finish_solve_into(mcp, &self.best_z, &self.best_f, report, &mut result) {
+        if finish_solve_into(mcp, best_z, best_f, report, &mut result) {
             Ok(result)
         } else {
             Err(SolveError::NotConverged {
