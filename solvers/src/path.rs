@@ -1738,7 +1738,7 @@ impl PathSolver {
         let mut polishes = 0;
         let mut chords = 0;
         let mut chord_last = chord_landed;
-        while residual <= s.tolerance && n > 0 && !self.out_of_time() {
+        while residual <= s.tolerance && n > 0 {
             let above =
                 residual > s.polish_below * s.tolerance || std::mem::take(&mut polish_start);
             // The chord's polish only above a floor: a chord step that ended far below the
@@ -1746,6 +1746,13 @@ impl PathSolver {
             if !above
                 && (!chord_last || residual <= POLISH_CHORD_FLOOR * s.polish_below * s.tolerance)
             {
+                break;
+            }
+            // The clock after the tests above, which end the polish without a step (the
+            // desk's every step): a reading costs about as much as a pass over the unknowns.
+            // Neither test's state is read after the loop, so a spent budget still ends it
+            // before any step, as when the clock was read first.
+            if self.out_of_time() {
                 break;
             }
             chord_last = false;
@@ -1927,9 +1934,20 @@ impl McpSolver for PathSolver {
         z0: &[f64],
         out: &mut Solution,
     ) -> Result<(), SolveError> {
-        self.result = std::mem::take(out);
-        *out = self.solve(mcp, z0)?;
-        Ok(())
+        // `out`'s storage into `result` by a swap (`result` is empty between solves), not by
+        // `take`, which copied the whole `Solution` through the stack twice.
+        std::mem::swap(&mut self.result, out);
+        match self.solve(mcp, z0) {
+            Ok(sol) => {
+                *out = sol;
+                Ok(())
+            }
+            Err(e) => {
+                // As `take` left it.
+                *out = Solution::default();
+                Err(e)
+            }
+        }
     }
 
     /// Honoured: a budgeted solve is the first attempt alone (in the problem's scene scales),
