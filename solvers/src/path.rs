@@ -2504,6 +2504,194 @@ mod tests {
         }
     }
 
+    /// A small generator for the tests below (xorshift64*).
+    fn draws(seed: u64) -> impl FnMut() -> u64 {
+        let mut x = seed.max(1);
+        move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+    }
+
+    /// Values of every kind a Jacobian, a point or a bound may hold (finite unless `wild`).
+    fn value(next: &mut impl FnMut() -> u64, wild: bool) -> f64 {
+        let pick = next() % if wild { 14 } else { 10 };
+        let unit = (next() >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        match pick {
+            0 => 0.0,
+            1 => -0.0,
+            2 => unit * 1e-300,
+            3 => unit * 1e300,
+            4 => 5e-324,
+            5 => -f64::MAX,
+            6..=9 => unit * 8.0,
+            10 => f64::NAN,
+            11 => f64::INFINITY,
+            12 => f64::NEG_INFINITY,
+            _ => -f64::NAN,
+        }
+    }
+
+    #[test]
+    fn gathered_reduced_matrix_is_the_plain_scatter_bitwise() {
+        let mut next = draws(0x9e37_79b9);
+        for trial in 0..300 {
+            let n = 1 + (next() % 40) as usize;
+            let density = 1 + next() % 6;
+            let mut entries = Vec::new();
+            for j in 0..n {
+                for i in 0..n {
+                    if i == j || next() % 8 < density {
+                        entries.push((i, j));
+                    }
+                }
+            }
+            let pattern = Arc::new(CscPattern::from_triplets(n, &entries).unwrap());
+            let jac: Vec<f64> = (0..pattern.nnz())
+                .map(|_| value(&mut next, false))
+                .collect();
+            let inactive: Vec<usize> = (0..n)
+                .filter(|_| next() % 4 != 0 || trial % 7 == 0)
+                .collect();
+            let ni = inactive.len();
+            let mut slot = vec![usize::MAX; n];
+            for (k, &i) in inactive.iter().enumerate() {
+                slot[i] = k;
+            }
+            // The plain scatter: zeros, then each stored entry of an inactive row and column.
+            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+            let mut expected = vec![0.0; ni * ni];
+            for (k, &j) in inactive.iter().enumerate() {
+                for q in cp[j]..cp[j + 1] {
+                    if slot[ri[q]] != usize::MAX {
+                        expected[k * ni + slot[ri[q]]] = jac[q];
+                    }
+                }
+            }
+            let expected_norms: Vec<f64> = expected
+                .chunks(ni.max(1))
+                .take(ni)
+                .map(|c| c.iter().fold(0.0f64, |m, v| m.max(v.abs())))
+                .collect();
+            let mut map = GatherMap::default();
+            map.build(&pattern, &pattern, &inactive, &slot);
+            assert!(map.holds(&pattern, &pattern, &inactive));
+            // Storage that held something else, as the LU's does.
+            let mut reduced = vec![f64::NAN; ni * ni];
+            let mut norms = vec![-1.0; ni];
+            gather_reduced(&mut reduced, &mut norms, &map, &jac);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&reduced), bits(&expected), "trial {trial}");
+            assert_eq!(bits(&norms), bits(&expected_norms), "trial {trial}");
+            // The portable build too.
+            reduced.fill(7.0);
+            // SAFETY: the map was built for this pattern and inactive set.
+            unsafe { gather_reduced_with(&mut reduced, &mut norms, &map, &jac) };
+            assert_eq!(bits(&reduced), bits(&expected), "trial {trial}, portable");
+            assert_eq!(
+                bits(&norms),
+                bits(&expected_norms),
+                "trial {trial}, portable"
+            );
+        }
+    }
+
+    #[test]
+    fn all_finite_in_four_sums_is_the_plain_verdict() {
+        let mut next = draws(0x51ed_270b);
+        for len in 0..70 {
+            let finite: Vec<f64> = (0..len).map(|_| value(&mut next, false)).collect();
+            assert!(all_finite(&finite), "{len}");
+            assert!(crate::pivot::all_finite(&finite));
+            for k in 0..len {
+                for bad in [f64::NAN, -f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                    let mut v = finite.clone();
+                    v[k] = bad;
+                    assert!(!all_finite(&v), "{bad} at {k} of {len}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn projection_is_mid_bitwise() {
+        let mut next = draws(0x2545_f491);
+        for len in 0..40 {
+            for _ in 0..20 {
+                let x: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                let mut l: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                let mut u: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                for (l, u) in l.iter_mut().zip(&mut u) {
+                    if *l > *u {
+                        std::mem::swap(l, u);
+                    }
+                }
+                let expected: Vec<u64> =
+                    (0..len).map(|i| mid(l[i], u[i], x[i]).to_bits()).collect();
+                let mut z = vec![1.5; len];
+                project(&mut z, &x, &l, &u);
+                let got: Vec<u64> = z.iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, expected, "{len}");
+                project_with(&mut z, &x, &l, &u);
+                let got: Vec<u64> = z.iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, expected, "{len}, portable");
+            }
+        }
+    }
+
+    #[test]
+    fn start_evaluated_from_z0_is_the_copy_then_evaluation() {
+        // F finite at the start (the normal point overwrites `x`) and not (`x` is the start).
+        for (start, fine) in [(vec![1.2, -0.3], true), (vec![-5.0, 2.0], false)] {
+            let inner = FnMcp::dense(
+                vec![f64::NEG_INFINITY, 0.0],
+                vec![f64::INFINITY, 1.0],
+                |z, f| {
+                    f[0] = if z[0] < -1.0 {
+                        f64::NAN
+                    } else {
+                        z[0] * z[0] - 1.0
+                    };
+                    f[1] = z[1] - 0.5 + z[0];
+                },
+                |z, j| {
+                    j[0] = 2.0 * z[0];
+                    j[1] = 1.0;
+                    j[2] = 0.0;
+                    j[3] = 1.0;
+                },
+            )
+            .unwrap();
+            let run = |from_start: bool| {
+                let mut p = Point::default();
+                p.resize(2);
+                p.x.copy_from_slice(&[9.0, 9.0]);
+                let mut evals = 0;
+                if from_start {
+                    evaluate_projected(&inner, &mut p, &mut evals, false, Some(&start));
+                } else {
+                    p.x.copy_from_slice(&start);
+                    evaluate_at(&inner, &mut p, &mut evals, false);
+                }
+                (p, evals)
+            };
+            let (a, ea) = run(true);
+            let (b, eb) = run(false);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(ea, eb);
+            assert_eq!(bits(&a.x), bits(&b.x));
+            assert_eq!(bits(&a.z), bits(&b.z));
+            assert_eq!(bits(&a.f), bits(&b.f));
+            assert_eq!(a.merit.to_bits(), b.merit.to_bits());
+            assert_eq!(a.merit.is_finite(), fine);
+            if !fine {
+                assert_eq!(a.x, start);
+            }
+        }
+    }
+
     #[test]
     fn path_normal_point_projects_back_and_measures_the_merit() {
         let l = [0.0, 0.0, f64::NEG_INFINITY];
