@@ -1111,6 +1111,8 @@ impl PathSolver {
         self.inactive.resize(n, 0);
         let listed = &mut self.inactive[..n];
         let mut ni = 0;
+        // The bits of every `b − z`, or-ed.
+        let mut bits = 0u64;
         let cur_zf = cur.z[..n].iter().zip(&cur.f[..n]);
         let targets = (self.active[..n].iter_mut())
             .zip(&mut self.step_x[..n])
@@ -1132,13 +1134,22 @@ impl PathSolver {
             ni += usize::from(kind == 0);
             *active = kind;
             *target = b;
-            *jz = b - z;
+            let d = b - z;
+            *jz = d;
+            bits |= d.to_bits();
         }
+        // Some `b − z` other than `±0` (a NaN included): a bit set besides the sign's.
+        let moves = bits << 1 != 0;
         self.inactive.truncate(ni);
         if ni > 0 {
             // rhs = −F − J (b − z), restricted to I (`b − z` is zero on I and wherever z is at
-            // its bound already, so most columns are skipped).
-            mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
+            // its bound already, so most columns are skipped). Where no component moves to
+            // its bound (the desk's every step), `J (b − z)` is `+0` throughout and
+            // `−F_i − (+0)` is `−F_i` bit for bit: neither the product nor its zeroing is
+            // needed.
+            if moves {
+                mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
+            }
             // J_II gathered straight from the pattern (no dense copy of the whole J), by the
             // map of this pattern and inactive set.
             let arc = mcp.jacobian_pattern();
@@ -1169,7 +1180,7 @@ impl PathSolver {
                 return false;
             }
             self.factor.row_order(&self.inactive, &mut self.crash_order);
-            if !self.reduced_newton_step(true, false) {
+            if !self.reduced_newton_step(moves, false) {
                 return false;
             }
         }
@@ -1192,21 +1203,29 @@ impl PathSolver {
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let cur = &self.current;
-        let same = (self.active[..n].iter())
-            .zip(cur.z[..n].iter().zip(&cur.f[..n]))
+        // The test and the trial's `x = z` (its active components; the step writes the
+        // others) in one pass, not a test and then a copy: the trial is written afresh before
+        // it is evaluated when the chord step is refused.
+        let mut same = true;
+        for ((x, (&active, (&z, &f))), (&l, &u)) in (self.trial.x[..n].iter_mut())
+            .zip(
+                self.active[..n]
+                    .iter()
+                    .zip(cur.z[..n].iter().zip(&cur.f[..n])),
+            )
             .zip(l[..n].iter().zip(&u[..n]))
-            .all(|((&active, (&z, &f)), (&l, &u))| {
-                let y = z - f;
-                match active {
-                    -1 => y <= l && z == l,
-                    1 => y >= u && z == u,
-                    _ => y > l && y < u,
-                }
-            });
+        {
+            let y = z - f;
+            same &= match active {
+                -1 => (y <= l) & (z == l),
+                1 => (y >= u) & (z == u),
+                _ => (y > l) & (y < u),
+            };
+            *x = z;
+        }
         if !same {
             return false;
         }
-        self.trial.x.copy_from_slice(&cur.z);
         self.reduced_newton_step(false, true)
     }
 
