@@ -2161,7 +2161,8 @@ impl PathSolver {
             *self.lemke.settings_mut() = s.lemke.clone();
         }
         let n = mcp.dim();
-        let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
+        // Borrowed, not cloned: the clone and its drop are two atomic operations a solve.
+        let pattern: &CscPattern = mcp.jacobian_pattern();
         self.resize(n, pattern.nnz());
         self.fischer = false;
         self.best_in_current = false;
@@ -2176,7 +2177,7 @@ impl PathSolver {
         let mut termination = if skip_first {
             Termination::MaxIterations
         } else {
-            self.attempt(mcp, &pattern, z0, s, 0.0, false, &mut run)
+            self.attempt(mcp, pattern, z0, s, 0.0, false, &mut run)
         };
         // A second attempt with the guarded watchdog (see `PathSettings::guarded_watchdog`).
         if s.guarded_watchdog
@@ -2185,7 +2186,7 @@ impl PathSolver {
             && !self.out_of_time()
         {
             run.counters.guarded_attempts += 1;
-            let t = self.attempt(mcp, &pattern, z0, s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, z0, s, 0.0, true, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -2210,7 +2211,7 @@ impl PathSolver {
             restarts += 1;
             run.counters.restarts += 1;
             let lambda0 = s.restart_proximal * (10f64).powi(restarts as i32 - 1);
-            let t = self.attempt(mcp, &pattern, z0, &restart, lambda0, false, &mut run);
+            let t = self.attempt(mcp, pattern, z0, &restart, lambda0, false, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -2223,7 +2224,7 @@ impl PathSolver {
         {
             run.counters.fischer_attempts += 1;
             self.fischer = true;
-            let t = self.attempt(mcp, &pattern, z0, s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, z0, s, 0.0, true, &mut run);
             self.fischer = false;
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
@@ -2238,7 +2239,7 @@ impl PathSolver {
             run.counters.best_point_restarts += 1;
             self.keep_best();
             let best = self.best_z.clone();
-            let t = self.attempt(mcp, &pattern, &best, s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, &best, s, 0.0, true, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
