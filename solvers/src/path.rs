@@ -401,7 +401,7 @@ impl GatherMap {
             // to the same place, its magnitude already counted): the gather's loop then has no
             // remainder, whose varying length per column was mispredicted.
             if let Some(&last) = self.entries[first..].last() {
-                while (self.entries.len() - first) % 4 != 0 {
+                while !(self.entries.len() - first).is_multiple_of(4) {
                     self.entries.push(last);
                 }
             }
@@ -2573,7 +2573,7 @@ mod tests {
                 .map(|_| value(&mut next, false))
                 .collect();
             let inactive: Vec<usize> = (0..n)
-                .filter(|_| next() % 4 != 0 || trial % 7 == 0)
+                .filter(|_| !next().is_multiple_of(4) || trial % 7 == 0)
                 .collect();
             let ni = inactive.len();
             let mut slot = vec![usize::MAX; n];
