@@ -50,7 +50,7 @@ use ecp_model::{
 
 use crate::pivot::basis::DEPENDENCE_TOLERANCE;
 use crate::pivot::{
-    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath, all_finite,
+    AffineMatrix, AffineMcp, AffineStart, Lemke, LemkeSettings, PivotError, PivotPath,
     mul_vec_nonzero_columns,
 };
 use crate::smoothing::{SmoothingSettings, continuation};
@@ -355,10 +355,14 @@ impl Point {
 struct GatherMap {
     pattern: Option<Arc<CscPattern>>,
     inactive: Vec<usize>,
-    /// `(position, row)` of `J_II`'s stored entries, column after column.
+    /// `(position, row)` of `J_II`'s stored entries, column after column, each column padded
+    /// to a multiple of four entries by repeating its last.
     entries: Vec<(usize, usize)>,
-    /// Column `k`'s entries are `entries[start[k]..start[k + 1]]`.
-    start: Vec<usize>,
+    /// Column `k` has `quads[k]` fours of `entries`.
+    quads: Vec<usize>,
+    /// The pattern's stored entries when built: every position is below it (the gather's
+    /// unchecked reads rest on it, [`gather_reduced`]).
+    nnz: usize,
 }
 
 impl GatherMap {
@@ -382,17 +386,26 @@ impl GatherMap {
         self.inactive.clear();
         self.inactive.extend_from_slice(inactive);
         self.entries.clear();
-        self.start.clear();
-        self.start.push(0);
+        self.quads.clear();
+        self.nnz = pattern.nnz();
         let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
         for &j in inactive {
+            let first = self.entries.len();
             for q in cp[j]..cp[j + 1] {
                 let r = slot[ri[q]];
                 if r != usize::MAX {
                     self.entries.push((q, r));
                 }
             }
-            self.start.push(self.entries.len());
+            // Padded to whole fours by the column's last entry again (the same value written
+            // to the same place, its magnitude already counted): the gather's loop then has no
+            // remainder, whose varying length per column was mispredicted.
+            if let Some(&last) = self.entries[first..].last() {
+                while !(self.entries.len() - first).is_multiple_of(4) {
+                    self.entries.push(last);
+                }
+            }
+            self.quads.push((self.entries.len() - first) / 4);
         }
     }
 }
@@ -513,6 +526,9 @@ pub struct PathSolver {
     iteration_budget: Option<usize>,
     /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
     start_predicted: bool,
+    /// The dimension and Jacobian entries the buffers were last sized for
+    /// ([`PathSolver::resize`]).
+    sized: Option<(usize, usize)>,
 }
 
 impl PathSolver {
@@ -544,6 +560,16 @@ impl PathSolver {
             self.best_z.copy_from_slice(&self.current.z);
             self.best_f.copy_from_slice(&self.current.f);
             self.best_in_current = false;
+        }
+    }
+
+    /// The best point of the attempts so far and `F` there: `best_z` and `best_f`, or
+    /// `current`'s while it is the best ([`PathSolver::best_in_current`]).
+    fn best_point(&self) -> (&[f64], &[f64]) {
+        if self.best_in_current {
+            (&self.current.z, &self.current.f)
+        } else {
+            (&self.best_z, &self.best_f)
         }
     }
 
@@ -620,6 +646,7 @@ impl PathSolver {
             fischer: false,
             iteration_budget: None,
             start_predicted: false,
+            sized: None,
         }
     }
     /// Whether the wall-clock budget of the current solve is spent.
@@ -642,6 +669,11 @@ impl PathSolver {
     }
 
     fn resize(&mut self, n: usize, nnz: usize) {
+        // Every solve of a simulation has the same sizes: nothing to do then.
+        if self.sized == Some((n, nnz)) {
+            return;
+        }
+        self.sized = Some((n, nnz));
         self.current.resize(n);
         self.trial.resize(n);
         self.checkpoint.resize(n);
@@ -744,27 +776,27 @@ fn normal_point_squares_with(
 /// Evaluates `F` at `z = π(x)` for the point's `x`, and sets its normal-map point and merit
 /// (the Fischer–Burmeister merit `‖Φ_FB(z)‖₂` instead when `fischer`).
 fn evaluate_at(mcp: &dyn Mcp, p: &mut Point, f_evals: &mut usize, fischer: bool) {
-    evaluate_projected(mcp, p, f_evals, fischer, false);
+    evaluate_projected(mcp, p, f_evals, fischer, None);
 }
 
-/// [`evaluate_at`], with `F` taken from the problem where it holds it for that `z` already
-/// when `known` (`Mcp::known_value`: a time step's warm start, whose guard evaluated `F` there;
-/// the same bits as evaluating it). Counted as an evaluation either way.
+/// [`evaluate_at`], or at an attempt's start `z = π(z0)` when `start` is `Some(z0)`: then `F`
+/// is taken from the problem where it holds it for that `z` already (`Mcp::known_value`: a time
+/// step's warm start, whose guard evaluated `F` there; the same bits as evaluating it), and the
+/// point is as if `x` had been set to `z0` first. Counted as an evaluation either way.
 fn evaluate_projected(
     mcp: &dyn Mcp,
     p: &mut Point,
     f_evals: &mut usize,
     fischer: bool,
-    known: bool,
+    start: Option<&[f64]>,
 ) {
     let (l, u) = (mcp.lower(), mcp.upper());
-    // Zipped slices: no bounds check per component.
     let n = p.x.len();
-    for ((z, &x), (&l, &u)) in (p.z[..n].iter_mut().zip(&p.x[..n])).zip(l[..n].iter().zip(&u[..n]))
-    {
-        *z = mid(l, u, x);
-    }
-    match known.then(|| mcp.known_value(&p.z)).flatten() {
+    // From the start `z0` itself, not from a copy of it in `x`: where `F` is finite, the
+    // normal point overwrites every component of `x` anyway.
+    let from = start.unwrap_or(&p.x);
+    project(&mut p.z[..n], &from[..n], &l[..n], &u[..n]);
+    match start.and_then(|_| mcp.known_value(&p.z)) {
         Some(f) => p.f.copy_from_slice(f),
         None => mcp.evaluate(&p.z, &mut p.f),
     }
@@ -783,7 +815,171 @@ fn evaluate_projected(
             };
         }
     } else {
+        // `x` as the caller set it, the start where it came from there.
+        if let Some(z0) = start {
+            p.x.copy_from_slice(z0);
+        }
         p.merit = f64::INFINITY;
+    }
+}
+
+/// [`crate::pivot::all_finite`] compiled for AVX2 where the processor has it: four lanes per
+/// instruction instead of two on the Jacobian's 400 entries the desk tests every step. The
+/// verdict does not depend on the order of the sums (any NaN term makes the sum NaN).
+fn all_finite(values: &[f64]) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2.
+        return unsafe { all_finite_avx2(values) };
+    }
+    crate::pivot::all_finite(values)
+}
+
+/// [`all_finite`] with AVX2: sixteen entries a turn in four registers (one chain of vector
+/// adds, three cycles each, through the Jacobian's 400 entries held the test up), then four,
+/// then one at a time. Only called where the processor runs AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn all_finite_avx2(values: &[f64]) -> bool {
+    use std::arch::x86_64::*;
+    let n = values.len();
+    let p = values.as_ptr();
+    let zero = _mm256_setzero_pd();
+    let (mut a0, mut a1, mut a2, mut a3) = (zero, zero, zero, zero);
+    let mut i = 0;
+    // SAFETY: every load is at `i .. i + 3 < n` (or `i + 15 < n`), within `values`; unaligned
+    // loads need no alignment.
+    unsafe {
+        while i + 16 <= n {
+            a0 = _mm256_add_pd(a0, _mm256_mul_pd(_mm256_loadu_pd(p.add(i)), zero));
+            a1 = _mm256_add_pd(a1, _mm256_mul_pd(_mm256_loadu_pd(p.add(i + 4)), zero));
+            a2 = _mm256_add_pd(a2, _mm256_mul_pd(_mm256_loadu_pd(p.add(i + 8)), zero));
+            a3 = _mm256_add_pd(a3, _mm256_mul_pd(_mm256_loadu_pd(p.add(i + 12)), zero));
+            i += 16;
+        }
+        while i + 4 <= n {
+            a0 = _mm256_add_pd(a0, _mm256_mul_pd(_mm256_loadu_pd(p.add(i)), zero));
+            i += 4;
+        }
+    }
+    let a = _mm256_add_pd(_mm256_add_pd(a0, a1), _mm256_add_pd(a2, a3));
+    let mut lanes = [0.0f64; 4];
+    // SAFETY: `lanes` has room for the four lanes stored.
+    unsafe { _mm256_storeu_pd(lanes.as_mut_ptr(), a) };
+    let rest = values[i..].iter().fold(0.0, |a, v| a + v * 0.0);
+    (lanes[0] + lanes[1]) + (lanes[2] + lanes[3]) + rest == 0.0
+}
+
+/// The crash target's `J_II` from the stored Jacobian `jac` by `map` (built for this pattern and
+/// inactive set) into `reduced` (`ni × ni`, column after column, `ni = map.inactive.len()`),
+/// and each column's largest magnitude into `norms`. `jac` is finite (tested before).
+///
+/// The storage is zeroed in one pass of vector stores, then the stored entries are scattered
+/// by unchecked reads: the column-by-column `fill` (a `memset` call per column) and the two
+/// bounds checks per entry were about a third of the crash target's instructions
+/// (`docs/latency.md`, branch wip-path of the fifteenth session). The same values land in the
+/// same places, and the largest magnitudes are the same numbers.
+fn gather_reduced(reduced: &mut [f64], norms: &mut [f64], map: &GatherMap, jac: &[f64]) {
+    let ni = map.inactive.len();
+    // What the unchecked reads and writes below rest on: every row in the map is below `ni`
+    // (rows of `J_II`), every position below `map.nnz` (positions of the pattern's entries).
+    assert!(
+        reduced.len() == ni * ni
+            && norms.len() == ni
+            && map.quads.len() == ni
+            && jac.len() >= map.nnz,
+        "gather map of another system"
+    );
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2; the map's bounds are checked above.
+        unsafe { gather_reduced_avx2(reduced, norms, map, jac) };
+        return;
+    }
+    // SAFETY: the map's bounds are checked above.
+    unsafe { gather_reduced_with(reduced, norms, map, jac) };
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn gather_reduced_avx2(
+    reduced: &mut [f64],
+    norms: &mut [f64],
+    map: &GatherMap,
+    jac: &[f64],
+) {
+    // SAFETY: the caller's.
+    unsafe { gather_reduced_with(reduced, norms, map, jac) };
+}
+
+/// [`gather_reduced`]'s body.
+///
+/// # Safety
+/// `map`'s rows are below `norms.len()` (`ni`), its positions below `jac.len()`, and `reduced`
+/// is `ni × ni`.
+#[inline(always)]
+unsafe fn gather_reduced_with(
+    reduced: &mut [f64],
+    norms: &mut [f64],
+    map: &GatherMap,
+    jac: &[f64],
+) {
+    let ni = norms.len();
+    // A zero the compiler cannot see: a loop storing a known zero becomes a `memset` call
+    // (a `rep stosb` over `ni²` entries, or one call per column), this one vector stores.
+    let zero = std::hint::black_box(0.0f64);
+    for v in reduced.iter_mut() {
+        *v = zero;
+    }
+    // The columns' entries in whole fours, one after the other ([`GatherMap::build`]).
+    let mut quads = map.entries.chunks_exact(4);
+    for ((col, norm), &count) in (reduced.chunks_exact_mut(ni))
+        .zip(norms.iter_mut())
+        .zip(&map.quads)
+    {
+        // `J` is finite here: one `maxsd` per entry, not `f64::max`'s NaN tests. Four running
+        // maxima, not one: one chain of `maxsd` (four cycles each) through a column's entries
+        // held up the loop. The largest of non-negative finite numbers is the same number in
+        // any order.
+        let mut m = [0.0f64; 4];
+        for e in quads.by_ref().take(count) {
+            for (m, &(q, r)) in m.iter_mut().zip(e) {
+                // SAFETY: `q < jac.len()`, `r < ni = col.len()` (the map's).
+                let v = unsafe { *jac.get_unchecked(q) };
+                unsafe { *col.get_unchecked_mut(r) = v };
+                let a = v.abs();
+                *m = if a > *m { a } else { *m };
+            }
+        }
+        let larger = |a: f64, b: f64| if a > b { a } else { b };
+        *norm = larger(larger(m[0], m[1]), larger(m[2], m[3]));
+    }
+}
+
+/// `z = mid(l, u, x)` component by component, compiled for AVX2 where the processor has it
+/// (four lanes per instruction instead of two; `mid` is the same function on the same numbers
+/// in either build).
+fn project(z: &mut [f64], x: &[f64], l: &[f64], u: &[f64]) {
+    #[cfg(target_arch = "x86_64")]
+    if std::arch::is_x86_feature_detected!("avx2") {
+        // SAFETY: the processor has AVX2.
+        unsafe { project_avx2(z, x, l, u) };
+        return;
+    }
+    project_with(z, x, l, u);
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+fn project_avx2(z: &mut [f64], x: &[f64], l: &[f64], u: &[f64]) {
+    project_with(z, x, l, u);
+}
+
+#[inline(always)]
+fn project_with(z: &mut [f64], x: &[f64], l: &[f64], u: &[f64]) {
+    // Zipped slices: no bounds check per component.
+    for ((z, &x), (&l, &u)) in z.iter_mut().zip(x).zip(l.iter().zip(u)) {
+        *z = mid(l, u, x);
     }
 }
 
@@ -909,8 +1105,14 @@ impl PathSolver {
         // Active set from the projection π(z − F): −1 lower, +1 upper, 0 inside. Target: active
         // components at their bounds; inactive ones by the reduced Newton system
         // J_II Δ_I = −F_I − J_IA (b_A − z_A). One pass over zipped slices (no bounds checks,
-        // the fields not reloaded per component).
-        self.inactive.clear();
+        // the fields not reloaded per component). The inactive components are listed by
+        // writing every index and advancing past the inactive ones (no `push`, whose length
+        // and capacity were reloaded from `self` per component).
+        self.inactive.resize(n, 0);
+        let listed = &mut self.inactive[..n];
+        let mut ni = 0;
+        // The bits of every `b − z`, or-ed.
+        let mut bits = 0u64;
         let cur_zf = cur.z[..n].iter().zip(&cur.f[..n]);
         let targets = (self.active[..n].iter_mut())
             .zip(&mut self.step_x[..n])
@@ -925,18 +1127,29 @@ impl PathSolver {
             } else if y >= ui {
                 (1, ui)
             } else {
-                self.inactive.push(i);
                 (0, z)
             };
+            // `ni <= i < n`.
+            listed[ni] = i;
+            ni += usize::from(kind == 0);
             *active = kind;
             *target = b;
-            *jz = b - z;
+            let d = b - z;
+            *jz = d;
+            bits |= d.to_bits();
         }
-        let ni = self.inactive.len();
+        // Some `b − z` other than `±0` (a NaN included): a bit set besides the sign's.
+        let moves = bits << 1 != 0;
+        self.inactive.truncate(ni);
         if ni > 0 {
             // rhs = −F − J (b − z), restricted to I (`b − z` is zero on I and wherever z is at
-            // its bound already, so most columns are skipped).
-            mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
+            // its bound already, so most columns are skipped). Where no component moves to
+            // its bound (the desk's every step), `J (b − z)` is `+0` throughout and
+            // `−F_i − (+0)` is `−F_i` bit for bit: neither the product nor its zeroing is
+            // needed.
+            if moves {
+                mul_vec_nonzero_columns(pattern, &self.jac, &self.jz, &mut self.rhs);
+            }
             // J_II gathered straight from the pattern (no dense copy of the whole J), by the
             // map of this pattern and inactive set.
             let arc = mcp.jacobian_pattern();
@@ -949,41 +1162,10 @@ impl PathSolver {
                 self.gather
                     .build(arc, pattern, &self.inactive, &self.reduced_slot);
             }
-            // Straight into the LU's storage, each column zeroed just before its scatter (one
-            // memset of all `ni²` entries is a `rep stosb` of several kB, counted per byte by
-            // callgrind), with its largest magnitude, the scale of the dependence test.
+            // Straight into the LU's storage, with each column's largest magnitude, the scale
+            // of the dependence test.
             let (reduced, norms) = self.factor.storage_mut(ni);
-            // The fields as local slices, so the loop keeps them in registers.
-            let (entries, jac) = (&self.gather.entries[..], &self.jac[..]);
-            for ((col, norm), w) in reduced
-                .chunks_exact_mut(ni)
-                .zip(norms.iter_mut())
-                .zip(self.gather.start.windows(2))
-            {
-                col.fill(0.0);
-                // `J` is finite here: one `maxsd` per entry, not `f64::max`'s NaN tests. Four
-                // running maxima, not one: one chain of `maxsd` (four cycles each) through a
-                // column's entries held up the loop. The largest of non-negative finite
-                // numbers is the same number in any order.
-                let mut m = [0.0f64; 4];
-                let mut quads = entries[w[0]..w[1]].chunks_exact(4);
-                for e in &mut quads {
-                    for (m, &(q, r)) in m.iter_mut().zip(e) {
-                        let v = jac[q];
-                        col[r] = v;
-                        let a = v.abs();
-                        *m = if a > *m { a } else { *m };
-                    }
-                }
-                for (m, &(q, r)) in m.iter_mut().zip(quads.remainder()) {
-                    let v = jac[q];
-                    col[r] = v;
-                    let a = v.abs();
-                    *m = if a > *m { a } else { *m };
-                }
-                let larger = |a: f64, b: f64| if a > b { a } else { b };
-                *norm = larger(larger(m[0], m[1]), larger(m[2], m[3]));
-            }
+            gather_reduced(reduced, norms, &self.gather, &self.jac);
             if shift != 0.0 {
                 for (k, (col, norm)) in reduced
                     .chunks_exact_mut(ni)
@@ -998,7 +1180,7 @@ impl PathSolver {
                 return false;
             }
             self.factor.row_order(&self.inactive, &mut self.crash_order);
-            if !self.reduced_newton_step(true, false) {
+            if !self.reduced_newton_step(moves, false) {
                 return false;
             }
         }
@@ -1021,21 +1203,29 @@ impl PathSolver {
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let cur = &self.current;
-        let same = (self.active[..n].iter())
-            .zip(cur.z[..n].iter().zip(&cur.f[..n]))
+        // The test and the trial's `x = z` (its active components; the step writes the
+        // others) in one pass, not a test and then a copy: the trial is written afresh before
+        // it is evaluated when the chord step is refused.
+        let mut same = true;
+        for ((x, (&active, (&z, &f))), (&l, &u)) in (self.trial.x[..n].iter_mut())
+            .zip(
+                self.active[..n]
+                    .iter()
+                    .zip(cur.z[..n].iter().zip(&cur.f[..n])),
+            )
             .zip(l[..n].iter().zip(&u[..n]))
-            .all(|((&active, (&z, &f)), (&l, &u))| {
-                let y = z - f;
-                match active {
-                    -1 => y <= l && z == l,
-                    1 => y >= u && z == u,
-                    _ => y > l && y < u,
-                }
-            });
+        {
+            let y = z - f;
+            same &= match active {
+                -1 => (y <= l) & (z == l),
+                1 => (y >= u) & (z == u),
+                _ => (y > l) & (y < u),
+            };
+            *x = z;
+        }
         if !same {
             return false;
         }
-        self.trial.x.copy_from_slice(&cur.z);
         self.reduced_newton_step(false, true)
     }
 
@@ -1046,7 +1236,8 @@ impl PathSolver {
     /// `false`, leaving `x_I` as it was, when `Δ` is not finite.
     fn reduced_newton_step(&mut self, with_rhs: bool, into_trial: bool) -> bool {
         let (cur, inactive) = (&self.current, &self.inactive[..]);
-        let (f, rhs) = (&cur.f[..], &self.rhs[..]);
+        // Of one length, so that one bounds check per index serves both.
+        let (f, rhs) = (&cur.f[..], &self.rhs[..cur.f.len()]);
         let b = &mut self.crash_rhs;
         b.clear();
         // Gathered in the order of the LU's row interchanges (`crash_order`), so that the
@@ -1067,9 +1258,9 @@ impl PathSolver {
         if finite {
             let z = &cur.z[..];
             let x = if into_trial {
-                &mut self.trial.x[..]
+                &mut self.trial.x[..z.len()]
             } else {
-                &mut self.step_x[..]
+                &mut self.step_x[..z.len()]
             };
             for (&i, &d) in inactive.iter().zip(b.iter()) {
                 x[i] = z[i] + d;
@@ -1174,8 +1365,7 @@ impl PathSolver {
         // Start: z = π(z0), x its normal-map point; `F` there may be known already (a time
         // step's warm start).
         self.keep_best();
-        self.current.x.copy_from_slice(z0);
-        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, true);
+        evaluate_projected(mcp, &mut self.current, f_evals, self.fischer, Some(z0));
         let mut residual = self.current.natural_residual(l, u);
         if residual < *best_residual {
             *best_residual = residual;
@@ -1567,7 +1757,7 @@ impl PathSolver {
         let mut polishes = 0;
         let mut chords = 0;
         let mut chord_last = chord_landed;
-        while residual <= s.tolerance && n > 0 && !self.out_of_time() {
+        while residual <= s.tolerance && n > 0 {
             let above =
                 residual > s.polish_below * s.tolerance || std::mem::take(&mut polish_start);
             // The chord's polish only above a floor: a chord step that ended far below the
@@ -1575,6 +1765,13 @@ impl PathSolver {
             if !above
                 && (!chord_last || residual <= POLISH_CHORD_FLOOR * s.polish_below * s.tolerance)
             {
+                break;
+            }
+            // The clock after the tests above, which end the polish without a step (the
+            // desk's every step): a reading costs about as much as a pass over the unknowns.
+            // Neither test's state is read after the loop, so a spent budget still ends it
+            // before any step, as when the clock was read first.
+            if self.out_of_time() {
                 break;
             }
             chord_last = false;
@@ -1669,8 +1866,10 @@ impl PathSolver {
             *best_residual = residual;
             self.best_in_current = true;
         }
-        // `best_z` and `best_f` hold the best point when the attempt ends.
-        self.keep_best();
+        // The best point is in `best_z` and `best_f`, or still `current` itself
+        // (`best_in_current`): copied by the next attempt's start, if there is one, not here
+        // (a solve that converges in its first attempt, the desk's every one, reports it from
+        // `current`, [`PathSolver::best_point`]).
         if residual <= s.tolerance {
             Termination::Converged
         } else {
@@ -1754,9 +1953,20 @@ impl McpSolver for PathSolver {
         z0: &[f64],
         out: &mut Solution,
     ) -> Result<(), SolveError> {
-        self.result = std::mem::take(out);
-        *out = self.solve(mcp, z0)?;
-        Ok(())
+        // `out`'s storage into `result` by a swap (`result` is empty between solves), not by
+        // `take`, which copied the whole `Solution` through the stack twice.
+        std::mem::swap(&mut self.result, out);
+        match self.solve(mcp, z0) {
+            Ok(sol) => {
+                *out = sol;
+                Ok(())
+            }
+            Err(e) => {
+                // As `take` left it.
+                *out = Solution::default();
+                Err(e)
+            }
+        }
     }
 
     /// Honoured: a budgeted solve is the first attempt alone (in the problem's scene scales),
@@ -1947,12 +2157,12 @@ impl PathSolver {
         started: Instant,
         skip_first: bool,
     ) -> Result<Solution, SolveError> {
-        let s = s.clone();
         if *self.lemke.settings() != s.lemke {
             *self.lemke.settings_mut() = s.lemke.clone();
         }
         let n = mcp.dim();
-        let pattern: Arc<CscPattern> = mcp.jacobian_pattern().clone();
+        // Borrowed, not cloned: the clone and its drop are two atomic operations a solve.
+        let pattern: &CscPattern = mcp.jacobian_pattern();
         self.resize(n, pattern.nnz());
         self.fischer = false;
         self.best_in_current = false;
@@ -1967,7 +2177,7 @@ impl PathSolver {
         let mut termination = if skip_first {
             Termination::MaxIterations
         } else {
-            self.attempt(mcp, &pattern, z0, &s, 0.0, false, &mut run)
+            self.attempt(mcp, pattern, z0, s, 0.0, false, &mut run)
         };
         // A second attempt with the guarded watchdog (see `PathSettings::guarded_watchdog`).
         if s.guarded_watchdog
@@ -1976,7 +2186,7 @@ impl PathSolver {
             && !self.out_of_time()
         {
             run.counters.guarded_attempts += 1;
-            let t = self.attempt(mcp, &pattern, z0, &s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, z0, s, 0.0, true, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -1984,22 +2194,24 @@ impl PathSolver {
         // Restarts from the start point, as PATH does after a failure: monotone, without the
         // crash, with the proximal term on from the first step (which keeps the Newton points of
         // singular or nearly singular linearisations close to the iterate).
-        let restart = PathSettings {
-            crash_iterations: 0,
-            watchdog: 0,
-            proximal_reduction: 1.0,
-            ..s.clone()
-        };
         let mut restarts = 0;
         while termination != Termination::Converged
             && termination != Termination::NonFiniteFunction
             && restarts < s.restarts
             && !self.out_of_time()
         {
+            // Built here, not before the loop: a converged solve (the desk's every one) needs
+            // no copy of the settings.
+            let restart = PathSettings {
+                crash_iterations: 0,
+                watchdog: 0,
+                proximal_reduction: 1.0,
+                ..s.clone()
+            };
             restarts += 1;
             run.counters.restarts += 1;
             let lambda0 = s.restart_proximal * (10f64).powi(restarts as i32 - 1);
-            let t = self.attempt(mcp, &pattern, z0, &restart, lambda0, false, &mut run);
+            let t = self.attempt(mcp, pattern, z0, &restart, lambda0, false, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -2012,7 +2224,7 @@ impl PathSolver {
         {
             run.counters.fischer_attempts += 1;
             self.fischer = true;
-            let t = self.attempt(mcp, &pattern, z0, &s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, z0, s, 0.0, true, &mut run);
             self.fischer = false;
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
@@ -2025,8 +2237,9 @@ impl PathSolver {
             && !self.out_of_time()
         {
             run.counters.best_point_restarts += 1;
+            self.keep_best();
             let best = self.best_z.clone();
-            let t = self.attempt(mcp, &pattern, &best, &s, 0.0, true, &mut run);
+            let t = self.attempt(mcp, pattern, &best, s, 0.0, true, &mut run);
             if t == Termination::Converged || run.best_residual <= s.tolerance {
                 termination = Termination::Converged;
             }
@@ -2073,10 +2286,11 @@ impl PathSolver {
             counters: reported,
         };
         // `best_f` is F at `best_z` once a finite residual made the point this solve's best.
+        let (best_z, best_f) = self.best_point();
         if !best_residual.is_finite() {
-            return finish_solve(mcp, self.best_z.clone(), report);
+            return finish_solve(mcp, best_z.to_vec(), report);
         }
-        if finish_solve_into(mcp, &self.best_z, &self.best_f, report, &mut result) {
+        if finish_solve_into(mcp, best_z, best_f, report, &mut result) {
             Ok(result)
         } else {
             Err(SolveError::NotConverged {
@@ -2307,6 +2521,194 @@ mod tests {
             assert_eq!(sol.summary.residual, plain.summary.residual);
             assert_eq!(sol.summary.iterations, plain.summary.iterations);
             assert_eq!(sol.summary.f_evals, plain.summary.f_evals);
+        }
+    }
+
+    /// A small generator for the tests below (xorshift64*).
+    fn draws(seed: u64) -> impl FnMut() -> u64 {
+        let mut x = seed.max(1);
+        move || {
+            x ^= x >> 12;
+            x ^= x << 25;
+            x ^= x >> 27;
+            x.wrapping_mul(0x2545_f491_4f6c_dd1d)
+        }
+    }
+
+    /// Values of every kind a Jacobian, a point or a bound may hold (finite unless `wild`).
+    fn value(next: &mut impl FnMut() -> u64, wild: bool) -> f64 {
+        let pick = next() % if wild { 14 } else { 10 };
+        let unit = (next() >> 11) as f64 / (1u64 << 53) as f64 - 0.5;
+        match pick {
+            0 => 0.0,
+            1 => -0.0,
+            2 => unit * 1e-300,
+            3 => unit * 1e300,
+            4 => 5e-324,
+            5 => -f64::MAX,
+            6..=9 => unit * 8.0,
+            10 => f64::NAN,
+            11 => f64::INFINITY,
+            12 => f64::NEG_INFINITY,
+            _ => -f64::NAN,
+        }
+    }
+
+    #[test]
+    fn gathered_reduced_matrix_is_the_plain_scatter_bitwise() {
+        let mut next = draws(0x9e37_79b9);
+        for trial in 0..300 {
+            let n = 1 + (next() % 40) as usize;
+            let density = 1 + next() % 6;
+            let mut entries = Vec::new();
+            for j in 0..n {
+                for i in 0..n {
+                    if i == j || next() % 8 < density {
+                        entries.push((i, j));
+                    }
+                }
+            }
+            let pattern = Arc::new(CscPattern::from_triplets(n, &entries).unwrap());
+            let jac: Vec<f64> = (0..pattern.nnz())
+                .map(|_| value(&mut next, false))
+                .collect();
+            let inactive: Vec<usize> = (0..n)
+                .filter(|_| !next().is_multiple_of(4) || trial % 7 == 0)
+                .collect();
+            let ni = inactive.len();
+            let mut slot = vec![usize::MAX; n];
+            for (k, &i) in inactive.iter().enumerate() {
+                slot[i] = k;
+            }
+            // The plain scatter: zeros, then each stored entry of an inactive row and column.
+            let (cp, ri) = (pattern.col_ptr(), pattern.row_idx());
+            let mut expected = vec![0.0; ni * ni];
+            for (k, &j) in inactive.iter().enumerate() {
+                for q in cp[j]..cp[j + 1] {
+                    if slot[ri[q]] != usize::MAX {
+                        expected[k * ni + slot[ri[q]]] = jac[q];
+                    }
+                }
+            }
+            let expected_norms: Vec<f64> = expected
+                .chunks(ni.max(1))
+                .take(ni)
+                .map(|c| c.iter().fold(0.0f64, |m, v| m.max(v.abs())))
+                .collect();
+            let mut map = GatherMap::default();
+            map.build(&pattern, &pattern, &inactive, &slot);
+            assert!(map.holds(&pattern, &pattern, &inactive));
+            // Storage that held something else, as the LU's does.
+            let mut reduced = vec![f64::NAN; ni * ni];
+            let mut norms = vec![-1.0; ni];
+            gather_reduced(&mut reduced, &mut norms, &map, &jac);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&reduced), bits(&expected), "trial {trial}");
+            assert_eq!(bits(&norms), bits(&expected_norms), "trial {trial}");
+            // The portable build too.
+            reduced.fill(7.0);
+            // SAFETY: the map was built for this pattern and inactive set.
+            unsafe { gather_reduced_with(&mut reduced, &mut norms, &map, &jac) };
+            assert_eq!(bits(&reduced), bits(&expected), "trial {trial}, portable");
+            assert_eq!(
+                bits(&norms),
+                bits(&expected_norms),
+                "trial {trial}, portable"
+            );
+        }
+    }
+
+    #[test]
+    fn all_finite_in_four_sums_is_the_plain_verdict() {
+        let mut next = draws(0x51ed_270b);
+        for len in 0..70 {
+            let finite: Vec<f64> = (0..len).map(|_| value(&mut next, false)).collect();
+            assert!(all_finite(&finite), "{len}");
+            assert!(crate::pivot::all_finite(&finite));
+            for k in 0..len {
+                for bad in [f64::NAN, -f64::NAN, f64::INFINITY, f64::NEG_INFINITY] {
+                    let mut v = finite.clone();
+                    v[k] = bad;
+                    assert!(!all_finite(&v), "{bad} at {k} of {len}");
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn projection_is_mid_bitwise() {
+        let mut next = draws(0x2545_f491);
+        for len in 0..40 {
+            for _ in 0..20 {
+                let x: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                let mut l: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                let mut u: Vec<f64> = (0..len).map(|_| value(&mut next, true)).collect();
+                for (l, u) in l.iter_mut().zip(&mut u) {
+                    if *l > *u {
+                        std::mem::swap(l, u);
+                    }
+                }
+                let expected: Vec<u64> =
+                    (0..len).map(|i| mid(l[i], u[i], x[i]).to_bits()).collect();
+                let mut z = vec![1.5; len];
+                project(&mut z, &x, &l, &u);
+                let got: Vec<u64> = z.iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, expected, "{len}");
+                project_with(&mut z, &x, &l, &u);
+                let got: Vec<u64> = z.iter().map(|v| v.to_bits()).collect();
+                assert_eq!(got, expected, "{len}, portable");
+            }
+        }
+    }
+
+    #[test]
+    fn start_evaluated_from_z0_is_the_copy_then_evaluation() {
+        // F finite at the start (the normal point overwrites `x`) and not (`x` is the start).
+        for (start, fine) in [(vec![1.2, -0.3], true), (vec![-5.0, 2.0], false)] {
+            let inner = FnMcp::dense(
+                vec![f64::NEG_INFINITY, 0.0],
+                vec![f64::INFINITY, 1.0],
+                |z, f| {
+                    f[0] = if z[0] < -1.0 {
+                        f64::NAN
+                    } else {
+                        z[0] * z[0] - 1.0
+                    };
+                    f[1] = z[1] - 0.5 + z[0];
+                },
+                |z, j| {
+                    j[0] = 2.0 * z[0];
+                    j[1] = 1.0;
+                    j[2] = 0.0;
+                    j[3] = 1.0;
+                },
+            )
+            .unwrap();
+            let run = |from_start: bool| {
+                let mut p = Point::default();
+                p.resize(2);
+                p.x.copy_from_slice(&[9.0, 9.0]);
+                let mut evals = 0;
+                if from_start {
+                    evaluate_projected(&inner, &mut p, &mut evals, false, Some(&start));
+                } else {
+                    p.x.copy_from_slice(&start);
+                    evaluate_at(&inner, &mut p, &mut evals, false);
+                }
+                (p, evals)
+            };
+            let (a, ea) = run(true);
+            let (b, eb) = run(false);
+            let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(ea, eb);
+            assert_eq!(bits(&a.x), bits(&b.x));
+            assert_eq!(bits(&a.z), bits(&b.z));
+            assert_eq!(bits(&a.f), bits(&b.f));
+            assert_eq!(a.merit.to_bits(), b.merit.to_bits());
+            assert_eq!(a.merit.is_finite(), fine);
+            if !fine {
+                assert_eq!(a.x, start);
+            }
         }
     }
 
