@@ -494,40 +494,45 @@ pub(crate) fn extrapolate(
     past: &Past<'_>,
     nonnegative: bool,
 ) {
-    let [a, b, c, d, e, f] = past.z;
-    let clamp = |v: f64| if nonnegative { v.max(0.0) } else { v };
-    // One loop per order, each reading only the iterates it needs.
+    let out = &mut z[range.clone()];
+    // Each iterate's entries of `range`, sliced once: the loops below run without bounds checks
+    // (and in vector lanes, each lane the operations of `extrapolated` in their order).
+    let z = past.z.map(|v| &v[range.clone()]);
     match past.order {
-        0 => {
-            for j in range {
-                z[j] = clamp(a[j]);
-            }
+        0 => extrapolate_entries::<0>(out, z, nonnegative),
+        1 => extrapolate_entries::<1>(out, z, nonnegative),
+        2 => extrapolate_entries::<2>(out, z, nonnegative),
+        3 => extrapolate_entries::<3>(out, z, nonnegative),
+        4 => extrapolate_entries::<4>(out, z, nonnegative),
+        _ => extrapolate_entries::<5>(out, z, nonnegative),
+    }
+}
+
+/// `out[j]` the extrapolation of order `ORDER` from `z[0][j]` (newest), `z[1][j]`, … (each of
+/// `out`'s length), clamped at 0 when `nonnegative`: one loop per order, reading only the
+/// iterates it needs.
+#[inline(always)]
+fn extrapolate_entries<const ORDER: usize>(out: &mut [f64], z: [&[f64]; PAST], nonnegative: bool) {
+    let n = out.len();
+    let [a, b, c, d, e, f] = z.map(|v| &v[..n]);
+    let at = |j: usize| extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]);
+    if nonnegative {
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = at(j).max(0.0);
         }
-        1 => {
-            for j in range {
-                z[j] = clamp(extrapolated(1, &[a[j], b[j], 0.0, 0.0, 0.0, 0.0]));
-            }
+    } else {
+        for (j, o) in out.iter_mut().enumerate() {
+            *o = at(j);
         }
-        2 => {
-            for j in range {
-                z[j] = clamp(extrapolated(2, &[a[j], b[j], c[j], 0.0, 0.0, 0.0]));
-            }
-        }
-        3 => {
-            for j in range {
-                z[j] = clamp(extrapolated(3, &[a[j], b[j], c[j], d[j], 0.0, 0.0]));
-            }
-        }
-        4 => {
-            for j in range {
-                z[j] = clamp(extrapolated(4, &[a[j], b[j], c[j], d[j], e[j], 0.0]));
-            }
-        }
-        _ => {
-            for j in range {
-                z[j] = clamp(extrapolated(5, &[a[j], b[j], c[j], d[j], e[j], f[j]]));
-            }
-        }
+    }
+}
+
+/// `z`'s entries `range` clamped at 0: [`extrapolate`] with `nonnegative` as a second pass (the
+/// same numbers: the clamp of each extrapolated value).
+#[inline]
+pub(crate) fn clamp_nonnegative(z: &mut [f64], range: std::ops::Range<usize>) {
+    for v in &mut z[range] {
+        *v = v.max(0.0);
     }
 }
 
@@ -648,6 +653,7 @@ mod tests {
             before: &z[1],
             older: z.get(2).map(Vec::as_slice),
             earlier: [3, 4, 5].map(|k| z.get(k).map(Vec::as_slice)),
+            serial: (0, 0),
         }
     }
 
