@@ -468,6 +468,7 @@ impl<'a> Past<'a> {
 /// one step apart, one step on: `2 a − b`, `3 a − 3 b + c`, `4 a − 6 b + 4 c − d`,
 /// `5 a − 10 b + 10 c − 5 d + e`, `6 a − 15 b + 20 c − 15 d + 6 e − f` (the first two as they
 /// always were, for their bits).
+#[inline(always)]
 fn extrapolated(order: usize, v: &[f64; PAST]) -> f64 {
     let [a, b, c, d, e, f] = *v;
     match order {
@@ -515,14 +516,13 @@ pub(crate) fn extrapolate(
 fn extrapolate_entries<const ORDER: usize>(out: &mut [f64], z: [&[f64]; PAST], nonnegative: bool) {
     let n = out.len();
     let [a, b, c, d, e, f] = z.map(|v| &v[..n]);
-    let at = |j: usize| extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]);
     if nonnegative {
-        for (j, o) in out.iter_mut().enumerate() {
-            *o = at(j).max(0.0);
+        for j in 0..n {
+            out[j] = extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]).max(0.0);
         }
     } else {
-        for (j, o) in out.iter_mut().enumerate() {
-            *o = at(j);
+        for j in 0..n {
+            out[j] = extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]);
         }
     }
 }

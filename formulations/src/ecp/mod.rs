@@ -379,14 +379,33 @@ impl EcpContacts {
     }
 
     /// The continuous part of the mode test (`same_contact_modes`), for iterates of the same
-    /// discrete modes ([`EcpContacts::same_discrete_modes`]): each contact closed in `b` has `p_n`
-    /// changed by at most [`IMPULSE_CHANGE`] of the larger of the two.
-    fn close_impulses(&self, ctx: &StepContext<'_>, mcp: &BlockMcp, a: &[f64], b: &[f64]) -> bool {
-        self.layout.contacts.iter().all(|c| {
-            let open_pn = open_impulse(ctx.scene, c.body, ctx.h);
+    /// discrete modes ([`EcpContacts::same_discrete_modes`]): the first `back` in `1..until` where
+    /// `z_{k−back}` fails it against `z_k` (a contact closed in `z_k` whose `p_n` changed by more
+    /// than [`IMPULSE_CHANGE`] of the larger of the two), else `until`. `z` holds the iterates,
+    /// newest first.
+    fn first_impulse_change(
+        &self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &[&[f64]; RUN_READ],
+        until: usize,
+    ) -> usize {
+        let mut first = until;
+        for c in &self.layout.contacts {
             let pn = mcp.range(c.pn).start;
-            b[pn] <= open_pn || (a[pn] - b[pn]).abs() <= IMPULSE_CHANGE * a[pn].max(b[pn])
-        })
+            let b = z[0][pn];
+            if b <= open_impulse(ctx.scene, c.body, ctx.h) {
+                continue;
+            }
+            for (back, older) in z.iter().enumerate().take(first).skip(1) {
+                let a = older[pn];
+                if !((a - b).abs() <= IMPULSE_CHANGE * a.max(b)) {
+                    first = back;
+                    break;
+                }
+            }
+        }
+        first
     }
 
     /// The iterates of `it` a smooth start extrapolates from, `None` when the last step is no
@@ -436,24 +455,21 @@ impl EcpContacts {
             run,
             ended,
         });
-        if run < 2
-            || !self.close_impulses(ctx, mcp, it.before, it.last)
-            || !self.moving(ctx, mcp, &it)
-        {
+        if run < 2 {
             return None;
         }
         // The older iterates only as far back as each has the same modes too (and as the
-        // highest order reads).
+        // highest order reads): to the first whose discrete modes (`run`) or impulses differ.
         it.truncate(guess::MAX_ORDER);
-        for back in 2..it.depth() {
-            if back >= run
-                || !it
-                    .at(back)
-                    .is_some_and(|z| self.close_impulses(ctx, mcp, z, it.last))
-            {
-                it.truncate(back - 1);
-                break;
-            }
+        // (Those past the depth are not read.)
+        let [e3, e4, e5] = it.earlier.map(|e| e.unwrap_or(it.last));
+        let z = [it.last, it.before, it.older.unwrap_or(it.last), e3, e4, e5];
+        let differ = self.first_impulse_change(ctx, mcp, &z, run.min(it.depth()));
+        if differ < 2 || !self.moving(ctx, mcp, &it) {
+            return None;
+        }
+        if differ < it.depth() {
+            it.truncate(differ - 1);
         }
         Some(it)
     }
@@ -1033,7 +1049,11 @@ impl StepFormulation for EcpContacts {
         mcp.evaluate(z, &mut f);
         // `Φ` kept beside the residual: the backend's merit at the start chosen is its sum.
         let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);
-        let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
+        // `max(1, ‖z‖∞)`, a NaN passed over as `f64::max` does (by a comparison, which the
+        // compiler makes one `max` instruction).
+        let size = z
+            .iter()
+            .fold(1.0, |m: f64, v| if v.abs() > m { v.abs() } else { m });
         // Then the plain start's momentum rows at the last iterate, without the plain start
         // (`momentum_rows_decide`: on the desk they carry most of its residual).
         self.extrapolated = merit <= EXACT_START * size
