@@ -148,26 +148,29 @@ impl History {
         origin: &Vector3<f64>,
         dim: usize,
     ) -> Option<Iterates<'_>> {
-        // The `back`-th newest iterate (0: the last), when it fits.
-        let at = |back: usize| {
-            let slot = (self.next + 2 * KEPT - 1 - back) % KEPT;
-            let fits =
-                back < self.streak && self.origins[slot] == *origin && self.z[slot].len() == dim;
-            fits.then_some(self.z[slot].as_slice())
-        };
         if !whole_step {
             return None;
         }
-        let mut it = Iterates {
-            older: at(2),
-            before: at(1)?,
-            last: at(0)?,
-            earlier: [at(3), at(4), at(5)],
+        // The iterates from the last back while each fits (kept since the last clear, in
+        // `origin` and of dimension `dim`): an unbroken run back from `z_k` (an older iterate
+        // fits whenever a newer one does, but the run is what counts), in one pass over the ring.
+        let mut z: [Option<&[f64]>; KEPT] = [None; KEPT];
+        let mut slot = self.next;
+        for kept in z.iter_mut().take(self.streak) {
+            slot = if slot == 0 { KEPT - 1 } else { slot - 1 };
+            if self.origins[slot] != *origin || self.z[slot].len() != dim {
+                break;
+            }
+            *kept = Some(self.z[slot].as_slice());
+        }
+        let [last, before, older, e3, e4, e5] = z;
+        let it = Iterates {
+            older,
+            before: before?,
+            last: last?,
+            earlier: [e3, e4, e5],
             serial: (self.id, self.pushed),
         };
-        // Only an unbroken run back from `z_k` (an older iterate fits whenever a newer one does,
-        // but the depth is the run's).
-        it.truncate(it.depth() - 1);
         Some(it)
     }
 }
@@ -190,6 +193,10 @@ mod tests {
             .iterates(true, &o, 2)
             .unwrap_or_else(|| panic!("no iterates"));
         assert_eq!(it.depth(), KEPT);
+        // The serial: this store's number and the count of iterates it kept.
+        assert_eq!(it.serial.1, 8);
+        assert_ne!(it.serial.0, 0);
+        assert_ne!(it.serial.0, History::default().id);
         for back in 0..KEPT {
             assert_eq!(it.at(back).map(|z| z[0]), Some((7 - back) as f64));
         }
@@ -215,6 +222,7 @@ mod tests {
             .unwrap_or_else(|| panic!("no iterates"));
         assert_eq!(it.depth(), 2);
         assert_eq!((it.last[0], it.before[0]), (10.0, 9.0));
+        assert_eq!(it.serial.1, 11);
         h.clear();
         assert!(h.iterates(true, &o, 2).is_none());
     }
