@@ -445,14 +445,14 @@ impl<'a> Past<'a> {
         if order == 0 || order + 2 > self.depth {
             return None;
         }
-        let z = &self.z;
+        // Each iterate's entries of `range`, sliced once (no bounds checks in the loop).
+        let n = range.len();
+        let [a, b, c, d, e, f] = self.z.map(|v| &v[range.clone()][..n]);
         let mut worst: f64 = 0.0;
-        for j in range {
-            let mut v = [0.0; PAST];
-            for (back, slot) in v.iter_mut().enumerate().take(PAST - 1) {
-                *slot = z[back + 1][j];
-            }
-            let miss = (extrapolated(order, &v) - z[0][j]).abs();
+        for j in 0..n {
+            // The older iterates one step back: `z_{k−1}` newest.
+            let v = [b[j], c[j], d[j], e[j], f[j], 0.0];
+            let miss = (extrapolated(order, &v) - a[j]).abs();
             // NaN counts as the worst miss.
             worst = if miss.is_nan() {
                 f64::INFINITY
