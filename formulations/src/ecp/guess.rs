@@ -60,23 +60,7 @@ pub fn closest_point_guess_into(
 
 /// The first half of [`closest_point_guess_into`]: `a1` in body coordinates (the centroid of
 /// the vertices nearest to G at pose `(x, r)`) and the gap.
-///
-/// The vertices that can be neither the lowest nor within `1e-6` of it are skipped
-/// ([`lowest_feature_bounded`]); the same numbers as computing every vertex's gap
-/// ([`lowest_feature_of_all`]).
 fn lowest_feature(
-    set: &ConvexHull,
-    plane: &HalfSpace,
-    x: &Vector3<f64>,
-    r: &Matrix3<f64>,
-) -> (Vector3<f64>, f64) {
-    lowest_feature_bounded(set, plane, x, r)
-        .unwrap_or_else(|| lowest_feature_of_all(set, plane, x, r))
-}
-
-/// [`lowest_feature`] with every vertex's gap computed (the reference of the bounded one, and
-/// its fallback).
-fn lowest_feature_of_all(
     set: &ConvexHull,
     plane: &HalfSpace,
     x: &Vector3<f64>,
@@ -107,68 +91,6 @@ fn lowest_feature_of_all(
     }
     a1_body /= f64::max(count, 1.0);
     (a1_body, gmin)
-}
-
-/// [`lowest_feature`] computing the gap only of the vertices that can be the lowest or within
-/// `1e-6` of it, as `gap_and_mode_bounded` (`geometry/plane.rs`) skips those that cannot touch:
-/// `b = (Rᵀn)·v` bounds each gap, `g ≈ lift + b` with `lift = n·x − c`, within `margin =
-/// 1e-13 U`, `U = ‖x‖₁ + 3 radius Σ|R_ij| + |c|` (the computed `g` and `lift + b` are each within
-/// about 60 units of round-off of `U` of the exact gap; `U` also bounds `|gmin|`, so the
-/// round-off of `gmin + 1e-6` and of the cut is far below `margin`). A vertex with
-/// `b > lowest + 1e-6 + 4 margin` (`lowest` the least `b`) has `g > lift + lowest + 1e-6 +
-/// 3 margin ≥ gmin + 1e-6` (the vertex of the least `b` has `g ≤ lift + lowest + margin`), so
-/// it is neither the lowest nor in the band: the gaps computed (the same operations), their
-/// least and the band's vertices summed in order are those of every vertex. NaN bounds are
-/// kept. `None` (compute every gap) for more than `KEPT_GAPS` vertices or a non-finite `lift`
-/// or margin.
-fn lowest_feature_bounded(
-    set: &ConvexHull,
-    plane: &HalfSpace,
-    x: &Vector3<f64>,
-    r: &Matrix3<f64>,
-) -> Option<(Vector3<f64>, f64)> {
-    let verts = set.vertices();
-    if verts.len() > KEPT_GAPS {
-        return None;
-    }
-    let n = plane.normal();
-    let w = r.tr_mul(&n);
-    let lift = n.dot(x) - plane.offset();
-    let size = x.abs().sum() + 3.0 * r.abs().sum() * set.radius() + plane.offset().abs();
-    let margin = 1e-13 * size + f64::MIN_POSITIVE;
-    if !(lift.is_finite() && margin.is_finite()) {
-        return None;
-    }
-    let mut bound = [0.0; KEPT_GAPS];
-    let bound = &mut bound[..verts.len()];
-    let mut lowest = f64::INFINITY;
-    for (b, v) in bound.iter_mut().zip(verts) {
-        *b = w.dot(v);
-        // NaN passed over (its vertex is kept below).
-        lowest = if *b < lowest { *b } else { lowest };
-    }
-    let cut = (lowest + 1e-6) + 4.0 * margin;
-    // The skipped vertices' gaps as +∞: neither the least nor in the band.
-    let mut gaps = [f64::INFINITY; KEPT_GAPS];
-    let gaps = &mut gaps[..verts.len()];
-    let mut gmin = f64::INFINITY;
-    for ((g, b), v) in gaps.iter_mut().zip(bound.iter()).zip(verts) {
-        if *b > cut {
-            continue;
-        }
-        *g = plane.value(&(x + r * v));
-        gmin = gmin.min(*g);
-    }
-    let mut a1_body = Vector3::zeros();
-    let mut count: f64 = 0.0;
-    for (g, v) in gaps.iter().zip(verts) {
-        if *g <= gmin + 1e-6 {
-            a1_body += v;
-            count += 1.0;
-        }
-    }
-    a1_body /= f64::max(count, 1.0);
-    Some((a1_body, gmin))
 }
 
 /// The second half of [`closest_point_guess_into`]: the face multipliers at `a1_body` (body
@@ -722,108 +644,6 @@ mod tests {
                 assert!(l.iter().any(|&li| li > 0.0));
             }
         }
-    }
-
-    /// The bounded lowest feature (`lowest_feature`, the gaps of the vertices that can be the
-    /// lowest or within 1e-6 of it) is that of every vertex's gap (`lowest_feature_of_all`), bit
-    /// for bit: the cube, the desk, the T-bar and a 12-sided prism, on the ground, an incline and
-    /// a raised tilted plane, at random rotations, level ones and ones tilted so that vertices
-    /// lie near the band's edge (about 1e-6 above the lowest, the tilt stepped by units of
-    /// round-off), lowest vertex at 0, 1e-3 and −1e-4 from the plane, 0, 1e3 and 1e7 m along
-    /// it. (A cut 4 margins lower, or of 1e-7, fails it.)
-    #[test]
-    fn bounded_lowest_feature_is_that_of_every_vertex() {
-        use crate::geometry::Shape;
-        use crate::rotation::{quat_from_axis_angle, quat_from_rpy_deg, rotation_matrix};
-        let prism: Vec<Vector3<f64>> = (0..12)
-            .flat_map(|k| {
-                let a = k as f64 * std::f64::consts::TAU / 12.0;
-                [-0.1, 0.1].map(|z| Vector3::new(0.3 * a.cos(), 0.3 * a.sin(), z))
-            })
-            .collect();
-        let prism = ConvexHull::from_points(&prism).unwrap_or_else(|e| panic!("{e}"));
-        let desk = Shape::desk().hull().unwrap_or_else(|e| panic!("{e}"));
-        let t_bar = Shape::t_bar().hull().unwrap_or_else(|e| panic!("{e}"));
-        let planes = [
-            HalfSpace::ground(),
-            HalfSpace::incline(0.3).unwrap_or_else(|e| panic!("{e}")),
-            HalfSpace::new(Vector3::new(0.1, -0.2, 1.0).normalize(), 0.7)
-                .unwrap_or_else(|e| panic!("{e}")),
-        ];
-        // A small linear congruential generator: the same cases every run.
-        let mut seed = 0x2545_f491_4f6c_dd1du64;
-        let mut uniform = move || {
-            seed = seed
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64
-        };
-        let (mut cases, mut skipped) = (0, 0);
-        for hull in [cube(), desk, t_bar, prism] {
-            let width = hull.radius();
-            let mut rotations = vec![rotation_matrix(&quat_from_rpy_deg(0.0, 0.0, 0.0))];
-            for _ in 0..12 {
-                let rpy = [0, 1, 2].map(|_| 360.0 * uniform() - 180.0);
-                rotations.push(rotation_matrix(&quat_from_rpy_deg(rpy[0], rpy[1], rpy[2])));
-            }
-            // Tilts about x that lift one side of a level face by about 1e-6 (the band's edge),
-            // stepped by units of round-off.
-            let edge = (1e-6 / (2.0 * width)).atan();
-            for k in -4..=4 {
-                let angle = edge * (1.0 + k as f64 * f64::EPSILON);
-                for axis in [Vector3::x(), Vector3::new(1.0, 1.0, 0.0)] {
-                    let q = quat_from_axis_angle(&axis, angle).unwrap_or_else(|| panic!("axis"));
-                    rotations.push(rotation_matrix(&q));
-                }
-            }
-            for plane in &planes {
-                let (n, c) = (plane.normal(), plane.offset());
-                // Two directions along the plane.
-                let u = n
-                    .cross(&Vector3::z())
-                    .try_normalize(1e-12)
-                    .unwrap_or(Vector3::x());
-                let v = n.cross(&u);
-                for r in &rotations {
-                    for along in [0.0, 1e3, 1e7] {
-                        for above in [0.0, 1e-3, -1e-4] {
-                            // The lowest vertex `above` the plane.
-                            let lowest = hull
-                                .vertices()
-                                .iter()
-                                .map(|p| n.dot(&(r * p)))
-                                .fold(f64::INFINITY, f64::min);
-                            let x = u * along + v * (0.5 * along) + n * (c + above - lowest);
-                            let bounded = lowest_feature_bounded(&hull, plane, &x, r);
-                            let (a1, gap) = lowest_feature(&hull, plane, &x, r);
-                            let (a1_all, gap_all) = lowest_feature_of_all(&hull, plane, &x, r);
-                            assert!(bounded.is_some());
-                            assert_eq!(a1.map(f64::to_bits), a1_all.map(f64::to_bits));
-                            assert_eq!(gap.to_bits(), gap_all.to_bits(), "{along} {above}");
-                            cases += 1;
-                            let w = r.tr_mul(&n);
-                            let least = hull
-                                .vertices()
-                                .iter()
-                                .map(|p| w.dot(p))
-                                .fold(f64::INFINITY, f64::min);
-                            skipped += hull
-                                .vertices()
-                                .iter()
-                                .filter(|p| w.dot(p) > least + 1e-5)
-                                .count();
-                        }
-                    }
-                }
-            }
-        }
-        assert!(cases > 1000 && skipped > cases, "{cases} {skipped}");
-        // Non-finite poses fall back on every vertex.
-        let nan = Vector3::new(f64::NAN, 0.0, 0.0);
-        assert!(
-            lowest_feature_bounded(&cube(), &HalfSpace::ground(), &nan, &Matrix3::identity())
-                .is_none()
-        );
     }
 
     /// The iterates `z` (newest first) as [`Iterates`].
