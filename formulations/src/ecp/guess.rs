@@ -346,9 +346,10 @@ impl Guess<'_> {
         (x1, r1): (&Vector3<f64>, &Matrix3<f64>),
         z: &mut [f64],
     ) -> bool {
-        let c = self.layout.contacts[i];
+        // By reference: the contact's and the state's copies were most of this test's moves.
+        let c = &self.layout.contacts[i];
         let o = self.layout.origin;
-        let s = self.states[c.body];
+        let s = &self.states[c.body];
         let plane = &self.scene.planes[c.plane];
         let hull = &self.layout.contact_hulls[i];
         // `closest_point_guess_into` in its two halves: the face multipliers only when the

@@ -525,14 +525,15 @@ impl EcpContacts {
     /// active instead): with every contact closed and no term adding to the `ν` rows, `F` of those
     /// rows at `last` has the plain start's bits, and their residual over those rows, in index order,
     /// is at most the plain start's whole one ([`fb_residual_of_rows`]). `false` (undecided) otherwise;
-    /// `f` is scratch (`F` at `last` in those rows on return).
+    /// `f` is scratch (`F` at `last` in those rows on return). Without `evaluate`, only the rows'
+    /// lower bound ([`EcpContacts::momentum_rows_bound`]) decides (`false` when it does not).
     fn momentum_rows_decide(
         &mut self,
         ctx: &StepContext<'_>,
         mcp: &BlockMcp,
         last: &[f64],
         merit: f64,
-        f: &mut [f64],
+        (f, evaluate): (&mut [f64], bool),
     ) -> bool {
         let blocks = mcp.num_residual_blocks();
         let terms = match self.terms_on_nu {
@@ -555,14 +556,27 @@ impl EcpContacts {
         if terms || !closed {
             return false;
         }
-        // First a lower bound of those rows' residual from the rows themselves, without the
-        // Newton–Euler block's evaluation (its rotations and angular rows, ≈ 0.9 k instructions
-        // on the desk): below it, `merit` is below the residual.
-        let below = self.momentum_rows_bound(mcp, last);
-        // (The tests go on to check the bound against the rows' residual.)
-        if merit < below && cfg!(not(test)) {
-            return true;
+        if !evaluate {
+            // A lower bound of those rows' residual from the rows themselves, without the
+            // Newton–Euler block's evaluation (its rotations and angular rows, ≈ 0.9 k
+            // instructions on the desk): below it, `merit` is below the residual.
+            let below = self.momentum_rows_bound(mcp, last);
+            #[cfg(test)]
+            {
+                // The tests check the bound against the rows' residual on every guarded step.
+                let rows = self.momentum_rows_residual(mcp, last, f);
+                assert!(below <= rows, "{below} {rows}");
+                tests::BOUND_CHECKS.with(|n| n.set(n.get() + usize::from(merit < below)));
+            }
+            return merit < below;
         }
+        merit < self.momentum_rows_residual(mcp, last, f)
+    }
+
+    /// The residual of the bodies' momentum rows at `last` (`momentum_rows_decide`), `F` of
+    /// those rows written into `f`.
+    fn momentum_rows_residual(&self, mcp: &BlockMcp, last: &[f64], f: &mut [f64]) -> f64 {
+        let l = &self.layout;
         for body in &l.bodies {
             mcp.evaluate_rows_of(body.nu, last, f);
         }
@@ -570,14 +584,7 @@ impl EcpContacts {
             let nu = mcp.range(b.nu);
             nu.start..nu.start + 3
         });
-        let bound = fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows);
-        #[cfg(test)]
-        {
-            // The tests check the bound on every guarded step.
-            assert!(below <= bound, "{below} {bound}");
-            tests::BOUND_CHECKS.with(|n| n.set(n.get() + usize::from(merit < below)));
-        }
-        merit < bound
+        fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows)
     }
 
     /// A lower bound of the residual of the bodies' momentum rows at `last`
@@ -1124,13 +1131,19 @@ impl StepFormulation for EcpContacts {
         let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);
         // `max(1, ‖z‖∞)`, a NaN passed over as `f64::max` does (by a comparison, which the
         // compiler makes one `max` instruction).
-        let size = z
-            .iter()
-            .fold(1.0, |m: f64, v| if v.abs() > m { v.abs() } else { m });
+        let size = |z: &[f64]| {
+            z.iter()
+                .fold(1.0, |m: f64, v| if v.abs() > m { v.abs() } else { m })
+        };
         // Then the plain start's momentum rows at the last iterate, without the plain start
-        // (`momentum_rows_decide`: on the desk they carry most of its residual).
-        self.extrapolated = merit <= EXACT_START * size
-            || self.momentum_rows_decide(ctx, mcp, it.last, merit, &mut start_f);
+        // (`momentum_rows_decide`: on the desk they carry most of its residual): their lower
+        // bound first, then the start at round-off, then the rows themselves. The choice of
+        // `merit ≤ EXACT_START · size || rows` (the bound deciding implies the rows do, and
+        // neither test has another effect), with `‖z‖∞` only where the bound does not decide.
+        self.extrapolated =
+            self.momentum_rows_decide(ctx, mcp, it.last, merit, (&mut start_f, false))
+                || merit <= EXACT_START * size(z)
+                || self.momentum_rows_decide(ctx, mcp, it.last, merit, (&mut start_f, true));
         if !self.extrapolated {
             start.clear();
             start.extend_from_slice(it.last);
