@@ -399,7 +399,9 @@ impl EcpContacts {
             }
             for (back, older) in z.iter().enumerate().take(first).skip(1) {
                 let a = older[pn];
-                if !((a - b).abs() <= IMPULSE_CHANGE * a.max(b)) {
+                // False for NaN: a change that is not small.
+                let close = (a - b).abs() <= IMPULSE_CHANGE * a.max(b);
+                if !close {
                     first = back;
                     break;
                 }
@@ -633,7 +635,9 @@ impl EcpContacts {
                 }
             }
             for i in 0..3 {
-                if !(size[i] < 1e300) {
+                // False for NaN.
+                let moderate = size[i] < 1e300;
+                if !moderate {
                     return 0.0;
                 }
                 let least = row[i].abs() - (1e-13 * size[i] + f64::MIN_POSITIVE);
