@@ -346,9 +346,10 @@ impl Guess<'_> {
         (x1, r1): (&Vector3<f64>, &Matrix3<f64>),
         z: &mut [f64],
     ) -> bool {
-        let c = self.layout.contacts[i];
+        // By reference: the contact's and the state's copies were most of this test's moves.
+        let c = &self.layout.contacts[i];
         let o = self.layout.origin;
-        let s = self.states[c.body];
+        let s = &self.states[c.body];
         let plane = &self.scene.planes[c.plane];
         let hull = &self.layout.contact_hulls[i];
         // `closest_point_guess_into` in its two halves: the face multipliers only when the
@@ -445,14 +446,14 @@ impl<'a> Past<'a> {
         if order == 0 || order + 2 > self.depth {
             return None;
         }
-        let z = &self.z;
+        // Each iterate's entries of `range`, sliced once (no bounds checks in the loop).
+        let n = range.len();
+        let [a, b, c, d, e, f] = self.z.map(|v| &v[range.clone()][..n]);
         let mut worst: f64 = 0.0;
-        for j in range {
-            let mut v = [0.0; PAST];
-            for (back, slot) in v.iter_mut().enumerate().take(PAST - 1) {
-                *slot = z[back + 1][j];
-            }
-            let miss = (extrapolated(order, &v) - z[0][j]).abs();
+        for j in 0..n {
+            // The older iterates one step back: `z_{k−1}` newest.
+            let v = [b[j], c[j], d[j], e[j], f[j], 0.0];
+            let miss = (extrapolated(order, &v) - a[j]).abs();
             // NaN counts as the worst miss.
             worst = if miss.is_nan() {
                 f64::INFINITY
@@ -468,6 +469,7 @@ impl<'a> Past<'a> {
 /// one step apart, one step on: `2 a − b`, `3 a − 3 b + c`, `4 a − 6 b + 4 c − d`,
 /// `5 a − 10 b + 10 c − 5 d + e`, `6 a − 15 b + 20 c − 15 d + 6 e − f` (the first two as they
 /// always were, for their bits).
+#[inline(always)]
 fn extrapolated(order: usize, v: &[f64; PAST]) -> f64 {
     let [a, b, c, d, e, f] = *v;
     match order {
@@ -494,40 +496,44 @@ pub(crate) fn extrapolate(
     past: &Past<'_>,
     nonnegative: bool,
 ) {
-    let [a, b, c, d, e, f] = past.z;
-    let clamp = |v: f64| if nonnegative { v.max(0.0) } else { v };
-    // One loop per order, each reading only the iterates it needs.
+    let out = &mut z[range.clone()];
+    // Each iterate's entries of `range`, sliced once: the loops below run without bounds checks
+    // (and in vector lanes, each lane the operations of `extrapolated` in their order).
+    let z = past.z.map(|v| &v[range.clone()]);
     match past.order {
-        0 => {
-            for j in range {
-                z[j] = clamp(a[j]);
-            }
+        0 => extrapolate_entries::<0>(out, z, nonnegative),
+        1 => extrapolate_entries::<1>(out, z, nonnegative),
+        2 => extrapolate_entries::<2>(out, z, nonnegative),
+        3 => extrapolate_entries::<3>(out, z, nonnegative),
+        4 => extrapolate_entries::<4>(out, z, nonnegative),
+        _ => extrapolate_entries::<5>(out, z, nonnegative),
+    }
+}
+
+/// `out[j]` the extrapolation of order `ORDER` from `z[0][j]` (newest), `z[1][j]`, … (each of
+/// `out`'s length), clamped at 0 when `nonnegative`: one loop per order, reading only the
+/// iterates it needs.
+#[inline(always)]
+fn extrapolate_entries<const ORDER: usize>(out: &mut [f64], z: [&[f64]; PAST], nonnegative: bool) {
+    let n = out.len();
+    let [a, b, c, d, e, f] = z.map(|v| &v[..n]);
+    if nonnegative {
+        for j in 0..n {
+            out[j] = extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]).max(0.0);
         }
-        1 => {
-            for j in range {
-                z[j] = clamp(extrapolated(1, &[a[j], b[j], 0.0, 0.0, 0.0, 0.0]));
-            }
+    } else {
+        for j in 0..n {
+            out[j] = extrapolated(ORDER, &[a[j], b[j], c[j], d[j], e[j], f[j]]);
         }
-        2 => {
-            for j in range {
-                z[j] = clamp(extrapolated(2, &[a[j], b[j], c[j], 0.0, 0.0, 0.0]));
-            }
-        }
-        3 => {
-            for j in range {
-                z[j] = clamp(extrapolated(3, &[a[j], b[j], c[j], d[j], 0.0, 0.0]));
-            }
-        }
-        4 => {
-            for j in range {
-                z[j] = clamp(extrapolated(4, &[a[j], b[j], c[j], d[j], e[j], 0.0]));
-            }
-        }
-        _ => {
-            for j in range {
-                z[j] = clamp(extrapolated(5, &[a[j], b[j], c[j], d[j], e[j], f[j]]));
-            }
-        }
+    }
+}
+
+/// `z`'s entries `range` clamped at 0: [`extrapolate`] with `nonnegative` as a second pass (the
+/// same numbers: the clamp of each extrapolated value).
+#[inline]
+pub(crate) fn clamp_nonnegative(z: &mut [f64], range: std::ops::Range<usize>) {
+    for v in &mut z[range] {
+        *v = v.max(0.0);
     }
 }
 
@@ -648,6 +654,7 @@ mod tests {
             before: &z[1],
             older: z.get(2).map(Vec::as_slice),
             earlier: [3, 4, 5].map(|k| z.get(k).map(Vec::as_slice)),
+            serial: (0, 0),
         }
     }
 

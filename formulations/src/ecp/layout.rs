@@ -104,6 +104,9 @@ pub(crate) struct Layout {
     /// [`ecp_model::McpScales::usage`] of [`Layout::scales`] for a problem of the dimension
     /// given, computed when they are filled: kept with them while they are kept.
     pub(crate) scales_usage: Option<(usize, ecp_model::ScalesUsage)>,
+    /// Every contact's variable blocks were added in a row (`a1`, `a2`, `l`, `l_g`, `p_n`,
+    /// `p_f`, `σ`), so they lie in a row in `z`: the warm start extrapolates them in one pass.
+    pub(crate) contacts_in_order: bool,
 }
 
 impl Layout {

@@ -46,7 +46,7 @@ use crate::step::{
     BodyHandles, Capabilities, ContactHandles, Iterates, Prepared, SensitivitySupport, StepContext,
     StepFormulation, StepHandles,
 };
-use guess::{Guess, Past, closest_point_guess_into, extrapolate};
+use guess::{Guess, Past, clamp_nonnegative, closest_point_guess_into, extrapolate};
 pub use layout::ContactVars;
 use layout::{EcpBody, Layout};
 use union::union_pieces;
@@ -98,7 +98,24 @@ pub struct EcpContacts {
     /// Whether a term ([`ecp_model::Problem::add_term`]) adds to some body's `ν` rows, for the
     /// step problem of that many residual blocks (`momentum_rows_decide`).
     terms_on_nu: Option<(usize, bool)>,
+    /// The run of iterates with the contact modes of the newest, from the last warm start
+    /// ([`EcpContacts::smooth_iterates`]).
+    mode_run: Option<ModeRun>,
 }
+
+/// How many iterates in a row, from the newest of the iterates of `serial` ([`Iterates::serial`])
+/// back, have its discrete contact modes ([`EcpContacts::same_discrete_modes`]), itself included.
+#[derive(Clone, Copy, Debug)]
+struct ModeRun {
+    serial: (u64, u64),
+    run: usize,
+    /// The iterate after the run has other modes (or the run reaches [`RUN_READ`]); else it
+    /// ended where the iterates given did.
+    ended: bool,
+}
+
+/// The most iterates the mode test reads, from `z_k` back: those of the highest order.
+const RUN_READ: usize = guess::MAX_ORDER + 1;
 
 /// The rotation `R(Q)` of the orientation each body was last asked for, kept across calls: the
 /// contact records of a step and the warm start and retries of the next one read the rotation
@@ -168,6 +185,7 @@ impl EcpContacts {
             phi: Vec::new(),
             start_known: false,
             terms_on_nu: None,
+            mode_run: None,
         }
     }
 
@@ -191,6 +209,7 @@ impl EcpContacts {
             phi: Vec::new(),
             start_known: false,
             terms_on_nu: None,
+            mode_run: None,
         }
     }
 
@@ -293,6 +312,13 @@ impl EcpContacts {
     /// sticks or starts to slide is no smooth step (the T-bar landing flat at steps 125–128:
     /// 35, 30, 2, 0 iterations from the previous solution, 40, 168, 32, 31 from the
     /// extrapolated one with only the open/closed test).
+    ///
+    /// The test in two parts: [`EcpContacts::same_discrete_modes`] (open or closed, sliding or
+    /// sticking, active faces: an equality of values, so transitive, which
+    /// [`EcpContacts::smooth_iterates`] keeps from step to step) and
+    /// [`EcpContacts::close_impulses`] (the change of `p_n`, not transitive). The test of
+    /// before branch wip-warm, kept as the reference of the two parts.
+    #[cfg(test)]
     fn same_contact_modes(
         &self,
         ctx: &StepContext<'_>,
@@ -316,6 +342,163 @@ impl EcpContacts {
                         .range(c.l)
                         .all(|j| (a[j] > ACTIVE_FACE) == (b[j] > ACTIVE_FACE)))
         })
+    }
+
+    /// The discrete part of the mode test (`same_contact_modes`): every contact open in both
+    /// iterates, or closed in both with the same friction mode and the same active faces. Each
+    /// contact's discrete mode is a value of one iterate, so the test is an equality of values:
+    /// `a ~ b` and `b ~ c` give `a ~ c`.
+    fn same_discrete_modes(
+        &self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        a: &[f64],
+        b: &[f64],
+    ) -> bool {
+        // σ is a slip speed: sticking below a billionth of the speed gravity gives in a step.
+        let sliding = 1e-9 * ctx.scene.gravity.norm() * ctx.h;
+        self.layout.contacts.iter().all(|c| {
+            let open_pn = open_impulse(ctx.scene, c.body, ctx.h);
+            let (pn, sigma) = (mcp.range(c.pn).start, mcp.range(c.sigma).start);
+            let closed = a[pn] > open_pn;
+            if closed != (b[pn] > open_pn) {
+                return false;
+            }
+            if !closed {
+                return true;
+            }
+            if (a[sigma] > sliding) != (b[sigma] > sliding) {
+                return false;
+            }
+            let l = mcp.range(c.l);
+            let (la, lb) = (&a[l.clone()], &b[l]);
+            la.iter()
+                .zip(lb)
+                .all(|(x, y)| (*x > ACTIVE_FACE) == (*y > ACTIVE_FACE))
+        })
+    }
+
+    /// The continuous part of the mode test (`same_contact_modes`), for iterates of the same
+    /// discrete modes ([`EcpContacts::same_discrete_modes`]): the first `back` in `1..until` where
+    /// `z_{k−back}` fails it against `z_k` (a contact closed in `z_k` whose `p_n` changed by more
+    /// than [`IMPULSE_CHANGE`] of the larger of the two), else `until`. `z` holds the iterates,
+    /// newest first.
+    fn first_impulse_change(
+        &self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        z: &[&[f64]; RUN_READ],
+        until: usize,
+    ) -> usize {
+        let mut first = until;
+        for c in &self.layout.contacts {
+            let pn = mcp.range(c.pn).start;
+            let b = z[0][pn];
+            if b <= open_impulse(ctx.scene, c.body, ctx.h) {
+                continue;
+            }
+            for (back, older) in z.iter().enumerate().take(first).skip(1) {
+                let a = older[pn];
+                // False for NaN: a change that is not small.
+                let close = (a - b).abs() <= IMPULSE_CHANGE * a.max(b);
+                if !close {
+                    first = back;
+                    break;
+                }
+            }
+        }
+        first
+    }
+
+    /// The iterates of `it` a smooth start extrapolates from, `None` when the last step is no
+    /// smooth step: `z_{k−1}` and `z_k` of the same contact modes (`same_contact_modes`) and some
+    /// body moving ([`EcpContacts::moving`]), then the older ones back to the first whose modes
+    /// are not those of `z_k` (at most [`guess::MAX_ORDER`] back). The decision of testing each
+    /// older iterate against `z_k`, with one discrete test a step: the discrete modes are an
+    /// equality of values ([`EcpContacts::same_discrete_modes`]), so the run of iterates with the
+    /// modes of `z_k` is that of `z_{k−1}` plus one when `z_{k−1}` has those modes, else `z_k`
+    /// alone; the run is kept from the last step's test (`mode_run`, keyed on the iterates'
+    /// [`Iterates::serial`]: `z_{k−1}` is the last step's `z_k` exactly when its serial is one
+    /// before) and only the impulses' change is tested on each older iterate.
+    fn smooth_iterates<'a>(
+        &mut self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        mut it: Iterates<'a>,
+    ) -> Option<Iterates<'a>> {
+        // The older iterates the decision reads: at most `MAX_ORDER` back.
+        let depth = it.depth().min(RUN_READ);
+        let (kept, pushed) = it.serial;
+        let (mut run, mut ended) = match self.mode_run {
+            Some(m) if kept != 0 && m.serial == it.serial => (m.run, m.ended),
+            Some(m) if kept != 0 && m.serial == (kept, pushed.wrapping_sub(1)) => {
+                if self.same_discrete_modes(ctx, mcp, it.before, it.last) {
+                    (m.run + 1, m.ended)
+                } else {
+                    (1, true)
+                }
+            }
+            _ => (1, false),
+        };
+        // Where the run kept ended short of the iterates given (fewer were given, or none was
+        // kept), the older iterates tested as before.
+        while !ended && run < depth {
+            match it.at(run) {
+                Some(z) if self.same_discrete_modes(ctx, mcp, z, it.last) => run += 1,
+                _ => ended = true,
+            }
+        }
+        if run >= RUN_READ {
+            // No older iterate is read.
+            (run, ended) = (RUN_READ, true);
+        }
+        self.mode_run = (kept != 0).then_some(ModeRun {
+            serial: it.serial,
+            run,
+            ended,
+        });
+        if run < 2 {
+            return None;
+        }
+        // The older iterates only as far back as each has the same modes too (and as the
+        // highest order reads): to the first whose discrete modes (`run`) or impulses differ.
+        it.truncate(guess::MAX_ORDER);
+        // (Those past the depth are not read.)
+        let [e3, e4, e5] = it.earlier.map(|e| e.unwrap_or(it.last));
+        let z = [it.last, it.before, it.older.unwrap_or(it.last), e3, e4, e5];
+        let differ = self.first_impulse_change(ctx, mcp, &z, run.min(it.depth()));
+        if differ < 2 || !self.moving(ctx, mcp, &it) {
+            return None;
+        }
+        if differ < it.depth() {
+            it.truncate(differ - 1);
+        }
+        Some(it)
+    }
+
+    /// [`EcpContacts::smooth_iterates`] as it was before branch wip-warm: every older iterate's
+    /// modes tested against `z_k` in full (the reference of its tests).
+    #[cfg(test)]
+    fn smooth_iterates_pairwise<'a>(
+        &self,
+        ctx: &StepContext<'_>,
+        mcp: &BlockMcp,
+        mut it: Iterates<'a>,
+    ) -> Option<Iterates<'a>> {
+        if !self.same_contact_modes(ctx, mcp, it.before, it.last) || !self.moving(ctx, mcp, &it) {
+            return None;
+        }
+        it.truncate(guess::MAX_ORDER);
+        for back in 2..it.depth() {
+            if !it
+                .at(back)
+                .is_some_and(|z| self.same_contact_modes(ctx, mcp, z, it.last))
+            {
+                it.truncate(back - 1);
+                break;
+            }
+        }
+        Some(it)
     }
 
     /// Whether some body's `ν` changed between the last two steps by more than a millionth of
@@ -344,14 +527,15 @@ impl EcpContacts {
     /// active instead): with every contact closed and no term adding to the `ν` rows, `F` of those
     /// rows at `last` has the plain start's bits, and their residual over those rows, in index order,
     /// is at most the plain start's whole one ([`fb_residual_of_rows`]). `false` (undecided) otherwise;
-    /// `f` is scratch (`F` at `last` in those rows on return).
+    /// `f` is scratch (`F` at `last` in those rows on return). Without `evaluate`, only the rows'
+    /// lower bound ([`EcpContacts::momentum_rows_bound`]) decides (`false` when it does not).
     fn momentum_rows_decide(
         &mut self,
         ctx: &StepContext<'_>,
         mcp: &BlockMcp,
         last: &[f64],
         merit: f64,
-        f: &mut [f64],
+        (f, evaluate): (&mut [f64], bool),
     ) -> bool {
         let blocks = mcp.num_residual_blocks();
         let terms = match self.terms_on_nu {
@@ -374,6 +558,27 @@ impl EcpContacts {
         if terms || !closed {
             return false;
         }
+        if !evaluate {
+            // A lower bound of those rows' residual from the rows themselves, without the
+            // Newton–Euler block's evaluation (its rotations and angular rows, ≈ 0.9 k
+            // instructions on the desk): below it, `merit` is below the residual.
+            let below = self.momentum_rows_bound(mcp, last);
+            #[cfg(test)]
+            {
+                // The tests check the bound against the rows' residual on every guarded step.
+                let rows = self.momentum_rows_residual(mcp, last, f);
+                assert!(below <= rows, "{below} {rows}");
+                tests::BOUND_CHECKS.with(|n| n.set(n.get() + usize::from(merit < below)));
+            }
+            return merit < below;
+        }
+        merit < self.momentum_rows_residual(mcp, last, f)
+    }
+
+    /// The residual of the bodies' momentum rows at `last` (`momentum_rows_decide`), `F` of
+    /// those rows written into `f`.
+    fn momentum_rows_residual(&self, mcp: &BlockMcp, last: &[f64], f: &mut [f64]) -> f64 {
+        let l = &self.layout;
         for body in &l.bodies {
             mcp.evaluate_rows_of(body.nu, last, f);
         }
@@ -381,7 +586,67 @@ impl EcpContacts {
             let nu = mcp.range(b.nu);
             nu.start..nu.start + 3
         });
-        merit < fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows)
+        fb_residual_of_rows(last, f, mcp.lower(), mcp.upper(), rows)
+    }
+
+    /// A lower bound of the residual of the bodies' momentum rows at `last`
+    /// (`fb_residual_of_rows` of `momentum_rows_decide`, as `evaluate_rows_of` gives them), `0`
+    /// when it has none: each row `−m (v − v^u) + h (m g + f) + Σ (n p_n + t p_t + o p_o)`
+    /// computed from the span's data (`Layout::span`, what the Newton–Euler block reads, and its
+    /// impulse `h (m g + f)` by the block's own [`crate::blocks::BodyStepData::impulse`]) and
+    /// the contacts' frames and impulses in `last`, less `1e-13 S`, `S` the sum of the terms'
+    /// magnitudes: the block's value and this one are each within a few units of round-off of
+    /// `S` (sums of at most `3 + 3 c` products) of the exact row, so the row's magnitude is at
+    /// least this. The rows' variables are free (`Φ_i = F_i`), so the residual is at least the
+    /// norm of those bounds, taken `(1 − 1e-12)` times against the sums' and the square root's
+    /// round-off. Rows of non-finite or huge terms (`S ≥ 1e300`, NaN) give no bound.
+    fn momentum_rows_bound(&self, mcp: &BlockMcp, last: &[f64]) -> f64 {
+        let l = &self.layout;
+        if l.span.bodies.len() != l.bodies.len() {
+            return 0.0;
+        }
+        let (lower, upper) = (mcp.lower(), mcp.upper());
+        let mut sum = 0.0;
+        for (b, (body, data)) in l.bodies.iter().zip(&l.span.bodies).enumerate() {
+            let nu = mcp.range(body.nu).start;
+            let free =
+                (nu..nu + 3).all(|i| lower[i] == f64::NEG_INFINITY && upper[i] == f64::INFINITY);
+            if !free {
+                return 0.0;
+            }
+            let m = data.mass;
+            let impulse = data.impulse();
+            let mut row = [0.0; 3];
+            let mut size = [0.0; 3];
+            for i in 0..3 {
+                let (v1, v0) = (last[nu + i], data.nu_start[i]);
+                row[i] = -(v1 - v0) * m + impulse[i];
+                size[i] = m.abs() * (v1.abs() + v0.abs()) + impulse[i].abs();
+            }
+            let mine = l.contacts.iter().filter(|c| c.body == b);
+            for (c, frame) in mine.zip(&body.frames) {
+                let pn = last[mcp.range(c.pn).start];
+                let pf = mcp.range(c.pf).start;
+                let (pt, po) = (last[pf], last[pf + 1]);
+                for i in 0..3 {
+                    let (n, t, o) = (frame.n[i] * pn, frame.t[i] * pt, frame.o[i] * po);
+                    row[i] += n + t + o;
+                    size[i] += n.abs() + t.abs() + o.abs();
+                }
+            }
+            for i in 0..3 {
+                // False for NaN.
+                let moderate = size[i] < 1e300;
+                if !moderate {
+                    return 0.0;
+                }
+                let least = row[i].abs() - (1e-13 * size[i] + f64::MIN_POSITIVE);
+                if least > 0.0 {
+                    sum += least * least;
+                }
+            }
+        }
+        sum.sqrt() * (1.0 - 1e-12)
     }
 
     /// The order of the extrapolation from the iterates `past`: the highest they allow (at most
@@ -454,11 +719,21 @@ impl EcpContacts {
                 if let Some((_, past)) = &smooth
                     && !moved
                 {
-                    for v in [c.a1, c.a2, c.pf] {
-                        extrapolate(z, mcp.range(v), past, false);
-                    }
-                    for v in [c.l, c.lg, c.pn, c.sigma] {
-                        extrapolate(z, mcp.range(v), past, true);
+                    if l.contacts_in_order {
+                        // The contact's unknowns in one pass (`a1` … `σ` lie in a row), then the
+                        // non-negative ones (`l`, `l_g`, `p_n` in a row, and `σ`) clamped.
+                        let (a1, faces) = (mcp.range(c.a1), mcp.range(c.l));
+                        let (pn, sigma) = (mcp.range(c.pn), mcp.range(c.sigma));
+                        extrapolate(z, a1.start..sigma.end, past, false);
+                        clamp_nonnegative(z, faces.start..pn.end);
+                        clamp_nonnegative(z, sigma);
+                    } else {
+                        for v in [c.a1, c.a2, c.pf] {
+                            extrapolate(z, mcp.range(v), past, false);
+                        }
+                        for v in [c.l, c.lg, c.pn, c.sigma] {
+                            extrapolate(z, mcp.range(v), past, true);
+                        }
                     }
                 }
                 continue;
@@ -521,6 +796,7 @@ impl StepFormulation for EcpContacts {
     ) -> Result<StepHandles, SceneError> {
         validate_parameters(scene, true)?;
         self.terms_on_nu = None;
+        self.mode_run = None;
         let mut layout = Layout::default();
         let scene_data = add_scene_data(problem, &scene.gravity, scene.h, &scene.friction);
         layout.plane_data = (scene.planes.iter().enumerate())
@@ -703,6 +979,13 @@ impl StepFormulation for EcpContacts {
         }
         layout.scene_data = Some(scene_data);
         layout.step_planes = scene.planes.clone();
+        // Each contact's blocks were added in a row: `a1`, `a2`, `l`, `l_g`, `p_n`, `p_f`, `σ`.
+        layout.contacts_in_order = layout.contacts.iter().all(|c| {
+            [c.a2, c.l, c.lg, c.pn, c.pf, c.sigma]
+                .iter()
+                .enumerate()
+                .all(|(k, v)| v.0 == c.a1.0 + 1 + k)
+        });
         let handles = StepHandles {
             bodies: layout
                 .bodies
@@ -802,25 +1085,23 @@ impl StepFormulation for EcpContacts {
         // Not for the union formulation: its impulse split is not unique, and extrapolating it
         // left PATH short of the tolerance on the union desk's step 78 (tests/union.rs).
         let history = ctx.history.filter(|_| !self.union);
-        let smooth = history.and_then(|mut it| {
-            if !self.same_contact_modes(ctx, mcp, it.before, it.last) || !self.moving(ctx, mcp, &it)
-            {
-                return None;
-            }
-            // The older iterates only as far back as each has the same modes too (and as the
-            // highest order reads).
-            it.truncate(guess::MAX_ORDER);
-            for back in 2..it.depth() {
-                if !it
-                    .at(back)
-                    .is_some_and(|z| self.same_contact_modes(ctx, mcp, z, it.last))
-                {
-                    it.truncate(back - 1);
-                    break;
-                }
-            }
-            Some(it)
-        });
+        let smooth = history.and_then(|it| self.smooth_iterates(ctx, mcp, it));
+        #[cfg(test)]
+        if let Some(it) = history {
+            // The decision of the pairwise test, checked on every warm start of the tests.
+            let pairwise = self.smooth_iterates_pairwise(ctx, mcp, it);
+            assert_eq!(
+                pairwise.map(|i| i.depth()),
+                smooth.map(|i| i.depth()),
+                "step {}",
+                ctx.step
+            );
+            tests::MODE_CHECKS.with(|n| {
+                let mut seen = n.get();
+                seen[smooth.map_or(0, |i| i.depth() - 1)] += 1;
+                n.set(seen);
+            });
+        }
         self.start_known = false;
         let Some(it) = smooth else {
             self.extrapolated = false;
@@ -852,11 +1133,21 @@ impl StepFormulation for EcpContacts {
         mcp.evaluate(z, &mut f);
         // `Φ` kept beside the residual: the backend's merit at the start chosen is its sum.
         let merit = fb_residual_into(z, &f, mcp.lower(), mcp.upper(), &mut phi);
-        let size = z.iter().fold(1.0, |m: f64, v| m.max(v.abs()));
+        // `max(1, ‖z‖∞)`, a NaN passed over as `f64::max` does (by a comparison, which the
+        // compiler makes one `max` instruction).
+        let size = |z: &[f64]| {
+            z.iter()
+                .fold(1.0, |m: f64, v| if v.abs() > m { v.abs() } else { m })
+        };
         // Then the plain start's momentum rows at the last iterate, without the plain start
-        // (`momentum_rows_decide`: on the desk they carry most of its residual).
-        self.extrapolated = merit <= EXACT_START * size
-            || self.momentum_rows_decide(ctx, mcp, it.last, merit, &mut start_f);
+        // (`momentum_rows_decide`: on the desk they carry most of its residual): their lower
+        // bound first, then the start at round-off, then the rows themselves. The choice of
+        // `merit ≤ EXACT_START · size || rows` (the bound deciding implies the rows do, and
+        // neither test has another effect), with `‖z‖∞` only where the bound does not decide.
+        self.extrapolated =
+            self.momentum_rows_decide(ctx, mcp, it.last, merit, (&mut start_f, false))
+                || merit <= EXACT_START * size(z)
+                || self.momentum_rows_decide(ctx, mcp, it.last, merit, (&mut start_f, true));
         if !self.extrapolated {
             start.clear();
             start.extend_from_slice(it.last);
@@ -1105,6 +1396,67 @@ mod tests {
             duration: 0.1,
             world: Default::default(),
         }
+    }
+
+    thread_local! {
+        /// The guarded steps whose momentum rows' lower bound (`momentum_rows_bound`) decided.
+        pub(super) static BOUND_CHECKS: std::cell::Cell<usize> = const { std::cell::Cell::new(0) };
+        /// The decisions of `EcpContacts::smooth_iterates` checked against the pairwise test in
+        /// this thread: `[None, depth 2, …, depth 6]`.
+        pub(super) static MODE_CHECKS: std::cell::Cell<[usize; 6]> =
+            const { std::cell::Cell::new([0; 6]) };
+    }
+
+    /// The mode test kept from step to step (`EcpContacts::smooth_iterates`) decides as testing
+    /// every older iterate against the newest in full (`smooth_iterates_pairwise`, asserted on
+    /// every warm start with history): over runs with landings, tipping, sliding to rest and
+    /// sticking (A1, A4 at 25°, A5 tilted, A6 at 110 N, the desk, the T-bar, a tossed box), with
+    /// Newton and PATH, a warm start asked for twice, and the warm start switched from
+    /// `Quadratic` (three iterates) to `Extrapolated` (six) and back within a run. Every outcome
+    /// (no smooth step, and 2 to 6 iterates) is met.
+    #[test]
+    fn the_kept_mode_run_decides_as_the_pairwise_test() {
+        use crate::step::WarmStart;
+        use ecp_solvers::newton::NewtonSolver;
+        use ecp_solvers::path::PathSolver;
+        MODE_CHECKS.with(|n| n.set([0; 6]));
+        let scenes = [
+            (scenarios::a1_sliding(), 60),
+            (scenarios::a4_incline(25.0), 100),
+            (scenarios::a5_drop_tilted(), 120),
+            (scenarios::a6_tip(110.0), 150),
+            (scenarios::desk(), 150),
+            (scenarios::t_bar(), 300),
+            (tossed_box(), 14),
+        ];
+        for (scene, steps) in scenes {
+            for path in [false, true] {
+                let name = scene.name.clone();
+                let mut sim = Simulation::new(scene.clone()).unwrap_or_else(|e| panic!("{e}"));
+                let mut newton = NewtonSolver::new(Default::default());
+                let mut pathsolver = PathSolver::new(Default::default());
+                for step in 1..=steps {
+                    // A warm start asked for twice (the second from the kept run of the same
+                    // iterates), and the iterates cut to three for a while.
+                    if step % 7 == 0 {
+                        sim.prepare_step().unwrap_or_else(|e| panic!("{e}"));
+                    }
+                    if step % 40 == 20 {
+                        sim.set_warm_start(WarmStart::Quadratic);
+                    } else if step % 40 == 30 {
+                        sim.set_warm_start(WarmStart::Extrapolated);
+                    }
+                    let solver: &mut dyn ecp_model::McpSolver =
+                        if path { &mut pathsolver } else { &mut newton };
+                    let rec = sim.step(solver).unwrap_or_else(|e| panic!("{e}"));
+                    assert!(rec.converged, "{name} step {step}");
+                }
+            }
+        }
+        let seen = MODE_CHECKS.with(|n| n.get());
+        assert!(seen.iter().all(|&n| n > 0), "{seen:?}");
+        // The momentum rows' lower bound decided guarded steps (and was checked on each).
+        assert!(BOUND_CHECKS.with(|n| n.get()) > 0);
     }
 
     fn ecp(sim: &Simulation) -> &EcpContacts {

@@ -1,6 +1,8 @@
 //! The iterates of the last steps, kept by the driver for warm starts that extrapolate
 //! ([`super::StepContext::history`], `docs/latency.md#an-extrapolated-warm-start-branch-wip-warmx-issue-18`).
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use nalgebra::Vector3;
 
 /// The iterates after the read-out of the last smooth steps, `z_k` the last step's
@@ -17,6 +19,12 @@ pub struct Iterates<'a> {
     /// newer one is given): the extrapolations of orders 3 to 5 and the quadratic one's miss of
     /// the last step (`docs/latency.md`, branch wip-xorder).
     pub earlier: [Option<&'a [f64]>; 3],
+    /// Which iterates these are, `(kept, pushed)`: `z_k` is the `pushed`-th iterate of the
+    /// driver's store `kept` (a number no other store in the process has; 0 for iterates of no
+    /// store), `z_{k−b}` its `(pushed − b)`-th. A kept iterate is never changed, so what a
+    /// formulation derived from the iterates of one serial holds for them on a later step
+    /// (the hull formulation's run of equal contact modes, `ecp::EcpContacts::warm_start`).
+    pub serial: (u64, u64),
 }
 
 impl<'a> Iterates<'a> {
@@ -66,7 +74,6 @@ const RECENT: usize = 3;
 /// The iterates after the read-out of the last [`KEPT`] steps (storage kept across steps, so
 /// that a step allocates nothing once it has grown) and how many steps in a row up to the last
 /// one were smooth: solved directly, in one piece, from their warm start, with nothing set since.
-#[derive(Default)]
 pub(super) struct History {
     /// Ring of iterates, `next` the slot of the next one.
     z: [Vec<f64>; KEPT],
@@ -76,6 +83,26 @@ pub(super) struct History {
     iterations: [usize; KEPT],
     next: usize,
     streak: usize,
+    /// This store's number ([`Iterates::serial`]), and how many iterates it kept in all.
+    id: u64,
+    pushed: u64,
+}
+
+/// The next store's number ([`Iterates::serial`]; 0 is no store's).
+static NEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+impl Default for History {
+    fn default() -> Self {
+        History {
+            z: Default::default(),
+            origins: Default::default(),
+            iterations: Default::default(),
+            next: 0,
+            streak: 0,
+            id: NEXT_ID.fetch_add(1, Ordering::Relaxed),
+            pushed: 0,
+        }
+    }
 }
 
 impl History {
@@ -102,6 +129,7 @@ impl History {
         self.iterations[slot] = iterations;
         self.next = (slot + 1) % KEPT;
         self.streak += 1;
+        self.pushed += 1;
     }
 
     /// The most iterations any of the last smooth steps kept took (0 when none is kept).
@@ -120,25 +148,29 @@ impl History {
         origin: &Vector3<f64>,
         dim: usize,
     ) -> Option<Iterates<'_>> {
-        // The `back`-th newest iterate (0: the last), when it fits.
-        let at = |back: usize| {
-            let slot = (self.next + 2 * KEPT - 1 - back) % KEPT;
-            let fits =
-                back < self.streak && self.origins[slot] == *origin && self.z[slot].len() == dim;
-            fits.then_some(self.z[slot].as_slice())
-        };
         if !whole_step {
             return None;
         }
-        let mut it = Iterates {
-            older: at(2),
-            before: at(1)?,
-            last: at(0)?,
-            earlier: [at(3), at(4), at(5)],
+        // The iterates from the last back while each fits (kept since the last clear, in
+        // `origin` and of dimension `dim`): an unbroken run back from `z_k` (an older iterate
+        // fits whenever a newer one does, but the run is what counts), in one pass over the ring.
+        let mut z: [Option<&[f64]>; KEPT] = [None; KEPT];
+        let mut slot = self.next;
+        for kept in z.iter_mut().take(self.streak) {
+            slot = if slot == 0 { KEPT - 1 } else { slot - 1 };
+            if self.origins[slot] != *origin || self.z[slot].len() != dim {
+                break;
+            }
+            *kept = Some(self.z[slot].as_slice());
+        }
+        let [last, before, older, e3, e4, e5] = z;
+        let it = Iterates {
+            older,
+            before: before?,
+            last: last?,
+            earlier: [e3, e4, e5],
+            serial: (self.id, self.pushed),
         };
-        // Only an unbroken run back from `z_k` (an older iterate fits whenever a newer one does,
-        // but the depth is the run's).
-        it.truncate(it.depth() - 1);
         Some(it)
     }
 }
@@ -161,6 +193,10 @@ mod tests {
             .iterates(true, &o, 2)
             .unwrap_or_else(|| panic!("no iterates"));
         assert_eq!(it.depth(), KEPT);
+        // The serial: this store's number and the count of iterates it kept.
+        assert_eq!(it.serial.1, 8);
+        assert_ne!(it.serial.0, 0);
+        assert_ne!(it.serial.0, History::default().id);
         for back in 0..KEPT {
             assert_eq!(it.at(back).map(|z| z[0]), Some((7 - back) as f64));
         }
@@ -186,6 +222,7 @@ mod tests {
             .unwrap_or_else(|| panic!("no iterates"));
         assert_eq!(it.depth(), 2);
         assert_eq!((it.last[0], it.before[0]), (10.0, 9.0));
+        assert_eq!(it.serial.1, 11);
         h.clear();
         assert!(h.iterates(true, &o, 2).is_none());
     }
