@@ -199,6 +199,18 @@ pub struct ConicSettings {
     /// [`ConicSettings::newton_polish`] > 0; `None` turns it off. Default `Some(400)`, the Newton
     /// backend's.
     pub friction_continuation: Option<usize>,
+    /// When the solve failed with the anchors on (every finish included) and some QP had an
+    /// anchored contact, solve once more from the warm start without them
+    /// ([`ConicSettings::anchor_moment`], [`ConicSettings::anchor_load`]: both off), the
+    /// finishes from that pass's best iterate only (from the warm start they would repeat the
+    /// anchored pass's). The load anchor lets a contact's load move only a bounded amount per
+    /// QP; where the step's loads are unique but far from the warm start's, the fixed point
+    /// walks towards them for its whole iteration limit (a body jammed in the corner of a
+    /// floor and a wall, μ = 0.9: the loads go from 0.16 to 97 and 102 N·s in one step,
+    /// `s20270327_137_corner_wall` step 33, `docs/stress.md`, branch wip-heldout5; unanchored,
+    /// 14 QPs). It runs only where the solve would otherwise fail, so a step that converged
+    /// before is unchanged. Counted in `"unanchored_passes"`. Default `true`.
+    pub unanchored_retry: bool,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -298,6 +310,7 @@ impl Default for ConicSettings {
             early_finish_iterations: 10,
             walk_finish_after: 5,
             friction_continuation: Some(400),
+            unanchored_retry: true,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -527,13 +540,108 @@ impl McpSolver for ConicSolver {
     /// The solve into `out`'s storage: with the outer loop's and the polish's storage kept in
     /// the solver, a warm desk solve allocates nothing here (`tests/step_allocations.rs`; what
     /// is left is the formulation's, `docs/latency.md`). The same point and summary as
-    /// [`McpSolver::solve`], which calls it.
+    /// [`McpSolver::solve`], which calls it. The anchored pass, and where it fails on an
+    /// anchored step the unanchored one ([`ConicSettings::unanchored_retry`]).
     fn solve_into(
         &mut self,
         mcp: &dyn Mcp,
         z0: &[f64],
         out: &mut Solution,
     ) -> Result<(), SolveError> {
+        let mut anchored = false;
+        let first = self.solve_pass(mcp, z0, out, Pass::Anchored, &mut anchored);
+        match first {
+            Err(SolveError::NotConverged { best })
+                if anchored && self.settings.unanchored_retry =>
+            {
+                self.unanchored_attempt(mcp, z0, *best, out)
+            }
+            other => other,
+        }
+    }
+}
+
+/// Which pass of a solve [`ConicSolver::solve_pass`] runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    /// The solve: anchors as the settings say, finishes from the best iterate and the warm
+    /// start.
+    Anchored,
+    /// [`ConicSettings::unanchored_retry`]: no anchor, finishes from the best iterate only.
+    Unanchored,
+}
+
+impl ConicSolver {
+    /// After the anchored pass failed (`failed`, its best point): the unanchored pass from the
+    /// same warm start into `out`; its result when it converges, else the better end point of
+    /// the two; either way with both passes' iterations, evaluations, time and work counters,
+    /// and one `"unanchored_passes"`.
+    #[cold]
+    #[inline(never)]
+    fn unanchored_attempt(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        failed: Solution,
+        out: &mut Solution,
+    ) -> Result<(), SolveError> {
+        let mut anchored = false;
+        let second = self.solve_pass(mcp, z0, out, Pass::Unanchored, &mut anchored);
+        let mut sol = match second {
+            Ok(()) => std::mem::take(out),
+            Err(SolveError::NotConverged { best }) => *best,
+            // A subproblem or the problem refused: the anchored pass's failure stands.
+            Err(_) => {
+                return Err(SolveError::NotConverged {
+                    best: Box::new(failed),
+                });
+            }
+        };
+        let converged = sol.summary.converged();
+        let (first, second) = (&failed.summary, &sol.summary);
+        let iterations = first.iterations + second.iterations;
+        let f_evals = first.f_evals + second.f_evals;
+        let time = first.time + second.time;
+        let mut counters = second.counters.clone();
+        for counter in [
+            Counter::ClarabelIterations,
+            Counter::NewtonPolish,
+            Counter::NewtonHandoff,
+            Counter::Custom("dense_qp_iterations"),
+            Counter::Custom("clarabel_fallbacks"),
+            Counter::Custom("qp_reuses"),
+        ] {
+            counters.add(counter, first.counters.get(counter).unwrap_or(0));
+        }
+        counters.add(Counter::Custom("unanchored_passes"), 1);
+        if !converged && failed.summary.residual <= sol.summary.residual {
+            sol = failed;
+        }
+        sol.summary.iterations = iterations;
+        sol.summary.f_evals = f_evals;
+        sol.summary.time = time;
+        sol.summary.counters = counters;
+        if converged {
+            *out = sol;
+            Ok(())
+        } else {
+            Err(SolveError::NotConverged {
+                best: Box::new(sol),
+            })
+        }
+    }
+
+    /// One pass of the solve (`pass`): the outer fixed point and its Newton finishes into
+    /// `out`; `anchored` is set when some QP had an anchored contact.
+    fn solve_pass(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+        pass: Pass,
+        anchored_seen: &mut bool,
+    ) -> Result<(), SolveError> {
+        let unanchored = pass == Pass::Unanchored;
         validate_start(mcp, z0)?;
         self.last_status = None;
         self.last_error = None;
@@ -725,7 +833,7 @@ impl McpSolver for ConicSolver {
             } else {
                 warm_loads
             };
-            let anchor = exact.then_some(step::Anchor {
+            let anchor = (exact && !unanchored).then_some(step::Anchor {
                 moment: self.settings.anchor_moment,
                 load: self.settings.anchor_load,
                 previous_loads: (!loads.is_empty()).then_some(loads),
@@ -748,6 +856,7 @@ impl McpSolver for ConicSolver {
                 std::mem::take(qp_storage),
             );
             run.patch_vertices = sub.patch_vertices;
+            *anchored_seen |= sub.anchored();
             // The previous QP's answer polished against this QP's data: when it solves the step,
             // this iteration needs no QP (`ConicSettings::reuse_qp`).
             let polish = exact && self.settings.polish;
@@ -1007,7 +1116,9 @@ impl McpSolver for ConicSolver {
                     .settings
                     .early_finish_iterations
                     .min(self.settings.newton_polish);
-                let from_warm = z0 != best_z.as_slice();
+                // The unanchored pass's finishes from the warm start would be the anchored
+                // pass's again.
+                let from_warm = !unanchored && z0 != best_z.as_slice();
                 let starts = if warm_first {
                     [from_warm.then_some(z0), Some(&best_z[..])]
                 } else {
@@ -1035,7 +1146,9 @@ impl McpSolver for ConicSolver {
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
             contacts_into(structure, z, self.settings.patch_band, new_geometry);
-            let anchors = self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
+            let anchors = !unanchored
+                && self.settings.anchor_moment > 0.0
+                && self.settings.anchor_load > 0.0;
             if anchors {
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
             }
@@ -1128,7 +1241,7 @@ impl McpSolver for ConicSolver {
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let from_warm = z0 != best_z.as_slice();
+                let from_warm = !unanchored && z0 != best_z.as_slice();
                 // The last stage only where both others failed from both starts: a step that
                 // converged without it is unchanged.
                 let stages: &[NewtonFinish] = if self.settings.friction_continuation.is_some() {
