@@ -169,6 +169,7 @@ fn conic_settings(o: &BackendOptions, sets: &[String]) -> Result<ConicSettings, 
             "early_finish_after" => s.early_finish_after = n()?,
             "early_finish_iterations" => s.early_finish_iterations = n()?,
             "walk_finish_after" => s.walk_finish_after = n()?,
+            "unanchored_retry" => s.unanchored_retry = b()?,
             "friction_continuation" => s.friction_continuation = n().ok().filter(|&n| n > 0),
             _ => return Err(format!("unknown conic setting {name}")),
         }

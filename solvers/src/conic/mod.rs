@@ -1146,9 +1146,8 @@ impl ConicSolver {
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
             contacts_into(structure, z, self.settings.patch_band, new_geometry);
-            let anchors = !unanchored
-                && self.settings.anchor_moment > 0.0
-                && self.settings.anchor_load > 0.0;
+            let anchors =
+                !unanchored && self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
             if anchors {
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
             }
