@@ -199,17 +199,21 @@ pub struct ConicSettings {
     /// [`ConicSettings::newton_polish`] > 0; `None` turns it off. Default `Some(400)`, the Newton
     /// backend's.
     pub friction_continuation: Option<usize>,
-    /// When the solve failed with the anchors on (every finish included) and some QP had an
-    /// anchored contact, solve once more from the warm start without them
-    /// ([`ConicSettings::anchor_moment`], [`ConicSettings::anchor_load`]: both off), the
-    /// finishes from that pass's best iterate only (from the warm start they would repeat the
-    /// anchored pass's). The load anchor lets a contact's load move only a bounded amount per
-    /// QP; where the step's loads are unique but far from the warm start's, the fixed point
-    /// walks towards them for its whole iteration limit (a body jammed in the corner of a
-    /// floor and a wall, μ = 0.9: the loads go from 0.16 to 97 and 102 N·s in one step,
-    /// `s20270327_137_corner_wall` step 33, `docs/stress.md`, branch wip-heldout5; unanchored,
-    /// 14 QPs). It runs only where the solve would otherwise fail, so a step that converged
-    /// before is unchanged. Counted in `"unanchored_passes"`. Default `true`.
+    /// When the fixed point and its local Newton finishes have failed and some QP had an
+    /// anchored contact, solve once more from the warm start without the anchors
+    /// ([`ConicSettings::anchor_moment`], [`ConicSettings::anchor_load`]: both off), before the
+    /// safeguarded finishes (which follow when it fails too); its own finishes start from its
+    /// best iterate only (from the warm start they would repeat the anchored pass's) and are
+    /// the local one. The load anchor lets a contact's load move only a bounded amount per QP;
+    /// where the step's loads are unique but far from the warm start's, the fixed point walks
+    /// towards them for its whole iteration limit (a body jammed in the corner of a floor and
+    /// a wall, μ = 0.9: the loads go from 0.16 to 97 and 102 N·s in one step,
+    /// `s20270327_137_corner_wall` step 33, `docs/stress.md`, branch wip-heldout5: every
+    /// finish failed, unanchored 14 QPs; `111_corner_wall` step 161 of the same seed: 50 QPs
+    /// and 1 837 Newton iterations, unanchored 12 QPs). Runs only where the local finishes
+    /// failed, so a step they or the fixed point solved is unchanged. Needs
+    /// [`ConicSettings::newton_polish`] > 0. Counted in `"unanchored_passes"` (present only
+    /// when some ran). Default `true`.
     pub unanchored_retry: bool,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
@@ -523,6 +527,8 @@ struct Run {
     newton_polish: usize,
     newton_handoff: usize,
     qp_reuses: usize,
+    /// Unanchored passes run ([`ConicSettings::unanchored_retry`]).
+    unanchored_passes: usize,
     trace: Vec<IterationRecord>,
 }
 
@@ -540,8 +546,7 @@ impl McpSolver for ConicSolver {
     /// The solve into `out`'s storage: with the outer loop's and the polish's storage kept in
     /// the solver, a warm desk solve allocates nothing here (`tests/step_allocations.rs`; what
     /// is left is the formulation's, `docs/latency.md`). The same point and summary as
-    /// [`McpSolver::solve`], which calls it. The anchored pass, and where it fails on an
-    /// anchored step the unanchored one ([`ConicSettings::unanchored_retry`]).
+    /// [`McpSolver::solve`], which calls it.
     fn solve_into(
         &mut self,
         mcp: &dyn Mcp,
@@ -549,15 +554,7 @@ impl McpSolver for ConicSolver {
         out: &mut Solution,
     ) -> Result<(), SolveError> {
         let mut anchored = false;
-        let first = self.solve_pass(mcp, z0, out, Pass::Anchored, &mut anchored);
-        match first {
-            Err(SolveError::NotConverged { best })
-                if anchored && self.settings.unanchored_retry =>
-            {
-                self.unanchored_attempt(mcp, z0, *best, out)
-            }
-            other => other,
-        }
+        self.solve_pass(mcp, z0, out, Pass::Anchored, &mut anchored)
     }
 }
 
@@ -567,68 +564,35 @@ enum Pass {
     /// The solve: anchors as the settings say, finishes from the best iterate and the warm
     /// start.
     Anchored,
-    /// [`ConicSettings::unanchored_retry`]: no anchor, finishes from the best iterate only.
+    /// [`ConicSettings::unanchored_retry`]: no anchor, finishes from the best iterate only, the
+    /// last one the local finish.
     Unanchored,
 }
 
 impl ConicSolver {
-    /// After the anchored pass failed (`failed`, its best point): the unanchored pass from the
-    /// same warm start into `out`; its result when it converges, else the better end point of
-    /// the two; either way with both passes' iterations, evaluations, time and work counters,
-    /// and one `"unanchored_passes"`.
+    /// The unanchored pass from the warm start ([`ConicSettings::unanchored_retry`]): its
+    /// solution or best point (`None` when a subproblem or the problem refused it), its work
+    /// added to `run`'s counters.
     #[cold]
     #[inline(never)]
-    fn unanchored_attempt(
-        &mut self,
-        mcp: &dyn Mcp,
-        z0: &[f64],
-        failed: Solution,
-        out: &mut Solution,
-    ) -> Result<(), SolveError> {
+    fn unanchored_pass(&mut self, mcp: &dyn Mcp, z0: &[f64], run: &mut Run) -> Option<Solution> {
+        let mut out = Solution::default();
         let mut anchored = false;
-        let second = self.solve_pass(mcp, z0, out, Pass::Unanchored, &mut anchored);
-        let mut sol = match second {
-            Ok(()) => std::mem::take(out),
+        let sol = match self.solve_pass(mcp, z0, &mut out, Pass::Unanchored, &mut anchored) {
+            Ok(()) => out,
             Err(SolveError::NotConverged { best }) => *best,
-            // A subproblem or the problem refused: the anchored pass's failure stands.
-            Err(_) => {
-                return Err(SolveError::NotConverged {
-                    best: Box::new(failed),
-                });
-            }
+            Err(_) => return None,
         };
-        let converged = sol.summary.converged();
-        let (first, second) = (&failed.summary, &sol.summary);
-        let iterations = first.iterations + second.iterations;
-        let f_evals = first.f_evals + second.f_evals;
-        let time = first.time + second.time;
-        let mut counters = second.counters.clone();
-        for counter in [
-            Counter::ClarabelIterations,
-            Counter::NewtonPolish,
-            Counter::NewtonHandoff,
-            Counter::Custom("dense_qp_iterations"),
-            Counter::Custom("clarabel_fallbacks"),
-            Counter::Custom("qp_reuses"),
-        ] {
-            counters.add(counter, first.counters.get(counter).unwrap_or(0));
-        }
-        counters.add(Counter::Custom("unanchored_passes"), 1);
-        if !converged && failed.summary.residual <= sol.summary.residual {
-            sol = failed;
-        }
-        sol.summary.iterations = iterations;
-        sol.summary.f_evals = f_evals;
-        sol.summary.time = time;
-        sol.summary.counters = counters;
-        if converged {
-            *out = sol;
-            Ok(())
-        } else {
-            Err(SolveError::NotConverged {
-                best: Box::new(sol),
-            })
-        }
+        let count = |c| sol.summary.counters.get(c).unwrap_or(0);
+        run.clarabel_iterations += count(Counter::ClarabelIterations);
+        run.dense_qp_iterations += count(Counter::Custom("dense_qp_iterations"));
+        run.clarabel_fallbacks += count(Counter::Custom("clarabel_fallbacks"));
+        run.newton_polish += count(Counter::NewtonPolish);
+        run.newton_handoff += count(Counter::NewtonHandoff);
+        run.qp_reuses += count(Counter::Custom("qp_reuses"));
+        run.f_evals += sol.summary.f_evals;
+        run.unanchored_passes += 1;
+        Some(sol)
     }
 
     /// One pass of the solve (`pass`): the outer fixed point and its Newton finishes into
@@ -698,6 +662,7 @@ impl ConicSolver {
             newton_polish: 0,
             newton_handoff: 0,
             qp_reuses: 0,
+            unanchored_passes: 0,
             trace: Vec::new(),
         };
         let OuterWorkspace {
@@ -1243,7 +1208,11 @@ impl ConicSolver {
                 let from_warm = !unanchored && z0 != best_z.as_slice();
                 // The last stage only where both others failed from both starts: a step that
                 // converged without it is unchanged.
-                let stages: &[NewtonFinish] = if self.settings.friction_continuation.is_some() {
+                // The unanchored pass's own finish is the local one: where that falls short the
+                // anchored pass's safeguarded finishes follow.
+                let stages: &[NewtonFinish] = if unanchored {
+                    &[NewtonFinish::Local]
+                } else if self.settings.friction_continuation.is_some() {
                     &[
                         NewtonFinish::Local,
                         NewtonFinish::Safeguarded,
@@ -1253,6 +1222,26 @@ impl ConicSolver {
                     &[NewtonFinish::Local, NewtonFinish::Safeguarded]
                 };
                 'finish: for &finish in stages {
+                    // Between the local and the safeguarded finish: the unanchored pass
+                    // (`ConicSettings::unanchored_retry`), a few QPs where the anchor held the
+                    // loads back, where the safeguarded finishes cost hundreds of iterations.
+                    if finish == NewtonFinish::Safeguarded
+                        && !unanchored
+                        && *anchored_seen
+                        && self.settings.unanchored_retry
+                        && let Some(sol) = self.unanchored_pass(mcp, z0, &mut run)
+                    {
+                        iterations += sol.summary.iterations;
+                        if sol.summary.residual < best_residual {
+                            z.copy_from_slice(&sol.z);
+                            f_at_z = false;
+                            best_residual = sol.summary.residual;
+                        }
+                        if best_residual <= self.settings.tolerance {
+                            termination = Termination::Converged;
+                            break 'finish;
+                        }
+                    }
                     for start in [Some(&best_z[..]), from_warm.then_some(z0)]
                         .into_iter()
                         .flatten()
@@ -1315,6 +1304,9 @@ impl ConicSolver {
             (Counter::Custom("qp_reuses"), run.qp_reuses),
         ] {
             counters.set(counter, value);
+        }
+        if run.unanchored_passes > 0 {
+            counters.set(Counter::Custom("unanchored_passes"), run.unanchored_passes);
         }
         let converged = finish_solve_into(
             mcp,
