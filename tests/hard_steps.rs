@@ -1141,7 +1141,7 @@ fn conic_with(tolerance: f64, friction_continuation: Option<usize>) -> ConicSolv
 
 /// The conic backend with the scene's tolerance and its defaults but without its two late
 /// stages: the Newton finish's continuation in the friction coefficient
-/// (`ConicSettings::friction_continuation`) and the unanchored pass after a failed solve
+/// (`ConicSettings::friction_continuation`) and the unanchored pass after the failed local finishes
 /// (`ConicSettings::unanchored_retry`, wip-heldout5, which alone cures
 /// `s20270109_087_v_trough` step 140 too).
 fn conic_without_late_stages(tolerance: f64) -> ConicSolver {
@@ -1234,7 +1234,7 @@ fn conic_v_trough_s20261212_022_step_62_friction_continuation() {
 /// later one. With the finish's last stage, the continuation in the friction coefficient in the
 /// scene scales (`docs/latency.md`, wip-conic022), the step converges (from the retry start's
 /// best iterate) with the body's velocity of Newton's and PATH's step 140 on their own
-/// trajectories, and the next three steps converge too. The unanchored pass after a failed solve
+/// trajectories, and the next three steps converge too. The unanchored pass after the failed local finishes
 /// (`ConicSettings::unanchored_retry`, wip-heldout5) cures the step alone too, so "without" is
 /// without both.
 #[test]
@@ -1485,7 +1485,7 @@ fn newton_union_tip_s20270320_070_step_97_structure_reseed() {
 /// 97 and 102 N·s in one step. The load anchor lets a load move only a bounded amount per QP, so
 /// the anchored fixed point walks for its 50 QPs (natural residual 1.4e-3 to 4.5e-3) and every
 /// Newton finish ends at 3.3e-6: the step failed and, the state not advancing, so did every
-/// later one (timeout). With the unanchored pass after a failed anchored solve
+/// later one (timeout). With the unanchored pass after the failed local finishes
 /// (`ConicSettings::unanchored_retry`, `docs/stress.md`, wip-heldout5) the step converges in 14
 /// more QPs to Newton's and PATH's step 33, and the next five steps converge too.
 #[test]
