@@ -1141,8 +1141,8 @@ fn conic_with(tolerance: f64, friction_continuation: Option<usize>) -> ConicSolv
 
 /// The conic backend with the scene's tolerance and its defaults but without its two late
 /// stages: the Newton finish's continuation in the friction coefficient
-/// (`ConicSettings::friction_continuation`) and the unanchored pass after the failed local finishes
-/// (`ConicSettings::unanchored_retry`, wip-heldout5, which alone cures
+/// (`ConicSettings::friction_continuation`) and the unanchored pass after the failed local
+/// finishes (`ConicSettings::unanchored_retry`, wip-heldout5, which alone cures
 /// `s20270109_087_v_trough` step 140 too).
 fn conic_without_late_stages(tolerance: f64) -> ConicSolver {
     ConicSolver::new(ConicSettings {
@@ -1234,9 +1234,9 @@ fn conic_v_trough_s20261212_022_step_62_friction_continuation() {
 /// later one. With the finish's last stage, the continuation in the friction coefficient in the
 /// scene scales (`docs/latency.md`, wip-conic022), the step converges (from the retry start's
 /// best iterate) with the body's velocity of Newton's and PATH's step 140 on their own
-/// trajectories, and the next three steps converge too. The unanchored pass after the failed local finishes
-/// (`ConicSettings::unanchored_retry`, wip-heldout5) cures the step alone too, so "without" is
-/// without both.
+/// trajectories, and the next three steps converge too. The unanchored pass after the failed
+/// local finishes (`ConicSettings::unanchored_retry`, wip-heldout5) cures the step alone too,
+/// so "without" is without both.
 #[test]
 fn conic_v_trough_s20270109_087_step_140_friction_continuation() {
     let path = regression_scene("s20270109_087_v_trough");
