@@ -2,6 +2,7 @@
 //!
 //! ```text
 //! cargo run --release --example conic_step_costs -- SCENE.toml [--with conic] [--top N] [--all] [--steps N]
+//!     [--conic NAME=VALUE ..] [--trace K] [--trace-conic NAME=VALUE ..]
 //! ```
 //!
 //! steps the scene as the stress suite does (hull formulation, the scene's tolerance, no
@@ -31,6 +32,7 @@ fn run() -> Result<(), String> {
     let mut trace_step = None;
     let mut last_step = usize::MAX;
     let mut sets = Vec::new();
+    let mut trace_sets: Vec<String> = Vec::new();
     let mut formulation = "hull".to_string();
     while let Some(a) = args.next() {
         match a.as_str() {
@@ -46,6 +48,8 @@ fn run() -> Result<(), String> {
             "--all" => all = true,
             "--formulation" => formulation = args.next().unwrap_or_default(),
             "--conic" => sets.push(args.next().unwrap_or_default()),
+            // Settings of the `--trace` step's solve only (after the `--conic` ones).
+            "--trace-conic" => trace_sets.push(args.next().unwrap_or_default()),
             _ => path = Some(a),
         }
     }
@@ -73,7 +77,8 @@ fn run() -> Result<(), String> {
     let (mut total_us, mut total_it, mut failed) = (0.0, 0usize, 0usize);
     for k in 1..=file.scene.num_steps().min(last_step) {
         if trace_step == Some(k) {
-            trace(&mut sim, &options, &sets)?;
+            let all: Vec<String> = sets.iter().chain(&trace_sets).cloned().collect();
+            trace(&mut sim, &options, &all)?;
         }
         sim.prepare_step().map_err(|e| e.to_string())?;
         let warm = {
@@ -169,6 +174,7 @@ fn conic_settings(o: &BackendOptions, sets: &[String]) -> Result<ConicSettings, 
             "early_finish_after" => s.early_finish_after = n()?,
             "early_finish_iterations" => s.early_finish_iterations = n()?,
             "walk_finish_after" => s.walk_finish_after = n()?,
+            "unanchored_retry" => s.unanchored_retry = b()?,
             "friction_continuation" => s.friction_continuation = n().ok().filter(|&n| n > 0),
             _ => return Err(format!("unknown conic setting {name}")),
         }

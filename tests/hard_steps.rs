@@ -1139,6 +1139,20 @@ fn conic_with(tolerance: f64, friction_continuation: Option<usize>) -> ConicSolv
     })
 }
 
+/// The conic backend with the scene's tolerance and its defaults but without its two late
+/// stages: the Newton finish's continuation in the friction coefficient
+/// (`ConicSettings::friction_continuation`) and the unanchored pass after the failed local
+/// finishes (`ConicSettings::unanchored_retry`, wip-heldout5, which alone cures
+/// `s20270109_087_v_trough` step 140 too).
+fn conic_without_late_stages(tolerance: f64) -> ConicSolver {
+    ConicSolver::new(ConicSettings {
+        tolerance,
+        friction_continuation: None,
+        unanchored_retry: false,
+        ..ConicSettings::default()
+    })
+}
+
 /// `s20261212_022_v_trough` step 62 with the conic backend alone (the jam in the crease of
 /// `newton_v_trough_s20261212_022_step_62_jam_in_the_crease`, on the conic backend's default
 /// trajectory): the fixed point stalls at 1.8e-4 and every Newton finish (local and safeguarded,
@@ -1153,7 +1167,7 @@ fn conic_v_trough_s20261212_022_step_62_friction_continuation() {
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let sim = at_default_step(&path, &mut conic_with(tolerance, Some(400)), 62);
     let z0 = sim.z().to_vec();
-    match sim.solve_step_problem(&mut conic_with(tolerance, None), &z0) {
+    match sim.solve_step_problem(&mut conic_without_late_stages(tolerance), &z0) {
         Err(SolveError::NotConverged { best }) => {
             println!(
                 "conic s20261212_022_v_trough step 62 without the last stage: reported as \
@@ -1220,14 +1234,16 @@ fn conic_v_trough_s20261212_022_step_62_friction_continuation() {
 /// later one. With the finish's last stage, the continuation in the friction coefficient in the
 /// scene scales (`docs/latency.md`, wip-conic022), the step converges (from the retry start's
 /// best iterate) with the body's velocity of Newton's and PATH's step 140 on their own
-/// trajectories, and the next three steps converge too.
+/// trajectories, and the next three steps converge too. The unanchored pass after the failed
+/// local finishes (`ConicSettings::unanchored_retry`, wip-heldout5) cures the step alone too,
+/// so "without" is without both.
 #[test]
 fn conic_v_trough_s20270109_087_step_140_friction_continuation() {
     let path = regression_scene("s20270109_087_v_trough");
     let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
     let mut sim = at_default_step(&path, &mut conic_with(tolerance, Some(400)), 140);
     let without = sim
-        .step(&mut conic_with(tolerance, None))
+        .step(&mut conic_without_late_stages(tolerance))
         .unwrap_or_else(|e| panic!("{e}"));
     println!(
         "conic s20270109_087_v_trough step 140 without the last stage: converged {}, residual {:e}",
@@ -1461,4 +1477,66 @@ fn newton_union_tip_s20270320_070_step_97_structure_reseed() {
         "{}",
         after.summary.counters
     );
+}
+
+/// `s20270327_137_corner_wall` step 33 (the held-out seed 20270327; a point set of μ = 0.9
+/// sliding at 1.5 m/s into the wall, h = 3 ms) with the conic backend alone: a vertex jams in
+/// the corner of floor and wall, and the floor's and the wall's loads go from 0.16 and 0.13 to
+/// 97 and 102 N·s in one step. The load anchor lets a load move only a bounded amount per QP, so
+/// the anchored fixed point walks for its 50 QPs (natural residual 1.4e-3 to 4.5e-3) and every
+/// Newton finish ends at 3.3e-6: the step failed and, the state not advancing, so did every
+/// later one (timeout). With the unanchored pass after the failed local finishes
+/// (`ConicSettings::unanchored_retry`, `docs/stress.md`, wip-heldout5) the step converges in 14
+/// more QPs to Newton's and PATH's step 33, and the next five steps converge too.
+#[test]
+fn conic_corner_wall_s20270327_137_step_33_unanchored_pass() {
+    let path = regression_scene("s20270327_137_corner_wall");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let conic = |unanchored_retry| {
+        ConicSolver::new(ConicSettings {
+            tolerance,
+            unanchored_retry,
+            ..ConicSettings::default()
+        })
+    };
+    let mut sim = at_default_step(&path, &mut conic(true), 33);
+    let without = sim
+        .step(&mut conic(false))
+        .unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "conic s20270327_137_corner_wall step 33 without the unanchored pass: converged {}, residual {:e}",
+        without.converged, without.summary.residual
+    );
+    assert!(
+        !without.converged && without.summary.residual > 10.0 * tolerance,
+        "without the unanchored pass step 33 converged ({:e}): the test's premise is gone",
+        without.summary.residual
+    );
+    let mut sim = at_default_step(&path, &mut conic(true), 33);
+    let mut solver = conic(true);
+    for k in 33..=38 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        if k == 33 {
+            assert_eq!(
+                rec.summary
+                    .counters
+                    .get(Counter::Custom("unanchored_passes")),
+                Some(1)
+            );
+            // PATH's and Newton's step 33 (stress --seed 20270327 on main e674d7c, 4e-14 apart):
+            // the state before the step differs from theirs by up to 2.6e-9 (measured: v 1e-10,
+            // the loads 1.4e-7 apart).
+            let v = rec.bodies[0].v;
+            assert!((v.x - 0.237_007_884_770).abs() <= 1e-8, "v_x {}", v.x);
+            assert!((v.z - 0.571_901_095_883).abs() <= 1e-8, "v_z {}", v.z);
+        }
+    }
 }

@@ -199,6 +199,22 @@ pub struct ConicSettings {
     /// [`ConicSettings::newton_polish`] > 0; `None` turns it off. Default `Some(400)`, the Newton
     /// backend's.
     pub friction_continuation: Option<usize>,
+    /// When the fixed point and its local Newton finishes have failed and some QP had an
+    /// anchored contact, solve once more from the warm start without the anchors
+    /// ([`ConicSettings::anchor_moment`], [`ConicSettings::anchor_load`]: both off), before the
+    /// safeguarded finishes (which follow when it fails too); its own finishes start from its
+    /// best iterate only (from the warm start they would repeat the anchored pass's) and are
+    /// the local one. The load anchor lets a contact's load move only a bounded amount per QP;
+    /// where the step's loads are unique but far from the warm start's, the fixed point walks
+    /// towards them for its whole iteration limit (a body jammed in the corner of a floor and
+    /// a wall, μ = 0.9: the loads go from 0.16 to 97 and 102 N·s in one step,
+    /// `s20270327_137_corner_wall` step 33, `docs/stress.md`, branch wip-heldout5: every
+    /// finish failed, unanchored 14 QPs; `111_corner_wall` step 161 of the same seed: 50 QPs
+    /// and 1 837 Newton iterations, unanchored 12 QPs). Runs only where the local finishes
+    /// failed, so a step they or the fixed point solved is unchanged. Needs
+    /// [`ConicSettings::newton_polish`] > 0. Counted in `"unanchored_passes"` (present only
+    /// when some ran). Default `true`.
+    pub unanchored_retry: bool,
     /// Solve each outer QP first with the built-in dense interior-point method
     /// (`conic/dense_qp.rs`: Nesterov–Todd scaling updated as CVXOPT does, Mehrotra's
     /// predictor–corrector, the scaled KKT system by the Cholesky factor of its Schur complement
@@ -298,6 +314,7 @@ impl Default for ConicSettings {
             early_finish_iterations: 10,
             walk_finish_after: 5,
             friction_continuation: Some(400),
+            unanchored_retry: true,
             dense_qp: true,
             qp_tolerance_factor: 0.0,
             reuse_qp: true,
@@ -510,6 +527,8 @@ struct Run {
     newton_polish: usize,
     newton_handoff: usize,
     qp_reuses: usize,
+    /// Unanchored passes run ([`ConicSettings::unanchored_retry`]).
+    unanchored_passes: usize,
     trace: Vec<IterationRecord>,
 }
 
@@ -534,6 +553,59 @@ impl McpSolver for ConicSolver {
         z0: &[f64],
         out: &mut Solution,
     ) -> Result<(), SolveError> {
+        let mut anchored = false;
+        self.solve_pass(mcp, z0, out, Pass::Anchored, &mut anchored)
+    }
+}
+
+/// Which pass of a solve [`ConicSolver::solve_pass`] runs.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Pass {
+    /// The solve: anchors as the settings say, finishes from the best iterate and the warm
+    /// start.
+    Anchored,
+    /// [`ConicSettings::unanchored_retry`]: no anchor, finishes from the best iterate only, the
+    /// last one the local finish.
+    Unanchored,
+}
+
+impl ConicSolver {
+    /// The unanchored pass from the warm start ([`ConicSettings::unanchored_retry`]): its
+    /// solution or best point (`None` when a subproblem or the problem refused it), its work
+    /// added to `run`'s counters.
+    #[cold]
+    #[inline(never)]
+    fn unanchored_pass(&mut self, mcp: &dyn Mcp, z0: &[f64], run: &mut Run) -> Option<Solution> {
+        let mut out = Solution::default();
+        let mut anchored = false;
+        let sol = match self.solve_pass(mcp, z0, &mut out, Pass::Unanchored, &mut anchored) {
+            Ok(()) => out,
+            Err(SolveError::NotConverged { best }) => *best,
+            Err(_) => return None,
+        };
+        let count = |c| sol.summary.counters.get(c).unwrap_or(0);
+        run.clarabel_iterations += count(Counter::ClarabelIterations);
+        run.dense_qp_iterations += count(Counter::Custom("dense_qp_iterations"));
+        run.clarabel_fallbacks += count(Counter::Custom("clarabel_fallbacks"));
+        run.newton_polish += count(Counter::NewtonPolish);
+        run.newton_handoff += count(Counter::NewtonHandoff);
+        run.qp_reuses += count(Counter::Custom("qp_reuses"));
+        run.f_evals += sol.summary.f_evals;
+        run.unanchored_passes += 1;
+        Some(sol)
+    }
+
+    /// One pass of the solve (`pass`): the outer fixed point and its Newton finishes into
+    /// `out`; `anchored` is set when some QP had an anchored contact.
+    fn solve_pass(
+        &mut self,
+        mcp: &dyn Mcp,
+        z0: &[f64],
+        out: &mut Solution,
+        pass: Pass,
+        anchored_seen: &mut bool,
+    ) -> Result<(), SolveError> {
+        let unanchored = pass == Pass::Unanchored;
         validate_start(mcp, z0)?;
         self.last_status = None;
         self.last_error = None;
@@ -590,6 +662,7 @@ impl McpSolver for ConicSolver {
             newton_polish: 0,
             newton_handoff: 0,
             qp_reuses: 0,
+            unanchored_passes: 0,
             trace: Vec::new(),
         };
         let OuterWorkspace {
@@ -725,7 +798,7 @@ impl McpSolver for ConicSolver {
             } else {
                 warm_loads
             };
-            let anchor = exact.then_some(step::Anchor {
+            let anchor = (exact && !unanchored).then_some(step::Anchor {
                 moment: self.settings.anchor_moment,
                 load: self.settings.anchor_load,
                 previous_loads: (!loads.is_empty()).then_some(loads),
@@ -748,6 +821,7 @@ impl McpSolver for ConicSolver {
                 std::mem::take(qp_storage),
             );
             run.patch_vertices = sub.patch_vertices;
+            *anchored_seen |= sub.anchored();
             // The previous QP's answer polished against this QP's data: when it solves the step,
             // this iteration needs no QP (`ConicSettings::reuse_qp`).
             let polish = exact && self.settings.polish;
@@ -1007,7 +1081,9 @@ impl McpSolver for ConicSolver {
                     .settings
                     .early_finish_iterations
                     .min(self.settings.newton_polish);
-                let from_warm = z0 != best_z.as_slice();
+                // The unanchored pass's finishes from the warm start would be the anchored
+                // pass's again.
+                let from_warm = !unanchored && z0 != best_z.as_slice();
                 let starts = if warm_first {
                     [from_warm.then_some(z0), Some(&best_z[..])]
                 } else {
@@ -1035,7 +1111,8 @@ impl McpSolver for ConicSolver {
             // separated piece (a corner) would move its friction there, and the contact would
             // cycle between loaded and unloaded.
             contacts_into(structure, z, self.settings.patch_band, new_geometry);
-            let anchors = self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
+            let anchors =
+                !unanchored && self.settings.anchor_moment > 0.0 && self.settings.anchor_load > 0.0;
             if anchors {
                 step::anchored_contacts_into(geometry, nb, per_body, anchored);
             }
@@ -1128,10 +1205,14 @@ impl McpSolver for ConicSolver {
             ) && self.settings.newton_polish > 0
                 && best_residual.is_finite()
             {
-                let from_warm = z0 != best_z.as_slice();
+                let from_warm = !unanchored && z0 != best_z.as_slice();
                 // The last stage only where both others failed from both starts: a step that
                 // converged without it is unchanged.
-                let stages: &[NewtonFinish] = if self.settings.friction_continuation.is_some() {
+                // The unanchored pass's own finish is the local one: where that falls short the
+                // anchored pass's safeguarded finishes follow.
+                let stages: &[NewtonFinish] = if unanchored {
+                    &[NewtonFinish::Local]
+                } else if self.settings.friction_continuation.is_some() {
                     &[
                         NewtonFinish::Local,
                         NewtonFinish::Safeguarded,
@@ -1141,6 +1222,26 @@ impl McpSolver for ConicSolver {
                     &[NewtonFinish::Local, NewtonFinish::Safeguarded]
                 };
                 'finish: for &finish in stages {
+                    // Between the local and the safeguarded finish: the unanchored pass
+                    // (`ConicSettings::unanchored_retry`), a few QPs where the anchor held the
+                    // loads back, where the safeguarded finishes cost hundreds of iterations.
+                    if finish == NewtonFinish::Safeguarded
+                        && !unanchored
+                        && *anchored_seen
+                        && self.settings.unanchored_retry
+                        && let Some(sol) = self.unanchored_pass(mcp, z0, &mut run)
+                    {
+                        iterations += sol.summary.iterations;
+                        if sol.summary.residual < best_residual {
+                            z.copy_from_slice(&sol.z);
+                            f_at_z = false;
+                            best_residual = sol.summary.residual;
+                        }
+                        if best_residual <= self.settings.tolerance {
+                            termination = Termination::Converged;
+                            break 'finish;
+                        }
+                    }
                     for start in [Some(&best_z[..]), from_warm.then_some(z0)]
                         .into_iter()
                         .flatten()
@@ -1203,6 +1304,9 @@ impl McpSolver for ConicSolver {
             (Counter::Custom("qp_reuses"), run.qp_reuses),
         ] {
             counters.set(counter, value);
+        }
+        if run.unanchored_passes > 0 {
+            counters.set(Counter::Custom("unanchored_passes"), run.unanchored_passes);
         }
         let converged = finish_solve_into(
             mcp,
