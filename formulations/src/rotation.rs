@@ -8,7 +8,7 @@
 //! step is exactly the geometry of the renormalised quaternion stored
 //! afterwards.
 
-use nalgebra::{Matrix3, Matrix4x3, MatrixView3, Vector3, Vector4};
+use nalgebra::{Matrix3, Matrix4x3, Vector3, Vector4};
 
 /// The skew-symmetric cross-product matrix `[v]×`, with `[v]× u = v × u`.
 ///
@@ -67,63 +67,6 @@ pub fn rotation_matrix_and_derivatives(q: &Vector4<f64>) -> (Matrix3<f64>, [Matr
         out[i + 1] = (dn - r * (2.0 * v[i])) / s;
     }
     (r, out)
-}
-
-/// Tag of [`rotation_matrix_and_derivatives`] among the work blocks share
-/// ([`ecp_model::Params::shared`]).
-const SHARED_ROTATION_AND_DERIVATIVES: u32 = 0x524f_5444;
-
-/// `f(R, [∂R/∂Q_k])` ([`rotation_matrix_and_derivatives`]) for the quaternion `Q` stored at
-/// entries 3..7 of input `k` of `x` (a body's `q = (x, Q)` block): `R` and `∂R/∂Q` are computed
-/// once per Jacobian evaluation and shared by the blocks that read that `q` (a body's
-/// Newton–Euler rows and contact conditions C2 and C3 each need them; `docs/latency.md`), and
-/// read in place by `f`. The same bits as the call, which it is when no work is shared.
-#[inline(always)]
-pub fn with_shared_rotation_and_derivatives<T>(
-    x: &ecp_model::Params<'_>,
-    k: usize,
-    f: impl for<'b> FnOnce(MatrixView3<'b, f64>, [MatrixView3<'b, f64>; 4]) -> T,
-) -> T {
-    use ecp_model::Shared;
-    let q = x.array::<7>(k);
-    let compute = || rotation_matrix_and_derivatives(&Vector4::new(q[3], q[4], q[5], q[6]));
-    // Where the values live while `f` reads them: the shared storage or this call's own.
-    let hit;
-    let owned;
-    // `R` then the four `∂R/∂Q_k`, each column-major (nalgebra's storage).
-    let flat: [&[f64]; 5] = match x.shared::<45>(SHARED_ROTATION_AND_DERIVATIVES, x.range(k)) {
-        Shared::Hit(p) => {
-            hit = p;
-            let p: &[f64; 45] = &hit;
-            [&p[..9], &p[9..18], &p[18..27], &p[27..36], &p[36..]]
-        }
-        Shared::Miss(slot) => {
-            owned = compute();
-            let (r, dr) = &owned;
-            let parts = [
-                r.as_slice(),
-                dr[0].as_slice(),
-                dr[1].as_slice(),
-                dr[2].as_slice(),
-                dr[3].as_slice(),
-            ];
-            slot.store(&parts);
-            parts
-        }
-        Shared::Unshared => {
-            owned = compute();
-            let (r, dr) = &owned;
-            [
-                r.as_slice(),
-                dr[0].as_slice(),
-                dr[1].as_slice(),
-                dr[2].as_slice(),
-                dr[3].as_slice(),
-            ]
-        }
-    };
-    let m = |i: usize| MatrixView3::from_slice(flat[i]);
-    f(m(0), [m(1), m(2), m(3), m(4)])
 }
 
 /// Kinematic map `E(Q)` with `Q̇ = ½ E(Q) ω` for the WORLD-frame angular

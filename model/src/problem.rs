@@ -1,7 +1,6 @@
 //! The problem builder: variable blocks paired with residual blocks, data blocks they read, and
 //! terms added to paired rows, assembled into one MCP.
 
-use std::cell::RefCell;
 use std::sync::{Arc, Mutex, PoisonError};
 
 use crate::bounds::VarBlock;
@@ -10,7 +9,7 @@ use crate::data::{DataBlock, DataId, Input, IntoInputs};
 use crate::error::ModelError;
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
-use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock, SharedWork};
+use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 
 /// Handle of a residual block (paired or a term) inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -424,7 +423,6 @@ impl Problem {
             lower,
             upper,
             constant: Mutex::new(constant),
-            shared: Mutex::new(RefCell::new(SharedWork::default())),
             constant_readers,
             has_constants,
             vars: self.vars,
@@ -656,10 +654,6 @@ pub struct BlockMcp {
     /// written again after a change of the data they read; a lock only because `jacobian`
     /// takes `&self` (never waited for: a held lock means the plain path).
     constant: Mutex<ConstantJacobian>,
-    /// The storage of the work the blocks of one Jacobian evaluation share
-    /// ([`Params::shared`]), cleared at each; a lock only because `jacobian` takes
-    /// `&self` (never waited for: a held lock means each block computes its own).
-    shared: Mutex<RefCell<SharedWork>>,
     /// Per data block: the residual blocks whose constant entries read it.
     constant_readers: Vec<Vec<usize>>,
     /// Whether some block has constant entries.
@@ -760,15 +754,6 @@ impl BlockMcp {
         }
         values.fill(0.0);
         false
-    }
-
-    /// The shared work of a Jacobian evaluation ([`Params::shared`]), cleared; `None`
-    /// when another evaluation holds it (then every block computes its own).
-    #[inline]
-    fn shared_work(&self) -> Option<std::sync::MutexGuard<'_, RefCell<SharedWork>>> {
-        let mut work = self.shared.try_lock().ok()?;
-        work.get_mut().clear();
-        Some(work)
     }
 
     /// Writes the constant entries of the stale blocks into the template, as `jacobian` would
@@ -1008,7 +993,6 @@ impl BlockMcp {
         values: &mut [f64],
     ) {
         let templated = self.start_jacobian(data, z, values);
-        let shared = self.shared_work();
         for b in self.blocks.iter().filter(|b| !b.term) {
             let params = Params::new(z, data, &b.ranges);
             let out = &mut f[b.row0..b.row0 + b.rows];
@@ -1016,7 +1000,6 @@ impl BlockMcp {
                 b.block.evaluate(params, out);
             } else {
                 let mut jac = b.varying(values, templated);
-                let params = params.with_shared(shared.as_deref());
                 b.block.evaluate_with_jacobian(params, out, &mut jac);
             }
         }
@@ -1053,15 +1036,13 @@ impl Mcp for BlockMcp {
     }
     fn jacobian(&self, z: &[f64], values: &mut [f64]) {
         let templated = self.start_jacobian(&self.data_values, z, values);
-        let shared = self.shared_work();
         for b in self.blocks.iter().filter(|b| !b.term) {
             if templated && b.constant == Constancy::All {
                 continue;
             }
             let mut jac = b.varying(values, templated);
-            let params =
-                Params::new(z, &self.data_values, &b.ranges).with_shared(shared.as_deref());
-            b.block.jacobian(params, &mut jac);
+            b.block
+                .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
         }
         if self.has_terms {
             for b in self.blocks.iter().filter(|b| b.term) {

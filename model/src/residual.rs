@@ -14,8 +14,6 @@
 //! assembled MCP Jacobian discards them, and [`JacobianBlocks::wants`] lets a block skip
 //! derivatives nobody asked for.
 
-use std::cell::{Ref, RefCell};
-
 /// Where input `k` of a residual block lives: `len` values at `offset` of the unknowns `z`
 /// (a variable block) or of the data vector (a data block).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -74,9 +72,6 @@ pub struct Params<'a> {
     /// `z` and the data, indexed by `InputKind as usize`.
     sources: [&'a [f64]; 2],
     inputs: &'a [InputRange],
-    /// Work shared by the blocks of one Jacobian evaluation ([`Params::shared`]), when the
-    /// assembly provides it.
-    shared: Option<&'a RefCell<SharedWork>>,
 }
 
 impl<'a> Params<'a> {
@@ -86,54 +81,6 @@ impl<'a> Params<'a> {
         Params {
             sources: [z, data],
             inputs,
-            shared: None,
-        }
-    }
-
-    /// The same view, with `work` shared by the blocks of this Jacobian evaluation
-    /// ([`Params::shared`]).
-    #[inline]
-    pub(crate) fn with_shared(mut self, work: Option<&'a RefCell<SharedWork>>) -> Self {
-        self.shared = work;
-        self
-    }
-
-    /// A value that is a function of input `input` alone (its values at this point, and
-    /// constants), computed once per Jacobian evaluation and shared by the blocks that read
-    /// the same input: `tag` names the function (one tag per function, the same for every
-    /// block that asks for it), `input` is [`Params::range`] of the input it reads.
-    /// [`Shared::Hit`]: an earlier block computed it, here are its `N` values;
-    /// [`Shared::Miss`]: compute it and store its `N` values for the next blocks;
-    /// [`Shared::Unshared`]: no shared work (`F`, a Jacobian outside the assembled MCP's, the
-    /// checker's), compute it. The values are the computation's, copied: the same bits.
-    ///
-    /// Why: three blocks of a body (its Newton–Euler rows and two contact conditions) need
-    /// `R(Q)` and `∂R/∂Q` of the same `Q` at every Jacobian (`docs/latency.md`).
-    #[inline]
-    pub fn shared<const N: usize>(&self, tag: u32, input: InputRange) -> Shared<'a, N> {
-        let Some(cell) = self.shared else {
-            return Shared::Unshared;
-        };
-        let Ok(work) = cell.try_borrow() else {
-            return Shared::Unshared;
-        };
-        match work.find(tag, input) {
-            Some(start) => {
-                match Ref::filter_map(work, |w| {
-                    w.values
-                        .get(start..start + N)
-                        .and_then(|v| <&[f64; N]>::try_from(v).ok())
-                }) {
-                    Ok(v) => Shared::Hit(v),
-                    // A tag asked for with two lengths (a block's mistake): not shared.
-                    Err(_) => Shared::Unshared,
-                }
-            }
-            None => Shared::Miss(SharedMiss {
-                work: cell,
-                tag,
-                input,
-            }),
         }
     }
     /// Values of input `k`, whichever kind it is.
@@ -155,13 +102,6 @@ impl<'a> Params<'a> {
             Ok(a) => a,
             Err(_) => wrong_size(k, b.len(), N),
         }
-    }
-    /// Where input `k` lives (its kind, offset and length): within one evaluation at one
-    /// point, two blocks' inputs with the same range hold the same values
-    /// ([`Params::shared`]).
-    #[inline]
-    pub fn range(&self, k: usize) -> InputRange {
-        self.inputs[k]
     }
     /// Number of inputs.
     pub fn len(&self) -> usize {
@@ -237,7 +177,6 @@ impl<'a> JacobianBlocks<'a> {
             discards,
         }
     }
-
     /// Number of residual rows.
     pub fn rows(&self) -> usize {
         self.rows
@@ -325,72 +264,6 @@ impl<'a> JacobianBlocks<'a> {
         for d in 0..m {
             self.add(k, i0 + d, j0 + d, s);
         }
-    }
-}
-
-/// The results of [`Params::shared`] within one Jacobian evaluation, by function tag and
-/// input range: cleared by the assembly before each evaluation (a point, the data of that
-/// moment), so nothing carries over from one point to the next. Kept between evaluations only
-/// for its storage (no allocation once grown).
-#[derive(Clone, Debug, Default)]
-pub struct SharedWork {
-    /// Per result: its tag, its input and its first value in `values`.
-    keys: Vec<(u32, InputRange, usize)>,
-    values: Vec<f64>,
-}
-
-impl SharedWork {
-    /// Forgets every result (a new point).
-    #[inline]
-    pub(crate) fn clear(&mut self) {
-        self.keys.clear();
-        self.values.clear();
-    }
-
-    #[inline]
-    fn find(&self, tag: u32, input: InputRange) -> Option<usize> {
-        self.keys
-            .iter()
-            .find(|&&(t, r, _)| t == tag && r == input)
-            .map(|&(_, _, start)| start)
-    }
-}
-
-/// A value of [`Params::shared`].
-#[derive(Debug)]
-pub enum Shared<'a, const N: usize> {
-    /// Computed by an earlier block of this evaluation: its values, read in place.
-    Hit(Ref<'a, [f64; N]>),
-    /// Not yet: the caller computes it and stores it ([`SharedMiss::store`]).
-    Miss(SharedMiss<'a, N>),
-    /// No shared work: the caller computes it.
-    Unshared,
-}
-
-/// Where [`Shared::Miss`] stores the value computed.
-#[derive(Debug)]
-pub struct SharedMiss<'a, const N: usize> {
-    work: &'a RefCell<SharedWork>,
-    tag: u32,
-    input: InputRange,
-}
-
-impl<const N: usize> SharedMiss<'_, N> {
-    /// Stores the value, given in consecutive parts of `N` values in all (otherwise, or while
-    /// a shared value is still borrowed, nothing is stored: the next block computes its own).
-    #[inline]
-    pub fn store(self, parts: &[&[f64]]) {
-        if parts.iter().map(|p| p.len()).sum::<usize>() != N {
-            return;
-        }
-        let Ok(mut work) = self.work.try_borrow_mut() else {
-            return;
-        };
-        let start = work.values.len();
-        for p in parts {
-            work.values.extend_from_slice(p);
-        }
-        work.keys.push((self.tag, self.input, start));
     }
 }
 
