@@ -69,6 +69,76 @@ pub fn rotation_matrix_and_derivatives(q: &Vector4<f64>) -> (Matrix3<f64>, [Matr
     (r, out)
 }
 
+/// Tag of [`rotation_matrix_and_derivatives`] among the work blocks share
+/// ([`ecp_model::JacobianBlocks::shared`]).
+const SHARED_ROTATION_AND_DERIVATIVES: u32 = 0x524f_5444;
+
+/// `R` and the four `∂R/∂Q_k` laid out as 45 values, each matrix column-major: what
+/// [`with_shared_rotation_and_derivatives`] stores, read back in place.
+#[repr(C)]
+struct RotationAndDerivatives {
+    r: Matrix3<f64>,
+    dr: [Matrix3<f64>; 4],
+}
+
+// The cast below needs `Matrix3<f64>` to be nine `f64`s (nalgebra's `Matrix` is `#[repr(C)]`,
+// its `ArrayStorage` `#[repr(transparent)]` over `[[f64; 3]; 3]`, column-major).
+const _: () = assert!(std::mem::size_of::<RotationAndDerivatives>() == 45 * 8);
+const _: () =
+    assert!(std::mem::align_of::<RotationAndDerivatives>() == std::mem::align_of::<f64>());
+
+impl RotationAndDerivatives {
+    /// The stored values as matrices, in place.
+    #[inline(always)]
+    fn of(p: &[f64; 45]) -> &Self {
+        // SAFETY: the struct is 45 `f64`s with `f64`'s alignment and no padding (asserted above;
+        // each `Matrix3<f64>` is `[[f64; 3]; 3]` at offset 0 of its 72 bytes), so every
+        // `[f64; 45]` is a valid value of it, and the reference keeps `p`'s lifetime.
+        unsafe { &*(p as *const [f64; 45]).cast::<Self>() }
+    }
+
+    /// The values, to be stored.
+    #[inline(always)]
+    fn values(&self) -> &[f64; 45] {
+        // SAFETY: as in `of`, the other way: the struct is exactly 45 `f64`s.
+        unsafe { &*(self as *const Self).cast::<[f64; 45]>() }
+    }
+}
+
+/// `f(R, ∂R/∂Q)` ([`rotation_matrix_and_derivatives`]) for the quaternion `Q` stored at entries
+/// 3..7 of input `k` of `x` (a body's `q = (x, Q)` block): `R` and `∂R/∂Q` are computed once per
+/// Jacobian evaluation and shared by the blocks that read that `q` (a body's Newton–Euler rows
+/// and contact conditions C2 and C3 each need them; `docs/latency.md`), read in place by `f`
+/// (which runs before the block writes its entries). The same bits as the call, which it is
+/// when `jac` shares no work.
+#[inline(always)]
+pub fn with_shared_rotation_and_derivatives<T>(
+    x: &ecp_model::Params<'_>,
+    k: usize,
+    jac: &mut ecp_model::JacobianBlocks<'_>,
+    f: impl FnOnce(&Matrix3<f64>, &[Matrix3<f64>; 4]) -> T,
+) -> T {
+    use ecp_model::Shared;
+    let q = x.array::<7>(k);
+    let compute = || rotation_matrix_and_derivatives(&Vector4::new(q[3], q[4], q[5], q[6]));
+    match jac.shared::<45>(SHARED_ROTATION_AND_DERIVATIVES, x.range(k)) {
+        Shared::Hit(p) => {
+            let m = RotationAndDerivatives::of(p);
+            f(&m.r, &m.dr)
+        }
+        Shared::Miss(slot) => {
+            let (r, dr) = compute();
+            let m = RotationAndDerivatives { r, dr };
+            slot.store(m.values());
+            f(&m.r, &m.dr)
+        }
+        Shared::Unshared => {
+            let (r, dr) = compute();
+            f(&r, &dr)
+        }
+    }
+}
+
 /// Kinematic map `E(Q)` with `Q̇ = ½ E(Q) ω` for the WORLD-frame angular
 /// velocity ω (`docs/model.md#kinematic-map`): `ẇ = −½ ω·v`, `v̇ = ½ (w ω + ω × v)`, hence
 /// `E = [−vᵀ; w I − [v]×]`. Equivalent to `Q̇ = ½ [0; ω] ⊗ Q`.
