@@ -273,28 +273,6 @@ mod tests {
     }
 
     #[test]
-    fn stored_rotation_and_derivatives_read_back_in_place_with_the_same_bits() {
-        // The layout the in-place read relies on: 45 values, `R` then each `∂R/∂Q_k`, each
-        // column-major as `as_slice` gives it.
-        let mut rng = Lcg(9);
-        let bits = |m: &Matrix3<f64>| m.iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-        for _ in 0..20 {
-            let (r, dr) = rotation_matrix_and_derivatives(&rng.quat());
-            let m = RotationAndDerivatives { r, dr };
-            let stored: [f64; 45] = *m.values();
-            assert_eq!(&stored[..9], r.as_slice());
-            for k in 0..4 {
-                assert_eq!(&stored[9 * (k + 1)..9 * (k + 2)], dr[k].as_slice());
-            }
-            let back = RotationAndDerivatives::of(&stored);
-            assert_eq!(bits(&back.r), bits(&r));
-            for k in 0..4 {
-                assert_eq!(bits(&back.dr[k]), bits(&dr[k]));
-            }
-        }
-    }
-
-    #[test]
     fn derivatives_match_central_differences() {
         let mut rng = Lcg(3);
         for _ in 0..50 {
