@@ -78,10 +78,7 @@ pub use mcp::{
 };
 pub use pattern::CscPattern;
 pub use problem::{BlockMcp, DataJacobianWork, Problem, ResId, VarId};
-pub use residual::{
-    Column, InputKind, InputRange, JacobianBlocks, Params, ResidualBlock, Shared, SharedMiss,
-    SharedWork,
-};
+pub use residual::{Column, InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 pub use scaling::{McpScales, ScaledMcp, ScalesUsage, far_from_si, power_of_two, solve_in_scales};
 pub use solver::{
     IterationRecord, McpSolver, Observer, Solution, SolveError, SolveReport, StepKind, Summary,

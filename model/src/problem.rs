@@ -9,7 +9,7 @@ use crate::data::{DataBlock, DataId, Input, IntoInputs};
 use crate::error::ModelError;
 use crate::mcp::Mcp;
 use crate::pattern::CscPattern;
-use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock, SharedWork};
+use crate::residual::{InputKind, InputRange, JacobianBlocks, Params, ResidualBlock};
 
 /// Handle of a residual block (paired or a term) inside a [`Problem`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -423,7 +423,6 @@ impl Problem {
             lower,
             upper,
             constant: Mutex::new(constant),
-            shared: Mutex::new(SharedWork::default()),
             constant_readers,
             has_constants,
             vars: self.vars,
@@ -655,10 +654,6 @@ pub struct BlockMcp {
     /// written again after a change of the data they read; a lock only because `jacobian`
     /// takes `&self` (never waited for: a held lock means the plain path).
     constant: Mutex<ConstantJacobian>,
-    /// The storage of the work the blocks of one Jacobian evaluation share
-    /// ([`JacobianBlocks::shared`]), cleared at each; a lock only because `jacobian` takes
-    /// `&self` (never waited for: a held lock means each block computes its own).
-    shared: Mutex<SharedWork>,
     /// Per data block: the residual blocks whose constant entries read it.
     constant_readers: Vec<Vec<usize>>,
     /// Whether some block has constant entries.
@@ -759,15 +754,6 @@ impl BlockMcp {
         }
         values.fill(0.0);
         false
-    }
-
-    /// The shared work of a Jacobian evaluation ([`JacobianBlocks::shared`]), cleared; `None`
-    /// when another evaluation holds it (then every block computes its own).
-    #[inline]
-    fn shared_work(&self) -> Option<std::sync::MutexGuard<'_, SharedWork>> {
-        let mut work = self.shared.try_lock().ok()?;
-        work.clear();
-        Some(work)
     }
 
     /// Writes the constant entries of the stale blocks into the template, as `jacobian` would
@@ -1007,16 +993,13 @@ impl BlockMcp {
         values: &mut [f64],
     ) {
         let templated = self.start_jacobian(data, z, values);
-        let mut shared = self.shared_work();
         for b in self.blocks.iter().filter(|b| !b.term) {
             let params = Params::new(z, data, &b.ranges);
             let out = &mut f[b.row0..b.row0 + b.rows];
             if templated && b.constant == Constancy::All {
                 b.block.evaluate(params, out);
             } else {
-                let mut jac = b
-                    .varying(values, templated)
-                    .with_shared(shared.as_deref_mut());
+                let mut jac = b.varying(values, templated);
                 b.block.evaluate_with_jacobian(params, out, &mut jac);
             }
         }
@@ -1053,14 +1036,11 @@ impl Mcp for BlockMcp {
     }
     fn jacobian(&self, z: &[f64], values: &mut [f64]) {
         let templated = self.start_jacobian(&self.data_values, z, values);
-        let mut shared = self.shared_work();
         for b in self.blocks.iter().filter(|b| !b.term) {
             if templated && b.constant == Constancy::All {
                 continue;
             }
-            let mut jac = b
-                .varying(values, templated)
-                .with_shared(shared.as_deref_mut());
+            let mut jac = b.varying(values, templated);
             b.block
                 .jacobian(Params::new(z, &self.data_values, &b.ranges), &mut jac);
         }

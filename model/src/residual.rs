@@ -83,7 +83,6 @@ impl<'a> Params<'a> {
             inputs,
         }
     }
-
     /// Values of input `k`, whichever kind it is.
     #[inline]
     pub fn block(&self, k: usize) -> &'a [f64] {
@@ -103,13 +102,6 @@ impl<'a> Params<'a> {
             Ok(a) => a,
             Err(_) => wrong_size(k, b.len(), N),
         }
-    }
-    /// Where input `k` lives (its kind, offset and length): within one evaluation at one
-    /// point, two blocks' inputs with the same range hold the same values
-    /// ([`JacobianBlocks::shared`]).
-    #[inline]
-    pub fn range(&self, k: usize) -> InputRange {
-        self.inputs[k]
     }
     /// Number of inputs.
     pub fn len(&self) -> usize {
@@ -149,9 +141,6 @@ pub struct JacobianBlocks<'a> {
     /// Whether some column is [`JacobianBlocks::DISCARD`] (false: every write is stored, and the
     /// hot loop of a block without data inputs skips the test).
     discards: bool,
-    /// Work shared by the blocks of one Jacobian evaluation ([`JacobianBlocks::shared`]), when
-    /// the assembly provides it.
-    shared: Option<&'a mut SharedWork>,
 }
 
 impl<'a> JacobianBlocks<'a> {
@@ -186,44 +175,8 @@ impl<'a> JacobianBlocks<'a> {
             block_start,
             rows,
             discards,
-            shared: None,
         }
     }
-
-    /// The same, with `work` shared by the blocks of this Jacobian evaluation
-    /// ([`JacobianBlocks::shared`]).
-    #[inline]
-    pub(crate) fn with_shared(mut self, work: Option<&'a mut SharedWork>) -> Self {
-        self.shared = work;
-        self
-    }
-
-    /// A value that is a function of input `input` alone (its values at this point, and
-    /// constants), computed once per Jacobian evaluation and shared by the blocks that read
-    /// the same input: `tag` names the function (one tag per function, the same for every
-    /// block that asks for it), `input` is [`Params::range`] of the input it reads.
-    /// [`Shared::Hit`]: an earlier block computed it, here are its `N` values;
-    /// [`Shared::Miss`]: compute it and store its `N` values for the next blocks;
-    /// [`Shared::Unshared`]: no shared work (a Jacobian outside the assembled MCP's, the
-    /// checker's), compute it. The values are the computation's, copied: the same bits.
-    ///
-    /// Why: three blocks of a body (its Newton–Euler rows and two contact conditions) need
-    /// `R(Q)` and `∂R/∂Q` of the same `Q` at every Jacobian (`docs/latency.md`).
-    #[inline]
-    pub fn shared<const N: usize>(&mut self, tag: u32, input: InputRange) -> Shared<'_, N> {
-        let Some(work) = self.shared.as_deref_mut() else {
-            return Shared::Unshared;
-        };
-        match work.find(tag, input) {
-            Some(start) => match work.values.get(start..start + N).map(<&[f64; N]>::try_from) {
-                Some(Ok(v)) => Shared::Hit(v),
-                // A tag asked for with two lengths (a block's mistake): not shared.
-                _ => Shared::Unshared,
-            },
-            None => Shared::Miss(SharedMiss { work, tag, input }),
-        }
-    }
-
     /// Number of residual rows.
     pub fn rows(&self) -> usize {
         self.rows
@@ -311,63 +264,6 @@ impl<'a> JacobianBlocks<'a> {
         for d in 0..m {
             self.add(k, i0 + d, j0 + d, s);
         }
-    }
-}
-
-/// The results of [`JacobianBlocks::shared`] within one Jacobian evaluation, by function tag and
-/// input range: cleared by the assembly before each evaluation (a point, the data of that
-/// moment), so nothing carries over from one point to the next. Kept between evaluations only
-/// for its storage (no allocation once grown).
-#[derive(Clone, Debug, Default)]
-pub struct SharedWork {
-    /// Per result: its tag, its input and its first value in `values`.
-    keys: Vec<(u32, InputRange, usize)>,
-    values: Vec<f64>,
-}
-
-impl SharedWork {
-    /// Forgets every result (a new point).
-    #[inline]
-    pub(crate) fn clear(&mut self) {
-        self.keys.clear();
-        self.values.clear();
-    }
-
-    #[inline]
-    fn find(&self, tag: u32, input: InputRange) -> Option<usize> {
-        self.keys
-            .iter()
-            .find(|&&(t, r, _)| t == tag && r == input)
-            .map(|&(_, _, start)| start)
-    }
-}
-
-/// A value of [`JacobianBlocks::shared`].
-#[derive(Debug)]
-pub enum Shared<'a, const N: usize> {
-    /// Computed by an earlier block of this evaluation: its values, read in place.
-    Hit(&'a [f64; N]),
-    /// Not yet: the caller computes it and stores it ([`SharedMiss::store`]).
-    Miss(SharedMiss<'a, N>),
-    /// No shared work: the caller computes it.
-    Unshared,
-}
-
-/// Where [`Shared::Miss`] stores the value computed.
-#[derive(Debug)]
-pub struct SharedMiss<'a, const N: usize> {
-    work: &'a mut SharedWork,
-    tag: u32,
-    input: InputRange,
-}
-
-impl<const N: usize> SharedMiss<'_, N> {
-    /// Stores the value for the next blocks of this evaluation.
-    #[inline]
-    pub fn store(self, value: &[f64; N]) {
-        let work = self.work;
-        work.keys.push((self.tag, self.input, work.values.len()));
-        work.values.extend_from_slice(value);
     }
 }
 

@@ -8,7 +8,7 @@ use nalgebra::Vector3;
 use ecp_model::{Column, JacobianBlocks, Params, ResidualBlock};
 
 use super::common::{v3, v4};
-use crate::rotation::{rotation_matrix, with_shared_rotation_and_derivatives};
+use crate::rotation::{rotation_matrix, rotation_matrix_and_derivatives};
 
 /// Contact condition C1 (`docs/model.md#contact`): `0 = a1 − a2 − l_g ∇g(a2)`, normalised on the
 /// half-space G (whose gradient is its constant normal `n_G`). Reads `a1`, `a2`, `l_g`.
@@ -97,15 +97,11 @@ impl ResidualBlock for NormalCone {
     }
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let l = x.block(0);
+        let qv = v4(x.array::<7>(1), 3);
+        let (r, dr) = rotation_matrix_and_derivatives(&qv);
         let mut s = Vector3::zeros();
-        for (li, ni) in l.iter().zip(&self.face_normals) {
+        for (i, (li, ni)) in l.iter().zip(&self.face_normals).enumerate() {
             s += ni * *li;
-        }
-        // `R` and `∂R/∂Q` shared with the body's other blocks at this point (the same bits).
-        let (r, dr_s) = with_shared_rotation_and_derivatives(&x, 1, jac, |r, dr| {
-            (*r, [0, 1, 2, 3].map(|k| dr[k] * s))
-        });
-        for (i, ni) in self.face_normals.iter().take(l.len()).enumerate() {
             let col = r * ni;
             let c = jac.column(0, i);
             for k in 0..3 {
@@ -113,7 +109,8 @@ impl ResidualBlock for NormalCone {
             }
         }
         let cq: [Column; 4] = jac.columns(1, 3);
-        for (col, c) in dr_s.iter().zip(cq) {
+        for (d, c) in dr.iter().zip(cq) {
+            let col = d * s;
             for k in 0..3 {
                 jac.put(c, k, col[k]);
             }
@@ -160,13 +157,16 @@ impl ResidualBlock for HullFaces {
     fn jacobian(&self, x: Params<'_>, jac: &mut JacobianBlocks<'_>) {
         let a1 = v3(x.array::<3>(0), 0);
         let q = x.array::<7>(1);
+        let qv = v4(q, 3);
+        let (r, dr) = rotation_matrix_and_derivatives(&qv);
         let rel = a1 - v3(q, 0);
-        // ∂(−f_i)/∂Q_k = −n̂_iᵀ (∂R/∂Q_k)ᵀ rel = −(∂R/∂Q_k n̂_i) · rel; `R` and `∂R/∂Q` shared
-        // with the body's other blocks at this point (the same bits).
-        let (r, drt_rel): (_, [Vector3<f64>; 4]) =
-            with_shared_rotation_and_derivatives(&x, 1, jac, |r, dr| {
-                (*r, [0, 1, 2, 3].map(|k| dr[k].transpose() * rel))
-            });
+        // ∂(−f_i)/∂Q_k = −n̂_iᵀ (∂R/∂Q_k)ᵀ rel = −(∂R/∂Q_k n̂_i) · rel.
+        let drt_rel: [Vector3<f64>; 4] = [
+            dr[0].transpose() * rel,
+            dr[1].transpose() * rel,
+            dr[2].transpose() * rel,
+            dr[3].transpose() * rel,
+        ];
         // The ten columns located once (six faces write sixty entries).
         let ca: [Column; 3] = jac.columns(0, 0);
         let cq: [Column; 7] = jac.columns(1, 0);

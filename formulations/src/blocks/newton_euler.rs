@@ -9,7 +9,6 @@ use super::common::{ContactFrame, inertia_direction, inertia_from_entries, mass_
 use super::data::start;
 use crate::rotation::{
     rotation_matrix, rotation_matrix_and_derivatives, rotation_matrix_derivatives, skew,
-    with_shared_rotation_and_derivatives,
 };
 
 /// Sizes of the body data inputs every Newton–Euler block reads, in order: `mass` (1),
@@ -202,21 +201,9 @@ impl BodyStepData {
         nu: &Vector6<f64>,
         q: &Vector4<f64>,
     ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
-        let (r1, dr) = rotation_matrix_and_derivatives(q);
-        self.inertial_jacobian_at(nu, &r1, &dr)
-    }
-
-    /// [`BodyStepData::inertial_jacobian`] with `R1 = R(Q)` and `∂R1/∂Q` given (computed once
-    /// for the blocks of a body, [`with_shared_rotation_and_derivatives`]).
-    fn inertial_jacobian_at(
-        &self,
-        nu: &Vector6<f64>,
-        r1: &Matrix3<f64>,
-        dr: &[Matrix3<f64>; 4],
-    ) -> (Matrix3<f64>, [Vector3<f64>; 4]) {
-        let r1 = *r1;
         let w1 = v3(nu.as_slice(), 3);
         let r0 = rotation_matrix(&self.q_start);
+        let (r1, dr) = rotation_matrix_and_derivatives(q);
         // `R1 I_body` and `I_body R0ᵀ ω^u` once, not per `k`: the same products, so the same
         // numbers (`(R1 I_body) X` is how `R1 * I_body * X` associates).
         let r1_inertia = r1 * self.inertia;
@@ -225,8 +212,7 @@ impl BodyStepData {
         let dw = -iw1 - (skew(&w1) * iw1 - skew(&l1)) * self.h;
         let omega0 = r0.transpose() * v3(self.nu_start.as_slice(), 3);
         let inertia_omega0 = self.inertia * omega0;
-        let dq = [0, 1, 2, 3].map(|k| {
-            let d = &dr[k];
+        let dq = dr.map(|d| {
             let dl = (d * self.inertia * r1.transpose() + r1_inertia * d.transpose()) * w1;
             -dl + d * inertia_omega0 - w1.cross(&dl) * self.h
         });
@@ -312,12 +298,9 @@ impl BodyStepData {
     }
 
     /// Writes the Jacobian of `inertial_rows + impulse` with respect to `ν` (input 0) and `q`
-    /// (input 1), with `R(Q)` and `∂R/∂Q` of `q` given.
-    fn variable_jacobian(
-        &self,
-        (dw, dq): (Matrix3<f64>, [Vector3<f64>; 4]),
-        jac: &mut JacobianBlocks<'_>,
-    ) {
+    /// (input 1).
+    fn variable_jacobian(&self, nu: &Vector6<f64>, q: &Vector4<f64>, jac: &mut JacobianBlocks<'_>) {
+        let (dw, dq) = self.inertial_jacobian(nu, q);
         // The columns located once ([`JacobianBlocks::columns`]).
         let cv: [Column; 6] = jac.columns(0, 0);
         for i in 0..3 {
@@ -431,11 +414,7 @@ impl ResidualBlock for NewtonEuler {
         if !(0..self.body_data_input()).any(|k| jac.wants(k)) {
             return;
         }
-        // `R(Q)` and `∂R/∂Q` shared with the body's contact blocks at this point.
-        let inertial = with_shared_rotation_and_derivatives(&x, 1, jac, |r1, dr| {
-            b.inertial_jacobian_at(&nu, r1, dr)
-        });
-        b.variable_jacobian(inertial, jac);
+        b.variable_jacobian(&nu, &q, jac);
         let pos = v3(x.array::<7>(1), 0);
         let cx: [Column; 3] = jac.columns(1, 0);
         for (c, fr) in self.frames.iter().enumerate() {
@@ -480,7 +459,7 @@ pub fn body_rows_jacobian(
     k0: usize,
     jac: &mut JacobianBlocks<'_>,
 ) {
-    b.variable_jacobian(b.inertial_jacobian(nu, q), jac);
+    b.variable_jacobian(nu, q, jac);
     b.data_jacobian(nu, q, k0, jac);
 }
 
