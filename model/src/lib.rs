@@ -44,6 +44,7 @@ pub mod counters;
 pub mod data;
 pub mod error;
 pub mod family;
+pub mod hypot;
 pub mod linalg;
 pub mod mcp;
 /// Standard MCP test problems (MCPLIB, LCPs, friction NCPs) for judging backends: enabled by
@@ -68,6 +69,7 @@ pub use counters::{Counter, Counters};
 pub use data::{DataBlock, DataId, Input, IntoInputs};
 pub use error::ModelError;
 pub use family::McpFamily;
+pub use hypot::hypot;
 pub use mcp::{
     FinalResiduals, FnMcp, Mcp, WorstComponent, diagnose, diagnose_values, diagnose_values_into,
     fb_component, fb_residual, fb_residual_into, fb_residual_of_rows, fb_vector, final_residuals,

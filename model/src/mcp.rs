@@ -694,8 +694,9 @@ pub fn write_worst_component(
 /// The Fischer–Burmeister function `φ(a, b) = √(a² + b²) − a − b`; zero iff `a ≥ 0, b ≥ 0, ab = 0`.
 #[inline]
 pub fn fischer_burmeister(a: f64, b: f64) -> f64 {
-    // hypot avoids overflow; the form below loses no accuracy when a, b > 0.
-    let r = a.hypot(b);
+    // hypot avoids overflow; the form below loses no accuracy when a, b > 0. The inline
+    // `hypot` has glibc's bits (`model/src/hypot.rs`) without its call.
+    let r = crate::hypot(a, b);
     if a > 0.0 && b > 0.0 {
         // √(a²+b²) − (a+b) = −2ab / (√(a²+b²) + a + b), without cancellation.
         -2.0 * a * b / (r + a + b)

@@ -833,7 +833,7 @@ const MIN_NORM_SHORTEST_STEP: f64 = 1.0 / 64.0;
 /// Partial derivatives of φ at (a, b); `None` at the kink (0, 0).
 #[inline]
 fn phi_partials(a: f64, b: f64) -> Option<(f64, f64)> {
-    let r = a.hypot(b);
+    let r = ecp_model::hypot(a, b); // glibc's bits, inline
     if r > 0.0 {
         Some((a / r - 1.0, b / r - 1.0))
     } else {
@@ -844,7 +844,7 @@ fn phi_partials(a: f64, b: f64) -> Option<(f64, f64)> {
 /// An element of ∂φ at the kink: (ξ − 1, η − 1) with ‖(ξ, η)‖ = 1, along direction (a', b').
 #[inline]
 fn kink_partials(a_dir: f64, b_dir: f64) -> (f64, f64) {
-    let r = a_dir.hypot(b_dir);
+    let r = ecp_model::hypot(a_dir, b_dir); // glibc's bits, inline
     if r > 0.0 && r.is_finite() {
         (a_dir / r - 1.0, b_dir / r - 1.0)
     } else {

@@ -224,7 +224,7 @@ pub fn continuation(
 /// `p_μ(t)` and `p_μ'(t)`.
 #[inline]
 fn plus(t: f64, mu: f64) -> (f64, f64) {
-    let r = t.hypot(2.0 * mu);
+    let r = ecp_model::hypot(t, 2.0 * mu); // glibc's bits, inline
     if r > 0.0 {
         (0.5 * (t + r), 0.5 * (1.0 + t / r))
     } else {
