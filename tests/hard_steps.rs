@@ -1540,3 +1540,67 @@ fn conic_corner_wall_s20270327_137_step_33_unanchored_pass() {
         }
     }
 }
+
+/// `s20270410_048_v_trough` step 253 (the held-out seed 20270410; a box of μ = 0.28 sliding down
+/// the 29.5° side of a V trough, h = 1 ms) with the conic backend alone: the box's edge lands on
+/// the 43° side at step 252 and at step 253 it wedges into the crease (both contacts lines, the
+/// far side's load 0.23 → 0.33 N·s, the spin about y 0.22 → 0.45 rad/s). The anchored fixed
+/// point stalls at a natural residual of 2.1e-6 (its iterates cycling 4.2e-4 apart) for its 50
+/// QPs and the Newton finishes end at 1.6e-9 (1 178 iterations): the step failed and, the state
+/// not advancing, so did every later one (timeout after 384 of 750 steps). Without the anchors
+/// the step takes 6 QPs; with the unanchored pass after the failed local finishes
+/// (`ConicSettings::unanchored_retry`, wip-heldout5; `docs/stress.md`, wip-heldout6) it
+/// converges to Newton's and PATH's step 253, and the next five steps converge too.
+#[test]
+fn conic_v_trough_s20270410_048_step_253_unanchored_pass() {
+    let path = regression_scene("s20270410_048_v_trough");
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let conic = |unanchored_retry| {
+        ConicSolver::new(ConicSettings {
+            tolerance,
+            unanchored_retry,
+            ..ConicSettings::default()
+        })
+    };
+    let mut sim = at_default_step(&path, &mut conic(true), 253);
+    let without = sim
+        .step(&mut conic(false))
+        .unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "conic s20270410_048_v_trough step 253 without the unanchored pass: converged {}, residual {:e}",
+        without.converged, without.summary.residual
+    );
+    assert!(
+        !without.converged && without.summary.residual > 10.0 * tolerance,
+        "without the unanchored pass step 253 converged ({:e}): the test's premise is gone",
+        without.summary.residual
+    );
+    let mut sim = at_default_step(&path, &mut conic(true), 253);
+    let mut solver = conic(true);
+    for k in 253..=258 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        if k == 253 {
+            assert_eq!(
+                rec.summary
+                    .counters
+                    .get(Counter::Custom("unanchored_passes")),
+                Some(1)
+            );
+            // PATH's step 253 (stress --seed 20270410 on main e674d7c; Newton's within 3e-13):
+            // the conic state before the step differs from PATH's by up to 2.4e-7 (the spin),
+            // measured here: v_x 2.2e-10, v_z 8e-11, ω_y 3.6e-9 apart.
+            let (v, w) = (rec.bodies[0].v, rec.bodies[0].w);
+            assert!((v.x - 0.026_457_219_165).abs() <= 1e-8, "v_x {}", v.x);
+            assert!((v.z - 0.010_590_152_983).abs() <= 1e-8, "v_z {}", v.z);
+            assert!((w.y - 0.445_063_937_951).abs() <= 1e-7, "w_y {}", w.y);
+        }
+    }
+}

@@ -320,7 +320,8 @@ fn regressions_path() {
 /// `s20261201_153_room_corner`, docs/stress.md; about 15 s); `s20270327_137_corner_wall` (a
 /// point set jammed in the corner of floor and wall, held-out seed 20270327) since the
 /// unanchored pass after the failed local finishes (`ConicSettings::unanchored_retry`, branch
-/// wip-heldout5). Run with
+/// wip-heldout5); `s20270410_048_v_trough` (a box wedging into a trough's crease, held-out
+/// seed 20270410, branch wip-heldout6) since the same pass. Run with
 /// `cargo test --release --test stress regressions_conic -- --ignored`.
 #[test]
 #[ignore]
