@@ -24,11 +24,26 @@ pub(super) trait Lanes {
     /// NaN entries passed over, 0 when `x_0` is NaN — what the scalar search
     /// `if |x_i| > best { best = |x_i|; p = i }` from `best = |x_0|` finds.
     fn first_largest_magnitude(x: &[f64]) -> usize;
+    /// [`Lanes::first_largest_magnitude`]'s index `p`, the magnitude `m = |x_p|` (NaN when
+    /// `x_0` is) and what [`Lanes::div_pivot`] takes of `1/m`: with AVX2 the reciprocal,
+    /// started as soon as the search's first pass knows `m` — before the index, the row
+    /// interchange and the pivot's load, which are on the chain to the multipliers
+    /// (`docs/latency.md`, branch wip-div); portable, nothing.
+    fn pivot_search(x: &[f64]) -> (usize, f64, f64);
+    /// `x_i /= d` for every `i`, where `(m, rm)` are [`Lanes::pivot_search`]'s for the column
+    /// `d` was taken from (used only when `m = |d|`).
+    fn div_pivot(x: &mut [f64], d: f64, m: f64, rm: f64);
 }
 
 /// [`Lanes::first_largest_magnitude`] by the scalar search.
 #[inline(always)]
 fn first_largest_magnitude_scalar(x: &[f64]) -> usize {
+    largest_magnitude_scalar(x).0
+}
+
+/// The scalar search's index and magnitude.
+#[inline(always)]
+fn largest_magnitude_scalar(x: &[f64]) -> (usize, f64) {
     let mut p = 0;
     let mut best = x[0].abs();
     for (i, v) in x.iter().enumerate().skip(1) {
@@ -37,7 +52,7 @@ fn first_largest_magnitude_scalar(x: &[f64]) -> usize {
             p = i;
         }
     }
-    p
+    (p, best)
 }
 
 /// Plain loops (what the compiler makes of them for the build's target).
@@ -63,6 +78,15 @@ impl Lanes for Portable {
     #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
         first_largest_magnitude_scalar(x)
+    }
+    #[inline(always)]
+    fn pivot_search(x: &[f64]) -> (usize, f64, f64) {
+        let (p, m) = largest_magnitude_scalar(x);
+        (p, m, 0.0)
+    }
+    #[inline(always)]
+    fn div_pivot(x: &mut [f64], d: f64, _m: f64, _rm: f64) {
+        Self::div(x, d);
     }
 }
 
@@ -106,7 +130,19 @@ impl Lanes for Avx2 {
     #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
         // SAFETY: as in `sub_scaled`.
-        unsafe { first_largest_magnitude_avx2(x) }
+        unsafe { largest_magnitude_avx2(x, |_| ()).0 }
+    }
+    #[inline(always)]
+    fn pivot_search(x: &[f64]) -> (usize, f64, f64) {
+        let mut rm = 0.0;
+        // SAFETY: as in `sub_scaled`.
+        let (p, m) = unsafe { largest_magnitude_avx2(x, |m| rm = 1.0 / m) };
+        (p, m, rm)
+    }
+    #[inline(always)]
+    fn div_pivot(x: &mut [f64], d: f64, m: f64, rm: f64) {
+        // SAFETY: as in `sub_scaled`.
+        unsafe { div_avx2_with(x, d, m, rm) }
     }
 }
 
@@ -190,11 +226,18 @@ const MARKSTEIN_HI: f64 = f64::from_bits((1023 + 500) << 52);
 #[target_feature(enable = "avx2,fma")]
 #[inline]
 fn div_avx2(x: &mut [f64], d: f64) {
+    div_avx2_with(x, d, d.abs(), 1.0 / d.abs());
+}
+
+/// [`div_avx2`] with `rm = 1/m` computed by the caller; `1/d` is `±rm` when `m = |d|`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[inline]
+fn div_avx2_with(x: &mut [f64], d: f64, m: f64, rm: f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
-    let m = d.abs();
-    if len < 2 || !(MARKSTEIN_LO..=MARKSTEIN_HI).contains(&m) {
+    if len < 2 || d.abs() != m || !(MARKSTEIN_LO..=MARKSTEIN_HI).contains(&m) {
         let d4 = _mm256_set1_pd(d);
         let mut i = 0;
         // SAFETY: every access is at an index below `len`.
@@ -210,7 +253,8 @@ fn div_avx2(x: &mut [f64], d: f64) {
         }
         return;
     }
-    let y = 1.0 / d;
+    // `1/d`: the reciprocal of `|d|` with `d`'s sign (exact: rounding to nearest is symmetric).
+    let y = f64::from_bits(rm.to_bits() | (d.to_bits() & (1 << 63)));
     let (y4, d4) = (_mm256_set1_pd(y), _mm256_set1_pd(d));
     let (lo4, hi4) = (_mm256_set1_pd(MARKSTEIN_LO), _mm256_set1_pd(MARKSTEIN_HI));
     let mut i = 0;
@@ -281,12 +325,14 @@ fn markstein_quotients(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
+fn largest_magnitude_avx2(x: &[f64], mut found: impl FnMut(f64)) -> (usize, f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let first = x[0].abs();
     if first.is_nan() || len < 8 {
-        return first_largest_magnitude_scalar(x);
+        let (p, m) = largest_magnitude_scalar(x);
+        found(m);
+        return (p, m);
     }
     let xp = x.as_ptr();
     let sign = _mm256_set1_pd(-0.0);
@@ -307,21 +353,22 @@ fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
                 m = v.abs();
             }
         }
+        found(m);
         let m4 = _mm256_set1_pd(m);
         i = 0;
         while i + 4 <= len {
             let v = _mm256_andnot_pd(sign, _mm256_loadu_pd(xp.add(i)));
             let hit = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(v, m4));
             if hit != 0 {
-                return i + hit.trailing_zeros() as usize;
+                return (i + hit.trailing_zeros() as usize, m);
             }
             i += 4;
         }
     }
     match x[i..].iter().position(|v| v.abs() == m) {
-        Some(j) => i + j,
+        Some(j) => (i + j, m),
         // Not reached: `m` is the magnitude of an entry.
-        None => first_largest_magnitude_scalar(x),
+        None => largest_magnitude_scalar(x),
     }
 }
 
@@ -699,7 +746,7 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 if avx2_available() {
                     // SAFETY: the processor has AVX2.
-                    let fast = unsafe { first_largest_magnitude_avx2(&x) };
+                    let fast = unsafe { largest_magnitude_avx2(&x, |_| ()).0 };
                     assert_eq!(fast, expected, "{x:?}");
                 }
                 cases += 1;

@@ -273,7 +273,8 @@ pub(crate) fn magnitude_range((lo, hi): (f64, f64), d: f64) -> (f64, f64) {
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
     for k in 0..n {
-        let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
+        let (off, m, rm) = L::pivot_search(&a[k * n + k..(k + 1) * n]);
+        let p = k + off;
         piv[k] = p;
         if p != k {
             for col in a.chunks_exact_mut(n) {
@@ -286,7 +287,7 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         }
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
-        L::div(lk, pivot);
+        L::div_pivot(lk, pivot, m, rm);
         for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
