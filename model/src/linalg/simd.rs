@@ -136,7 +136,7 @@ impl Lanes for Avx2 {
     fn pivot_search(x: &[f64]) -> (usize, f64, f64) {
         let mut rm = 0.0;
         // SAFETY: as in `sub_scaled`.
-        let (p, m) = unsafe { largest_magnitude_avx2(x, |m| rm = 1.0 / m) };
+        let (p, m) = unsafe { largest_magnitude_avx2(x, |m| rm = std::hint::black_box(1.0 / m)) };
         (p, m, rm)
     }
     #[inline(always)]
