@@ -24,26 +24,11 @@ pub(super) trait Lanes {
     /// NaN entries passed over, 0 when `x_0` is NaN — what the scalar search
     /// `if |x_i| > best { best = |x_i|; p = i }` from `best = |x_0|` finds.
     fn first_largest_magnitude(x: &[f64]) -> usize;
-    /// [`Lanes::first_largest_magnitude`]'s index `p`, the magnitude `m = |x_p|` (NaN when
-    /// `x_0` is) and what [`Lanes::div_pivot`] takes of `1/m`: with AVX2 the reciprocal,
-    /// started as soon as the search's first pass knows `m` — before the index, the row
-    /// interchange and the pivot's load, which are on the chain to the multipliers
-    /// (`docs/latency.md`, branch wip-div); portable, nothing.
-    fn pivot_search(x: &[f64]) -> (usize, f64, f64);
-    /// `x_i /= d` for every `i`, where `(m, rm)` are [`Lanes::pivot_search`]'s for the column
-    /// `d` was taken from (used only when `m = |d|`).
-    fn div_pivot(x: &mut [f64], d: f64, m: f64, rm: f64);
 }
 
 /// [`Lanes::first_largest_magnitude`] by the scalar search.
 #[inline(always)]
 fn first_largest_magnitude_scalar(x: &[f64]) -> usize {
-    largest_magnitude_scalar(x).0
-}
-
-/// The scalar search's index and magnitude.
-#[inline(always)]
-fn largest_magnitude_scalar(x: &[f64]) -> (usize, f64) {
     let mut p = 0;
     let mut best = x[0].abs();
     for (i, v) in x.iter().enumerate().skip(1) {
@@ -52,7 +37,7 @@ fn largest_magnitude_scalar(x: &[f64]) -> (usize, f64) {
             p = i;
         }
     }
-    (p, best)
+    p
 }
 
 /// Plain loops (what the compiler makes of them for the build's target).
@@ -79,24 +64,13 @@ impl Lanes for Portable {
     fn first_largest_magnitude(x: &[f64]) -> usize {
         first_largest_magnitude_scalar(x)
     }
-    #[inline(always)]
-    fn pivot_search(x: &[f64]) -> (usize, f64, f64) {
-        let (p, m) = largest_magnitude_scalar(x);
-        (p, m, 0.0)
-    }
-    #[inline(always)]
-    fn div_pivot(x: &mut [f64], d: f64, _m: f64, _rm: f64) {
-        Self::div(x, d);
-    }
 }
 
-/// True when the processor runs AVX2 and FMA (checked once per process by the standard
-/// library's cache). FMA for [`Lanes::div`]'s reciprocal correction; every AVX2 processor made
-/// has it, and one without runs the portable loops (bitwise the same results).
+/// True when the processor runs AVX2 (checked once per process by the standard library's cache).
 pub(super) fn avx2_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        std::arch::is_x86_feature_detected!("avx2")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -105,7 +79,7 @@ pub(super) fn avx2_available() -> bool {
 }
 
 /// Four lanes, then two, then one. Only to be used inside a function compiled with
-/// `#[target_feature(enable = "avx2,fma")]` that runs after [`avx2_available`] said yes.
+/// `#[target_feature(enable = "avx2")]` that runs after [`avx2_available`] said yes.
 #[cfg(target_arch = "x86_64")]
 pub(super) struct Avx2;
 
@@ -113,7 +87,7 @@ pub(super) struct Avx2;
 impl Lanes for Avx2 {
     #[inline(always)]
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
-        // SAFETY: `Avx2` is used only inside `#[target_feature(enable = "avx2,fma")]` functions,
+        // SAFETY: `Avx2` is used only inside `#[target_feature(enable = "avx2")]` functions,
         // entered only when `avx2_available()` is true.
         unsafe { sub_scaled_avx2(x, l, s) }
     }
@@ -130,19 +104,7 @@ impl Lanes for Avx2 {
     #[inline(always)]
     fn first_largest_magnitude(x: &[f64]) -> usize {
         // SAFETY: as in `sub_scaled`.
-        unsafe { largest_magnitude_avx2(x, |_| ()).0 }
-    }
-    #[inline(always)]
-    fn pivot_search(x: &[f64]) -> (usize, f64, f64) {
-        let mut rm = 0.0;
-        // SAFETY: as in `sub_scaled`.
-        let (p, m) = unsafe { largest_magnitude_avx2(x, |m| rm = std::hint::black_box(1.0 / m)) };
-        (p, m, rm)
-    }
-    #[inline(always)]
-    fn div_pivot(x: &mut [f64], d: f64, m: f64, rm: f64) {
-        // SAFETY: as in `sub_scaled`.
-        unsafe { div_avx2_with(x, d, m, rm) }
+        unsafe { first_largest_magnitude_avx2(x) }
     }
 }
 
@@ -203,118 +165,26 @@ fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
     }
 }
 
-/// The magnitudes (of the divisor and of every nonzero dividend) within which
-/// [`div_avx2`]'s quotient by the reciprocal is the division's: `[2⁻⁵⁰⁰, 2⁵⁰⁰]`. Then `1/d`, the
-/// quotients, the remainders `a − q d` and every intermediate are normal numbers far from
-/// overflow (quotients within `[2⁻¹⁰⁰¹, 2¹⁰⁰¹]`, remainders above `2⁻⁶⁰⁶`), the conditions of
-/// Markstein's correction; outside it (and for ±∞, NaN, subnormals) the entries are divided.
 #[cfg(target_arch = "x86_64")]
-const MARKSTEIN_LO: f64 = f64::from_bits((1023 - 500) << 52);
-#[cfg(target_arch = "x86_64")]
-const MARKSTEIN_HI: f64 = f64::from_bits((1023 + 500) << 52);
-
-/// `x_i /= d`, bitwise the division, with one scalar division `y = 1/d` and then per entry
-/// `q = a y`, `r = a − q d` (exact, by an FMA), `q' = q + r y` (an FMA): Markstein's
-/// correction gives the correctly rounded quotient `q' = RN(a/d)` when `y = RN(1/d)` and no
-/// underflow or overflow occurs (`docs/latency.md`, branch wip-div). The division's latency
-/// and throughput (a vector `vdivpd` per four entries) sat on the elimination's chain from one
-/// pivot to the next; the products pipeline. A vector with an entry outside
-/// [`MARKSTEIN_LO`]`..=`[`MARKSTEIN_HI`] (or ±∞, NaN, subnormal) is divided instead, and so is
-/// the whole column when `|d|` is outside it or the column has one entry. A zero dividend
-/// takes `q = ±0 · y` (the FMA's sum `−0 + +0` would lose the sign).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 #[inline]
 fn div_avx2(x: &mut [f64], d: f64) {
-    div_avx2_with(x, d, d.abs(), 1.0 / d.abs());
-}
-
-/// [`div_avx2`] with `rm = 1/m` computed by the caller; `1/d` is `±rm` when `m = |d|`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[inline]
-fn div_avx2_with(x: &mut [f64], d: f64, m: f64, rm: f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
-    if len < 2 || d.abs() != m || !(MARKSTEIN_LO..=MARKSTEIN_HI).contains(&m) {
-        let d4 = _mm256_set1_pd(d);
-        let mut i = 0;
-        // SAFETY: every access is at an index below `len`.
-        unsafe {
-            while i + 4 <= len {
-                _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
-                i += 4;
-            }
-            while i < len {
-                *xp.add(i) /= d;
-                i += 1;
-            }
-        }
-        return;
-    }
-    // `1/d`: the reciprocal of `|d|` with `d`'s sign (exact: rounding to nearest is symmetric).
-    let y = f64::from_bits(rm.to_bits() | (d.to_bits() & (1 << 63)));
-    let (y4, d4) = (_mm256_set1_pd(y), _mm256_set1_pd(d));
-    let (lo4, hi4) = (_mm256_set1_pd(MARKSTEIN_LO), _mm256_set1_pd(MARKSTEIN_HI));
+    let d4 = _mm256_set1_pd(d);
     let mut i = 0;
-    // SAFETY: every access is at an index below `len`; the masked load and store touch only the
-    // lanes below `len`.
+    // SAFETY: every access is at an index below `len`.
     unsafe {
         while i + 4 <= len {
-            let a = _mm256_loadu_pd(xp.add(i));
-            let q = match markstein_quotients(a, y4, d4, lo4, hi4) {
-                Some(q) => q,
-                None => _mm256_div_pd(a, d4),
-            };
-            _mm256_storeu_pd(xp.add(i), q);
+            _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
             i += 4;
         }
-        let rest = len - i;
-        if rest > 0 {
-            // Lanes `0..rest` on; a masked-off lane reads as +0, which is inside.
-            let lanes = _mm256_set_epi64x(3, 2, 1, 0);
-            let on = _mm256_cmpgt_epi64(_mm256_set1_epi64x(rest as i64), lanes);
-            let a = _mm256_maskload_pd(xp.add(i), on);
-            match markstein_quotients(a, y4, d4, lo4, hi4) {
-                Some(q) => _mm256_maskstore_pd(xp.add(i), on, q),
-                None => {
-                    while i < len {
-                        *xp.add(i) /= d;
-                        i += 1;
-                    }
-                }
-            }
+        while i < len {
+            *xp.add(i) /= d;
+            i += 1;
         }
     }
-}
-
-/// [`div_avx2`]'s quotients of four entries `a` by `d` (`y4 = 1/d`), or `None` when one of
-/// them is outside `lo4..=hi4` and not zero.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[inline]
-fn markstein_quotients(
-    a: std::arch::x86_64::__m256d,
-    y4: std::arch::x86_64::__m256d,
-    d4: std::arch::x86_64::__m256d,
-    lo4: std::arch::x86_64::__m256d,
-    hi4: std::arch::x86_64::__m256d,
-) -> Option<std::arch::x86_64::__m256d> {
-    use std::arch::x86_64::*;
-    let q = _mm256_mul_pd(a, y4);
-    let r = _mm256_fnmadd_pd(q, d4, a);
-    let q1 = _mm256_fmadd_pd(r, y4, q);
-    let abs = _mm256_andnot_pd(_mm256_set1_pd(-0.0), a);
-    let is_zero = _mm256_cmp_pd::<_CMP_EQ_OQ>(a, _mm256_setzero_pd());
-    let inside = _mm256_and_pd(
-        _mm256_cmp_pd::<_CMP_GE_OQ>(abs, lo4),
-        _mm256_cmp_pd::<_CMP_LE_OQ>(abs, hi4),
-    );
-    if _mm256_movemask_pd(_mm256_or_pd(inside, is_zero)) != 0b1111 {
-        return None;
-    }
-    Some(_mm256_blendv_pd(q1, q, is_zero))
 }
 
 /// [`Lanes::first_largest_magnitude`] in two vector passes: the largest magnitude `m` (NaN
@@ -325,14 +195,12 @@ fn markstein_quotients(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[inline]
-fn largest_magnitude_avx2(x: &[f64], mut found: impl FnMut(f64)) -> (usize, f64) {
+fn first_largest_magnitude_avx2(x: &[f64]) -> usize {
     use std::arch::x86_64::*;
     let len = x.len();
     let first = x[0].abs();
     if first.is_nan() || len < 8 {
-        let (p, m) = largest_magnitude_scalar(x);
-        found(m);
-        return (p, m);
+        return first_largest_magnitude_scalar(x);
     }
     let xp = x.as_ptr();
     let sign = _mm256_set1_pd(-0.0);
@@ -353,22 +221,21 @@ fn largest_magnitude_avx2(x: &[f64], mut found: impl FnMut(f64)) -> (usize, f64)
                 m = v.abs();
             }
         }
-        found(m);
         let m4 = _mm256_set1_pd(m);
         i = 0;
         while i + 4 <= len {
             let v = _mm256_andnot_pd(sign, _mm256_loadu_pd(xp.add(i)));
             let hit = _mm256_movemask_pd(_mm256_cmp_pd::<_CMP_EQ_OQ>(v, m4));
             if hit != 0 {
-                return (i + hit.trailing_zeros() as usize, m);
+                return i + hit.trailing_zeros() as usize;
             }
             i += 4;
         }
     }
     match x[i..].iter().position(|v| v.abs() == m) {
-        Some(j) => (i + j, m),
+        Some(j) => i + j,
         // Not reached: `m` is the magnitude of an entry.
-        None => largest_magnitude_scalar(x),
+        None => first_largest_magnitude_scalar(x),
     }
 }
 
@@ -746,7 +613,7 @@ mod tests {
                 #[cfg(target_arch = "x86_64")]
                 if avx2_available() {
                     // SAFETY: the processor has AVX2.
-                    let fast = unsafe { largest_magnitude_avx2(&x, |_| ()).0 };
+                    let fast = unsafe { first_largest_magnitude_avx2(&x) };
                     assert_eq!(fast, expected, "{x:?}");
                 }
                 cases += 1;
@@ -799,152 +666,5 @@ mod tests {
                 }
             }
         }
-    }
-
-    /// Main's AVX2 division of a column (before the reciprocal): `vdivpd` by fours, then scalar
-    /// divisions. The reference for [`div_avx2`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx2")]
-    fn div_by_division(x: &mut [f64], d: f64) {
-        use std::arch::x86_64::*;
-        let len = x.len();
-        let xp = x.as_mut_ptr();
-        let d4 = _mm256_set1_pd(d);
-        let mut i = 0;
-        // SAFETY: every access is at an index below `len`.
-        unsafe {
-            while i + 4 <= len {
-                _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
-                i += 4;
-            }
-            while i < len {
-                *xp.add(i) /= d;
-                i += 1;
-            }
-        }
-    }
-
-    /// A number of one of the kinds the division meets or must survive: any bit pattern (NaN
-    /// payloads, subnormals), any exponent, the edges of the reciprocal's range, the desk's
-    /// magnitudes, significands of all ones, zeros, ±∞, NaN.
-    fn awkward_number(next: &mut impl FnMut() -> u64) -> f64 {
-        let r = next();
-        let sign = (r >> 63) << 63;
-        let mantissa = next() >> 12;
-        let with_exponent = |e: u64| f64::from_bits(sign | (e << 52) | mantissa);
-        match r % 16 {
-            0 => f64::from_bits(next()),
-            1 => with_exponent(next() % 2048),
-            // Around the guard's bounds 2^±500.
-            2 => with_exponent(1023 - 503 + next() % 7),
-            3 => with_exponent(1023 + 497 + next() % 7),
-            // Around the overflow and underflow of quotients.
-            4 => with_exponent(next() % 12),
-            5 => with_exponent(2047 - 12 + next() % 12),
-            6 => f64::from_bits(sign | (mantissa >> (next() % 52))), // subnormal or zero
-            7 => f64::from_bits(sign | 0x7ff0_0000_0000_0000 | (mantissa >> (next() % 53))), // ±∞, NaN
-            8 => f64::from_bits(sign),
-            // Significands near all ones (the hard quotients: both near 2, ratio just below 1).
-            9 => f64::from_bits(
-                sign | ((1023 - 2 + next() % 5) << 52)
-                    | ((1 << 52) - 1 - (mantissa >> (next() % 53))),
-            ),
-            // The desk's magnitudes.
-            _ => with_exponent(1023 - 30 + next() % 60),
-        }
-    }
-
-    /// [`div_avx2`] (the reciprocal with Markstein's correction) is bitwise main's division —
-    /// NaN payloads included — and the scalar division `a / d`, on more than 10⁷ pairs
-    /// `(a, d)` of every kind ([`awkward_number`]) and on quotients of significands near all
-    /// ones (`a` just below `d`, where `q = a · (1/d)` can be two units in the last place
-    /// off), in columns of every length up to 13 (fours, the masked rest, one entry).
-    #[test]
-    fn the_reciprocal_division_is_bitwise_the_division() {
-        if !avx2_available() {
-            return;
-        }
-        let mut s = 0x9e37_79b9_7f4a_7c15u64;
-        let mut next = || {
-            s ^= s << 13;
-            s ^= s >> 7;
-            s ^= s << 17;
-            s
-        };
-        // 10⁷ pairs in the release build; a tenth in a debug build, which is slow.
-        let pairs: usize = if cfg!(debug_assertions) {
-            1_000_000
-        } else {
-            10_000_000
-        };
-        let bits = |v: &[f64]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-        let inside = |v: f64| (MARKSTEIN_LO..=MARKSTEIN_HI).contains(&v.abs());
-        let (mut done, mut corrected, mut hard) = (0, 0, 0);
-        // Pairs where the uncorrected product `a · (1/d)` is not the quotient, and negative
-        // zeros through the correction: the test meets what the correction and the zeros'
-        // blend are for.
-        let (mut product_off, mut negative_zeros) = (0, 0);
-        let mut x = Vec::with_capacity(16);
-        while done < pairs {
-            let len = 1 + (next() % 13) as usize;
-            let kind = next() % 4;
-            let d = if kind == 0 {
-                // A pivot inside the range with adversarial dividends: `a` just below `±d`
-                // (times a power of two), or any kind.
-                f64::from_bits(((1023 - 40 + next() % 80) << 52) | (next() >> 12))
-                    * if next() % 2 == 0 { 1.0 } else { -1.0 }
-            } else {
-                awkward_number(&mut next)
-            };
-            x.clear();
-            for _ in 0..len {
-                let a = if kind == 0 && next() % 4 != 0 {
-                    hard += 1;
-                    let below =
-                        f64::from_bits(d.abs().to_bits() - (next() >> (next() % 64)) % (1 << 52));
-                    let scale = f64::from_bits((1023 - 8 + next() % 16) << 52);
-                    below * scale * if next() % 2 == 0 { 1.0 } else { -1.0 }
-                } else if kind == 1 {
-                    // The desk's zeros among nonzero multipliers.
-                    match next() % 3 {
-                        0 => 0.0,
-                        1 => -0.0,
-                        _ => awkward_number(&mut next),
-                    }
-                } else {
-                    awkward_number(&mut next)
-                };
-                if len >= 2 && inside(d) && (inside(a) || a == 0.0) {
-                    corrected += 1;
-                    if a * (1.0 / d) != a / d {
-                        product_off += 1;
-                    }
-                    if (a / d).to_bits() == (-0.0f64).to_bits() {
-                        negative_zeros += 1;
-                    }
-                }
-                x.push(a);
-            }
-            let (mut new, mut old, mut scalar) = (x.clone(), x.clone(), x.clone());
-            // SAFETY: the processor has AVX2 and FMA.
-            unsafe {
-                div_avx2(&mut new, d);
-                div_by_division(&mut old, d);
-            }
-            Portable::div(&mut scalar, d);
-            assert_eq!(bits(&new), bits(&old), "column {x:?} by {d:e}");
-            assert_eq!(bits(&new), bits(&scalar), "column {x:?} by {d:e}");
-            done += len;
-        }
-        // Most pairs take the correction (not all the division's fallback), many the hard
-        // quotients.
-        assert!(corrected > pairs / 3, "{corrected} of {done}");
-        assert!(hard > pairs / 10, "{hard} of {done}");
-        assert!(product_off > pairs / 100, "{product_off} of {done}");
-        assert!(negative_zeros > 1000, "{negative_zeros} of {done}");
-        eprintln!(
-            "{done} pairs: {corrected} by the correction ({product_off} where the product is off, \
-             {negative_zeros} negative zeros), {hard} hard"
-        );
     }
 }

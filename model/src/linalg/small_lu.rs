@@ -273,8 +273,7 @@ pub(crate) fn magnitude_range((lo, hi): (f64, f64), d: f64) -> (f64, f64) {
 #[inline(always)]
 fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
     for k in 0..n {
-        let (off, m, rm) = L::pivot_search(&a[k * n + k..(k + 1) * n]);
-        let p = k + off;
+        let p = k + L::first_largest_magnitude(&a[k * n + k..(k + 1) * n]);
         piv[k] = p;
         if p != k {
             for col in a.chunks_exact_mut(n) {
@@ -287,7 +286,7 @@ fn eliminate_with<L: Lanes>(n: usize, a: &mut [f64], piv: &mut [usize]) {
         }
         let (head, tail) = a.split_at_mut((k + 1) * n);
         let lk = &mut head[k * n + k + 1..(k + 1) * n];
-        L::div_pivot(lk, pivot, m, rm);
+        L::div(lk, pivot);
         for col in tail.chunks_exact_mut(n) {
             let akj = col[k];
             if akj == 0.0 {
@@ -450,25 +449,25 @@ fn solve_rows_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], 
 // The same loops compiled for AVX2, entered only when the processor has it (`SmallLu::avx2`).
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
     eliminate_with::<Avx2>(n, a, piv);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     solve_with::<Avx2>(n, a, piv, b);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn substitute_avx2(n: usize, a: &[f64], b: &mut [f64]) {
     substitute_with::<Avx2>(n, a, b);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_mapped_avx2(
     n: usize,
     a: &[f64],
@@ -481,7 +480,7 @@ fn solve_mapped_avx2(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     solve_rows_with::<Avx2>(n, a, piv, b, k);
 }
@@ -494,7 +493,7 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
 /// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
 /// ascending rows and `b` at least `(map[n − 1] + 1) × k` entries.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 unsafe fn solve_rows_accumulated_avx2(
     n: usize,
     a: &[f64],
@@ -550,7 +549,7 @@ unsafe fn solve_rows_accumulated_avx2(
 /// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W`, `c0 + width ≤ k`, and
 /// `T` 0 or `width − 4 (W − 1)`.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 #[inline]
 unsafe fn accumulated_strip<const W: usize, const T: usize>(
     n: usize,
