@@ -66,13 +66,11 @@ impl Lanes for Portable {
     }
 }
 
-/// True when the processor runs AVX2 and FMA (checked once per process by the standard
-/// library's cache). FMA for [`Lanes::div`]'s reciprocal correction; every AVX2 processor made
-/// has it, and one without runs the portable loops (bitwise the same results).
+/// True when the processor runs AVX2 (checked once per process by the standard library's cache).
 pub(super) fn avx2_available() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        std::arch::is_x86_feature_detected!("avx2") && std::arch::is_x86_feature_detected!("fma")
+        std::arch::is_x86_feature_detected!("avx2")
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
@@ -81,7 +79,7 @@ pub(super) fn avx2_available() -> bool {
 }
 
 /// Four lanes, then two, then one. Only to be used inside a function compiled with
-/// `#[target_feature(enable = "avx2,fma")]` that runs after [`avx2_available`] said yes.
+/// `#[target_feature(enable = "avx2")]` that runs after [`avx2_available`] said yes.
 #[cfg(target_arch = "x86_64")]
 pub(super) struct Avx2;
 
@@ -89,7 +87,7 @@ pub(super) struct Avx2;
 impl Lanes for Avx2 {
     #[inline(always)]
     fn sub_scaled(x: &mut [f64], l: &[f64], s: f64) {
-        // SAFETY: `Avx2` is used only inside `#[target_feature(enable = "avx2,fma")]` functions,
+        // SAFETY: `Avx2` is used only inside `#[target_feature(enable = "avx2")]` functions,
         // entered only when `avx2_available()` is true.
         unsafe { sub_scaled_avx2(x, l, s) }
     }
@@ -167,110 +165,26 @@ fn sub_scaled_from_end_avx2(x: &mut [f64], l: &[f64], s: f64) {
     }
 }
 
-/// The magnitudes (of the divisor and of every nonzero dividend) within which
-/// [`div_avx2`]'s quotient by the reciprocal is the division's: `[2⁻⁵⁰⁰, 2⁵⁰⁰]`. Then `1/d`, the
-/// quotients, the remainders `a − q d` and every intermediate are normal numbers far from
-/// overflow (quotients within `[2⁻¹⁰⁰¹, 2¹⁰⁰¹]`, remainders above `2⁻⁶⁰⁶`), the conditions of
-/// Markstein's correction; outside it (and for ±∞, NaN, subnormals) the entries are divided.
 #[cfg(target_arch = "x86_64")]
-const MARKSTEIN_LO: f64 = f64::from_bits((1023 - 500) << 52);
-#[cfg(target_arch = "x86_64")]
-const MARKSTEIN_HI: f64 = f64::from_bits((1023 + 500) << 52);
-
-/// `x_i /= d`, bitwise the division, with one scalar division `y = 1/d` and then per entry
-/// `q = a y`, `r = a − q d` (exact, by an FMA), `q' = q + r y` (an FMA): Markstein's
-/// correction gives the correctly rounded quotient `q' = RN(a/d)` when `y = RN(1/d)` and no
-/// underflow or overflow occurs (`docs/latency.md`, branch wip-div). The division's latency
-/// and throughput (a vector `vdivpd` per four entries) sat on the elimination's chain from one
-/// pivot to the next; the products pipeline. A vector with an entry outside
-/// [`MARKSTEIN_LO`]`..=`[`MARKSTEIN_HI`] (or ±∞, NaN, subnormal) is divided instead, and so is
-/// the whole column when `|d|` is outside it or the column has one entry. A zero dividend
-/// takes `q = ±0 · y` (the FMA's sum `−0 + +0` would lose the sign).
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 #[inline]
 fn div_avx2(x: &mut [f64], d: f64) {
     use std::arch::x86_64::*;
     let len = x.len();
     let xp = x.as_mut_ptr();
-    let m = d.abs();
-    if len < 16 || !(MARKSTEIN_LO..=MARKSTEIN_HI).contains(&m) {
-        let d4 = _mm256_set1_pd(d);
-        let mut i = 0;
-        // SAFETY: every access is at an index below `len`.
-        unsafe {
-            while i + 4 <= len {
-                _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
-                i += 4;
-            }
-            while i < len {
-                *xp.add(i) /= d;
-                i += 1;
-            }
-        }
-        return;
-    }
-    let y = 1.0 / d;
-    let (y4, d4) = (_mm256_set1_pd(y), _mm256_set1_pd(d));
-    let (lo4, hi4) = (_mm256_set1_pd(MARKSTEIN_LO), _mm256_set1_pd(MARKSTEIN_HI));
+    let d4 = _mm256_set1_pd(d);
     let mut i = 0;
-    // SAFETY: every access is at an index below `len`; the masked load and store touch only the
-    // lanes below `len`.
+    // SAFETY: every access is at an index below `len`.
     unsafe {
         while i + 4 <= len {
-            let a = _mm256_loadu_pd(xp.add(i));
-            let q = match markstein_quotients(a, y4, d4, lo4, hi4) {
-                Some(q) => q,
-                None => _mm256_div_pd(a, d4),
-            };
-            _mm256_storeu_pd(xp.add(i), q);
+            _mm256_storeu_pd(xp.add(i), _mm256_div_pd(_mm256_loadu_pd(xp.add(i)), d4));
             i += 4;
         }
-        let rest = len - i;
-        if rest > 0 {
-            // Lanes `0..rest` on; a masked-off lane reads as +0, which is inside.
-            let lanes = _mm256_set_epi64x(3, 2, 1, 0);
-            let on = _mm256_cmpgt_epi64(_mm256_set1_epi64x(rest as i64), lanes);
-            let a = _mm256_maskload_pd(xp.add(i), on);
-            match markstein_quotients(a, y4, d4, lo4, hi4) {
-                Some(q) => _mm256_maskstore_pd(xp.add(i), on, q),
-                None => {
-                    while i < len {
-                        *xp.add(i) /= d;
-                        i += 1;
-                    }
-                }
-            }
+        while i < len {
+            *xp.add(i) /= d;
+            i += 1;
         }
     }
-}
-
-/// [`div_avx2`]'s quotients of four entries `a` by `d` (`y4 = 1/d`), or `None` when one of
-/// them is outside `lo4..=hi4` and not zero.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-#[inline]
-fn markstein_quotients(
-    a: std::arch::x86_64::__m256d,
-    y4: std::arch::x86_64::__m256d,
-    d4: std::arch::x86_64::__m256d,
-    lo4: std::arch::x86_64::__m256d,
-    hi4: std::arch::x86_64::__m256d,
-) -> Option<std::arch::x86_64::__m256d> {
-    use std::arch::x86_64::*;
-    let q = _mm256_mul_pd(a, y4);
-    let r = _mm256_fnmadd_pd(q, d4, a);
-    let q1 = _mm256_fmadd_pd(r, y4, q);
-    let abs = _mm256_andnot_pd(_mm256_set1_pd(-0.0), a);
-    let is_zero = _mm256_cmp_pd::<_CMP_EQ_OQ>(a, _mm256_setzero_pd());
-    let inside = _mm256_and_pd(
-        _mm256_cmp_pd::<_CMP_GE_OQ>(abs, lo4),
-        _mm256_cmp_pd::<_CMP_LE_OQ>(abs, hi4),
-    );
-    if _mm256_movemask_pd(_mm256_or_pd(inside, is_zero)) != 0b1111 {
-        return None;
-    }
-    Some(_mm256_blendv_pd(q1, q, is_zero))
 }
 
 /// [`Lanes::first_largest_magnitude`] in two vector passes: the largest magnitude `m` (NaN

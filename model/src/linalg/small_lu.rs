@@ -449,25 +449,25 @@ fn solve_rows_with<L: Lanes>(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], 
 // The same loops compiled for AVX2, entered only when the processor has it (`SmallLu::avx2`).
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn eliminate_avx2(n: usize, a: &mut [f64], piv: &mut [usize]) {
     eliminate_with::<Avx2>(n, a, piv);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64]) {
     solve_with::<Avx2>(n, a, piv, b);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn substitute_avx2(n: usize, a: &[f64], b: &mut [f64]) {
     substitute_with::<Avx2>(n, a, b);
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_mapped_avx2(
     n: usize,
     a: &[f64],
@@ -480,7 +480,7 @@ fn solve_mapped_avx2(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) {
     solve_rows_with::<Avx2>(n, a, piv, b, k);
 }
@@ -493,7 +493,7 @@ fn solve_rows_avx2(n: usize, a: &[f64], piv: &[usize], b: &mut [f64], k: usize) 
 /// The processor has AVX2, `n ≤ 64`, `a` holds `n × n` entries, `map` holds at least `n`
 /// ascending rows and `b` at least `(map[n − 1] + 1) × k` entries.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 unsafe fn solve_rows_accumulated_avx2(
     n: usize,
     a: &[f64],
@@ -549,7 +549,7 @@ unsafe fn solve_rows_accumulated_avx2(
 /// As [`solve_rows_accumulated_avx2`], with `4 (W − 1) < width ≤ 4 W`, `c0 + width ≤ k`, and
 /// `T` 0 or `width − 4 (W − 1)`.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
+#[target_feature(enable = "avx2")]
 #[inline]
 unsafe fn accumulated_strip<const W: usize, const T: usize>(
     n: usize,
