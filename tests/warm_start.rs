@@ -214,11 +214,13 @@ impl McpSolver for OneIterationBudget {
 
 /// Newton's defaults with budgets that cap the iterations exactly: without the Josephy–Newton
 /// attempt after a failed budgeted run (`NewtonSettings::josephy_newton`, on by default, which adds
-/// up to its steps and one more budgeted run), so that the driver's protocol and the budget's
+/// up to its steps and one more budgeted run) and the grace of a converging run
+/// (`NewtonSettings::budget_grace`), so that the driver's protocol and the budget's
 /// contract are tested as such.
 fn strict_budget() -> NewtonSettings {
     NewtonSettings {
         josephy_newton: None,
+        budget_grace: None,
         ..NewtonSettings::default()
     }
 }
