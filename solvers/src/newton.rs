@@ -3704,8 +3704,9 @@ mod tests {
         let full = solver
             .solve(&smooth_three(), &start)
             .unwrap_or_else(|e| panic!("{e}"));
-        let budget = full.summary.iterations - 1;
-        assert!(budget >= 1, "{:?}", full.summary);
+        // One iteration: two short of the run's end (the last the polish).
+        let budget = 1;
+        assert!(full.summary.iterations >= 3, "{:?}", full.summary);
         assert!(solver.set_iteration_budget(Some(budget)));
         let graced = solver
             .solve(&smooth_three(), &start)
