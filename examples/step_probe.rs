@@ -495,6 +495,7 @@ fn set_newton(s: &mut NewtonSettings, kv: &str) -> Result<(), String> {
             s.complementary_restart_from_best = value.parse::<f64>().ok()
         }
         "josephy_newton" => s.josephy_newton = value.parse::<usize>().ok(),
+        "budget_grace" => s.budget_grace = value.parse::<f64>().ok(),
         "dense_max" => s.dense_max = n()?,
         "min_norm_max" => s.min_norm_max = n()?,
         "friction_continuation" => s.friction_continuation = value.parse::<usize>().ok(),

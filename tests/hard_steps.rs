@@ -1603,4 +1603,54 @@ fn conic_v_trough_s20270410_048_step_253_unanchored_pass() {
             assert!((w.y - 0.445_063_937_951).abs() <= 1e-7, "w_y {}", w.y);
         }
     }
+/// `s20270403_087_v_trough` step 71 (the held-out seed 20270403; a box of 17.9 kg, μ = 0.24,
+/// h = 6 ms, sliding along a trough of 25° and 49°; 49 unknowns) as the default simulation's
+/// step solves it (extrapolated warm start, start budgets): the extrapolated start's budget is
+/// `max(8, 3 recent)` = 8 and the plain iteration from it needs 9 (natural residual 2.2e-4 →
+/// 1.2e-7 at the eighth, 1.5e-14 at the ninth). Cut at 8, the budgeted solve went on to its
+/// Josephy–Newton attempt (56 Lemke runs, ≈ 16 000 pivots, 0.95 G instructions: 88 % of the
+/// run) and the step took 47 iterations. With the grace of a converging budgeted run
+/// (`NewtonSettings::budget_grace`, `docs/stress.md`, branch wip-v087) the first solve converges
+/// in 9.
+#[test]
+fn newton_v_trough_s20270403_087_step_71_budget_grace() {
+    let path = regression_scene("s20270403_087_v_trough");
+    let file = load_scene(&path).unwrap_or_else(|e| panic!("{e}"));
+    let settings = NewtonSettings {
+        tolerance: file.solver.tolerance.unwrap_or(1e-10),
+        max_iterations: file.solver.max_iterations.unwrap_or(200),
+        ..NewtonSettings::default()
+    };
+    // The default simulation (extrapolated warm start, start budgets) through step 70, then
+    // step 71 by `settings`.
+    let step_71 = |step_settings: NewtonSettings| {
+        let stepper = FormulationRegistry::builtin()
+            .create("hull")
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut sim = SimulationBuilder::new(file.scene.clone(), stepper)
+            .build()
+            .unwrap_or_else(|e| panic!("{e}"));
+        let mut driver = NewtonSolver::new(settings.clone());
+        for k in 1..71 {
+            let rec = sim
+                .step(&mut driver)
+                .unwrap_or_else(|e| panic!("step {k}: {e}"));
+            assert!(rec.converged, "step {k} did not converge");
+        }
+        let rec = sim
+            .step(&mut NewtonSolver::new(step_settings))
+            .unwrap_or_else(|e| panic!("step 71: {e}"));
+        assert!(rec.converged, "step 71 did not converge");
+        rec.summary.iterations
+    };
+    let without = step_71(NewtonSettings {
+        budget_grace: None,
+        ..settings.clone()
+    });
+    let with = step_71(settings.clone());
+    println!(
+        "s20270403_087_v_trough step 71: {without} iterations without the grace, {with} with it"
+    );
+    assert!(without >= 30, "without the grace: {without} iterations");
+    assert!(with <= 12, "with the grace: {with} iterations");
 }

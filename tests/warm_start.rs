@@ -214,11 +214,13 @@ impl McpSolver for OneIterationBudget {
 
 /// Newton's defaults with budgets that cap the iterations exactly: without the Josephy–Newton
 /// attempt after a failed budgeted run (`NewtonSettings::josephy_newton`, on by default, which adds
-/// up to its steps and one more budgeted run), so that the driver's protocol and the budget's
+/// up to its steps and one more budgeted run) and the grace of a converging run
+/// (`NewtonSettings::budget_grace`), so that the driver's protocol and the budget's
 /// contract are tested as such.
 fn strict_budget() -> NewtonSettings {
     NewtonSettings {
         josephy_newton: None,
+        budget_grace: None,
         ..NewtonSettings::default()
     }
 }
@@ -339,7 +341,11 @@ fn newton_and_path_honour_an_iteration_budget() {
     // With the Josephy–Newton attempt (the default) a failed budgeted run is followed by its
     // steps and one more budgeted run, each attempt within the budget: here one iteration each,
     // which does not solve the step (one iteration in each system of units at most, per attempt).
-    let mut newton = NewtonSolver::new(NewtonSettings::default());
+    // Without the grace of a converging run, which would finish it (below).
+    let mut newton = NewtonSolver::new(NewtonSettings {
+        budget_grace: None,
+        ..NewtonSettings::default()
+    });
     assert!(newton.set_iteration_budget(Some(1)));
     match sim.solve_step_problem(&mut newton, &z0) {
         Err(SolveError::NotConverged { best }) => {
@@ -347,6 +353,19 @@ fn newton_and_path_honour_an_iteration_budget() {
         }
         other => panic!("newton with the Josephy-Newton attempt: {other:?}"),
     }
+    // With the defaults (`NewtonSettings::budget_grace`): the run that its one iteration leaves
+    // converging at Newton's rate goes on, the unbudgeted run to the bit (fresh solvers: no
+    // LU kept from an earlier solve).
+    let full = sim
+        .solve_step_problem(&mut NewtonSolver::new(NewtonSettings::default()), &z0)
+        .unwrap_or_else(|e| panic!("newton: {e}"));
+    let mut newton = NewtonSolver::new(NewtonSettings::default());
+    assert!(newton.set_iteration_budget(Some(1)));
+    let graced = sim
+        .solve_step_problem(&mut newton, &z0)
+        .unwrap_or_else(|e| panic!("newton with the grace: {e}"));
+    assert_eq!(graced.z, full.z);
+    assert_eq!(graced.summary.iterations, full.summary.iterations);
     // A backend that does not honour budgets says so.
     let mut conic =
         ecp::solvers::conic::ConicSolver::new(ecp::solvers::conic::ConicSettings::default());

@@ -16,8 +16,8 @@
 //! On a system whose `hypot` is another algorithm (glibc < 2.35, musl, macOS), the two may
 //! differ in the last bit; the tests `inline_hypot_*` below would say so.
 //!
-//! Proof by test: [`tests`] compares [`hypot`] with `f64::hypot` bit for bit on 10⁶ pairs (and
-//! 10⁸ in an ignored test) over every exponent range, both signs, zeros, subnormals,
+//! Proof by test: the module's tests compare [`hypot`] with `f64::hypot` bit for bit on 10⁶
+//! pairs (and 10⁸ in an ignored test) over every exponent range, both signs, zeros, subnormals,
 //! infinities, NaNs, the thresholds of each branch and their neighbours, and pairs at the
 //! kernel's branch boundary `h = 2·ay`.
 

@@ -345,6 +345,16 @@ pub struct NewtonSettings {
     /// step that run solves is unchanged. At most `max_iterations` steps, like every attempt.
     /// `None`: off. Default `Some(20)`.
     pub josephy_newton: Option<usize>,
+    /// A budgeted run ([`McpSolver::set_iteration_budget`]) whose plain iteration is converging
+    /// when its budget is spent — its last iteration lowered the best natural residual by this
+    /// factor at least (Newton's local rate, not a stall) — goes on while each iteration keeps
+    /// lowering it by this factor, up to [`NewtonSettings::max_iterations`]. The budget is
+    /// there to give up cheaply on a start that is not working; a run one iteration short of
+    /// converging is working, and stopping it sends the budgeted solve into its Josephy–Newton
+    /// attempt (`s20270403_087_v_trough` step 71: 9 plain iterations against a budget of 8, then
+    /// 56 Lemke runs, 0.95 G instructions; `docs/stress.md`). `None`: the budget caps the run
+    /// exactly. Default `Some(0.1)`.
+    pub budget_grace: Option<f64>,
     /// Solve in the problem's scene scales when it has them ([`ecp_model::solve_in_scales`],
     /// `docs/decisions.md#scene-scaled-convergence`). Off for a caller that judges the result
     /// in the problem's own units (the conic backend's Newton finish). Default `true`.
@@ -475,6 +485,7 @@ impl Default for NewtonSettings {
             structure_reseed: true,
 
             josephy_newton: Some(20),
+            budget_grace: Some(0.1),
             scene_scales: true,
             chord_contraction: Some(1e-3),
             chord_across_solves: Some(1e-2),
@@ -658,6 +669,9 @@ pub struct NewtonSolver {
     in_continuation: bool,
     /// The iteration budget of the next solves ([`McpSolver::set_iteration_budget`]).
     budget: Option<usize>,
+    /// While the budgeted run's plain iteration runs: the full limit up to which it may go on
+    /// past its budget while converging ([`NewtonSettings::budget_grace`]).
+    grace_limit: Option<usize>,
     /// The next solves' starts are predictions ([`McpSolver::set_start_predicted`]).
     start_predicted: bool,
     /// `linear` holds the LU of an `H` formed at `Workspace::z_lu` by the last solve, which
@@ -727,6 +741,7 @@ impl NewtonSolver {
             min_norm_kept: 0,
             in_continuation: false,
             budget: None,
+            grace_limit: None,
             start_predicted: false,
             kept_lu: false,
             kept_lu_gate: KeptLuGate::default(),
@@ -1653,7 +1668,9 @@ impl NewtonSolver {
         let limit = self.settings.max_iterations;
         self.settings.max_iterations = budget.min(limit);
         self.attempt = 0;
+        self.grace_limit = self.settings.budget_grace.map(|_| limit);
         let mut result = self.solve_once(mcp, z0);
+        self.grace_limit = None;
         if let Err(SolveError::NotConverged { best }) = &result
             && let Some(steps) = self.settings.josephy_newton
         {
@@ -1933,6 +1950,10 @@ impl NewtonSolver {
         // ends converged on an LU of its own keeps one for the next.
         let kept = std::mem::take(&mut self.kept_lu);
         let s = self.settings.clone();
+        // The full limit and factor of a budgeted run's grace (`NewtonSettings::budget_grace`),
+        // and that limit once the run went past its budget (the rate test's iterations left).
+        let grace = self.grace_limit.zip(s.budget_grace);
+        let mut grace_cap: Option<usize> = None;
         let n = mcp.dim();
         let (l, u) = (mcp.lower(), mcp.upper());
         let pattern = mcp.jacobian_pattern().clone();
@@ -2121,7 +2142,8 @@ impl NewtonSolver {
                 let unproven =
                     iterations == 0 && self.start_predicted && !at_round_off(residual, &ws.z);
                 if polishing || (residual <= s.polish_below * s.tolerance && !unproven) {
-                    if !last_chord || chord_polished || iterations >= s.max_iterations {
+                    let cap = grace_cap.unwrap_or(s.max_iterations);
+                    if !last_chord || chord_polished || iterations >= cap {
                         termination = Termination::Converged;
                         break;
                     }
@@ -2142,7 +2164,17 @@ impl NewtonSolver {
                 polishing = true;
             }
             if iterations >= s.max_iterations {
-                break;
+                // A budgeted run past its budget goes on while converging
+                // (`NewtonSettings::budget_grace`): below the full limit, its last iteration
+                // having lowered the best natural residual by the grace factor.
+                let h = &ws.best_history;
+                let converging = grace.is_some_and(|(limit, kappa)| {
+                    iterations < limit && h.len() >= 2 && h[h.len() - 1] <= kappa * h[h.len() - 2]
+                });
+                if !converging {
+                    break;
+                }
+                grace_cap = grace.map(|(limit, _)| limit);
             }
             let mut accepted = None;
             // A chord step on the kept LU (`NewtonSettings::chord_contraction`): kept when it
@@ -2779,7 +2811,9 @@ impl NewtonSolver {
                 let rate = (best_residual / ws.best_history[counted - s.stall_window]).ln()
                     / s.stall_window as f64;
                 let needed = (s.tolerance / best_residual).ln() / rate;
-                let left = s.max_iterations.saturating_sub(iterations);
+                let left = grace_cap
+                    .unwrap_or(s.max_iterations)
+                    .saturating_sub(iterations);
                 if needed > RATE_TEST_MARGIN * left as f64 {
                     termination = Termination::Stagnated;
                     break;
@@ -3621,9 +3655,11 @@ mod tests {
     #[test]
     fn a_budget_counts_chord_steps_as_iterations() {
         let (_, start) = smooth_three_start();
-        // Without the Josephy–Newton attempt after a failed budgeted run, which would solve it.
+        // Without the Josephy–Newton attempt after a failed budgeted run, which would solve it,
+        // and without the grace of a converging run (`budget_grace`), which would finish it.
         let mut solver = NewtonSolver::new(NewtonSettings {
             josephy_newton: None,
+            budget_grace: None,
             ..NewtonSettings::default()
         });
         let full = solver
@@ -3652,6 +3688,41 @@ mod tests {
             .unwrap_or_else(|e| panic!("{e}"));
         assert_eq!(within.z, full.z);
         assert_eq!(within.summary.iterations, full.summary.iterations);
+    }
+
+    #[test]
+    fn a_converging_budgeted_run_finishes_past_its_budget() {
+        // `budget_grace`: a budgeted run cut while Newton's rate holds goes on to the
+        // unbudgeted run's point, bit for bit (the same iterations); without the grace (and
+        // the Josephy–Newton attempt) it fails at its budget.
+        let (_, start) = smooth_three_start();
+        let settings = NewtonSettings {
+            josephy_newton: None,
+            ..NewtonSettings::default()
+        };
+        let mut solver = NewtonSolver::new(settings.clone());
+        let full = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        // One iteration: two short of the run's end (the last the polish).
+        let budget = 1;
+        assert!(full.summary.iterations >= 3, "{:?}", full.summary);
+        assert!(solver.set_iteration_budget(Some(budget)));
+        let graced = solver
+            .solve(&smooth_three(), &start)
+            .unwrap_or_else(|e| panic!("{e}"));
+        assert_eq!(graced.z, full.z);
+        assert_eq!(graced.summary.iterations, full.summary.iterations);
+        let mut strict = NewtonSolver::new(NewtonSettings {
+            budget_grace: None,
+            ..settings
+        });
+        assert!(strict.set_iteration_budget(Some(budget)));
+        let cut = strict.solve(&smooth_three(), &start);
+        assert!(
+            matches!(&cut, Err(SolveError::NotConverged { best }) if best.summary.iterations <= budget),
+            "{cut:?}"
+        );
     }
 
     #[test]

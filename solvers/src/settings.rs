@@ -152,6 +152,9 @@ impl NewtonSettings {
         if let Some(ulps) = self.chord_round_off_floor {
             c.positive("chord_round_off_floor", ulps)?;
         }
+        if let Some(factor) = self.budget_grace {
+            c.fraction("budget_grace", factor)?;
+        }
         if let Some(fraction) = self.fast_full_step {
             c.fraction("fast_full_step", fraction)?;
         }
