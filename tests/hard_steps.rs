@@ -1603,6 +1603,8 @@ fn conic_v_trough_s20270410_048_step_253_unanchored_pass() {
             assert!((w.y - 0.445_063_937_951).abs() <= 1e-7, "w_y {}", w.y);
         }
     }
+}
+
 /// `s20270403_087_v_trough` step 71 (the held-out seed 20270403; a box of 17.9 kg, μ = 0.24,
 /// h = 6 ms, sliding along a trough of 25° and 49°; 49 unknowns) as the default simulation's
 /// step solves it (extrapolated warm start, start budgets): the extrapolated start's budget is
