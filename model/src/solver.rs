@@ -326,7 +326,8 @@ pub trait McpSolver {
     /// A solve that converges within the budget gives the same point as without it. (The Newton
     /// backend with `NewtonSettings::josephy_newton` on, its default, follows a failed budgeted
     /// run with at most `budget` Josephy–Newton steps and one more budgeted run from their end:
-    /// `docs/newton.md#josephy-newton-steps`.) Returns whether the backend honours budgets; the
+    /// `docs/newton.md#josephy-newton-steps`; and a run still converging fast when its budget
+    /// is spent goes on while it does, `NewtonSettings::budget_grace`.) Returns whether the backend honours budgets; the
     /// default does not (and ignores `budget`).
     fn set_iteration_budget(&mut self, budget: Option<usize>) -> bool {
         let _ = budget;
