@@ -6,7 +6,9 @@
 use std::ops::RangeBounds;
 use std::path::{Path, PathBuf};
 
-use ecp::formulations::{FormulationRegistry, Simulation, SimulationBuilder, WarmStart};
+use ecp::formulations::{
+    FormulationRegistry, Simulation, SimulationBuilder, StepRecord, WarmStart,
+};
 use ecp::model::{Counter, Mcp, McpSolver, ScaledMcp, Solution, SolveError, natural_residual};
 use ecp::scene::load_scene;
 use ecp::solvers::conic::{ConicSettings, ConicSolver};
@@ -1479,6 +1481,59 @@ fn newton_union_tip_s20270320_070_step_97_structure_reseed() {
     );
 }
 
+/// The conic backend alone on `scene`'s step `step` after the default simulation up to it: without
+/// the unanchored pass (`ConicSettings::unanchored_retry`) the step fails; with it the step takes
+/// one unanchored pass and converges, as do the next five. Returns the step's record for the
+/// caller's comparison with PATH's and Newton's step.
+fn unanchored_pass_cures(scene: &str, step: usize) -> StepRecord {
+    let path = regression_scene(scene);
+    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
+    let conic = |unanchored_retry| {
+        ConicSolver::new(ConicSettings {
+            tolerance,
+            unanchored_retry,
+            ..ConicSettings::default()
+        })
+    };
+    let mut sim = at_default_step(&path, &mut conic(true), step);
+    let without = sim
+        .step(&mut conic(false))
+        .unwrap_or_else(|e| panic!("{e}"));
+    println!(
+        "conic {scene} step {step} without the unanchored pass: converged {}, residual {:e}",
+        without.converged, without.summary.residual
+    );
+    assert!(
+        !without.converged && without.summary.residual > 10.0 * tolerance,
+        "without the unanchored pass step {step} converged ({:e}): the test's premise is gone",
+        without.summary.residual
+    );
+    let mut sim = at_default_step(&path, &mut conic(true), step);
+    let mut solver = conic(true);
+    let mut first = None;
+    for k in step..=step + 5 {
+        let rec = sim
+            .step(&mut solver)
+            .unwrap_or_else(|e| panic!("step {k}: {e}"));
+        assert!(
+            rec.converged && rec.summary.residual <= tolerance,
+            "step {k}: converged {}, residual {:e}",
+            rec.converged,
+            rec.summary.residual
+        );
+        if k == step {
+            assert_eq!(
+                rec.summary
+                    .counters
+                    .get(Counter::Custom("unanchored_passes")),
+                Some(1)
+            );
+            first = Some(rec);
+        }
+    }
+    first.unwrap_or_else(|| panic!("step {step} was not taken"))
+}
+
 /// `s20270327_137_corner_wall` step 33 (the held-out seed 20270327; a point set of μ = 0.9
 /// sliding at 1.5 m/s into the wall, h = 3 ms) with the conic backend alone: a vertex jams in
 /// the corner of floor and wall, and the floor's and the wall's loads go from 0.16 and 0.13 to
@@ -1490,55 +1545,13 @@ fn newton_union_tip_s20270320_070_step_97_structure_reseed() {
 /// more QPs to Newton's and PATH's step 33, and the next five steps converge too.
 #[test]
 fn conic_corner_wall_s20270327_137_step_33_unanchored_pass() {
-    let path = regression_scene("s20270327_137_corner_wall");
-    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
-    let conic = |unanchored_retry| {
-        ConicSolver::new(ConicSettings {
-            tolerance,
-            unanchored_retry,
-            ..ConicSettings::default()
-        })
-    };
-    let mut sim = at_default_step(&path, &mut conic(true), 33);
-    let without = sim
-        .step(&mut conic(false))
-        .unwrap_or_else(|e| panic!("{e}"));
-    println!(
-        "conic s20270327_137_corner_wall step 33 without the unanchored pass: converged {}, residual {:e}",
-        without.converged, without.summary.residual
-    );
-    assert!(
-        !without.converged && without.summary.residual > 10.0 * tolerance,
-        "without the unanchored pass step 33 converged ({:e}): the test's premise is gone",
-        without.summary.residual
-    );
-    let mut sim = at_default_step(&path, &mut conic(true), 33);
-    let mut solver = conic(true);
-    for k in 33..=38 {
-        let rec = sim
-            .step(&mut solver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(
-            rec.converged && rec.summary.residual <= tolerance,
-            "step {k}: converged {}, residual {:e}",
-            rec.converged,
-            rec.summary.residual
-        );
-        if k == 33 {
-            assert_eq!(
-                rec.summary
-                    .counters
-                    .get(Counter::Custom("unanchored_passes")),
-                Some(1)
-            );
-            // PATH's and Newton's step 33 (stress --seed 20270327 on main e674d7c, 4e-14 apart):
-            // the state before the step differs from theirs by up to 2.6e-9 (measured: v 1e-10,
-            // the loads 1.4e-7 apart).
-            let v = rec.bodies[0].v;
-            assert!((v.x - 0.237_007_884_770).abs() <= 1e-8, "v_x {}", v.x);
-            assert!((v.z - 0.571_901_095_883).abs() <= 1e-8, "v_z {}", v.z);
-        }
-    }
+    let rec = unanchored_pass_cures("s20270327_137_corner_wall", 33);
+    // PATH's and Newton's step 33 (stress --seed 20270327 on main e674d7c, 4e-14 apart): the
+    // state before the step differs from theirs by up to 2.6e-9 (measured: v 1e-10, the loads
+    // 1.4e-7 apart).
+    let v = rec.bodies[0].v;
+    assert!((v.x - 0.237_007_884_770).abs() <= 1e-8, "v_x {}", v.x);
+    assert!((v.z - 0.571_901_095_883).abs() <= 1e-8, "v_z {}", v.z);
 }
 
 /// `s20270410_048_v_trough` step 253 (the held-out seed 20270410; a box of μ = 0.28 sliding down
@@ -1553,56 +1566,14 @@ fn conic_corner_wall_s20270327_137_step_33_unanchored_pass() {
 /// converges to Newton's and PATH's step 253, and the next five steps converge too.
 #[test]
 fn conic_v_trough_s20270410_048_step_253_unanchored_pass() {
-    let path = regression_scene("s20270410_048_v_trough");
-    let tolerance = scene_tolerance(&path).unwrap_or(1e-10);
-    let conic = |unanchored_retry| {
-        ConicSolver::new(ConicSettings {
-            tolerance,
-            unanchored_retry,
-            ..ConicSettings::default()
-        })
-    };
-    let mut sim = at_default_step(&path, &mut conic(true), 253);
-    let without = sim
-        .step(&mut conic(false))
-        .unwrap_or_else(|e| panic!("{e}"));
-    println!(
-        "conic s20270410_048_v_trough step 253 without the unanchored pass: converged {}, residual {:e}",
-        without.converged, without.summary.residual
-    );
-    assert!(
-        !without.converged && without.summary.residual > 10.0 * tolerance,
-        "without the unanchored pass step 253 converged ({:e}): the test's premise is gone",
-        without.summary.residual
-    );
-    let mut sim = at_default_step(&path, &mut conic(true), 253);
-    let mut solver = conic(true);
-    for k in 253..=258 {
-        let rec = sim
-            .step(&mut solver)
-            .unwrap_or_else(|e| panic!("step {k}: {e}"));
-        assert!(
-            rec.converged && rec.summary.residual <= tolerance,
-            "step {k}: converged {}, residual {:e}",
-            rec.converged,
-            rec.summary.residual
-        );
-        if k == 253 {
-            assert_eq!(
-                rec.summary
-                    .counters
-                    .get(Counter::Custom("unanchored_passes")),
-                Some(1)
-            );
-            // PATH's step 253 (stress --seed 20270410 on main e674d7c; Newton's within 3e-13):
-            // the conic state before the step differs from PATH's by up to 2.4e-7 (the spin),
-            // measured here: v_x 2.2e-10, v_z 8e-11, ω_y 3.6e-9 apart.
-            let (v, w) = (rec.bodies[0].v, rec.bodies[0].w);
-            assert!((v.x - 0.026_457_219_165).abs() <= 1e-8, "v_x {}", v.x);
-            assert!((v.z - 0.010_590_152_983).abs() <= 1e-8, "v_z {}", v.z);
-            assert!((w.y - 0.445_063_937_951).abs() <= 1e-7, "w_y {}", w.y);
-        }
-    }
+    let rec = unanchored_pass_cures("s20270410_048_v_trough", 253);
+    // PATH's step 253 (stress --seed 20270410 on main e674d7c; Newton's within 3e-13): the conic
+    // state before the step differs from PATH's by up to 2.4e-7 (the spin), measured here: v_x
+    // 2.2e-10, v_z 8e-11, ω_y 3.6e-9 apart.
+    let (v, w) = (rec.bodies[0].v, rec.bodies[0].w);
+    assert!((v.x - 0.026_457_219_165).abs() <= 1e-8, "v_x {}", v.x);
+    assert!((v.z - 0.010_590_152_983).abs() <= 1e-8, "v_z {}", v.z);
+    assert!((w.y - 0.445_063_937_951).abs() <= 1e-7, "w_y {}", w.y);
 }
 
 /// `s20270403_087_v_trough` step 71 (the held-out seed 20270403; a box of 17.9 kg, μ = 0.24,
