@@ -457,6 +457,17 @@ mod tests {
     use crate::geometry::Shape;
     use crate::rotation::{quat_from_rpy_deg, rotation_matrix};
 
+    /// Uniform numbers in [−0.5, 0.5) from a 64-bit LCG seeded with `seed` (the tests' random
+    /// point sets, reproducible).
+    fn uniform_centred(mut seed: u64) -> impl FnMut() -> f64 {
+        move || {
+            seed = seed
+                .wrapping_mul(6364136223846793005)
+                .wrapping_add(1442695040888963407);
+            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
+        }
+    }
+
     const TOL: f64 = 1e-7;
 
     /// Mode of `shape` at orientation (roll, pitch, yaw) in degrees, lowered
@@ -631,13 +642,7 @@ mod tests {
                 .map(|p| [p.x.to_bits(), p.y.to_bits(), p.z.to_bits()])
                 .collect()
         }
-        let mut seed = 11u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform_centred(11);
         let planes = [
             HalfSpace::ground(),
             HalfSpace::incline(0.3).expect("finite angle"),
@@ -730,13 +735,7 @@ mod tests {
     /// and tolerances 1e-7, 0, −1 and NaN.
     #[test]
     fn three_points_decide_a_patch_as_the_full_test() {
-        let mut seed = 5u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform_centred(5);
         let mut modes = [0usize; 4];
         for case in 0..4000 {
             let scale = [1e-9, 1e-3, 1.0, 1e6][case % 4];
@@ -803,13 +802,7 @@ mod tests {
                 ContactMode::Patch
             }
         }
-        let mut seed = 7u64;
-        let mut next = || {
-            seed = seed
-                .wrapping_mul(6364136223846793005)
-                .wrapping_add(1442695040888963407);
-            (seed >> 11) as f64 / (1u64 << 53) as f64 - 0.5
-        };
+        let mut next = uniform_centred(7);
         let mut modes = [0usize; 4];
         for case in 0..400 {
             let off = [0.0, 5e-8, 2e-7, 0.3][case % 4];
